@@ -1,0 +1,10 @@
+// marionette._core: the C++ side of marionette as a Python extension.
+// Bindings only; the logic lives in the libraries under cpp/src.
+#include <pybind11/pybind11.h>
+
+namespace py = pybind11;
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "marionette C++ core (dynamic graph, solver, simulation) for Python";
+  m.attr("__version__") = MARIONETTE_VERSION;
+}
