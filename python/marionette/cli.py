@@ -1,22 +1,42 @@
-"""The ``marionette`` command: one entry point, one sub-command per process or tool."""
+"""The ``marionette`` command: one entry point, one sub-command per process or tool.
+
+Each sub-command lives with the code it drives, in a module exposing
+``register(subparsers)``, which adds its parser and sets ``func`` (args -> exit code).
+Add a command by adding its module to ``COMMAND_MODULES``.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
+
+COMMAND_MODULES: list[str] = [
+]
+
+
+def _version(args: argparse.Namespace) -> int:
+    import marionette
+
+    print(marionette.__version__)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="marionette",
+        description="Plan manipulation and walking with a constraint graph; execute it at 1 kHz.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub.add_parser("version", help="print the version").set_defaults(func=_version)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="marionette", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("version", help="print the version")
-    args = parser.parse_args(argv)
-    if args.command == "version":
-        import marionette
-
-        print(marionette.__version__)
-        return 0
-    return 2
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
 
 
 if __name__ == "__main__":
