@@ -1,0 +1,125 @@
+"""Start and stop the processes of a run (controller, planners, perception, logger) as a group.
+
+Every process gets the same private LCM URL through ``MARIONETTE_LCM_URL``, writes its output to
+``<log_dir>/<name>.log``, and is stopped (SIGINT, then SIGKILL after a grace period) when the group
+closes, whatever happened in between — a demo or a test never leaves a process behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import marionette
+
+
+class ProcessError(RuntimeError):
+    """A process of the group could not start or died while it was needed."""
+
+
+@dataclass
+class ManagedProcess:
+    name: str
+    argv: list[str]
+    log_path: Path
+    popen: subprocess.Popen
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def log_tail(self, lines: int = 20) -> str:
+        try:
+            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return "(no log)"
+
+
+@dataclass
+class ProcessGroup:
+    """Processes sharing one LCM URL; use as a context manager."""
+
+    lcm_url: str
+    log_dir: Path
+    env: dict[str, str] = field(default_factory=dict)
+    processes: list[ManagedProcess] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.log_dir = Path(self.log_dir)
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+
+    def environment(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env.update(self.env)
+        env["MARIONETTE_LCM_URL"] = self.lcm_url
+        env["MARIONETTE_BUILD_DIR"] = str(marionette.BUILD_DIR)
+        env.setdefault("EGL_PLATFORM", "surfaceless")
+        return env
+
+    def start(self, name: str, argv: Sequence[str], cwd: Path | None = None) -> ManagedProcess:
+        """Starts ``argv`` with its output in ``<log_dir>/<name>.log``."""
+        log_path = self.log_dir / f"{name}.log"
+        log = open(log_path, "w")  # noqa: SIM115  (closed with the process)
+        try:
+            popen = subprocess.Popen(
+                list(map(str, argv)),
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env=self.environment(),
+                cwd=str(cwd or marionette.REPO_ROOT),
+                start_new_session=True,  # our signals reach it, a terminal's Ctrl-C does not twice
+            )
+        except OSError as exc:
+            log.close()
+            raise ProcessError(f"cannot start {name} ({argv[0]}): {exc}") from exc
+        proc = ManagedProcess(name, list(map(str, argv)), log_path, popen)
+        self.processes.append(proc)
+        return proc
+
+    def check_alive(self) -> None:
+        """Raises ProcessError naming the first process that exited, with its log's tail."""
+        for p in self.processes:
+            if not p.alive():
+                raise ProcessError(
+                    f"{p.name} exited with code {p.popen.returncode}; last lines of "
+                    f"{p.log_path}:\n{p.log_tail()}"
+                )
+
+    def stop(self, name: str, timeout_s: float = 5.0) -> int | None:
+        """Stops one process (SIGINT, then SIGKILL); returns its exit code."""
+        for p in self.processes:
+            if p.name == name:
+                return _stop(p, timeout_s)
+        raise KeyError(name)
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        for p in reversed(self.processes):
+            _stop(p, timeout_s)
+
+    def __enter__(self) -> "ProcessGroup":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _stop(p: ManagedProcess, timeout_s: float) -> int | None:
+    if p.alive():
+        try:
+            os.killpg(p.popen.pid, signal.SIGINT)
+        except ProcessLookupError:
+            pass
+        deadline = time.monotonic() + timeout_s
+        while p.alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if p.alive():
+            try:
+                os.killpg(p.popen.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p.popen.wait(timeout=5.0)
+    return p.popen.returncode
