@@ -1,0 +1,493 @@
+"""Manipulation problem: robots, objects and environment in one Pinocchio configuration space.
+
+Thesis §3.2.1: CS = CS_robot1 x ... x CS_object1 x ...  Every model is loaded from URDF with its
+names prefixed ``<name>/`` (as HPP does), robots first, then free-flying objects, then the fixed
+environment, so q = (q_robots, q_objects) and the layout is the one HPP uses.  Grippers, handles
+and contact surfaces are read from HPP-style SRDF tags (``<gripper>``, ``<handle>``,
+``<contact>``) or given inline in the problem YAML; they become Pinocchio frames of the model.
+
+A problem file (YAML) names the models and the query; see ``bench/ur5_box/problem.yaml``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+import yaml
+
+
+class ProblemError(ValueError):
+    """A problem description that cannot be built (missing file, unknown name, bad value)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Gripper:
+    """A gripper frame (HPP: the point that grasps). Its x axis is the approach axis.
+
+    ``frame_id`` is a Pinocchio frame of the problem model; ``clearance`` [m] is the gripper's
+    share of the pre-grasp distance.
+    """
+
+    name: str
+    frame_id: int
+    joint_id: int
+    clearance: float
+
+
+@dataclasses.dataclass(frozen=True)
+class Handle:
+    """A handle frame on an object (HPP). Grasp: gripper frame == handle frame on the ``mask`` rows.
+
+    ``mask`` selects rows of the (translation, rotation) error; a handle symmetric about its
+    approach axis x leaves rotation about x free: mask (1,1,1,0,1,1).  ``approach`` is the unit
+    approach axis in the handle frame (HPP: x); the pre-grasp puts the gripper
+    ``clearance + gripper.clearance`` metres back along it.
+    """
+
+    name: str
+    object: str
+    frame_id: int
+    joint_id: int
+    clearance: float
+    mask: tuple[bool, ...] = (True,) * 6
+    approach: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class ContactSurface:
+    """A planar convex polygon on a body: placements put an object surface on an environment one.
+
+    ``M_JS``: pose of the surface frame S in its joint's frame; S's origin is the polygon
+    centroid and its z axis the outward normal (points given counter-clockwise seen from
+    outside, as HPP's ``<contact>``).  ``polygon_S`` (k x 2): vertices in S's xy plane.
+    ``owner`` is the object name, or None for the environment.
+    """
+
+    name: str
+    owner: str | None
+    joint_id: int
+    M_JS: pin.SE3
+    polygon_S: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ObjectInfo:
+    """A free-flying object: its root joint and index ranges in q (7) and v (6)."""
+
+    name: str
+    joint_id: int
+    idx_q: int
+    idx_v: int
+    handles: tuple[str, ...]
+    contacts: tuple[str, ...]
+
+
+@dataclasses.dataclass
+class ManipulationProblem:
+    """Model + data layout of a manipulation problem; immutable after :func:`load_problem`.
+
+    ``model``/``geom_model``: the combined Pinocchio models; ``lower``/``upper`` (nq): sampling
+    bounds (quaternion components are not bounded); ``q_init``/``q_goal`` (nq).
+    """
+
+    name: str
+    model: pin.Model
+    geom_model: pin.GeometryModel
+    grippers: dict[str, Gripper]
+    handles: dict[str, Handle]
+    contacts: dict[str, ContactSurface]
+    objects: dict[str, ObjectInfo]
+    environment_contacts: tuple[str, ...]
+    lower: np.ndarray
+    upper: np.ndarray
+    q_init: np.ndarray
+    q_goal: np.ndarray | None
+    robot_names: tuple[str, ...]
+    settings: dict[str, Any]
+    source: Path | None = None
+    robot_joint_ids: tuple[int, ...] = ()
+    freeflyer_idx_q: tuple[int, ...] = ()
+
+    @property
+    def nq(self) -> int:
+        return self.model.nq
+
+    @property
+    def nv(self) -> int:
+        return self.model.nv
+
+    def create_data(self) -> tuple[pin.Data, pin.GeometryData]:
+        """Fresh (Data, GeometryData) for one thread of computation (Model/Data split)."""
+        return self.model.createData(), pin.GeometryData(self.geom_model)
+
+    def frame_id(self, name: str) -> int:
+        if not self.model.existFrame(name):
+            raise ProblemError(f"no frame '{name}' in problem '{self.name}'")
+        return self.model.getFrameId(name)
+
+    def joint_names(self) -> list[str]:
+        return list(self.model.names)[1:]
+
+    def configuration_layout(self) -> list[str]:
+        """One label per q entry: joint names, and '<joint>.x' ... '<joint>.qw' for free-flyers."""
+        labels: list[str] = []
+        for jid in range(1, self.model.njoints):
+            j = self.model.joints[jid]
+            name = self.model.names[jid]
+            if j.nq == 1:
+                labels.append(name)
+            elif j.nq == 7:
+                labels += [f"{name}.{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
+            else:
+                labels += [f"{name}[{i}]" for i in range(j.nq)]
+        return labels
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading
+
+
+def _resolve(path: str, base: Path) -> Path:
+    """``package://example-robot-data/...`` or a path relative to the problem file."""
+    if path.startswith("package://"):
+        rest = path[len("package://"):]
+        for share in _package_dirs():
+            candidate = Path(share) / rest
+            if candidate.exists():
+                return candidate
+        raise ProblemError(f"cannot resolve {path} in {_package_dirs()}")
+    p = Path(path)
+    if not p.is_absolute():
+        p = base / p
+    if not p.exists():
+        raise ProblemError(f"file not found: {p}")
+    return p
+
+
+def _package_dirs() -> list[str]:
+    prefix = Path(pin.__file__).resolve()
+    for parent in prefix.parents:
+        share = parent / "share"
+        if (share / "example-robot-data").is_dir():
+            return [str(share)]
+    raise ProblemError("example-robot-data share folder not found")
+
+
+def _prefixed_urdf(urdf: Path, prefix: str) -> str:
+    """URDF text with every link/joint name prefixed ``prefix/`` and mesh paths made absolute."""
+    tree = ET.parse(urdf)
+    root = tree.getroot()
+    for tag in ("link", "joint"):
+        for el in root.iter(tag):
+            if "name" in el.attrib and el in list(root):
+                el.attrib["name"] = f"{prefix}/{el.attrib['name']}"
+    for el in root.iter():
+        if el.tag in ("parent", "child") and "link" in el.attrib:
+            el.attrib["link"] = f"{prefix}/{el.attrib['link']}"
+        if el.tag == "mimic" and "joint" in el.attrib:
+            el.attrib["joint"] = f"{prefix}/{el.attrib['joint']}"
+        if el.tag == "mesh" and "filename" in el.attrib:
+            fn = el.attrib["filename"]
+            if not fn.startswith("package://") and not Path(fn).is_absolute():
+                el.attrib["filename"] = str((urdf.parent / fn).resolve())
+    root.attrib["name"] = prefix
+    return ET.tostring(root, encoding="unicode")
+
+
+def _pose_from_xml(el: ET.Element) -> pin.SE3:
+    """HPP SRDF pose: ``<position xyz= wxyz=/>`` or text ``x y z qw qx qy qz``."""
+    if "xyz" in el.attrib or "wxyz" in el.attrib or "rpy" in el.attrib:
+        xyz = [float(v) for v in el.attrib.get("xyz", "0 0 0").split()]
+        if "wxyz" in el.attrib:
+            w, x, y, z = (float(v) for v in el.attrib["wxyz"].split())
+            R = pin.Quaternion(w, x, y, z).normalized().toRotationMatrix()
+        elif "rpy" in el.attrib:
+            R = pin.rpy.rpyToMatrix(*(float(v) for v in el.attrib["rpy"].split()))
+        else:
+            R = np.eye(3)
+        return pin.SE3(R, np.array(xyz))
+    vals = [float(v) for v in (el.text or "").split()]
+    if len(vals) != 7:
+        raise ProblemError(f"<position> needs 7 numbers 'x y z qw qx qy qz', got {vals}")
+    w, x, y, z = vals[3:]
+    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().toRotationMatrix(), np.array(vals[:3]))
+
+
+@dataclasses.dataclass
+class _SrdfInfo:
+    grippers: list[tuple[str, str, pin.SE3, float]]          # name, link, pose in link, clearance
+    handles: list[tuple[str, str, pin.SE3, float, tuple[bool, ...], tuple[float, float, float]]]
+    contacts: list[tuple[str, str, np.ndarray]]             # name, link, points (k x 3) in link
+    disabled: list[tuple[str, str]]
+
+
+def _parse_srdf(path: Path) -> _SrdfInfo:
+    root = ET.parse(path).getroot()
+    info = _SrdfInfo([], [], [], [])
+    for g in root.iter("gripper"):
+        link = g.find("link").attrib["name"]
+        info.grippers.append((g.attrib["name"], link, _pose_from_xml(g.find("position")),
+                              float(g.attrib.get("clearance", 0.0))))
+    for h in root.iter("handle"):
+        link = h.find("link").attrib["name"]
+        mask = tuple(True for _ in range(6))
+        m = h.find("mask")
+        if m is not None:
+            mask = tuple(bool(int(v)) for v in m.text.split())
+        approach = (1.0, 0.0, 0.0)
+        a = h.find("approaching_direction")
+        if a is not None:
+            approach = tuple(float(v) for v in a.attrib["xyz"].split())
+        info.handles.append((h.attrib["name"], link, _pose_from_xml(h.find("position")),
+                             float(h.attrib.get("clearance", 0.0)), mask, approach))
+    for c in root.iter("contact"):
+        link = c.find("link").attrib["name"]
+        pts = np.array([float(v) for v in c.find("point").text.split()]).reshape(-1, 3)
+        shape = c.find("shape")
+        if shape is not None:
+            idx = [int(v) for v in shape.text.split()]
+            pts = pts[idx[1:1 + idx[0]]]
+        info.contacts.append((c.attrib["name"], link, pts))
+    for d in root.iter("disable_collisions"):
+        info.disabled.append((d.attrib["link1"], d.attrib["link2"]))
+    return info
+
+
+def polygon_frame(points: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
+    """Frame S of a planar polygon (origin: centroid, z: outward normal by the right-hand rule,
+    x: towards the first vertex) and its vertices (k x 2) in S's xy plane."""
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 3:
+        raise ProblemError(f"a contact polygon needs >= 3 points (k x 3), got shape {pts.shape}")
+    c = pts.mean(axis=0)
+    n = np.zeros(3)
+    for i in range(len(pts)):  # Newell's normal: robust for any planar polygon
+        a, b = pts[i] - c, pts[(i + 1) % len(pts)] - c
+        n += np.cross(a, b)
+    if np.linalg.norm(n) < 1e-12:
+        raise ProblemError("degenerate contact polygon (zero area)")
+    z = n / np.linalg.norm(n)
+    x = pts[0] - c
+    x -= z * x.dot(z)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z])
+    M = pin.SE3(R, c)
+    local = (pts - c) @ R
+    if np.max(np.abs(local[:, 2])) > 1e-6:
+        raise ProblemError("contact polygon points are not coplanar")
+    return M, local[:, :2].copy()
+
+
+def _load_yaml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path) as f:
+            data = yaml.safe_load(f)
+    except OSError as e:
+        raise ProblemError(f"cannot read problem file {path}: {e}") from e
+    if not isinstance(data, dict):
+        raise ProblemError(f"{path}: a problem file is a YAML mapping")
+    return data
+
+
+def load_problem(path: str | Path) -> ManipulationProblem:
+    """Build a :class:`ManipulationProblem` from a YAML problem file."""
+    path = Path(path).resolve()
+    return build_problem(_load_yaml(path), base=path.parent, source=path)
+
+
+def _pose7(v: Any, what: str) -> pin.SE3:
+    a = np.asarray(v, dtype=float)
+    if a.shape != (7,):
+        raise ProblemError(f"{what}: a pose is [x, y, z, qx, qy, qz, qw], got {v}")
+    return pin.XYZQUATToSE3(a)
+
+
+def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) -> ManipulationProblem:
+    """Build the problem from an already parsed description (see :func:`load_problem`)."""
+    for key in ("name", "robots"):
+        if key not in desc:
+            raise ProblemError(f"problem description misses '{key}'")
+    model = pin.Model()
+    geom = pin.GeometryModel()
+    disabled: set[frozenset[str]] = set()
+    srdf_infos: list[tuple[str, _SrdfInfo]] = []
+    robot_names = []
+    robot_joint_ids: list[int] = []
+    joint_bounds: dict[str, tuple[float, float]] = {}
+
+    def append(name: str, entry: dict[str, Any], root: str) -> None:
+        nonlocal model, geom
+        urdf = _resolve(entry["urdf"], base)
+        xml = _prefixed_urdf(urdf, name)
+        if root == "freeflyer":
+            sub = pin.buildModelFromXML(xml, pin.JointModelFreeFlyer(), f"{name}/root_joint")
+        elif root == "fixed":
+            sub = pin.buildModelFromXML(xml)
+        else:
+            raise ProblemError(f"{name}: root_joint must be 'fixed' or 'freeflyer', got {root}")
+        sub_geom = pin.buildGeomFromUrdfString(sub, xml, pin.GeometryType.COLLISION,
+                                               package_dirs=_package_dirs())
+        pose = _pose7(entry.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{name}.pose")
+        if model.njoints == 1 and model.nframes <= 1:
+            # First model: keep it as is (frame 0 = universe), placed at `pose`.
+            if not pose.isIdentity():
+                if root == "freeflyer":
+                    raise ProblemError(f"{name}: a free-flyer root takes its pose from q, not 'pose'")
+                model_, geom_ = pin.appendModel(pin.Model(), sub, pin.GeometryModel(), sub_geom, 0, pose)
+                model, geom = model_, geom_
+            else:
+                model, geom = sub, sub_geom
+        else:
+            model, geom = pin.appendModel(model, sub, geom, sub_geom, 0, pose)
+        if "srdf" in entry:
+            srdf_infos.append((name, _parse_srdf(_resolve(entry["srdf"], base))))
+
+    for r in desc["robots"]:
+        name = r["name"]
+        before = model.njoints
+        append(name, r, r.get("root_joint", "fixed"))
+        robot_names.append(name)
+        robot_joint_ids.extend(range(before, model.njoints))
+        for jn, b in (r.get("joint_bounds") or {}).items():
+            joint_bounds[f"{name}/{jn}"] = (float(b[0]), float(b[1]))
+    object_entries = desc.get("objects", []) or []
+    for o in object_entries:
+        append(o["name"], o, "freeflyer")
+    for e in desc.get("environment", []) or []:
+        append(e["name"], e, "fixed")
+
+    # Grippers, handles, contacts become frames / surfaces of the combined model.
+    grippers: dict[str, Gripper] = {}
+    handles_raw: list[tuple[str, str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]]] = []
+    contacts: dict[str, ContactSurface] = {}
+    for owner, info in srdf_infos:
+        for a, b in info.disabled:
+            disabled.add(frozenset((f"{owner}/{a}", f"{owner}/{b}")))
+        for gname, link, M_LG, clearance in info.grippers:
+            lf = model.getFrameId(f"{owner}/{link}")
+            if lf >= model.nframes:
+                raise ProblemError(f"gripper {owner}/{gname}: no link {owner}/{link}")
+            frame = model.frames[lf]
+            fid = model.addFrame(pin.Frame(f"{owner}/{gname}", frame.parentJoint, lf,
+                                           frame.placement * M_LG, pin.FrameType.OP_FRAME))
+            grippers[f"{owner}/{gname}"] = Gripper(f"{owner}/{gname}", fid, frame.parentJoint, clearance)
+        for hname, link, M_LH, clearance, mask, approach in info.handles:
+            handles_raw.append((owner, hname, link, M_LH, clearance, mask, approach))
+        for cname, link, pts in info.contacts:
+            lf = model.getFrameId(f"{owner}/{link}")
+            if lf >= model.nframes:
+                raise ProblemError(f"contact {owner}/{cname}: no link {owner}/{link}")
+            frame = model.frames[lf]
+            M_LS, poly = polygon_frame(pts)
+            is_object = any(o["name"] == owner for o in object_entries)
+            contacts[f"{owner}/{cname}"] = ContactSurface(
+                f"{owner}/{cname}", owner if is_object else None, frame.parentJoint,
+                frame.placement * M_LS, poly)
+    handles: dict[str, Handle] = {}
+    for owner, hname, link, M_LH, clearance, mask, approach in handles_raw:
+        lf = model.getFrameId(f"{owner}/{link}")
+        if lf >= model.nframes:
+            raise ProblemError(f"handle {owner}/{hname}: no link {owner}/{link}")
+        frame = model.frames[lf]
+        fid = model.addFrame(pin.Frame(f"{owner}/{hname}", frame.parentJoint, lf,
+                                       frame.placement * M_LH, pin.FrameType.OP_FRAME))
+        handles[f"{owner}/{hname}"] = Handle(f"{owner}/{hname}", owner, fid, frame.parentJoint,
+                                             clearance, mask, approach)
+
+    objects: dict[str, ObjectInfo] = {}
+    for o in object_entries:
+        jid = model.getJointId(f"{o['name']}/root_joint")
+        objects[o["name"]] = ObjectInfo(
+            o["name"], jid, model.idx_qs[jid], model.idx_vs[jid],
+            tuple(h for h in handles if handles[h].object == o["name"]),
+            tuple(c for c in contacts if contacts[c].owner == o["name"]))
+
+    # Bounds: URDF limits overridden by the problem's; object translations from 'bounds'.
+    lower = model.lowerPositionLimit.copy()
+    upper = model.upperPositionLimit.copy()
+    for jn, (lo, hi) in joint_bounds.items():
+        if not model.existJointName(jn):
+            raise ProblemError(f"joint_bounds: no joint {jn}")
+        jid = model.getJointId(jn)
+        lower[model.idx_qs[jid]], upper[model.idx_qs[jid]] = lo, hi
+    for o in object_entries:
+        b = np.asarray(o.get("bounds", [-1, 1, -1, 1, -1, 1]), dtype=float)
+        if b.shape != (6,) or np.any(b[1::2] < b[0::2]):
+            raise ProblemError(f"{o['name']}.bounds: [xmin, xmax, ymin, ymax, zmin, zmax], got {b}")
+        i = objects[o["name"]].idx_q
+        lower[i:i + 3], upper[i:i + 3] = b[0::2], b[1::2]
+        lower[i + 3:i + 7], upper[i + 3:i + 7] = -1.0001, 1.0001
+    model.lowerPositionLimit = lower
+    model.upperPositionLimit = upper
+
+    _add_collision_pairs(model, geom, disabled)
+
+    settings = dict(desc.get("graph", {}) or {})
+    settings["planner"] = dict(desc.get("planner", {}) or {})
+    env_contacts = tuple(settings.get("environment_contacts",
+                                      [c for c in contacts if contacts[c].owner is None]))
+    for c in env_contacts:
+        if c not in contacts:
+            raise ProblemError(f"environment contact '{c}' is not declared")
+
+    problem = ManipulationProblem(
+        name=desc["name"], model=model, geom_model=geom, grippers=grippers, handles=handles,
+        contacts=contacts, objects=objects, environment_contacts=env_contacts,
+        lower=lower, upper=upper, q_init=np.zeros(model.nq), q_goal=None,
+        robot_names=tuple(robot_names), settings=settings, source=source,
+        robot_joint_ids=tuple(robot_joint_ids),
+        freeflyer_idx_q=tuple(model.idx_qs[j] for j in range(1, model.njoints)
+                              if model.joints[j].nq == 7))
+    problem.q_init = _configuration(problem, desc.get("init"), "init")
+    if desc.get("goal") is not None:
+        problem.q_goal = _configuration(problem, desc["goal"], "goal")
+    return problem
+
+
+def _configuration(problem: ManipulationProblem, value: Any, what: str) -> np.ndarray:
+    if value is None:
+        raise ProblemError(f"problem misses '{what}' (a configuration of size nq={problem.nq})")
+    q = np.asarray(value, dtype=float)
+    if q.shape != (problem.nq,):
+        raise ProblemError(f"{what}: expected {problem.nq} values "
+                           f"({', '.join(problem.configuration_layout())}), got {q.shape}")
+    for o in problem.objects.values():
+        quat = q[o.idx_q + 3:o.idx_q + 7]
+        if abs(np.linalg.norm(quat) - 1.0) > 1e-6:
+            raise ProblemError(f"{what}: quaternion of {o.name} is not unit: {quat}")
+    return q
+
+
+def _add_collision_pairs(model: pin.Model, geom: pin.GeometryModel,
+                         disabled: set[frozenset[str]]) -> None:
+    """All pairs of geometries on different joints, except SRDF-disabled link pairs and pairs of
+    two fixed bodies (both on the universe)."""
+    objs = geom.geometryObjects
+    links = [model.frames[o.parentFrame].name for o in objs]
+    for i in range(len(objs)):
+        for j in range(i + 1, len(objs)):
+            ji, jj = objs[i].parentJoint, objs[j].parentJoint
+            if ji == jj:
+                continue
+            if frozenset((links[i], links[j])) in disabled:
+                continue
+            geom.addCollisionPair(pin.CollisionPair(i, j))
+
+
+def random_configuration(problem: ManipulationProblem, rng: np.random.Generator,
+                         out: np.ndarray | None = None) -> np.ndarray:
+    """Uniform sample in the bounds; free-flyer rotations uniform on SO(3) (Shoemake)."""
+    q = out if out is not None else np.empty(problem.nq)
+    q[:] = problem.lower + rng.random(problem.nq) * (problem.upper - problem.lower)
+    for i in problem.freeflyer_idx_q:
+        u1, u2, u3 = rng.random(3)
+        a, b = math.sqrt(1 - u1), math.sqrt(u1)
+        q[i + 3:i + 7] = (a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2),
+                                      b * math.sin(2 * math.pi * u3), b * math.cos(2 * math.pi * u3))
+    return q

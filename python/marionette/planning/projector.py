@@ -1,0 +1,367 @@
+"""Newton-Raphson projection onto numerical constraints (thesis Algorithm 1, §3.2.2).
+
+``Projector(problem, constraints)`` compiles a set of constraints once:
+
+* explicit constraints are *substituted* (HPP's solver "by substitution"): locked joints are
+  written, then grasped objects get their pose from the gripper pose, so a grasp state needs no
+  iteration at all;  an explicit constraint whose output is already determined by another one
+  (grasp + object locked on the table in the "intersection" waypoint) becomes implicit;
+* a :class:`Placement` and its :class:`PlacementComplement` on the same object (object held
+  still on its surface) merge into a locked object joint, as HPP merges a constraint with its
+  complement;
+* the remaining implicit constraints are solved by Newton-Raphson on the free variables with
+  the chain rule through the substituted ones,
+  q <- q (+) -alpha J_red^+ e   (Algorithm 1; J_red = J_free + J_out Ad J_parent),
+  with priority levels (each solved in the null space of the previous ones), joint bounds
+  (clamping, saturated directions removed), a step-size schedule and an iteration limit.
+
+:meth:`Projector.project` returns a :class:`ProjectionResult` telling why it failed when it does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from marionette.planning.constraints import (Constraint, ConstraintError, ExplicitConstraint,
+                                             ExplicitRelativePose, Kinematics, LockedJoint,
+                                             Placement, PlacementComplement)
+from marionette.planning.problem import ManipulationProblem
+
+
+class ProjectionStatus(enum.Enum):
+    SUCCESS = "success"
+    MAX_ITERATIONS = "iteration limit reached"
+    NOT_DECREASING = "error stopped decreasing (3 iterations in a row)"
+    LOCAL_MINIMUM = "step vanished before the error did (singular or unreachable)"
+    OUTSIDE_SURFACE = "object placed outside its contact polygon"
+
+
+@dataclasses.dataclass
+class ProjectionResult:
+    """Outcome of a projection: ``success``, ``status`` (why not), iterations, final error norm."""
+
+    status: ProjectionStatus
+    iterations: int
+    error_norm: float
+
+    @property
+    def success(self) -> bool:
+        return self.status is ProjectionStatus.SUCCESS
+
+    def __bool__(self) -> bool:
+        return self.success
+
+    def __str__(self) -> str:
+        return f"{self.status.value} after {self.iterations} iterations, |e| = {self.error_norm:.3g}"
+
+
+@dataclasses.dataclass(frozen=True)
+class LineSearch:
+    """Step-size schedule.
+
+    ``fixed_sequence`` is Algorithm 1: alpha starts at ``alpha0`` and
+    alpha <- alpha_max - K (alpha_max - alpha) (thesis: alpha0 = .1, alpha_max = .95, K = .8).
+    ``error_norm`` is HPP's ErrorNormBased: alpha = C - K tanh(a r + b), r = |e|^2 / eps^2, from
+    ``alpha_min`` far from the manifold to 1 (pure Newton) close to it.
+    """
+
+    kind: str = "error_norm"
+    alpha0: float = 0.1
+    alpha_max: float = 0.95
+    K: float = 0.8
+    alpha_min: float = 0.2
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("fixed_sequence", "error_norm", "constant"):
+            raise ValueError(f"line search kind must be fixed_sequence, error_norm or constant, "
+                             f"got {self.kind!r}")
+
+
+ALGORITHM_1 = LineSearch("fixed_sequence", alpha0=0.1, alpha_max=0.95, K=0.8)
+
+
+class Projector:
+    """Projector onto a set of constraints (thesis Definition 4: f(p(q)) = 0, p(p(q)) = p(q)).
+
+    ``constraints``: implicit :class:`Constraint` and :class:`ExplicitConstraint` objects;
+    ``levels``: priority of each implicit constraint (0 = highest), default all 0.
+    The projector owns its :class:`Kinematics` workspace (one projector per thread).
+    """
+
+    def __init__(self, problem: ManipulationProblem,
+                 constraints: Sequence[Constraint | ExplicitConstraint],
+                 levels: Sequence[int] | None = None, error_threshold: float = 1e-4,
+                 max_iterations: int = 40, line_search: LineSearch = LineSearch(),
+                 damping: float = 1e-8, name: str = "") -> None:
+        if error_threshold <= 0:
+            raise ValueError(f"error_threshold must be > 0, got {error_threshold}")
+        if max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
+        self.problem = problem
+        self.model = problem.model
+        self.name = name
+        self.kin = Kinematics(problem.model)
+        self.error_threshold = error_threshold
+        self.max_iterations = max_iterations
+        self.line_search = line_search
+        self.damping = damping
+        self.constraints = list(constraints)
+        lv = list(levels) if levels is not None else None
+        self._compile(lv)
+
+    # ----------------------------------------------------------------------------- compilation
+    def _compile(self, levels: list[int] | None) -> None:
+        model = self.model
+        implicit: list[tuple[Constraint, int]] = []
+        explicit: list[ExplicitConstraint] = []
+        k = 0
+        for c in self.constraints:
+            if isinstance(c, ExplicitConstraint):
+                explicit.append(c)
+            elif isinstance(c, Constraint):
+                implicit.append((c, levels[k] if levels else 0))
+                k += 1
+            else:
+                raise ConstraintError(f"not a constraint: {c!r}")
+        if levels is not None and len(levels) != k:
+            raise ValueError(f"{len(levels)} levels for {k} implicit constraints")
+
+        # Placement + complement of one object -> the object is locked where it is.
+        self._merged: list[tuple[LockedJoint, Placement]] = []
+        placements = {c.object: c for c, _ in implicit if isinstance(c, Placement)}
+        complements = {c.placement.object: c for c, _ in implicit if isinstance(c, PlacementComplement)}
+        for obj, comp in complements.items():
+            plc = comp.placement
+            if placements.get(obj) is plc:
+                info = self.problem.objects[obj]
+                lock = LockedJoint(f"{plc.name}/hold", model, info.joint_id)
+                self._merged.append((lock, plc))
+                implicit = [(c, lv) for c, lv in implicit if c is not plc and c is not comp]
+                explicit.insert(0, lock)
+
+        # Substitution order: locked joints, then relative poses; a second explicit constraint
+        # on an already determined joint, or one whose parent is determined by substitution,
+        # becomes implicit.
+        explicit.sort(key=lambda e: 0 if isinstance(e, LockedJoint) else 1)
+        determined: set[int] = set()
+        self.locked: list[LockedJoint] = []
+        self.relative: list[ExplicitRelativePose] = []
+        for e in explicit:
+            chain = set(_ancestors(model, next(iter(e.input_joints()))) if e.input_joints() else [])
+            if e.output_joint in determined or (chain & determined):
+                implicit.append((e.as_implicit(), 0))
+                continue
+            determined.add(e.output_joint)
+            (self.locked if isinstance(e, LockedJoint) else self.relative).append(e)
+
+        self.implicit = [c for c, _ in implicit]
+        lv = sorted({lv for _, lv in implicit})
+        self.levels = [[c for c, l in implicit if l == L] for L in lv]
+        free = np.ones(model.nv, dtype=bool)
+        for j in determined:
+            free[model.idx_vs[j]:model.idx_vs[j] + model.joints[j].nv] = False
+        self.free = free
+        self.free_idx = np.flatnonzero(free)
+        self.output_joints = determined
+        self.placements = [c for c in self.implicit if isinstance(c, Placement)]
+        self.parametrised = [c for c in self.implicit if c.parametrised]
+        # q entries clamped to the bounds: all but quaternions.
+        bounded = np.ones(model.nq, dtype=bool)
+        for i in self.problem.freeflyer_idx_q:
+            bounded[i + 3:i + 7] = False
+        self._bounded = np.flatnonzero(bounded)
+        self._lower = self.problem.lower[self._bounded]
+        self._upper = self.problem.upper[self._bounded]
+        # v index of each bounded 1-dof q entry (for saturation); free-flyer translations are
+        # handled by clamping only.
+        self._sat_v = []
+        for jid in range(1, model.njoints):
+            if model.joints[jid].nq == 1 and model.joints[jid].nv == 1:
+                self._sat_v.append((model.idx_qs[jid], model.idx_vs[jid]))
+        self.size = sum(c.size for c in self.implicit)
+
+    # ----------------------------------------------------------------------------- rhs
+    def set_rhs_from(self, q: np.ndarray) -> None:
+        """Right-hand sides of the parametrised constraints (and locked values) from q."""
+        for lk in self.locked:
+            if lk.parametrised:
+                lk.rhs_from_q(q)
+        if self.parametrised or self._merged:
+            self.kin.update(q, jacobians=False)
+            for c in self.parametrised:
+                if isinstance(c, PlacementComplement):
+                    c.placement.select_pair(self.kin)
+                c.rhs = c.rhs_from(self.kin)
+
+    def rhs_vector(self) -> dict[str, list[float]]:
+        """The current right-hand sides by constraint name (for the plan file)."""
+        out = {lk.name: lk.value.tolist() for lk in self.locked}
+        out.update({c.name: c.rhs.tolist() for c in self.implicit})
+        return out
+
+    # ----------------------------------------------------------------------------- evaluation
+    def apply_explicit(self, q: np.ndarray) -> None:
+        """Substitute the explicit constraints into q (in place); leaves FK of q in ``kin``."""
+        for lk in self.locked:
+            lk.apply(self.kin, q)
+        if self.relative:
+            self.kin.update(q, jacobians=False)
+            for e in self.relative:
+                e.apply(self.kin, q)
+
+    def _errors(self, level: list[Constraint]) -> np.ndarray:
+        return np.concatenate([c.compute_error(self.kin) for c in level]) if level else np.zeros(0)
+
+    def error(self, q: np.ndarray) -> np.ndarray:
+        """Stacked implicit errors at q (explicit ones are satisfied by substitution)."""
+        self.kin.update(q, jacobians=False)
+        return self._errors(self.implicit)
+
+    def explicit_error(self, q: np.ndarray) -> float:
+        """How far q is from satisfying the explicit constraints (0 after :meth:`apply_explicit`)."""
+        err = 0.0
+        for lk in self.locked:
+            err = max(err, lk.error(q))
+        if self.relative:
+            self.kin.update(q, jacobians=False)
+            for e in self.relative:
+                X = pin.XYZQUATToSE3(q[e.idx_q:e.idx_q + 7])
+                err = max(err, float(np.linalg.norm(pin.log6(e.pose(self.kin).actInv(X)).vector)))
+        return err
+
+    def is_satisfied(self, q: np.ndarray, threshold: float | None = None) -> bool:
+        """Do q satisfy every constraint (explicit ones too) within ``threshold``?"""
+        th = self.error_threshold if threshold is None else threshold
+        if self.explicit_error(q) > th:
+            return False
+        if not self.implicit:
+            return True
+        e = self.error(q)
+        return bool(e.dot(e) <= th * th) and all(p.inside(self.kin) for p in self.placements)
+
+    def _reduced_jacobian(self, level: list[Constraint]) -> np.ndarray:
+        J = np.vstack([c.compute_jacobian(self.kin) for c in level])
+        for e in self.relative:
+            Jo = J[:, e.idx_v:e.idx_v + 6]
+            if np.any(Jo):
+                J += Jo @ (e.Ad_OP @ self.kin.joint_jacobian(e.parent_joint))
+        return J[:, self.free_idx]
+
+    # ----------------------------------------------------------------------------- projection
+    def project(self, q: np.ndarray) -> ProjectionResult:
+        """Project q (nq, modified in place) onto the constraints."""
+        self.apply_explicit(q)
+        if not self.implicit:
+            return ProjectionResult(ProjectionStatus.SUCCESS, 0, 0.0)
+        kin, model = self.kin, self.model
+        kin.update(q)
+        for p in self.placements:
+            if not any(c.placement is p for c in self.parametrised):
+                p.select_pair(kin)
+        eps2 = self.error_threshold ** 2
+        errors = [self._errors(L) for L in self.levels]
+        norm2 = sum(float(e.dot(e)) for e in errors)
+        alpha = self.line_search.alpha0
+        not_decreasing = 0
+        dv = np.zeros(model.nv)
+        it = 0
+        while norm2 > eps2:
+            if it >= self.max_iterations:
+                return ProjectionResult(ProjectionStatus.MAX_ITERATIONS, it, math.sqrt(norm2))
+            step = self._descent(errors, q)
+            if step.dot(step) < 1e-20:
+                return ProjectionResult(ProjectionStatus.LOCAL_MINIMUM, it, math.sqrt(norm2))
+            ls = self.line_search
+            if ls.kind == "fixed_sequence":
+                a = alpha
+                alpha = ls.alpha_max - ls.K * (ls.alpha_max - alpha)
+            elif ls.kind == "error_norm":
+                a = _error_norm_alpha(norm2 / eps2, ls.alpha_min)
+            else:
+                a = 1.0
+            dv[:] = 0.0
+            dv[self.free_idx] = a * step
+            q[:] = pin.integrate(model, q, dv)
+            q[self._bounded] = np.clip(q[self._bounded], self._lower, self._upper)
+            self.apply_explicit(q)
+            kin.update(q)
+            errors = [self._errors(L) for L in self.levels]
+            new_norm2 = sum(float(e.dot(e)) for e in errors)
+            it += 1
+            not_decreasing = not_decreasing + 1 if new_norm2 >= norm2 else 0
+            norm2 = new_norm2
+            if not_decreasing >= 3 and norm2 > eps2:
+                return ProjectionResult(ProjectionStatus.NOT_DECREASING, it, math.sqrt(norm2))
+        for p in self.placements:
+            if not p.inside(kin):
+                return ProjectionResult(ProjectionStatus.OUTSIDE_SURFACE, it, math.sqrt(norm2))
+        return ProjectionResult(ProjectionStatus.SUCCESS, it, math.sqrt(norm2))
+
+    def _descent(self, errors: list[np.ndarray], q: np.ndarray) -> np.ndarray:
+        """Newton step on the free variables, level by level, saturated joints removed."""
+        jacobians = [self._reduced_jacobian(L) for L in self.levels]
+        sat: set[int] = set()
+        for _ in range(2):
+            step = self._solve(jacobians, errors, sat)
+            if not self._sat_v:
+                return step
+            # Joints at a bound that the step pushes further out are removed and re-solved.
+            newly = [k for k, (iq, iv) in self._sat_cols(q)
+                     if (q[iq] <= self.problem.lower[iq] and step[k] < 0)
+                     or (q[iq] >= self.problem.upper[iq] and step[k] > 0)]
+            newly = [k for k in newly if k not in sat]
+            if not newly:
+                return step
+            sat = sat | set(newly)
+        return step
+
+    def _sat_cols(self, q: np.ndarray):
+        pos = {v: k for k, v in enumerate(self.free_idx)}
+        for iq, iv in self._sat_v:
+            if iv in pos:
+                yield pos[iv], (iq, iv)
+
+    def _solve(self, jacobians: list[np.ndarray], errors: list[np.ndarray],
+               sat: set[int]) -> np.ndarray:
+        n = len(self.free_idx)
+        step = np.zeros(n)
+        N = None
+        for J, e in zip(jacobians, errors):
+            if sat:
+                J = J.copy()
+                J[:, list(sat)] = 0.0
+            r = -e - J @ step
+            A = J if N is None else J @ N
+            # Damped least squares: A^T (A A^T + lambda I)^-1 r (lambda tiny: Newton near the
+            # solution, bounded steps near singularities).
+            AAt = A @ A.T
+            AAt[np.diag_indices_from(AAt)] += self.damping
+            step = step + A.T @ np.linalg.solve(AAt, r)
+            if len(jacobians) > 1:
+                P = np.linalg.pinv(A, rcond=1e-8) @ A
+                N = (np.eye(n) - P) if N is None else N @ (np.eye(n) - P)
+        return step
+
+
+def _error_norm_alpha(r: float, alpha_min: float) -> float:
+    # HPP ErrorNormBased: alpha = C - K tanh(a r + b), alpha(r >> r_half) -> alpha_min,
+    # alpha(r ~ 0) ~ 1 - delta, with r_half = 1e6, delta = 0.02.
+    C = 0.5 + alpha_min / 2
+    K = (1 - alpha_min) / 2
+    a = math.atanh((0.02 - 1 + C) / K) / (1 - 1e6)
+    b = -1e6 * a
+    return C - K * math.tanh(a * r + b)
+
+
+def _ancestors(model: pin.Model, joint: int) -> list[int]:
+    out = []
+    while joint > 0:
+        out.append(joint)
+        joint = model.parents[joint]
+    return out
