@@ -43,8 +43,22 @@ class Kinematics:
     def __init__(self, model: pin.Model) -> None:
         self.model = model
         self.data = model.createData()
+        self.oMi = self.data.oMi
         self.q = pin.neutral(model)
         self._com_valid = False
+        self.version = 0      # bumped by every update: constraints cache per-version values
+        self._jac: dict[int, np.ndarray] = {}
+        # Joints whose motion is irrelevant to the caller (locked): their Jacobian reads as 0.
+        self.static: frozenset[int] = frozenset()
+        self._zero = np.zeros((6, model.nv))
+        # A free-flyer hanging from the universe has the constant LOCAL Jacobian [0 I6 0]
+        # (its velocity is its body twist): valid even after its pose is patched in oMi.
+        self._root_ff: dict[int, np.ndarray] = {}
+        for j in range(1, model.njoints):
+            if model.joints[j].nq == 7 and model.parents[j] == 0:
+                J = np.zeros((6, model.nv))
+                J[:, model.idx_vs[j]:model.idx_vs[j] + 6] = np.eye(6)
+                self._root_ff[j] = J
 
     def update(self, q: np.ndarray, jacobians: bool = True) -> None:
         """Forward kinematics at q (nq); with ``jacobians``, also all joint Jacobians."""
@@ -54,13 +68,29 @@ class Kinematics:
         else:
             pin.forwardKinematics(self.model, self.data, q)
         self._com_valid = False
+        self.version += 1
+        self._jac.clear()
 
     def joint_placement(self, joint_id: int) -> pin.SE3:
-        return self.data.oMi[joint_id]
+        return self.oMi[joint_id]
 
     def joint_jacobian(self, joint_id: int) -> np.ndarray:
         """(6 x nv) body Jacobian of joint ``joint_id`` in its own frame (Pinocchio LOCAL)."""
-        return pin.getJointJacobian(self.model, self.data, joint_id, pin.LOCAL)
+        J = self._jac.get(joint_id)
+        if J is None:
+            if joint_id in self.static:
+                J = self._zero
+            elif joint_id in self._root_ff:
+                J = self._root_ff[joint_id]
+            else:
+                J = pin.getJointJacobian(self.model, self.data, joint_id, pin.LOCAL)
+            self._jac[joint_id] = J
+        return J
+
+    def set_joint_placement(self, joint_id: int, X: pin.SE3) -> None:
+        """Patch the pose of a leaf joint (an object moved by substitution) without new FK."""
+        self.oMi[joint_id] = X
+        self.version += 1
 
     def com(self) -> np.ndarray:
         if not self._com_valid:
@@ -138,6 +168,10 @@ class RelativeTransformation(Constraint):
         self.joint1, self.M1, self.joint2, self.M2 = joint1, M1, joint2, M2
         self._Ad1 = M1.inverse().action   # LOCAL Jacobian of F1 = Ad(M1^-1) J_joint1
         self._Ad2 = M2.inverse().action
+        self._cache_version = -1
+        self._cache_kin: Kinematics | None = None
+        self._M: pin.SE3 | None = None
+        self._v6 = np.zeros(6)
         if rhs is not None:
             self.rhs = np.asarray(rhs, dtype=float).copy()
             if self.rhs.shape != (self.size,):
@@ -147,19 +181,28 @@ class RelativeTransformation(Constraint):
         return {self.joint1, self.joint2}
 
     def relative_pose(self, kin: Kinematics) -> pin.SE3:
-        X1 = kin.data.oMi[self.joint1] * self.M1
-        X2 = kin.data.oMi[self.joint2] * self.M2
-        return X1.actInv(X2)
+        if kin.version != self._cache_version or kin is not self._cache_kin:
+            oMi = kin.oMi
+            X1 = oMi[self.joint1] * self.M1
+            self._M = X1.actInv(oMi[self.joint2] * self.M2)
+            self._cache_version, self._cache_kin = kin.version, kin
+        return self._M
+
+    def value6(self, kin: Kinematics) -> np.ndarray:
+        """[p, log3(R)] of the relative pose, all 6 rows."""
+        M = self.relative_pose(kin)
+        v = np.empty(6)
+        v[:3] = M.translation
+        v[3:] = pin.log3(M.rotation)
+        return v
 
     def value(self, kin: Kinematics) -> np.ndarray:
-        M = self.relative_pose(kin)
-        full = np.concatenate([M.translation, pin.log3(M.rotation)])
-        return full[self.mask]
+        return self.value6(kin)[self.mask]
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
         M = self.relative_pose(kin)
         nu = self._Ad2 @ kin.joint_jacobian(self.joint2)
-        if self.joint1 != 0:
+        if self.joint1 != 0 and self.joint1 not in kin.static:
             nu -= M.inverse().action @ (self._Ad1 @ kin.joint_jacobian(self.joint1))
         J = np.empty((6, nu.shape[1]))
         J[:3] = M.rotation @ nu[:3]
@@ -227,9 +270,7 @@ class Placement(Constraint):
         return self.pair
 
     def value(self, kin: Kinematics) -> np.ndarray:
-        M = self.relative_pose(kin)
-        w = pin.log3(M.rotation)
-        return np.array([M.translation[2], w[0], w[1]])
+        return self._rel[self.pair].value6(kin)[self.ROWS]
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
         return self._rel[self.pair].compute_jacobian(kin)[self.ROWS]
@@ -275,8 +316,7 @@ class PlacementComplement(Constraint):
         return self.placement.joints()
 
     def value(self, kin: Kinematics) -> np.ndarray:
-        M = self.placement.relative_pose(kin)
-        return np.array([M.translation[0], M.translation[1], pin.log3(M.rotation)[2]])
+        return self.placement._rel[self.placement.pair].value6(kin)[self.ROWS]
 
     def compute_error(self, kin: Kinematics) -> np.ndarray:
         e = self.value(kin) - self.rhs

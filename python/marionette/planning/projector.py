@@ -27,6 +27,7 @@ from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack
 
 from marionette.planning.constraints import (Constraint, ConstraintError, ExplicitConstraint,
                                              ExplicitRelativePose, Kinematics, LockedJoint,
@@ -68,14 +69,20 @@ class LineSearch:
     ``fixed_sequence`` is Algorithm 1: alpha starts at ``alpha0`` and
     alpha <- alpha_max - K (alpha_max - alpha) (thesis: alpha0 = .1, alpha_max = .95, K = .8).
     ``error_norm`` is HPP's ErrorNormBased: alpha = C - K tanh(a r + b), r = |e|^2 / eps^2, from
-    ``alpha_min`` far from the manifold to 1 (pure Newton) close to it.
+    ``alpha_min`` far from the manifold to 1 (pure Newton) close to it.  ``constant``: alpha = 1.
+    ``max_step`` bounds |dq| of one iteration (a trust region; inf = none).
+
+    The default (full Newton steps within a 1-rad trust region) is the fastest on the UR5
+    benchmark: 6-D pre-grasp IK from uniform samples succeeds 40 % of the time in a median of
+    9 iterations, against 23 % in 11 for Algorithm 1's schedule (tests/python/planning).
     """
 
-    kind: str = "error_norm"
+    kind: str = "constant"
     alpha0: float = 0.1
     alpha_max: float = 0.95
     K: float = 0.8
     alpha_min: float = 0.2
+    max_step: float = 1.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("fixed_sequence", "error_norm", "constant"):
@@ -83,7 +90,7 @@ class LineSearch:
                              f"got {self.kind!r}")
 
 
-ALGORITHM_1 = LineSearch("fixed_sequence", alpha0=0.1, alpha_max=0.95, K=0.8)
+ALGORITHM_1 = LineSearch("fixed_sequence", alpha0=0.1, alpha_max=0.95, K=0.8, max_step=math.inf)
 
 
 class Projector:
@@ -111,6 +118,7 @@ class Projector:
         self.max_iterations = max_iterations
         self.line_search = line_search
         self.damping = damping
+        self.max_step = line_search.max_step
         self.constraints = list(constraints)
         lv = list(levels) if levels is not None else None
         self._compile(lv)
@@ -180,11 +188,25 @@ class Projector:
         self._upper = self.problem.upper[self._bounded]
         # v index of each bounded 1-dof q entry (for saturation); free-flyer translations are
         # handled by clamping only.
-        self._sat_v = []
+        pos = {v: k for k, v in enumerate(self.free_idx)}
+        self._sat_cols = []      # (column in the free variables, q index) of 1-dof joints
         for jid in range(1, model.njoints):
             if model.joints[jid].nq == 1 and model.joints[jid].nv == 1:
-                self._sat_v.append((model.idx_qs[jid], model.idx_vs[jid]))
+                iv = model.idx_vs[jid]
+                if iv in pos:
+                    self._sat_cols.append((pos[iv], model.idx_qs[jid]))
         self.size = sum(c.size for c in self.implicit)
+        self._dv = np.zeros(model.nv)
+        self._sat_k = np.array([k for k, _ in self._sat_cols], dtype=int)
+        self._sat_q = np.array([iq for _, iq in self._sat_cols], dtype=int)
+        # Relative explicit outputs that are leaf free-flyers under the universe: substituted
+        # after a single forward kinematics by patching their pose (no second FK pass).
+        children = set(model.parents[1:])
+        self._patchable = all(model.parents[e.output_joint] == 0 and e.output_joint not in children
+                              for e in self.relative)
+        # Locked joints (and the joints under them only) never move while projecting.
+        self.kin.static = frozenset(lk.output_joint for lk in self.locked
+                                    if lk.output_joint not in children)
 
     # ----------------------------------------------------------------------------- rhs
     def set_rhs_from(self, q: np.ndarray) -> None:
@@ -198,6 +220,20 @@ class Projector:
                 if isinstance(c, PlacementComplement):
                     c.placement.select_pair(self.kin)
                 c.rhs = c.rhs_from(self.kin)
+
+    def rhs_state(self) -> tuple:
+        """Snapshot of every right-hand side (restore it with :meth:`restore_rhs`)."""
+        return (tuple(lk.value.copy() for lk in self.locked),
+                tuple(c.rhs.copy() for c in self.parametrised),
+                tuple(p.pair for p in self.placements))
+
+    def restore_rhs(self, state: tuple) -> None:
+        for lk, v in zip(self.locked, state[0]):
+            lk.value = v
+        for c, v in zip(self.parametrised, state[1]):
+            c.rhs = v
+        for p, v in zip(self.placements, state[2]):
+            p.pair = v
 
     def rhs_vector(self) -> dict[str, list[float]]:
         """The current right-hand sides by constraint name (for the plan file)."""
@@ -216,6 +252,8 @@ class Projector:
                 e.apply(self.kin, q)
 
     def _errors(self, level: list[Constraint]) -> np.ndarray:
+        if len(level) == 1:
+            return level[0].compute_error(self.kin)
         return np.concatenate([c.compute_error(self.kin) for c in level]) if level else np.zeros(0)
 
     def error(self, q: np.ndarray) -> np.ndarray:
@@ -246,7 +284,8 @@ class Projector:
         return bool(e.dot(e) <= th * th) and all(p.inside(self.kin) for p in self.placements)
 
     def _reduced_jacobian(self, level: list[Constraint]) -> np.ndarray:
-        J = np.vstack([c.compute_jacobian(self.kin) for c in level])
+        J = (level[0].compute_jacobian(self.kin) if len(level) == 1
+             else np.vstack([c.compute_jacobian(self.kin) for c in level]))
         for e in self.relative:
             Jo = J[:, e.idx_v:e.idx_v + 6]
             if np.any(Jo):
@@ -256,11 +295,13 @@ class Projector:
     # ----------------------------------------------------------------------------- projection
     def project(self, q: np.ndarray) -> ProjectionResult:
         """Project q (nq, modified in place) onto the constraints."""
-        self.apply_explicit(q)
         if not self.implicit:
+            self.apply_explicit(q)
             return ProjectionResult(ProjectionStatus.SUCCESS, 0, 0.0)
         kin, model = self.kin, self.model
-        kin.update(q)
+        for lk in self.locked:
+            lk.apply(kin, q)
+        self._update_and_substitute(q)
         for p in self.placements:
             if not any(c.placement is p for c in self.parametrised):
                 p.select_pair(kin)
@@ -269,14 +310,19 @@ class Projector:
         norm2 = sum(float(e.dot(e)) for e in errors)
         alpha = self.line_search.alpha0
         not_decreasing = 0
-        dv = np.zeros(model.nv)
+        dv = self._dv
+        lower, upper, bounded = self._lower, self._upper, self._bounded
         it = 0
         while norm2 > eps2:
             if it >= self.max_iterations:
                 return ProjectionResult(ProjectionStatus.MAX_ITERATIONS, it, math.sqrt(norm2))
             step = self._descent(errors, q)
-            if step.dot(step) < 1e-20:
+            n2 = step.dot(step)
+            if n2 < 1e-20:
                 return ProjectionResult(ProjectionStatus.LOCAL_MINIMUM, it, math.sqrt(norm2))
+            if n2 > self.max_step ** 2:
+                # Trust region: far from the manifold, the linearisation is wrong anyway.
+                step *= self.max_step / math.sqrt(n2)
             ls = self.line_search
             if ls.kind == "fixed_sequence":
                 a = alpha
@@ -288,9 +334,10 @@ class Projector:
             dv[:] = 0.0
             dv[self.free_idx] = a * step
             q[:] = pin.integrate(model, q, dv)
-            q[self._bounded] = np.clip(q[self._bounded], self._lower, self._upper)
-            self.apply_explicit(q)
-            kin.update(q)
+            qb = q[bounded]
+            if (qb < lower).any() or (qb > upper).any():
+                q[bounded] = np.clip(qb, lower, upper)
+            self._update_and_substitute(q)
             errors = [self._errors(L) for L in self.levels]
             new_norm2 = sum(float(e.dot(e)) for e in errors)
             it += 1
@@ -306,43 +353,49 @@ class Projector:
     def _descent(self, errors: list[np.ndarray], q: np.ndarray) -> np.ndarray:
         """Newton step on the free variables, level by level, saturated joints removed."""
         jacobians = [self._reduced_jacobian(L) for L in self.levels]
-        sat: set[int] = set()
-        for _ in range(2):
-            step = self._solve(jacobians, errors, sat)
-            if not self._sat_v:
-                return step
-            # Joints at a bound that the step pushes further out are removed and re-solved.
-            newly = [k for k, (iq, iv) in self._sat_cols(q)
-                     if (q[iq] <= self.problem.lower[iq] and step[k] < 0)
-                     or (q[iq] >= self.problem.upper[iq] and step[k] > 0)]
-            newly = [k for k in newly if k not in sat]
-            if not newly:
-                return step
-            sat = sat | set(newly)
+        step = self._solve(jacobians, errors, ())
+        # Joints at a bound that the step pushes further out are removed, then re-solve once.
+        if self._sat_k.size:
+            qs, ss = q[self._sat_q], step[self._sat_k]
+            out = ((qs <= self.problem.lower[self._sat_q]) & (ss < 0)) | \
+                  ((qs >= self.problem.upper[self._sat_q]) & (ss > 0))
+            if out.any():
+                step = self._solve(jacobians, errors, self._sat_k[out])
         return step
 
-    def _sat_cols(self, q: np.ndarray):
-        pos = {v: k for k, v in enumerate(self.free_idx)}
-        for iq, iv in self._sat_v:
-            if iv in pos:
-                yield pos[iv], (iq, iv)
+    def _update_and_substitute(self, q: np.ndarray) -> None:
+        """Forward kinematics + Jacobians at q with the explicit outputs substituted."""
+        if self.relative and self._patchable:
+            kin = self.kin
+            kin.update(q)
+            for e in self.relative:
+                X = e.pose(kin)
+                q[e.idx_q:e.idx_q + 7] = pin.SE3ToXYZQUAT(X)
+                kin.set_joint_placement(e.output_joint, X)
+        else:
+            self.apply_explicit(q)
+            self.kin.update(q)
 
     def _solve(self, jacobians: list[np.ndarray], errors: list[np.ndarray],
-               sat: set[int]) -> np.ndarray:
+               sat: Sequence[int]) -> np.ndarray:
         n = len(self.free_idx)
         step = np.zeros(n)
         N = None
         for J, e in zip(jacobians, errors):
-            if sat:
+            if len(sat):
                 J = J.copy()
                 J[:, list(sat)] = 0.0
-            r = -e - J @ step
+            r = -e - J @ step if N is not None else -e
             A = J if N is None else J @ N
             # Damped least squares: A^T (A A^T + lambda I)^-1 r (lambda tiny: Newton near the
-            # solution, bounded steps near singularities).
+            # solution, bounded steps near singularities); Cholesky through LAPACK directly,
+            # numpy.linalg.solve costs 10x more on these small systems.
             AAt = A @ A.T
-            AAt[np.diag_indices_from(AAt)] += self.damping
-            step = step + A.T @ np.linalg.solve(AAt, r)
+            AAt.flat[::AAt.shape[0] + 1] += self.damping
+            _, x, info = lapack.dposv(AAt, r)
+            if info != 0:
+                x = np.linalg.lstsq(AAt, r, rcond=None)[0]
+            step = step + A.T @ x
             if len(jacobians) > 1:
                 P = np.linalg.pinv(A, rcond=1e-8) @ A
                 N = (np.eye(n) - P) if N is None else N @ (np.eye(n) - P)

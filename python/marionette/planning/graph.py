@@ -1,0 +1,347 @@
+"""Constraint graph (thesis §3.2.1, fig. 3.3-3.4): states, transitions and waypoint transitions.
+
+A :class:`State` is a set of constraints (a configuration belongs to it when it satisfies
+them).  An :class:`Edge` (transition) goes from one state to another and lies in a
+*containing* state whose constraints hold all along it, plus its own parametrised constraints
+(the foliation: placement or grasp complements) whose right-hand side is taken from the
+configuration where the path starts (g(gamma(t)) = g(q0)).  A :class:`WaypointEdge` chains
+sub-edges through waypoint states (pre-grasp, intersection, pre-placement).
+
+Edges know how to generate a target configuration (project a sample onto the destination
+state with the edge's right-hand side fixed: Algorithm 2's "extend along the transition") and
+how to build the straight, constrained path between two configurations of their foliation leaf.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from marionette.planning.constraints import Constraint, ExplicitConstraint
+from marionette.planning.path import ConstrainedPath, PathError
+from marionette.planning.problem import ManipulationProblem
+from marionette.planning.projector import LineSearch, Projector, ProjectionResult
+
+AnyConstraint = Constraint | ExplicitConstraint
+
+
+class GraphError(ValueError):
+    """A malformed graph (unknown state, duplicate name, edge between unknown states)."""
+
+
+class State:
+    """A node of the constraint graph: a name, its constraints, and grasps (for people)."""
+
+    def __init__(self, graph: "ConstraintGraph", name: str, constraints: Sequence[AnyConstraint],
+                 waypoint: bool = False, priority: int = 0,
+                 grasps: dict[str, str] | None = None) -> None:
+        self.graph = graph
+        self.name = name
+        self.constraints = list(constraints)
+        self.waypoint = waypoint
+        self.priority = priority
+        self.grasps = dict(grasps or {})
+        self.outgoing: list[Edge] = []
+        self._projector: Projector | None = None
+
+    @property
+    def projector(self) -> Projector:
+        if self._projector is None:
+            self._projector = self.graph.make_projector(
+                self.graph.constraints + self.constraints, f"state {self.name}")
+        return self._projector
+
+    def contains(self, q: np.ndarray) -> bool:
+        """Does q satisfy the state's constraints (within the graph's error threshold)?"""
+        return self.projector.is_satisfied(q)
+
+    def project(self, q: np.ndarray) -> ProjectionResult:
+        """Project q (in place) onto the state."""
+        return self.projector.project(q)
+
+    def __repr__(self) -> str:
+        return f"State({self.name!r})"
+
+
+class Edge:
+    """A transition ``name``: ``from_state`` -> ``to_state``, lying in ``containing``.
+
+    ``constraints``: the edge's own parametrised constraints (complements), rhs from the start.
+    ``weight``: probability weight when Manipulation-RRT samples an outgoing transition (0:
+    never sampled, used only to connect).  ``short``: the target is generated from the start
+    configuration rather than from the random sample (HPP ``setShort``), as for the straight
+    approach from a pre-grasp to the grasp.
+    """
+
+    def __init__(self, graph: "ConstraintGraph", name: str, from_state: State, to_state: State,
+                 containing: State, constraints: Sequence[AnyConstraint] = (), weight: float = 1.0,
+                 short: bool = False) -> None:
+        self.graph = graph
+        self.name = name
+        self.from_state = from_state
+        self.to_state = to_state
+        self.containing = containing
+        self.constraints = list(constraints)
+        self.weight = weight
+        self.short = short
+        self.parent: WaypointEdge | None = None
+        self.reverse_edge: Edge | None = None   # same constraints, opposite direction
+        self._path_projector: Projector | None = None
+        self._target_projector: Projector | None = None
+
+    # ---------------------------------------------------------------- projectors (lazy, cached)
+    def path_constraints(self) -> list[AnyConstraint]:
+        """Graph + edge + containing-state constraints: what holds along the path."""
+        return _unique(self.graph.constraints + self.constraints + self.containing.constraints)
+
+    def target_constraints(self) -> list[AnyConstraint]:
+        """Path constraints + the destination state's: what the path's end satisfies."""
+        return _unique(self.path_constraints() + self.to_state.constraints)
+
+    @property
+    def path_projector(self) -> Projector:
+        if self._path_projector is None:
+            self._path_projector = self.graph.make_projector(
+                self.path_constraints(), f"path {self.name}",
+                threshold=0.5 * self.graph.error_threshold)
+        return self._path_projector
+
+    @property
+    def target_projector(self) -> Projector:
+        if self._target_projector is None:
+            self._target_projector = self.graph.make_projector(
+                self.target_constraints(), f"target {self.name}")
+        return self._target_projector
+
+    # ---------------------------------------------------------------- planning operations
+    def generate_target(self, q_start: np.ndarray, q: np.ndarray) -> ProjectionResult:
+        """Project q (in place) onto the destination state with the edge's rhs from q_start."""
+        proj = self.target_projector
+        proj.set_rhs_from(q_start)
+        if self.short:
+            q[:] = q_start
+        return proj.project(q)
+
+    def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        """Are q1 and q2 on the same leaf of this edge's foliation (rhs from q1)?"""
+        proj = self.path_projector
+        proj.set_rhs_from(q1)
+        return proj.is_satisfied(q1, self.graph.error_threshold) and \
+            proj.is_satisfied(q2, self.graph.error_threshold)
+
+    def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
+        """Straight constrained path(s) q1 -> q2 in this edge, or None when not on one leaf."""
+        if not self.can_connect(q1, q2):
+            return None
+        try:
+            return [ConstrainedPath.build(self, q1, q2, self.path_projector)]
+        except PathError:
+            return None
+
+    def __repr__(self) -> str:
+        return f"Edge({self.name!r}: {self.from_state.name} -> {self.to_state.name})"
+
+
+class WaypointEdge(Edge):
+    """A transition through waypoint states (thesis fig. 3.4): sub-edges e_0 ... e_n.
+
+    Generating its target projects the sample successively onto each waypoint state (HPP
+    ``WaypointEdge::generateTargetConfig``); building it builds each sub-path.
+    """
+
+    def __init__(self, graph: "ConstraintGraph", name: str, from_state: State, to_state: State,
+                 containing: State, sub_edges: Sequence[Edge], weight: float = 1.0) -> None:
+        super().__init__(graph, name, from_state, to_state, containing, weight=weight)
+        if not sub_edges:
+            raise GraphError(f"{name}: a waypoint edge needs sub-edges")
+        if sub_edges[0].from_state is not from_state or sub_edges[-1].to_state is not to_state:
+            raise GraphError(f"{name}: sub-edges do not chain {from_state.name} -> {to_state.name}")
+        for a, b in zip(sub_edges, sub_edges[1:]):
+            if a.to_state is not b.from_state:
+                raise GraphError(f"{name}: sub-edges {a.name} and {b.name} do not chain")
+        self.sub_edges = list(sub_edges)
+        for e in self.sub_edges:
+            e.parent = self
+        self.waypoints = [e.to_state for e in self.sub_edges[:-1]]
+        self.last_waypoint_configs: list[np.ndarray] = []
+
+    @property
+    def path_projector(self) -> Projector:
+        return self.sub_edges[0].path_projector
+
+    @property
+    def target_projector(self) -> Projector:
+        return self.sub_edges[-1].target_projector
+
+    def generate_target(self, q_start: np.ndarray, q: np.ndarray) -> ProjectionResult:
+        q_prev = q_start
+        configs = [q_start]
+        result = None
+        for e in self.sub_edges:
+            q_next = q.copy()
+            result = e.generate_target(q_prev, q_next)
+            if not result:
+                return result
+            configs.append(q_next)
+            q_prev = q_next
+        q[:] = q_prev
+        self.last_waypoint_configs = configs
+        return result
+
+    def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        return self.sub_edges[0].path_projector is not None
+
+    def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
+        """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached."""
+        n = len(self.sub_edges)
+        cached = self.last_waypoint_configs
+        if len(cached) == n + 1 and np.array_equal(cached[0], q1) and np.array_equal(cached[-1], q2):
+            configs = cached
+        else:
+            configs = [q1]
+            for e in self.sub_edges[:-1]:
+                qn = q2.copy()
+                if not e.generate_target(configs[-1], qn):
+                    return None
+                configs.append(qn)
+            configs.append(q2)
+        paths: list[ConstrainedPath] = []
+        for e, a, b in zip(self.sub_edges, configs, configs[1:]):
+            if np.array_equal(a, b):
+                continue
+            sub = e.build(a, b)
+            if sub is None:
+                return None
+            paths += sub
+        return paths
+
+
+class ConstraintGraph:
+    """States and edges of a manipulation problem, with the projection settings they share.
+
+    ``constraints``: graph-wide constraints, in every state and edge (e.g. a humanoid's feet
+    on the ground and its centre of mass over them).
+    """
+
+    def __init__(self, problem: ManipulationProblem, name: str = "graph",
+                 constraints: Sequence[AnyConstraint] = (), error_threshold: float = 1e-4,
+                 max_iterations: int = 40, line_search: LineSearch = LineSearch()) -> None:
+        self.problem = problem
+        self.name = name
+        self.constraints = list(constraints)
+        self.error_threshold = error_threshold
+        self.max_iterations = max_iterations
+        self.line_search = line_search
+        self.states: dict[str, State] = {}
+        self.edges: dict[str, Edge] = {}
+
+    def make_projector(self, constraints: Sequence[AnyConstraint], name: str,
+                       threshold: float | None = None) -> Projector:
+        return Projector(self.problem, _unique(list(constraints)), name=name,
+                         error_threshold=threshold or self.error_threshold,
+                         max_iterations=self.max_iterations, line_search=self.line_search)
+
+    def add_state(self, name: str, constraints: Sequence[AnyConstraint], waypoint: bool = False,
+                  priority: int = 0, grasps: dict[str, str] | None = None) -> State:
+        if name in self.states:
+            raise GraphError(f"state '{name}' already exists")
+        s = State(self, name, constraints, waypoint, priority, grasps)
+        self.states[name] = s
+        return s
+
+    def add_edge(self, edge: Edge) -> Edge:
+        if edge.name in self.edges:
+            raise GraphError(f"transition '{edge.name}' already exists")
+        for s in (edge.from_state, edge.to_state, edge.containing):
+            if self.states.get(s.name) is not s:
+                raise GraphError(f"{edge.name}: state {s.name} is not in the graph")
+        self.edges[edge.name] = edge
+        if edge.parent is None:
+            edge.from_state.outgoing.append(edge)
+        return edge
+
+    def top_edges(self) -> list[Edge]:
+        """Transitions between non-waypoint states (not the sub-edges of waypoint edges)."""
+        return [e for e in self.edges.values() if e.parent is None]
+
+    def main_states(self) -> list[State]:
+        return [s for s in self.states.values() if not s.waypoint]
+
+    def state_of(self, q: np.ndarray) -> State | None:
+        """The most constrained (highest priority) non-waypoint state containing q."""
+        for s in sorted(self.main_states(), key=lambda s: -s.priority):
+            if s.contains(q):
+                return s
+        return None
+
+    def edges_between(self, a: State, b: State) -> list[Edge]:
+        return [e for e in a.outgoing if e.to_state is b]
+
+    # ------------------------------------------------------------------------------ export
+    def to_dot(self) -> str:
+        """Graphviz description: states as ellipses, waypoint states as dashed hexagons."""
+        lines = [f'digraph "{self.name}" {{', "  rankdir=LR;", '  node [fontsize=10];',
+                 '  edge [fontsize=8];']
+        ids = {name: f"s{i}" for i, name in enumerate(self.states)}
+        for name, s in self.states.items():
+            shape = 'shape=hexagon, style=dashed' if s.waypoint else 'shape=ellipse'
+            lines.append(f'  {ids[name]} [label="{_esc(name)}", {shape}];')
+        for e in self.edges.values():
+            if isinstance(e, WaypointEdge):
+                continue
+            style = ', style=dashed' if e.weight == 0 and e.parent is None else ''
+            lines.append(f'  {ids[e.from_state.name]} -> {ids[e.to_state.name]} '
+                         f'[label="{_esc(e.name)}"{style}];')
+        lines.append("}")
+        return "\n".join(lines) + "\n"
+
+    def write_picture(self, path: str | Path) -> Path:
+        """Write the graph as a picture (format from the suffix: .png, .svg, .pdf; .dot = text)."""
+        path = Path(path)
+        dot = self.to_dot()
+        if path.suffix == ".dot":
+            path.write_text(dot)
+            return path
+        fmt = path.suffix.lstrip(".") or "png"
+        try:
+            subprocess.run(["dot", f"-T{fmt}", "-o", str(path)], input=dot.encode(),
+                           check=True, capture_output=True, timeout=60)
+        except FileNotFoundError as e:
+            raise GraphError("graphviz 'dot' not found (Debian package graphviz)") from e
+        except subprocess.CalledProcessError as e:
+            raise GraphError(f"dot failed: {e.stderr.decode(errors='replace')}") from e
+        return path
+
+    def describe(self) -> dict:
+        """Names, constraints and structure (for the plan file)."""
+        return {
+            "name": self.name,
+            "error_threshold": self.error_threshold,
+            "graph_constraints": [c.name for c in self.constraints],
+            "states": [{"name": s.name, "waypoint": s.waypoint, "priority": s.priority,
+                        "grasps": s.grasps, "constraints": [c.name for c in s.constraints]}
+                       for s in self.states.values()],
+            "transitions": [{"name": e.name, "from": e.from_state.name, "to": e.to_state.name,
+                             "containing_state": e.containing.name, "weight": e.weight,
+                             "constraints": [c.name for c in e.constraints],
+                             "waypoint_edges": [x.name for x in e.sub_edges]
+                             if isinstance(e, WaypointEdge) else []}
+                            for e in self.edges.values()],
+        }
+
+
+def _esc(s: str) -> str:
+    return s.replace('"', '\\"')
+
+
+def _unique(items: list) -> list:
+    seen: set[int] = set()
+    out = []
+    for c in items:
+        if id(c) not in seen:
+            seen.add(id(c))
+            out.append(c)
+    return out
