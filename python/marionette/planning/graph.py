@@ -263,6 +263,15 @@ class ConstraintGraph:
             edge.from_state.outgoing.append(edge)
         return edge
 
+    def initialize(self) -> None:
+        """Compile every projector now (HPP ``graph.initialize()``), not on first use."""
+        for s in self.states.values():
+            s.projector
+        for e in self.edges.values():
+            if not isinstance(e, WaypointEdge):
+                e.path_projector
+                e.target_projector
+
     def top_edges(self) -> list[Edge]:
         """Transitions between non-waypoint states (not the sub-edges of waypoint edges)."""
         return [e for e in self.edges.values() if e.parent is None]

@@ -192,7 +192,7 @@ def save_plan(path: str | Path, graph: "ConstraintGraph", paths: Sequence[Constr
             "nq": problem.nq,
             "nv": problem.nv,
             "configuration_layout": problem.configuration_layout(),
-            "q_init": problem.q_init.tolist(),
+            "q_init": problem.q_init.tolist() if problem.q_init is not None else None,
             "q_goal": problem.q_goal.tolist() if problem.q_goal is not None else None,
             "grippers": {g.name: {"frame": problem.model.frames[g.frame_id].name,
                                   "clearance": g.clearance} for g in problem.grippers.values()},

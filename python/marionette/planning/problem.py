@@ -93,7 +93,8 @@ class ManipulationProblem:
     """Model + data layout of a manipulation problem; immutable after :func:`load_problem`.
 
     ``model``/``geom_model``: the combined Pinocchio models; ``lower``/``upper`` (nq): sampling
-    bounds (quaternion components are not bounded); ``q_init``/``q_goal`` (nq).
+    bounds (quaternion components are not bounded); ``q_init``/``q_goal`` (nq), None when the
+    file gives none (a problem used only to build its graph).
     """
 
     name: str
@@ -106,7 +107,7 @@ class ManipulationProblem:
     environment_contacts: tuple[str, ...]
     lower: np.ndarray
     upper: np.ndarray
-    q_init: np.ndarray
+    q_init: np.ndarray | None
     q_goal: np.ndarray | None
     robot_names: tuple[str, ...]
     settings: dict[str, Any]
@@ -284,6 +285,28 @@ def polygon_frame(points: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
     return M, local[:, :2].copy()
 
 
+def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
+    """Grippers / handles / contacts declared in the problem file, same fields as the SRDF tags.
+
+    ``grippers: [{name, link, pose: [x y z qx qy qz qw], clearance}]``,
+    ``handles: [{name, link, pose, clearance, mask: [6 x 0/1], approach: [x y z]}]``,
+    ``contacts: [{name, link, points: [[x y z], ...]}]`` (counter-clockwise seen from outside).
+    """
+    try:
+        for g in entry.get("grippers", []) or []:
+            info.grippers.append((g["name"], g["link"], _pose7(g.get("pose", [0, 0, 0, 0, 0, 0, 1]),
+                                  f"{owner}/{g['name']}.pose"), float(g.get("clearance", 0.0))))
+        for h in entry.get("handles", []) or []:
+            info.handles.append((h["name"], h["link"], _pose7(h.get("pose", [0, 0, 0, 0, 0, 0, 1]),
+                                 f"{owner}/{h['name']}.pose"), float(h.get("clearance", 0.0)),
+                                 tuple(bool(v) for v in h.get("mask", [1] * 6)),
+                                 tuple(float(v) for v in h.get("approach", [1, 0, 0]))))
+        for c in entry.get("contacts", []) or []:
+            info.contacts.append((c["name"], c["link"], np.asarray(c["points"], dtype=float)))
+    except KeyError as e:
+        raise ProblemError(f"{owner}: gripper/handle/contact entry misses {e}") from e
+
+
 def _load_yaml(path: Path) -> dict[str, Any]:
     try:
         with open(path) as f:
@@ -345,8 +368,9 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
                 model, geom = sub, sub_geom
         else:
             model, geom = pin.appendModel(model, sub, geom, sub_geom, 0, pose)
-        if "srdf" in entry:
-            srdf_infos.append((name, _parse_srdf(_resolve(entry["srdf"], base))))
+        info = _parse_srdf(_resolve(entry["srdf"], base)) if "srdf" in entry else _SrdfInfo([], [], [], [])
+        _inline(entry, info, name)
+        srdf_infos.append((name, info))
 
     for r in desc["robots"]:
         name = r["name"]
@@ -444,7 +468,8 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         robot_joint_ids=tuple(robot_joint_ids),
         freeflyer_idx_q=tuple(model.idx_qs[j] for j in range(1, model.njoints)
                               if model.joints[j].nq == 7))
-    problem.q_init = _configuration(problem, desc.get("init"), "init")
+    problem.q_init = (_configuration(problem, desc["init"], "init") if desc.get("init") is not None
+                      else None)
     if desc.get("goal") is not None:
         problem.q_goal = _configuration(problem, desc["goal"], "goal")
     return problem
