@@ -92,7 +92,17 @@ class ConstrainedPath:
         return self.points[-1]
 
     def eval(self, s: float, out: np.ndarray | None = None) -> np.ndarray:
-        """Configuration at arc length s (clamped to [0, length])."""
+        """Configuration at arc length s (clamped to [0, length]).
+
+        The ends are returned exactly as given (consecutive paths join exactly); in between,
+        explicit constraints are substituted, which may differ from the ends by the projection
+        threshold."""
+        if s <= 0.0 or s >= self.length:
+            q = self.points[0 if s <= 0.0 else -1].copy()
+            if out is not None:
+                out[:] = q
+                return out
+            return q
         if self.length <= 0.0:
             q = self.points[0].copy()
         elif len(self.points) == 2:
