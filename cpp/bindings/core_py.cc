@@ -6,10 +6,12 @@ namespace py = pybind11;
 
 namespace marionette::bindings {
 void RegisterGraph(py::module_& m);
+void RegisterSim(py::module_& m);
 }  // namespace marionette::bindings
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "marionette C++ core (dynamic graph, solver, simulation) for Python";
   m.attr("__version__") = MARIONETTE_VERSION;
   marionette::bindings::RegisterGraph(m);
+  marionette::bindings::RegisterSim(m);
 }
