@@ -1,0 +1,235 @@
+"""Poses of tagged bodies (objects, robot links) from all their visible tags at once.
+
+A body carries several tags (thesis 000 §5.2.1, fig. 5.2: the robot's own arms often hide one);
+its pose is estimated from the corners of *every* visible tag in one Gauss-Newton (ViSP virtual
+visual servoing), so any non-empty subset of its tags yields the pose, and more tags make it
+more precise and less ambiguous. Tags are declared in the models' YAML
+(:mod:`marionette.models.semantics`: id, size, link, pose in the link frame).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from marionette.perception.camera import CameraIntrinsics
+from marionette.perception.detector import TagDetection, errors_ambiguous, rotation_angle
+
+
+@dataclass(frozen=True)
+class TagOnBody:
+    """A tag of a body: black-square edge ``size`` [m] and pose ``X_BT`` in the body frame."""
+
+    tag_id: int
+    size: float
+    X_BT: pin.SE3
+
+
+@dataclass(frozen=True)
+class TaggedBody:
+    """A rigid body seen through its tags: an object's ``base_link`` or a robot link."""
+
+    name: str  # object name, or "<robot>/<link>"
+    link: str
+    tags: tuple[TagOnBody, ...]
+
+    def __post_init__(self) -> None:
+        ids = [t.tag_id for t in self.tags]
+        if not ids:
+            raise ValueError(f"{self.name}: a tagged body needs at least one tag")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"{self.name}: duplicate tag ids {ids}")
+
+    def tag(self, tag_id: int) -> TagOnBody | None:
+        return next((t for t in self.tags if t.tag_id == tag_id), None)
+
+    def tag_sizes(self) -> dict[int, float]:
+        return {t.tag_id: t.size for t in self.tags}
+
+    def corners_B(self, tag_id: int) -> np.ndarray:
+        """(4, 3) corners of the tag's black square in the body frame, detection order."""
+        from marionette import _visp
+
+        t = self.tag(tag_id)
+        if t is None:
+            raise KeyError(f"{self.name} has no tag {tag_id}")
+        return (t.X_BT.homogeneous @ np.c_[_visp.tag_corners(t.size), np.ones(4)].T).T[:, :3]
+
+
+@dataclass(frozen=True)
+class BodyPose:
+    """Pose of a tagged body in the camera frame, from the tags listed in ``tag_ids``."""
+
+    name: str
+    X_CB: pin.SE3
+    tag_ids: tuple[int, ...]
+    reprojection_rms: float  # [px] over all corners used
+    ambiguous: bool  # another pose explained the corners about as well
+    resolved_by: str  # "image" | "depth" | "prior"
+
+
+def tagged_bodies_from_semantics(semantics) -> list[TaggedBody]:
+    """One :class:`TaggedBody` per link carrying tags in a :class:`Semantics` declaration."""
+    by_link: dict[str, list[TagOnBody]] = {}
+    for t in semantics.tags:
+        if t.family != "tag36h11":
+            raise ValueError(f"{semantics.name}: tag {t.id} is {t.family}; only tag36h11 is detected")
+        by_link.setdefault(t.link, []).append(TagOnBody(t.id, t.size, t.pose.se3()))
+    single = len(by_link) == 1
+    return [
+        TaggedBody(semantics.name if single else f"{semantics.name}/{link}", link, tuple(tags))
+        for link, tags in by_link.items()
+    ]
+
+
+def load_tagged_bodies(paths: Iterable[str | Path]) -> list[TaggedBody]:
+    """Tagged bodies of every ``models/**/<name>.yaml`` given; tag ids must be unique overall."""
+    from marionette.models.semantics import load_semantics
+
+    bodies: list[TaggedBody] = []
+    for path in paths:
+        bodies.extend(tagged_bodies_from_semantics(load_semantics(path)))
+    check_unique_ids(bodies)
+    return bodies
+
+
+def check_unique_ids(bodies: Sequence[TaggedBody]) -> None:
+    seen: dict[int, str] = {}
+    for body in bodies:
+        for t in body.tags:
+            if t.tag_id in seen:
+                raise ValueError(f"tag {t.tag_id} is declared on both {seen[t.tag_id]} and {body.name}")
+            seen[t.tag_id] = body.name
+
+
+def tag_sizes(bodies: Sequence[TaggedBody]) -> dict[int, float]:
+    """Tag id -> size over all bodies (for :class:`DetectorConfig`)."""
+    sizes: dict[int, float] = {}
+    for body in bodies:
+        sizes.update(body.tag_sizes())
+    return sizes
+
+
+def estimate_body_pose(
+    body: TaggedBody,
+    detections: Sequence[TagDetection],
+    intrinsics: CameraIntrinsics,
+    depth: np.ndarray | None = None,
+    ambiguity_ratio: float = 0.2,
+    corner_noise_px: float = 0.3,
+    depth_sigma: float = 0.003,
+) -> BodyPose | None:
+    """Pose of ``body`` from the corners of all its detected tags, or None if none is visible.
+
+    Every hypothesis of every visible tag seeds a refinement over all corners; distinct local
+    minima are ranked by reprojection error. When the runner-up is about as good (the tag test,
+    :func:`errors_ambiguous`), the minimum reached from the tags' *retained* hypotheses wins
+    (those carry the depth or prior decision) and ``ambiguous`` is set. With ``depth`` (h, w)
+    [m], the result is refined on corners and the depth pixels of every visible tag's plane.
+    """
+    from marionette import _visp
+
+    best_per_tag: dict[int, TagDetection] = {}
+    for d in detections:  # a tag seen twice (a false positive): keep the better fit
+        if body.tag(d.tag_id) is not None:
+            kept = best_per_tag.get(d.tag_id)
+            if kept is None or d.reprojection_errors[d.chosen] < kept.reprojection_errors[kept.chosen]:
+                best_per_tag[d.tag_id] = d
+    mine = [best_per_tag[i] for i in sorted(best_per_tag)]
+    if not mine:
+        return None
+    p_B = np.vstack([body.corners_B(d.tag_id) for d in mine])
+    uv = np.vstack([d.corners for d in mine])
+    # (error, X_CB, reached from a retained hypothesis)
+    minima: list[tuple[float, pin.SE3, bool]] = []
+    for d in mine:
+        X_TB = body.tag(d.tag_id).X_BT.inverse()
+        for k, X_CT in enumerate(d.hypotheses[: 2 if d.has_second else 1]):
+            est = _visp.refine_pose(p_B, uv, intrinsics.native, (X_CT * X_TB).homogeneous)
+            if not est.ok:
+                continue
+            X = pin.SE3(est.X_CO)
+            retained = k == d.chosen
+            same = next((i for i, m in enumerate(minima)
+                         if rotation_angle(m[1].rotation, X.rotation) < 1e-2), None)
+            if same is None:
+                minima.append((est.reprojection_error, X, retained))
+            elif retained:
+                minima[same] = (minima[same][0], minima[same][1], True)
+    if not minima:
+        return None
+    minima.sort(key=lambda m: m[0])
+    best = minima[0]
+    ambiguous = len(minima) > 1 and errors_ambiguous(
+        minima[0][0], minima[1][0], len(uv), ambiguity_ratio, corner_noise_px)
+    resolved_by = "image"
+    if ambiguous:
+        decided = [d.resolved_by for d in mine if d.resolved_by != "image"]
+        if decided:
+            best = next((m for m in minima if m[2]), best)
+            resolved_by = decided[0]
+    X_CB, error = best[1], best[0]
+    if depth is not None:
+        planes = []
+        for d in mine:
+            X_BT = body.tag(d.tag_id).X_BT
+            n_B = X_BT.rotation[:, 2]
+            planes.append((d.corners, n_B, float(n_B @ X_BT.translation)))
+        fused = _visp.refine_pose_rgbd(p_B, uv, planes, depth, intrinsics.native,
+                                       X_CB.homogeneous, corner_noise_px, depth_sigma)
+        if fused.ok:
+            X_CB, error = pin.SE3(fused.X_CO), fused.reprojection_error
+    rms = math.sqrt(error / len(uv))
+    return BodyPose(body.name, X_CB, tuple(d.tag_id for d in mine), rms, ambiguous, resolved_by)
+
+
+def estimate_body_poses(
+    bodies: Sequence[TaggedBody],
+    detections: Sequence[TagDetection],
+    intrinsics: CameraIntrinsics,
+    **kwargs,
+) -> dict[str, BodyPose]:
+    """:func:`estimate_body_pose` for every body with at least one visible tag."""
+    out = {}
+    for body in bodies:
+        pose = estimate_body_pose(body, detections, intrinsics, **kwargs)
+        if pose is not None:
+            out[body.name] = pose
+    return out
+
+
+def up_axis_prior(
+    bodies: Sequence[TaggedBody],
+    up_B: Mapping[str, np.ndarray],
+    R_WC: np.ndarray,
+    up_W: np.ndarray = np.array([0.0, 0.0, 1.0]),
+):
+    """A hypothesis prior from the graph state "body B rests with axis ``up_B[name]`` up".
+
+    For a tag hypothesis X_CT the implied body up axis in the world is
+    R_WC R_CT R_TB up_B; its angle to ``up_W`` is the cost (thesis 000 §5.2.1: the state of the
+    constraint graph, e.g. the plank lying on the table, tells which tilt is plausible).
+    """
+    table: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for body in bodies:
+        if body.name in up_B:
+            u = np.asarray(up_B[body.name], dtype=float)
+            u = u / np.linalg.norm(u)
+            for t in body.tags:
+                table[t.tag_id] = (t.X_BT.rotation.T, u)
+    up_W = np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)
+
+    def prior(tag_id: int, X_CT: pin.SE3) -> float | None:
+        entry = table.get(tag_id)
+        if entry is None:
+            return None
+        R_TB, u = entry
+        implied = R_WC @ X_CT.rotation @ R_TB @ u
+        return float(math.acos(np.clip(implied @ up_W, -1.0, 1.0)))
+
+    return prior
