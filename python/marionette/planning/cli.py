@@ -15,7 +15,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "plan", help="plan a manipulation problem with Manipulation-RRT over its constraint graph",
         description="Plan a manipulation problem (YAML) and write the plan (<out>/plan.json + "
                     "plan.npz, format marionette-plan/1) and the constraint graph (graph.png).")
-    p.add_argument("problem", type=Path, help="problem file (YAML)")
+    p.add_argument("problem", type=Path,
+                   help="problem file (YAML), or the name of a bundled problem "
+                        "(python/marionette/planning/problems/<name>.yaml, e.g. ur10_box)")
     p.add_argument("--out", type=Path, default=None,
                    help="output folder (default: reports/plans/<problem name>)")
     p.add_argument("--seed", type=int, default=0)
@@ -53,6 +55,9 @@ def run(args: argparse.Namespace) -> int:
     from marionette.planning.problem import ProblemError, load_problem
 
     err = sys.stderr
+    bundled = Path(__file__).parent / "problems" / f"{args.problem}.yaml"
+    if not args.problem.exists() and bundled.exists():
+        args.problem = bundled
     try:
         problem = load_problem(args.problem)
     except (ProblemError, OSError) as e:

@@ -72,6 +72,7 @@ class CollisionChecker:
         self.chains = [self._chain(self.geom_joint[g], self.geom_radius[g]) for g in range(len(objs))]
         self.checks = 0          # number of pair queries (statistics)
         self._motion_cache: dict[int, tuple] = {}
+        self._grasp_pairs: dict[tuple, frozenset[int]] = {}
         self._joint_kinds = []   # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
         for j in range(1, m.njoints):
             jm = m.joints[j]
@@ -93,10 +94,38 @@ class CollisionChecker:
             j = m.parents[j]
         return out
 
+    # --------------------------------------------------------------------------- grasp contacts
+    def grasp_contact_pairs(self, grasps: dict[str, str]) -> frozenset[int]:
+        """Pairs between a gripper's body (the geometries on the gripper frame's joint) and the
+        object whose handle it grasps: contact there is the grasp itself, not a collision."""
+        key = tuple(sorted(grasps.items()))
+        cached = self._grasp_pairs.get(key)
+        if cached is not None:
+            return cached
+        p = self.problem
+        out = set()
+        for g, h in key:
+            gj = p.grippers[g].joint_id
+            oj = p.objects[p.handles[h].object].joint_id
+            for k, (a, b) in enumerate(self.pairs):
+                ja, jb = self.geom_joint[a], self.geom_joint[b]
+                if {ja, jb} == {gj, oj}:
+                    out.add(k)
+        res = frozenset(out)
+        self._grasp_pairs[key] = res
+        return res
+
     # --------------------------------------------------------------------------- configurations
-    def is_valid(self, q: np.ndarray) -> bool:
-        """No pair in collision at q (all pairs)."""
-        return not pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, True)
+    def is_valid(self, q: np.ndarray, allowed: frozenset[int] = frozenset()) -> bool:
+        """No pair in collision at q, except the ``allowed`` ones (grasp contacts)."""
+        if not allowed:
+            return not pin.computeCollisions(self.model, self.data, self.geom_model,
+                                             self.geom_data, q, True)
+        self._update(q)
+        for k in range(len(self.pairs)):
+            if k not in allowed and pin.computeCollision(self.geom_model, self.geom_data, k):
+                return False
+        return True
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of the pairs in collision at q (for error messages)."""
@@ -150,15 +179,26 @@ class CollisionChecker:
         self._motion_cache[key] = (projector, out)
         return out
 
-    def validate(self, path: "ConstrainedPath") -> tuple[bool, float]:
+    def validate(self, path: "ConstrainedPath", allowed: frozenset[int] | None = None
+                 ) -> tuple[bool, float]:
         """(fully valid, s_valid): the path is collision-free on [0, s_valid] (arc length).
 
-        Progressive certified validation, segment by segment of the path's polyline."""
+        Progressive certified validation, segment by segment of the path's polyline.  Pairs in
+        ``allowed`` (default: the grasp contacts of the path's transition) are not checked."""
         rigid, R, L = self._motion(path.projector)
+        if allowed is None:
+            allowed = self.grasp_contact_pairs(path.edge.grasps)
+        if allowed:
+            rigid = rigid.copy()
+            rigid[list(allowed)] = True     # treated as never moving...
+            skip = np.zeros(len(self.pairs), dtype=bool)
+            skip[list(allowed)] = True      # ...and never checked
+        else:
+            skip = None
         q0 = path.eval(0.0)
         self._update(q0)
         # Pairs that do not move relatively: checked once, at the start.
-        for k in np.flatnonzero(rigid):
+        for k in np.flatnonzero(rigid if skip is None else rigid & ~skip):
             self.checks += 1
             if pin.computeCollision(self.geom_model, self.geom_data, int(k)):
                 return False, 0.0

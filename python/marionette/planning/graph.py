@@ -92,6 +92,15 @@ class Edge:
         self._path_projector: Projector | None = None
         self._target_projector: Projector | None = None
 
+    @property
+    def grasps(self) -> dict[str, str]:
+        """Grasps held at either end or along the transition (gripper -> handle); contact between
+        these grippers and objects is the grasp, not a collision."""
+        out: dict[str, str] = {}
+        for s in (self.from_state, self.containing, self.to_state):
+            out.update(s.grasps)
+        return out
+
     # ---------------------------------------------------------------- projectors (lazy, cached)
     def path_constraints(self) -> list[AnyConstraint]:
         """Graph + edge + containing-state constraints: what holds along the path."""

@@ -298,15 +298,16 @@ class GraphFactory:
         preplace = not ppc.empty()
         graph = self.graph
         wstates = [sf.state]
+        held = st.state.grasps      # the waypoints after the pre-grasp already hold the handle
         if pregrasp:
             wstates.append(graph.add_state(fwd + "_pregrasp", (pc + gc["pregrasp"] + manifold).items,
-                                           waypoint=True))
+                                           waypoint=True, grasps=sf.state.grasps))
         if intersec:
             wstates.append(graph.add_state(fwd + "_intersec", (pc + gc["grasp"] + manifold).items,
-                                           waypoint=True))
+                                           waypoint=True, grasps=held))
         if preplace:
             wstates.append(graph.add_state(fwd + "_preplace", (ppc + gc["grasp"] + manifold).items,
-                                           waypoint=True))
+                                           waypoint=True, grasps=held))
         wstates.append(st.state)
         n = len(wstates) - 1
         # Sub-edges before the grasp exists lie in the source state (object still placed);

@@ -285,6 +285,57 @@ def polygon_frame(points: np.ndarray) -> tuple[pin.SE3, np.ndarray]:
     return M, local[:, :2].copy()
 
 
+def _from_models(entry: dict[str, Any]) -> dict[str, Any]:
+    """Resolve ``robot: <name>`` / ``object: <name>`` through :mod:`marionette.robots`
+    (models/<robot>/, models/objects/<object>.urdf + .yaml); explicit keys win."""
+    if "robot" not in entry and "object" not in entry:
+        return entry
+    from marionette import robots
+    from marionette.models.semantics import load_semantics
+
+    out = dict(entry)
+    try:
+        if "robot" in entry:
+            d = robots.robot(entry["robot"])
+            out.setdefault("urdf", str(d.urdf))
+            out.setdefault("srdf", str(d.srdf))
+            out.setdefault("semantics", robots.semantics(entry["robot"]))
+        else:
+            out.setdefault("urdf", str(robots.object_urdf(entry["object"])))
+            yaml_path = robots.object_urdf(entry["object"]).with_suffix(".yaml")
+            if yaml_path.exists():
+                out.setdefault("semantics", load_semantics(yaml_path))
+    except KeyError as e:
+        raise ProblemError(f"unknown model: {e}") from e
+    return out
+
+
+def _robot_root(entry: dict[str, Any]) -> str:
+    if "robot" not in entry:
+        return "fixed"
+    from marionette import robots
+
+    base = robots.robot(entry["robot"]).base
+    if base not in ("free_flyer", "fixed"):
+        raise ProblemError(f"robot {entry['robot']}: base '{base}' is not supported by the planner")
+    return "freeflyer" if base == "free_flyer" else "fixed"
+
+
+def _add_semantics(sem: Any, info: _SrdfInfo, owner: str) -> None:
+    """Grippers/handles/contacts of a :class:`marionette.models.semantics.Semantics` (names there
+    are already ``<owner>/<name>``)."""
+    def local(n: str) -> str:
+        return n.split("/", 1)[1] if "/" in n else n
+
+    for g in sem.grippers:
+        info.grippers.append((local(g.name), g.link, g.pose.se3(), float(g.clearance)))
+    for h in sem.handles:
+        info.handles.append((local(h.name), h.link, h.pose.se3(), float(h.clearance),
+                             tuple(bool(v) for v in h.mask), tuple(float(v) for v in h.approach)))
+    for c in sem.contacts:
+        info.contacts.append((local(c.name), c.link, np.asarray(c.points, dtype=float)))
+
+
 def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
     """Grippers / handles / contacts declared in the problem file, same fields as the SRDF tags.
 
@@ -325,6 +376,8 @@ def load_problem(path: str | Path) -> ManipulationProblem:
 
 
 def _pose7(v: Any, what: str) -> pin.SE3:
+    if isinstance(v, dict):
+        v = list(v.get("xyz", [0, 0, 0])) + list(v.get("xyzw", [0, 0, 0, 1]))
     a = np.asarray(v, dtype=float)
     if a.shape != (7,):
         raise ProblemError(f"{what}: a pose is [x, y, z, qx, qy, qz, qw], got {v}")
@@ -346,6 +399,9 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
 
     def append(name: str, entry: dict[str, Any], root: str) -> None:
         nonlocal model, geom
+        entry = _from_models(entry)
+        if "urdf" not in entry:
+            raise ProblemError(f"{name}: give 'urdf' (and 'srdf'), 'robot: <name>' or 'object: <name>'")
         urdf = _resolve(entry["urdf"], base)
         xml = _prefixed_urdf(urdf, name)
         if root == "freeflyer":
@@ -369,21 +425,29 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         else:
             model, geom = pin.appendModel(model, sub, geom, sub_geom, 0, pose)
         info = _parse_srdf(_resolve(entry["srdf"], base)) if "srdf" in entry else _SrdfInfo([], [], [], [])
+        if "semantics" in entry:
+            _add_semantics(entry["semantics"], info, name)
         _inline(entry, info, name)
+        for pair in entry.get("disable_collisions", []) or []:
+            if len(pair) != 2:
+                raise ProblemError(f"{name}.disable_collisions: pairs of link names, got {pair}")
+            info.disabled.append((str(pair[0]), str(pair[1])))
         srdf_infos.append((name, info))
 
     for r in desc["robots"]:
-        name = r["name"]
+        name = r.get("name", r.get("robot"))
         before = model.njoints
-        append(name, r, r.get("root_joint", "fixed"))
+        append(name, r, r.get("root_joint", _robot_root(r)))
         robot_names.append(name)
         robot_joint_ids.extend(range(before, model.njoints))
         for jn, b in (r.get("joint_bounds") or {}).items():
             joint_bounds[f"{name}/{jn}"] = (float(b[0]), float(b[1]))
     object_entries = desc.get("objects", []) or []
     for o in object_entries:
+        o.setdefault("name", o.get("object"))
         append(o["name"], o, "freeflyer")
     for e in desc.get("environment", []) or []:
+        e.setdefault("name", e.get("object"))
         append(e["name"], e, "fixed")
 
     # Grippers, handles, contacts become frames / surfaces of the combined model.
@@ -468,14 +532,38 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         robot_joint_ids=tuple(robot_joint_ids),
         freeflyer_idx_q=tuple(model.idx_qs[j] for j in range(1, model.njoints)
                               if model.joints[j].nq == 7))
-    problem.q_init = (_configuration(problem, desc["init"], "init") if desc.get("init") is not None
-                      else None)
+    robot_models = {r.get("name", r.get("robot")): r.get("robot") for r in desc["robots"]}
+    problem.q_init = (_configuration(problem, desc["init"], "init", robot_models)
+                      if desc.get("init") is not None else None)
     if desc.get("goal") is not None:
-        problem.q_goal = _configuration(problem, desc["goal"], "goal")
+        problem.q_goal = _configuration(problem, desc["goal"], "goal", robot_models)
     return problem
 
 
-def _configuration(problem: ManipulationProblem, value: Any, what: str) -> np.ndarray:
+def _configuration(problem: ManipulationProblem, value: Any, what: str,
+                   robot_models: dict[str, str | None] | None = None) -> np.ndarray:
+    """A configuration: a flat list (nq), or a mapping {robot: 'reference' | [q], object: pose}
+    in the order of the model (robots, then objects)."""
+    if isinstance(value, dict):
+        parts = []
+        for name in list(problem.robot_names) + list(problem.objects):
+            if name not in value:
+                raise ProblemError(f"{what}: no entry for '{name}'")
+            v = value[name]
+            if name in problem.objects:
+                parts.append(pin.SE3ToXYZQUAT(_pose7(v, f"{what}.{name}")))
+            elif isinstance(v, str):
+                model_name = (robot_models or {}).get(name)
+                if model_name is None:
+                    raise ProblemError(f"{what}.{name}: '{v}' needs a robot given by 'robot: <name>'")
+                from marionette import robots
+                parts.append(np.asarray(robots.reference_configuration(model_name), dtype=float))
+            else:
+                parts.append(np.asarray(v, dtype=float))
+        unknown = set(value) - set(problem.robot_names) - set(problem.objects)
+        if unknown:
+            raise ProblemError(f"{what}: unknown names {sorted(unknown)}")
+        value = np.concatenate(parts)
     if value is None:
         raise ProblemError(f"problem misses '{what}' (a configuration of size nq={problem.nq})")
     q = np.asarray(value, dtype=float)
