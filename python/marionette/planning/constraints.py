@@ -171,7 +171,7 @@ class RelativeTransformation(Constraint):
         self._cache_version = -1
         self._cache_kin: Kinematics | None = None
         self._M: pin.SE3 | None = None
-        self._v6 = np.zeros(6)
+        self._all = bool(self.mask.all())
         if rhs is not None:
             self.rhs = np.asarray(rhs, dtype=float).copy()
             if self.rhs.shape != (self.size,):
@@ -197,17 +197,27 @@ class RelativeTransformation(Constraint):
         return v
 
     def value(self, kin: Kinematics) -> np.ndarray:
-        return self.value6(kin)[self.mask]
+        v = self.value6(kin)
+        return v if self._all else v[self.mask]
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
         M = self.relative_pose(kin)
-        nu = self._Ad2 @ kin.joint_jacobian(self.joint2)
-        if self.joint1 != 0 and self.joint1 not in kin.static:
-            nu -= M.inverse().action @ (self._Ad1 @ kin.joint_jacobian(self.joint1))
+        static = kin.static
+        if self.joint2 in static:
+            nu = None
+        else:
+            nu = self._Ad2 @ kin.joint_jacobian(self.joint2)
+        if self.joint1 != 0 and self.joint1 not in static:
+            # Ad(M^-1) Ad(M1^-1) = Ad((M1 M)^-1): one product instead of two 6x6 ones.
+            t = (self.M1 * M).inverse().action @ kin.joint_jacobian(self.joint1)
+            nu = -t if nu is None else nu - t
+        if nu is None:
+            return np.zeros((self.size, kin.model.nv))
         J = np.empty((6, nu.shape[1]))
-        J[:3] = M.rotation @ nu[:3]
-        J[3:] = pin.Jlog3(M.rotation) @ nu[3:]
-        return J[self.mask]
+        R = M.rotation
+        np.matmul(R, nu[:3], out=J[:3])
+        np.matmul(pin.Jlog3(R), nu[3:], out=J[3:])
+        return J if self._all else J[self.mask]
 
 
 def Transformation(name: str, joint: int, M_JF: pin.SE3, X_WT: pin.SE3,

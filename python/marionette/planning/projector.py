@@ -199,6 +199,8 @@ class Projector:
         self._dv = np.zeros(model.nv)
         self._sat_k = np.array([k for k, _ in self._sat_cols], dtype=int)
         self._sat_q = np.array([iq for _, iq in self._sat_cols], dtype=int)
+        self._sat_lo = self.problem.lower[self._sat_q]
+        self._sat_hi = self.problem.upper[self._sat_q]
         # Relative explicit outputs that are leaf free-flyers under the universe: substituted
         # after a single forward kinematics by patching their pose (no second FK pass).
         children = set(model.parents[1:])
@@ -290,7 +292,7 @@ class Projector:
             Jo = J[:, e.idx_v:e.idx_v + 6]
             if np.any(Jo):
                 J += Jo @ (e.Ad_OP @ self.kin.joint_jacobian(e.parent_joint))
-        return J[:, self.free_idx]
+        return J if len(self.free_idx) == J.shape[1] else J[:, self.free_idx]
 
     # ----------------------------------------------------------------------------- projection
     def project(self, q: np.ndarray) -> ProjectionResult:
@@ -306,12 +308,16 @@ class Projector:
             if not any(c.placement is p for c in self.parametrised):
                 p.select_pair(kin)
         eps2 = self.error_threshold ** 2
-        errors = [self._errors(L) for L in self.levels]
-        norm2 = sum(float(e.dot(e)) for e in errors)
+        levels = self.levels
+        errors = [self._errors(L) for L in levels]
+        norm2 = _norm2(errors)
         alpha = self.line_search.alpha0
         not_decreasing = 0
         dv = self._dv
+        free_idx = self.free_idx
+        all_free = len(free_idx) == model.nv
         lower, upper, bounded = self._lower, self._upper, self._bounded
+        max_step2 = self.max_step ** 2
         it = 0
         while norm2 > eps2:
             if it >= self.max_iterations:
@@ -320,7 +326,7 @@ class Projector:
             n2 = step.dot(step)
             if n2 < 1e-20:
                 return ProjectionResult(ProjectionStatus.LOCAL_MINIMUM, it, math.sqrt(norm2))
-            if n2 > self.max_step ** 2:
+            if n2 > max_step2:
                 # Trust region: far from the manifold, the linearisation is wrong anyway.
                 step *= self.max_step / math.sqrt(n2)
             ls = self.line_search
@@ -331,15 +337,19 @@ class Projector:
                 a = _error_norm_alpha(norm2 / eps2, ls.alpha_min)
             else:
                 a = 1.0
-            dv[:] = 0.0
-            dv[self.free_idx] = a * step
-            q[:] = pin.integrate(model, q, dv)
+            if a != 1.0:
+                step *= a
+            if all_free:
+                q[:] = pin.integrate(model, q, step)
+            else:
+                dv[free_idx] = step
+                q[:] = pin.integrate(model, q, dv)
             qb = q[bounded]
-            if (qb < lower).any() or (qb > upper).any():
+            if ((qb < lower) | (qb > upper)).any():
                 q[bounded] = np.clip(qb, lower, upper)
             self._update_and_substitute(q)
-            errors = [self._errors(L) for L in self.levels]
-            new_norm2 = sum(float(e.dot(e)) for e in errors)
+            errors = [self._errors(L) for L in levels]
+            new_norm2 = _norm2(errors)
             it += 1
             not_decreasing = not_decreasing + 1 if new_norm2 >= norm2 else 0
             norm2 = new_norm2
@@ -353,15 +363,19 @@ class Projector:
     def _descent(self, errors: list[np.ndarray], q: np.ndarray) -> np.ndarray:
         """Newton step on the free variables, level by level, saturated joints removed."""
         jacobians = [self._reduced_jacobian(L) for L in self.levels]
-        step = self._solve(jacobians, errors, ())
-        # Joints at a bound that the step pushes further out are removed, then re-solve once.
+        sat: Sequence[int] = ()
         if self._sat_k.size:
-            qs, ss = q[self._sat_q], step[self._sat_k]
-            out = ((qs <= self.problem.lower[self._sat_q]) & (ss < 0)) | \
-                  ((qs >= self.problem.upper[self._sat_q]) & (ss > 0))
-            if out.any():
-                step = self._solve(jacobians, errors, self._sat_k[out])
-        return step
+            # HPP's saturation: a joint on a bound whose gradient descent direction -J^T e
+            # points outward is removed from the problem (one solve, no retry).
+            qs = q[self._sat_q]
+            at_lo = qs <= self._sat_lo
+            at_hi = qs >= self._sat_hi
+            if (at_lo | at_hi).any():
+                d = -(jacobians[0].T @ errors[0])[self._sat_k]
+                out = (at_lo & (d < 0)) | (at_hi & (d > 0))
+                if out.any():
+                    sat = self._sat_k[out]
+        return self._solve(jacobians, errors, sat)
 
     def _update_and_substitute(self, q: np.ndarray) -> None:
         """Forward kinematics + Jacobians at q with the explicit outputs substituted."""
@@ -378,6 +392,17 @@ class Projector:
 
     def _solve(self, jacobians: list[np.ndarray], errors: list[np.ndarray],
                sat: Sequence[int]) -> np.ndarray:
+        if len(jacobians) == 1:
+            J = jacobians[0]
+            if len(sat):
+                J = J.copy()
+                J[:, sat] = 0.0
+            AAt = J @ J.T
+            AAt.flat[::AAt.shape[0] + 1] += self.damping
+            _, x, info = lapack.dposv(AAt, errors[0])
+            if info != 0:
+                x = np.linalg.lstsq(AAt, errors[0], rcond=None)[0]
+            return -(J.T @ x)
         n = len(self.free_idx)
         step = np.zeros(n)
         N = None
@@ -400,6 +425,13 @@ class Projector:
                 P = np.linalg.pinv(A, rcond=1e-8) @ A
                 N = (np.eye(n) - P) if N is None else N @ (np.eye(n) - P)
         return step
+
+
+def _norm2(errors: list[np.ndarray]) -> float:
+    if len(errors) == 1:
+        e = errors[0]
+        return float(e.dot(e))
+    return sum(float(e.dot(e)) for e in errors)
 
 
 def _error_norm_alpha(r: float, alpha_min: float) -> float:
