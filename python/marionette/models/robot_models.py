@@ -58,17 +58,17 @@ def servo_gains(robot_name: str, joint: str) -> ServoGains:
 
 SERVO_GAINS: dict[str, list[tuple[str, ServoGains]]] = {
     "talos": [
-        ("leg_", ServoGains(kp=5000.0, kv=50.0, armature=0.1)),
-        ("torso_", ServoGains(kp=5000.0, kv=50.0, armature=0.1)),
+        ("leg_", ServoGains(kp=20000.0, kv=400.0, armature=0.1)),
+        ("torso_", ServoGains(kp=20000.0, kv=400.0, armature=0.1)),
         ("arm_left_5", ServoGains(kp=100.0, kv=2.0, armature=0.01)),
         ("arm_right_5", ServoGains(kp=100.0, kv=2.0, armature=0.01)),
         ("arm_left_6", ServoGains(kp=200.0, kv=4.0, armature=0.01)),
         ("arm_right_6", ServoGains(kp=200.0, kv=4.0, armature=0.01)),
         ("arm_left_7", ServoGains(kp=200.0, kv=4.0, armature=0.01)),
         ("arm_right_7", ServoGains(kp=200.0, kv=4.0, armature=0.01)),
-        ("arm_", ServoGains(kp=1000.0, kv=10.0, armature=0.05)),
+        ("arm_", ServoGains(kp=2000.0, kv=20.0, armature=0.05)),
         ("head_", ServoGains(kp=100.0, kv=2.0, armature=0.01)),
-        ("gripper_", ServoGains(kp=20.0, kv=0.4, armature=0.001)),
+        ("gripper_", ServoGains(kp=50.0, kv=1.0, armature=0.001)),
     ],
     "tiago": [
         ("root_x", ServoGains(kp=20000.0, kv=2000.0, armature=0.0)),

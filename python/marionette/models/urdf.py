@@ -264,11 +264,16 @@ def _add_inertial(body: ET.Element, inertial: Inertial) -> None:
 def _add_joint(body: ET.Element, joint: Joint, armature: float) -> None:
     kind = "slide" if joint.type == "prismatic" else "hinge"
     limited = joint.type != "continuous" and joint.lower is not None and joint.upper is not None
+    # Dry friction as in the URDF, but at most 10 % of the effort limit: TALOS' URDF gives its
+    # grippers 1 N m of friction for 1 N m of effort, which would lock them.
+    friction = joint.friction
+    if joint.effort:
+        friction = min(friction, 0.1 * joint.effort)
     sub(body, "joint", name=joint.name, type=kind, axis=fmt_vec(joint.axis),
         range=fmt_vec([joint.lower, joint.upper]) if limited else None,
         limited="true" if limited else "false",
         damping=fmt(joint.damping) if joint.damping else None,
-        frictionloss=fmt(joint.friction) if joint.friction else None,
+        frictionloss=fmt(friction) if friction else None,
         armature=fmt(armature) if armature else None)
 
 
