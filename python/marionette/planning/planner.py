@@ -26,7 +26,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from marionette.planning.collision import CollisionChecker
-from marionette.planning.graph import ConstraintGraph, Edge, State
+from marionette.planning.graph import ConstraintGraph, Edge, State, WaypointEdge
 from marionette.planning.path import ConstrainedPath
 from marionette.planning.problem import ManipulationProblem, random_configuration
 
@@ -231,6 +231,8 @@ class ManipulationRRT:
         edge = self.choose_edge(near.state)
         if edge is None:
             return None
+        if isinstance(edge, WaypointEdge):
+            return self._extend_waypoints(near, edge, q_rand)
         q = q_rand.copy()
         res = edge.generate_target(near.q, q)
         if not res:
@@ -253,6 +255,43 @@ class ManipulationRRT:
                 valid.append(p.extract(0.0, s * 0.999))
             self.stats["extension stopped by a collision"] += 1
             break
+        else:
+            self.stats["extension reached its target"] += 1
+        if not valid:
+            return None
+        q_new = valid[-1].end
+        state = self.graph.state_of(q_new)
+        if state is None:
+            self.stats["extension ended in no state"] += 1
+            return None
+        return valid, q_new.copy(), state
+
+    def _extend_waypoints(self, near: Node, edge: WaypointEdge, q_rand: np.ndarray):
+        """Extension through waypoint states, one sub-transition at a time: each waypoint is
+        generated only once the path to the previous one is known collision-free (HPP generates
+        them all first; the collision-free prefix kept is the same, fewer projections wasted)."""
+        q_prev = near.q
+        valid: list[ConstrainedPath] = []
+        for sub in edge.sub_edges:
+            q = q_rand.copy()
+            res = sub.generate_target(q_prev, q)
+            if not res:
+                self.stats[f"projection failed: {res.status.name}"] += 1
+                break
+            if np.linalg.norm(q - q_prev) < self.graph.error_threshold:
+                continue
+            paths = sub.build(q_prev, q)
+            if not paths:
+                self.stats["path could not be built"] += 1
+                break
+            ok, s = self.checker.validate(paths[0])
+            if not ok:
+                if s > 0:
+                    valid.append(paths[0].extract(0.0, s * 0.999))
+                self.stats["extension stopped by a collision"] += 1
+                break
+            valid.append(paths[0])
+            q_prev = q
         else:
             self.stats["extension reached its target"] += 1
         if not valid:
