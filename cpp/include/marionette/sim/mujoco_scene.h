@@ -1,0 +1,106 @@
+#pragma once
+/// MujocoScene: one MuJoCo 2.2.2 world (robot + objects) and the map between the robot's
+/// Pinocchio configuration layout and MuJoCo's qpos/qvel/actuators.
+///
+/// Conventions (models/README.md): the robot's joints carry the Pinocchio joint names; the base is
+///   free_flyer: freejoint `root_joint`   Pinocchio q: x y z qx qy qz qw, v: (v, w) in the base frame
+///                                        MuJoCo qpos: x y z qw qx qy qz, qvel: v in world, w in base
+///   planar:     slides root_x, root_y and hinge root_yaw   Pinocchio q: x y cos sin, v in the base frame
+///   fixed:      nothing.
+/// Actuators are named like the joint they drive; position servos are MuJoCo `general` actuators
+/// with gain kp and bias (0, -kp, -kv), so ctrl = q_des + (kv / kp) v_des tracks (q_des, v_des).
+///
+/// The floating-base state read here is the simulator's ground truth (a real robot would use an
+/// estimator); object poses are ground truth for tests and perturbations only.
+
+#include <mujoco/mujoco.h>
+
+#include <Eigen/Core>
+#include <memory>
+#include <pinocchio/multibody/model.hpp>
+#include <pinocchio/spatial/se3.hpp>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace marionette::sim {
+
+class SimError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// A 6D wrench (force, torque) on the robot, world axes, torque about `frame`'s origin.
+struct ContactWrench {
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();   // [N]
+  Eigen::Vector3d torque = Eigen::Vector3d::Zero();  // [N m]
+};
+
+class MujocoScene {
+ public:
+  /// Loads the MJCF scene and maps `robot` (its Pinocchio model, same joint names) onto it.
+  /// Throws SimError naming the missing joint/actuator or the MuJoCo load error.
+  MujocoScene(const std::string& mjcf_path, const pinocchio::Model& robot);
+  ~MujocoScene();
+  MujocoScene(const MujocoScene&) = delete;
+  MujocoScene& operator=(const MujocoScene&) = delete;
+
+  const mjModel& model() const { return *model_; }
+  const mjData& data() const { return *data_; }
+  mjData& mutable_data() { return *data_; }
+  double timestep() const { return model_->opt.timestep; }
+  /// Physics steps per control period `dt` (the model timestep must divide it).
+  int SubstepsFor(double dt) const;
+
+  // ---- robot state in Pinocchio layout -------------------------------------------------------
+  /// q (nq), v (nv) of the robot from the current MuJoCo state.
+  void ReadRobotState(Eigen::Ref<Eigen::VectorXd> q, Eigen::Ref<Eigen::VectorXd> v) const;
+  /// Writes q (nq) and v (nv) into MuJoCo (initial state, tests) and recomputes positions.
+  void WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorXd& v);
+  /// Actuator force of every actuated dof, in the robot's velocity layout (nv; 0 on the base).
+  void ReadJointEfforts(Eigen::Ref<Eigen::VectorXd> effort_v) const;
+  /// Sets the position servos to track q_des (nq) and v_des (nv).
+  void WriteServoTargets(const Eigen::VectorXd& q_des, const Eigen::VectorXd& v_des);
+
+  /// Advances the physics by one control period: mj_step1 then mj_step2 over the substeps.
+  /// Call WriteServoTargets between Step1 and Step2 (MuJoCo's split step).
+  void Step1();
+  void Step2(int substeps);
+
+  // ---- contacts and objects ------------------------------------------------------------------
+  /// Sum of the contact wrenches the environment applies to the robot body `body`
+  /// (all its geoms), world axes, torque about the body origin. Throws on an unknown body.
+  ContactWrench BodyContactWrench(const std::string& body) const;
+  ContactWrench BodyContactWrench(int body_id) const;
+  int BodyId(const std::string& body) const;  // throws SimError
+  /// World pose of a body (ground truth).
+  pinocchio::SE3 BodyPose(const std::string& body) const;
+  /// Teleports a free body (freejoint) to X_WB with zero velocity (perturbations, tests).
+  void SetFreeBodyPose(const std::string& body, const pinocchio::SE3& X_WB);
+
+  int robot_nq() const { return nq_; }
+  int robot_nv() const { return nv_; }
+  const std::vector<std::string>& actuated_joint_names() const { return actuated_names_; }
+
+ private:
+  struct JointMap {
+    int qpos_adr;   // MuJoCo
+    int dof_adr;    // MuJoCo
+    int idx_q;      // Pinocchio
+    int idx_v;      // Pinocchio
+    int actuator;   // MuJoCo actuator id or -1
+  };
+  enum class Base { kFixed, kFreeFlyer, kPlanar };
+
+  mjModel* model_ = nullptr;
+  mjData* data_ = nullptr;
+  Base base_ = Base::kFixed;
+  int base_qpos_ = -1, base_dof_ = -1;      // free flyer
+  int planar_qpos_[3] = {-1, -1, -1};       // x, y, yaw
+  int planar_dof_[3] = {-1, -1, -1};
+  int nq_ = 0, nv_ = 0;
+  std::vector<JointMap> joints_;
+  std::vector<std::string> actuated_names_;
+};
+
+}  // namespace marionette::sim

@@ -1,0 +1,226 @@
+#include "marionette/sim/mujoco_scene.h"
+
+#include <Eigen/Geometry>
+#include <cmath>
+
+namespace marionette::sim {
+namespace {
+
+int JointId(const mjModel* m, const std::string& name) {
+  return mj_name2id(m, mjOBJ_JOINT, name.c_str());
+}
+
+Eigen::Matrix3d QuatToMatrix(const double* wxyz) {
+  return Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix();
+}
+
+}  // namespace
+
+MujocoScene::MujocoScene(const std::string& mjcf_path, const pinocchio::Model& robot) {
+  char error[1000] = "";
+  model_ = mj_loadXML(mjcf_path.c_str(), nullptr, error, sizeof(error));
+  if (model_ == nullptr) throw SimError("MuJoCo cannot load '" + mjcf_path + "': " + error);
+  data_ = mj_makeData(model_);
+  nq_ = robot.nq;
+  nv_ = robot.nv;
+
+  for (pinocchio::JointIndex j = 1; j < robot.joints.size(); ++j) {
+    const std::string& name = robot.names[j];
+    const std::string shortname = robot.joints[j].shortname();
+    if (shortname == "JointModelFreeFlyer") {
+      const int id = JointId(model_, name);
+      if (id < 0 || model_->jnt_type[id] != mjJNT_FREE) {
+        throw SimError("scene '" + mjcf_path + "' has no free joint '" + name +
+                       "' for the robot's free-flyer base");
+      }
+      base_ = Base::kFreeFlyer;
+      base_qpos_ = model_->jnt_qposadr[id];
+      base_dof_ = model_->jnt_dofadr[id];
+      continue;
+    }
+    if (shortname == "JointModelPlanar") {
+      const char* parts[3] = {"root_x", "root_y", "root_yaw"};
+      for (int k = 0; k < 3; ++k) {
+        const int id = JointId(model_, parts[k]);
+        if (id < 0) {
+          throw SimError("scene '" + mjcf_path + "' has no joint '" + parts[k] +
+                         "' for the robot's planar base");
+        }
+        planar_qpos_[k] = model_->jnt_qposadr[id];
+        planar_dof_[k] = model_->jnt_dofadr[id];
+      }
+      base_ = Base::kPlanar;
+      continue;
+    }
+    if (robot.joints[j].nq() != 1 || robot.joints[j].nv() != 1) {
+      throw SimError("joint '" + name + "' (" + shortname +
+                     ") is not a 1-dof joint; only revolute/prismatic joints map onto MuJoCo");
+    }
+    const int id = JointId(model_, name);
+    if (id < 0) throw SimError("scene '" + mjcf_path + "' has no joint '" + name + "'");
+    JointMap map{model_->jnt_qposadr[id], model_->jnt_dofadr[id], robot.joints[j].idx_q(),
+                 robot.joints[j].idx_v(), -1};
+    for (int a = 0; a < model_->nu; ++a) {
+      if (model_->actuator_trntype[a] == mjTRN_JOINT && model_->actuator_trnid[2 * a] == id) {
+        map.actuator = a;
+        actuated_names_.push_back(name);
+        break;
+      }
+    }
+    joints_.push_back(map);
+  }
+  mj_forward(model_, data_);
+}
+
+MujocoScene::~MujocoScene() {
+  mj_deleteData(data_);
+  mj_deleteModel(model_);
+}
+
+int MujocoScene::SubstepsFor(double dt) const {
+  const double ratio = dt / model_->opt.timestep;
+  const int n = static_cast<int>(std::lround(ratio));
+  if (n < 1 || std::abs(ratio - n) > 1e-9 * ratio) {
+    throw SimError("the control period " + std::to_string(dt) +
+                   " s is not a multiple of the MuJoCo timestep " +
+                   std::to_string(model_->opt.timestep) + " s");
+  }
+  return n;
+}
+
+void MujocoScene::ReadRobotState(Eigen::Ref<Eigen::VectorXd> q,
+                                 Eigen::Ref<Eigen::VectorXd> v) const {
+  const double* qpos = data_->qpos;
+  const double* qvel = data_->qvel;
+  if (base_ == Base::kFreeFlyer) {
+    const double* p = qpos + base_qpos_;
+    const Eigen::Matrix3d R_WB = QuatToMatrix(p + 3);
+    q.head<3>() = Eigen::Map<const Eigen::Vector3d>(p);
+    q.segment<4>(3) << p[4], p[5], p[6], p[3];  // wxyz -> xyzw
+    const double* dv = qvel + base_dof_;
+    v.head<3>() = R_WB.transpose() * Eigen::Map<const Eigen::Vector3d>(dv);  // world -> base
+    v.segment<3>(3) = Eigen::Map<const Eigen::Vector3d>(dv + 3);             // already in base
+  } else if (base_ == Base::kPlanar) {
+    const double yaw = qpos[planar_qpos_[2]];
+    const double c = std::cos(yaw), s = std::sin(yaw);
+    q.head<4>() << qpos[planar_qpos_[0]], qpos[planar_qpos_[1]], c, s;
+    const double vx = qvel[planar_dof_[0]], vy = qvel[planar_dof_[1]];
+    v.head<3>() << c * vx + s * vy, -s * vx + c * vy, qvel[planar_dof_[2]];
+  }
+  for (const JointMap& j : joints_) {
+    q[j.idx_q] = qpos[j.qpos_adr];
+    v[j.idx_v] = qvel[j.dof_adr];
+  }
+}
+
+void MujocoScene::WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorXd& v) {
+  if (q.size() != nq_ || v.size() != nv_) {
+    throw SimError("WriteRobotState: q has " + std::to_string(q.size()) + " entries (expected " +
+                   std::to_string(nq_) + "), v " + std::to_string(v.size()) + " (expected " +
+                   std::to_string(nv_) + ")");
+  }
+  double* qpos = data_->qpos;
+  double* qvel = data_->qvel;
+  if (base_ == Base::kFreeFlyer) {
+    double* p = qpos + base_qpos_;
+    const Eigen::Quaterniond quat(q[6], q[3], q[4], q[5]);
+    p[0] = q[0], p[1] = q[1], p[2] = q[2];
+    p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
+    const Eigen::Vector3d v_world = quat.normalized().toRotationMatrix() * v.head<3>();
+    for (int k = 0; k < 3; ++k) {
+      qvel[base_dof_ + k] = v_world[k];
+      qvel[base_dof_ + 3 + k] = v[3 + k];
+    }
+  } else if (base_ == Base::kPlanar) {
+    const double yaw = std::atan2(q[3], q[2]);
+    const double c = std::cos(yaw), s = std::sin(yaw);
+    qpos[planar_qpos_[0]] = q[0];
+    qpos[planar_qpos_[1]] = q[1];
+    qpos[planar_qpos_[2]] = yaw;
+    qvel[planar_dof_[0]] = c * v[0] - s * v[1];
+    qvel[planar_dof_[1]] = s * v[0] + c * v[1];
+    qvel[planar_dof_[2]] = v[2];
+  }
+  for (const JointMap& j : joints_) {
+    qpos[j.qpos_adr] = q[j.idx_q];
+    qvel[j.dof_adr] = v[j.idx_v];
+  }
+  mj_forward(model_, data_);
+}
+
+void MujocoScene::ReadJointEfforts(Eigen::Ref<Eigen::VectorXd> effort_v) const {
+  effort_v.setZero();
+  for (const JointMap& j : joints_) {
+    if (j.actuator >= 0) effort_v[j.idx_v] = data_->actuator_force[j.actuator];
+  }
+}
+
+void MujocoScene::WriteServoTargets(const Eigen::VectorXd& q_des, const Eigen::VectorXd& v_des) {
+  for (const JointMap& j : joints_) {
+    if (j.actuator < 0) continue;
+    const double kp = model_->actuator_gainprm[j.actuator * mjNGAIN];
+    const double kv = -model_->actuator_biasprm[j.actuator * mjNBIAS + 2];
+    data_->ctrl[j.actuator] = q_des[j.idx_q] + (kp > 0.0 ? kv / kp : 0.0) * v_des[j.idx_v];
+  }
+}
+
+void MujocoScene::Step1() { mj_step1(model_, data_); }
+
+void MujocoScene::Step2(int substeps) {
+  mj_step2(model_, data_);
+  for (int i = 1; i < substeps; ++i) mj_step(model_, data_);
+}
+
+int MujocoScene::BodyId(const std::string& body) const {
+  const int id = mj_name2id(model_, mjOBJ_BODY, body.c_str());
+  if (id < 0) throw SimError("no body '" + body + "' in the MuJoCo scene");
+  return id;
+}
+
+ContactWrench MujocoScene::BodyContactWrench(const std::string& body) const {
+  return BodyContactWrench(BodyId(body));
+}
+
+ContactWrench MujocoScene::BodyContactWrench(int id) const {
+  const Eigen::Vector3d p_WB = Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * id);
+  ContactWrench w;
+  for (int i = 0; i < data_->ncon; ++i) {
+    const mjContact& c = data_->contact[i];
+    const int b1 = model_->geom_bodyid[c.geom1];
+    const int b2 = model_->geom_bodyid[c.geom2];
+    if ((b1 == id) == (b2 == id)) continue;  // not this body, or a self contact
+    mjtNum f6[6];
+    mj_contactForce(model_, data_, i, f6);
+    // c.frame rows: normal (from geom1 to geom2), then the tangents; f6 = force in that frame,
+    // the force geom1 exerts on geom2.
+    const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> frame(c.frame);
+    Eigen::Vector3d f = frame.transpose() * Eigen::Map<const Eigen::Vector3d>(f6);
+    if (b1 == id) f = -f;
+    const Eigen::Vector3d r = Eigen::Map<const Eigen::Vector3d>(c.pos) - p_WB;
+    w.force += f;
+    w.torque += r.cross(f);
+  }
+  return w;
+}
+
+pinocchio::SE3 MujocoScene::BodyPose(const std::string& body) const {
+  const int id = BodyId(body);
+  return pinocchio::SE3(QuatToMatrix(data_->xquat + 4 * id),
+                        Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * id));
+}
+
+void MujocoScene::SetFreeBodyPose(const std::string& body, const pinocchio::SE3& X_WB) {
+  const int id = BodyId(body);
+  const int jnt = model_->body_jntadr[id];
+  if (jnt < 0 || model_->jnt_type[jnt] != mjJNT_FREE) {
+    throw SimError("body '" + body + "' has no free joint: it cannot be moved");
+  }
+  double* p = data_->qpos + model_->jnt_qposadr[jnt];
+  const Eigen::Quaterniond quat(X_WB.rotation());
+  for (int k = 0; k < 3; ++k) p[k] = X_WB.translation()[k];
+  p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
+  for (int k = 0; k < 6; ++k) data_->qvel[model_->jnt_dofadr[jnt] + k] = 0.0;
+  mj_forward(model_, data_);
+}
+
+}  // namespace marionette::sim

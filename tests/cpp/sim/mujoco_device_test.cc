@@ -1,0 +1,115 @@
+// MujocoScene / MujocoDevice: the Pinocchio <-> MuJoCo state map (against MuJoCo's own body
+// velocities), and TALOS standing on its sole boxes under the position servos (contact forces
+// against its weight, base drift, ZMP inside the feet).
+#include <gtest/gtest.h>
+
+#include <pinocchio/algorithm/center-of-mass.hpp>
+#include <pinocchio/algorithm/frames.hpp>
+#include <pinocchio/algorithm/joint-configuration.hpp>
+#include <pinocchio/algorithm/kinematics.hpp>
+#include <pinocchio/multibody/data.hpp>
+#include <pinocchio/parsers/srdf.hpp>
+#include <pinocchio/parsers/urdf.hpp>
+
+#include <random>
+
+#include "marionette/graph/graph.h"
+#include "marionette/sim/mujoco_device.h"
+
+namespace marionette::sim {
+namespace {
+
+namespace pin = pinocchio;
+const std::string kModels = MARIONETTE_MODELS_DIR;
+
+pin::Model LoadTalos() {
+  pin::Model model;
+  pin::urdf::buildModel(kModels + "/talos/talos.urdf", pin::JointModelFreeFlyer(), model);
+  pin::srdf::loadReferenceConfigurations(model, kModels + "/talos/talos.srdf", false);
+  return model;
+}
+
+// half_sitting with the soles on the floor (z = 0).
+Eigen::VectorXd StandingConfiguration(const pin::Model& model) {
+  pin::Data data(model);
+  Eigen::VectorXd q = model.referenceConfigurations.at("half_sitting");
+  pin::framesForwardKinematics(model, data, q);
+  q[2] -= data.oMf[model.getFrameId("left_sole_link")].translation().z();
+  return q;
+}
+
+TEST(MujocoSceneTest, StateRoundTripsAndVelocityConventionsMatchMujoco) {
+  const pin::Model model = LoadTalos();
+  MujocoScene scene(kModels + "/talos/talos.xml", model);
+  std::mt19937 rng(7);
+  std::normal_distribution<double> normal;
+  for (int trial = 0; trial < 5; ++trial) {
+    Eigen::VectorXd q = pin::randomConfiguration(model, model.lowerPositionLimit.cwiseMax(-3.0),
+                                                 model.upperPositionLimit.cwiseMin(3.0));
+    Eigen::VectorXd v(model.nv);
+    for (int i = 0; i < model.nv; ++i) v[i] = normal(rng);
+    scene.WriteRobotState(q, v);
+    Eigen::VectorXd q2(model.nq), v2(model.nv);
+    scene.ReadRobotState(q2, v2);
+    EXPECT_TRUE(q2.isApprox(q, 1e-12)) << trial;
+    EXPECT_TRUE(v2.isApprox(v, 1e-12)) << trial;
+    // Independent check: MuJoCo's own 6D velocity of the base body frame (mjOBJ_XBODY: the
+    // body frame, not its inertial frame), in that frame, angular first, equals Pinocchio's
+    // free-flyer velocity (linear first, base frame).
+    mjtNum vel[6];
+    mj_objectVelocity(&scene.model(), &scene.data(), mjOBJ_XBODY, scene.BodyId("base_link"), vel, 1);
+    EXPECT_NEAR((Eigen::Map<Eigen::Vector3d>(vel + 3) - v.head<3>()).norm(), 0.0, 1e-9);
+    EXPECT_NEAR((Eigen::Map<Eigen::Vector3d>(vel) - v.segment<3>(3)).norm(), 0.0, 1e-9);
+    // And a link pose against Pinocchio's forward kinematics.
+    pin::Data data(model);
+    pin::framesForwardKinematics(model, data, q);
+    const pin::SE3 X = scene.BodyPose("arm_left_7_link");
+    EXPECT_TRUE(X.isApprox(data.oMf[model.getFrameId("arm_left_7_link")], 1e-9));
+  }
+}
+
+TEST(MujocoDeviceTest, TalosStandsOnItsSolesUnderTheServos) {
+  const pin::Model model = LoadTalos();
+  MujocoScene scene(kModels + "/talos/talos.xml", model);
+  const Eigen::VectorXd q0 = StandingConfiguration(model);
+  scene.WriteRobotState(q0, Eigen::VectorXd::Zero(model.nv));
+
+  graph::GraphBuilder b;
+  auto& device = b.Add<MujocoDevice>("device", &scene,
+                                     std::vector<std::string>{"left_sole_link", "right_sole_link"},
+                                     1e-3);
+  device.q_command_input().SetValue(q0);  // hold half-sitting
+  auto graph = b.Build();
+
+  pin::Data data(model);
+  const double weight = pin::computeTotalMass(model) * 9.81;
+  double fz_sum = 0.0, zmp_violations = 0.0;
+  int samples = 0;
+  graph::Tick t;
+  for (; t.index < 3000; ++t) {
+    device.Read(t);
+    graph->Evaluate(t);
+    device.Write(t);
+    if (t.index >= 2000) {  // settled: the last second
+      const Eigen::VectorXd& wl = device.wrench_output(0).value();
+      const Eigen::VectorXd& wr = device.wrench_output(1).value();
+      fz_sum += wl[2] + wr[2];
+      ++samples;
+      // ZMP of each foot from its wrench about the sole origin: p = (-ty / fz, tx / fz).
+      for (const Eigen::VectorXd* w : {&wl, &wr}) {
+        if ((*w)[2] < 1.0) continue;
+        const double zx = -(*w)[4] / (*w)[2], zy = (*w)[3] / (*w)[2];
+        // Soles are 0.205 x 0.122 m boxes centred on the sole frame (models/talos/talos.xml).
+        if (std::abs(zx) > 0.1025 || std::abs(zy) > 0.061) zmp_violations += 1;
+      }
+    }
+  }
+  const Eigen::VectorXd& q = device.q_output().value();
+  EXPECT_LT((q.head<2>() - q0.head<2>()).norm(), 0.01) << "base drift in x, y";
+  EXPECT_NEAR(q[2], q0[2], 0.01) << "base height";
+  EXPECT_NEAR(fz_sum / samples, weight, 0.02 * weight) << "the soles carry the robot's weight";
+  EXPECT_EQ(zmp_violations, 0) << "each foot's centre of pressure stays under the foot";
+}
+
+}  // namespace
+}  // namespace marionette::sim
