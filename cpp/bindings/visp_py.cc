@@ -180,7 +180,7 @@ PYBIND11_MODULE(_visp, m) {
         [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const std::vector<py::tuple>& planes,
            const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
            const mp::CameraIntrinsics& k, const Eigen::Matrix4d& X_CO_initial,
-           double sigma_pixel, double sigma_depth, double shrink) {
+           double sigma_pixel, double sigma_depth, double polygon_scale) {
           CheckImage(depth, k, "depth");
           std::vector<mp::DepthPlane> native;
           for (const py::tuple& t : planes) {
@@ -193,7 +193,7 @@ PYBIND11_MODULE(_visp, m) {
           mp::RgbdRefineOptions options;
           options.sigma_pixel = sigma_pixel;
           options.sigma_depth = sigma_depth;
-          options.shrink = shrink;
+          options.polygon_scale = polygon_scale;
           const auto p = Points3(p_O, "p_O");
           const auto q = Points2(uv, "uv");
           const Eigen::Isometry3d X0 = ToIsometry(X_CO_initial, "X_CO_initial");
@@ -202,7 +202,7 @@ PYBIND11_MODULE(_visp, m) {
         },
         py::arg("p_O"), py::arg("uv"), py::arg("planes"), py::arg("depth"), py::arg("intrinsics"),
         py::arg("X_CO_initial"), py::arg("sigma_pixel") = 0.3, py::arg("sigma_depth") = 0.003,
-        py::arg("shrink") = 0.8,
+        py::arg("polygon_scale") = 0.8,
         "depth-fused Gauss-Newton: corners + point-to-plane distances of depth pixels");
 
   py::class_<mp::HandEyeResult>(m, "HandEyeResult")

@@ -13,6 +13,7 @@ import sys
 
 COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
+    "marionette.perception.cli",
 ]
 
 

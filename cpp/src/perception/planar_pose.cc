@@ -181,10 +181,10 @@ PoseEstimate RefinePoseRgbd(const std::vector<Eigen::Vector3d>& p_O,
   k.Validate();
   CheckPoints("RefinePoseRgbd", p_O, uv);
   if (depth == nullptr) throw PerceptionError("RefinePoseRgbd: depth is null");
-  if (!(options.sigma_pixel > 0.0 && options.sigma_depth > 0.0 && options.shrink > 0.0 &&
-        options.shrink <= 1.0 && options.max_iterations > 0)) {
+  if (!(options.sigma_pixel > 0.0 && options.sigma_depth > 0.0 && options.polygon_scale > 0.0 &&
+        options.polygon_scale <= 2.0 && options.max_iterations > 0)) {
     throw PerceptionError(
-        "RefinePoseRgbd: need sigma_pixel > 0, sigma_depth > 0, 0 < shrink <= 1, "
+        "RefinePoseRgbd: need sigma_pixel > 0, sigma_depth > 0, 0 < polygon_scale <= 2, "
         "max_iterations > 0");
   }
   if (!X_CO_initial.matrix().allFinite()) {
@@ -206,7 +206,7 @@ PoseEstimate RefinePoseRgbd(const std::vector<Eigen::Vector3d>& p_O,
     std::vector<Eigen::Vector2d> shrunk;
     double u0 = k.width, u1 = 0.0, v0 = k.height, v1 = 0.0;
     for (const auto& c : poly) {
-      shrunk.push_back(centroid + options.shrink * (c - centroid));
+      shrunk.push_back(centroid + options.polygon_scale * (c - centroid));
       u0 = std::min(u0, shrunk.back().x());
       u1 = std::max(u1, shrunk.back().x());
       v0 = std::min(v0, shrunk.back().y());

@@ -123,6 +123,7 @@ def estimate_body_pose(
     ambiguity_ratio: float = 0.2,
     corner_noise_px: float = 0.3,
     depth_sigma: float = 0.003,
+    depth_polygon_scale: float = 1.1,
 ) -> BodyPose | None:
     """Pose of ``body`` from the corners of all its detected tags, or None if none is visible.
 
@@ -181,7 +182,8 @@ def estimate_body_pose(
             n_B = X_BT.rotation[:, 2]
             planes.append((d.corners, n_B, float(n_B @ X_BT.translation)))
         fused = _visp.refine_pose_rgbd(p_B, uv, planes, depth, intrinsics.native,
-                                       X_CB.homogeneous, corner_noise_px, depth_sigma)
+                                       X_CB.homogeneous, corner_noise_px, depth_sigma,
+                                       depth_polygon_scale)
         if fused.ok:
             X_CB, error = pin.SE3(fused.X_CO), fused.reprojection_error
     rms = math.sqrt(error / len(uv))

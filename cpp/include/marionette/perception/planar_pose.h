@@ -54,8 +54,9 @@ struct DepthPlane {
 struct RgbdRefineOptions {
   double sigma_pixel = 0.3;    // corner noise [px]
   double sigma_depth = 0.003;  // depth noise [m]
-  double shrink = 0.8;         // depth pixels are taken in the polygon scaled by this about its
-                               // centroid (away from edges, where depth mixes two surfaces)
+  double polygon_scale = 0.8;  // depth pixels are taken in the polygon scaled by this about its
+                               // centroid: < 1 keeps away from edges, where depth mixes two
+                               // surfaces; a tag's white border allows up to 1.25 (10/8 cells)
   int max_iterations = 20;
 };
 

@@ -1,0 +1,162 @@
+"""``marionette perceive`` and ``marionette calibrate`` (thin: parsing and wiring only)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _default_object_files() -> list[Path]:
+    from marionette import MODELS_DIR
+
+    return sorted(p for p in (MODELS_DIR / "objects").glob("*.yaml") if "tags:" in p.read_text())
+
+
+def _up_axis(text: str) -> tuple[str, np.ndarray]:
+    try:
+        name, axis = text.split(":")
+        vector = np.array([float(a) for a in axis.split(",")])
+        if vector.shape != (3,) or not np.linalg.norm(vector) > 0:
+            raise ValueError
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected NAME:X,Y,Z, got {text!r}") from None
+    return name, vector
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "perceive", help="detect AprilTags in camera frames, publish tag detections and object poses",
+        description="Subscribes CAMERA_HEAD (and ROBOT_STATE); publishes APRILTAG_DETECTIONS and "
+                    "OBJECT_POSES at camera rate.")
+    p.add_argument("--lcm-url", default=None, help="LCM URL (default: $MARIONETTE_LCM_URL)")
+    p.add_argument("--objects", nargs="*", type=Path, default=None,
+                   help="object YAML files with tags (default: every models/objects/*.yaml with tags)")
+    p.add_argument("--robot", default="talos", help="robot whose kinematics place the camera "
+                   "(talos, tiago, ur10) or 'none'")
+    p.add_argument("--camera-frame", default=None, help="optical frame (default: the robot's)")
+    p.add_argument("--camera-channel", default=None, help="image channel (default CAMERA_HEAD)")
+    p.add_argument("--camera-pose-source", choices=("kinematics", "message"), default=None,
+                   help="world pose of the camera: robot kinematics (default with a robot) or the "
+                        "simulator's pose in the image message")
+    p.add_argument("--no-depth", action="store_true", help="ignore depth (image-only poses)")
+    p.add_argument("--up-axis", action="append", type=_up_axis, default=[], metavar="NAME:X,Y,Z",
+                   help="prior: body NAME rests with this axis up (resolves ambiguous tags)")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--stats-period", type=float, default=5.0, help="print statistics every s")
+    p.set_defaults(func=_perceive)
+
+    c = subparsers.add_parser(
+        "calibrate", help="hand-eye or joint-offset calibration from recorded measurements",
+        description="Reads measurements from a JSON file and prints the calibration as JSON.")
+    sub = c.add_subparsers(dest="calibration", required=True, metavar="KIND")
+    he = sub.add_parser("hand-eye", help="camera mount from (robot pose, target pose) pairs")
+    he.add_argument("measurements", type=Path,
+                    help='JSON {"X_RE": [4x4...], "X_CT": [4x4...]} (eye-in-hand; for a head '
+                         'camera and a target in the hand pass X_HG as X_RE, see calibration.py)')
+    he.set_defaults(func=_calibrate_hand_eye)
+    jo = sub.add_parser("joint-offsets", help="encoder offsets by simultaneous projection (ch. 4.2)")
+    jo.add_argument("measurements", type=Path,
+                    help='JSON {"robot": "talos", "base_frame": ..., "marker_frame": ..., '
+                         '"joints": [...], "configurations": [[q...]], "positions": [[x,y,z]...]}')
+    jo.set_defaults(func=_calibrate_joint_offsets)
+
+
+def _perceive(args: argparse.Namespace) -> int:
+    from marionette import robots
+    from marionette.lcm_bus import LcmBus
+    from marionette.perception.kinematics import CameraKinematics
+    from marionette.perception.node import PerceptionConfig, PerceptionNode
+    from marionette.perception.objects import (
+        check_unique_ids, load_tagged_bodies, tagged_bodies_from_semantics)
+
+    logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s", stream=sys.stderr)
+    files = args.objects if args.objects is not None else _default_object_files()
+    bodies = load_tagged_bodies(files)
+    kinematics = None
+    if args.robot != "none":
+        model, _ = robots.load_pinocchio(args.robot, with_collision=False)
+        frame = args.camera_frame or robots.robot(args.robot).camera_frame
+        if frame is None:
+            print(f"robot {args.robot} has no camera frame; pass --camera-frame", file=sys.stderr)
+            return 2
+        kinematics = CameraKinematics(model, frame)
+        robot_sem = robots.semantics(args.robot)
+        if robot_sem.tags:  # e.g. wrist tags, for the measured gripper pose of PBVS
+            bodies += tagged_bodies_from_semantics(robot_sem)
+            check_unique_ids(bodies)
+    source = args.camera_pose_source or ("kinematics" if kinematics else "message")
+    config = PerceptionConfig(bodies=bodies, use_depth=not args.no_depth, camera_pose_source=source,
+                              up_axes=dict(args.up_axis))
+    if args.camera_channel:
+        config.camera_channel = args.camera_channel
+    node = PerceptionNode(config, kinematics)
+    bus = LcmBus(args.lcm_url)
+    node.attach(bus)
+    bus.start()
+    print(f"perceive: {len(bodies)} tagged bodies ({', '.join(b.name for b in bodies)}), "
+          f"camera pose from {source}, listening on {config.camera_channel}", flush=True)
+    start = last_print = time.monotonic()
+    try:
+        while True:
+            node.step(timeout_s=0.1)
+            now = time.monotonic()
+            if args.max_frames is not None and node.counters["frames_processed"] >= args.max_frames:
+                break
+            if args.duration is not None and now - start >= args.duration:
+                break
+            if now - last_print >= args.stats_period:
+                print(f"perceive: {json.dumps(node.stats())}", flush=True)
+                last_print = now
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.stop()
+    print(f"perceive: final {json.dumps(node.stats())}", flush=True)
+    return 0
+
+
+def _load_json(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"calibrate: cannot read {path}: {exc}")
+
+
+def _calibrate_hand_eye(args: argparse.Namespace) -> int:
+    from marionette.perception.calibration import calibrate_hand_eye
+
+    data = _load_json(args.measurements)
+    import pinocchio as pin
+
+    X_RE = [pin.SE3(np.asarray(M, float)) for M in data["X_RE"]]
+    X_CT = [pin.SE3(np.asarray(M, float)) for M in data["X_CT"]]
+    result = calibrate_hand_eye(X_RE, X_CT)
+    print(json.dumps({"X_EC": result.X_EC.homogeneous.tolist(),
+                      "rms_position_m": result.rms_position,
+                      "rms_rotation_deg": float(np.degrees(result.rms_rotation))}, indent=2))
+    return 0
+
+
+def _calibrate_joint_offsets(args: argparse.Namespace) -> int:
+    from marionette import robots
+    from marionette.perception.calibration import JointOffsetProblem, calibrate_joint_offsets
+
+    data = _load_json(args.measurements)
+    model, _ = robots.load_pinocchio(data["robot"], with_collision=False)
+    problem = JointOffsetProblem(model, data["base_frame"], data["marker_frame"], data["joints"])
+    result = calibrate_joint_offsets(problem, np.asarray(data["configurations"], float),
+                                     np.asarray(data["positions"], float))
+    print(json.dumps({"joints": list(problem.joints),
+                      "offsets_deg": np.degrees(result.offsets).tolist(),
+                      "marker_in_end_frame": result.p_EM.tolist(),
+                      "marker_base_in_base_frame": result.p_BA.tolist(),
+                      "rms_residual_m": result.rms_residual,
+                      "iterations": result.iterations}, indent=2))
+    return 0
