@@ -11,6 +11,7 @@ struct Graph::Topology {
   int64_t version = 0;
   std::vector<std::shared_ptr<Entity>> entities;
   std::unordered_map<std::string, Entity*> by_name;
+  std::vector<const PollHook*> polls;      // run first, every tick
   std::vector<StateSlot*> states;          // committed after every tick
   std::vector<const UpdateHook*> hooks;    // run every tick
   int num_signals = 0;
@@ -130,6 +131,7 @@ std::unique_ptr<Graph::Topology> MakeTopology(std::vector<std::shared_ptr<Entity
     topo->num_signals += static_cast<int>(e->signals().size());
     for (const auto& s : e->states()) topo->states.push_back(s.get());
     for (const UpdateHook& h : e->update_hooks()) topo->hooks.push_back(&h);
+    for (const PollHook& p : e->poll_hooks()) topo->polls.push_back(&p);
   }
   return topo;
 }
@@ -174,6 +176,8 @@ Graph::Graph(std::unique_ptr<Topology> topology) : topology_(std::move(topology)
 Graph::~Graph() = default;
 
 void Graph::Evaluate(const Tick& t) {
+  // Phase 0: data from outside the graph enters it.
+  for (const PollHook* p : topology_->polls) p->run(t);
   // Phase 1: everything reads the values of tick t (pulling computes what is needed, once).
   for (StateSlot* s : topology_->states) s->ComputeNext(t);
   for (const UpdateHook* h : topology_->hooks) h->run(t);

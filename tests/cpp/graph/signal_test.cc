@@ -89,6 +89,18 @@ TEST(SignalTest, StateHoldsCurrentValueDuringTheTickAndAdvancesAfter) {
   EXPECT_TRUE(integrator.state_output().value().isApprox(Eigen::Vector2d(11.0, -1.0), 1e-12));
 }
 
+TEST(SignalTest, PollHooksRunBeforeAnythingIsEvaluated) {
+  GraphBuilder b;
+  auto& counter = b.Add<testing::TickCounter>("counter");
+  auto& sum = b.Add<VectorIntegrator>("sum", Eigen::VectorXd::Zero(1));
+  b.Connect(counter.out(), sum.derivative_input());
+  auto graph = b.Build();
+  Tick t{.index = 0, .time = 0.0, .dt = 1.0};
+  RunTicks(*graph, &t, 10);
+  // The integrator saw 0, 1, ..., 9 during ticks 0..9: the poll ran first in every tick.
+  EXPECT_DOUBLE_EQ(sum.state_output().value()[0], 45.0);
+}
+
 TEST(SignalTest, FixedValuesCheckTheirShape) {
   Square square("square", 3);
   EXPECT_FALSE(square.x().is_set());

@@ -36,4 +36,19 @@ class ScalarSource final : public Entity {
   OutputSignal<double>* out_{};
 };
 
+/// A source written by its poll hook at the start of each tick: out = tick index.
+class TickCounter final : public Entity {
+ public:
+  explicit TickCounter(std::string name) : Entity(std::move(name)) {
+    out_ = &DeclareSource<Eigen::VectorXd>("out", Eigen::VectorXd::Zero(1));
+    DeclarePoll("read", &TickCounter::Read);
+  }
+  const char* type_name() const override { return "TickCounter"; }
+  OutputSignal<Eigen::VectorXd>& out() { return *out_; }
+
+ private:
+  void Read(const Tick& t) { out_->mutable_value()[0] = static_cast<double>(t.index); }
+  OutputSignal<Eigen::VectorXd>* out_{};
+};
+
 }  // namespace marionette::graph::testing

@@ -37,6 +37,14 @@ class StateSlot {
   std::vector<const SignalBase*> prerequisites_;
 };
 
+/// A callback run at the start of every tick, before anything is evaluated: it brings data from
+/// outside the graph (LCM mailboxes, sensors) into its entity's buffers and source outputs.
+struct PollHook {
+  Entity* owner;
+  std::string name;
+  std::function<void(const Tick&)> run;
+};
+
 /// A callback run once per tick after evaluation: tracers, publishers, devices pulling their
 /// command. It reads signals through Eval(t) and writes only its entity's private buffers.
 struct UpdateHook {
@@ -62,6 +70,7 @@ class Entity {
   std::vector<SignalBase*> outputs() const;
   const std::vector<std::unique_ptr<StateSlot>>& states() const { return states_; }
   const std::vector<UpdateHook>& update_hooks() const { return update_hooks_; }
+  const std::vector<PollHook>& poll_hooks() const { return poll_hooks_; }
 
   /// The signal called `name`, or nullptr.
   SignalBase* FindSignal(std::string_view name) const;
@@ -97,6 +106,10 @@ class Entity {
   template <typename E>
   void DeclareUpdate(std::string name, void (E::*update)(const Tick&) const,
                      std::vector<const SignalBase*> prerequisites);
+  /// A callback run at the start of every tick, before evaluation, that may change this
+  /// entity's buffers and source outputs (it is the only non-const callback).
+  template <typename E>
+  void DeclarePoll(std::string name, void (E::*poll)(const Tick&));
 
  private:
   void CheckNewSignalName(const std::string& name) const;
@@ -109,6 +122,7 @@ class Entity {
   std::vector<std::unique_ptr<SignalBase>> signals_;
   std::vector<std::unique_ptr<StateSlot>> states_;
   std::vector<UpdateHook> update_hooks_;
+  std::vector<PollHook> poll_hooks_;
 };
 
 // ----------------------------------------------------------------------------------------------
@@ -230,6 +244,12 @@ void Entity::DeclareUpdate(std::string name, void (E::*update)(const Tick&) cons
   update_hooks_.push_back(UpdateHook{this, std::move(name),
                                      [self, update](const Tick& t) { (self->*update)(t); },
                                      std::move(prerequisites)});
+}
+
+template <typename E>
+void Entity::DeclarePoll(std::string name, void (E::*poll)(const Tick&)) {
+  E* self = static_cast<E*>(this);
+  poll_hooks_.push_back(PollHook{this, std::move(name), [self, poll](const Tick& t) { (self->*poll)(t); }});
 }
 
 }  // namespace marionette::graph

@@ -29,8 +29,9 @@ class Graph {
   Graph& operator=(const Graph&) = delete;
   ~Graph();
 
-  /// Evaluates tick t: runs every state update and update hook (each pulls what it needs, every
-  /// output computed at most once), then commits the states. Allocates nothing, takes no lock.
+  /// Evaluates tick t: runs every poll hook (outside data in), every state update and update
+  /// hook (each pulls what it needs, every output computed at most once), then commits the
+  /// states. Allocates nothing, takes no lock.
   void Evaluate(const Tick& t);
 
   const std::vector<std::shared_ptr<Entity>>& entities() const;
