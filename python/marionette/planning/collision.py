@@ -203,9 +203,12 @@ class CollisionChecker:
             if pin.computeCollision(self.geom_model, self.geom_data, int(k)):
                 return False, 0.0
         pts = path.points
+        # Certified displacement left to each pair (0: query it); carried from segment to
+        # segment of a polyline so that a projected path is not re-queried at every vertex.
+        budget = np.zeros(len(self.pairs))
         for i in range(len(pts) - 1):
             s0, s1 = path.cum[i], path.cum[i + 1]
-            ok, t = self._validate_segment(path, pts[i], pts[i + 1], s0, s1, rigid, R, L)
+            ok, t = self._validate_segment(path, pts[i], pts[i + 1], s0, s1, rigid, R, L, budget)
             if not ok:
                 return False, s0 + t * (s1 - s0)
         return True, path.length
@@ -229,14 +232,17 @@ class CollisionChecker:
     def _update(self, q: np.ndarray) -> None:
         pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, q)
 
-    def _validate_segment(self, path, qa, qb, s0, s1, rigid, R, L) -> tuple[bool, float]:
-        """Certified check of the segment qa -> qb (t in [0, 1]); (ok, first unsafe t)."""
+    def _validate_segment(self, path, qa, qb, s0, s1, rigid, R, L,
+                          budget: np.ndarray) -> tuple[bool, float]:
+        """Certified check of the segment qa -> qb (t in [0, 1]); (ok, first unsafe t).
+        ``budget`` (npairs): certified displacement left per pair, updated in place."""
         ang, lin = self._joint_speeds(qa, qb)
         u = R @ ang + L @ lin
         moving = (u > 0.0) & ~rigid
         if not moving.any():
             return True, 1.0
-        horizon = np.where(moving, 0.0, np.inf)   # t up to which each pair is certified
+        horizon = np.full(len(u), np.inf)        # t up to which each pair is certified
+        horizon[moving] = budget[moving] / u[moving]
         t = 0.0
         length = s1 - s0
         gm, gd = self.geom_model, self.geom_data
@@ -255,6 +261,7 @@ class CollisionChecker:
                     horizon[k] = t + d / u[k]
             t_next = float(horizon.min())
             if t_next >= 1.0:
+                budget[moving] = (horizon[moving] - 1.0) * u[moving]
                 return True, 1.0
             # d > 0 at every query, so horizons strictly increase; the floor only guards
             # against grazing contacts where d ~ 1e-12 would make progress invisible.

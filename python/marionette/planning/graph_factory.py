@@ -343,10 +343,56 @@ class GraphFactory:
         graph.add_edge(wb)
 
 
+def graph_constraints_from_settings(problem: ManipulationProblem,
+                                    entries: Sequence[dict[str, Any]]) -> list[AnyConstraint]:
+    """Constraints of every state, from the problem file (values taken at ``init``):
+
+    ``{fixed_frame: <frame>, mask: [6 x 0/1]}``: the frame keeps its initial pose (a foot on
+    the ground); ``{com: [1, 1, 0]}``: the centre of mass keeps its initial position on the
+    masked axes (quasi-static balance over fixed feet, thesis §3.2.1 g_CoM);
+    ``{locked_joint: <joint>}``: the joint keeps its initial value.
+    """
+    from marionette.planning.constraints import ComPosition, Kinematics, Transformation
+
+    if not entries:
+        return []
+    if problem.q_init is None:
+        raise GraphError("graph constraints take their values from 'init', which is missing")
+    kin = Kinematics(problem.model)
+    kin.update(problem.q_init, jacobians=False)
+    out: list[AnyConstraint] = []
+    for e in entries:
+        if "fixed_frame" in e:
+            fid = problem.frame_id(e["fixed_frame"])
+            f = problem.model.frames[fid]
+            X = kin.data.oMi[f.parentJoint] * f.placement
+            out.append(Transformation(f"{e['fixed_frame']} fixed", f.parentJoint, f.placement, X,
+                                      [bool(v) for v in e.get("mask", [1] * 6)]))
+        elif "com" in e:
+            mask = [bool(v) for v in e["com"]]
+            c = ComPosition("com", 0, pin.SE3.Identity(), mask=mask)
+            c.rhs = c.value(kin).copy()
+            out.append(c)
+        elif "locked_joint" in e:
+            name = e["locked_joint"]
+            if not problem.model.existJointName(name):
+                raise GraphError(f"locked_joint: no joint {name}")
+            jid = problem.model.getJointId(name)
+            lk = LockedJoint(f"{name} locked", problem.model, jid)
+            lk.rhs_from_q(problem.q_init)
+            lk.parametrised = False
+            out.append(lk)
+        else:
+            raise GraphError(f"unknown graph constraint {e}: use fixed_frame, com or locked_joint")
+    return out
+
+
 def graph_from_settings(problem: ManipulationProblem,
                         graph_constraints: Sequence[AnyConstraint] = ()) -> ConstraintGraph:
     """Build the graph described by the problem file's ``graph:`` section."""
     s: dict[str, Any] = problem.settings
+    graph_constraints = list(graph_constraints) + graph_constraints_from_settings(
+        problem, s.get("constraints", []) or [])
     grippers = s.get("grippers", list(problem.grippers))
     objs = s.get("objects") or {o: {"handles": list(i.handles), "contacts": list(i.contacts)}
                                for o, i in problem.objects.items()}

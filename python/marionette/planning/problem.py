@@ -114,6 +114,7 @@ class ManipulationProblem:
     source: Path | None = None
     robot_joint_ids: tuple[int, ...] = ()
     freeflyer_idx_q: tuple[int, ...] = ()
+    fixed_rotation_idx_q: tuple[int, ...] = ()   # free-flyers sampled with their init rotation
 
     @property
     def nq(self) -> int:
@@ -137,17 +138,21 @@ class ManipulationProblem:
 
     def configuration_layout(self) -> list[str]:
         """One label per q entry: joint names, and '<joint>.x' ... '<joint>.qw' for free-flyers."""
-        labels: list[str] = []
-        for jid in range(1, self.model.njoints):
-            j = self.model.joints[jid]
-            name = self.model.names[jid]
-            if j.nq == 1:
-                labels.append(name)
-            elif j.nq == 7:
-                labels += [f"{name}.{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
-            else:
-                labels += [f"{name}[{i}]" for i in range(j.nq)]
-        return labels
+        return _layout(self.model)
+
+
+def _layout(model: pin.Model) -> list[str]:
+    labels: list[str] = []
+    for jid in range(1, model.njoints):
+        j = model.joints[jid]
+        name = model.names[jid]
+        if j.nq == 1:
+            labels.append(name)
+        elif j.nq == 7:
+            labels += [f"{name}.{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
+        else:
+            labels += [f"{name}[{i}]" for i in range(j.nq)]
+    return labels
 
 
 # ---------------------------------------------------------------------------------------------
@@ -504,6 +509,18 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
             raise ProblemError(f"joint_bounds: no joint {jn}")
         jid = model.getJointId(jn)
         lower[model.idx_qs[jid]], upper[model.idx_qs[jid]] = lo, hi
+    for r in desc["robots"]:
+        if "root_bounds" in r:
+            name = r.get("name", r.get("robot"))
+            b = np.asarray(r["root_bounds"], dtype=float)
+            jn = f"{name}/root_joint"
+            if not model.existJointName(jn) or model.joints[model.getJointId(jn)].nq != 7:
+                raise ProblemError(f"{name}.root_bounds: the robot has no free-flyer root")
+            if b.shape != (6,) or np.any(b[1::2] < b[0::2]):
+                raise ProblemError(f"{name}.root_bounds: [xmin, xmax, ymin, ymax, zmin, zmax], got {b}")
+            i = model.idx_qs[model.getJointId(jn)]
+            lower[i:i + 3], upper[i:i + 3] = b[0::2], b[1::2]
+            lower[i + 3:i + 7], upper[i + 3:i + 7] = -1.0001, 1.0001
     for o in object_entries:
         b = np.asarray(o.get("bounds", [-1, 1, -1, 1, -1, 1]), dtype=float)
         if b.shape != (6,) or np.any(b[1::2] < b[0::2]):
@@ -513,6 +530,11 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         lower[i + 3:i + 7], upper[i + 3:i + 7] = -1.0001, 1.0001
     model.lowerPositionLimit = lower
     model.upperPositionLimit = upper
+    unbounded = [lab for lab, lo, hi in zip(_layout(model), lower, upper)
+                 if not (np.isfinite(lo) and np.isfinite(hi))]
+    if unbounded:
+        raise ProblemError(f"configuration entries without finite bounds (sampling needs them; "
+                           f"give root_bounds / bounds / joint_bounds): {unbounded}")
 
     _add_collision_pairs(model, geom, disabled)
 
@@ -532,6 +554,9 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         robot_joint_ids=tuple(robot_joint_ids),
         freeflyer_idx_q=tuple(model.idx_qs[j] for j in range(1, model.njoints)
                               if model.joints[j].nq == 7))
+    problem.fixed_rotation_idx_q = tuple(
+        model.idx_qs[model.getJointId(f"{r.get('name', r.get('robot'))}/root_joint")]
+        for r in desc["robots"] if r.get("sample_root_rotation", True) is False)
     robot_models = {r.get("name", r.get("robot")): r.get("robot") for r in desc["robots"]}
     problem.q_init = (_configuration(problem, desc["init"], "init", robot_models)
                       if desc.get("init") is not None else None)
@@ -599,6 +624,9 @@ def random_configuration(problem: ManipulationProblem, rng: np.random.Generator,
     q = out if out is not None else np.empty(problem.nq)
     q[:] = problem.lower + rng.random(problem.nq) * (problem.upper - problem.lower)
     for i in problem.freeflyer_idx_q:
+        if i in problem.fixed_rotation_idx_q and problem.q_init is not None:
+            q[i + 3:i + 7] = problem.q_init[i + 3:i + 7]
+            continue
         u1, u2, u3 = rng.random(3)
         a, b = math.sqrt(1 - u1), math.sqrt(u1)
         q[i + 3:i + 7] = (a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2),

@@ -41,6 +41,7 @@ class ProjectionStatus(enum.Enum):
     NOT_DECREASING = "error stopped decreasing (3 iterations in a row)"
     LOCAL_MINIMUM = "step vanished before the error did (singular or unreachable)"
     OUTSIDE_SURFACE = "object placed outside its contact polygon"
+    NOT_FINITE = "configuration or error is not finite (NaN or inf)"
 
 
 @dataclasses.dataclass
@@ -178,6 +179,9 @@ class Projector:
         self.free_idx = np.flatnonzero(free)
         self.output_joints = determined
         self.placements = [c for c in self.implicit if isinstance(c, Placement)]
+        self._free_placements = [p for p in self.placements
+                                 if not any(isinstance(c, PlacementComplement) and c.placement is p
+                                            for c in self.implicit)]
         self.parametrised = [c for c in self.implicit if c.parametrised]
         # q entries clamped to the bounds: all but quaternions.
         bounded = np.ones(model.nq, dtype=bool)
@@ -261,7 +265,13 @@ class Projector:
     def error(self, q: np.ndarray) -> np.ndarray:
         """Stacked implicit errors at q (explicit ones are satisfied by substitution)."""
         self.kin.update(q, jacobians=False)
+        self._select_pairs()
         return self._errors(self.implicit)
+
+    def _select_pairs(self) -> None:
+        """Placements not pinned by a complement take the surface pair nearest to q."""
+        for p in self._free_placements:
+            p.select_pair(self.kin)
 
     def explicit_error(self, q: np.ndarray) -> float:
         """How far q is from satisfying the explicit constraints (0 after :meth:`apply_explicit`)."""
@@ -304,13 +314,13 @@ class Projector:
         for lk in self.locked:
             lk.apply(kin, q)
         self._update_and_substitute(q)
-        for p in self.placements:
-            if not any(c.placement is p for c in self.parametrised):
-                p.select_pair(kin)
+        self._select_pairs()
         eps2 = self.error_threshold ** 2
         levels = self.levels
         errors = [self._errors(L) for L in levels]
         norm2 = _norm2(errors)
+        if not math.isfinite(norm2):
+            return ProjectionResult(ProjectionStatus.NOT_FINITE, 0, norm2)
         alpha = self.line_search.alpha0
         not_decreasing = 0
         dv = self._dv
@@ -350,6 +360,8 @@ class Projector:
             self._update_and_substitute(q)
             errors = [self._errors(L) for L in levels]
             new_norm2 = _norm2(errors)
+            if not math.isfinite(new_norm2):
+                return ProjectionResult(ProjectionStatus.NOT_FINITE, it, new_norm2)
             it += 1
             not_decreasing = not_decreasing + 1 if new_norm2 >= norm2 else 0
             norm2 = new_norm2
