@@ -80,7 +80,7 @@ class DetectorConfig:
     # Depth pixels used: the black square's corner polygon scaled by this about its centre;
     # the white border reaches 1.25 (10 / 8 cells), 1.1 keeps a margin from the tag's edge.
     depth_polygon_scale: float = 1.1
-    quad_decimate: float = 1.0
+    quad_decimate: float = 2.0  # AprilTag's default: quads on a half-size image, edges refined at full size
     num_threads: int = 1
 
 

@@ -112,7 +112,8 @@ def _twin_renders(seed):
     size = 0.06
     X_a = syn.look_at([0.05, -0.03, 1.6], tilt_deg=12, tilt_axis=(1, 0.5, 0), roll_deg=25)
     wall = {"background": 90.0, "background_depth": 2.6}
-    detector = AprilTagDetector(DetectorConfig(tag_sizes={3: size}))
+    # Full resolution: an 18 px tag is at the limit of quad detection on a half-size image.
+    detector = AprilTagDetector(DetectorConfig(tag_sizes={3: size}, quad_decimate=1.0))
     (d,) = detector.detect(syn.render(K, [syn.tag_quad(3, size, X_a)], **wall).gray, K)
     X_b = d.hypotheses[1]
     frames = []
