@@ -138,7 +138,8 @@ class Plank(ObjectSpec):
         handles = []
         for name, x, approach in (("H1", 1, ey), ("H2", 1, -ey), ("H3", -1, ey), ("H4", -1, -ey)):
             X = frame(approach, ez, [x * self.handle_offset, 0, 0])  # z = approach x e_z = +/- e_x
-            handles.append(Handle(f"plank/{name}", LINK, Placement.from_matrix(X), clearance=0.05))
+            # Clearance 8 cm (Agimus' plank_of_wood1): the handle sits 5.8 cm deep in the plank.
+            handles.append(Handle(f"plank/{name}", LINK, Placement.from_matrix(X), clearance=0.08))
         tags = [
             Tag(10, TAG_FAMILY, self.tag_size, LINK, tag_frame([-self.tag_x, 0, c], ez, ex)),
             Tag(11, TAG_FAMILY, self.tag_size, LINK, tag_frame([self.tag_x, 0, c], ez, ex)),
@@ -157,7 +158,7 @@ class Plank(ObjectSpec):
 @dataclass
 class Table(ObjectSpec):
     """A 1.40 x 0.70 m table, top at 0.73 m (Agimus ``table_140_70_73``), tags 4 and 5 on its
-    top near the front edge. Frame: origin on the floor under the centre, x from the front edge
+    top, 20 cm behind the front edge and 0.5 m apart. Frame: origin on the floor under the centre, x from the front edge
     (robot side) to the back, z up."""
 
     name: str = "table"
@@ -192,9 +193,11 @@ class Table(ObjectSpec):
     def semantics(self) -> Semantics:
         ex, ey, ez = np.eye(3)
         h, d = self.height, self.depth
-        x_tag = -d / 2 + 0.08
-        tags = [Tag(4, TAG_FAMILY, self.tag_size, LINK, tag_frame([x_tag, 0.45, h], ez, ex)),
-                Tag(5, TAG_FAMILY, self.tag_size, LINK, tag_frame([x_tag, -0.45, h], ez, ex))]
+        # 20 cm behind the front edge, 25 cm either side of the middle: in view of a robot
+        # standing before the table and looking down at what lies on it.
+        x_tag = -d / 2 + 0.20
+        tags = [Tag(4, TAG_FAMILY, self.tag_size, LINK, tag_frame([x_tag, 0.25, h], ez, ex)),
+                Tag(5, TAG_FAMILY, self.tag_size, LINK, tag_frame([x_tag, -0.25, h], ez, ex))]
         top = box_face("table/top", [0, 0, h - self.top_thickness / 2],
                        (d, self.width, self.top_thickness), 2, +1)
         return Semantics("table", tags=tags, contacts=[top])
@@ -302,7 +305,8 @@ class Ball(ObjectSpec):
         return self.mass_kg
 
     def semantics(self) -> Semantics:
-        h = Handle("ball/centre", LINK, Placement(), clearance=0.05, mask=(1, 1, 1, 0, 0, 0))
+        h = Handle("ball/centre", LINK, Placement(), clearance=self.radius + 0.03,
+                   mask=(1, 1, 1, 0, 0, 0))
         return Semantics("ball", handles=[h])
 
 

@@ -64,8 +64,11 @@ def scenes() -> list[Scene]:
                                                     Pedestal(), Bar(), Box())
     # Plank standing on its rear face (x up), tag faces (z) towards TALOS (-x of the world).
     R_plank = np.column_stack([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])
-    table_x = 0.60  # front edge 25 cm ahead of TALOS' base, clear of its knees and feet
-    plank_X = homogeneous(R_plank, [table_x - table.depth / 2 + 0.13, -0.02,
+    # Table front edge 25 cm ahead of TALOS' base (clear of its knees), plank 21 cm behind it:
+    # every handle is within reach of a gripper with the feet in place, and the tags are in the
+    # head camera's view once TALOS looks down (tests/python/models/test_model_scenes.py).
+    table_x = 0.60
+    plank_X = homogeneous(R_plank, [table_x - table.depth / 2 + 0.21, 0.0,
                                     table.top_z() + plank.size[0] / 2])
     out = [
         Scene("talos_plank", "TALOS in half-sitting before a table with the plank standing on it "

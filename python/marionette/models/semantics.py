@@ -7,7 +7,8 @@ Conventions (Nicolin 2022, §3.2.1; HPP ``hpp-manipulation``):
   gripper frame onto the handle frame (the components selected by the handle's ``mask``).
 * Both frames have their **x axis along the approach**: it points from the gripper into the
   object. The **pre-grasp** puts the gripper back along that axis by
-  ``gripper.clearance + handle.clearance`` (:func:`pregrasp_distance`).
+  ``gripper.clearance + handle.clearance`` (:func:`pregrasp_distance`). A handle's clearance
+  alone already takes the gripper frame out of the object (models/README.md).
 * A **contact surface** is a convex polygon in its link frame, vertices counter-clockwise seen
   from outside the body, so the right-hand normal points out of the body.
 * A **tag** frame follows ViSP's default ``vpDetectorAprilTag`` pose (``setZAlignedWithCameraAxis``

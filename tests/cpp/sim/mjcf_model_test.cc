@@ -422,6 +422,28 @@ TEST_P(SceneTest, LoadsAndPlacesTheRobotAsPinocchio) {
   for (int i = 0; i < d->ncon; ++i) EXPECT_GT(d->contact[i].dist, -1e-3) << c.scene;
 }
 
+// Free objects (plank, ball, box) start at rest on their supports: half a second of simulation,
+// the robot holding its reference posture, moves none of them by more than 2 mm.
+TEST_P(SceneTest, FreeObjectsRestOnTheirSupports) {
+  MjModelPtr m = LoadMjcf(kModels + "/scenes/" + GetParam().scene + ".xml");
+  ASSERT_NE(m, nullptr);
+  MjDataPtr d(mj_makeData(m.get()));
+  mj_resetDataKeyframe(m.get(), d.get(), mj_name2id(m.get(), mjOBJ_KEY, "reference"));
+  mj_forward(m.get(), d.get());
+  std::vector<std::pair<int, Eigen::Vector3d>> free_bodies;
+  for (int j = 0; j < m->njnt; ++j) {
+    const int b = m->jnt_bodyid[j];
+    if (m->jnt_type[j] == mjJNT_FREE && std::string(mj_id2name(m.get(), mjOBJ_JOINT, j)) != "root_joint") {
+      free_bodies.emplace_back(b, Eigen::Vector3d(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]));
+    }
+  }
+  for (int i = 0; i < 500; ++i) mj_step(m.get(), d.get());
+  for (const auto& [b, p0] : free_bodies) {
+    const Eigen::Vector3d p(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]);
+    EXPECT_LT((p - p0).norm(), 2e-3) << mj_id2name(m.get(), mjOBJ_BODY, b);
+  }
+}
+
 INSTANTIATE_TEST_SUITE_P(
     Scenes, SceneTest,
     ::testing::Values(SceneCase{"talos_plank", kRobots[0]}, SceneCase{"talos_walk", kRobots[0]},

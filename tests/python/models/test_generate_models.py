@@ -1,0 +1,66 @@
+"""scripts/generate_models.py is deterministic and the committed models/ are its output."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import pytest
+
+from marionette import MODELS_DIR, REPO_ROOT
+from marionette.models import generate
+
+HAND_WRITTEN = {"README.md"}
+
+
+@pytest.fixture(scope="module")
+def fresh(tmp_path_factory):
+    """A fresh run of the generator (the real script) into an empty directory."""
+    out = tmp_path_factory.mktemp("models")
+    subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "generate_models.py"),
+                    "--out", str(out)], check=True, capture_output=True, text=True)
+    return out
+
+
+def _files(root):
+    return {p.relative_to(root).as_posix() for p in root.rglob("*")
+            if p.is_file() and not p.is_symlink() and "meshes" not in p.relative_to(root).parts}
+
+
+def test_committed_models_are_byte_identical_to_a_fresh_run(fresh):
+    committed = _files(MODELS_DIR) - HAND_WRITTEN
+    generated = _files(fresh)
+    assert committed == generated, "stale or missing files: rerun scripts/generate_models.py"
+    different = [f for f in sorted(generated)
+                 if (fresh / f).read_bytes() != (MODELS_DIR / f).read_bytes()]
+    assert not different, f"regenerate and commit: {different}"
+
+
+def test_two_runs_give_the_same_bytes(fresh):
+    again = generate.generated_files()
+    assert {k: v for k, v in again.items()} == {f: (fresh / f).read_bytes() for f in again}
+
+
+def test_every_mesh_of_every_mjcf_resolves_through_the_mesh_links():
+    generate.link_meshes(MODELS_DIR)  # idempotent
+    generate.link_meshes(MODELS_DIR)
+    n = 0
+    for xml in sorted(MODELS_DIR.glob("*/*.xml")):
+        root = ET.parse(xml).getroot()
+        meshdir = xml.parent / root.find("compiler").get("meshdir")
+        texturedir = xml.parent / root.find("compiler").get("texturedir")
+        for mesh in root.iter("mesh"):
+            if mesh.get("file"):
+                assert (meshdir / mesh.get("file")).is_file(), f"{xml.name}: {mesh.get('file')}"
+                n += 1
+        for tex in root.iter("texture"):
+            if tex.get("file"):
+                assert (texturedir / tex.get("file")).is_file(), f"{xml.name}: {tex.get('file')}"
+    assert n > 50
+
+
+def test_link_meshes_refuses_to_replace_a_real_directory(tmp_path):
+    (tmp_path / "talos" / "meshes").mkdir(parents=True)
+    with pytest.raises(FileExistsError, match="not a symbolic link"):
+        generate.link_meshes(tmp_path)
