@@ -161,3 +161,23 @@ def test_head_camera_mount_within_2mm_and_0p2deg_from_detected_tags(talos):
     cad = X_WG.inverse() * X_WC_cad
     assert np.linalg.norm(cad.translation - X_GC.translation) > 5e-3
     assert np.linalg.norm(result.X_RT.translation - X_HT.translation) < 3e-3
+
+
+def test_calibrate_command_prints_the_hand_eye_result_as_json(tmp_path, capfd):
+    import json
+
+    from marionette.cli import main
+
+    rng = np.random.default_rng(4)
+    X_EC = pin.SE3(pin.exp3(np.array([0.2, -0.1, 0.3])), np.array([0.05, 0.02, 0.1]))
+    X_RT = pin.SE3(pin.exp3(np.array([0.0, 0.3, 0.0])), np.array([0.7, 0.1, 0.2]))
+    X_RE = [pin.SE3(pin.exp3(rng.uniform(-0.6, 0.6, 3)), rng.uniform(-0.2, 0.2, 3)) for _ in range(8)]
+    X_CT = [X_EC.inverse() * X.inverse() * X_RT for X in X_RE]
+    path = tmp_path / "pairs.json"
+    path.write_text(json.dumps({"X_RE": [X.homogeneous.tolist() for X in X_RE],
+                                "X_CT": [X.homogeneous.tolist() for X in X_CT]}))
+    assert main(["calibrate", "hand-eye", str(path)]) == 0
+    captured = capfd.readouterr()  # file-descriptor level: what ViSP prints from C++ too
+    result = json.loads(captured.out)  # stdout is the JSON alone
+    assert "Mean residual" in captured.err  # ViSP's own report went to stderr
+    np.testing.assert_allclose(result["X_EC"], X_EC.homogeneous, atol=1e-6)
