@@ -9,6 +9,11 @@ nearest the image), or through the simulator's camera pose carried by the image.
 Frames are processed by one worker thread, newest first: if a frame arrives while the previous
 one is still being processed, the older waiting frame is dropped (counted), so latency never
 builds up. Malformed frames are rejected with a counted reason, never a crash.
+
+Latency (``latency_us`` of both messages, and :meth:`PerceptionNode.stats`) is measured on this
+process's monotonic clock from the frame's arrival to publication: the image ``utime`` is
+controller time, which shares no clock with this process, so rendering and transport time
+before arrival are not included.
 """
 
 from __future__ import annotations
