@@ -238,8 +238,10 @@ class Placement(Constraint):
     the object) and M = X_E^-1 X_F = (R, p).  Placement: [p_z, log3(R)_x, log3(R)_y] = [margin,
     0, 0]: the object rests ``margin`` above the plane with normals opposed.  The pair is the
     one closest to being satisfied, chosen by :meth:`select_pair` (once per projection, so the
-    error is smooth while iterating).  The centre of O must also lie inside E's polygon: that
-    inequality is checked by :meth:`inside` (a state-validity test), not projected.
+    error is smooth while iterating).  The centre of O must also lie inside E's polygon: two
+    more rows (HPP ``ConvexShapeContact``) hold c - proj_E(c), the offset of the centre c = p_xy
+    from its projection on the polygon, zero inside; outside, its derivative is n n^T (nearest
+    point on an edge of outward normal n) or I (nearest point a vertex) times dc/dv.
     """
 
     ROWS = np.array([False, False, True, True, True, False])
@@ -254,7 +256,8 @@ class Placement(Constraint):
         self.pairs: list[tuple[ContactSurface, ContactSurface]] = [
             (problem.contacts[o], problem.contacts[e]) for o in object_contacts for e in env_contacts]
         self.margin = margin
-        self.rhs = np.array([margin, 0.0, 0.0])
+        self.size = 5
+        self.rhs = np.array([margin, 0.0, 0.0, 0.0, 0.0])
         self.pair = 0
         self._rel = [RelativeTransformation(f"{name}[{i}]", e.joint_id, e.M_JS, o.joint_id,
                                             _flip(o.M_JS))
@@ -280,16 +283,50 @@ class Placement(Constraint):
         return self.pair
 
     def value(self, kin: Kinematics) -> np.ndarray:
-        return self._rel[self.pair].value6(kin)[self.ROWS]
+        v6 = self._rel[self.pair].value6(kin)
+        out = np.empty(5)
+        out[:3] = v6[self.ROWS]
+        out[3:], _ = _polygon_offset(self.pairs[self.pair][1].polygon_S, v6[0], v6[1])
+        return out
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
-        return self._rel[self.pair].compute_jacobian(kin)[self.ROWS]
+        J6 = self._rel[self.pair].compute_jacobian(kin)
+        v6 = self._rel[self.pair].value6(kin)
+        _, D = _polygon_offset(self.pairs[self.pair][1].polygon_S, v6[0], v6[1])
+        J = np.empty((5, J6.shape[1]))
+        J[:3] = J6[self.ROWS]
+        J[3:] = D @ J6[:2]
+        return J
 
     def inside(self, kin: Kinematics, tol: float = 1e-9) -> bool:
         """Is the object surface centre inside the environment polygon (pair = current)?"""
         M = self.relative_pose(kin)
         poly = self.pairs[self.pair][1].polygon_S
         return _inside_convex(poly, M.translation[0], M.translation[1], tol)
+
+
+def _polygon_offset(poly: np.ndarray, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
+    """(c - nearest point of the convex polygon to c, its 2x2 derivative w.r.t. c); zero inside."""
+    if _inside_convex(poly, x, y, 0.0):
+        return np.zeros(2), np.zeros((2, 2))
+    c = np.array([x, y])
+    best, best_d2, best_D = None, math.inf, None
+    n = len(poly)
+    for i in range(n):
+        a, b = poly[i], poly[(i + 1) % n]
+        ab = b - a
+        t = float(np.dot(c - a, ab) / np.dot(ab, ab))
+        if t <= 0.0 or t >= 1.0:
+            p = a if t <= 0.0 else b
+            D = np.eye(2)
+        else:
+            p = a + t * ab
+            nrm = np.array([ab[1], -ab[0]]) / math.sqrt(float(np.dot(ab, ab)))
+            D = np.outer(nrm, nrm)
+        d2 = float(np.dot(c - p, c - p))
+        if d2 < best_d2:
+            best, best_d2, best_D = c - p, d2, D
+    return best, best_D
 
 
 def _inside_convex(poly: np.ndarray, x: float, y: float, tol: float) -> bool:

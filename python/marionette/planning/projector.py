@@ -40,7 +40,6 @@ class ProjectionStatus(enum.Enum):
     MAX_ITERATIONS = "iteration limit reached"
     NOT_DECREASING = "error stopped decreasing (3 iterations in a row)"
     LOCAL_MINIMUM = "step vanished before the error did (singular or unreachable)"
-    OUTSIDE_SURFACE = "object placed outside its contact polygon"
     NOT_FINITE = "configuration or error is not finite (NaN or inf)"
 
 
@@ -293,7 +292,7 @@ class Projector:
         if not self.implicit:
             return True
         e = self.error(q)
-        return bool(e.dot(e) <= th * th) and all(p.inside(self.kin) for p in self.placements)
+        return bool(e.dot(e) <= th * th)
 
     def _reduced_jacobian(self, level: list[Constraint]) -> np.ndarray:
         J = (level[0].compute_jacobian(self.kin) if len(level) == 1
@@ -367,9 +366,6 @@ class Projector:
             norm2 = new_norm2
             if not_decreasing >= 3 and norm2 > eps2:
                 return ProjectionResult(ProjectionStatus.NOT_DECREASING, it, math.sqrt(norm2))
-        for p in self.placements:
-            if not p.inside(kin):
-                return ProjectionResult(ProjectionStatus.OUTSIDE_SURFACE, it, math.sqrt(norm2))
         return ProjectionResult(ProjectionStatus.SUCCESS, it, math.sqrt(norm2))
 
     def _descent(self, errors: list[np.ndarray], q: np.ndarray) -> np.ndarray:

@@ -102,3 +102,19 @@ def test_placement_is_zero_for_box_resting_on_table(ur5_box):
     v_goal = comp.value(kin)
     kin.update(ur5_box.q_init, jacobians=False)
     assert np.linalg.norm(v_goal[:2] - comp.value(kin)[:2]) == pytest.approx(0.5, abs=1e-12)
+
+
+@pytest.mark.parametrize("xy", [(1.2, 0.1), (1.2, 0.9), (0.5, -0.9)])
+def test_placement_jacobian_outside_the_surface_polygon(ur5_box, xy):
+    """Off the table, the placement pulls the box centre back onto the polygon (edge: rows
+    n n^T, corner: identity); its Jacobian there still matches finite differences."""
+    place = Placement("place_box", ur5_box, "box", ["box/bottom"], ["table/top"], margin=1e-4)
+    kin = Kinematics(ur5_box.model)
+    q = ur5_box.q_init.copy()
+    q[6:8] = xy
+    q[8] = 0.1
+    kin.update(q, jacobians=False)
+    e = place.compute_error(kin)
+    assert np.linalg.norm(e[3:]) > 0.1          # offset to the table polygon is reported
+    J = analytic_jacobian(place, kin, q)
+    np.testing.assert_allclose(J, finite_difference_jacobian(place, kin, q), atol=2e-6)
