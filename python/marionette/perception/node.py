@@ -288,6 +288,11 @@ class PerceptionNode:
             if self.rejected[exc.reason] == 1:
                 log.warning("frame rejected: %s", exc)
             return True
+        except Exception:  # a bug must not stop the camera stream: count it, log it once
+            self.rejected["processing_error"] += 1
+            if self.rejected["processing_error"] == 1:
+                log.exception("frame processing failed")
+            return True
         self._bus.publish(channels.APRILTAG_DETECTIONS, detections)
         self._bus.publish(channels.OBJECT_POSES, objects)
         self.latency.add((time.monotonic() - received) * 1e6)
