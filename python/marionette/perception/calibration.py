@@ -209,14 +209,17 @@ def calibrate_joint_offsets(problem: JointOffsetProblem, Q: np.ndarray, measured
               np.zeros(3) if p_EM0 is None else p_EM0,
               np.zeros(3) if p_BA0 is None else p_BA0)
     r, J = _residuals(problem, Q, measured, x)
-    _check_observable(problem, J)
+    # No observability check here: the initial guess may be degenerate (a marker guessed at
+    # the wrist centre hides the wrist offsets); the check runs at the solution.
     damping = 1e-3
     cost = r @ r
     iterations = 0
     for iterations in range(1, max_iterations + 1):
         H = J.T @ J
         g = J.T @ r
-        step = -np.linalg.solve(H + damping * np.diag(np.diag(H)), g)
+        # Marquardt scaling, floored so that columns still zero at the guess stay solvable.
+        scale = np.diag(H) + 1e-9 * np.trace(H) / len(H)
+        step = -np.linalg.solve(H + damping * np.diag(scale), g)
         x_new = x + step
         r_new, J_new = _residuals(problem, Q, measured, x_new)
         cost_new = r_new @ r_new

@@ -150,7 +150,7 @@ def test_head_camera_mount_within_2mm_and_0p2deg_from_detected_tags(talos):
         X_true = syn.look_at(p, tilt_deg=rng.uniform(15, 40),
                              tilt_axis=(math.cos(i), math.sin(i), 0.0), roll_deg=rng.uniform(-90, 90))
         frame = syn.render(K, [syn.tag_quad(21, 0.08, X_true)], background_depth=2.0,
-                           noise_std=2.0, depth_noise_std=0.0015, rng=rng)
+                           noise_std=2.0, depth_noise_std=0.0015, rng=rng, supersample=3)
         (d,) = detector.detect(frame.gray, K, depth=frame.depth)
         X_CT.append(d.X_CT)
         X_GH.append(X_GC * X_true * X_HT.inverse())  # what the kinematics report
@@ -181,3 +181,61 @@ def test_calibrate_command_prints_the_hand_eye_result_as_json(tmp_path, capfd):
     result = json.loads(captured.out)  # stdout is the JSON alone
     assert "Mean residual" in captured.err  # ViSP's own report went to stderr
     np.testing.assert_allclose(result["X_EC"], X_EC.homogeneous, atol=1e-6)
+
+
+def test_recovers_offsets_from_a_wrist_tag_seen_by_the_head_camera(talos):
+    """§4.2 with the robot's own camera instead of a MoCap: a 5 cm tag on the right wrist,
+    detected (with depth) in synthetic head-camera images of 30 arm configurations around one
+    where the hand is in front of the face; the camera frame is the base frame."""
+    from marionette import _visp
+
+    data = talos.createData()
+
+    def idx(name):
+        return talos.joints[talos.getJointId(name)].idx_q
+
+    iq = np.array([idx(n) for n in ARM])
+    q_n = robots.reference_configuration("talos", talos)
+    q_n[idx("head_1_joint")], q_n[idx("head_2_joint")] = 0.5, -0.3  # looking down, right
+    q_n[iq] = [1.02, -0.73, -0.72, -1.74, 0.0, 0.0, 0.1]  # hand 45 cm in front of the camera
+    E, C = talos.getFrameId("arm_right_7_link"), talos.getFrameId("rgbd_optical_frame")
+
+    def fk(q):
+        pin.framesForwardKinematics(talos, data, q)
+        return pin.SE3(data.oMf[E]), pin.SE3(data.oMf[C])
+
+    X_WE, X_WC = fk(q_n)
+    X_ET = X_WE.inverse() * X_WC * syn.look_at([0.0, 0.0, 0.45], tilt_deg=20, roll_deg=10)
+    K = CameraIntrinsics.from_fovy(640, 480, 60.0)
+    detector = AprilTagDetector(DetectorConfig(tag_sizes={40: 0.05}))
+    rng = np.random.default_rng(11)
+    true = rng.normal(0, math.radians(0.2), 7)
+    true[ARM.index(SHOULDER)], true[ARM.index(WRIST)] = math.radians(7.0), math.radians(4.0)
+    lo, hi = talos.lowerPositionLimit[iq], talos.upperPositionLimit[iq]
+    spread = np.radians([15, 15, 15, 15, 40, 40, 30])
+    Q, measured = [], []
+    while len(Q) < 30:
+        q = q_n.copy()
+        q[iq] = np.clip(q[iq] + rng.uniform(-1, 1, 7) * spread, lo, hi)
+        q_true = q.copy()
+        q_true[iq] += true
+        X_WE, X_WC = fk(q_true)
+        X_CT = X_WC.inverse() * X_WE * X_ET
+        corners = (X_CT.homogeneous @ np.c_[_visp.tag_corners(0.05), np.ones(4)].T).T[:, :3]
+        sight = X_CT.translation / np.linalg.norm(X_CT.translation)
+        if corners[:, 2].min() < 0.25 or -X_CT.rotation[:, 2] @ sight < 0.5:
+            continue  # too close, or seen at more than 60 deg
+        uv = K.project(corners)
+        if uv.min() < 20 or uv[:, 0].max() > 620 or uv[:, 1].max() > 460:
+            continue  # out of the image
+        frame = syn.render(K, [syn.tag_quad(40, 0.05, X_CT)], background_depth=1.5,
+                           noise_std=2.0, depth_noise_std=0.0015, rng=rng, supersample=3)
+        detections = detector.detect(frame.gray, K, depth=frame.depth)
+        if detections:
+            Q.append(q)
+            measured.append(detections[0].X_CT.translation)
+    problem = JointOffsetProblem(talos, "rgbd_optical_frame", "arm_right_7_link", ARM[:6])
+    result = calibrate_joint_offsets(problem, np.array(Q), np.array(measured))
+    error_deg = np.degrees(np.abs(result.offsets - true[:6]))
+    assert error_deg.max() < 0.1, dict(zip(ARM, error_deg.round(3)))
+    assert np.linalg.norm(result.p_BA) < 1e-3  # measured in the camera frame itself
