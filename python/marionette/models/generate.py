@@ -18,7 +18,7 @@ import numpy as np
 from marionette.robots import ROBOTS, configuration_from_srdf, example_robot_data_dir, robot
 
 from . import apriltag
-from .mjcf import assemble, object_part, placement, robot_part
+from .mjcf import TAG_PIXELS_PER_CELL, assemble, object_part, placement, robot_part
 from .objects import all_objects
 from .robot_models import derived_srdf, derived_urdf, robot_semantics
 from .scenes import scene_mjcf, scene_yaml, scenes
@@ -111,15 +111,7 @@ def _png(tag_id: int, family: str) -> bytes:
     from PIL import Image
 
     buf = io.BytesIO()
-    Image.fromarray(apriltag.tag_image(tag_id, mjcf_pixels_per_cell(), family), mode="L").save(
+    Image.fromarray(apriltag.tag_image(tag_id, TAG_PIXELS_PER_CELL, family), mode="L").save(
         buf, format="PNG", optimize=False, compress_level=9)
     return buf.getvalue()
 
-
-def mjcf_pixels_per_cell() -> int:
-    from .mjcf import TAG_PIXELS_PER_CELL
-
-    return TAG_PIXELS_PER_CELL
-
-
-__all__ = ["generated_files", "write", "link_meshes", "example_robot_data_dir"]

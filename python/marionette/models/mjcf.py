@@ -33,10 +33,10 @@ from marionette.robots import pinocchio_to_mujoco, robot
 
 from . import apriltag
 from .objects import ObjectSpec
-from .robot_models import (PLANAR_BASE, SOLE_BOX_THICKNESS, TALOS_SOLE, actuated_joints,
-                           hand_links, parsed_urdf, robot_semantics, servo_gains)
+from .robot_models import (PLANAR_BASE, SOLE_BOX_THICKNESS, TALOS_SOLE, hand_links, parsed_urdf,
+                           robot_semantics, servo_gains)
 from .semantics import Semantics
-from .urdf import Urdf, parse_urdf, urdf_to_mjcf
+from .urdf import parse_urdf, urdf_to_mjcf
 from .xml_util import fmt, fmt_vec, homogeneous, matrix_to_quat_wxyz, sub
 
 TIMESTEP = 0.001
@@ -354,5 +354,3 @@ def placement(x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0) 
     c, s = np.cos(yaw), np.sin(yaw)
     return homogeneous(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]), [x, y, z])
 
-
-__all__ = ["Part", "robot_part", "object_part", "assemble", "placement", "Urdf"]

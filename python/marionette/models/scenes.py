@@ -27,7 +27,7 @@ from .mjcf import assemble, object_part, placement, robot_part
 from .objects import AircraftPart, Ball, Bar, Box, ObjectSpec, Pedestal, Plank, Table
 from .robot_models import robot_semantics
 from .semantics import Placement
-from .xml_util import fmt, fmt_vec, homogeneous, indent_and_serialize, rot_x, rot_y, rot_z, sub
+from .xml_util import fmt, fmt_vec, homogeneous, indent_and_serialize, sub
 
 
 @dataclass
@@ -152,5 +152,3 @@ def _camera(c: SceneCamera) -> ET.Element:
     return ET.Element("camera", name=c.name, mode="fixed", pos=fmt_vec(eye),
                       xyaxes=fmt_vec([*right, *up]), fovy=fmt(c.fovy))
 
-
-__all__ = ["Scene", "scenes", "scene_mjcf", "scene_yaml", "rot_x", "rot_y", "rot_z"]
