@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from marionette import REPO_ROOT
     from marionette.planning.collision import CollisionChecker
     from marionette.planning.graph_factory import graph_from_settings
+    from marionette.planning.guide import guide_configuration, plan_through
     from marionette.planning.path import save_plan
     from marionette.planning.planner import ManipulationRRT, PlanningError, random_shortcut
     from marionette.planning.problem import ProblemError, load_problem
@@ -77,11 +78,20 @@ def run(args: argparse.Namespace) -> int:
     print(f"{problem.name}: {len(graph.main_states())} states, {len(graph.states) - len(graph.main_states())} "
           f"waypoint states, {len(graph.top_edges())} transitions -> {picture}")
     checker = CollisionChecker(problem)
-    planner = ManipulationRRT(problem, graph, checker, seed=args.seed)
     t0 = time.perf_counter()
+    show = None if args.quiet else _progress(err, t0)
     try:
-        result = planner.solve(problem.q_init, [problem.q_goal], max_it, timeout,
-                               progress=None if args.quiet else _progress(err, t0))
+        if problem.settings.get("guide"):
+            rng = np.random.default_rng(args.seed)
+            waypoints = [guide_configuration(problem, graph, checker, entry, problem.q_init, rng)
+                         for entry in problem.settings["guide"]]
+            print(f"guided through {len(waypoints)} user waypoint(s)")
+            result = plan_through(problem, graph, checker,
+                                  [problem.q_init, *waypoints, problem.q_goal], args.seed,
+                                  max_it, timeout, show)
+        else:
+            planner = ManipulationRRT(problem, graph, checker, seed=args.seed)
+            result = planner.solve(problem.q_init, [problem.q_goal], max_it, timeout, show)
     except PlanningError as e:
         print(f"\nmarionette plan: {e}", file=err)
         return 1

@@ -96,20 +96,23 @@ class CollisionChecker:
 
     # --------------------------------------------------------------------------- grasp contacts
     def grasp_contact_pairs(self, grasps: dict[str, str]) -> frozenset[int]:
-        """Pairs between a gripper's body (the geometries on the gripper frame's joint) and the
-        object whose handle it grasps: contact there is the grasp itself, not a collision."""
+        """Pairs between a gripper's body (the geometries on the gripper frame's joint and the
+        joints below it: fingers) and the object whose handle it grasps: contact there is the
+        grasp itself, not a collision."""
         key = tuple(sorted(grasps.items()))
         cached = self._grasp_pairs.get(key)
         if cached is not None:
             return cached
         p = self.problem
         out = set()
+        m = self.model
         for g, h in key:
             gj = p.grippers[g].joint_id
+            hand = {j for j in range(m.njoints) if gj in _ancestors_incl(m, j)}
             oj = p.objects[p.handles[h].object].joint_id
             for k, (a, b) in enumerate(self.pairs):
                 ja, jb = self.geom_joint[a], self.geom_joint[b]
-                if {ja, jb} == {gj, oj}:
+                if (ja in hand and jb == oj) or (jb in hand and ja == oj):
                     out.add(k)
         res = frozenset(out)
         self._grasp_pairs[key] = res
@@ -266,6 +269,14 @@ class CollisionChecker:
             # d > 0 at every query, so horizons strictly increase; the floor only guards
             # against grazing contacts where d ~ 1e-12 would make progress invisible.
             t = max(t_next, t + 1e-9)
+
+
+def _ancestors_incl(model: pin.Model, joint: int) -> set[int]:
+    out = set()
+    while joint > 0:
+        out.add(joint)
+        joint = model.parents[joint]
+    return out
 
 
 def _rigid_groups(model: pin.Model, projector: "Projector") -> dict[int, int]:

@@ -157,7 +157,7 @@ class ManipulationRRT:
         if state is None:
             raise PlanningError(f"{what} configuration is in no state of the graph "
                                 f"(constraint errors above {self.graph.error_threshold})")
-        if not self.checker.is_valid(q):
+        if not self.checker.is_valid(q, self.checker.grasp_contact_pairs(state.grasps)):
             raise PlanningError(f"{what} configuration is in collision: "
                                 f"{self.checker.colliding_pairs(q)}")
         return self.roadmap.add_node(q, state)

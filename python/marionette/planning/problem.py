@@ -540,6 +540,7 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
 
     settings = dict(desc.get("graph", {}) or {})
     settings["planner"] = dict(desc.get("planner", {}) or {})
+    settings["guide"] = list(desc.get("guide", []) or [])
     env_contacts = tuple(settings.get("environment_contacts",
                                       [c for c in contacts if contacts[c].owner is None]))
     for c in env_contacts:
