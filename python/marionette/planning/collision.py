@@ -82,6 +82,12 @@ class CollisionChecker:
                 self._joint_kinds.append((j, m.idx_vs[j], 1 if "Prismatic" in jm.shortname() else 0))
             else:
                 raise ValueError(f"joint {m.names[j]} ({jm.shortname()}) is not supported")
+        kinds = self._joint_kinds
+        self._rev_j = np.array([j for j, _, k in kinds if k == 0], dtype=int)
+        self._rev_v = np.array([iv for _, iv, k in kinds if k == 0], dtype=int)
+        self._pri_j = np.array([j for j, _, k in kinds if k == 1], dtype=int)
+        self._pri_v = np.array([iv for _, iv, k in kinds if k == 1], dtype=int)
+        self._ff = [(j, iv) for j, iv, k in kinds if k == 2]
 
     def _chain(self, joint: int, radius: float) -> list[tuple[int, float]]:
         m = self.model
@@ -222,14 +228,11 @@ class CollisionChecker:
         dv = pin.difference(m, qa, qb)
         ang = np.zeros(m.njoints)
         lin = np.zeros(m.njoints)
-        for j, iv, kind in self._joint_kinds:
-            if kind == 0:
-                ang[j] = abs(dv[iv])
-            elif kind == 1:
-                lin[j] = abs(dv[iv])
-            else:
-                lin[j] = math.sqrt(dv[iv] ** 2 + dv[iv + 1] ** 2 + dv[iv + 2] ** 2)
-                ang[j] = math.sqrt(dv[iv + 3] ** 2 + dv[iv + 4] ** 2 + dv[iv + 5] ** 2)
+        ang[self._rev_j] = np.abs(dv[self._rev_v])
+        lin[self._pri_j] = np.abs(dv[self._pri_v])
+        for j, iv in self._ff:
+            lin[j] = math.sqrt(dv[iv] ** 2 + dv[iv + 1] ** 2 + dv[iv + 2] ** 2)
+            ang[j] = math.sqrt(dv[iv + 3] ** 2 + dv[iv + 4] ** 2 + dv[iv + 5] ** 2)
         return ang, lin
 
     def _update(self, q: np.ndarray) -> None:
@@ -255,13 +258,23 @@ class CollisionChecker:
             # forward kinematics then serves several pairs.
             due = np.flatnonzero(horizon <= t + 0.01)
             if due.size:
-                self._update(path.eval(s0 + t * length))
-                for k in due:
-                    self.checks += 1
-                    d = pin.computeDistance(gm, gd, int(k)).min_distance
-                    if d <= 0.0:
+                q = path.eval(s0 + t * length)
+                if due.size > 64:
+                    # Many pairs at once (a path start): one C++ call for all of them.
+                    self.checks += len(self.pairs)
+                    pin.computeDistances(self.model, self.data, gm, gd, q)
+                    d = np.array([r.min_distance for r in gd.distanceResults])[due]
+                    if (d <= 0.0).any():
                         return False, t
-                    horizon[k] = t + d / u[k]
+                    horizon[due] = t + d / u[due]
+                else:
+                    self._update(q)
+                    for k in due:
+                        self.checks += 1
+                        d = pin.computeDistance(gm, gd, int(k)).min_distance
+                        if d <= 0.0:
+                            return False, t
+                        horizon[k] = t + d / u[k]
             t_next = float(horizon.min())
             if t_next >= 1.0:
                 budget[moving] = (horizon[moving] - 1.0) * u[moving]

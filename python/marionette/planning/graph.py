@@ -146,7 +146,8 @@ class Edge:
         if not self.can_connect(q1, q2):
             return None
         try:
-            return [ConstrainedPath.build(self, q1, q2, self.path_projector)]
+            return [ConstrainedPath.build(self, q1, q2, self.path_projector,
+                                          step=self.graph.path_step)]
         except PathError:
             return None
 
@@ -237,8 +238,10 @@ class ConstraintGraph:
 
     def __init__(self, problem: ManipulationProblem, name: str = "graph",
                  constraints: Sequence[AnyConstraint] = (), error_threshold: float = 1e-4,
-                 max_iterations: int = 40, line_search: LineSearch = LineSearch()) -> None:
+                 max_iterations: int = 40, line_search: LineSearch = LineSearch(),
+                 path_step: float = 0.1) -> None:
         self.problem = problem
+        self.path_step = path_step   # progressive projection step of implicit paths (|v| norm)
         self.name = name
         self.constraints = list(constraints)
         self.error_threshold = error_threshold

@@ -407,4 +407,6 @@ def graph_from_settings(problem: ManipulationProblem,
     factory = GraphFactory(problem, grippers, objects, rules, cf, graph_constraints,
                            float(s.get("error_threshold", 1e-4)), int(s.get("max_iterations", 40)),
                            LineSearch(**ls) if ls else LineSearch(), name=problem.name)
-    return factory.generate()
+    graph = factory.generate()
+    graph.path_step = float(s.get("path_step", graph.path_step))
+    return graph
