@@ -183,8 +183,9 @@ class RelativeTransformation(Constraint):
     def relative_pose(self, kin: Kinematics) -> pin.SE3:
         if kin.version != self._cache_version or kin is not self._cache_kin:
             oMi = kin.oMi
-            X1 = oMi[self.joint1] * self.M1
-            self._M = X1.actInv(oMi[self.joint2] * self.M2)
+            self._oMi1 = oMi[self.joint1]
+            self._X2 = oMi[self.joint2] * self.M2
+            self._M = (self._oMi1 * self.M1).actInv(self._X2)
             self._cache_version, self._cache_kin = kin.version, kin
         return self._M
 
@@ -208,8 +209,8 @@ class RelativeTransformation(Constraint):
         else:
             nu = self._Ad2 @ kin.joint_jacobian(self.joint2)
         if self.joint1 != 0 and self.joint1 not in static:
-            # Ad(M^-1) Ad(M1^-1) = Ad((M1 M)^-1): one product instead of two 6x6 ones.
-            t = (self.M1 * M).inverse().action @ kin.joint_jacobian(self.joint1)
+            # Ad(M^-1) Ad(M1^-1) = Ad((M1 M)^-1) = Ad(X2^-1 oMi1): one 6x6 product.
+            t = self._X2.actInv(self._oMi1).action @ kin.joint_jacobian(self.joint1)
             nu = -t if nu is None else nu - t
         if nu is None:
             return np.zeros((self.size, kin.model.nv))
@@ -262,6 +263,9 @@ class Placement(Constraint):
         self._rel = [RelativeTransformation(f"{name}[{i}]", e.joint_id, e.M_JS, o.joint_id,
                                             _flip(o.M_JS))
                      for i, (o, e) in enumerate(self.pairs)]
+        self._polygons = [_Polygon(e.polygon_S) for _, e in self.pairs]
+        self._offset_key = None
+        self._offset_val = (np.zeros(2), None)
 
     def joints(self) -> set[int]:
         return set().union(*(r.joints() for r in self._rel))
@@ -282,20 +286,29 @@ class Placement(Constraint):
             self.pair = best
         return self.pair
 
+    def _offset(self, kin: Kinematics, v6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        key = (kin.version, id(kin), self.pair)
+        if key != self._offset_key:
+            self._offset_val = self._polygons[self.pair].offset(v6[0], v6[1])
+            self._offset_key = key
+        return self._offset_val
+
     def value(self, kin: Kinematics) -> np.ndarray:
         v6 = self._rel[self.pair].value6(kin)
         out = np.empty(5)
         out[:3] = v6[self.ROWS]
-        out[3:], _ = _polygon_offset(self.pairs[self.pair][1].polygon_S, v6[0], v6[1])
+        out[3:] = self._offset(kin, v6)[0]
         return out
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
         J6 = self._rel[self.pair].compute_jacobian(kin)
-        v6 = self._rel[self.pair].value6(kin)
-        _, D = _polygon_offset(self.pairs[self.pair][1].polygon_S, v6[0], v6[1])
         J = np.empty((5, J6.shape[1]))
         J[:3] = J6[self.ROWS]
-        J[3:] = D @ J6[:2]
+        D = self._offset(kin, self._rel[self.pair].value6(kin))[1]
+        if D is None:
+            J[3:] = 0.0
+        else:
+            J[3:] = D @ J6[:2]
         return J
 
     def inside(self, kin: Kinematics, tol: float = 1e-9) -> bool:
@@ -305,28 +318,27 @@ class Placement(Constraint):
         return _inside_convex(poly, M.translation[0], M.translation[1], tol)
 
 
-def _polygon_offset(poly: np.ndarray, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
-    """(c - nearest point of the convex polygon to c, its 2x2 derivative w.r.t. c); zero inside."""
-    if _inside_convex(poly, x, y, 0.0):
-        return np.zeros(2), np.zeros((2, 2))
-    c = np.array([x, y])
-    best, best_d2, best_D = None, math.inf, None
-    n = len(poly)
-    for i in range(n):
-        a, b = poly[i], poly[(i + 1) % n]
-        ab = b - a
-        t = float(np.dot(c - a, ab) / np.dot(ab, ab))
-        if t <= 0.0 or t >= 1.0:
-            p = a if t <= 0.0 else b
-            D = np.eye(2)
-        else:
-            p = a + t * ab
-            nrm = np.array([ab[1], -ab[0]]) / math.sqrt(float(np.dot(ab, ab)))
-            D = np.outer(nrm, nrm)
-        d2 = float(np.dot(c - p, c - p))
-        if d2 < best_d2:
-            best, best_d2, best_D = c - p, d2, D
-    return best, best_D
+class _Polygon:
+    """A convex polygon (k x 2, counter-clockwise) with its edges precomputed."""
+
+    def __init__(self, poly: np.ndarray) -> None:
+        self.a = np.asarray(poly, dtype=float)
+        self.ab = np.roll(self.a, -1, axis=0) - self.a
+        self.ab2 = np.einsum("ij,ij->i", self.ab, self.ab)
+        n = np.column_stack([self.ab[:, 1], -self.ab[:, 0]])      # outward for CCW
+        self.n = n / np.sqrt(self.ab2)[:, None]
+        self._eye = np.eye(2)
+
+    def offset(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray | None]:
+        """(c - nearest point of the polygon, d/dc of it) with c = (x, y); (0, None) inside."""
+        ca = np.array([x, y]) - self.a                               # (k x 2)
+        if (np.einsum("ij,ij->i", ca, self.n) <= 0.0).all():
+            return np.zeros(2), None
+        t = np.clip(np.einsum("ij,ij->i", ca, self.ab) / self.ab2, 0.0, 1.0)
+        r = ca - t[:, None] * self.ab                                # c - nearest point, per edge
+        i = int(np.argmin(np.einsum("ij,ij->i", r, r)))
+        D = self._eye if t[i] in (0.0, 1.0) else np.outer(self.n[i], self.n[i])
+        return r[i], D
 
 
 def _inside_convex(poly: np.ndarray, x: float, y: float, tol: float) -> bool:

@@ -200,6 +200,7 @@ class Projector:
                     self._sat_cols.append((pos[iv], model.idx_qs[jid]))
         self.size = sum(c.size for c in self.implicit)
         self._dv = np.zeros(model.nv)
+        self._clipped = True
         self._sat_k = np.array([k for k, _ in self._sat_cols], dtype=int)
         self._sat_q = np.array([iq for _, iq in self._sat_cols], dtype=int)
         self._sat_lo = self.problem.lower[self._sat_q]
@@ -327,6 +328,7 @@ class Projector:
         all_free = len(free_idx) == model.nv
         lower, upper, bounded = self._lower, self._upper, self._bounded
         max_step2 = self.max_step ** 2
+        self._clipped = True        # unknown at the start: check the bounds once
         it = 0
         while norm2 > eps2:
             if it >= self.max_iterations:
@@ -354,7 +356,8 @@ class Projector:
                 dv[free_idx] = step
                 q[:] = pin.integrate(model, q, dv)
             qb = q[bounded]
-            if ((qb < lower) | (qb > upper)).any():
+            self._clipped = bool(((qb < lower) | (qb > upper)).any())
+            if self._clipped:
                 q[bounded] = np.clip(qb, lower, upper)
             self._update_and_substitute(q)
             errors = [self._errors(L) for L in levels]
@@ -372,7 +375,8 @@ class Projector:
         """Newton step on the free variables, level by level, saturated joints removed."""
         jacobians = [self._reduced_jacobian(L) for L in self.levels]
         sat: Sequence[int] = ()
-        if self._sat_k.size:
+        # A joint can only sit on a bound after a clipped step (or at the start).
+        if self._sat_k.size and self._clipped:
             # HPP's saturation: a joint on a bound whose gradient descent direction -J^T e
             # points outward is removed from the problem (one solve, no retry).
             qs = q[self._sat_q]
