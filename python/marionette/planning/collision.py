@@ -130,11 +130,14 @@ class CollisionChecker:
         if not allowed:
             return not pin.computeCollisions(self.model, self.data, self.geom_model,
                                              self.geom_data, q, True)
-        self._update(q)
-        for k in range(len(self.pairs)):
-            if k not in allowed and pin.computeCollision(self.geom_model, self.geom_data, k):
-                return False
-        return True
+        gd = self.geom_data
+        for k in allowed:
+            gd.deactivateCollisionPair(k)
+        try:
+            return not pin.computeCollisions(self.model, self.data, self.geom_model, gd, q, True)
+        finally:
+            for k in allowed:
+                gd.activateCollisionPair(k)
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of the pairs in collision at q (for error messages)."""
@@ -204,6 +207,20 @@ class CollisionChecker:
             skip[list(allowed)] = True      # ...and never checked
         else:
             skip = None
+        # Cheap discrete probe first (dichotomy order): a collision found there bounds the
+        # valid prefix, and the certified pass below never goes beyond it.
+        limit = path.length
+        for frac in (0.5, 0.25, 0.75):
+            s_probe = frac * path.length
+            if not self.is_valid(path.eval(s_probe), allowed):
+                limit = min(limit, s_probe)
+                if frac == 0.5:
+                    break
+        if limit < path.length:
+            if limit <= 0.0:
+                return False, 0.0
+            ok, s = self.validate(path.extract(0.0, limit), allowed)
+            return False, s
         q0 = path.eval(0.0)
         self._update(q0)
         # Pairs that do not move relatively: checked once, at the start.
