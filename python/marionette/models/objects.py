@@ -226,7 +226,7 @@ class AircraftPart(ObjectSpec):
     pitch_z: float = 0.07
     hole_diameter: float = 0.008
     mass_kg: float = 15.0
-    tag_size: float = 0.04
+    tag_size: float = 0.05
 
     def hole_centres(self) -> dict[str, np.ndarray]:
         """Hole name -> centre (3,) on the front face, part frame; R1, R2 at grid corners."""

@@ -89,7 +89,7 @@ def scenes() -> list[Scene]:
               "(the drilling robot of Nicolin 2022, ch. 6)", "ur10",
               [SceneObject("part", part, placement(1.05, 0.0, 0.0, np.pi))],
               X_WB=np.eye(4),
-              cameras=[SceneCamera("scene_rgbd", (0.35, -0.55, 1.45), (1.05, 0.0, 0.95))]),
+              cameras=[SceneCamera("scene_rgbd", (0.40, -0.30, 1.35), (1.05, 0.0, 0.95))]),
         Scene("ur10_box", "UR10 on its stand, a table and a box to pick and place", "ur10",
               [SceneObject("table", table, placement(0.95)),
                SceneObject("box", box, placement(0.75, 0.25, table.top_z() + box.side / 2))],
