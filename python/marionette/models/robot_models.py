@@ -74,7 +74,7 @@ SERVO_GAINS: dict[str, list[tuple[str, ServoGains]]] = {
         ("root_x", ServoGains(kp=20000.0, kv=2000.0, armature=0.0)),
         ("root_y", ServoGains(kp=20000.0, kv=2000.0, armature=0.0)),
         ("root_yaw", ServoGains(kp=5000.0, kv=500.0, armature=0.0)),
-        ("torso_lift", ServoGains(kp=50000.0, kv=2000.0, armature=0.0)),
+        ("torso_lift", ServoGains(kp=200000.0, kv=5000.0, armature=0.0)),
         ("arm_1", ServoGains(kp=2000.0, kv=20.0, armature=0.05)),
         ("arm_2", ServoGains(kp=2000.0, kv=20.0, armature=0.05)),
         ("arm_3", ServoGains(kp=1500.0, kv=15.0, armature=0.05)),
