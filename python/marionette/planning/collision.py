@@ -217,10 +217,14 @@ class CollisionChecker:
                 if frac == 0.5:
                     break
         if limit < path.length:
-            if limit <= 0.0:
+            if limit <= 1e-9:
                 return False, 0.0
-            ok, s = self.validate(path.extract(0.0, limit), allowed)
+            _, s = self._certified(path.extract(0.0, limit), rigid, R, L, skip)
             return False, s
+        return self._certified(path, rigid, R, L, skip)
+
+    def _certified(self, path: "ConstrainedPath", rigid: np.ndarray, R: np.ndarray,
+                   L: np.ndarray, skip: np.ndarray | None) -> tuple[bool, float]:
         q0 = path.eval(0.0)
         self._update(q0)
         # Pairs that do not move relatively: checked once, at the start.
