@@ -409,4 +409,11 @@ def graph_from_settings(problem: ManipulationProblem,
                            LineSearch(**ls) if ls else LineSearch(), name=problem.name)
     graph = factory.generate()
     graph.path_step = float(s.get("path_step", graph.path_step))
+    # HPP's setWeight: how often Manipulation-RRT samples a transition (0: only to connect).
+    for name, w in (s.get("weights", {}) or {}).items():
+        if name not in graph.edges or graph.edges[name].parent is not None:
+            raise GraphError(f"weights: no top-level transition {name!r}")
+        if float(w) < 0:
+            raise GraphError(f"weights: {name!r} must be >= 0, got {w}")
+        graph.edges[name].weight = float(w)
     return graph

@@ -107,3 +107,15 @@ def test_graph_picture_is_written(ur5_box, tmp_path):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     dot = g.to_dot()
     assert dot.count("->") == len(g.edges) - sum(isinstance(e, WaypointEdge) for e in g.edges.values())
+
+
+def test_transition_weights_from_the_problem_file(ur5_box):
+    ur5_box.settings["weights"] = {"ur5/gripper > box/handle | f": 3.0}
+    try:
+        g = graph_from_settings(ur5_box)
+        assert g.edges["ur5/gripper > box/handle | f"].weight == 3.0
+        ur5_box.settings["weights"] = {"nope": 1.0}
+        with pytest.raises(GraphError, match="no top-level transition"):
+            graph_from_settings(ur5_box)
+    finally:
+        del ur5_box.settings["weights"]
