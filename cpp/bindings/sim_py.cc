@@ -45,6 +45,12 @@ class MjScene {
     Eigen::Map<Eigen::VectorXd>(data_->qpos, model_->nq) = q;
   }
   void forward() { mj_forward(model_, data_); }
+  void reset_keyframe(const std::string& name) {
+    const int key = mj_name2id(model_, mjOBJ_KEY, name.c_str());
+    if (key < 0) throw std::invalid_argument("no keyframe " + name + " in the scene");
+    mj_resetDataKeyframe(model_, data_, key);
+    mj_forward(model_, data_);
+  }
 
   // X_WF (4 x 4) of a body, site or geom named `name` (kinematics as of the last forward()).
   Eigen::Matrix4d Pose(int type, const std::string& name) const {
@@ -81,6 +87,8 @@ void RegisterSim(py::module_& parent) {
       .def_property_readonly("nq", &MjScene::nq)
       .def_property("qpos", &MjScene::qpos, &MjScene::set_qpos, "(nq,) generalised positions")
       .def("forward", &MjScene::forward, "mj_forward: update kinematics after setting qpos")
+      .def("reset_keyframe", &MjScene::reset_keyframe, py::arg("name"),
+           "mj_resetDataKeyframe then mj_forward")
       .def("body_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_BODY, n); },
            py::arg("name"), "X_WB as a 4 x 4 matrix")
       .def("site_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_SITE, n); },

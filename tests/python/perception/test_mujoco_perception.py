@@ -123,3 +123,49 @@ def test_plank_pose_from_three_tags_and_from_one_when_the_others_are_occluded(ri
     assert pose.tag_ids == (32,)
     dp, dr = errors(X_CB, pose.X_CB)
     assert dp < 5e-3 and dr < 1.0, (dp, dr)
+
+
+def test_talos_head_camera_in_the_plank_scene(rig):
+    """The demo scene (models/scenes/talos_plank.xml): TALOS looks down at the table (torso
+    0.2 rad, head 0.78 rad); tags 4, 5 (table) and 10, 11 (plank) are detected within
+    5 mm / 1 deg with depth, the plank's and table's poses too, and the camera pose that
+    ``perceive`` computes with Pinocchio from the robot's joints is MuJoCo's."""
+    from marionette import robots
+    from marionette._core import sim
+    from marionette.perception.objects import load_tagged_bodies, tag_sizes
+
+    scene = sim.MjScene(str(marionette.MODELS_DIR / "scenes" / "talos_plank.xml"))
+    scene.reset_keyframe("reference")
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    qpos = scene.qpos.copy()
+    q = robots.mujoco_to_pinocchio("talos", qpos[: model.nq])
+    for joint, value in (("torso_2_joint", 0.2), ("head_1_joint", 0.78)):
+        q[model.joints[model.getJointId(joint)].idx_q] = value
+    qpos[: model.nq] = robots.pinocchio_to_mujoco("talos", q)
+    scene.qpos = qpos
+    scene.forward()
+    renderer = sim.RgbdRenderer(scene, "head_rgbd", 640, 480)
+    k = renderer.intrinsics
+    K = CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+    rgb, depth = renderer.render(scene)
+    gray = np.rint(rgb.mean(axis=2)).astype(np.uint8)
+    X_WC = pin.SE3(renderer.camera_pose(scene))
+
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    X_WC_pin = data.oMf[model.getFrameId(robots.robot("talos").camera_frame)]
+    assert np.allclose(X_WC_pin.homogeneous, X_WC.homogeneous, atol=1e-6)
+
+    bodies = load_tagged_bodies([marionette.MODELS_DIR / "objects" / f"{n}.yaml"
+                                 for n in ("plank", "table")])
+    detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes(bodies)))
+    detections = detector.detect(gray, K, depth=depth)
+    assert sorted(d.tag_id for d in detections) == [4, 5, 10, 11]
+    for d in detections:
+        dp, dr = errors(truth(scene, X_WC, f"tag/{d.tag_id}"), d.X_CT)
+        assert dp < 5e-3 and dr < 1.0, (d.tag_id, dp, dr)
+    for body in bodies:
+        pose = estimate_body_pose(body, detections, K, depth=depth)
+        X_CB = X_WC.inverse() * pin.SE3(scene.body_pose(body.name))
+        dp, dr = errors(X_CB, pose.X_CB)
+        assert dp < 5e-3 and dr < 1.0, (body.name, dp, dr)
