@@ -32,6 +32,11 @@ if TYPE_CHECKING:
     from marionette.planning.projector import Projector
 
 
+# Two bodies closer than this [m] are in contact: counted as a collision (HPP's tolerance 0
+# up to a micrometre), which also bounds the certified steps from below.
+CONTACT = 1e-6
+
+
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
     """Copy of ``geom_model`` whose triangle meshes are replaced by their convex hulls."""
     out = geom_model.copy()
@@ -285,7 +290,7 @@ class CollisionChecker:
                     self.checks += len(self.pairs)
                     pin.computeDistances(self.model, self.data, gm, gd, q)
                     d = np.array([r.min_distance for r in gd.distanceResults])[due]
-                    if (d <= 0.0).any():
+                    if (d <= CONTACT).any():
                         return False, t
                     horizon[due] = t + d / u[due]
                 else:
@@ -293,16 +298,15 @@ class CollisionChecker:
                     for k in due:
                         self.checks += 1
                         d = pin.computeDistance(gm, gd, int(k)).min_distance
-                        if d <= 0.0:
+                        if d <= CONTACT:
                             return False, t
                         horizon[k] = t + d / u[k]
             t_next = float(horizon.min())
             if t_next >= 1.0:
                 budget[moving] = (horizon[moving] - 1.0) * u[moving]
                 return True, 1.0
-            # d > 0 at every query, so horizons strictly increase; the floor only guards
-            # against grazing contacts where d ~ 1e-12 would make progress invisible.
-            t = max(t_next, t + 1e-9)
+            # d > CONTACT at every query, so each step is at least CONTACT / u: no Zeno loop.
+            t = t_next
 
 
 def _ancestors_incl(model: pin.Model, joint: int) -> set[int]:
