@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 # Two bodies closer than this [m] are in contact: counted as a collision (HPP's tolerance 0
 # up to a micrometre), which also bounds the certified steps from below.
 CONTACT = 1e-6
+MAX_QUERIES = 20000      # evaluations of one segment before it is refused as grazing
 
 
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
@@ -76,6 +77,7 @@ class CollisionChecker:
         # chain_r[g]: list of (joint, r_jg) for every joint j on g's kinematic chain.
         self.chains = [self._chain(self.geom_joint[g], self.geom_radius[g]) for g in range(len(objs))]
         self.checks = 0          # number of pair queries (statistics)
+        self.refused_grazing = 0
         self._motion_cache: dict[int, tuple] = {}
         self._grasp_pairs: dict[tuple, frozenset[int]] = {}
         self._joint_kinds = []   # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
@@ -278,7 +280,7 @@ class CollisionChecker:
         t = 0.0
         length = s1 - s0
         gm, gd = self.geom_model, self.geom_data
-        while True:
+        for _ in range(MAX_QUERIES):
             # Pairs due within the next 1 % of the segment are refreshed now as well: an early
             # query only restarts their certified interval sooner (still contiguous), and one
             # forward kinematics then serves several pairs.
@@ -307,6 +309,9 @@ class CollisionChecker:
                 return True, 1.0
             # d > CONTACT at every query, so each step is at least CONTACT / u: no Zeno loop.
             t = t_next
+        # Bodies grazing each other along the whole segment: not certifiable, refused.
+        self.refused_grazing += 1
+        return False, t
 
 
 def _ancestors_incl(model: pin.Model, joint: int) -> set[int]:
