@@ -28,7 +28,7 @@ import numpy as np
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph import ConstraintGraph, Edge, State, WaypointEdge
 from marionette.planning.path import ConstrainedPath
-from marionette.planning.problem import ManipulationProblem, random_configuration
+from marionette.planning.problem import ManipulationProblem, sample_configuration
 
 
 class PlanningError(RuntimeError):
@@ -200,7 +200,7 @@ class ManipulationRRT:
     # ------------------------------------------------------------------------------ one step
     def one_step(self) -> None:
         rm = self.roadmap
-        q_rand = random_configuration(self.problem, self.rng, self._q_rand)
+        q_rand = sample_configuration(self.problem, self.rng, self._q_rand)
         new: list[tuple[Node, list[ConstrainedPath], np.ndarray, State]] = []
         for comp, members in rm.components().items():
             by_state: dict[int, list[int]] = {}

@@ -633,3 +633,25 @@ def random_configuration(problem: ManipulationProblem, rng: np.random.Generator,
         q[i + 3:i + 7] = (a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2),
                                       b * math.sin(2 * math.pi * u3), b * math.cos(2 * math.pi * u3))
     return q
+
+
+def sample_configuration(problem: ManipulationProblem, rng: np.random.Generator,
+                         out: np.ndarray | None = None) -> np.ndarray:
+    """The planner's sampler: uniform (:func:`random_configuration`) unless the problem's
+    ``planner.sampler`` asks for ``{around: init, sigma: s, uniform_fraction: f}``: then with
+    probability 1 - f a Gaussian perturbation (std ``sigma`` on every velocity coordinate) of
+    the initial configuration, clipped to the bounds -- humanoids rarely project random
+    whole-body postures onto balanced, collision-free ones; the uniform share keeps the
+    sampling dense everywhere (probabilistic completeness)."""
+    cfg = problem.settings.get("planner", {}).get("sampler")
+    if not cfg or problem.q_init is None or rng.random() < float(cfg.get("uniform_fraction", 0.2)):
+        return random_configuration(problem, rng, out)
+    sigma = float(cfg.get("sigma", 0.5))
+    q = pin.integrate(problem.model, problem.q_init, rng.normal(scale=sigma, size=problem.nv))
+    q = np.clip(q, problem.lower, problem.upper)
+    for i in problem.freeflyer_idx_q:
+        q[i + 3:i + 7] /= np.linalg.norm(q[i + 3:i + 7])
+    if out is not None:
+        out[:] = q
+        return out
+    return q
