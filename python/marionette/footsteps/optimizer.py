@@ -1,0 +1,353 @@
+"""Gauss–Newton over the prioritised hierarchy, with Algorithm 1's automatic number of steps.
+
+One iteration linearises every level (constraints g ≥ 0 and tasks e = 0, in priority order) at
+the current augmented configuration, solves the hierarchy (:mod:`.hierarchy`) for the tangent
+step dv within the step/joint limits and a trust region, and integrates. It stops at a fixed
+point (|dv|∞ small). When the primary task (hand, or goal footprint) stalls above its
+tolerance, a virtual link is added at the end of the chain (Dang Algorithm 1).
+
+Frozen variables (Dang Algorithm 2 line 11, §6.2.2):
+* the first ``frozen_steps`` steps (already executed or in progress) never change;
+* ``posture_frozen``: the robot's configuration is fixed, so only footstep dofs move; the last
+  step Δ_k is then fixed too, since it is the relative pose of the two soles of that posture.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from marionette.footsteps.augmented_robot import AugmentedConfiguration, AugmentedRobot
+from marionette.footsteps.constraints import Constraint, StepLimits, Task, joint_limits
+from marionette.footsteps.errors import InvalidProblem
+from marionette.footsteps.hierarchy import HierarchySettings, Level, solve_hierarchy
+
+
+@dataclass
+class OptimizerSettings:
+    max_iterations: int = 300
+    max_steps: int = 40
+    step_tolerance: float = 1e-6       # fixed point: |dv|∞ below this
+    settle_ratio: float = 1e-3         # lower tasks settled: each squared error improves by
+    settle_absolute: float = 1e-8      # less than ratio × itself + absolute
+    constraint_tolerance: float = 1e-5  # levels above the primary: residual below this
+    task_tolerance: float = 1e-3       # primary task reached when ||e|| ≤ this [m]
+    trust_region_steps: float = 0.1    # |ΔΔx|, |ΔΔy| [m] per iteration
+    trust_region_yaw: float = 0.05     # |ΔΔθ| [rad] per iteration (the chain's lever arm)
+    yaw_scale: float = 0.25            # [rad/m] metric of the step yaws (see solve)
+    trust_region_robot: float = 0.1    # |dv| per iteration on the robot [rad, m]
+    blocked_ratio: float = 0.9         # Algorithm 1: primary blocked if its linearised level
+                                       # keeps this fraction of its (clamped) error,
+    stall_window: int = 5              # or stalled if over this many iterations
+    stall_ratio: float = 0.05          # its error dropped by less than this fraction
+    stall_min_error: float = 0.02      # while above this [m]
+    stretched_fraction: float = 0.6    # ... or when this fraction of free steps is at max length
+    stretched_tolerance: float = 0.005  # (within this) [m]
+    auto_steps: bool = True            # Algorithm 1 on/off
+    line_search_steps: int = 5         # step halvings at most (see _line_search)
+    line_search_slack: float = 1e-4    # the levels above the primary may reach this meanwhile
+    hierarchy: HierarchySettings = field(default_factory=HierarchySettings)
+
+
+@dataclass
+class SolveReport:
+    converged: bool = False            # fixed point reached with the primary task satisfied
+    iterations: int = 0
+    qp_solves: int = 0
+    steps_added: int = 0
+    primary_error: float = np.inf
+    time_s: float = 0.0
+    level_residuals: dict[str, float] = field(default_factory=dict)
+
+
+class FootstepOptimizer:
+    """Prioritised optimisation of an augmented robot (see module doc).
+
+    ``levels``: Constraint and Task objects, highest priority first. ``primary``: the task whose
+    error decides Algorithm 1 (must be one of ``levels``).
+    """
+
+    def __init__(self, augmented: AugmentedRobot, levels: list[Constraint | Task],
+                 primary: Task, limits: StepLimits | None = None,
+                 settings: OptimizerSettings | None = None,
+                 posture_limits: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        if primary not in levels:
+            raise InvalidProblem("the primary task must be one of the levels")
+        self.augmented = augmented
+        self.levels = levels
+        self.primary = primary
+        self.limits = limits or StepLimits()
+        self.settings = settings or OptimizerSettings()
+        # Joint position limits of the final posture (nq each), within the model's own.
+        self.posture_limits = posture_limits
+
+    # -- variables ---------------------------------------------------------------------------
+    def free_indices(self, k: int, frozen_steps: int, posture_frozen: bool) -> np.ndarray:
+        """Indices of the free tangent dofs in [steps (3k) | robot (nv) if posture free]."""
+        last_free_step = k - 1 if (posture_frozen and self.augmented.robot is not None) else k
+        steps = np.arange(3 * min(frozen_steps, k), 3 * max(last_free_step, 0))
+        if posture_frozen or self.augmented.robot is None:
+            return steps
+        robot = self.augmented.robot
+        nv = robot.model.nv
+        robot_idx = np.setdiff1d(np.arange(nv), robot.frozen_velocity_indices())
+        return np.concatenate([steps, 3 * k + robot_idx])
+
+    def limit_gaps(self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """(limit − value) on the free dofs: lower (≤ 0 inside) and upper (≥ 0 inside)."""
+        k = config.num_steps
+        is_left = self.augmented.is_left(k)[2:]
+        lo_s, hi_s = self.limits.bounds(is_left, with_final=True)
+        steps = config.steps.reshape(-1)
+        lo, hi = lo_s - steps, hi_s - steps
+        if robot_free:
+            lo_r, hi_r = joint_limits(self.augmented.robot.model, config.q_robot,
+                                      self.posture_limits)
+            lo, hi = np.concatenate([lo, lo_r]), np.concatenate([hi, hi_r])
+        return lo[free], hi[free]
+
+    def bounds(self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of dv on the free dofs: limits − current value, within the trust region."""
+        s = self.settings
+        lo, hi = self.limit_gaps(config, free, robot_free)
+        k = config.num_steps
+        tr = np.tile([s.trust_region_steps, s.trust_region_steps, s.trust_region_yaw], k)
+        if robot_free:
+            tr = np.concatenate([tr, np.full(self.augmented.robot.model.nv,
+                                             s.trust_region_robot)])
+        tr = tr[free]
+        # Clip to the trust region; clipping both keeps lower ≤ upper, and a dof outside its
+        # limits is pulled back by at most the trust region per iteration.
+        return np.clip(lo, -tr, tr), np.clip(hi, -tr, tr)
+
+    # -- one iteration -----------------------------------------------------------------------
+    @staticmethod
+    def value(item: Constraint | Task, kin) -> np.ndarray:
+        """g(q) of a constraint or e(q) of a task at ``kin``, computed once per kinematics."""
+        cache = kin.__dict__.setdefault("_values", {})
+        key = id(item)
+        if key not in cache:
+            cache[key] = item.compute_value(kin) if isinstance(item, Constraint) else \
+                item.compute_error(kin)
+        return cache[key]
+
+    def linearise(self, kin, free: np.ndarray) -> list[Level]:
+        """One Level per constraint/task (in priority order), restricted to the free dofs."""
+        levels = []
+        for item in self.levels:
+            if isinstance(item, Constraint):
+                value = self.value(item, kin)
+                jacobian = item.compute_jacobian(kin)[:, free] if value.shape[0] else \
+                    np.zeros((0, free.shape[0]))
+                levels.append(Level.constraint(item.name, jacobian, value))
+            else:
+                error = self.value(item, kin)
+                norm = float(np.linalg.norm(error))
+                if norm > item.max_step:
+                    error = error * (item.max_step / norm)
+                levels.append(Level.task(item.name, item.compute_jacobian(kin)[:, free], error,
+                                         best_effort=item.best_effort))
+        return levels
+
+    # -- the loop ----------------------------------------------------------------------------
+    def solve(self, config: AugmentedConfiguration, frozen_steps: int = 0,
+              posture_frozen: bool = False) -> tuple[AugmentedConfiguration, SolveReport]:
+        """Optimise from ``config`` (warm start); returns the new configuration and a report.
+
+        Converged: the primary task within ``task_tolerance``, the levels above it satisfied,
+        and the levels below it settled (step below ``step_tolerance`` or their squared error
+        improving by less than ``settle_ratio`` per iteration).
+        """
+        s = self.settings
+        report = SolveReport()
+        start = time.perf_counter()
+        robot_free = not posture_frozen and self.augmented.robot is not None
+        if posture_frozen and self.augmented.robot is not None and config.num_steps < 1:
+            raise InvalidProblem("posture_frozen needs at least one step (the last one is fixed)")
+        primary_index = self.levels.index(self.primary)
+        self._frozen = (frozen_steps, posture_frozen)
+        kin = self.augmented.evaluate(config, robot_free=robot_free)
+        error, above, below = self._merits(kin)
+        history = [error]
+        blocked_count = 0
+        for _ in range(s.max_iterations):
+            k = config.num_steps
+            free = self.free_indices(k, frozen_steps, posture_frozen)
+            if free.shape[0] == 0:
+                if error > s.task_tolerance and s.auto_steps and k < s.max_steps:
+                    config, kin = self._add_step(config, robot_free, report)
+                    error, above, below = self._merits(kin)
+                    history = [error]
+                    continue
+                break
+            levels = self.linearise(kin, free)
+            lo, hi = self.bounds(config, free, robot_free)
+            # Metric of the step space: yaw variables are solved in units of yaw/yaw_scale, so
+            # the least-norm steps of each level do not favour turning (a yaw moves the far
+            # end of the chain by its lever arm) and plans do not zig-zag.
+            scale = np.where((free < 3 * k) & (free % 3 == 2), s.yaw_scale, 1.0)
+            for level in levels:
+                level.matrix = level.matrix * scale
+            solution = solve_hierarchy(levels, lo / scale, hi / scale, s.hierarchy)
+            solution.x = solution.x * scale
+            solution.x_after = [x * scale for x in solution.x_after]
+            report.iterations += 1
+            report.qp_solves += solution.qp_solves
+            if self._predicted_settled(error, above, below, solution):
+                # Already there: the linearised lower levels predict no useful improvement.
+                if s.auto_steps and k < s.max_steps and self._stretched(config, free):
+                    config, kin = self._add_step(config, robot_free, report)
+                    error, above, below = self._merits(kin)
+                    history = [error]
+                    continue
+                report.converged = True
+                break
+            # The step of the levels down to the primary task, and the lower levels' addition.
+            x_high = solution.x_after[primary_index]
+            dv_high = np.zeros(kin.nv)
+            dv_high[free] = x_high
+            dv_low = np.zeros(kin.nv)
+            dv_low[free] = solution.x - x_high
+            config, kin, alpha = self._line_search(config, kin, dv_high, dv_low, error, above,
+                                                   robot_free)
+            step = float(np.max(np.abs(x_high + alpha * (solution.x - x_high))))
+            previous_below = below
+            error, above, below = self._merits(kin)
+            history.append(error)
+            reached = error <= s.task_tolerance and above <= s.constraint_tolerance
+            settled = step < s.step_tolerance or bool(np.all(
+                previous_below - below < s.settle_ratio * previous_below + s.settle_absolute))
+            if reached and settled:
+                if s.auto_steps and k < s.max_steps and self._stretched(config, free):
+                    # Reached, but only with every step at full length: the tasks below are
+                    # strained (the robot twists to reach). One more step relaxes the chain.
+                    config, kin = self._add_step(config, robot_free, report)
+                    error, above, below = self._merits(kin)
+                    history = [error]
+                    continue
+                report.converged = True
+                break
+            if reached or not s.auto_steps or k >= s.max_steps:
+                continue
+            # Algorithm 1: at a local minimum of the primary task the chain is too short. The
+            # hierarchy tells it directly: its linearised primary level cannot reduce the
+            # (clamped) error, because the levels above and the limits block every direction.
+            clamped = min(history[-2], self.primary.max_step)
+            blocked = solution.levels[primary_index].residual > s.blocked_ratio * clamped
+            blocked_count = blocked_count + 1 if blocked else 0
+            slow = history[-2] - error < 0.25 * self.primary.max_step
+            # ... or, far from the target, no real progress over a few iterations (the
+            # linearisation promises progress that the nonlinear levels above take back).
+            window = history[-1 - s.stall_window] if len(history) > s.stall_window else np.inf
+            stalled = error > s.stall_min_error and window - error < s.stall_ratio * window
+            if blocked_count >= 2 or step < s.step_tolerance or stalled or \
+                    (slow and self._stretched(config, free)):
+                config, kin = self._add_step(config, robot_free, report)
+                error, above, below = self._merits(kin)
+                history = [error]
+                blocked_count = 0
+        report.primary_error = error
+        report.level_residuals = self.residuals(kin)
+        report.time_s = time.perf_counter() - start
+        return config, report
+
+    def _predicted_settled(self, error: float, above: float, below: np.ndarray,
+                           solution) -> bool:
+        """The primary task and the levels above it are satisfied, and for every (non
+        regularisation) task below, the hierarchy's linearised residual improves its squared
+        error by less than settle_ratio × itself + settle_absolute."""
+        s = self.settings
+        if error > s.task_tolerance or above > s.constraint_tolerance:
+            return False
+        start = self.levels.index(self.primary) + 1
+        residuals = [solution.levels[i].residual ** 2
+                     for i in range(start, len(self.levels))
+                     if isinstance(self.levels[i], Task) and not self.levels[i].regularisation]
+        return bool(np.all(below - np.array(residuals) < s.settle_ratio * below
+                           + s.settle_absolute))
+
+    def _add_step(self, config, robot_free, report):
+        config = self.augmented.add_step(config)
+        report.steps_added += 1
+        return config, self.augmented.evaluate(config, robot_free=robot_free)
+
+    def _merits(self, kin) -> tuple[float, float, np.ndarray]:
+        """(||primary error||, residual above it, squared error of each task below it)."""
+        error = float(np.linalg.norm(self.value(self.primary, kin)))
+        below = [float(np.sum(self.value(item, kin) ** 2))
+                 for item in self.levels[self.levels.index(self.primary) + 1:]
+                 if isinstance(item, Task) and not item.regularisation]
+        return error, self._above_primary(kin), np.array(below)
+
+    def _above_primary(self, kin) -> float:
+        """Residual of the levels above the primary task: limit and constraint violations, task
+        errors."""
+        free = self.free_indices(kin.k, *self._frozen)
+        lo, hi = self.limit_gaps(kin.config, free, kin.robot_free)
+        total = float(max(0.0, np.max(lo, initial=0.0), -np.min(hi, initial=0.0)))
+        for item in self.levels:
+            if item is self.primary:
+                break
+            v = self.value(item, kin)
+            if isinstance(item, Constraint):
+                total += float(max(0.0, -v.min())) if v.shape[0] else 0.0
+            else:
+                total += float(np.linalg.norm(v))
+        return total
+
+    def _line_search(self, config, kin, dv_high, dv_low, error, above, robot_free):
+        """Backtrack the lower levels' part of the Gauss–Newton step, dv_high + α dv_low.
+
+        The lower levels (gaze, posture, step preference) move in the null space of the
+        levels above them only to first order; with a long chain that second-order motion
+        broke the hand task every other iteration and plain Gauss–Newton cycled. A step is
+        accepted when it improves the levels above the primary task, or keeps them and the
+        primary task from growing; otherwise α is halved (the primary task's own progress,
+        dv_high, is never cut). After ``line_search_steps`` halvings α = 0.
+        """
+        s = self.settings
+        alpha = 1.0
+        for attempt in range(s.line_search_steps + 1):
+            if attempt == s.line_search_steps:
+                alpha = 0.0
+            candidate = self.augmented.integrate(config, dv_high + alpha * dv_low)
+            kin_c = self.augmented.evaluate(candidate, robot_free=robot_free)
+            above_c = self._above_primary(kin_c)
+            error_c = float(np.linalg.norm(self.value(self.primary, kin_c)))
+            if above_c < above - 1e-7:
+                break
+            if above_c <= max(above, s.line_search_slack) + 1e-9 and \
+                    error_c <= max(error, 0.5 * s.task_tolerance) + 1e-9:
+                break
+            alpha *= 0.5
+        return candidate, kin_c, alpha
+
+    def _stretched(self, config: AugmentedConfiguration, free: np.ndarray) -> bool:
+        """The free steps are (nearly) all at their forward limit: the chain cannot extend.
+
+        This is Algorithm 1's local minimum seen early: without it, the optimiser reaches far
+        goals by zig-zagging at the lateral and yaw limits instead of taking more steps.
+        """
+        steps = np.unique(free[free < 3 * config.num_steps] // 3)
+        if steps.shape[0] == 0:
+            return False
+        is_left = self.augmented.is_left(config.num_steps)[2:]
+        _, hi = self.limits.bounds(is_left, with_final=True)
+        s_tol = self.settings.stretched_tolerance
+        at_max = config.steps[steps, 0] >= hi[3 * steps] - s_tol
+        return bool(np.mean(at_max) >= self.settings.stretched_fraction)
+
+    def residuals(self, kin) -> dict[str, float]:
+        """Per level: ||e|| for tasks, worst violation max(−g, 0) for constraints."""
+        out = {}
+        for item in self.levels:
+            if isinstance(item, Constraint):
+                v = item.compute_value(kin)
+                out[item.name] = float(max(0.0, -v.min())) if v.shape[0] else 0.0
+            else:
+                out[item.name] = float(np.linalg.norm(item.compute_error(kin)))
+        return out

@@ -1,0 +1,181 @@
+"""Footsteps and final posture for a walk-and-grasp task (Dang ch. 6, Algorithms 1, 2 and 4).
+
+The problem on the augmented robot, in priority order (Dang §6.1.1; all constraints above all
+tasks):
+
+    (eq) feet on the last two footprints (closure of the augmented robot; posture free only)
+    step limits (eq. 2.82) and joint limits as variable bounds
+    (in) successive footprints do not overlap
+    (in) footprints outside obstacle regions + buffer (§3.2.2)
+    (in) CoM inside the final support polygon (posture free only)
+    (eq) hand task (grasp point on the object)
+    (eq) gaze task (camera axis on the object)
+    (eq) reference posture (posture free only)
+
+:meth:`GraspPlanner.plan` starts from zero virtual links and lets Algorithm 1 add them;
+:meth:`GraspPlanner.replan` warm-starts from the current solution with the executed steps
+frozen (Algorithm 2 line 11) and, optionally, the posture frozen (§6.2.2, table 6.2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
+                                                  rotation_2d)
+from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FeetOnFootprints,
+                                              FootNonOverlap, FramePositionTask, GazeTask,
+                                              ObstacleAvoidance, PostureTask, StepLimits,
+                                              StepPreferenceTask)
+from marionette.footsteps.errors import InvalidProblem, PlanningFailed
+from marionette.footsteps.obstacles import Obstacle
+from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
+from marionette.footsteps.plan import FootstepPlan, StepTiming
+from marionette.footsteps.robot_model import RobotDescription
+
+
+def default_first_side(stance: Stance, target_xy: np.ndarray) -> str:
+    """The foot on the side of the target moves first (right when straight ahead)."""
+    mid = 0.5 * (stance.left[:2] + stance.right[:2])
+    heading = 0.5 * (stance.left[2] + stance.right[2])
+    lateral = (rotation_2d(heading).T @ (np.asarray(target_xy) - mid))[1]
+    return "left" if lateral > 0.0 else "right"
+
+
+def posture_band_limits(robot: RobotDescription, band: dict[str, tuple[float, float]]
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """Joint limits (nq each) of reference + band for joints whose name starts with a key."""
+    model = robot.model
+    lower, upper = np.full(model.nq, -np.inf), np.full(model.nq, np.inf)
+    for j in range(2, model.njoints):
+        name = model.names[j]
+        for prefix, (lo, hi) in band.items():
+            if name.startswith(prefix):
+                iq = model.idx_qs[j]
+                lower[iq] = robot.reference_posture[iq] + lo
+                upper[iq] = robot.reference_posture[iq] + hi
+    return lower, upper
+
+
+@dataclass
+class GraspPlannerOptions:
+    hand: str = "right"
+    gaze: bool = True
+    non_overlap_margin: float = 0.02   # [m] between successive soles
+    com_margin: float = 0.03           # [m] CoM inside the final support polygon
+    nominal_width: float = 0.17        # [m] preferred lateral distance of the soles (TALOS)
+    # Comfort band of the final posture around the reference [rad], by joint-name prefix: the
+    # legs stay near half-sitting and the torso does not fold, so that far objects are reached
+    # by walking (Algorithm 1 adds steps) rather than by leaning, and the pattern generator's
+    # straight-posture assumption holds until the reach.
+    posture_band: dict[str, tuple[float, float]] = field(default_factory=lambda: {
+        "leg_": (-0.3, 0.3), "torso_1": (-0.3, 0.3), "torso_2": (-0.05, 0.6)})
+
+
+class GraspPlanner:
+    """Walk to an object and reach it with one hand: footsteps + final posture (see module)."""
+
+    def __init__(self, robot: RobotDescription, stance: Stance, target: np.ndarray,
+                 obstacles: list[Obstacle] | None = None, first_side: str | None = None,
+                 limits: StepLimits | None = None, options: GraspPlannerOptions | None = None,
+                 settings: OptimizerSettings | None = None,
+                 timing: StepTiming | None = None) -> None:
+        self.robot = robot
+        self.options = options or GraspPlannerOptions()
+        if self.options.hand not in robot.hand_frames:
+            raise InvalidProblem(f"hand must be one of {sorted(robot.hand_frames)}, "
+                                 f"got {self.options.hand!r}")
+        target = np.asarray(target, dtype=float)
+        side = first_side or default_first_side(stance, target[:2])
+        self.augmented = AugmentedRobot(robot, stance, side)
+        self.obstacles = list(obstacles or [])
+        self.limits = limits or StepLimits(final=FINAL_STANCE)
+        self.settings = settings or OptimizerSettings()
+        self.timing = timing or StepTiming()
+        self.hand = FramePositionTask(robot.hand_frames[self.options.hand], target)
+        self.gaze = GazeTask(robot.camera_frame, target)
+        joints = np.setdiff1d(np.arange(6, robot.model.nv), robot.frozen_velocity_indices())
+        self.posture = PostureTask(robot.reference_posture, joints)
+        self._posture_limits = posture_band_limits(robot, self.options.posture_band)
+        self.config: AugmentedConfiguration = self.augmented.neutral_configuration(0)
+        self.frozen_steps = 0
+        self.last_report: SolveReport | None = None
+
+    @property
+    def target(self) -> np.ndarray:
+        return self.hand.target
+
+    def set_target(self, target) -> None:
+        """Algorithm 4 line 6: update the hand and gaze tasks."""
+        self.hand.set_target(target)
+        self.gaze.set_target(target)
+
+    def set_obstacles(self, obstacles: list[Obstacle]) -> None:
+        self.obstacles = list(obstacles)
+
+    def optimizer(self, posture_frozen: bool) -> FootstepOptimizer:
+        first = self.frozen_steps + 1
+        levels = []
+        if not posture_frozen:
+            levels.append(FeetOnFootprints())
+        levels.append(FootNonOverlap(self.options.non_overlap_margin, first_step=first))
+        if self.obstacles:
+            levels.append(ObstacleAvoidance(self.obstacles, first_step=first))
+        if not posture_frozen:
+            levels.append(ComInSupportPolygon(self.options.com_margin))
+        # With the posture frozen, the hand's height is fixed: only its floor position is a
+        # task (else Algorithm 1 would add steps to chase an unreachable height).
+        self.hand.axes = np.array([0, 1]) if posture_frozen else np.array([0, 1, 2])
+        levels.append(self.hand)
+        if self.options.gaze:
+            levels.append(self.gaze)
+        if not posture_frozen:
+            levels.append(self.posture)
+        last = self.config.num_steps - 1 if posture_frozen else None
+        levels.append(StepPreferenceTask(self.options.nominal_width, first, last))
+        return FootstepOptimizer(self.augmented, levels, self.hand, self.limits, self.settings,
+                                 self._posture_limits)
+
+    def plan(self) -> SolveReport:
+        """Initial plan (Algorithm 1): from zero virtual links, posture free."""
+        self.config = self.augmented.neutral_configuration(0)
+        self.frozen_steps = 0
+        return self._solve(posture_frozen=False)
+
+    def replan(self, target=None, executed_steps: int | None = None,
+               posture_frozen: bool = True) -> SolveReport:
+        """Replan after a target move / step progress (Algorithm 4), warm-started.
+
+        ``executed_steps``: steps already started (executed or in progress); they are frozen.
+        """
+        if target is not None:
+            self.set_target(target)
+        if executed_steps is not None:
+            if executed_steps < 0:
+                raise InvalidProblem(f"executed_steps must be >= 0, got {executed_steps}")
+            self.frozen_steps = executed_steps
+        if posture_frozen and self.config.num_steps - 1 <= self.frozen_steps:
+            # Every step but the posture-bound last one is frozen: nothing would move; add one.
+            while self.config.num_steps - 1 <= self.frozen_steps:
+                self.config = self.augmented.add_step(self.config)
+        return self._solve(posture_frozen)
+
+    def _solve(self, posture_frozen: bool) -> SolveReport:
+        optimizer = self.optimizer(posture_frozen)
+        self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen)
+        self.last_report = report
+        return report
+
+    def result(self) -> FootstepPlan:
+        """The current solution as a footstep plan (world soles, sides, timing)."""
+        kin = self.augmented.evaluate(self.config, robot_free=False)
+        return FootstepPlan.from_footprints(kin.footprints, kin.is_left,
+                                            self.augmented.stance.floor_z, self.timing)
+
+    def require_converged(self, report: SolveReport) -> None:
+        if not report.converged:
+            raise PlanningFailed(f"hand task not reached: error {report.primary_error:.4f} m "
+                                 f"after {report.iterations} iterations, "
+                                 f"{self.config.num_steps} steps")

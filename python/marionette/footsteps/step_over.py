@@ -1,0 +1,201 @@
+"""Stepping over a bar (Dang ch. 5): footsteps alone, the upper body transparent (§3.3).
+
+Initial sequence (§5.2.1): plan to the goal ignoring the bar; remove the footprints that touch
+the bar region (one more when an odd number was removed, to keep left and right alternating);
+re-optimise with the bar as an obstacle region, the crossing step allowed a longer stride, and
+Algorithm 1 adding steps if the goal is no longer reached.
+
+Online deformation (§5.3, Algorithm 3): the footprint landing just before the bar and the one
+landing just after it ("the two subsequent steps that cross the bar") are kept fixed relative to
+the bar: when the bar moves to X_WB', their targets become X_WB' · X_BF (a rigid motion; the
+thesis's x ← x0 + y − y0 is its translation-only form) and the plan is re-optimised with the
+steps already taken frozen.
+
+Priorities: step limits (bounds) > non-overlap > obstacles (bar + others) > crossing footprints
+> goal stance > step preference.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
+                                                  planar_compose, planar_relative)
+from marionette.footsteps.constraints import (FINAL_STANCE, FootNonOverlap, FootprintPoseTask,
+                                              ObstacleAvoidance, StanceGoalTask, StepBounds,
+                                              StepLimits, StepPreferenceTask, sole_clearance)
+from marionette.footsteps.errors import InvalidProblem, PlanningFailed
+from marionette.footsteps.obstacles import Bar, Obstacle
+from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
+from marionette.footsteps.plan import FootstepPlan, StepTiming
+from marionette.footsteps.planner import default_first_side
+from marionette.footsteps.robot_model import TALOS_FOOT, FootShape
+from marionette.footsteps.swing import crossing_via_points
+
+
+@dataclass
+class StepOverOptions:
+    non_overlap_margin: float = 0.02
+    nominal_width: float = 0.17
+    # Longest step allowed over the bar: the straddling double support needs the sole length
+    # + the bar's width + two buffers between the sole centres.
+    crossing_max_length: float | None = None     # None: computed from the bar (+ 2 cm)
+    crossing_duration: float = 1.2               # single support of the crossing steps [s]
+    swing_margin: float = 0.03                   # eq. 5.1 clearance of the swing [m]
+
+
+class StepOverPlanner:
+    """Footsteps from ``stance`` to the ``goal`` stance (x, y, yaw) over ``bar`` (see module)."""
+
+    def __init__(self, stance: Stance, goal, bar: Bar, foot: FootShape = TALOS_FOOT,
+                 obstacles: list[Obstacle] | None = None, first_side: str | None = None,
+                 limits: StepLimits | None = None, options: StepOverOptions | None = None,
+                 settings: OptimizerSettings | None = None,
+                 timing: StepTiming | None = None) -> None:
+        self.goal = StanceGoalTask(goal)
+        self.bar = bar
+        self.foot = foot
+        self.obstacles = list(obstacles or [])
+        self.options = options or StepOverOptions()
+        self.limits = limits or StepLimits(final=FINAL_STANCE)
+        self.settings = settings or OptimizerSettings()
+        self.timing = timing or StepTiming()
+        side = first_side or default_first_side(stance, np.asarray(goal, dtype=float)[:2])
+        self.augmented = AugmentedRobot(None, stance, side, foot)
+        self.config = self.augmented.neutral_configuration(0)
+        self.frozen_steps = 0
+        self.crossing: tuple[int, int] | None = None        # footprint indices (before, after)
+        self._crossing_in_bar: tuple[np.ndarray, np.ndarray] | None = None
+        self.last_report: SolveReport | None = None
+
+    # -- geometry ------------------------------------------------------------------------
+    def side_of_bar(self, footprints: np.ndarray) -> np.ndarray:
+        """+1 for footprints on the start side of the bar, −1 past it: (m,)."""
+        n = self.bar.normal()
+        start = 0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2])
+        sign0 = np.sign(n @ (start - self.bar.center)) or 1.0
+        return np.where(sign0 * ((footprints[:, :2] - self.bar.center) @ n) > 0.0, 1.0, -1.0)
+
+    def touching_bar(self, footprints: np.ndarray) -> np.ndarray:
+        """Footprints whose sole comes within the bar's buffer: (m,) bool."""
+        return np.array([np.min(sole_clearance(pose, self.foot, self.bar)[0]) < 0.0
+                         for pose in footprints], dtype=bool)
+
+    def crossing_bounds(self) -> StepBounds:
+        d = self.limits.default
+        needed = self.foot.length + 2.0 * self.bar.radius + 2.0 * self.bar.buffer
+        longest = self.options.crossing_max_length or max(d.max_length, needed + 0.02)
+        return StepBounds(d.min_length, longest, d.min_width, d.max_width,
+                          d.max_outward_yaw, d.max_inward_yaw)
+
+    # -- planning ------------------------------------------------------------------------
+    def plan(self) -> SolveReport:
+        """Initial sequence over the bar (§5.2.1)."""
+        self.frozen_steps = 0
+        self.crossing = None
+        self._crossing_in_bar = None
+        # 1. To the goal, ignoring the bar.
+        self.config = self.augmented.neutral_configuration(0)
+        report = self._solve(with_bar=False)
+        if not report.converged:
+            raise PlanningFailed(f"goal not reached even without the bar: {report}")
+        # 2. Remove the footprints on the bar (and one more if their number is odd).
+        fp = self.augmented.footprints(self.config.steps)[2:]            # P_1..P_k
+        touching = np.flatnonzero(self.touching_bar(fp))
+        keep = np.ones(fp.shape[0], dtype=bool)
+        if touching.size:
+            keep[touching] = False
+            if touching.size % 2 == 1:
+                extra = touching[-1] + 1 if touching[-1] + 1 < fp.shape[0] else touching[0] - 1
+                keep[extra] = False
+        self.config = self._chain_through(fp[keep])
+        # 3. Re-optimise with the bar, the crossing step allowed to be long.
+        self._set_crossing_limits()
+        report = self._solve(with_bar=True)
+        self._set_crossing_limits()
+        report = self._solve(with_bar=True)
+        self._record_crossing()
+        return report
+
+    def update_bar(self, bar: Bar, executed_steps: int | None = None) -> SolveReport:
+        """Algorithm 3: the bar moved; keep the crossing footprints fixed relative to it."""
+        if self._crossing_in_bar is None:
+            raise InvalidProblem("plan() first: there is no crossing to keep")
+        if executed_steps is not None:
+            self.frozen_steps = executed_steps
+        self.bar = bar
+        return self._solve(with_bar=True, crossing_targets=True)
+
+    def set_goal(self, goal) -> None:
+        self.goal.set_target(goal)
+
+    def _chain_through(self, footprints: np.ndarray) -> AugmentedConfiguration:
+        """Step variables through given world footprints P_1..P_m (after P_-1, P_0)."""
+        poses = np.vstack([self.augmented.root[None], footprints])
+        steps = np.array([planar_relative(poses[i], poses[i + 1])
+                          for i in range(footprints.shape[0])]).reshape(-1, 3)
+        return AugmentedConfiguration(steps, None)
+
+    def _set_crossing_limits(self) -> None:
+        """The step landing first past the bar may be long (the others keep the default)."""
+        fp = self.augmented.footprints(self.config.steps)
+        side = self.side_of_bar(fp)                                       # rows -1..k
+        past = np.flatnonzero(side < 0.0)
+        self.limits.overrides = {}
+        if past.size:
+            first_past = int(past[0]) - 1                                 # footprint index
+            self.limits.overrides[first_past] = self.crossing_bounds()
+            self.crossing = (first_past - 1, first_past)
+
+    def _record_crossing(self) -> None:
+        if self.crossing is None:
+            return
+        fp = self.augmented.footprints(self.config.steps)
+        bar_pose = self.bar.pose()
+        self._crossing_in_bar = tuple(planar_relative(bar_pose, fp[i + 1]) for i in self.crossing)
+
+    def _levels(self, with_bar: bool, crossing_targets: bool):
+        first = self.frozen_steps + 1
+        levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
+        obstacles = self.obstacles + ([self.bar] if with_bar else [])
+        if obstacles:
+            levels.append(ObstacleAvoidance(obstacles, first_step=first))
+        if crossing_targets and self.crossing is not None:
+            bar_pose = self.bar.pose()
+            for index, relative in zip(self.crossing, self._crossing_in_bar):
+                if index > self.frozen_steps:        # a landed footprint cannot be moved
+                    levels.append(FootprintPoseTask(index, planar_compose(bar_pose, relative),
+                                                    weights=(1.0, 1.0, 1.0),
+                                                    name=f"crossing_{index}"))
+        levels.append(self.goal)
+        levels.append(StepPreferenceTask(self.options.nominal_width, first))
+        return levels
+
+    def _solve(self, with_bar: bool, crossing_targets: bool = False) -> SolveReport:
+        optimizer = FootstepOptimizer(self.augmented, self._levels(with_bar, crossing_targets),
+                                      self.goal, self.limits, self.settings)
+        self.config, report = optimizer.solve(self.config, self.frozen_steps)
+        self.last_report = report
+        return report
+
+    # -- output --------------------------------------------------------------------------
+    def result(self) -> FootstepPlan:
+        """The plan, the two bar-crossing swings with passage points (eq. 5.1)."""
+        kin = self.augmented.evaluate(self.config)
+        plan = FootstepPlan.from_footprints(kin.footprints, kin.is_left,
+                                            self.augmented.stance.floor_z, self.timing)
+        side = self.side_of_bar(kin.footprints)
+        z = self.augmented.stance.floor_z
+        for step in plan.steps:
+            i = step.index + 1                                   # footprint index of landing
+            lift = kin.footprints[i - 2 + 1]                     # P_(i-2)
+            if side[i + 1] != side[i - 1]:                       # lands past, lifted before
+                via, apex = crossing_via_points(np.array([lift[0], lift[1], z, lift[2]]),
+                                                step.pose, self.bar, self.foot.length,
+                                                self.foot.width, self.options.swing_margin)
+                step.via = via
+                step.step_height = apex
+                step.duration = self.options.crossing_duration
+        return plan
