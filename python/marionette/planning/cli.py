@@ -52,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from marionette.planning.graph_factory import graph_from_settings
     from marionette.planning.guide import guide_configuration, plan_through
     from marionette.planning.path import save_plan
-    from marionette.planning.planner import ManipulationRRT, PlanningError, random_shortcut
+    from marionette.planning.planner import (ManipulationRRT, PlanningError, graph_shortcut,
+                                             random_shortcut)
     from marionette.planning.problem import ProblemError, load_problem
 
     err = sys.stderr
@@ -105,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
     paths = result.paths
     if args.shortcut > 0:
         t1 = time.perf_counter()
-        paths = random_shortcut(paths, checker, np.random.default_rng(args.seed), args.shortcut)
+        rng = np.random.default_rng(args.seed)
+        paths = graph_shortcut(paths, graph, checker, rng, args.shortcut)
+        paths = random_shortcut(paths, checker, rng, args.shortcut)
         print(f"shortcut: length {result.length:.3f} -> {sum(p.length for p in paths):.3f} "
               f"in {(time.perf_counter() - t1) * 1e3:.0f} ms")
     json_path, npz_path = save_plan(out / "plan", graph, paths, step=args.step, metadata={

@@ -372,7 +372,10 @@ def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
         a, b = sorted(rng.random(2) * total)
         if b - a < 1e-3 * max(total, 1e-9):
             continue
-        qa, qb = _eval_run(run, cum, a), _eval_run(run, cum, b)
+        head = _cut_run(run, cum, 0.0, a)
+        tail = _cut_run(run, cum, b, total)
+        qa = head[-1].end if head else run[0].start
+        qb = tail[0].start if tail else run[-1].end
         edge = run[0].edge
         new = edge.build(qa, qb)
         if not new or len(new) != 1:
@@ -382,9 +385,46 @@ def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
             continue
         if not checker.validate(sc)[0]:
             continue
-        head = _cut_run(run, cum, 0.0, a)
-        tail = _cut_run(run, cum, b, total)
         paths = paths[:i0] + head + [sc] + tail + paths[i1:]
+    return [p for p in paths if p.length > 0.0 or len(paths) == 1]
+
+
+def graph_shortcut(paths: list[ConstrainedPath], graph: ConstraintGraph, checker: CollisionChecker,
+                   rng: np.random.Generator, iterations: int = 40) -> list[ConstrainedPath]:
+    """Random shortcut across transitions (HPP's graph steering method): two random points of
+    the plan, in the graph states s1 and s2, are joined by a transition from s1 to s2 whose leaf
+    holds both (a loop keeps the grasps and placements, a grasp transition regenerates its
+    pre-grasp waypoints); it replaces the part in between when it is valid and shorter, which
+    also removes useless release / re-grasp detours.  Points are only drawn on free motions
+    (loops and first sub-transitions), never on approaches, so approach axes are kept."""
+    paths = list(paths)
+    for _ in range(iterations):
+        cand = [i for i, p in enumerate(paths) if not p.edge.short and p.length > 1e-9]
+        if len(cand) < 1:
+            break
+        cum = np.concatenate([[0.0], np.cumsum([p.length for p in paths])])
+        picks = sorted((int(i), float(rng.random()) * paths[i].length)
+                       for i in rng.choice(cand, size=2))
+        (ia, sa), (ib, sb) = picks
+        a, b = cum[ia] + sa, cum[ib] + sb
+        if b - a < 1e-6:
+            continue
+        head, tail = _cut_run(paths, cum, 0.0, a), _cut_run(paths, cum, b, cum[-1])
+        # The ends of the cut pieces are the shortcut's ends: the plan stays continuous.
+        qa = head[-1].end if head else paths[0].start
+        qb = tail[0].start if tail else paths[-1].end
+        s1, s2 = graph.state_of(qa), graph.state_of(qb)
+        if s1 is None or s2 is None:
+            continue
+        for edge in graph.edges_between(s1, s2):
+            new = edge.build(qa, qb)
+            if not new:
+                continue
+            if sum(p.length for p in new) >= b - a - 1e-9:
+                continue
+            if all(checker.validate(p)[0] for p in new):
+                paths = head + new + tail
+                break
     return [p for p in paths if p.length > 0.0 or len(paths) == 1]
 
 
@@ -411,5 +451,8 @@ def _cut_run(run, cum, a, b) -> list[ConstrainedPath]:
     for i, p in enumerate(run):
         lo, hi = max(a, cum[i]), min(b, cum[i + 1])
         if hi - lo > 1e-12:
-            out.append(p.extract(lo - cum[i], hi - cum[i]))
+            # Snap to the path's own ends (cumulated sums round): its ends are exact.
+            lo_s = 0.0 if lo - cum[i] < 1e-9 else lo - cum[i]
+            hi_s = p.length if cum[i + 1] - hi < 1e-9 else hi - cum[i]
+            out.append(p if (lo_s == 0.0 and hi_s == p.length) else p.extract(lo_s, hi_s))
     return out

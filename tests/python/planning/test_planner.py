@@ -12,7 +12,8 @@ import pytest
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.path import load_plan, save_plan
-from marionette.planning.planner import ManipulationRRT, PlanningError, random_shortcut
+from marionette.planning.planner import (ManipulationRRT, PlanningError, graph_shortcut,
+                                         random_shortcut)
 
 
 @pytest.fixture(scope="module")
@@ -112,3 +113,16 @@ def test_ur10_box_moved_across_the_table_in_at_least_19_of_20_seeds():
         problem.q_init, [problem.q_goal], max_iterations=2000, timeout_s=60) for s in range(20)]
     assert sum(r.success for r in results) >= 19, [r.reason for r in results if not r.success]
     check_plan(problem, graph, checker, next(r for r in results if r.success).paths)
+
+
+def test_graph_shortcut_keeps_a_valid_pick_and_place(setup):
+    """Shortcuts across transitions: still a valid plan from start to goal, never longer, and
+    the box is still grasped then released through the pre-grasp waypoints."""
+    problem, graph, checker = setup
+    r = ManipulationRRT(problem, graph, checker, seed=0).solve(problem.q_init, [problem.q_goal])
+    assert r.success
+    short = graph_shortcut(r.paths, graph, checker, np.random.default_rng(1), iterations=40)
+    assert sum(p.length for p in short) <= r.length + 1e-9
+    check_plan(problem, graph, checker, short)
+    names = [p.edge.name for p in short]
+    assert any(n.endswith("_12") for n in names) and any(n.endswith("_21") for n in names)
