@@ -322,7 +322,7 @@ class ManipulationRRT:
             for b in nodes[i + 1:]:
                 if rm.component(a.index) == rm.component(b.index):
                     continue
-                if self._connect(a, b) or self._connect(b, a):
+                if self._connect(a, b):   # one direction, as HPP: every transition has its reverse
                     count += 1
         return count
 
@@ -336,7 +336,7 @@ class ManipulationRRT:
                 done = False
                 for j in rm.nearest(a.q, members, self.connect_k):
                     b = rm.nodes[j]
-                    if self._connect(a, b) or self._connect(b, a):
+                    if self._connect(a, b):   # one direction, as HPP: every transition has its reverse
                         count += 1
                         done = True
                         break
