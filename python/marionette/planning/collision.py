@@ -198,12 +198,14 @@ class CollisionChecker:
         self._motion_cache[key] = (projector, out)
         return out
 
-    def validate(self, path: "ConstrainedPath", allowed: frozenset[int] | None = None
-                 ) -> tuple[bool, float]:
+    def validate(self, path: "ConstrainedPath", allowed: frozenset[int] | None = None,
+                 prefix: bool = True) -> tuple[bool, float]:
         """(fully valid, s_valid): the path is collision-free on [0, s_valid] (arc length).
 
         Progressive certified validation, segment by segment of the path's polyline.  Pairs in
-        ``allowed`` (default: the grasp contacts of the path's transition) are not checked."""
+        ``allowed`` (default: the grasp contacts of the path's transition) are not checked.
+        ``prefix=False`` (connections, shortcuts: all or nothing) first probes a few
+        configurations and gives up at the first collision found, s_valid then being 0."""
         rigid, R, L = self._motion(path.projector)
         if allowed is None:
             allowed = self.grasp_contact_pairs(path.edge.grasps)
@@ -214,20 +216,12 @@ class CollisionChecker:
             skip[list(allowed)] = True      # ...and never checked
         else:
             skip = None
-        # Cheap discrete probe first (dichotomy order): a collision found there bounds the
-        # valid prefix, and the certified pass below never goes beyond it.
-        limit = path.length
-        for frac in (0.5, 0.25, 0.75):
-            s_probe = frac * path.length
-            if not self.is_valid(path.eval(s_probe), allowed):
-                limit = min(limit, s_probe)
-                if frac == 0.5:
-                    break
-        if limit < path.length:
-            if limit <= 1e-9:
-                return False, 0.0
-            _, s = self._certified(path.extract(0.0, limit), rigid, R, L, skip)
-            return False, s
+        if not prefix:
+            # All or nothing: cheap discrete probes (dichotomy order) reject most colliding
+            # paths before any certified stepping.
+            for frac in (0.5, 0.25, 0.75):
+                if not self.is_valid(path.eval(frac * path.length), allowed):
+                    return False, 0.0
         return self._certified(path, rigid, R, L, skip)
 
     def _certified(self, path: "ConstrainedPath", rigid: np.ndarray, R: np.ndarray,

@@ -309,7 +309,7 @@ class ManipulationRRT:
             paths = edge.build(a.q, b.q)
             if not paths:
                 continue
-            if all(self.checker.validate(p)[0] for p in paths):
+            if all(self.checker.validate(p, prefix=False)[0] for p in paths):
                 self.roadmap.add_edge(a, b, paths)
                 self.stats["connections"] += 1
                 return True
@@ -383,7 +383,7 @@ def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
         sc = new[0]
         if sc.length >= (b - a) - 1e-9:
             continue
-        if not checker.validate(sc)[0]:
+        if not checker.validate(sc, prefix=False)[0]:
             continue
         paths = paths[:i0] + head + [sc] + tail + paths[i1:]
     return [p for p in paths if p.length > 0.0 or len(paths) == 1]
@@ -422,7 +422,7 @@ def graph_shortcut(paths: list[ConstrainedPath], graph: ConstraintGraph, checker
                 continue
             if sum(p.length for p in new) >= b - a - 1e-9:
                 continue
-            if all(checker.validate(p)[0] for p in new):
+            if all(checker.validate(p, prefix=False)[0] for p in new):
                 paths = head + new + tail
                 break
     return [p for p in paths if p.length > 0.0 or len(paths) == 1]
