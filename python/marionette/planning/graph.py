@@ -304,7 +304,8 @@ class ConstraintGraph:
     # ------------------------------------------------------------------------------ export
     def to_dot(self) -> str:
         """Graphviz description: states as ellipses, waypoint states as dashed hexagons."""
-        lines = [f'digraph "{self.name}" {{', "  rankdir=LR;", '  node [fontsize=10];',
+        rankdir = "LR" if len(self.main_states()) <= 4 else "TB"   # wide graphs read downwards
+        lines = [f'digraph "{self.name}" {{', f"  rankdir={rankdir};", '  node [fontsize=10];',
                  '  edge [fontsize=8];']
         ids = {name: f"s{i}" for i, name in enumerate(self.states)}
         for name, s in self.states.items():
