@@ -320,7 +320,10 @@ def _robot_root(entry: dict[str, Any]) -> str:
         return "fixed"
     from marionette import robots
 
-    base = robots.robot(entry["robot"]).base
+    try:
+        base = robots.robot(entry["robot"]).base
+    except KeyError as e:
+        raise ProblemError(f"unknown model: {e}") from e
     if base not in ("free_flyer", "fixed"):
         raise ProblemError(f"robot {entry['robot']}: base '{base}' is not supported by the planner")
     return "freeflyer" if base == "free_flyer" else "fixed"

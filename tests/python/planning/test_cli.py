@@ -30,3 +30,11 @@ def test_plan_reports_a_missing_problem_file(tmp_path):
     r = run_cli(tmp_path / "nope.yaml")
     assert r.returncode == 2
     assert "nope.yaml" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_plan_reports_an_unknown_robot(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("name: x\nrobots:\n  - robot: nao\n")
+    r = run_cli(bad)
+    assert r.returncode == 2
+    assert "unknown robot 'nao'" in r.stderr and "Traceback" not in r.stderr
