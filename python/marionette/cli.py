@@ -14,6 +14,7 @@ import sys
 COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
     "marionette.perception.cli",
+    "marionette.footsteps.cli",
 ]
 
 

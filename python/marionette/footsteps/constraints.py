@@ -528,7 +528,12 @@ class StepPreferenceTask(Task):
         self.weights = np.array([length_weight, 1.0, yaw_weight])
 
     def _steps(self, kin):
-        last = kin.k if self.last_step is None else min(self.last_step, kin.k)
+        if self.last_step is None:
+            last = kin.k
+        elif self.last_step < 0:                 # counted from the end: -1 = all but the last
+            last = kin.k + self.last_step
+        else:
+            last = min(self.last_step, kin.k)
         return np.arange(self.first_step, last + 1)
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
@@ -612,3 +617,39 @@ class StanceGoalTask(Task):
         J[:2] = 0.5 * (J_last[:2] + J_prev[:2])
         J[2] = self.yaw_weight * J_last[2]
         return J
+
+
+class FacingTask(Task):
+    """The last footprint faces the approach direction: its yaw equals the bearing of ``target``
+    (x, y[, z]) from ``origin`` (x, y), the initial stance centre (1 row).
+
+    Without it the posture task, which does not see the robot's heading, lets the whole robot
+    turn away (up to 50° in tests) to bring a hand closer to its reference pose; with it the
+    robot arrives facing the way it walked, the object in front.
+
+    e = wrap(θ_k − atan2(t_y − o_y, t_x − o_x)),  J = ∂θ_k/∂q.
+    """
+
+    name = "facing"
+    max_step = 0.2
+
+    def __init__(self, target, origin) -> None:
+        o = np.asarray(origin, dtype=float).reshape(-1)
+        if o.shape[0] < 2 or not np.all(np.isfinite(o)):
+            raise InvalidProblem(f"facing origin must be finite (x, y), got {origin!r}")
+        self.origin = o[:2]
+        self.set_target(target)
+
+    def set_target(self, target) -> None:
+        t = np.asarray(target, dtype=float).reshape(-1)
+        if t.shape[0] < 2 or not np.all(np.isfinite(t)):
+            raise InvalidProblem(f"facing target must be finite (x, y[, z]), got {target!r}")
+        self.target = t[:2]
+        d = self.target - self.origin
+        self.heading = float(np.arctan2(d[1], d[0]))
+
+    def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
+        return np.array([wrap_angle(kin.footprint(kin.k)[2] - self.heading)])
+
+    def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
+        return kin.footprint_jacobian(kin.k)[2:3]

@@ -79,7 +79,9 @@ class HierarchySettings:
     feasibility_tolerance: float = 1e-7
     qp_eps: float = 1e-7          # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
     qp_max_iter: int = 300
-    qp_relaxations: tuple[float, ...] = (0.0, 1e-6, 1e-5, 1e-4)  # retries, see _Cascade._proxqp
+    # (Ruiz preconditioner, relaxation [m|rad]) tried in turn, see _Cascade._proxqp.
+    qp_attempts: tuple[tuple[bool, float], ...] = (
+        (True, 0.0), (False, 0.0), (False, 1e-6), (True, 1e-5), (False, 1e-5), (False, 1e-4))
 
 
 def solve_hierarchy(levels: list[Level], lower: np.ndarray, upper: np.ndarray,
@@ -113,7 +115,8 @@ def solve_hierarchy(levels: list[Level], lower: np.ndarray, upper: np.ndarray,
                 used = state.inequality(level.matrix, level.vector)
         reports.append(LevelReport(level.name, level.equality, 0.0, used))
         x_after.append(state.x0.copy())
-    x = state.x0
+    # The QPs meet the box to proxsuite's tolerance (~1e-7); return a point inside it.
+    x = np.clip(state.x0, lower, upper)
     for report, level in zip(reports, levels):
         r = level.matrix @ x - level.vector
         report.residual = float(np.linalg.norm(r if level.equality else np.maximum(r, 0.0)))
@@ -337,15 +340,17 @@ class _Cascade:
         vanish are dropped (they hold at y = 0). At degenerate vertices (many joint limits and
         closure rows active at once, a nearly flat objective) the feasible set around y = 0 is a
         sliver and proxsuite stalls at a residual near 1e-6; relaxing the inequalities by a few
-        micrometres/microradians lets it converge in tens of iterations. So the QP is retried
-        with growing relaxations (the accepted one bounds the violation; the next Gauss–Newton
+        micrometres/microradians lets it converge in tens of iterations. Its Ruiz preconditioner
+        cured some of these QPs and, with many equality rows (few free dofs), made others
+        report infeasibility. So the QP is retried over ``qp_attempts``: preconditioner on/off,
+        growing relaxations (the accepted one bounds the violation; the next Gauss–Newton
         iteration starts from the bounds again).
         """
         keep = np.einsum("ij,ij->i", C, C) > 1e-20
         C, lo, hi = C[keep], lo[keep], hi[keep]
         n = H.shape[0]
         b = np.zeros(E.shape[0])
-        for relax in self.s.qp_relaxations:
+        for precondition, relax in self.s.qp_attempts:
             qp = proxqp.dense.QP(n, E.shape[0], C.shape[0], True)
             qp.settings.eps_abs = self.s.qp_eps
             qp.settings.eps_rel = 0.0
@@ -354,7 +359,7 @@ class _Cascade:
             qp.settings.verbose = False
             qp.settings.max_iter = self.s.qp_max_iter
             qp.init(H, g, E, b, C, lo - relax, hi + relax, box[0] - relax, box[1] + relax,
-                    compute_preconditioner=True)
+                    compute_preconditioner=precondition)
             qp.solve()
             self.qp_solves += 1
             status = qp.results.info.status

@@ -46,6 +46,7 @@ class OptimizerSettings:
     stretched_fraction: float = 0.6    # ... or when this fraction of free steps is at max length
     stretched_tolerance: float = 0.005  # (within this) [m]
     auto_steps: bool = True            # Algorithm 1 on/off
+    relax_stretched: bool = True       # one more step when converged fully stretched (see solve)
     line_search_steps: int = 5         # step halvings at most (see _line_search)
     line_search_slack: float = 1e-4    # the levels above the primary may reach this meanwhile
     hierarchy: HierarchySettings = field(default_factory=HierarchySettings)
@@ -59,6 +60,7 @@ class SolveReport:
     steps_added: int = 0
     primary_error: float = np.inf
     time_s: float = 0.0
+    pose_iterations: int = 0           # posture-frozen replanning: iterations of the stance solve
     level_residuals: dict[str, float] = field(default_factory=dict)
 
 
@@ -199,7 +201,8 @@ class FootstepOptimizer:
             report.qp_solves += solution.qp_solves
             if self._predicted_settled(error, above, below, solution):
                 # Already there: the linearised lower levels predict no useful improvement.
-                if s.auto_steps and k < s.max_steps and self._stretched(config, free):
+                if s.auto_steps and s.relax_stretched and k < s.max_steps and \
+                        self._stretched(config, free):
                     config, kin = self._add_step(config, robot_free, report)
                     error, above, below = self._merits(kin)
                     history = [error]
@@ -222,7 +225,8 @@ class FootstepOptimizer:
             settled = step < s.step_tolerance or bool(np.all(
                 previous_below - below < s.settle_ratio * previous_below + s.settle_absolute))
             if reached and settled:
-                if s.auto_steps and k < s.max_steps and self._stretched(config, free):
+                if s.auto_steps and s.relax_stretched and k < s.max_steps and \
+                        self._stretched(config, free):
                     # Reached, but only with every step at full length: the tasks below are
                     # strained (the robot twists to reach). One more step relaxes the chain.
                     config, kin = self._add_step(config, robot_free, report)
@@ -245,7 +249,7 @@ class FootstepOptimizer:
             window = history[-1 - s.stall_window] if len(history) > s.stall_window else np.inf
             stalled = error > s.stall_min_error and window - error < s.stall_ratio * window
             if blocked_count >= 2 or step < s.step_tolerance or stalled or \
-                    (slow and self._stretched(config, free)):
+                    (slow and error > s.stall_min_error and self._stretched(config, free)):
                 config, kin = self._add_step(config, robot_free, report)
                 error, above, below = self._merits(kin)
                 history = [error]
@@ -271,8 +275,13 @@ class FootstepOptimizer:
                            + s.settle_absolute))
 
     def _add_step(self, config, robot_free, report):
-        config = self.augmented.add_step(config)
-        report.steps_added += 1
+        """Algorithm 1's new virtual link. With a frozen posture, two in-place steps: the last
+        step is the relative pose of the posture's two soles, and one added step would swap
+        the feet under the robot (its inverse relation can leave the step bounds)."""
+        count = 2 if (self.augmented.robot is not None and not robot_free) else 1
+        for _ in range(count):
+            config = self.augmented.add_step(config)
+        report.steps_added += count
         return config, self.augmented.evaluate(config, robot_free=robot_free)
 
     def _merits(self, kin) -> tuple[float, float, np.ndarray]:

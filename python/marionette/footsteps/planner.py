@@ -10,6 +10,7 @@ tasks):
     (in) CoM inside the final support polygon (posture free only)
     (eq) hand task (grasp point on the object)
     (eq) gaze task (camera axis on the object)
+    (eq) the final stance faces the approach direction (start → object)
     (eq) reference posture (posture free only)
 
 :meth:`GraspPlanner.plan` starts from zero virtual links and lets Algorithm 1 add them;
@@ -19,17 +20,21 @@ frozen (Algorithm 2 line 11) and, optionally, the posture frozen (§6.2.2, table
 
 from __future__ import annotations
 
+import dataclasses
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
                                                   rotation_2d)
-from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FeetOnFootprints,
+from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FacingTask, FeetOnFootprints,
                                               FootNonOverlap, FramePositionTask, GazeTask,
-                                              ObstacleAvoidance, PostureTask, StepLimits,
+                                              FootprintPoseTask, ObstacleAvoidance, PostureTask,
+                                              StepBounds, StepLimits,
                                               StepPreferenceTask)
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
+from marionette.footsteps.final_pose import solve_final_pose
 from marionette.footsteps.obstacles import Obstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
 from marionette.footsteps.plan import FootstepPlan, StepTiming
@@ -66,6 +71,7 @@ class GraspPlannerOptions:
     non_overlap_margin: float = 0.02   # [m] between successive soles
     com_margin: float = 0.03           # [m] CoM inside the final support polygon
     nominal_width: float = 0.17        # [m] preferred lateral distance of the soles (TALOS)
+    replan_settle_ratio: float = 0.02  # replans stop when lower levels improve less than this
     # Comfort band of the final posture around the reference [rad], by joint-name prefix: the
     # legs stay near half-sitting and the torso does not fold, so that far objects are reached
     # by walking (Algorithm 1 adds steps) rather than by leaning, and the pattern generator's
@@ -96,6 +102,7 @@ class GraspPlanner:
         self.timing = timing or StepTiming()
         self.hand = FramePositionTask(robot.hand_frames[self.options.hand], target)
         self.gaze = GazeTask(robot.camera_frame, target)
+        self.facing = FacingTask(target, 0.5 * (stance.left[:2] + stance.right[:2]))
         joints = np.setdiff1d(np.arange(6, robot.model.nv), robot.frozen_velocity_indices())
         self.posture = PostureTask(robot.reference_posture, joints)
         self._posture_limits = posture_band_limits(robot, self.options.posture_band)
@@ -111,6 +118,7 @@ class GraspPlanner:
         """Algorithm 4 line 6: update the hand and gaze tasks."""
         self.hand.set_target(target)
         self.gaze.set_target(target)
+        self.facing.set_target(target)
 
     def set_obstacles(self, obstacles: list[Obstacle]) -> None:
         self.obstacles = list(obstacles)
@@ -131,9 +139,10 @@ class GraspPlanner:
         levels.append(self.hand)
         if self.options.gaze:
             levels.append(self.gaze)
+        levels.append(self.facing)
         if not posture_frozen:
             levels.append(self.posture)
-        last = self.config.num_steps - 1 if posture_frozen else None
+        last = -1 if posture_frozen else None       # the frozen posture owns the last step
         levels.append(StepPreferenceTask(self.options.nominal_width, first, last))
         return FootstepOptimizer(self.augmented, levels, self.hand, self.limits, self.settings,
                                  self._posture_limits)
@@ -142,7 +151,7 @@ class GraspPlanner:
         """Initial plan (Algorithm 1): from zero virtual links, posture free."""
         self.config = self.augmented.neutral_configuration(0)
         self.frozen_steps = 0
-        return self._solve(posture_frozen=False)
+        return self._solve(posture_frozen=False, relax_stretched=True)
 
     def replan(self, target=None, executed_steps: int | None = None,
                posture_frozen: bool = True) -> SolveReport:
@@ -157,13 +166,115 @@ class GraspPlanner:
                 raise InvalidProblem(f"executed_steps must be >= 0, got {executed_steps}")
             self.frozen_steps = executed_steps
         if posture_frozen and self.config.num_steps - 1 <= self.frozen_steps:
-            # Every step but the posture-bound last one is frozen: nothing would move; add one.
+            # Every step but the posture-bound last one is frozen: nothing would move. Add two
+            # in-place steps (one would swap the feet under the frozen robot).
             while self.config.num_steps - 1 <= self.frozen_steps:
-                self.config = self.augmented.add_step(self.config)
+                self.config = self.augmented.add_step(self.augmented.add_step(self.config))
+        if posture_frozen:
+            return self._solve_frozen()
+        if self.config.num_steps - 2 >= self.frozen_steps:
+            return self._solve_full_replan()
         return self._solve(posture_frozen)
 
-    def _solve(self, posture_frozen: bool) -> SolveReport:
+    def _solve_frozen(self) -> SolveReport:
+        """Posture frozen: the robot is rigid on its last footprint P_k, so its tasks depend on
+        P_k only. Solve them over P_k's 3 dofs (:mod:`.final_pose`), then make the chain reach
+        that stance (footsteps only, Dang §3.3) with the same constraints above it."""
+        start = time.perf_counter()
+        robot_frames = self.augmented._robot_kinematics(self.config.q_robot)["frames"]
+        frames_L = {name: (p, R) for name, (p, R, _) in robot_frames.items()}
+        self.hand.axes = np.array([0, 1])
+        tasks = [self.hand] + ([self.gaze] if self.options.gaze else []) + [self.facing]
+        pose0 = self.augmented.footprints(self.config.steps)[-1]
+        stance, pose_iterations = solve_final_pose(tasks, pose0, frames_L,
+                                                   self.augmented.stance.floor_z,
+                                                   tolerance=1e-5)
+        report = self._reach_stance(stance)
+        report.pose_iterations = pose_iterations
+        report.time_s = time.perf_counter() - start
+        self.last_report = report
+        return report
+
+    def _reach_stance(self, stance: np.ndarray) -> SolveReport:
+        """The chain, footsteps only, brings its last footprint to ``stance`` (x, y, θ) with
+        the last step Δ_k fixed (it belongs to the posture)."""
+        # On the last footprint: steps are added in pairs here, so the robot keeps its sides.
+        goal = FootprintPoseTask(None, stance, weights=(1.0, 1.0, 1.0), name="robot_stance")
+        first = self.frozen_steps + 1
+        levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
+        if self.obstacles:
+            levels.append(ObstacleAvoidance(self.obstacles, first_step=first))
+        levels += [goal, StepPreferenceTask(self.options.nominal_width, first, -1)]
+        # Replanning keeps the plan's step count unless the stance is out of reach (Algorithm 1
+        # proper; the initial plan alone adds a step when it converged fully stretched), and
+        # stops once the lower levels improve by less than 2 % per iteration: the next replan
+        # warm-starts from here anyway.
+        # The stance error mixes metres and radians; a hand ~0.6 m from the sole turns θ errors
+        # into position errors, hence a tolerance well below the hand's.
+        settings = dataclasses.replace(self.settings, relax_stretched=False,
+                                       settle_ratio=self.options.replan_settle_ratio,
+                                       task_tolerance=0.2 * self.settings.task_tolerance)
+        optimizer = FootstepOptimizer(self.augmented, levels, goal, self.limits, settings)
+        self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen=True)
+        return report
+
+    def _solve_full_replan(self) -> SolveReport:
+        """Posture free: the robot tasks depend on the posture and on the last two footprints
+        only. Solve them on a two-step augmented robot whose first step is unbounded (the
+        final stance free in the world, the last step within its final-stance bounds), then
+        make the chain reach that stance. Exact while the chain's own constraints do not bind
+        at the stance; otherwise Algorithm 1 adds steps to the chain."""
+        start = time.perf_counter()
+        k = self.config.num_steps
+        fp = self.augmented.footprints(self.config.steps)            # rows: footprints -1..k
+        root, other = fp[k - 1], fp[k - 2]                           # P_(k-2), P_(k-3)
+        last_side = self.augmented.side_of(k)
+        stance = Stance(root if last_side == "left" else other,
+                        other if last_side == "left" else root, self.augmented.stance.floor_z)
+        sub = AugmentedRobot(self.robot, stance, self.augmented.side_of(k - 1))
+        sub_config = AugmentedConfiguration(self.config.steps[k - 2:].copy(),
+                                            self.config.q_robot.copy())
+        free_step = StepBounds(-10.0, 10.0, 0.0, 10.0, np.pi, np.pi)
+        limits = StepLimits(default=free_step, final=self.limits.final)
+        self.hand.axes = np.array([0, 1, 2])
+        levels = [FeetOnFootprints(),
+                  FootNonOverlap(self.options.non_overlap_margin, first_step=2)]
+        if self.obstacles:
+            levels.append(ObstacleAvoidance(self.obstacles, first_step=1))
+        levels += [ComInSupportPolygon(self.options.com_margin), self.hand]
+        if self.options.gaze:
+            levels.append(self.gaze)
+        levels += [self.facing, self.posture,
+                   StepPreferenceTask(self.options.nominal_width, 2, 2)]
+        # Two steps, not a long chain: wider trust region and error clamp than the chain's.
+        settings = dataclasses.replace(self.settings, auto_steps=False,
+                                       settle_ratio=self.options.replan_settle_ratio,
+                                       trust_region_steps=0.3, trust_region_yaw=0.2)
+        optimizer = FootstepOptimizer(sub, levels, self.hand, limits, settings,
+                                      self._posture_limits)
+        self.hand.max_step = 0.25
+        try:
+            sub_config, robot_report = optimizer.solve(sub_config)
+        finally:
+            del self.hand.max_step
+        steps = self.config.steps.copy()
+        steps[k - 1] = sub_config.steps[1]
+        self.config = AugmentedConfiguration(steps, sub_config.q_robot)
+        report = self._reach_stance(sub.footprints(sub_config.steps)[-1])
+        report.pose_iterations = robot_report.iterations
+        report.qp_solves += robot_report.qp_solves
+        report.converged = report.converged and robot_report.converged
+        report.level_residuals.update(robot_report.level_residuals)
+        report.time_s = time.perf_counter() - start
+        self.last_report = report
+        return report
+
+    def _solve(self, posture_frozen: bool, relax_stretched: bool = False) -> SolveReport:
         optimizer = self.optimizer(posture_frozen)
+        optimizer.settings = dataclasses.replace(
+            self.settings, relax_stretched=relax_stretched,
+            settle_ratio=self.settings.settle_ratio if relax_stretched
+            else self.options.replan_settle_ratio)
         self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen)
         self.last_report = report
         return report

@@ -1,0 +1,162 @@
+"""The footstep process: OBJECT_POSES and WALK_STATUS in, FOOTSTEP_PLAN out (Dang Algorithm 4).
+
+:class:`FootstepNode` holds the logic and no transport: feed it decoded messages, call
+:meth:`FootstepNode.update` and publish what it returns. :func:`run` wires it to LCM.
+
+Step indices are global and stable: step i of the first plan keeps index i in every replan, and
+WALK_STATUS.current_step_index refers to them. A replan freezes the steps that have started
+(indices ≤ current_step_index, Algorithm 2 line 11) and publishes the others, with
+``first_step_index`` = current_step_index + 1: the footstep manager replaces its steps from that
+index on and never touches the step in progress.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from marionette.footsteps.augmented_robot import Stance
+from marionette.footsteps.errors import FootstepError
+from marionette.footsteps.obstacles import Bar
+from marionette.footsteps.plan import FootstepPlan
+
+
+def yaw_from_quaternion(wxyz) -> float:
+    """Yaw of the x axis of a rotation given as a (w, x, y, z) quaternion [rad]."""
+    w, x, y, z = (float(v) for v in wxyz)
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+@dataclass
+class NodeOptions:
+    mode: str = "grasp"                  # "grasp" | "step-over"
+    target: str = "ball"                 # object whose pose is the hand/gaze target (grasp)
+    hand: str = "right"
+    posture_frozen: bool = True          # replanning mode (Dang §6.2.2)
+    bar: str = "bar"                     # object name of the bar (step-over)
+    bar_radius: float = 0.02
+    bar_length: float = 2.0
+    goal: tuple[float, float, float] = (2.0, 0.0, 0.0)   # final stance (step-over)
+    move_threshold: float = 0.002        # [m] object displacement that triggers a replan
+
+
+class FootstepNode:
+    """Algorithm 4 on messages: replan when the target moves or the step counter advances."""
+
+    def __init__(self, options: NodeOptions, stance: Stance | None = None,
+                 robot=None) -> None:
+        if options.mode not in ("grasp", "step-over"):
+            raise FootstepError(f"mode must be 'grasp' or 'step-over', got {options.mode!r}")
+        self.options = options
+        self.stance = stance
+        self._robot = robot
+        self.planner = None
+        self.plan_id = 0
+        self.current_step = -1
+        self.object_pose: np.ndarray | None = None      # (x, y, z, yaw) of target or bar
+        self._planned_pose: np.ndarray | None = None
+        self._planned_step = -1
+        self.last_plan: FootstepPlan | None = None
+        self.last_solve_ms = 0.0
+        self._lock = threading.Lock()
+
+    # -- inputs ----------------------------------------------------------------------------
+    def on_object_poses(self, msg) -> None:
+        name = self.options.target if self.options.mode == "grasp" else self.options.bar
+        for obj in msg.objects:
+            if obj.object_name == name:
+                p = np.array(obj.position_world, dtype=float)
+                if np.all(np.isfinite(p)):
+                    with self._lock:
+                        self.object_pose = np.array([p[0], p[1], p[2],
+                                                     yaw_from_quaternion(obj.quaternion_world)])
+
+    def on_walk_status(self, msg) -> None:
+        with self._lock:
+            self.current_step = int(msg.current_step_index)
+            if self.stance is None and self.planner is None and msg.current_step_index < 0:
+                left, right = np.array(msg.left_foot, dtype=float), np.array(msg.right_foot,
+                                                                               dtype=float)
+                self.stance = Stance(left[[0, 1, 3]], right[[0, 1, 3]], float(left[2]))
+
+    # -- Algorithm 4 -----------------------------------------------------------------------
+    def update(self, utime: int):
+        """Replan if needed; returns an lcmt_footstep_plan to publish, or None."""
+        with self._lock:
+            pose = None if self.object_pose is None else self.object_pose.copy()
+            step = self.current_step
+            stance = self.stance
+        if pose is None or stance is None:
+            return None
+        start = time.perf_counter()
+        if self.planner is None:
+            self._initial_plan(stance, pose)
+        else:
+            moved = np.linalg.norm(pose[:2] - self._planned_pose[:2]) > self.options.move_threshold \
+                or abs(pose[3] - self._planned_pose[3]) > self.options.move_threshold
+            if not moved and step == self._planned_step:
+                return None
+            if self.last_plan is not None and step >= len(self.last_plan.steps) - 1:
+                return None                          # walking done: nothing left to change
+            self._replan(pose, executed=step + 1)
+        self.last_solve_ms = 1e3 * (time.perf_counter() - start)
+        self._planned_pose, self._planned_step = pose, step
+        self.last_plan = self.planner.result()
+        self.plan_id += 1
+        return self.last_plan.to_lcm(utime, self.plan_id, first_step_index=max(step + 1, 0))
+
+    def _initial_plan(self, stance: Stance, pose: np.ndarray) -> None:
+        if self.options.mode == "grasp":
+            from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
+            from marionette.footsteps.robot_model import talos
+
+            robot = self._robot or talos()
+            self.planner = GraspPlanner(robot, stance, pose[:3],
+                                        options=GraspPlannerOptions(hand=self.options.hand))
+            self.planner.plan()
+        else:
+            from marionette.footsteps.step_over import StepOverPlanner
+
+            bar = Bar(pose[:2], pose[3], self.options.bar_radius, self.options.bar_length)
+            self.planner = StepOverPlanner(stance, np.array(self.options.goal), bar)
+            self.planner.plan()
+
+    def _replan(self, pose: np.ndarray, executed: int) -> None:
+        if self.options.mode == "grasp":
+            self.planner.replan(pose[:3], executed_steps=executed,
+                                posture_frozen=self.options.posture_frozen)
+        else:
+            bar = self.planner.bar.moved_to(pose[:2], pose[3])
+            self.planner.update_bar(bar, executed_steps=executed)
+
+
+def run(options: NodeOptions, lcm_url: str | None = None, rate_hz: float = 50.0,
+        stance: Stance | None = None, duration_s: float | None = None) -> int:
+    """The process: subscribe, replan at ``rate_hz`` when needed, publish FOOTSTEP_PLAN."""
+    from marionette import channels, lcmt_object_poses, lcmt_walk_status
+    from marionette.lcm_bus import LcmBus
+
+    node = FootstepNode(options, stance)
+    with LcmBus(lcm_url) as bus:
+        bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, node.on_object_poses)
+        bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, node.on_walk_status)
+        bus.start()
+        print(f"footsteps: ready ({options.mode}) on {bus.url}", flush=True)
+        start = time.monotonic()
+        period = 1.0 / rate_hz
+        while duration_s is None or time.monotonic() - start < duration_s:
+            tick = time.monotonic()
+            try:
+                msg = node.update(int(1e6 * time.time()))
+            except FootstepError as exc:
+                print(f"footsteps: planning failed: {exc}", flush=True)
+                msg = None
+            if msg is not None:
+                bus.publish(channels.FOOTSTEP_PLAN, msg)
+                print(f"footsteps: plan {msg.plan_id} from step {msg.first_step_index}, "
+                      f"{msg.num_steps} steps ({node.last_solve_ms:.1f} ms)", flush=True)
+            time.sleep(max(0.0, period - (time.monotonic() - tick)))
+    return 0
