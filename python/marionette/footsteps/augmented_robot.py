@@ -36,8 +36,14 @@ SIDES = ("left", "right")
 
 def rotation_2d(theta: np.ndarray) -> np.ndarray:
     """Planar rotation matrices: theta (...,) -> (..., 2, 2)."""
+    theta = np.asarray(theta, dtype=float)
     c, s = np.cos(theta), np.sin(theta)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+    out = np.empty(theta.shape + (2, 2))
+    out[..., 0, 0] = c
+    out[..., 0, 1] = -s
+    out[..., 1, 0] = s
+    out[..., 1, 1] = c
+    return out
 
 
 def rotation_z(theta: float) -> np.ndarray:
@@ -190,10 +196,15 @@ class AugmentedRobot:
         out[0] = self.initial_moving
         out[1] = self.root
         if k:
-            theta = self.root[2] + np.concatenate([[0.0], np.cumsum(steps[:, 2])])  # θ_0..θ_k
-            rot = rotation_2d(theta[:-1])                                              # R(θ_(i-1))
-            d = np.einsum("kab,kb->ka", rot, steps[:, :2])
-            out[2:, :2] = self.root[:2] + np.cumsum(d, axis=0)
+            theta = np.empty(k + 1)                                     # θ_0..θ_k
+            theta[0] = self.root[2]
+            np.cumsum(steps[:, 2], out=theta[1:])
+            theta[1:] += self.root[2]
+            c, s = np.cos(theta[:-1]), np.sin(theta[:-1])               # R(θ_(i-1))
+            out[2:, 0] = c * steps[:, 0] - s * steps[:, 1]
+            out[2:, 1] = s * steps[:, 0] + c * steps[:, 1]
+            np.cumsum(out[2:, :2], axis=0, out=out[2:, :2])
+            out[2:, :2] += self.root[:2]
             out[2:, 2] = theta[1:]
         return out
 

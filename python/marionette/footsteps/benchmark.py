@@ -11,6 +11,7 @@ beside the thesis's figures (HRP-2, 2012 CPU, C++).
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,13 +32,15 @@ BALL = np.array([2.0, -0.2, 0.6])    # on a 0.6 m stand, reached with the right 
 class Row:
     modification: float
     times_ms: list[float] = field(default_factory=list)
+    cpu_ms: list[float] = field(default_factory=list)
     converged: int = 0
     steps_added: int = 0
 
     def stats(self) -> dict:
         t = np.array(self.times_ms)
         return {"max": float(t.max()), "min": float(t.min()), "average": float(t.mean()),
-                "median": float(np.median(t)), "trials": int(t.size),
+                "median": float(np.median(t)), "cpu_average": float(np.mean(self.cpu_ms)),
+                "trials": int(t.size),
                 "converged": self.converged, "steps_added": self.steps_added}
 
 
@@ -66,13 +69,15 @@ def run(trials_frozen: int = 30, trials_full: int = 10, seed: int = 0) -> dict:
                 planner.config = initial.copy()
                 planner.frozen_steps = 0
                 planner.set_target(BALL)
-                tick = time.perf_counter()
+                tick, cpu = time.perf_counter(), time.process_time()
                 r = planner.replan(target, executed_steps=0, posture_frozen=(mode == "frozen"))
                 row.times_ms.append(1e3 * (time.perf_counter() - tick))
+                row.cpu_ms.append(1e3 * (time.process_time() - cpu))
                 row.converged += int(r.converged)
                 row.steps_added += r.steps_added
             rows[mode][d] = row.stats()
     result = {"initial_plan_ms": initial_ms, "initial_steps": initial.num_steps,
+              "load_average": list(os.getloadavg()), "cpus": os.cpu_count(),
               "frozen": {str(k): v for k, v in rows["frozen"].items()},
               "full": {str(k): v for k, v in rows["full"].items()}}
     _print(result)
@@ -82,17 +87,19 @@ def run(trials_frozen: int = 30, trials_full: int = 10, seed: int = 0) -> dict:
 def _print(result: dict) -> None:
     print(f"initial plan (Algorithm 1, posture free): {result['initial_plan_ms']:.0f} ms, "
           f"{result['initial_steps']} steps")
+    print(f"machine: {result['cpus']} CPUs, load average {result['load_average'][0]:.1f} "
+          "(wall-clock times grow with the load; 'cpu' is this process's CPU time)")
     for mode, thesis, title in (
             ("full", THESIS_FULL, "table 6.1 — final posture + footsteps"),
             ("frozen", THESIS_FROZEN, "table 6.2 — footsteps, posture frozen")):
         print(f"\n{title}   [ms]      marionette (Python)                  | Dang 2012 (C++)")
-        print(f"{'d [m]':>6} {'max':>8} {'min':>8} {'avg':>8} {'median':>8} {'ok':>6} "
-              f"| {'max':>6} {'min':>6} {'avg':>7} | avg ratio")
+        print(f"{'d [m]':>6} {'max':>8} {'min':>8} {'avg':>8} {'median':>8} {'cpu avg':>8} "
+              f"{'ok':>6} | {'max':>6} {'min':>6} {'avg':>7} | avg ratio")
         for d in MODIFICATIONS:
             s = result[mode][str(d)]
             t = thesis[d]
             print(f"{d:6.2f} {s['max']:8.2f} {s['min']:8.2f} {s['average']:8.2f} "
-                  f"{s['median']:8.2f} {s['converged']:3d}/{s['trials']:<2d} "
+                  f"{s['median']:8.2f} {s['cpu_average']:8.2f} {s['converged']:3d}/{s['trials']:<2d} "
                   f"| {t[0]:6.0f} {t[1]:6.0f} {t[2]:7.1f} | {t[2] / s['average']:6.1f}x")
     targets = {"frozen": 3.0, "full": 100.0}
     for mode, limit in targets.items():

@@ -18,7 +18,6 @@ from __future__ import annotations
 import numpy as np
 
 from marionette.footsteps.augmented_robot import rotation_z
-from marionette.footsteps.hierarchy import HierarchySettings, Level, solve_hierarchy
 
 
 class RigidStanceKinematics:
@@ -56,23 +55,41 @@ class RigidStanceKinematics:
         return J
 
 
+def prioritised_least_squares(levels: list[tuple[np.ndarray, np.ndarray]], n: int,
+                              damping: float = 1e-4, rank_tolerance: float = 1e-7
+                              ) -> np.ndarray:
+    """Strict hierarchy of unconstrained least-squares levels (A_i x = b_i), highest first:
+    x = x_(i-1) + Z_(i-1) z_i with z_i the damped least-squares solution of level i in the null
+    space Z_(i-1) of the levels above (Siciliano–Slotine). No bounds: the rigid-stance problem has
+    none, so this is :func:`~marionette.footsteps.hierarchy.solve_hierarchy` without its QP
+    machinery, at a fraction of its cost for 3 variables."""
+    x = np.zeros(n)
+    Z = np.eye(n)
+    for A, b in levels:
+        if Z.shape[1] == 0:
+            break
+        M = A @ Z
+        H = M.T @ M
+        H.flat[:: H.shape[0] + 1] += damping
+        x = x + Z @ np.linalg.solve(H, M.T @ (b - A @ x))
+        _, sv, vt = np.linalg.svd(M, full_matrices=True)
+        rank = int(np.sum(sv > rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)))
+        Z = Z @ vt[rank:].T
+    return x
+
+
 def solve_final_pose(tasks: list, pose0: np.ndarray, frames_L: dict, floor_z: float,
-                     tolerance: float = 1e-7, max_iterations: int = 30,
-                     settings: HierarchySettings | None = None) -> tuple[np.ndarray, int]:
+                     tolerance: float = 1e-7, max_iterations: int = 30) -> tuple[np.ndarray, int]:
     """Gauss–Newton over the prioritised ``tasks`` (Task objects, highest first) in (x, y, θ).
 
     Returns (P_k*, iterations). The tasks' error clamps (``max_step``, meant for the long chain)
     are not applied: over 3 dofs of a rigid body, full Gauss–Newton steps converge in a few.
     """
     pose = np.asarray(pose0, dtype=float).copy()
-    unbounded = np.full(3, np.inf)
     for iteration in range(1, max_iterations + 1):
         kin = RigidStanceKinematics(pose, frames_L, floor_z)
-        levels = []
-        for task in tasks:
-            e = task.compute_error(kin)
-            levels.append(Level.task(task.name, task.compute_jacobian(kin), e))
-        dx = solve_hierarchy(levels, -unbounded, unbounded, settings).x
+        levels = [(task.compute_jacobian(kin), -task.compute_error(kin)) for task in tasks]
+        dx = prioritised_least_squares(levels, 3)
         pose += dx
         if np.max(np.abs(dx)) < tolerance:
             return pose, iteration

@@ -126,8 +126,8 @@ def solve_hierarchy(levels: list[Level], lower: np.ndarray, upper: np.ndarray,
 class _Cascade:
     """Running state of the cascade: x = x0 + Z z, inequalities G x ≤ h, bounds.
 
-    ``Z`` (n × r) spans the directions left free by the equality levels and ``P`` (n × (n − r))
-    its orthogonal complement, so the equality levels read Pᵀ x = Pᵀ x0.
+    ``Z`` (n × r) spans the directions left free by the equality levels; its orthogonal
+    complement P (:meth:`_complement`) writes them as Pᵀ x = Pᵀ x0 in the QPs.
     """
 
     def __init__(self, n: int, lower: np.ndarray, upper: np.ndarray, s: HierarchySettings):
@@ -136,7 +136,6 @@ class _Cascade:
         # Start inside the box: the point of the box nearest to 0.
         self.x0 = np.clip(np.zeros(n), lower, upper)
         self.Z: np.ndarray | None = None   # None means identity (no equality level yet)
-        self.P = np.zeros((n, 0))
         self.G = np.zeros((0, n))
         self.h = np.zeros(0)
         self.qp_solves = 0
@@ -187,7 +186,6 @@ class _Cascade:
         _, sv, vt = np.linalg.svd(M, full_matrices=True)
         tol = self.s.rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)
         rank = int(np.sum(sv > tol))
-        self.P = np.hstack([self.P, self._lift(vt[:rank].T)])
         N = vt[rank:].T                           # (r, r - rank)
         self.Z = N if self.Z is None else self.Z @ N
         return used_qp
@@ -286,6 +284,14 @@ class _Cascade:
         self.G = np.vstack([self.G, C])
         self.h = np.concatenate([self.h, h])
 
+    def _complement(self) -> np.ndarray:
+        """P (n × (n − r)): orthonormal basis of the directions fixed by the equality levels
+        (orthogonal complement of Z), computed only when a QP needs it."""
+        if self.Z is None:
+            return np.zeros((self.n, 0))
+        u, _, _ = np.linalg.svd(self.Z, full_matrices=True)
+        return u[:, self.Z.shape[1]:]
+
     def _feasible(self, x: np.ndarray) -> bool:
         tol = self.s.feasibility_tolerance
         if (x < self.lower - tol).any() or (x > self.upper + tol).any():
@@ -316,7 +322,8 @@ class _Cascade:
                                 np.full(n_extra_vars, -_INF)])
         u_box = np.concatenate([np.maximum(self.upper - self.x0, 0.0) + tol,
                                 np.full(n_extra_vars, _INF)])
-        E = np.hstack([self.P.T, np.zeros((self.P.shape[1], n_extra_vars))])
+        P = self._complement()
+        E = np.hstack([P.T, np.zeros((P.shape[1], n_extra_vars))])
 
         def violated(y: np.ndarray) -> np.ndarray:
             return R @ y > hi_all

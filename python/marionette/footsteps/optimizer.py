@@ -39,7 +39,8 @@ class OptimizerSettings:
     yaw_scale: float = 0.25            # [rad/m] metric of the step yaws (see solve)
     trust_region_robot: float = 0.1    # |dv| per iteration on the robot [rad, m]
     blocked_ratio: float = 0.9         # Algorithm 1: primary blocked if its linearised level
-                                       # keeps this fraction of its (clamped) error,
+                                       # keeps this fraction of its (clamped) error
+    blocked_iterations: int = 2        # this many iterations in a row,
     stall_window: int = 5              # or stalled if over this many iterations
     stall_ratio: float = 0.05          # its error dropped by less than this fraction
     stall_min_error: float = 0.02      # while above this [m]
@@ -248,7 +249,7 @@ class FootstepOptimizer:
             # linearisation promises progress that the nonlinear levels above take back).
             window = history[-1 - s.stall_window] if len(history) > s.stall_window else np.inf
             stalled = error > s.stall_min_error and window - error < s.stall_ratio * window
-            if blocked_count >= 2 or step < s.step_tolerance or stalled or \
+            if blocked_count >= s.blocked_iterations or step < s.step_tolerance or stalled or \
                     (slow and error > s.stall_min_error and self._stretched(config, free)):
                 config, kin = self._add_step(config, robot_free, report)
                 error, above, below = self._merits(kin)

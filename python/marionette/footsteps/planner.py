@@ -188,7 +188,7 @@ class GraspPlanner:
         pose0 = self.augmented.footprints(self.config.steps)[-1]
         stance, pose_iterations = solve_final_pose(tasks, pose0, frames_L,
                                                    self.augmented.stance.floor_z,
-                                                   tolerance=1e-5)
+                                                   tolerance=1e-4)
         report = self._reach_stance(stance)
         report.pose_iterations = pose_iterations
         report.time_s = time.perf_counter() - start
@@ -200,11 +200,16 @@ class GraspPlanner:
         the last step Δ_k fixed (it belongs to the posture)."""
         # On the last footprint: steps are added in pairs here, so the robot keeps its sides.
         goal = FootprintPoseTask(None, stance, weights=(1.0, 1.0, 1.0), name="robot_stance")
+        goal.max_step = 0.6       # the chain is near its solution: larger Gauss–Newton steps
         first = self.frozen_steps + 1
         levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
         if self.obstacles:
             levels.append(ObstacleAvoidance(self.obstacles, first_step=first))
-        levels += [goal, StepPreferenceTask(self.options.nominal_width, first, -1)]
+        preference = StepPreferenceTask(self.options.nominal_width, first, -1)
+        # Replans start from a plan whose preference level has converged: when limits bind,
+        # scale its step (best effort) rather than solve a QP for the lowest level.
+        preference.best_effort = True
+        levels += [goal, preference]
         # Replanning keeps the plan's step count unless the stance is out of reach (Algorithm 1
         # proper; the initial plan alone adds a step when it converged fully stretched), and
         # stops once the lower levels improve by less than 2 % per iteration: the next replan
@@ -213,7 +218,8 @@ class GraspPlanner:
         # into position errors, hence a tolerance well below the hand's.
         settings = dataclasses.replace(self.settings, relax_stretched=False,
                                        settle_ratio=self.options.replan_settle_ratio,
-                                       task_tolerance=0.2 * self.settings.task_tolerance)
+                                       task_tolerance=0.2 * self.settings.task_tolerance,
+                                       blocked_iterations=1)
         optimizer = FootstepOptimizer(self.augmented, levels, goal, self.limits, settings)
         self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen=True)
         return report
