@@ -48,11 +48,13 @@ def test_guide_waypoint_holds_the_plank_with_both_hands_balanced(setup):
 @pytest.mark.slow
 def test_plank_flip_is_planned_with_feet_fixed_and_com_balanced(setup):
     problem, graph, checker = setup
-    rng = np.random.default_rng(1)
+    # Seed 4 plans in a few seconds; across seeds 1-4 planning took 2 s to 3 min (RRT
+    # variance, see the planning README): the checks below hold for any plan.
+    rng = np.random.default_rng(4)
     waypoints = [guide_configuration(problem, graph, checker, e, problem.q_init, rng)
                  for e in problem.settings["guide"]]
     result = plan_through(problem, graph, checker, [problem.q_init, *waypoints, problem.q_goal],
-                          seed=1, max_iterations=100000, timeout_s=500)
+                          seed=4, max_iterations=100000, timeout_s=500)
     assert result.success, result.reason
     paths = result.paths
     kin = Kinematics(problem.model)
