@@ -103,14 +103,14 @@ RgbdRenderer::RgbdRenderer(const mjModel* model, const std::string& camera_name,
   zfar_ = model->vis.map.zfar * model->stat.extent;
 
   // The offscreen framebuffer is sized from the model (<visual><global offwidth offheight/>);
-  // enlarge it on a private copy rather than ask every scene to declare it.
-  const mjModel* context_model = model;
-  if (model->vis.global.offwidth < width || model->vis.global.offheight < height) {
-    render_model_ = mj_copyModel(nullptr, model);
-    render_model_->vis.global.offwidth = std::max(width, model->vis.global.offwidth);
-    render_model_->vis.global.offheight = std::max(height, model->vis.global.offheight);
-    context_model = render_model_;
-  }
+  // enlarge it on a private copy rather than ask every scene to declare it. The copy also drops
+  // multisampling: a depth camera has no anti-aliasing, and 4x MSAA in Mesa's software
+  // rasteriser costs more than the rest of the frame.
+  render_model_ = mj_copyModel(nullptr, model);
+  render_model_->vis.global.offwidth = std::max(width, model->vis.global.offwidth);
+  render_model_->vis.global.offheight = std::max(height, model->vis.global.offheight);
+  render_model_->vis.quality.offsamples = 0;
+  const mjModel* context_model = render_model_;
 
   std::lock_guard<std::mutex> lock(ContextCreationMutex());
   egl_->display = OpenDisplay();
@@ -147,6 +147,11 @@ RgbdRenderer::RgbdRenderer(const mjModel* model, const std::string& camera_name,
   {
     ScopedCurrent current(*egl_);
     mjv_makeScene(model, &scene_, 2000);
+    // A camera, not a viewer: no shadows, reflections or skybox. With Mesa's software
+    // rasteriser they cost most of the frame (measured: 97 ms -> see bench/camera).
+    scene_.flags[mjRND_SHADOW] = 0;
+    scene_.flags[mjRND_REFLECTION] = 0;
+    scene_.flags[mjRND_SKYBOX] = 0;
     mjr_makeContext(context_model, &context_, mjFONTSCALE_100);
     mjr_setBuffer(mjFB_OFFSCREEN, &context_);
     if (context_.currentBuffer != mjFB_OFFSCREEN || context_.offWidth < width ||
