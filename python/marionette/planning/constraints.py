@@ -104,6 +104,11 @@ class Kinematics:
         return self.data.Jcom
 
 
+def _pose_list(M: pin.SE3) -> list[float]:
+    """[x, y, z, qx, qy, qz, qw] of a pose (for files)."""
+    return [float(v) for v in pin.SE3ToXYZQUAT(M)]
+
+
 def _check_mask(mask: Sequence[bool]) -> np.ndarray:
     m = np.asarray(mask, dtype=bool)
     if m.shape != (6,):
@@ -146,6 +151,11 @@ class Constraint:
         """Joints whose motion changes f (for the relative-motion analysis of path validation)."""
         return set()
 
+    def to_dict(self, model: pin.Model) -> dict:
+        """Definition for files (a controller builds its task from it)."""
+        return {"type": type(self).__name__, "size": self.size, "parametrised": self.parametrised,
+                "rhs": self.rhs.tolist()}
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, size={self.size})"
 
@@ -179,6 +189,14 @@ class RelativeTransformation(Constraint):
 
     def joints(self) -> set[int]:
         return {self.joint1, self.joint2}
+
+    def to_dict(self, model: pin.Model) -> dict:
+        """Frame F1 = (joint1, M1), frame F2 = (joint2, M2): f = [p, log3 R] of F1^-1 F2."""
+        out = super().to_dict(model)
+        out.update({"joint1": model.names[self.joint1], "M1": _pose_list(self.M1),
+                    "joint2": model.names[self.joint2], "M2": _pose_list(self.M2),
+                    "mask": [bool(v) for v in self.mask]})
+        return out
 
     def relative_pose(self, kin: Kinematics) -> pin.SE3:
         if kin.version != self._cache_version or kin is not self._cache_kin:
@@ -269,6 +287,12 @@ class Placement(Constraint):
 
     def joints(self) -> set[int]:
         return set().union(*(r.joints() for r in self._rel))
+
+    def to_dict(self, model: pin.Model) -> dict:
+        out = super().to_dict(model)
+        out.update({"object": self.object, "margin": self.margin,
+                    "pairs": [[o.name, e.name] for o, e in self.pairs], "pair": self.pair})
+        return out
 
     def relative_pose(self, kin: Kinematics, pair: int | None = None) -> pin.SE3:
         return self._rel[self.pair if pair is None else pair].relative_pose(kin)
@@ -374,6 +398,11 @@ class PlacementComplement(Constraint):
     def joints(self) -> set[int]:
         return self.placement.joints()
 
+    def to_dict(self, model: pin.Model) -> dict:
+        out = super().to_dict(model)
+        out.update({"placement": self.placement.name, "pair": self.placement.pair})
+        return out
+
     def value(self, kin: Kinematics) -> np.ndarray:
         return self.placement._rel[self.placement.pair].value6(kin)[self.ROWS]
 
@@ -409,6 +438,12 @@ class ComPosition(Constraint):
     def joints(self) -> set[int]:
         return set(range(1, 10**6))  # the CoM depends on every joint
 
+    def to_dict(self, model: pin.Model) -> dict:
+        out = super().to_dict(model)
+        out.update({"joint": model.names[self.joint], "M_JF": _pose_list(self.M_JF),
+                    "mask": [bool(v) for v in self.mask]})
+        return out
+
     def value(self, kin: Kinematics) -> np.ndarray:
         X_WF = kin.data.oMi[self.joint] * self.M_JF
         return X_WF.actInv(kin.com())[self.mask]
@@ -443,6 +478,9 @@ class ExplicitConstraint:
     def input_joints(self) -> set[int]:
         return set()
 
+    def to_dict(self, model: pin.Model) -> dict:
+        return {"type": type(self).__name__, "output_joint": model.names[self.output_joint]}
+
 
 class ExplicitRelativePose(ExplicitConstraint):
     """Free-flyer ``output_joint`` rigidly attached to a frame: X_WO = oMi[parent] * M_PO.
@@ -469,6 +507,13 @@ class ExplicitRelativePose(ExplicitConstraint):
 
     def input_joints(self) -> set[int]:
         return {self.parent_joint}
+
+    def to_dict(self, model: pin.Model) -> dict:
+        """Grasp: gripper frame (parent_joint, M_PG) on handle frame (output_joint, M_OH)."""
+        out = super().to_dict(model)
+        out.update({"parent_joint": model.names[self.parent_joint], "M_PG": _pose_list(self.M_PG),
+                    "M_OH": _pose_list(self.M_OH), "M_PO": _pose_list(self.M_PO)})
+        return out
 
     def pose(self, kin: Kinematics) -> pin.SE3:
         return kin.data.oMi[self.parent_joint] * self.M_PO
@@ -502,6 +547,11 @@ class LockedJoint(ExplicitConstraint):
 
     def rhs_from_q(self, q: np.ndarray) -> None:
         self.value = q[self.idx_q:self.idx_q + self.nq].copy()
+
+    def to_dict(self, model: pin.Model) -> dict:
+        out = super().to_dict(model)
+        out.update({"value": self.value.tolist(), "parametrised": bool(self.parametrised)})
+        return out
 
     def apply(self, kin: Kinematics, q: np.ndarray) -> None:
         q[self.idx_q:self.idx_q + self.nq] = self.value

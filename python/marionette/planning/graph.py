@@ -339,7 +339,14 @@ class ConstraintGraph:
 
     def describe(self) -> dict:
         """Names, constraints and structure (for the plan file)."""
+        catalog: dict[str, dict] = {}
+        model = self.problem.model
+        for c in self.constraints + [c for s in self.states.values() for c in s.constraints] + \
+                [c for e in self.edges.values() for c in e.constraints]:
+            if c.name not in catalog:
+                catalog[c.name] = c.to_dict(model)
         return {
+            "constraint_definitions": catalog,
             "name": self.name,
             "error_threshold": self.error_threshold,
             "graph_constraints": [c.name for c in self.constraints],

@@ -85,6 +85,13 @@ def test_plan_file_round_trip(setup, tmp_path):
     kinds = {e["containing_state"]: e for e in doc["paths"]}
     assert kinds["ur5/gripper grasps box/handle"]["grasps"] == {"ur5/gripper": "box/handle"}
     assert "place_box/hold" in kinds["free"]["rhs"]
+    # Constraint definitions a controller builds its tasks from: the grasp is the gripper
+    # frame on the handle frame, given by joints and constant placements.
+    grasp = doc["graph"]["constraint_definitions"]["ur5/gripper grasps box/handle"]
+    assert grasp["type"] == "ExplicitRelativePose"
+    assert grasp["parent_joint"] == "ur5/wrist_3_joint" and grasp["output_joint"] == "box/root_joint"
+    pregrasp = doc["graph"]["constraint_definitions"]["ur5/gripper pregrasps box/handle"]
+    assert pregrasp["joint1"] == "ur5/wrist_3_joint" and all(pregrasp["mask"])
 
 
 def test_start_in_collision_or_in_no_state_is_refused(setup):
