@@ -68,7 +68,9 @@ class StepBounds:
     """Bounds of one step Δ = (Δx, Δy, Δθ) for a LEFT foot moving (mirrored for the right).
 
     Δy is the lateral offset of the moving foot from the other one, so for a left step it is
-    positive; for a right step the bounds are [-max_width, -min_width] and Δθ is mirrored.
+    positive; for a right step the bounds are [-max_width, -min_width] and Δθ is mirrored. A
+    negative ``min_width`` lets the foot cross over (only for virtual joints, e.g. the free
+    stance of full replanning; real steps keep the non-overlap constraint).
     """
 
     min_length: float = -0.10     # Δx [m] (backwards)
@@ -79,7 +81,7 @@ class StepBounds:
     max_inward_yaw: float = 0.30   # Δθ towards the other foot [rad]
 
     def __post_init__(self) -> None:
-        if not (self.min_length < self.max_length and 0.0 <= self.min_width < self.max_width
+        if not (self.min_length < self.max_length and self.min_width < self.max_width
                 and self.max_outward_yaw >= 0.0 and self.max_inward_yaw >= 0.0):
             raise InvalidProblem(f"inconsistent step bounds {self}")
 
@@ -653,3 +655,41 @@ class FacingTask(Task):
 
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
         return kin.footprint_jacobian(kin.k)[2:3]
+
+
+class ReachTask(Task):
+    """The object sits at ``offset`` (forward, left) [m] in the final stance frame (2 rows):
+    the stance centre m = (p_k + p_(k-1)) / 2 with the yaw θ_k of the last footprint.
+
+    The reference posture alone would choose where to stand from the reference arm pose (TALOS's
+    half_sitting holds the grippers 0.43 m to the sides, so the robot stood half a metre beside
+    the object and reached across); this places the stance the way one approaches to grasp.
+    e = R(θ_k)ᵀ (t − m) − offset,  de = −R(θ_k)ᵀ dm + S' R(θ_k)ᵀ (t − m) dθ_k, S' = [[0,1],[-1,0]].
+    """
+
+    name = "reach"
+    max_step = 0.2
+
+    def __init__(self, target, offset) -> None:
+        self.offset = np.asarray(offset, dtype=float).reshape(2)
+        self.set_target(target)
+
+    def set_target(self, target) -> None:
+        t = np.asarray(target, dtype=float).reshape(-1)
+        if t.shape[0] < 2 or not np.all(np.isfinite(t)):
+            raise InvalidProblem(f"reach target must be finite (x, y[, z]), got {target!r}")
+        self.target = t[:2]
+
+    def _parts(self, kin):
+        mid = 0.5 * (kin.footprint(kin.k)[:2] + kin.footprint(kin.k - 1)[:2])
+        Rt = rotation_2d(kin.footprint(kin.k)[2]).T
+        return mid, Rt, Rt @ (self.target - mid)
+
+    def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
+        return self._parts(kin)[2] - self.offset
+
+    def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
+        _, Rt, local = self._parts(kin)
+        J_last = kin.footprint_jacobian(kin.k)
+        J_mid = 0.5 * (J_last[:2] + kin.footprint_jacobian(kin.k - 1)[:2])
+        return -Rt @ J_mid + np.outer([local[1], -local[0]], J_last[2])

@@ -11,6 +11,7 @@ tasks):
     (eq) hand task (grasp point on the object)
     (eq) gaze task (camera axis on the object)
     (eq) the final stance faces the approach direction (start → object)
+    (eq) the object sits at a nominal reach from the final stance (in front, hand side)
     (eq) reference posture (posture free only)
 
 :meth:`GraspPlanner.plan` starts from zero virtual links and lets Algorithm 1 add them;
@@ -28,11 +29,11 @@ import numpy as np
 
 from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
                                                   rotation_2d)
-from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FacingTask, FeetOnFootprints,
-                                              FootNonOverlap, FramePositionTask, GazeTask,
-                                              FootprintPoseTask, ObstacleAvoidance, PostureTask,
-                                              StepBounds, StepLimits,
-                                              StepPreferenceTask)
+from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FacingTask,
+                                              FeetOnFootprints, FootNonOverlap,
+                                              FootprintPoseTask, FramePositionTask, GazeTask,
+                                              ObstacleAvoidance, PostureTask, ReachTask,
+                                              StepBounds, StepLimits, StepPreferenceTask)
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
 from marionette.footsteps.final_pose import solve_final_pose
 from marionette.footsteps.obstacles import Obstacle
@@ -72,6 +73,8 @@ class GraspPlannerOptions:
     com_margin: float = 0.03           # [m] CoM inside the final support polygon
     nominal_width: float = 0.17        # [m] preferred lateral distance of the soles (TALOS)
     replan_settle_ratio: float = 0.02  # replans stop when lower levels improve less than this
+    # Where the object sits in the final stance frame: forward, towards the hand's side [m].
+    reach_offset: tuple[float, float] = (0.45, 0.25)
     # Comfort band of the final posture around the reference [rad], by joint-name prefix: the
     # legs stay near half-sitting and the torso does not fold, so that far objects are reached
     # by walking (Algorithm 1 adds steps) rather than by leaning, and the pattern generator's
@@ -103,6 +106,9 @@ class GraspPlanner:
         self.hand = FramePositionTask(robot.hand_frames[self.options.hand], target)
         self.gaze = GazeTask(robot.camera_frame, target)
         self.facing = FacingTask(target, 0.5 * (stance.left[:2] + stance.right[:2]))
+        side = 1.0 if self.options.hand == "left" else -1.0
+        self.reach = ReachTask(target, (self.options.reach_offset[0],
+                                        side * self.options.reach_offset[1]))
         joints = np.setdiff1d(np.arange(6, robot.model.nv), robot.frozen_velocity_indices())
         self.posture = PostureTask(robot.reference_posture, joints)
         self._posture_limits = posture_band_limits(robot, self.options.posture_band)
@@ -119,6 +125,7 @@ class GraspPlanner:
         self.hand.set_target(target)
         self.gaze.set_target(target)
         self.facing.set_target(target)
+        self.reach.set_target(target)
 
     def set_obstacles(self, obstacles: list[Obstacle]) -> None:
         self.obstacles = list(obstacles)
@@ -141,7 +148,7 @@ class GraspPlanner:
             levels.append(self.gaze)
         levels.append(self.facing)
         if not posture_frozen:
-            levels.append(self.posture)
+            levels += [self.reach, self.posture]
         last = -1 if posture_frozen else None       # the frozen posture owns the last step
         levels.append(StepPreferenceTask(self.options.nominal_width, first, last))
         return FootstepOptimizer(self.augmented, levels, self.hand, self.limits, self.settings,
@@ -240,7 +247,7 @@ class GraspPlanner:
         sub = AugmentedRobot(self.robot, stance, self.augmented.side_of(k - 1))
         sub_config = AugmentedConfiguration(self.config.steps[k - 2:].copy(),
                                             self.config.q_robot.copy())
-        free_step = StepBounds(-10.0, 10.0, 0.0, 10.0, np.pi, np.pi)
+        free_step = StepBounds(-10.0, 10.0, -10.0, 10.0, np.pi, np.pi)     # P_(k-1) anywhere
         limits = StepLimits(default=free_step, final=self.limits.final)
         self.hand.axes = np.array([0, 1, 2])
         levels = [FeetOnFootprints(),
@@ -250,12 +257,15 @@ class GraspPlanner:
         levels += [ComInSupportPolygon(self.options.com_margin), self.hand]
         if self.options.gaze:
             levels.append(self.gaze)
-        levels += [self.facing, self.posture,
+        levels += [self.facing, self.reach, self.posture,
                    StepPreferenceTask(self.options.nominal_width, 2, 2)]
         # Two steps, not a long chain: wider trust region and error clamp than the chain's.
+        # The closure level may be left at 0.1 mm when lower levels cannot settle (a task the
+        # limits cannot satisfy keeps pushing); the iteration budget bounds the replan time.
         settings = dataclasses.replace(self.settings, auto_steps=False,
                                        settle_ratio=self.options.replan_settle_ratio,
-                                       trust_region_steps=0.3, trust_region_yaw=0.2)
+                                       trust_region_steps=0.3, trust_region_yaw=0.2,
+                                       constraint_tolerance=1e-4, max_iterations=100)
         optimizer = FootstepOptimizer(sub, levels, self.hand, limits, settings,
                                       self._posture_limits)
         self.hand.max_step = 0.25

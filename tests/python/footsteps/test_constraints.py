@@ -11,7 +11,8 @@ from marionette.footsteps.augmented_robot import AugmentedRobot, Stance, rotatio
 from marionette.footsteps.constraints import (ComInSupportPolygon, Constraint, FacingTask,
                                               FeetOnFootprints, FootNonOverlap,
                                               FootprintPoseTask, FramePositionTask, GazeTask,
-                                              ObstacleAvoidance, PostureTask, StanceGoalTask,
+                                              ObstacleAvoidance, PostureTask, ReachTask,
+                                              StanceGoalTask,
                                               StepBounds, StepPreferenceTask, sole_clearance)
 from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.final_pose import RigidStanceKinematics
@@ -26,6 +27,7 @@ def _items(robot):
     return [FootNonOverlap(), ObstacleAvoidance(OBSTACLES), ComInSupportPolygon(),
             FeetOnFootprints(), FramePositionTask(robot.hand_frames["right"], [2.0, 0.0, 0.5]),
             GazeTask(robot.camera_frame, [2.0, 0.3, 0.2]), FacingTask([2.5, 0.4], [0.0, 0.0]),
+            ReachTask([2.5, 0.4], [0.45, -0.25]),
             PostureTask(robot.reference_posture, np.arange(6, robot.model.nv)),
             FootprintPoseTask(3, [1.0, 0.2, 0.3]), StanceGoalTask([1.0, 0.1, 0.2]),
             StepPreferenceTask(0.17)]
