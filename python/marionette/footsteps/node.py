@@ -76,7 +76,10 @@ class FootstepNode:
 
     def on_walk_status(self, msg) -> None:
         with self._lock:
-            self.current_step = int(msg.current_step_index)
+            # Monotonic once a plan is out: a robot back to "standing" (-1) after the last step
+            # has still executed the steps before it, which must never be replanned.
+            index = int(msg.current_step_index)
+            self.current_step = max(self.current_step, index) if self.planner else index
             if self.stance is None and self.planner is None and msg.current_step_index < 0:
                 left, right = np.array(msg.left_foot, dtype=float), np.array(msg.right_foot,
                                                                                dtype=float)

@@ -67,6 +67,11 @@ def test_grasp_node_plans_then_replans_only_unstarted_steps(build_dir, robot):
     assert not np.allclose(old[second.steps[-1].index][:2],
                            (second.steps[-1].x, second.steps[-1].y))
     assert node.last_solve_ms < 1000.0
+    # A status back to "standing" (-1) does not make executed steps replannable again.
+    node.on_walk_status(_walk_status(-1))
+    node.on_object_poses(_object_poses("ball", BALL + [0.05, 0.03, 0.0]))
+    third = node.update(4)
+    assert third.first_step_index == 3 and third.steps[0].index == 3
 
 
 def test_malformed_object_poses_are_ignored(build_dir, robot):
