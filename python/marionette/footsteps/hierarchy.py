@@ -1,7 +1,7 @@
 """Prioritised equality / inequality systems (Kanoun's cascade, Dang eq. 2.77–2.81).
 
 Levels are solved in priority order; the solution set of level i is the feasible set of the
-levels below it (Dang §2.5.1):
+levels after it (Dang §2.5.1):
 
     S_0 = {x : lower ≤ x ≤ upper}
     S_i = argmin_{x ∈ S_(i-1)} ||A_i x − b_i||²                    (equality level, eq. 2.79)
@@ -11,10 +11,13 @@ Equality levels are kept exactly by a null-space parametrisation x = x0 + Z z (Z
 after level i, Z ← Z N(A_i Z), so lower levels cannot change A_i x. Inequality levels become
 constraints C_i x ≤ d_i + w_i* of every lower level (w_i* the least violation reached).
 
-Each level is one small least-squares problem; a QP (proxsuite) is solved only when the
-unconstrained minimiser violates an inequality. QPs are built by constraint generation: first
-with the violated rows only, then adding rows until none is violated, which returns the QP
-optimum of the full problem (the reduced problem is a relaxation whose optimum is feasible).
+Each level is one small least-squares problem. When its minimiser violates a bound or an
+inequality, the violated rows are held as equalities and the KKT system re-solved; that answer
+is kept only if it is feasible and its multipliers have the right signs (then it is the QP's
+optimum). Otherwise proxsuite solves the level's QP, built by constraint generation: first with
+the violated rows only, then adding rows until none is violated, which returns the optimum of
+the full QP (the reduced problem is a relaxation whose optimum is feasible). Levels marked
+``best_effort`` (regularisation) scale their step down to feasibility instead of a QP.
 
 A small damping μ||x||² (Levenberg–Marquardt) regularises each level; its effect vanishes at a
 fixed point of the outer Gauss–Newton loop (x = 0 there).
