@@ -9,9 +9,10 @@ transition joining their states.  The query is solved when the initial and a goa
 configuration share a component; the result is the roadmap path between them, a sequence of
 elementary paths, each in one transition.
 
-:func:`random_shortcut` shortens it without changing its sequence of transitions: a shortcut
-joins two points of runs of paths that lie in one transition leaf (same transition, same
-right-hand side), so pre-grasp approaches and placements are kept.
+:func:`graph_shortcut` shortens it across transitions (two points joined by a transition
+between their states, as HPP's graph steering method), which removes release / re-grasp
+detours; :func:`random_shortcut` then shortens runs of paths within one transition leaf.  Both
+keep the pre-grasp approaches and the placements.
 """
 
 from __future__ import annotations
