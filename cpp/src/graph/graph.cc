@@ -11,6 +11,7 @@ struct Graph::Topology {
   int64_t version = 0;
   std::vector<std::shared_ptr<Entity>> entities;
   std::unordered_map<std::string, Entity*> by_name;
+  bool profiling = false;
   std::vector<const PollHook*> polls;      // run first, every tick
   std::vector<StateSlot*> states;          // committed after every tick
   std::vector<const UpdateHook*> hooks;    // run every tick
@@ -175,14 +176,61 @@ std::string FixedValueLabel(const InputSignalBase& in) {
 Graph::Graph(std::unique_ptr<Topology> topology) : topology_(std::move(topology)) {}
 Graph::~Graph() = default;
 
+namespace {
+EntityTiming* TimingOf(bool profiling, Entity* e) { return profiling ? &e->mutable_timing() : nullptr; }
+
+void AttachTimings(const std::vector<std::shared_ptr<Entity>>& entities, bool on) {
+  for (const auto& e : entities) {
+    for (const auto& s : e->signals()) s->set_timing(on ? &e->mutable_timing() : nullptr);
+  }
+}
+}  // namespace
+
 void Graph::Evaluate(const Tick& t) {
+  Topology& topo = *topology_;
+  const bool p = topo.profiling;
   // Phase 0: data from outside the graph enters it.
-  for (const PollHook* p : topology_->polls) p->run(t);
+  for (const PollHook* h : topo.polls) {
+    ProfileScope scope(TimingOf(p, h->owner));
+    h->run(t);
+  }
   // Phase 1: everything reads the values of tick t (pulling computes what is needed, once).
-  for (StateSlot* s : topology_->states) s->ComputeNext(t);
-  for (const UpdateHook* h : topology_->hooks) h->run(t);
+  for (StateSlot* s : topo.states) {
+    ProfileScope scope(TimingOf(p, &s->signal().mutable_owner()));
+    s->ComputeNext(t);
+  }
+  for (const UpdateHook* h : topo.hooks) {
+    ProfileScope scope(TimingOf(p, h->owner));
+    h->run(t);
+  }
   // Phase 2: states move to t + 1.
-  for (StateSlot* s : topology_->states) s->Commit();
+  for (StateSlot* s : topo.states) s->Commit();
+  if (p) {
+    for (const auto& e : topo.entities) {
+      EntityTiming& timing = e->mutable_timing();
+      timing.window.Add(timing.tick_ns);
+      const bool over = timing.budget_ns > 0.0 && timing.tick_ns > timing.budget_ns;
+      timing.overruns += over ? 1 : 0;
+      timing.consecutive_overruns = over ? timing.consecutive_overruns + 1 : 0;
+      timing.last_tick_over = over;
+      timing.tick_ns = 0.0;
+    }
+  }
+}
+
+void Graph::SetProfiling(bool on) {
+  topology_->profiling = on;
+  AttachTimings(topology_->entities, on);
+}
+
+bool Graph::profiling() const { return topology_->profiling; }
+
+int Graph::LastOverruns(std::vector<const Entity*>* out) const {
+  out->clear();
+  for (const auto& e : topology_->entities) {
+    if (e->timing().last_tick_over && out->size() < out->capacity()) out->push_back(e.get());
+  }
+  return static_cast<int>(out->size());
 }
 
 const std::vector<std::shared_ptr<Entity>>& Graph::entities() const {
@@ -317,7 +365,7 @@ std::unique_ptr<Graph> GraphBuilder::Build() {
 // ---- GraphEdit ----------------------------------------------------------------------------------
 
 GraphEdit::GraphEdit(const Graph& graph)
-    : base_version_(graph.version()), entities_(graph.entities()) {}
+    : base_version_(graph.version()), base_profiling_(graph.profiling()), entities_(graph.entities()) {}
 
 GraphEdit::~GraphEdit() = default;
 
@@ -396,6 +444,8 @@ void GraphEdit::Prepare() {
   };
   Validate(entities_, source_of);
   prepared_topology_ = MakeTopology(entities_, base_version_ + 1);
+  prepared_topology_->profiling = base_profiling_;
+  AttachTimings(new_entities_, base_profiling_);
 }
 
 void RunTicks(Graph& graph, Tick* t, int64_t n) {

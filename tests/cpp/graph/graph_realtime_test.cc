@@ -59,6 +59,25 @@ TEST(GraphRealtimeTest, EvaluateAllocatesNothingAfterWarmUp) {
   EXPECT_TRUE(last->state_output().value().allFinite());
 }
 
+TEST(GraphRealtimeTest, ProfilingAllocatesNothingEither) {
+  VectorIntegrator* last = nullptr;
+  auto graph = MakeGraph(7, &last);
+  graph->SetProfiling(true);
+  for (const auto& e : graph->entities()) e->set_time_budget_us(1.0);
+  std::vector<const Entity*> over;
+  over.reserve(64);
+  Tick t;
+  RunTicks(*graph, &t, 100);
+  ScopedAllocationCounter counter;
+  for (int i = 0; i < 10000; ++i, ++t) {
+    graph->Evaluate(t);
+    graph->LastOverruns(&over);
+  }
+  EXPECT_EQ(counter.allocations(), 0);
+  EXPECT_EQ(counter.locks(), 0);
+  EXPECT_EQ(last->timing().window.num_samples, 10100);
+}
+
 TEST(GraphRealtimeTest, ApplyingAPreparedEditAllocatesNothing) {
   VectorIntegrator* last = nullptr;
   auto graph = MakeGraph(3, &last);

@@ -74,6 +74,14 @@ class Entity {
 
   /// The signal called `name`, or nullptr.
   SignalBase* FindSignal(std::string_view name) const;
+
+  /// Compute-time budget of this entity per tick [us] (0 = none); checked when the graph
+  /// profiles (Graph::SetProfiling). Call between ticks.
+  void set_time_budget_us(double budget_us) { timing_.budget_ns = 1e3 * budget_us; }
+  double time_budget_us() const { return 1e-3 * timing_.budget_ns; }
+  /// What the graph measured of this entity (valid when profiling).
+  const EntityTiming& timing() const { return timing_; }
+  EntityTiming& mutable_timing() { return timing_; }
   /// The signal called `name`; throws GraphError listing this entity's signals otherwise.
   SignalBase& signal(std::string_view name) const;
   /// Typed access; throws GraphError on an unknown name or a different kind or type.
@@ -123,6 +131,7 @@ class Entity {
   std::vector<std::unique_ptr<StateSlot>> states_;
   std::vector<UpdateHook> update_hooks_;
   std::vector<PollHook> poll_hooks_;
+  EntityTiming timing_;
 };
 
 // ----------------------------------------------------------------------------------------------

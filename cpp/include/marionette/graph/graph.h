@@ -51,6 +51,16 @@ class Graph {
   /// Increases by one with every applied edit.
   int64_t version() const;
 
+  /// Turns per-entity timing on or off (between ticks). When on, every tick charges each
+  /// entity's self time (graph/profiling.h) and folds it into the entity's window histogram;
+  /// an entity whose tick exceeds its budget counts an overrun. Entities added by later edits
+  /// are profiled too.
+  void SetProfiling(bool on);
+  bool profiling() const;
+  /// The entities that overran their budget in the last evaluated tick, written into `out`
+  /// (cleared first; reserve it: no allocation below its capacity). Returns how many.
+  int LastOverruns(std::vector<const Entity*>* out) const;
+
   /// Applies `edit` (prepared against this graph at its current version). Real-time safe:
   /// re-plugs and a topology swap, nothing allocated or freed. Returns false and changes nothing
   /// when the graph changed since the edit was prepared.
@@ -135,6 +145,7 @@ class GraphEdit {
   bool IsNew(const Entity& e) const;
 
   int64_t base_version_;
+  bool base_profiling_;
   std::vector<std::shared_ptr<Entity>> entities_;
   std::vector<std::shared_ptr<Entity>> new_entities_;
   std::vector<std::pair<InputSignalBase*, SignalBase*>> replugs_;  // live input -> new source

@@ -19,6 +19,7 @@
 #include <typeindex>
 #include <vector>
 
+#include "marionette/graph/profiling.h"
 #include "marionette/graph/tick.h"
 #include "marionette/graph/value_traits.h"
 
@@ -63,10 +64,14 @@ class SignalBase {
   /// Outputs: the signals declared as prerequisites of Calc. Inputs: empty (see source()).
   const std::vector<const SignalBase*>& prerequisites() const { return prerequisites_; }
 
+  /// Where this signal's computation time is charged (its entity's), nullptr when not profiling.
+  void set_timing(EntityTiming* timing) { timing_ = timing; }
+
  protected:
   SignalBase(Entity* owner, std::string name, SignalKind kind)
       : owner_(owner), name_(std::move(name)), kind_(kind) {}
   std::vector<const SignalBase*> prerequisites_;
+  EntityTiming* timing_ = nullptr;
 
  private:
   Entity* owner_;
@@ -117,6 +122,7 @@ class OutputSignal final : public SignalBase {
   /// and state outputs).
   const T& Eval(const Tick& t) {
     if (calc_ && t.index > last_index_) {
+      ProfileScope scope(timing_);
       calc_(t, &value_);
       last_index_ = t.index;
       ++num_evaluations_;
