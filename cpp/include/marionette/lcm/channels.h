@@ -20,5 +20,10 @@ inline constexpr char kSupervisorEvent[] = "SUPERVISOR_EVENT";
 inline constexpr char kPlannedPath[] = "PLANNED_PATH";
 inline constexpr char kSimCommand[] = "SIM_COMMAND";
 inline constexpr char kSimObjectPoses[] = "SIM_OBJECT_POSES";
+inline constexpr char kDgRequest[] = "DG_REQUEST";
+inline constexpr char kDgReply[] = "DG_REPLY";
+inline constexpr char kDgTrace[] = "DG_TRACE";
+inline constexpr char kControllerTiming[] = "CONTROLLER_TIMING";
+inline constexpr char kControllerJournal[] = "CONTROLLER_JOURNAL";
 
 }  // namespace marionette::channels
