@@ -86,6 +86,8 @@ Solver::Solver(std::string name, int nv, Levels levels, SolverOptions options)
   stack_prerequisites.push_back(target_offsets_);
   stack_velocity_ = &DeclareOutput<Eigen::VectorXd>("stack_velocity", zero,
                                                     &Solver::CalcStackVelocity, stack_prerequisites);
+  unblended_velocity_ = &DeclareOutput<Eigen::VectorXd>("unblended_velocity", zero,
+                                                        &Solver::CalcUnblendedVelocity, task_signals);
   joint_offset_ = &DeclareOutput<Eigen::VectorXd>(
       "joint_offset", zero, &Solver::CalcJointOffset,
       {switching_, stack_velocity_, initial_velocity_, previous_, activity_, joint_offset_state_});
@@ -138,6 +140,19 @@ void Solver::CalcStackVelocity(const graph::Tick& t, Eigen::VectorXd* out) const
   const Eigen::VectorXd& offsets = target_offsets_->Eval(t);
   SolveHierarchy(hierarchy_, terms_, &workspace_, out,
                  options_.switch_time_constant > 0.0 ? &offsets : nullptr);
+}
+
+void Solver::CalcUnblendedVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
+  for (size_t i = 0; i < task_inputs_.size(); ++i) terms_[i] = &task_inputs_[i]->Eval(t);
+  SolveHierarchy(hierarchy_, terms_, &workspace_, out, nullptr);
+  for (int i : hard_box_tasks_) {  // the same bounds as the command
+    const TaskTerms& box = *terms_[i];
+    if (!box.active) continue;
+    for (size_t j = 0; j < box.unit_columns.size(); ++j) {
+      const int c = box.unit_columns[j];
+      (*out)[c] = std::clamp((*out)[c], box.lower[j], std::max(box.lower[j], box.upper[j]));
+    }
+  }
 }
 
 void Solver::CalcJointOffset(const graph::Tick& t, Eigen::VectorXd* out) const {

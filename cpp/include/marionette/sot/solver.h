@@ -21,7 +21,9 @@
 /// of level-0 inequality tasks (joint limits) are enforced on v by clamping.
 /// @entity  inputs: task_<name> for every task (plugged), initial_velocity (nv, default 0)
 ///          outputs: velocity (nv, the command), stack_velocity (nv, the hierarchy's solution
-///          with blended targets), target_offsets (all task rows), joint_offset (nv), switching
+///          with blended targets), unblended_velocity (nv, the hierarchy's solution with the
+///          tasks' own targets: where the blend converges; computed only when pulled, e.g. by a
+///          controller's start check), target_offsets (all task rows), joint_offset (nv), switching
 ///          states: previous_velocity (nv), target_offset_state, joint_offset_state (nv),
 ///          activity (one entry per task)
 
@@ -49,6 +51,7 @@ class Solver final : public graph::Entity {
 
   graph::OutputSignal<Eigen::VectorXd>& velocity_output() { return *velocity_; }
   graph::OutputSignal<Eigen::VectorXd>& stack_velocity_output() { return *stack_velocity_; }
+  graph::OutputSignal<Eigen::VectorXd>& unblended_velocity_output() { return *unblended_velocity_; }
   graph::InputSignal<Eigen::VectorXd>& initial_velocity_input() { return *initial_velocity_; }
   graph::OutputSignal<Eigen::VectorXd>& joint_offset_output() { return *joint_offset_; }
   graph::OutputSignal<Eigen::VectorXd>& target_offsets_output() { return *target_offsets_; }
@@ -63,6 +66,7 @@ class Solver final : public graph::Entity {
   void CalcSwitching(const graph::Tick& t, bool* out) const;
   void CalcTargetOffsets(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcStackVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
+  void CalcUnblendedVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcJointOffset(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
   void UpdatePrevious(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
@@ -81,6 +85,7 @@ class Solver final : public graph::Entity {
   std::vector<int> hard_box_tasks_;                          // level-0 unit-row inequality tasks
   graph::InputSignal<Eigen::VectorXd>* initial_velocity_{};
   graph::OutputSignal<Eigen::VectorXd>* stack_velocity_{};
+  graph::OutputSignal<Eigen::VectorXd>* unblended_velocity_{};
   graph::OutputSignal<Eigen::VectorXd>* velocity_{};
   graph::OutputSignal<bool>* switching_{};
   graph::OutputSignal<Eigen::VectorXd>* target_offsets_{};
