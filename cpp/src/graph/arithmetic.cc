@@ -2,9 +2,9 @@
 
 namespace marionette::graph {
 
-VectorConstant::VectorConstant(std::string name, const Eigen::VectorXd& value)
+VectorConstant::VectorConstant(std::string name, const Eigen::VectorXd& value, bool settable)
     : Entity(std::move(name)) {
-  value_ = &DeclareParameter<Eigen::VectorXd>("value", value);
+  value_ = &DeclareParameter<Eigen::VectorXd>("value", value, settable);
   out_ = &DeclareOutput<Eigen::VectorXd>("out", value, &VectorConstant::CalcOut, {value_});
 }
 

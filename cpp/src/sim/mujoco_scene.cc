@@ -223,4 +223,36 @@ void MujocoScene::SetFreeBodyPose(const std::string& body, const pinocchio::SE3&
   mj_forward(model_, data_);
 }
 
+int MujocoScene::WeldId(const std::string& name) const {
+  const int id = mj_name2id(model_, mjOBJ_EQUALITY, name.c_str());
+  if (id >= 0 && model_->eq_type[id] == mjEQ_WELD) return id;
+  std::string known;
+  for (int i = 0; i < model_->neq; ++i) {
+    if (model_->eq_type[i] != mjEQ_WELD) continue;
+    const char* n = mj_id2name(model_, mjOBJ_EQUALITY, i);
+    known += (known.empty() ? "" : ", ") + std::string(n ? n : "?");
+  }
+  throw SimError("no weld '" + name + "' in the scene (welds: " + (known.empty() ? "none" : known) + ")");
+}
+
+void MujocoScene::SetWeld(int weld_id, bool active) {
+  if (weld_id < 0 || weld_id >= model_->neq || model_->eq_type[weld_id] != mjEQ_WELD) {
+    throw SimError("SetWeld: " + std::to_string(weld_id) + " is not a weld equality");
+  }
+  if (active) {
+    // MuJoCo 2.2 weld data: anchor (3), then the pose of body2 in body1 (position, quaternion
+    // w x y z), then the torque scale. Hold the bodies where they are now.
+    const auto pose = [&](int body) {
+      return pinocchio::SE3(QuatToMatrix(data_->xquat + 4 * body),
+                            Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
+    };
+    const pinocchio::SE3 X_12 = pose(model_->eq_obj1id[weld_id]).actInv(pose(model_->eq_obj2id[weld_id]));
+    const Eigen::Quaterniond quat(X_12.rotation());
+    double* eq = model_->eq_data + mjNEQDATA * weld_id;
+    for (int k = 0; k < 3; ++k) eq[3 + k] = X_12.translation()[k];
+    eq[6] = quat.w(), eq[7] = quat.x(), eq[8] = quat.y(), eq[9] = quat.z();
+  }
+  model_->eq_active[weld_id] = active ? 1 : 0;
+}
+
 }  // namespace marionette::sim

@@ -9,11 +9,11 @@
 
 namespace marionette::graph {
 
-/// out = value, with `value` a settable parameter.
+/// out = value, with `value` a parameter (settable while running unless told otherwise).
 /// @entity  inputs: value (n)   outputs: out (n)
 class VectorConstant final : public Entity {
  public:
-  VectorConstant(std::string name, const Eigen::VectorXd& value);
+  VectorConstant(std::string name, const Eigen::VectorXd& value, bool settable = true);
   const char* type_name() const override { return "VectorConstant"; }
   InputSignal<Eigen::VectorXd>& value_input() { return *value_; }
   OutputSignal<Eigen::VectorXd>& out_output() { return *out_; }

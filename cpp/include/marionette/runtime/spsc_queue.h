@@ -13,6 +13,9 @@ template <typename T>
 class SpscQueue {
  public:
   explicit SpscQueue(size_t capacity) : buffer_(capacity + 1) {}
+  /// Every slot starts as a copy of `model`: items of the model's sizes are then copied in and
+  /// out without allocation.
+  SpscQueue(size_t capacity, const T& model) : buffer_(capacity + 1, model) {}
 
   /// Producer side. False when the queue is full (the item is not queued).
   bool Push(const T& item) {
@@ -23,6 +26,25 @@ class SpscQueue {
     head_.store(next, std::memory_order_release);
     return true;
   }
+
+  /// Producer side, in place: the slot to fill, or nullptr when full; CommitPush() queues it.
+  /// Lets large items be written field by field instead of copied whole.
+  T* PushSlot() {
+    const size_t head = head_.load(std::memory_order_relaxed);
+    if (Next(head) == tail_.load(std::memory_order_acquire)) return nullptr;
+    return &buffer_[head];
+  }
+  void CommitPush() {
+    head_.store(Next(head_.load(std::memory_order_relaxed)), std::memory_order_release);
+  }
+
+  /// Consumer side, in place: the oldest item, or nullptr when empty; PopFront() releases it.
+  const T* Front() const {
+    const size_t tail = tail_.load(std::memory_order_relaxed);
+    if (tail == head_.load(std::memory_order_acquire)) return nullptr;
+    return &buffer_[tail];
+  }
+  void PopFront() { tail_.store(Next(tail_.load(std::memory_order_relaxed)), std::memory_order_release); }
 
   /// Consumer side. False when empty.
   bool Pop(T* item) {

@@ -78,6 +78,14 @@ class MujocoScene {
   /// Teleports a free body (freejoint) to X_WB with zero velocity (perturbations, tests).
   void SetFreeBodyPose(const std::string& body, const pinocchio::SE3& X_WB);
 
+  /// The simulated grasp (Agimus simulated it too, §3.3.6: physics engines hold objects badly):
+  /// activates the weld equality `weld` (e.g. "grasp/talos/left_gripper/plank") at the current
+  /// relative pose of its two bodies, or releases it. Throws SimError on an unknown weld.
+  void SetWeld(int weld_id, bool active);
+  /// The id of weld equality `name`; throws SimError listing the scene's welds.
+  int WeldId(const std::string& name) const;
+  bool WeldActive(int weld_id) const { return model_->eq_active[weld_id] != 0; }
+
   int robot_nq() const { return nq_; }
   int robot_nv() const { return nv_; }
   const std::vector<std::string>& actuated_joint_names() const { return actuated_names_; }
