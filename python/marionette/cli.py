@@ -15,6 +15,7 @@ COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
     "marionette.perception.cli",
     "marionette.footsteps.cli",
+    "marionette.control.cli",
 ]
 
 

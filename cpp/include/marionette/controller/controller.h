@@ -1,0 +1,72 @@
+#pragma once
+/// Controller: the marionette-controller process. It owns the robot (MuJoCo scene or kinematic
+/// integrator), the persistent part of the graph, the 1 kHz loop and the threads around it:
+///
+///   loop thread      Read → Evaluate → (swap a new controller at the tick boundary) → Write,
+///                    on absolute deadlines; never allocates, locks or does I/O after warm-up
+///   LCM thread       decodes and validates every input message, builds new controllers
+///                    (ControllerFactory) and pushes streamed references into their streams
+///   publisher thread ROBOT_STATE, ROBOT_COMMAND (configurable rate), CONTROLLER_STATUS (10 Hz),
+///                    SIM_OBJECT_POSES (simulator ground truth), from lock-free snapshots
+///   camera thread    renders the head RGB-D camera from a state snapshot (CAMERA_HEAD)
+///
+/// Persistent graph: device (MuJoCo) → measured_base → robot (RobotModel) → [controller] →
+/// safety (SafetyFilter) → command (KinematicDevice: the integrated position command) → device.
+/// With the kinematic backend the command integrator is the robot.
+///
+/// Modes: hold (zero velocity, the servos hold the last command) until a controller is
+/// accepted; run; hold again when a streamed reference goes stale (watchdog) or on COMMAND
+/// "hold"; estop latches until "reset_estop". Every rejected input is counted with its reason
+/// in CONTROLLER_STATUS; the robot never moves on garbage.
+
+#include <atomic>
+#include <memory>
+#include <string>
+
+namespace marionette::controller {
+
+struct ControllerOptions {
+  std::string robot = "talos";
+  std::string backend = "mujoco";  ///< "mujoco" | "kinematic"
+  std::string scene;               ///< MJCF (mujoco backend); default: the robot alone
+  std::string models_dir;          ///< models/ of the repository
+  std::string lcm_url;             ///< "" = $MARIONETTE_LCM_URL, else LCM's default
+  bool realtime = false;           ///< ask for SCHED_FIFO + mlockall
+  double duration = 0.0;           ///< [s] of controller time; 0 = until SIGINT/SIGTERM
+  double speed = 1.0;              ///< wall-clock pacing: 1 = real time, 0 = as fast as possible
+  double state_rate = 100.0;       ///< [Hz] ROBOT_STATE / ROBOT_COMMAND / SIM_OBJECT_POSES
+  double status_rate = 10.0;       ///< [Hz] CONTROLLER_STATUS
+  double camera_rate = 30.0;       ///< [Hz], 0 = no camera
+  int camera_width = 640;
+  int camera_height = 480;
+  double velocity_scale = 1.0;     ///< fraction of the URDF velocity limits the safety allows
+  std::string timing_log;          ///< write every tick's timing here (CSV) at exit, "" = no
+  bool profiling = true;           ///< per-entity compute time (CONTROLLER_TIMING, budgets)
+  int64_t overrun_hold_ticks = 100;  ///< hold after this many consecutive over-budget ticks
+  bool verbose = false;
+};
+
+class Controller {
+ public:
+  /// Loads the robot and the scene, builds the persistent graph and opens LCM; throws
+  /// std::runtime_error with a precise message on any problem (missing file, bad robot...).
+  explicit Controller(const ControllerOptions& options);
+  ~Controller();
+  Controller(const Controller&) = delete;
+  Controller& operator=(const Controller&) = delete;
+
+  /// Runs until the duration elapses or Stop() is called; returns the process exit code.
+  int Run();
+  /// Thread- and signal-safe.
+  void Stop();
+
+  struct Impl;
+
+ private:
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Parses the command line (see --help); throws std::invalid_argument on bad arguments.
+ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe_robot);
+
+}  // namespace marionette::controller

@@ -1,0 +1,112 @@
+#pragma once
+/// ReferenceStream: a task reference streamed from another process (lcmt_task_reference on
+/// TASK_REFERENCE), sampled at the controller's tick.
+///
+/// The LCM thread translates each message into a ReferenceChunk and Push()es it into a bounded
+/// lock-free queue; at each tick the stream's poll hook drains the queue into its sample buffer
+/// (before anything is evaluated) and the outputs give
+/// the reference at the tick's time (linear interpolation; quaternions by slerp). A chunk
+/// replaces every sample from its start on (a replanned future wins). Before the first sample
+/// the stream holds its initial value; after the last one it holds the last sample and its
+/// `age` grows — the controller's watchdog holds the robot when the age exceeds its timeout.
+/// @entity  inputs: none (fed by Push from the LCM thread)
+///          outputs: value (value_size), derivative (derivative_size),
+///                   age (double, s past the last sample, 0 inside), ended (bool),
+///                   pose (SE3, only when value_size == 7: x y z qw qx qy qz)
+
+#include <Eigen/Core>
+#include <array>
+#include <atomic>
+#include <string>
+#include <vector>
+
+#include "marionette/graph/entity.h"
+#include "marionette/runtime/spsc_queue.h"
+
+namespace marionette::controller {
+
+/// Samples of one chunk, row-major; capacity fixed at construction of the stream.
+struct ReferenceChunk {
+  int64_t start_us = 0;  // controller time of sample 0
+  int64_t dt_us = 1000;
+  int num_samples = 0;
+  std::vector<double> values;       // num_samples x value_size
+  std::vector<double> derivatives;  // num_samples x derivative_size (zeros when not given)
+  bool last = false;                // the reference ends with this chunk
+  int64_t source_hash = 0;          // names the message it came from (controller journal)
+};
+
+class ReferenceStream final : public graph::Entity {
+ public:
+  enum class Kind { kVector, kSe3 };
+  /// `initial` (value_size; 7 for kSe3) is held until the first sample arrives.
+  /// `capacity_samples` bounds the look-ahead kept (5000 = 5 s at 1 kHz); `max_chunk_samples`
+  /// the size of one chunk. SE3 streams interpolate rotations by slerp and check unit quaternions.
+  ReferenceStream(std::string name, Kind kind, const Eigen::VectorXd& initial, int derivative_size,
+                  int capacity_samples = 5000, int max_chunk_samples = 1000,
+                  int queue_capacity = 64);
+  const char* type_name() const override { return "ReferenceStream"; }
+
+  int value_size() const { return value_size_; }
+  int derivative_size() const { return derivative_size_; }
+  int max_chunk_samples() const { return max_chunk_samples_; }
+
+  /// The value held until the first sample arrives (size value_size; no allocation: callable
+  /// from the loop when the stream's controller is swapped in).
+  void SetInitial(const Eigen::VectorXd& initial);
+
+  /// LCM thread: a chunk with sizes matching this stream (checked by the caller, see
+  /// ValidateChunk). Returns false when the queue is full (the chunk is dropped and counted).
+  bool Push(const ReferenceChunk& chunk);
+  /// Why `chunk` cannot feed this stream ("" when it can): sizes, NaN, time step, unit quaternion.
+  std::string ValidateChunk(const ReferenceChunk& chunk) const;
+  int64_t dropped_chunks() const { return dropped_.load(); }
+  /// Loop thread: the source_hash of the chunks the last poll took in (up to 64 per tick).
+  int drained_count() const { return drained_count_; }
+  int64_t drained_hash(int i) const { return drained_hashes_[i]; }
+
+  graph::OutputSignal<Eigen::VectorXd>& value_output() { return *value_; }
+  graph::OutputSignal<Eigen::VectorXd>& derivative_output() { return *derivative_; }
+  graph::OutputSignal<double>& age_output() { return *age_; }
+  graph::OutputSignal<bool>& ended_output() { return *ended_; }
+  /// Only for SE3 streams; nullptr otherwise.
+  graph::OutputSignal<pinocchio::SE3>* pose_output() { return pose_; }
+
+ private:
+  void Poll(const graph::Tick& t);  // drains the queue into the sample buffer
+  // Index of the sample at or before time_us, and the interpolation fraction to the next one.
+  void Locate(int64_t time_us, int64_t* k, double* fraction) const;
+  void CalcValue(const graph::Tick& t, Eigen::VectorXd* out) const;
+  void CalcDerivative(const graph::Tick& t, Eigen::VectorXd* out) const;
+  void CalcAge(const graph::Tick& t, double* out) const;
+  void CalcEnded(const graph::Tick& t, bool* out) const;
+  void CalcPose(const graph::Tick& t, pinocchio::SE3* out) const;
+
+  bool se3_;
+  int value_size_;
+  int derivative_size_;
+  int capacity_;
+  int max_chunk_samples_;
+  Eigen::VectorXd initial_;
+  runtime::SpscQueue<ReferenceChunk> queue_;
+  ReferenceChunk popped_;                 // preallocated pop target
+  std::atomic<int64_t> dropped_{0};
+  // Sample buffer: ring of `capacity_` samples, sample k (absolute) in slot k % capacity_,
+  // valid for k in [begin_, end_). Written only by Poll (loop thread).
+  std::vector<double> values_;            // capacity x value_size
+  std::vector<double> derivatives_;       // capacity x derivative_size
+  int64_t origin_us_ = 0;                 // time of sample k = origin + k dt
+  int64_t dt_us_ = 0;                     // 0 until the first chunk
+  int64_t begin_ = 0, end_ = 0;
+  bool ends_ = false;                     // the sample end_ - 1 is the last one
+  std::array<int64_t, 64> drained_hashes_{};
+  int drained_count_ = 0;
+
+  graph::OutputSignal<Eigen::VectorXd>* value_{};
+  graph::OutputSignal<Eigen::VectorXd>* derivative_{};
+  graph::OutputSignal<double>* age_{};
+  graph::OutputSignal<bool>* ended_{};
+  graph::OutputSignal<pinocchio::SE3>* pose_{};
+};
+
+}  // namespace marionette::controller

@@ -1,0 +1,41 @@
+#pragma once
+/// What the controller knows of each robot: files, base, reference posture, the bodies whose
+/// contact wrenches it measures, its camera, its grippers. The same facts as
+/// python/marionette/robots.py and models/<robot>/grippers.yaml;
+/// tests/python/controller/test_robots_agree.py checks both sides agree
+/// (`marionette-controller --describe-robot NAME` prints this as JSON).
+
+#include <string>
+#include <vector>
+
+namespace marionette::controller {
+
+struct GripperInfo {
+  std::string name;   ///< e.g. "talos/left_gripper"
+  std::string joint;  ///< the actuated gripper joint
+  double open_position = 0.0;
+  double closed_position = 0.0;
+};
+
+struct RobotInfo {
+  std::string name;
+  std::string urdf;          ///< absolute path
+  std::string srdf;          ///< absolute path
+  std::string mjcf;          ///< the robot alone (the default scene)
+  std::string base;          ///< "free_flyer" | "planar" | "fixed"
+  std::string reference;     ///< SRDF group_state of the initial posture
+  std::vector<std::string> contact_bodies;  ///< wrenches measured on these (soles)
+  std::string camera;        ///< MuJoCo camera name, "" if none
+  std::string camera_frame;  ///< Pinocchio frame of the camera's optical centre, "" if none
+  std::vector<GripperInfo> grippers;
+};
+
+/// The robots marionette knows.
+std::vector<std::string> RobotNames();
+/// The description of `name` with paths under `models_dir`; throws std::invalid_argument
+/// listing the known robots.
+RobotInfo FindRobot(const std::string& name, const std::string& models_dir);
+/// JSON of a RobotInfo (for the agreement test and users).
+std::string ToJson(const RobotInfo& robot);
+
+}  // namespace marionette::controller

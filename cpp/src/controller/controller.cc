@@ -1,0 +1,444 @@
+// marionette-controller: start-up, the persistent graph, the 1 kHz loop, the command line.
+#include "controller_impl.h"
+
+namespace marionette::controller {
+
+Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) {
+  if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
+  try {
+    robot = FindRobot(options.robot, options.models_dir);
+  } catch (const std::invalid_argument& e) {
+    throw std::runtime_error(e.what());
+  }
+  try {
+    model = sot::LoadModel(robot.urdf, sot::ParseBaseJoint(robot.base), robot.srdf);
+  } catch (const std::exception& e) {
+    throw std::runtime_error("cannot load robot '" + robot.name + "': " + e.what());
+  }
+  if (model->referenceConfigurations.count(robot.reference) == 0) {
+    throw std::runtime_error(robot.srdf + " has no group_state '" + robot.reference + "'");
+  }
+  Eigen::VectorXd q0 = model->referenceConfigurations.at(robot.reference);
+  for (const GripperInfo& g : robot.grippers) {  // just inside the limit, as marionette.robots
+    if (model->existJointName(g.joint)) q0[model->joints[model->getJointId(g.joint)].idx_q()] = g.open_position;
+  }
+  for (pinocchio::JointIndex j = 1; j < model->joints.size(); ++j) {
+    if (model->joints[j].nq() == 1 && model->joints[j].nv() == 1) {
+      joint_names.push_back(model->names[j]);
+      joint_q.push_back(model->joints[j].idx_q());
+      joint_v.push_back(model->joints[j].idx_v());
+    }
+  }
+
+  if (options.backend == "mujoco") {
+    const std::string scene_path = options.scene.empty() ? robot.mjcf : options.scene;
+    try {
+      scene = std::make_unique<sim::MujocoScene>(scene_path, *model);
+    } catch (const std::exception& e) {
+      throw std::runtime_error(e.what());
+    }
+    // Start from the scene's first keyframe if it has one (scenes put the robot and objects in
+    // place), else from the reference posture with the robot as the model file puts it.
+    mjData& d = scene->mutable_data();
+    if (scene->model().nkey > 0) {
+      mj_resetDataKeyframe(&scene->model(), &d, 0);
+      mj_forward(&scene->model(), &d);
+      Eigen::VectorXd v(model->nv);
+      scene->ReadRobotState(q0, v);
+    } else {
+      Eigen::VectorXd qs(model->nq), vs(model->nv);
+      scene->ReadRobotState(qs, vs);
+      if (robot.base != "fixed") q0.head(robot.base == "free_flyer" ? 7 : 4) = qs.head(robot.base == "free_flyer" ? 7 : 4);
+      scene->WriteRobotState(q0, Eigen::VectorXd::Zero(model->nv));
+    }
+    const mjModel& m = scene->model();
+    for (int b = 1; b < m.nbody; ++b) {
+      const int jnt = m.body_jntadr[b];
+      if (jnt >= 0 && m.jnt_type[jnt] == mjJNT_FREE && m.body_rootid[b] == b &&
+          std::string(mj_id2name(&m, mjOBJ_BODY, b)) != "base_link") {
+        free_objects.push_back(mj_id2name(&m, mjOBJ_BODY, b));
+        free_object_ids.push_back(b);
+      }
+    }
+  } else if (options.backend != "kinematic") {
+    throw std::runtime_error("unknown backend '" + options.backend + "' (mujoco, kinematic)");
+  }
+  BuildPersistentGraph(q0);
+}
+
+void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
+  graph::GraphBuilder b;
+  command = &b.Add<sot::KinematicDevice>("command", model, q0);
+  robot_model = &b.Add<sot::RobotModel>("robot", model);
+  safety = &b.Add<SafetyFilter>("safety", *model, kDt, options.velocity_scale);
+  // What the safety filter gets while no controller runs: zero, and nobody may change that.
+  auto& idle = b.Add<graph::VectorConstant>("idle", Eigen::VectorXd::Zero(model->nv), /*settable=*/false);
+  b.Connect(idle.out_output(), safety->velocity_input());
+  b.Connect(safety->velocity_output(), command->command_input());
+  if (scene) {
+    device = &b.Add<sim::MujocoDevice>("device", scene.get(), robot.contact_bodies, kDt);
+    const int base_nq = robot.base == "free_flyer" ? 7 : robot.base == "planar" ? 4 : 0;
+    measured_base = &b.Add<MeasuredBase>("measured_base", model->nq, base_nq);
+    b.Connect(command->configuration_output(), measured_base->q_command_input());
+    b.Connect(device->q_output(), measured_base->q_measured_input());
+    b.Connect(command->configuration_output(), device->q_command_input());
+    b.Connect(safety->velocity_output(), device->v_command_input());
+    q_kinematics = &measured_base->q_output();
+  } else {
+    q_kinematics = &command->configuration_output();
+  }
+  b.Connect(*q_kinematics, robot_model->configuration_input());
+  b.Connect(*q_kinematics, safety->q_input());
+  graph = b.Build();
+  graph->SetProfiling(options.profiling);
+  overran.reserve(kMaxEntities);
+  overrun_hold_ticks = options.overrun_hold_ticks;
+  TimingTable model_table;
+  model_table.windows.resize(kMaxEntities);
+  model_table.budget_us.resize(kMaxEntities);
+  model_table.overruns.resize(kMaxEntities);
+  timing_tables = std::make_unique<runtime::TripleBuffer<TimingTable>>(model_table);
+  shared_q = q0;
+  factory = std::make_unique<ControllerFactory>(
+      model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
+                               &command->velocity_output()});
+
+  Snapshot model_snapshot;
+  model_snapshot.q = q0;
+  model_snapshot.v = Eigen::VectorXd::Zero(model->nv);
+  model_snapshot.q_command = q0;
+  model_snapshot.q_kinematics = q0;
+  model_snapshot.v_command = Eigen::VectorXd::Zero(model->nv);
+  model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
+  model_snapshot.wrenches.assign(6 * robot.contact_bodies.size() * (scene ? 1 : 0), 0.0);
+  model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
+  loop_state = model_snapshot;
+  snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
+  active_streams.reserve(kMaxTasks);
+  if (scene && options.camera_rate > 0.0 && !robot.camera.empty()) {
+    render_every = std::max(1, static_cast<int>(std::lround(1.0 / (options.camera_rate * kDt))));
+    const mjModel& m = scene->model();
+    render_states = std::make_unique<runtime::TripleBuffer<std::vector<double>>>(
+        std::vector<double>(m.nq + 3 * m.nmocap + 4 * m.nmocap + 1, 0.0));
+  }
+}
+
+void Controller::Impl::Reject(const std::string& channel, const std::string& category,
+                              const std::string& detail) {
+  std::lock_guard<std::mutex> lock(stats_mutex);
+  ++rejections[channel + ": " + category];
+  ++num_rejected;
+  last_rejection = channel + ": " + detail;
+  if (options.verbose) std::cerr << "[controller] rejected " << last_rejection << "\n";
+}
+
+// ---- the loop ----------------------------------------------------------------------------------
+
+void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock) {
+  // Inputs enter at the start of the tick, each journaled with the tick that consumed it.
+  SimRequest request;
+  while (scene && sim_requests.Pop(&request)) {
+    Journal(t.index, 3, request.hash);
+    if (request.kind != SimRequest::kMove) {
+      scene->SetWeld(request.id, request.kind == SimRequest::kAttach);
+      continue;
+    }
+    mjData& d = scene->mutable_data();
+    const mjModel& m = scene->model();
+    const int jnt = m.body_jntadr[request.id];
+    double* p = d.qpos + m.jnt_qposadr[jnt];
+    const Eigen::Quaterniond quat(request.pose.rotation());
+    for (int k = 0; k < 3; ++k) p[k] = request.pose.translation()[k];
+    p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
+    for (int k = 0; k < 6; ++k) d.qvel[m.jnt_dofadr[jnt] + k] = 0.0;
+  }
+  std::array<int64_t, 64> set_hashes;
+  const int num_sets = service.ApplySets(set_hashes.data(), static_cast<int>(set_hashes.size()));
+  for (int i = 0; i < num_sets; ++i) Journal(t.index, 4, set_hashes[i]);
+  ApplyCommand(t);
+  safety->mode_input().SetValue(static_cast<int>(mode));
+  if (device) device->Read(t);
+  graph->Evaluate(t);
+  for (ReferenceStream* stream : active_streams) {
+    for (int i = 0; i < stream->drained_count(); ++i) Journal(t.index, 1, stream->drained_hash(i));
+  }
+  if (safety->non_finite_output().Eval(t)) {
+    ++loop_state.non_finite_ticks;
+    if (mode == ControlMode::kRun) {
+      mode = ControlMode::kHold;
+      loop_state.reason = Reason::kNonFinite;
+    }
+  }
+  if (safety->num_clamped_output().Eval(t) > 0) ++loop_state.clamped_ticks;
+  Watchdog(t);
+  CheckBudgets(t);
+  DecideSwitch(t);
+  if (device) device->Write(t);
+  FillSnapshot(t, clock);
+  service.Sample(t.index, TickUs(t));
+  if ((t.index + 1) % timing_window_ticks == 0) CopyTimings(t);
+}
+
+void Controller::Impl::CheckBudgets(const graph::Tick& t) {
+  if (graph->LastOverruns(&overran) == 0) return;
+  for (const graph::Entity* e : overran) {
+    const auto& entities = graph->entities();
+    for (size_t i = 0; i < entities.size(); ++i) {
+      if (entities[i].get() != e) continue;
+      // One event when an overrun starts, not one per tick.
+      if (e->timing().consecutive_overruns == 1) overrun_events.Push({t.index, static_cast<int>(i)});
+      if (e->timing().consecutive_overruns >= overrun_hold_ticks && mode == ControlMode::kRun) {
+        mode = ControlMode::kHold;
+        loop_state.reason = Reason::kBudget;
+        loop_state.reason_index = static_cast<int>(i);
+        loop_state.reason_value = static_cast<double>(e->timing().consecutive_overruns);
+      }
+    }
+  }
+}
+
+void Controller::Impl::CopyTimings(const graph::Tick& t) {
+  TimingTable& table = timing_tables->write_slot();
+  const auto& entities = graph->entities();
+  table.graph_version = graph->version();
+  table.utime = TickUs(t);
+  table.num_entities = std::min<int>(kMaxEntities, static_cast<int>(entities.size()));
+  table.window_ticks = timing_window_ticks;
+  for (int i = 0; i < table.num_entities; ++i) {
+    graph::EntityTiming& timing = entities[i]->mutable_timing();
+    table.windows[i] = timing.window;
+    table.budget_us[i] = 1e-3 * timing.budget_ns;
+    table.overruns[i] = timing.overruns;
+    timing.window.Clear();
+  }
+  timing_tables->Publish();
+}
+
+void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
+  journal.Push(JournalEntry{tick, channel, hash});  // full: the publisher is behind, entry lost
+}
+
+void Controller::Impl::ApplyCommand(const graph::Tick& t) {
+  const auto c = static_cast<Command>(command_request.exchange(static_cast<int>(Command::kNone)));
+  if (c != Command::kNone) Journal(t.index, 2, command_hash.load(std::memory_order_acquire));
+  switch (c) {
+    case Command::kNone:
+      return;
+    case Command::kHold:
+      if (mode == ControlMode::kRun) mode = ControlMode::kHold;
+      break;
+    case Command::kResume:
+      if (mode == ControlMode::kHold && active != nullptr) mode = ControlMode::kRun;
+      break;
+    case Command::kEstop:
+      mode = ControlMode::kEstop;
+      break;
+    case Command::kResetEstop:
+      if (mode == ControlMode::kEstop) mode = ControlMode::kHold;
+      break;
+    case Command::kStop:
+      stop = true;
+      break;
+  }
+  loop_state.reason = Reason::kCommand;
+  loop_state.reason_index = static_cast<int>(c);
+}
+
+void Controller::Impl::Watchdog(const graph::Tick& t) {
+  if (mode != ControlMode::kRun || active == nullptr) return;
+  for (size_t i = 0; i < active_streams.size(); ++i) {
+    ReferenceStream* s = active_streams[i];
+    const double age = s->age_output().Eval(t);
+    if (!s->ended_output().Eval(t) && age > active->reference_timeout) {
+      mode = ControlMode::kHold;
+      loop_state.reason = Reason::kWatchdog;
+      loop_state.reason_index = static_cast<int>(i);
+      loop_state.reason_value = age;
+      return;
+    }
+  }
+}
+
+void Controller::Impl::DecideSwitch(const graph::Tick& t) {
+  if (switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted)) return;
+  BuiltController* next = posted;
+  Journal(t.index, 0, posted_hash);
+  // "Hold where it is" references take the values of this very tick.
+  next->HoldCurrent(robot_model->kinematics_output().Eval(t));
+  // Agimus's start check (§3.2.5.2), real-time safe here: the new stack's solution at this very
+  // tick against the command being applied.
+  const Eigen::VectorXd& v_next = next->unblended_velocity->Eval(t);
+  const Eigen::VectorXd& v_now = safety->velocity_output().Eval(t);
+  double jump = 0.0;
+  for (Eigen::Index i = 0; i < v_next.size(); ++i) jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
+  if (!std::isfinite(jump)) jump = std::numeric_limits<double>::infinity();
+  if (mode == ControlMode::kEstop || !(jump <= next->max_switch_velocity_jump) ||
+      !graph->Apply(next->edit.get())) {
+    refused_jump = mode == ControlMode::kEstop ? -1.0 : jump;
+    ++loop_state.refused_switches;
+    switch_state.store(static_cast<int>(SwitchState::kRefused), std::memory_order_release);
+    return;
+  }
+  service.Invalidate();  // watched entities of the old controller are gone
+  active = next;
+  active_streams.clear();
+  for (auto& [name, stream] : next->streams) active_streams.push_back(stream);
+  ++loop_state.switches;
+  if (mode == ControlMode::kHold) mode = ControlMode::kRun;
+  loop_state.reason = Reason::kControllerAccepted;
+  loop_state.active_id = next->id;
+  switch_state.store(static_cast<int>(SwitchState::kApplied), std::memory_order_release);
+}
+
+void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock) {
+  Snapshot& s = loop_state;
+  s.tick = t.index;
+  s.utime = TickUs(t);
+  s.mode = static_cast<int>(mode);
+  s.q = q_kinematics->value();
+  s.q_kinematics = q_kinematics->value();
+  s.v = device ? device->v_output().value() : command->velocity_output().value();
+  s.q_command = command->configuration_output().value();
+  s.v_command = safety->velocity_output().value();
+  if (device) {
+    s.q = device->q_output().value();
+    s.effort = device->effort_output().value();
+    for (size_t i = 0; i < robot.contact_bodies.size(); ++i) {
+      for (int k = 0; k < 6; ++k) s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
+    }
+    for (size_t i = 0; i < free_object_ids.size(); ++i) {
+      const int b = free_object_ids[i];
+      const mjData& d = scene->data();
+      for (int k = 0; k < 3; ++k) s.object_poses[7 * i + k] = d.xpos[3 * b + k];
+      for (int k = 0; k < 4; ++k) s.object_poses[7 * i + 3 + k] = d.xquat[4 * b + k];
+    }
+  }
+  s.num_tasks = 0;
+  if (active != nullptr) {
+    s.num_tasks = std::min<int>(kMaxTasks, static_cast<int>(active->task_errors.size()));
+    for (int i = 0; i < s.num_tasks; ++i) s.task_error[i] = active->task_errors[i]->Eval(t);
+  }
+  s.deadline_misses = clock.deadline_misses();
+  const double wall = clock.WallSeconds();
+  s.realtime_factor = wall > 0.0 ? t.time / wall : 0.0;
+  snapshots->write_slot() = s;  // same sizes: no allocation
+  snapshots->Publish();
+  if (render_states && t.index % render_every == 0) {
+    const mjModel& m = scene->model();
+    const mjData& d = scene->data();
+    std::vector<double>& r = render_states->write_slot();
+    r[0] = static_cast<double>(TickUs(t));
+    std::copy_n(d.qpos, m.nq, r.begin() + 1);
+    std::copy_n(d.mocap_pos, 3 * m.nmocap, r.begin() + 1 + m.nq);
+    std::copy_n(d.mocap_quat, 4 * m.nmocap, r.begin() + 1 + m.nq + 3 * m.nmocap);
+    render_states->Publish();
+  }
+}
+
+// ---- Controller -----------------------------------------------------------------------------
+
+Controller::Controller(const ControllerOptions& options) : impl_(std::make_unique<Impl>(options)) {}
+Controller::~Controller() { Stop(); }
+
+void Controller::Stop() {
+  if (impl_) impl_->stop = true;
+}
+
+int Controller::Run() {
+  Impl& c = *impl_;
+  if (c.options.realtime) {
+    const runtime::RealtimeStatus rt = runtime::RequestRealtime(80);
+    std::cerr << "[controller] " << rt.message << "\n";
+  } else {
+    std::cerr << "[controller] real-time scheduling not requested (--realtime): normal priority\n";
+  }
+  // Subscribed before anything is published: whoever sees our first status can talk to us.
+  c.lcm.subscribe(channels::kControllerSpec, &Impl::OnSpec, &c);
+  c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c);
+  c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
+  c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
+  c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
+  std::thread lcm_thread(&Impl::LcmThread, &c);
+  std::thread publisher(&Impl::PublisherThread, &c);
+  std::thread camera;
+  if (c.render_states) camera = std::thread(&Impl::CameraThread, &c);
+  std::cerr << "[controller] " << c.robot.name << " on " << c.options.backend << " backend, "
+            << c.model->nv << " dofs, graph of " << c.graph->entities().size() << " entities; "
+            << (c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
+                                         : std::string("running until stopped"))
+            << " at speed " << c.options.speed << "\n";
+
+  runtime::LoopClock clock(kDt, c.options.speed);
+  graph::Tick t{0, 0.0, kDt};
+  const int64_t last_tick = c.options.duration > 0.0 ? std::llround(c.options.duration / kDt) : -1;
+  while (!c.stop && (last_tick < 0 || t.index < last_tick)) {
+    runtime::TickTiming timing = clock.WaitNextTick();
+    c.LoopTick(t, clock);
+    timing.compute_us = clock.ElapsedInTickUs();
+    c.timings.Push(timing);
+    ++t;
+  }
+  c.stop = true;
+  // Give the publisher a last snapshot before everything stops.
+  lcm_thread.join();
+  publisher.join();
+  if (camera.joinable()) camera.join();
+  std::cerr << "[controller] stopped after " << t.index << " ticks (" << t.time << " s), "
+            << clock.deadline_misses() << " deadline misses\n";
+  return 0;
+}
+
+// ---- command line -----------------------------------------------------------------------------
+
+ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe_robot) {
+  ControllerOptions o;
+  if (const char* url = std::getenv("MARIONETTE_LCM_URL")) o.lcm_url = url;
+  *help = false;
+  *describe_robot = false;
+  const auto value = [&](int& i) -> std::string {
+    if (i + 1 >= argc) throw std::invalid_argument(std::string(argv[i]) + " needs a value");
+    return argv[++i];
+  };
+  const auto number = [&](int& i) -> double {
+    const std::string flag = argv[i];
+    const std::string v = value(i);
+    char* end = nullptr;
+    const double x = std::strtod(v.c_str(), &end);
+    if (end == v.c_str() || *end != '\0' || !std::isfinite(x) || x < 0.0) {
+      throw std::invalid_argument(flag + ": '" + v + "' is not a non-negative number");
+    }
+    return x;
+  };
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "-h" || a == "--help") *help = true;
+    else if (a == "--describe-robot") *describe_robot = true;
+    else if (a == "--robot") o.robot = value(i);
+    else if (a == "--backend") o.backend = value(i);
+    else if (a == "--scene") o.scene = value(i);
+    else if (a == "--models") o.models_dir = value(i);
+    else if (a == "--lcm-url") o.lcm_url = value(i);
+    else if (a == "--realtime") o.realtime = true;
+    else if (a == "--duration") o.duration = number(i);
+    else if (a == "--speed") o.speed = number(i);
+    else if (a == "--state-rate") o.state_rate = number(i);
+    else if (a == "--status-rate") o.status_rate = number(i);
+    else if (a == "--camera-rate") o.camera_rate = number(i);
+    else if (a == "--camera-size") {
+      const std::string v = value(i);
+      if (std::sscanf(v.c_str(), "%dx%d", &o.camera_width, &o.camera_height) != 2 || o.camera_width < 16 ||
+          o.camera_height < 16) {
+        throw std::invalid_argument("--camera-size: '" + v + "' is not WIDTHxHEIGHT");
+      }
+    } else if (a == "--velocity-scale") o.velocity_scale = number(i);
+    else if (a == "--timing-log") o.timing_log = value(i);
+    else if (a == "--no-profiling") o.profiling = false;
+    else if (a == "--overrun-hold-ticks") o.overrun_hold_ticks = static_cast<int64_t>(number(i));
+    else if (a == "-v" || a == "--verbose") o.verbose = true;
+    else throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
+  }
+  if (o.state_rate <= 0.0 || o.state_rate > 1000.0) throw std::invalid_argument("--state-rate must be in (0, 1000]");
+  return o;
+}
+
+}  // namespace marionette::controller

@@ -1,0 +1,284 @@
+#pragma once
+// The inside of marionette-controller (controller/controller.h): the Impl shared by
+// controller.cc (start-up, the loop), controller_lcm.cc (the LCM thread: inputs, controller
+// swaps, introspection) and controller_publish.cc (publisher and camera threads).
+
+#include "marionette/controller/controller.h"
+#include <lcm/lcm-cpp.hpp>
+#include <mujoco/mujoco.h>
+#include <pthread.h>
+#include <sched.h>
+#include <Eigen/Geometry>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <deque>
+#include <iostream>
+#include <map>
+#include <sstream>
+#include <mutex>
+#include <pinocchio/algorithm/joint-configuration.hpp>
+#include <pinocchio/parsers/srdf.hpp>
+#include <thread>
+#include "marionette/controller/controller_factory.h"
+#include "marionette/controller/graph_service.h"
+#include "marionette/controller/measured_base.h"
+#include "marionette/controller/reference_stream.h"
+#include "marionette/controller/robots.h"
+#include "marionette/controller/safety_filter.h"
+#include "marionette/graph/arithmetic.h"
+#include "marionette/graph/graph.h"
+#include "marionette/lcm/channels.h"
+#include "marionette/lcmt_camera_image.hpp"
+#include "marionette/lcmt_command.hpp"
+#include "marionette/lcmt_controller_spec.hpp"
+#include "marionette/lcmt_controller_journal.hpp"
+#include "marionette/lcmt_controller_status.hpp"
+#include "marionette/lcmt_dg_reply.hpp"
+#include "marionette/lcmt_dg_request.hpp"
+#include "marionette/lcmt_entity_timings.hpp"
+#include "marionette/lcmt_supervisor_event.hpp"
+#include "marionette/lcmt_object_poses.hpp"
+#include "marionette/lcmt_robot_command.hpp"
+#include "marionette/lcmt_robot_state.hpp"
+#include "marionette/lcmt_sim_command.hpp"
+#include "marionette/lcmt_task_reference.hpp"
+#include "marionette/runtime/loop_clock.h"
+#include "marionette/runtime/spsc_queue.h"
+#include "marionette/runtime/timing_stats.h"
+#include "marionette/runtime/triple_buffer.h"
+#include "marionette/sim/mujoco_device.h"
+#include "marionette/sim/rgbd_renderer.h"
+#include "marionette/sot/kinematic_device.h"
+#include "marionette/sot/robot_model.h"
+
+namespace marionette::controller {
+
+using Clock = std::chrono::steady_clock;
+inline constexpr double kDt = 1e-3;      // the control period [s]
+inline constexpr int kMaxTasks = 64;     // task error norms reported per controller
+
+inline int64_t TickUs(const graph::Tick& t) { return static_cast<int64_t>(std::llround(t.time * 1e6)); }
+
+// Why the controller is in its current mode (formatted by the publisher, not the loop).
+enum class Reason : int {
+  kStartup,          // holding until a controller is accepted
+  kControllerAccepted,
+  kCommand,          // COMMAND hold / resume / estop / reset_estop
+  kWatchdog,         // a streamed reference went stale
+  kNonFinite,        // the solver produced NaN/Inf
+  kBudget,           // an entity overran its time budget too many ticks in a row
+};
+
+enum class Command : int { kNone = 0, kHold, kResume, kEstop, kResetEstop, kStop };
+
+// What the loop shares with the publisher each tick (fixed sizes: copied without allocation).
+struct Snapshot {
+  int64_t tick = 0;
+  int64_t utime = 0;
+  int mode = static_cast<int>(ControlMode::kHold);
+  Reason reason = Reason::kStartup;
+  int reason_index = -1;       // stream / task index for the watchdog
+  double reason_value = 0.0;   // e.g. the stale age [s]
+  int64_t active_id = -1;
+  int num_tasks = 0;
+  std::array<double, kMaxTasks> task_error{};
+  Eigen::VectorXd q, v, q_command, v_command, effort;  // sized at start-up
+  Eigen::VectorXd q_kinematics;  // what the features see: measured base, commanded joints
+  std::vector<double> wrenches;                        // 6 per contact body
+  std::vector<double> object_poses;                    // 7 per free object (x y z qw qx qy qz)
+  int64_t switches = 0, refused_switches = 0, non_finite_ticks = 0, clamped_ticks = 0;
+  int64_t deadline_misses = 0;
+  double realtime_factor = 0.0;
+};
+
+// One decision of the loop on a controller posted by the LCM thread.
+enum class SwitchState : int { kNone = 0, kPosted, kApplied, kRefused };
+
+// Every entity's window of tick times, copied by the loop once per window (no allocation: the
+// table is sized for kMaxEntities at start-up).
+inline constexpr int kMaxEntities = 512;
+struct TimingTable {
+  int64_t graph_version = -1;
+  int64_t utime = 0;
+  int64_t window_ticks = 0;
+  int num_entities = 0;
+  std::vector<graph::DurationHistogram> windows;  // kMaxEntities
+  std::vector<double> budget_us;
+  std::vector<int64_t> overruns;
+};
+
+// FNV-1a 64 of a message's bytes: how the journal names the inputs it consumed.
+inline int64_t Fnv1a(const void* data, size_t size) {
+  uint64_t h = 1469598103934665603ull;
+  const auto* p = static_cast<const uint8_t*>(data);
+  for (size_t i = 0; i < size; ++i) h = (h ^ p[i]) * 1099511628211ull;
+  return static_cast<int64_t>(h);
+}
+
+// A consumed input: which channel, which message, at which tick (for deterministic replay).
+struct JournalEntry {
+  int64_t tick = 0;
+  int channel = 0;  // index into kJournalChannels
+  int64_t hash = 0;
+};
+inline constexpr const char* kJournalChannels[] = {channels::kControllerSpec, channels::kTaskReference,
+                                            channels::kCommand, channels::kSimCommand,
+                                            channels::kDgRequest};
+
+inline std::string ToLower(std::string s) {
+  for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+
+struct Controller::Impl {
+  ControllerOptions options;
+  RobotInfo robot;
+  sot::ModelPtr model;
+  std::unique_ptr<sim::MujocoScene> scene;
+  std::unique_ptr<graph::Graph> graph;
+  std::unique_ptr<ControllerFactory> factory;
+  lcm::LCM lcm;
+
+  // Persistent entities.
+  sim::MujocoDevice* device = nullptr;
+  sot::KinematicDevice* command = nullptr;
+  MeasuredBase* measured_base = nullptr;
+  sot::RobotModel* robot_model = nullptr;
+  SafetyFilter* safety = nullptr;
+  graph::OutputSignal<Eigen::VectorXd>* q_kinematics = nullptr;  // what features see
+
+  std::vector<std::string> joint_names;     // 1-dof joints, Pinocchio order
+  std::vector<int> joint_q, joint_v;        // their indices
+  std::vector<std::string> free_objects;    // scene bodies with a free joint (not the robot)
+  std::vector<int> free_object_ids;
+
+  // Loop-owned.
+  std::atomic<bool> stop{false};
+  BuiltController* active = nullptr;
+  std::vector<ReferenceStream*> active_streams;  // reserved: no allocation when swapping
+  ControlMode mode = ControlMode::kHold;
+  Snapshot loop_state;                          // written by the loop, copied to the buffer
+
+  // Loop <-> LCM thread.
+  std::atomic<int> switch_state{static_cast<int>(SwitchState::kNone)};
+  BuiltController* posted = nullptr;            // valid while switch_state == kPosted
+  double refused_jump = 0.0;                    // written before kRefused
+  std::atomic<int> command_request{static_cast<int>(Command::kNone)};
+  std::atomic<int64_t> command_hash{0};           // of the message behind command_request
+  int64_t posted_hash = 0;                        // of the spec behind `posted`
+  struct SimRequest {
+    enum Kind { kMove, kAttach, kDetach } kind = kMove;
+    int id = -1;  // body (move) or weld equality (attach, detach)
+    pinocchio::SE3 pose;
+    int64_t hash = 0;  // the message's, for the journal
+  };
+  runtime::SpscQueue<SimRequest> sim_requests{64};
+
+  // Loop -> publisher / camera.
+  std::unique_ptr<runtime::TripleBuffer<Snapshot>> snapshots;
+  runtime::SpscQueue<runtime::TickTiming> timings{20000};
+  std::unique_ptr<runtime::TripleBuffer<std::vector<double>>> render_states;  // qpos + mocap
+  int render_every = 0;
+
+  // LCM-thread-owned.
+  std::map<int64_t, std::unique_ptr<BuiltController>> controllers;  // posted or active
+  int64_t active_owned_id = -1;
+  std::deque<std::pair<lcmt_controller_spec, int64_t>> waiting_specs;  // with the message's hash
+
+  // Introspection (DG_REQUEST) and timing.
+  GraphService service;
+  struct PendingGet {
+    int64_t request_id;
+    std::string client;
+    std::vector<std::string> names;
+  };
+  std::deque<lcmt_dg_request> waiting_dg;        // served when no swap is pending
+  std::deque<int64_t> dg_hashes;                 // the hash of each waiting request
+  int64_t current_dg_hash = 0;
+  lcmt_entity_timings last_timing{};             // the last CONTROLLER_TIMING published
+  std::vector<PendingGet> gets;
+  struct Trace {
+    int64_t request_id = -1;
+    std::string client;
+    std::vector<std::string> names;
+    int64_t period_ticks = 1;
+    int64_t next_tick = 0;
+  } trace;
+  int64_t watch_id = -1;
+  std::vector<std::string> watch_names;          // the current watch's signals, in order
+  std::unique_ptr<runtime::TripleBuffer<TimingTable>> timing_tables;  // loop -> LCM thread
+  int64_t timing_window_ticks = 1000;
+  std::vector<const graph::Entity*> overran;     // loop scratch (reserved)
+  int64_t overrun_hold_ticks = 100;              // consecutive overruns before holding
+  runtime::SpscQueue<std::pair<int64_t, int>> overrun_events{256};  // (tick, entity index)
+
+  // Journal of consumed inputs (loop -> publisher) for deterministic replay.
+  runtime::SpscQueue<JournalEntry> journal{1 << 14};
+
+
+  // Shared between non-real-time threads.
+  std::mutex shared_mutex;    // the publisher's latest snapshot, for the LCM thread
+  Eigen::VectorXd shared_q;   // kinematics configuration (nq): measured base, commanded joints
+  int64_t shared_utime = 0;
+  std::mutex stats_mutex;
+  std::map<std::string, int64_t> rejections;  // "CHANNEL: category" -> count
+  int64_t num_rejected = 0;
+  std::string last_rejection;
+  std::string last_switch_result;
+  struct Names {
+    std::string controller;
+    std::vector<std::string> tasks;    // in the order of BuiltController::task_errors
+    std::vector<std::string> streams;  // in the order of the loop's active_streams
+  };
+  std::map<int64_t, Names> names_by_id;
+
+  explicit Impl(const ControllerOptions& o);
+  void BuildPersistentGraph(const Eigen::VectorXd& q0);
+  void Reject(const std::string& channel, const std::string& category, const std::string& detail);
+
+  // Loop.
+  void LoopTick(const graph::Tick& t, runtime::LoopClock& clock);
+  void ApplyCommand(const graph::Tick& t);
+  void CheckBudgets(const graph::Tick& t);
+  void CopyTimings(const graph::Tick& t);
+  void DecideSwitch(const graph::Tick& t);
+  void Watchdog(const graph::Tick& t);
+  void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
+
+  // LCM thread.
+  void LcmThread();
+  void OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void PostNextSpec();
+  void CollectSwitchDecision();
+  void OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void ServeDg();
+  void ServeDgRequest(const lcmt_dg_request& request);
+  void ServeSamples();
+  void UpdateWatch();
+  void ReplyDg(const lcmt_dg_request& request, bool ok, const std::string& error,
+               const std::string& text = "");
+  void PublishTiming();
+  std::string TimingText();
+  int64_t loop_utime() {
+    std::lock_guard<std::mutex> lock(shared_mutex);
+    return shared_utime;
+  }
+  void Journal(int64_t tick, int channel, int64_t hash);
+
+  // Publisher and camera threads.
+  void PublisherThread();
+  void PublishState(const Snapshot& s);
+  void PublishStatus(const Snapshot& s, runtime::TimingWindow& period, runtime::TimingWindow& compute,
+                     runtime::TimingWindow& lateness);
+  void CameraThread();
+};
+
+}  // namespace marionette::controller

@@ -1,0 +1,493 @@
+// marionette-controller's LCM thread: every input decoded, validated (or rejected and counted),
+// controllers built off the loop and handed over, streamed references routed to their streams.
+#include "controller_impl.h"
+
+namespace marionette::controller {
+
+// ---- LCM thread --------------------------------------------------------------------------------
+
+void Controller::Impl::LcmThread() {
+  while (!stop) {
+    lcm.handleTimeout(2);
+    CollectSwitchDecision();
+    service.CollectGarbage();
+    ServeSamples();
+    ServeDg();
+    PublishTiming();
+    PostNextSpec();
+  }
+}
+
+namespace {
+template <typename Msg>
+bool Decode(const lcm::ReceiveBuffer* rbuf, Msg* msg) {
+  return msg->decode(rbuf->data, 0, rbuf->data_size) == static_cast<int>(rbuf->data_size);
+}
+}  // namespace
+
+void Controller::Impl::OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  lcmt_controller_spec spec;
+  if (!Decode(rbuf, &spec)) {
+    Reject(channels::kControllerSpec, "undecodable", "not a valid lcmt_controller_spec");
+    return;
+  }
+  if (waiting_specs.size() >= 8) {
+    Reject(channels::kControllerSpec, "queue full", "controller '" + spec.name + "' dropped: 8 specs waiting");
+    return;
+  }
+  waiting_specs.emplace_back(std::move(spec), Fnv1a(rbuf->data, rbuf->data_size));
+}
+
+void Controller::Impl::PostNextSpec() {
+  if (waiting_specs.empty() ||
+      switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kNone)) {
+    return;
+  }
+  const lcmt_controller_spec spec = std::move(waiting_specs.front().first);
+  const int64_t spec_hash = waiting_specs.front().second;
+  waiting_specs.pop_front();
+  if (controllers.count(spec.controller_id) > 0) {
+    Reject(channels::kControllerSpec, "duplicate id",
+           "controller id " + std::to_string(spec.controller_id) + " is already in use");
+    return;
+  }
+  // A recent configuration to check the spec against (its holds take the swap tick's values).
+  Eigen::VectorXd q;
+  {
+    std::lock_guard<std::mutex> lock(shared_mutex);
+    q = shared_q;
+  }
+  std::vector<std::string> previous;
+  if (active_owned_id >= 0) previous = controllers.at(active_owned_id)->entity_names;
+  std::unique_ptr<BuiltController> built;
+  try {
+    built = factory->Build(spec, *graph, previous, q);
+  } catch (const std::exception& e) {
+    Reject(channels::kControllerSpec, "invalid spec", e.what());
+    return;
+  }
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    Names& names = names_by_id[built->id];
+    names.controller = built->name;
+    names.tasks = built->task_names;
+    for (const auto& [task, stream] : built->streams) names.streams.push_back(task);
+  }
+  posted = built.get();
+  posted_hash = spec_hash;
+  controllers[built->id] = std::move(built);
+  switch_state.store(static_cast<int>(SwitchState::kPosted), std::memory_order_release);
+}
+
+void Controller::Impl::CollectSwitchDecision() {
+  const auto state = static_cast<SwitchState>(switch_state.load(std::memory_order_acquire));
+  if (state != SwitchState::kApplied && state != SwitchState::kRefused) return;
+  const int64_t id = posted->id;
+  std::string result;
+  if (state == SwitchState::kApplied) {
+    // The edit now holds the previous topology: free it here, off the loop, with the previous
+    // controller's bookkeeping.
+    posted->edit.reset();
+    if (active_owned_id >= 0) controllers.erase(active_owned_id);
+    active_owned_id = id;
+    result = "accepted controller '" + posted->name + "' (id " + std::to_string(id) + ")";
+  } else {
+    char jump[64];
+    std::snprintf(jump, sizeof(jump), "%.4g", refused_jump);
+    result = refused_jump < 0.0
+                 ? "refused controller '" + posted->name + "' (id " + std::to_string(id) + "): estop is latched"
+                 : "refused controller '" + posted->name + "' (id " + std::to_string(id) +
+                       "): command jump " + jump + " rad/s > " + std::to_string(posted->max_switch_velocity_jump);
+    Reject(channels::kControllerSpec, "discontinuous switch", result);
+    controllers.erase(id);
+  }
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    last_switch_result = result;
+  }
+  if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  posted = nullptr;
+  switch_state.store(static_cast<int>(SwitchState::kNone), std::memory_order_release);
+}
+
+void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  lcmt_task_reference msg;
+  if (!Decode(rbuf, &msg)) {
+    Reject(channels::kTaskReference, "undecodable", "not a valid lcmt_task_reference");
+    return;
+  }
+  auto it = controllers.find(msg.controller_id);
+  if (it == controllers.end()) {
+    Reject(channels::kTaskReference, "unknown controller",
+           "task '" + msg.task_name + "': no controller with id " + std::to_string(msg.controller_id));
+    return;
+  }
+  auto stream = it->second->streams.find(msg.task_name);
+  if (stream == it->second->streams.end()) {
+    Reject(channels::kTaskReference, "unknown task",
+           "controller " + std::to_string(msg.controller_id) + " has no streamed task '" + msg.task_name + "'");
+    return;
+  }
+  ReferenceStream& s = *stream->second;
+  if (msg.num_samples < 1 || msg.value_size != s.value_size() ||
+      (msg.derivative_size != 0 && msg.derivative_size != s.derivative_size()) ||
+      static_cast<int>(msg.value.size()) != msg.num_samples ||
+      static_cast<int>(msg.derivative.size()) != msg.num_samples) {
+    Reject(channels::kTaskReference, "wrong size",
+           "task '" + msg.task_name + "': " + std::to_string(msg.num_samples) + " samples of " +
+               std::to_string(msg.value_size) + " values, the stream takes " + std::to_string(s.value_size()));
+    return;
+  }
+  ReferenceChunk chunk;
+  chunk.start_us = msg.utime;
+  chunk.dt_us = msg.dt_us;
+  chunk.num_samples = msg.num_samples;
+  chunk.last = msg.last_chunk;
+  chunk.source_hash = Fnv1a(rbuf->data, rbuf->data_size);
+  chunk.values.reserve(static_cast<size_t>(msg.num_samples) * s.value_size());
+  chunk.derivatives.assign(static_cast<size_t>(msg.num_samples) * s.derivative_size(), 0.0);
+  for (int i = 0; i < msg.num_samples; ++i) {
+    if (static_cast<int>(msg.value[i].size()) != s.value_size() ||
+        static_cast<int>(msg.derivative[i].size()) != msg.derivative_size) {
+      Reject(channels::kTaskReference, "wrong size", "task '" + msg.task_name + "': ragged sample " + std::to_string(i));
+      return;
+    }
+    chunk.values.insert(chunk.values.end(), msg.value[i].begin(), msg.value[i].end());
+    if (msg.derivative_size != 0) {
+      std::copy(msg.derivative[i].begin(), msg.derivative[i].end(),
+                chunk.derivatives.begin() + static_cast<size_t>(i) * s.derivative_size());
+    }
+  }
+  const std::string problem = s.ValidateChunk(chunk);
+  if (!problem.empty()) {
+    Reject(channels::kTaskReference, "invalid samples", "task '" + msg.task_name + "': " + problem);
+    return;
+  }
+  if (!s.Push(chunk)) Reject(channels::kTaskReference, "queue full", "task '" + msg.task_name + "': chunk dropped");
+}
+
+void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  lcmt_command msg;
+  if (!Decode(rbuf, &msg)) {
+    Reject(channels::kCommand, "undecodable", "not a valid lcmt_command");
+    return;
+  }
+  static const std::map<std::string, Command> kCommands = {
+      {"hold", Command::kHold},   {"resume", Command::kResume}, {"start", Command::kResume},
+      {"estop", Command::kEstop}, {"reset_estop", Command::kResetEstop}, {"stop", Command::kStop}};
+  const auto it = kCommands.find(ToLower(msg.command));
+  if (it == kCommands.end()) {
+    Reject(channels::kCommand, "unknown command",
+           "'" + msg.command + "' (hold, resume, start, estop, reset_estop, stop)");
+    return;
+  }
+  // An estop must never be overwritten by a later, milder request before the loop saw it.
+  command_hash.store(Fnv1a(rbuf->data, rbuf->data_size), std::memory_order_release);
+  int expected = command_request.load();
+  while (expected != static_cast<int>(Command::kEstop) &&
+         !command_request.compare_exchange_weak(expected, static_cast<int>(it->second))) {
+  }
+  if (options.verbose) std::cerr << "[controller] command " << msg.command << " from " << msg.source << "\n";
+}
+
+void Controller::Impl::OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  lcmt_sim_command msg;
+  if (!Decode(rbuf, &msg)) {
+    Reject(channels::kSimCommand, "undecodable", "not a valid lcmt_sim_command");
+    return;
+  }
+  if (!scene) {
+    Reject(channels::kSimCommand, "no simulator", "the kinematic backend has no objects");
+    return;
+  }
+  const int64_t hash = Fnv1a(rbuf->data, rbuf->data_size);
+  if (msg.command == "attach" || msg.command == "detach") {
+    SimRequest r;
+    r.hash = hash;
+    r.kind = msg.command == "attach" ? SimRequest::kAttach : SimRequest::kDetach;
+    try {
+      r.id = scene->WeldId(msg.object_name);
+    } catch (const sim::SimError& e) {
+      Reject(channels::kSimCommand, "unknown weld", e.what());
+      return;
+    }
+    if (!sim_requests.Push(r)) Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not changed");
+    return;
+  }
+  if (msg.command != "set_object_pose") {
+    Reject(channels::kSimCommand, "unknown command", "'" + msg.command + "' (set_object_pose, attach, detach)");
+    return;
+  }
+  const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
+  if (it == free_objects.end()) {
+    std::string known;
+    for (const std::string& n : free_objects) known += (known.empty() ? "" : ", ") + n;
+    Reject(channels::kSimCommand, "unknown object", "'" + msg.object_name + "' (free objects: " + known + ")");
+    return;
+  }
+  const Eigen::Map<const Eigen::Vector3d> p(msg.position);
+  const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
+  if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
+    Reject(channels::kSimCommand, "invalid pose", "'" + msg.object_name + "': non-finite or non-unit quaternion");
+    return;
+  }
+  SimRequest r;
+  r.hash = hash;
+  r.id = free_object_ids[it - free_objects.begin()];
+  r.pose = pinocchio::SE3(Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
+  if (!sim_requests.Push(r)) Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not moved");
+}
+
+// ---- per-entity timing and budgets ----------------------------------------------------------
+
+void Controller::Impl::PublishTiming() {
+  // Entity names are read from the graph: only while the structure is frozen, and only for the
+  // version the loop measured.
+  const bool frozen =
+      switch_state.load(std::memory_order_acquire) == static_cast<int>(SwitchState::kNone);
+  std::pair<int64_t, int> event;
+  while (frozen && overrun_events.Pop(&event)) {
+    const auto& entities = graph->entities();
+    if (event.second >= static_cast<int>(entities.size())) continue;
+    const graph::Entity& e = *entities[event.second];
+    lcmt_supervisor_event msg{};
+    msg.utime = event.first * 1000;
+    msg.name = "budget_overrun";
+    msg.source = "controller";
+    msg.detail = e.name() + " (" + e.type_name() + ") over its " +
+                 std::to_string(e.time_budget_us()) + " us budget";
+    msg.value = e.time_budget_us();
+    lcm.publish(channels::kSupervisorEvent, &msg);
+  }
+  if (!frozen || !timing_tables->Fetch()) return;
+  const TimingTable& table = timing_tables->read_slot();
+  const auto& entities = graph->entities();
+  if (table.graph_version != graph->version()) return;  // measured before the last swap
+  lcmt_entity_timings msg{};
+  msg.utime = table.utime;
+  msg.window_ticks = table.window_ticks;
+  msg.num_entities = std::min<int>(table.num_entities, static_cast<int>(entities.size()));
+  for (int i = 0; i < msg.num_entities; ++i) {
+    msg.entity.push_back(entities[i]->name());
+    msg.type_name.push_back(entities[i]->type_name());
+    msg.p50_us.push_back(1e-3 * table.windows[i].Quantile(0.50));
+    msg.p99_us.push_back(1e-3 * table.windows[i].Quantile(0.99));
+    msg.max_us.push_back(1e-3 * table.windows[i].max_ns);
+    msg.budget_us.push_back(table.budget_us[i]);
+    msg.overruns.push_back(table.overruns[i]);
+  }
+  lcm.publish(channels::kControllerTiming, &msg);
+  last_timing = std::move(msg);
+}
+
+std::string Controller::Impl::TimingText() {
+  if (last_timing.num_entities == 0) return "no timing yet (profiling off, or less than one window)\n";
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(1);
+  os << "entity self time per tick over the last " << last_timing.window_ticks << " ticks [us]\n";
+  os << "  p50      p99      max   budget  overruns  entity\n";
+  for (int i = 0; i < last_timing.num_entities; ++i) {
+    char line[256];
+    std::snprintf(line, sizeof(line), "%7.1f  %7.1f  %7.1f  %7.1f  %8lld  %s (%s)\n", last_timing.p50_us[i],
+                  last_timing.p99_us[i], last_timing.max_us[i], last_timing.budget_us[i],
+                  static_cast<long long>(last_timing.overruns[i]), last_timing.entity[i].c_str(),
+                  last_timing.type_name[i].c_str());
+    os << line;
+  }
+  return os.str();
+}
+
+// ---- introspection (DG_REQUEST) ----------------------------------------------------------
+
+void Controller::Impl::OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  lcmt_dg_request request;
+  if (!Decode(rbuf, &request)) {
+    Reject(channels::kDgRequest, "undecodable", "not a valid lcmt_dg_request");
+    return;
+  }
+  if (waiting_dg.size() >= 64) {
+    Reject(channels::kDgRequest, "queue full", "request " + std::to_string(request.request_id) + " dropped");
+    return;
+  }
+  dg_hashes.push_back(Fnv1a(rbuf->data, rbuf->data_size));
+  waiting_dg.push_back(std::move(request));
+}
+
+void Controller::Impl::ServeDg() {
+  // The structure is read here only while no swap is pending: the loop changes it only by
+  // applying a swap this thread posted.
+  while (!waiting_dg.empty() &&
+         switch_state.load(std::memory_order_acquire) == static_cast<int>(SwitchState::kNone)) {
+    const lcmt_dg_request request = std::move(waiting_dg.front());
+    current_dg_hash = dg_hashes.front();
+    waiting_dg.pop_front();
+    dg_hashes.pop_front();
+    ServeDgRequest(request);
+  }
+}
+
+void Controller::Impl::ReplyDg(const lcmt_dg_request& request, bool ok, const std::string& error,
+                               const std::string& text) {
+  lcmt_dg_reply reply{};
+  reply.utime = loop_utime();
+  reply.request_id = request.request_id;
+  reply.client = request.client;
+  reply.ok = ok;
+  reply.error = error;
+  reply.text = text;
+  lcm.publish(channels::kDgReply, &reply);
+  if (!ok) Reject(channels::kDgRequest, "refused " + request.command, error);
+}
+
+void Controller::Impl::ServeDgRequest(const lcmt_dg_request& request) {
+  const std::string& command = request.command;
+  if (request.num_signals != static_cast<int>(request.signal.size()) ||
+      request.num_values != static_cast<int>(request.value.size())) {
+    ReplyDg(request, false, "array sizes disagree with their num_ fields");
+    return;
+  }
+  if (command == "ls") {
+    ReplyDg(request, true, "", ListGraph(*graph));
+  } else if (command == "graph") {
+    ReplyDg(request, true, "", graph->ToDot());
+  } else if (command == "timing") {
+    ReplyDg(request, true, "", TimingText());
+  } else if (command == "budget") {
+    // signal[0] = entity, value[0] = budget [us] (0 removes it). Set between ticks: a plain
+    // double written here and read by the loop — the worst a race does is one tick's check.
+    if (request.num_signals != 1 || request.num_values != 1 || !(request.value[0] >= 0.0)) {
+      ReplyDg(request, false, "budget takes one entity and one non-negative value [us]");
+      return;
+    }
+    graph::Entity* e = graph->FindEntity(request.signal[0]);
+    if (e == nullptr) {
+      ReplyDg(request, false, "no entity '" + request.signal[0] + "'");
+      return;
+    }
+    e->set_time_budget_us(request.value[0]);
+    ReplyDg(request, true, "", "budget of " + e->name() + ": " + std::to_string(request.value[0]) + " us");
+  } else if (command == "get" || command == "trace") {
+    std::vector<std::string> names;
+    for (const std::string& n : request.signal) {
+      if (graph->FindSignal(n) == nullptr) {
+        try {
+          graph->signal(n);  // throws with the list of what exists
+        } catch (const graph::GraphError& e) {
+          ReplyDg(request, false, e.what());
+          return;
+        }
+      }
+      names.push_back(n);
+    }
+    if (names.empty()) {
+      ReplyDg(request, false, command + " needs at least one signal");
+      return;
+    }
+    if (command == "get") {
+      gets.push_back(PendingGet{request.request_id, request.client, names});
+    } else {
+      if (!(request.rate > 0.0 && request.rate <= 1000.0)) {
+        ReplyDg(request, false, "trace rate must be in (0, 1000] Hz");
+        return;
+      }
+      trace = Trace{request.request_id, request.client, names,
+                    std::max<int64_t>(1, std::llround(1.0 / (request.rate * kDt))), 0};
+      ReplyDg(request, true, "", "tracing " + std::to_string(names.size()) + " signals on " +
+                                     channels::kDgTrace);
+    }
+    UpdateWatch();
+  } else if (command == "untrace") {
+    trace = Trace{};
+    UpdateWatch();
+    ReplyDg(request, true, "", "trace stopped");
+  } else if (command == "set") {
+    if (request.num_signals != 1) {
+      ReplyDg(request, false, "set takes one signal");
+      return;
+    }
+    graph::SignalBase* signal = graph->FindSignal(request.signal[0]);
+    if (signal == nullptr) {
+      ReplyDg(request, false, "no signal '" + request.signal[0] + "'");
+      return;
+    }
+    const std::string problem = service.QueueSet(*signal, request.value, current_dg_hash);
+    if (problem.empty()) {
+      ReplyDg(request, true, "", signal->full_name() + " set");
+    } else {
+      ReplyDg(request, false, problem);
+    }
+  } else {
+    ReplyDg(request, false, "unknown command '" + command +
+                                "' (ls, get, set, trace, untrace, graph, timing, budget)");
+  }
+}
+
+void Controller::Impl::UpdateWatch() {
+  // One watch: the trace's signals and every pending get's, without duplicates.
+  std::vector<std::string> names = trace.names;
+  for (const PendingGet& g : gets) {
+    for (const std::string& n : g.names) {
+      if (std::find(names.begin(), names.end(), n) == names.end()) names.push_back(n);
+    }
+  }
+  std::vector<graph::SignalBase*> signals;
+  std::vector<std::string> kept;
+  for (const std::string& n : names) {
+    if (graph::SignalBase* s = graph->FindSignal(n)) {
+      signals.push_back(s);
+      kept.push_back(n);
+    }
+  }
+  watch_names = kept;
+  watch_id = service.SetWatch(signals);
+}
+
+void Controller::Impl::ServeSamples() {
+  while (const WatchSample* sample = service.FrontSample()) {
+    const Watch* watch = service.FindWatch(sample->watch_id);
+    if (watch != nullptr && sample->watch_id == watch_id) {
+      const auto reply_for = [&](const std::vector<std::string>& names, int64_t request_id,
+                                 const std::string& client) {
+        lcmt_dg_reply reply{};
+        reply.utime = sample->utime;
+        reply.tick = sample->tick;
+        reply.request_id = request_id;
+        reply.client = client;
+        reply.ok = true;
+        for (const std::string& n : names) {
+          const auto it = std::find(watch_names.begin(), watch_names.end(), n);
+          if (it == watch_names.end()) continue;
+          const size_t i = it - watch_names.begin();
+          const graph::SignalBase* s = watch->signals[i];
+          const graph::Shape shape = s->shape();
+          reply.signal.push_back(n);
+          reply.type_name.push_back(s->type_name());
+          reply.rows.push_back(shape.rows);
+          reply.cols.push_back(shape.cols);
+          reply.value.insert(reply.value.end(), sample->values.begin() + watch->offsets[i],
+                             sample->values.begin() + watch->offsets[i] + shape.size());
+        }
+        reply.num_signals = static_cast<int32_t>(reply.signal.size());
+        reply.num_values = static_cast<int32_t>(reply.value.size());
+        return reply;
+      };
+      if (!gets.empty()) {
+        for (const PendingGet& g : gets) {
+          lcmt_dg_reply reply = reply_for(g.names, g.request_id, g.client);
+          lcm.publish(channels::kDgReply, &reply);
+        }
+        gets.clear();
+        UpdateWatch();
+      }
+      if (trace.request_id >= 0 && sample->tick >= trace.next_tick) {
+        lcmt_dg_reply reply = reply_for(trace.names, trace.request_id, trace.client);
+        lcm.publish(channels::kDgTrace, &reply);
+        trace.next_tick = sample->tick + trace.period_ticks;
+      }
+    }
+    service.PopSample();
+  }
+}
+
+}  // namespace marionette::controller

@@ -1,0 +1,1 @@
+"""Talking to marionette-controller: controller specs, streamed references, commands, status."""

@@ -1,0 +1,133 @@
+"""bench/controller: marionette-controller's loop timing on long runs (issue 5's benchmark).
+
+TALOS in MuJoCo under the full stack — [feet, CoM] > [right gripper moving, left gripper relative
+to right] > [posture], with joint limits — with the head camera on (30 Hz, 640x480), with it off,
+and the same stack on the kinematic backend. Every tick's timing is logged by the controller
+(--timing-log); the figures are computed over the whole run: compute time and lateness
+p50 / p99 / max, deadline misses (ticks starting more than one period late), and the real-time
+factor (controller time / wall time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+import marionette
+from marionette import robots
+from marionette.control.client import ControllerClient, configuration_from_state, pose_to_vector
+from marionette.control.spec import ControllerSpec, TaskSpec, reference_chunk
+from marionette.lcm_bus import private_lcm_url
+from marionette.processes import ProcessGroup
+
+
+def full_stack() -> ControllerSpec:
+    tasks = [
+        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=10.0),
+        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=10.0),
+        TaskSpec("com", "com", 0, gain=10.0),
+        TaskSpec("right_gripper", "se3", 1, frame="gripper_right_base_link", gain=5.0, streamed=True),
+        TaskSpec("left_gripper", "relative_se3", 1, frame="gripper_left_base_link",
+                 frame_b="gripper_right_base_link", gain=5.0),
+        TaskSpec("posture", "posture", 2, gain=1.0),
+    ]
+    return ControllerSpec(1, "full_stack", tasks, max_switch_velocity_jump=0.1, reference_timeout=0.5)
+
+
+def stream_circle(client: ControllerClient, model, duration_s: float) -> None:
+    """Streams the right gripper along a 5 cm circle (period 4 s), 1 s ahead, until the end."""
+    data = model.createData()
+    q = configuration_from_state(model, client.state)
+    pin.framesForwardKinematics(model, data, q)
+    X0 = pin.SE3(data.oMf[model.getFrameId("gripper_right_base_link")])
+    start = client.utime()
+    sent_until = start
+    while client.utime() < start + duration_s * 1e6 and client.process.alive():
+        while sent_until < client.utime() + 1_000_000:
+            t = (sent_until - start) * 1e-6 + 1e-3 * np.arange(200)
+            w = 2 * np.pi / 4.0
+            offsets = 0.05 * np.stack([np.zeros_like(t), np.sin(w * t), 1 - np.cos(w * t)], axis=1)
+            rates = 0.05 * w * np.stack([np.zeros_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
+            values = [pose_to_vector(pin.SE3(X0.rotation, X0.translation + o)) for o in offsets]
+            derivatives = np.hstack([rates, np.zeros((len(t), 3))])
+            client.send_reference(reference_chunk(1, "right_gripper", sent_until, values, derivatives))
+            sent_until += 200_000
+        time.sleep(0.05)
+
+
+def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
+    url = private_lcm_url()
+    binary = marionette.BUILD_DIR / "marionette-controller"
+    timing_log = log_dir / f"{name}.csv"
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    print(f"  {' '.join(map(str, args))}: {duration_s:.0f} s of controller time ...", flush=True)
+    with ProcessGroup(url, log_dir / name) as group, ControllerClient(url) as client:
+        proc = group.start("controller", [binary, "--robot", "talos", "--lcm-url", url, "--duration",
+                                          str(duration_s), "--timing-log", timing_log, *args])
+        client.wait_ready(60)
+        client.process = proc
+        wall_start = time.monotonic()
+        client.send_spec(full_stack())
+        client.wait(lambda c: c.status.active_controller_id == 1, 30, "the full stack")
+        stream_circle(client, model, duration_s)
+        proc.popen.wait(timeout=duration_s * 3 + 60)
+        wall = time.monotonic() - wall_start
+        errors = dict(zip(client.status.task_name, client.status.task_error_norm))
+        mode = client.status.mode
+    t = np.loadtxt(timing_log, delimiter=",", skiprows=1)
+    period, compute, lateness = t[1:, 0], t[:, 1], t[1:, 2]
+    stats = lambda x: {"p50": float(np.median(x)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+    return {
+        "ticks": int(len(t)),
+        "compute_us": stats(compute),
+        "lateness_us": stats(lateness),
+        "period_us": stats(period),
+        "deadline_misses": int(np.sum(lateness > 1000.0)),
+        "realtime_factor": float(len(t) * 1e-3 / wall),
+        "mode_at_end": mode,
+        "task_errors_at_end": errors,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--duration", type=float,
+                        default=float(os.environ.get("MARIONETTE_BENCH_DURATION", 600)))
+    parser.add_argument("--out", type=Path, default=marionette.REPO_ROOT / "reports" / "bench" / "controller.json")
+    args = parser.parse_args(argv)
+    scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
+    realtime = ["--realtime"] if os.geteuid() == 0 else []
+    cases = {
+        "mujoco + camera 30 Hz": ["--scene", scene, "--camera-rate", "30", *realtime],
+        "mujoco, camera off": ["--scene", scene, "--camera-rate", "0", *realtime],
+        "kinematic": ["--backend", "kinematic", "--camera-rate", "0", *realtime],
+        "mujoco + camera, no RT": ["--scene", scene, "--camera-rate", "30"],
+    }
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for i, (name, extra) in enumerate(cases.items()):
+            results[name] = run(f"case{i}", extra, args.duration, Path(tmp))
+    print(f"\nTALOS full stack, {args.duration:.0f} s each, 1 kHz, this machine (2 cores), load "
+          f"{os.getloadavg()[0]:.1f}; --realtime (SCHED_FIFO + mlockall) {'on' if realtime else 'refused: not root'}")
+    print(f"{'case':24} {'compute p50/p99/max [us]':>28} {'lateness p50/p99/max [us]':>28} "
+          f"{'misses':>7} {'RTF':>6}")
+    for name, r in results.items():
+        c, l = r["compute_us"], r["lateness_us"]
+        print(f"{name:24} {c['p50']:8.0f} {c['p99']:8.0f} {c['max']:9.0f}   "
+              f"{l['p50']:8.0f} {l['p99']:8.0f} {l['max']:9.0f}   {r['deadline_misses']:6d} "
+              f"{r['realtime_factor']:6.3f}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,204 @@
+"""A Python handle on a running marionette-controller: send specs, references, commands and
+simulator perturbations; read its state and status; wait for conditions."""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from marionette import (
+    channels,
+    lcmt_camera_image,
+    lcmt_command,
+    lcmt_controller_status,
+    lcmt_object_poses,
+    lcmt_robot_command,
+    lcmt_robot_state,
+    lcmt_sim_command,
+)
+from marionette.control.spec import ControllerSpec
+from marionette.lcm_bus import LcmBus
+
+
+def pose_to_vector(X) -> np.ndarray:
+    """pinocchio.SE3 -> (x y z qw qx qy qz), the layout of SE3 references on the wire."""
+    import pinocchio as pin
+
+    q = pin.Quaternion(X.rotation)
+    return np.array([*X.translation, q.w, q.x, q.y, q.z])
+
+
+def vector_to_pose(v):
+    """(x y z qw qx qy qz) -> pinocchio.SE3."""
+    import pinocchio as pin
+
+    v = np.asarray(v, dtype=float)
+    quat = pin.Quaternion(v[3], v[4], v[5], v[6])
+    quat.normalize()
+    return pin.SE3(quat.matrix(), v[:3].copy())
+
+
+class ControllerClient:
+    """Keeps the latest ROBOT_STATE, ROBOT_COMMAND, CONTROLLER_STATUS, SIM_OBJECT_POSES and
+    camera frame of one controller (handled in a background thread) and sends it messages."""
+
+    def __init__(self, lcm_url: str | None = None, camera: bool = False) -> None:
+        self.bus = LcmBus(lcm_url)
+        self._lock = threading.Condition()
+        self.state: Any = None
+        self.command: Any = None
+        self.status: Any = None
+        self.objects: Any = None
+        self.image: Any = None
+        self.num_states = 0
+        self.num_images = 0
+        self.image_utimes: list[int] = []  # controller time of every frame received
+        self.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on("state"))
+        self.bus.subscribe(channels.ROBOT_COMMAND, lcmt_robot_command, self._on("command"))
+        self.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on("status"))
+        self.bus.subscribe(channels.SIM_OBJECT_POSES, lcmt_object_poses, self._on("objects"))
+        if camera:
+            self.bus.subscribe(channels.CAMERA_HEAD, lcmt_camera_image, self._on("image"))
+        self.bus.start()
+
+    def _on(self, attribute: str) -> Callable[[Any], None]:
+        def handler(msg: Any) -> None:
+            with self._lock:
+                setattr(self, attribute, msg)
+                if attribute == "state":
+                    self.num_states += 1
+                if attribute == "image":
+                    self.num_images += 1
+                    self.image_utimes.append(msg.utime)
+                self._lock.notify_all()
+
+        return handler
+
+    def close(self) -> None:
+        self.bus.stop()
+
+    def __enter__(self) -> "ControllerClient":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- waiting ---------------------------------------------------------------------------
+    def wait(self, condition: Callable[["ControllerClient"], bool], timeout_s: float, what: str = "") -> None:
+        """Blocks until ``condition(self)`` holds; raises TimeoutError naming ``what``."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while True:
+                try:
+                    if condition(self):
+                        return
+                except (AttributeError, IndexError, TypeError):
+                    pass  # nothing received yet
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    status = self.status
+                    detail = (
+                        f" (mode {status.mode!r}: {status.mode_reason}; last rejection: "
+                        f"{status.last_rejection!r}; last switch: {status.last_switch_result!r})"
+                        if status is not None
+                        else " (no CONTROLLER_STATUS received)"
+                    )
+                    raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}{detail}")
+                self._lock.wait(min(remaining, 0.05))
+
+    def wait_ready(self, timeout_s: float = 30.0) -> None:
+        self.wait(lambda c: c.status is not None and c.state is not None, timeout_s, "the controller")
+
+    def wait_time(self, seconds: float, timeout_s: float | None = None) -> None:
+        """Waits until the controller's clock has advanced by ``seconds``."""
+        start = self.state.utime
+        self.wait(lambda c: c.state.utime >= start + seconds * 1e6,
+                  timeout_s if timeout_s is not None else 10.0 + 5.0 * seconds,
+                  f"{seconds} s of controller time")
+
+    # ---- sending ---------------------------------------------------------------------------
+    def send_spec(self, spec: ControllerSpec) -> None:
+        self.bus.publish(channels.CONTROLLER_SPEC, spec.to_lcm(self.utime()))
+
+    def send_command(self, command: str, source: str = "python", reason: str = "") -> None:
+        msg = lcmt_command()
+        msg.utime = self.utime()
+        msg.command, msg.source, msg.reason = command, source, reason
+        self.bus.publish(channels.COMMAND, msg)
+
+    def send_reference(self, chunk) -> None:
+        self.bus.publish(channels.TASK_REFERENCE, chunk)
+
+    def move_object(self, name: str, X) -> None:
+        """Teleports a free object of the MuJoCo scene (a perturbation)."""
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command = "set_object_pose"
+        msg.object_name = name
+        v = pose_to_vector(X)
+        msg.position, msg.quaternion = list(v[:3]), list(v[3:])
+        self.bus.publish(channels.SIM_COMMAND, msg)
+
+    def attach(self, weld: str) -> None:
+        """Simulated grasp: activates the scene's weld (e.g. "grasp/talos/right_gripper/plank")
+        at the current relative pose of its bodies."""
+        self._sim_command("attach", weld)
+
+    def detach(self, weld: str) -> None:
+        self._sim_command("detach", weld)
+
+    def _sim_command(self, command: str, name: str) -> None:
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command, msg.object_name = command, name
+        msg.quaternion = [1.0, 0.0, 0.0, 0.0]
+        self.bus.publish(channels.SIM_COMMAND, msg)
+
+    # ---- reading ---------------------------------------------------------------------------
+    def utime(self) -> int:
+        """The controller's latest time [us] (0 before any state)."""
+        return int(self.state.utime) if self.state is not None else 0
+
+    def joint_positions(self) -> dict[str, float]:
+        s = self.state
+        return dict(zip(s.joint_name, s.joint_position))
+
+    def base_position(self) -> np.ndarray:
+        return np.array(self.state.base_position)
+
+    def object_pose(self, name: str):
+        """Ground-truth pose of a free object (simulator), pinocchio.SE3."""
+        for o in self.objects.objects:
+            if o.object_name == name:
+                return vector_to_pose([*o.position_world, *o.quaternion_world])
+        raise KeyError(f"no object {name!r} in SIM_OBJECT_POSES")
+
+    def task_error(self, name: str) -> float:
+        s = self.status
+        return dict(zip(s.task_name, s.task_error_norm))[name]
+
+
+def configuration_from_state(model, state) -> np.ndarray:
+    """The robot's Pinocchio configuration (nq) from an ``lcmt_robot_state``: base pose from
+    its base fields (free-flyer or planar root joint), joints by name."""
+    import pinocchio as pin
+
+    q = pin.neutral(model)
+    positions = dict(zip(state.joint_name, state.joint_position))
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        name = model.names[j]
+        if joint.shortname() == "JointModelFreeFlyer":
+            w, x, y, z = state.base_quaternion
+            q[joint.idx_q:joint.idx_q + 7] = [*state.base_position, x, y, z, w]
+        elif joint.shortname() == "JointModelPlanar":
+            w, _, _, z = state.base_quaternion
+            yaw = 2.0 * np.arctan2(z, w)
+            q[joint.idx_q:joint.idx_q + 4] = [state.base_position[0], state.base_position[1],
+                                              np.cos(yaw), np.sin(yaw)]
+        elif name in positions:
+            q[joint.idx_q] = positions[name]
+    return q

@@ -1,0 +1,146 @@
+// ReferenceStream: streamed chunks sampled at the tick, replaced futures, age and end, slerp,
+// refused chunks, and no allocation in the loop while another thread pushes.
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <thread>
+
+#include "allocation_counter.h"
+#include "marionette/controller/reference_stream.h"
+#include "marionette/graph/graph.h"
+
+namespace marionette::controller {
+namespace {
+
+ReferenceChunk Ramp(int64_t start_us, int n, double v0, double slope_per_sample, bool last = false) {
+  ReferenceChunk c;
+  c.start_us = start_us;
+  c.dt_us = 1000;
+  c.num_samples = n;
+  for (int i = 0; i < n; ++i) {
+    c.values.push_back(v0 + slope_per_sample * i);
+    c.derivatives.push_back(slope_per_sample * 1000.0);
+  }
+  c.last = last;
+  return c;
+}
+
+graph::Tick At(int64_t us) { return graph::Tick{us / 1000, us * 1e-6, 1e-3}; }
+
+TEST(ReferenceStreamTest, SamplesInterpolatesAndHolds) {
+  ReferenceStream s("s", ReferenceStream::Kind::kVector, Eigen::VectorXd::Constant(1, 7.0), 1);
+  // Before any chunk: the initial value, not stale.
+  EXPECT_EQ(s.value_output().Eval(At(0))[0], 7.0);
+  EXPECT_EQ(s.age_output().Eval(At(0)), 0.0);
+  ASSERT_EQ(s.ValidateChunk(Ramp(10000, 100, 0.0, 0.01)), "");
+  ASSERT_TRUE(s.Push(Ramp(10000, 100, 0.0, 0.01)));
+  graph::GraphBuilder b;  // the poll hook runs through a graph
+  auto graph_entity = std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {});
+  b.AddShared(graph_entity);
+  auto g = b.Build();
+  // Before the first sample (10 ms): the first sample is held.
+  graph::Tick t = At(3000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 0.0, 1e-12);
+  t = At(20000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 0.10, 1e-12);
+  EXPECT_NEAR(s.derivative_output().Eval(t)[0], 10.0, 1e-12);
+  // Between two samples (t = 20.5 ms, a later tick index): linear interpolation.
+  const graph::Tick half{21, 0.0205, 1e-3};
+  EXPECT_NEAR(s.value_output().Eval(half)[0], 0.105, 1e-12);
+  // After the last (109 ms): held, stale by the time past it, no feed-forward.
+  t = At(150000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 0.99, 1e-12);
+  EXPECT_NEAR(s.age_output().Eval(t), 0.041, 1e-9);
+  EXPECT_EQ(s.derivative_output().Eval(t)[0], 0.0);
+  EXPECT_FALSE(s.ended_output().Eval(t));
+}
+
+TEST(ReferenceStreamTest, ALaterChunkReplacesTheFutureAndMayEndTheReference) {
+  ReferenceStream s("s", ReferenceStream::Kind::kVector, Eigen::VectorXd::Zero(1), 1);
+  graph::GraphBuilder b;
+  b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
+  auto g = b.Build();
+  s.Push(Ramp(0, 1000, 0.0, 1.0));           // 0 .. 999 over 1 s
+  s.Push(Ramp(500000, 10, -5.0, 0.0, true));  // from 0.5 s: -5 for 10 ms, the end
+  graph::Tick t = At(400000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 400.0, 1e-12);
+  t = At(700000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], -5.0, 1e-12) << "the old samples after 0.5 s are gone";
+  EXPECT_TRUE(s.ended_output().Eval(t));
+}
+
+TEST(ReferenceStreamTest, Se3StreamsSlerpAndCheckQuaternions) {
+  ReferenceStream s("s", ReferenceStream::Kind::kSe3, (Eigen::VectorXd(7) << 0, 0, 0, 1, 0, 0, 0).finished(), 6);
+  graph::GraphBuilder b;
+  b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
+  auto g = b.Build();
+  ReferenceChunk c;
+  c.start_us = 0;
+  c.dt_us = 1000;
+  c.num_samples = 2;
+  const Eigen::Quaterniond q1(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitZ()));
+  c.values = {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, q1.w(), q1.x(), q1.y(), q1.z()};
+  c.derivatives.assign(12, 0.0);
+  ASSERT_EQ(s.ValidateChunk(c), "");
+  s.Push(c);
+  const graph::Tick t{0, 0.0005, 1e-3};
+  g->Evaluate(t);
+  const pinocchio::SE3& X = s.pose_output()->Eval(t);
+  EXPECT_NEAR(X.translation().x(), 0.5, 1e-12);
+  EXPECT_NEAR(Eigen::AngleAxisd(X.rotation()).angle(), 0.2, 1e-9);
+  ReferenceChunk bad = c;
+  bad.values[3] = 2.0;
+  EXPECT_NE(s.ValidateChunk(bad).find("quaternion"), std::string::npos);
+  bad = c;
+  bad.values[1] = std::nan("");
+  EXPECT_NE(s.ValidateChunk(bad).find("non-finite"), std::string::npos);
+  bad = c;
+  bad.values.pop_back();
+  EXPECT_NE(s.ValidateChunk(bad).find("expected 2 x 7"), std::string::npos);
+}
+
+TEST(ReferenceStreamTest, LoopAllocatesNothingWhileAnotherThreadPushes) {
+  ReferenceStream s("s", ReferenceStream::Kind::kVector, Eigen::VectorXd::Zero(3), 3, 5000, 100, 8);
+  graph::GraphBuilder b;
+  b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
+  auto g = b.Build();
+  ReferenceChunk chunk;
+  chunk.dt_us = 1000;
+  chunk.num_samples = 100;
+  chunk.values.assign(300, 1.0);
+  chunk.derivatives.assign(300, 0.0);
+  for (int i = 0; i < 8; ++i) s.Push(chunk);  // warm the queue slots up
+  graph::Tick t;
+  for (int i = 0; i < 20; ++i, ++t) {
+    g->Evaluate(t);
+    s.value_output().Eval(t);
+  }
+  std::atomic<bool> done{false};
+  std::thread producer([&] {
+    for (int64_t k = 0; !done; ++k) {
+      chunk.start_us = k * 50000;
+      s.Push(chunk);
+      std::this_thread::sleep_for(std::chrono::microseconds(200));
+    }
+  });
+  {
+    marionette::testing::ScopedAllocationCounter counter;
+    for (int i = 0; i < 5000; ++i, ++t) {
+      g->Evaluate(t);
+      s.value_output().Eval(t);
+      s.age_output().Eval(t);
+    }
+    EXPECT_EQ(counter.allocations(), 0);
+    EXPECT_EQ(counter.locks(), 0);
+  }
+  done = true;
+  producer.join();
+}
+
+}  // namespace
+}  // namespace marionette::controller
