@@ -3,7 +3,12 @@
 #include <cstdlib>
 #include <iostream>
 
+#include <cstring>
+#include <fstream>
+#include <string>
+
 #include "marionette/controller/controller.h"
+#include "marionette/controller/replay.h"
 #include "marionette/controller/robots.h"
 
 namespace {
@@ -34,12 +39,65 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --models DIR          the models/ folder (default: the repository's)
   --describe-robot      print what the controller knows of --robot as JSON and exit
   -v, --verbose         log every rejected input and controller switch
+
+usage: marionette-controller --replay LOG [--scene FILE] [--tolerance X] [--json FILE] [--models DIR]
+
+  Re-runs a recorded run offline on a simulated clock from the inputs its journal says the loop
+  consumed (CONTROLLER_JOURNAL in the LCM log), and compares every recorded ROBOT_COMMAND.
+  Exit code 0 when every command matches within --tolerance (default 1e-9).
 )";
+
+// marionette-controller --replay LOG ...: see kUsage.
+int Replay(int argc, char** argv) {
+  namespace mc = marionette::controller;
+  mc::ReplayOptions o;
+  o.models_dir = MARIONETTE_MODELS_DIR;
+  std::string json;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    const auto value = [&]() -> std::string {
+      if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
+      return argv[++i];
+    };
+    if (a == "--replay") o.log = value();
+    else if (a == "--scene") o.scene = value();
+    else if (a == "--models") o.models_dir = value();
+    else if (a == "--json") json = value();
+    else if (a == "--tolerance") o.tolerance = std::stod(value());
+    else if (a == "-v" || a == "--verbose") o.verbose = true;
+    else throw std::invalid_argument("unknown replay argument '" + a + "' (see --help)");
+  }
+  const mc::ReplayResult r = mc::ReplayLog(o);
+  std::cout << "replayed " << r.ticks << " ticks of '" << r.config << "': " << r.inputs << " inputs, "
+            << r.commands_compared << " recorded commands compared, max difference " << r.max_difference << "\n";
+  if (r.first_divergence_tick >= 0) {
+    std::cout << "first divergence at tick " << r.first_divergence_tick << ": " << r.first_divergence << "\n";
+  }
+  if (r.journal_mismatches > 0) {
+    std::cout << r.journal_mismatches << " ticks consumed other inputs than recorded; first: " << r.first_journal_mismatch
+              << "\n";
+  }
+  for (const std::string& p : r.problems) std::cout << "problem: " << p << "\n";
+  if (r.commands_compared == 0) std::cout << "problem: the log holds no ROBOT_COMMAND to compare\n";
+  std::cout << (r.ok() ? "replay matches the recording" : "replay does NOT match the recording") << "\n";
+  if (!json.empty()) std::ofstream(json) << r.ToJson() << "\n";
+  return r.ok() ? 0 : 1;
+}
 
 }  // namespace
 
 int main(int argc, char** argv) {
   namespace mc = marionette::controller;
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--replay") == 0) {
+      try {
+        return Replay(argc, argv);
+      } catch (const std::exception& e) {
+        std::cerr << "marionette-controller --replay: " << e.what() << "\n";
+        return 2;
+      }
+    }
+  }
   mc::ControllerOptions options;
   bool help = false, describe = false;
   try {

@@ -16,6 +16,7 @@ COMMAND_MODULES: list[str] = [
     "marionette.perception.cli",
     "marionette.footsteps.cli",
     "marionette.control.cli",
+    "marionette.control.replay_cli",
 ]
 
 

@@ -180,6 +180,16 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
 }
 
 void Controller::Impl::CheckBudgets(const graph::Tick& t) {
+  if (replaying) {  // the recorded decision, not this machine's timing
+    if (replay_budget_hold >= 0 && mode == ControlMode::kRun) {
+      Journal(t.index, kBudgetHoldChannel, replay_budget_hold);
+      mode = ControlMode::kHold;
+      loop_state.reason = Reason::kBudget;
+      loop_state.reason_index = static_cast<int>(replay_budget_hold);
+    }
+    replay_budget_hold = -1;
+    return;
+  }
   if (graph->LastOverruns(&overran) == 0) return;
   for (const graph::Entity* e : overran) {
     const auto& entities = graph->entities();
@@ -188,6 +198,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
       // One event when an overrun starts, not one per tick.
       if (e->timing().consecutive_overruns == 1) overrun_events.Push({t.index, static_cast<int>(i)});
       if (e->timing().consecutive_overruns >= overrun_hold_ticks && mode == ControlMode::kRun) {
+        Journal(t.index, kBudgetHoldChannel, static_cast<int64_t>(i));
         mode = ControlMode::kHold;
         loop_state.reason = Reason::kBudget;
         loop_state.reason_index = static_cast<int>(i);
@@ -215,7 +226,15 @@ void Controller::Impl::CopyTimings(const graph::Tick& t) {
 }
 
 void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
-  journal.Push(JournalEntry{tick, channel, hash});  // full: the publisher is behind, entry lost
+  // Full: the publisher is behind; the entry is lost and counted (a replay says it cannot be exact).
+  if (!journal.Push(JournalEntry{tick, channel, hash})) journal_lost.fetch_add(1, std::memory_order_relaxed);
+}
+
+std::string Controller::Impl::MotionConfig() const {
+  char scale[32];
+  std::snprintf(scale, sizeof(scale), "%.17g", options.velocity_scale);
+  return "--robot " + options.robot + " --backend " + options.backend +
+         (options.scene.empty() ? std::string() : " --scene " + options.scene) + " --velocity-scale " + scale;
 }
 
 void Controller::Impl::ApplyCommand(const graph::Tick& t) {

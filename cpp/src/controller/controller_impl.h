@@ -125,9 +125,13 @@ struct JournalEntry {
   int channel = 0;  // index into kJournalChannels
   int64_t hash = 0;
 };
+/// Not a channel: the loop's own decision to hold for an overrun budget (timing is not
+/// reproducible, so the decision is journaled and replayed as an input).
+inline constexpr char kBudgetHoldEntry[] = "CONTROLLER_BUDGET_HOLD";
 inline constexpr const char* kJournalChannels[] = {channels::kControllerSpec, channels::kTaskReference,
-                                            channels::kCommand, channels::kSimCommand,
-                                            channels::kDgRequest};
+                                                   channels::kCommand,        channels::kSimCommand,
+                                                   channels::kDgRequest,      kBudgetHoldEntry};
+inline constexpr int kBudgetHoldChannel = 5;
 
 inline std::string ToLower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -219,6 +223,9 @@ struct Controller::Impl {
 
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};
+  std::atomic<int64_t> journal_lost{0};
+  bool replaying = false;                        // offline replay: budgets come from the journal
+  int64_t replay_budget_hold = -1;               // replay: entity index to hold for at this tick
 
 
   // Shared between non-real-time threads.
@@ -272,6 +279,9 @@ struct Controller::Impl {
     return shared_utime;
   }
   void Journal(int64_t tick, int channel, int64_t hash);
+  /// The options that decide the motion, as a command line (journaled for replay).
+  std::string MotionConfig() const;
+  void PublishJournal(int64_t utime, bool always);
 
   // Publisher and camera threads.
   void PublisherThread();

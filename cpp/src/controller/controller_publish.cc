@@ -15,6 +15,7 @@ void Controller::Impl::PublisherThread() {
   int64_t last_tick = -1;
   std::vector<runtime::TickTiming> all;  // every tick, for --timing-log (off the loop)
   auto next_journal = Clock::now();
+  bool first_journal = true;  // the first batch goes out even empty: it carries the config
   if (!options.timing_log.empty()) all.reserve(1 << 20);
   while (!stop) {
     std::this_thread::sleep_until(std::min(next_state, next_status));
@@ -39,18 +40,8 @@ void Controller::Impl::PublisherThread() {
       if (next_state < now) next_state = now;
     }
     if (now >= next_journal) {  // the inputs the loop consumed, batched at 10 Hz
-      lcmt_controller_journal j{};
-      JournalEntry entry;
-      while (journal.Pop(&entry)) {
-        j.tick.push_back(entry.tick);
-        j.channel.push_back(kJournalChannels[entry.channel]);
-        j.payload_hash.push_back(entry.hash);
-      }
-      if (!j.tick.empty()) {
-        j.utime = s.utime;
-        j.num_entries = static_cast<int32_t>(j.tick.size());
-        lcm.publish(channels::kControllerJournal, &j);
-      }
+      PublishJournal(s.utime, /*always=*/first_journal);
+      first_journal = false;
       next_journal = now + std::chrono::milliseconds(100);
     }
     if (now >= next_status) {
@@ -59,6 +50,9 @@ void Controller::Impl::PublisherThread() {
       if (next_status < now) next_status = now;
     }
   }
+  // The loop has stopped: the last consumed inputs go out before the process ends.
+  snapshots->Fetch();
+  PublishJournal(snapshots->read_slot().utime, false);
   if (!options.timing_log.empty()) {
     while (timings.Pop(&timing)) all.push_back(timing);
     if (FILE* f = std::fopen(options.timing_log.c_str(), "w")) {
@@ -71,6 +65,22 @@ void Controller::Impl::PublisherThread() {
       std::cerr << "[controller] cannot write the timing log " << options.timing_log << "\n";
     }
   }
+}
+
+void Controller::Impl::PublishJournal(int64_t utime, bool always) {
+  lcmt_controller_journal j{};
+  JournalEntry entry;
+  while (journal.Pop(&entry)) {
+    j.tick.push_back(entry.tick);
+    j.channel.push_back(kJournalChannels[entry.channel]);
+    j.payload_hash.push_back(entry.hash);
+  }
+  if (j.tick.empty() && !always) return;
+  j.utime = utime;
+  j.config = MotionConfig();
+  j.num_lost = journal_lost.load(std::memory_order_relaxed);
+  j.num_entries = static_cast<int32_t>(j.tick.size());
+  lcm.publish(channels::kControllerJournal, &j);
 }
 
 void Controller::Impl::PublishState(const Snapshot& s) {

@@ -1,0 +1,62 @@
+"""``marionette replay LOG --controller``: re-run a recorded controller run offline and check it.
+
+The controller journals which input messages its loop consumed at which tick; with the LCM log
+of the run, ``marionette-controller --replay`` rebuilds the same controller, runs the same loop
+on a simulated clock with those inputs at those ticks, and compares every recorded
+ROBOT_COMMAND. This command wraps it: it prints the verdict (and the first diverging tick and
+signal on a mismatch) and exits 0 only when the replay reproduces the recording.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import marionette
+
+
+def controller_binary() -> Path:
+    return marionette.BUILD_DIR / "marionette-controller"
+
+
+def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = None) -> dict:
+    """Replays ``log`` and returns the verdict as a dict (see cpp/include/marionette/controller/replay.h):
+    ok, ticks, inputs, commands_compared, max_difference, first_divergence_tick, first_divergence,
+    journal_mismatches, problems, plus ``output`` (what the replay printed)."""
+    if not Path(log).is_file():
+        raise FileNotFoundError(f"no LCM log at {log}")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "replay.json"
+        argv = [str(controller_binary()), "--replay", str(log), "--tolerance", repr(tolerance), "--json", str(out)]
+        if scene:
+            argv += ["--scene", scene]
+        proc = subprocess.run(argv, capture_output=True, text=True)
+        if proc.returncode == 2 or not out.exists():
+            raise RuntimeError(f"replay of {log} failed: {proc.stderr.strip() or proc.stdout.strip()}")
+        result = json.loads(out.read_text())
+    result["output"] = proc.stdout
+    return result
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("replay", help="re-run a recorded run offline and check it reproduces the recording")
+    p.add_argument("log", type=Path, help="LCM log of the run (lcm-logger, or a demo's report folder's run.lcmlog)")
+    p.add_argument("--controller", action="store_true", required=True,
+                   help="replay the C++ controller's graph from its journal (the only replay so far)")
+    p.add_argument("--tolerance", type=float, default=1e-9, help="largest accepted command difference")
+    p.add_argument("--scene", default=None, help="MJCF scene to use instead of the recorded path")
+    p.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        result = replay_controller(args.log, args.tolerance, args.scene)
+    except (FileNotFoundError, RuntimeError) as e:
+        print(f"marionette replay: {e}", file=sys.stderr)
+        return 2
+    sys.stdout.write(result["output"])
+    return 0 if result["ok"] else 1
