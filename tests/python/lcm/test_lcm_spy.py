@@ -3,6 +3,8 @@ and scripts/lcm-spy starts (under a virtual screen) with every project type foun
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import time
 
@@ -44,12 +46,13 @@ def test_lcm_spy_script_starts_and_finds_every_type(lcm_url):
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
+        start_new_session=True,  # xvfb-run does not pass SIGTERM on: the whole group is stopped
     )
     try:
         line = wait_for_line(proc.stdout, "LCM types", timeout_s=60)
         time.sleep(1.0)
         assert proc.poll() is None, "lcm-spy exited early"
     finally:
-        proc.terminate()
+        os.killpg(proc.pid, signal.SIGTERM)
         proc.wait(timeout=10)
     assert line is not None and line.strip() == f"Found {NUM_TYPES} LCM types"
