@@ -1,0 +1,16 @@
+"""From plan to execution (thesis 000 §3.2.2, §3.2.5, §3.3.6): the plan's elementary paths
+grouped into steps (one per transition crossed), one controller spec per step (the factory),
+task references sampled at the controller rate and streamed ahead (Agimus-HPP), the supervisor
+FSM that switches controllers with start and end checks, and the initial-state estimation.
+
+| module | job |
+|---|---|
+| `plan_steps.py` | steps of a plan (consecutive paths of one transition), plan q -> robot q |
+| `factory.py` | constraint kinds -> task kinds, one ControllerSpec per step, spec file + checks |
+| `references.py` | time law of a step and its task references at 1 kHz (Pinocchio) |
+| `streamer.py` | chunks on TASK_REFERENCE, ahead of the controller's clock |
+| `supervisor.py` | the FSM: start check, streaming, end check, grasp welds, events, LCM state |
+| `estimation.py` | nearest graph state of a measured configuration, steps already done |
+| `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
+| `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
+"""

@@ -1,0 +1,265 @@
+"""The controller factory (thesis 000 §3.2.5.1, §3.3.6 "Agimus-SoT"): one ControllerSpec per
+step of a plan, with the three task groups of §3.2.5.1, by priority:
+
+1. balance/base tasks, from the constraints that hold in every state (``graph_constraints``):
+   a frame fixed in the world (TALOS feet) -> ``se3`` holding it; the centre of mass -> ``com``
+   following the planned CoM; locked joints are left to the posture task;
+2. transition-specific tasks: every gripper that holds, takes or leaves a handle in the step's
+   transition -> ``se3`` following its planned pose; a second gripper on the object another one
+   already holds -> ``relative_se3`` to that gripper (the double-grasp task of §3.2.5.1, fig. 3.13
+   steps 4-6; relative to the measured object once vision closes the loop, ch. 5);
+3. ``posture`` following the planned configuration (regularisation, lowest priority).
+
+The correspondence constraint kind -> task lives in one table, :data:`CONSTRAINT_TASKS`
+(extend it there). Grasp / release events of a step are in the step (``created`` at its end,
+``released`` at its start); the supervisor turns them into simulated grasp welds.
+
+The specs are written to a readable, diffable YAML file and checked before execution
+(:func:`check_specs`): unknown frames, rank loss of each priority level at the step's start
+configuration, and a chain of steps that does not join up (a dead end of the FSM).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pinocchio as pin
+import yaml
+
+from marionette import robots
+from marionette.control.spec import ControllerSpec, SpecError, TaskSpec
+from marionette.execution.plan_steps import PlanRobotMap, Step
+
+SPECS_FORMAT = "marionette-controllers/1"
+
+# End check (§3.2.5.2): ||e|| of each task kind below which a step has converged. A TALOS hand
+# carrying the plank in MuJoCo sags ~1.3 cm under the position servos (measured): 2 cm on poses.
+END_THRESHOLDS: dict[str, float] = {
+    "se3": 0.02, "relative_se3": 0.02, "pbvs": 0.01, "position": 0.02,
+    "com": 0.01, "posture": 0.1, "gaze": 0.05,
+}
+GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0}
+
+
+@dataclass
+class FactoryContext:
+    """What the factory needs to know of the robot: its name, the controller's Pinocchio model,
+    the link frame of each gripper (gripper name -> frame in that model) and the object of each
+    handle (handle name -> object name)."""
+
+    robot: str
+    model: pin.Model
+    gripper_frames: dict[str, str]
+    handle_objects: dict[str, str]
+    constraint_definitions: dict[str, dict[str, Any]] = field(default_factory=dict)
+    graph_constraints: list[str] = field(default_factory=list)
+
+    def local(self, name: str) -> str:
+        """'talos/left_sole_link' -> 'left_sole_link' (the controller's model is unprefixed)."""
+        prefix = f"{self.robot}/"
+        return name[len(prefix):] if name.startswith(prefix) else name
+
+
+def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model) -> FactoryContext:
+    links = {g.name: g.link for g in robots.semantics(robot).grippers}
+    graph = doc["graph"]
+    return FactoryContext(
+        robot=robot,
+        model=model,
+        gripper_frames={g: links.get(g, g.split("/", 1)[-1]) for g in doc["problem"]["grippers"]},
+        handle_objects={h: d["object"] for h, d in doc["problem"]["handles"].items()},
+        constraint_definitions=graph.get("constraint_definitions", {}),
+        graph_constraints=list(graph.get("graph_constraints", [])),
+    )
+
+
+def _fixed_frame_task(name: str, definition: dict[str, Any], ctx: FactoryContext) -> list[TaskSpec]:
+    """A relative transformation to the world (joint1 = universe) keeps a frame still: hold it
+    where it is (the feet of §3.4: "CoM position, left and right feet positions")."""
+    if definition.get("joint1") != "universe":
+        return []  # a robot-robot relative constraint: none in the bundled problems
+    frame = ctx.local(name.removesuffix(" fixed"))
+    return [TaskSpec(_task_name(frame), "se3", 0, frame=frame, gain=GAINS["balance"])]
+
+
+def _com_task(name: str, definition: dict[str, Any], ctx: FactoryContext) -> list[TaskSpec]:
+    """The CoM constraint of the planner is an inequality-like x-y hold (§3.2.5.1): the
+    controller follows the planned CoM (all three components, as Agimus-HPP streams it)."""
+    return [TaskSpec("com", "com", 0, gain=GAINS["balance"], streamed=True)]
+
+
+def _no_task(name: str, definition: dict[str, Any], ctx: FactoryContext) -> list[TaskSpec]:
+    return []  # locked joints: the posture task follows their (constant) planned value
+
+
+# Constraint type (plan file, graph constraints) -> balance tasks. One place to extend.
+CONSTRAINT_TASKS: dict[str, Callable[[str, dict[str, Any], FactoryContext], list[TaskSpec]]] = {
+    "RelativeTransformation": _fixed_frame_task,
+    "ComPosition": _com_task,
+    "LockedJoint": _no_task,
+}
+
+
+def _task_name(frame_or_gripper: str) -> str:
+    return frame_or_gripper.split("/")[-1].replace(".", "_").replace(" ", "_")
+
+
+def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
+    tasks: list[TaskSpec] = []
+    for name in ctx.graph_constraints:
+        definition = ctx.constraint_definitions.get(name)
+        if definition is None:
+            raise SpecError(f"graph constraint {name!r} has no definition in the plan")
+        rule = CONSTRAINT_TASKS.get(definition["type"])
+        if rule is None:
+            raise SpecError(f"graph constraint {name!r}: no task for constraint type "
+                            f"{definition['type']!r} (add it to CONSTRAINT_TASKS)")
+        tasks += rule(name, definition, ctx)
+    return tasks
+
+
+def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
+    """Group 2: a streamed pose task per active gripper; a gripper on an object that another
+    gripper already holds is placed relative to that gripper."""
+    tasks: list[TaskSpec] = []
+    holder_of: dict[str, str] = {}  # object -> gripper with an absolute task
+    for gripper in step.active_grippers:
+        handle = (step.grasps.get(gripper) or step.parent_grasps_to.get(gripper)
+                  or step.parent_grasps_from.get(gripper) or step.grasps_from.get(gripper)
+                  or step.grasps_to.get(gripper))
+        obj = ctx.handle_objects.get(handle, handle)
+        frame = ctx.gripper_frames[gripper]
+        name = _task_name(gripper)
+        if obj in holder_of:
+            other = ctx.gripper_frames[holder_of[obj]]
+            tasks.append(TaskSpec(name, "relative_se3", priority, frame=frame, frame_b=other,
+                                  gain=GAINS["grasp"], streamed=True))
+        else:
+            tasks.append(TaskSpec(name, "se3", priority, frame=frame, gain=GAINS["grasp"],
+                                  streamed=True))
+            holder_of[obj] = gripper
+    return tasks
+
+
+def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None) -> ControllerSpec:
+    """The controller of one step (levels numbered from 0 without gaps)."""
+    levels = [balance_tasks(ctx), grasp_tasks(step, ctx, 0),
+              [TaskSpec("posture", "posture", 0, gain=GAINS["posture"], streamed=True)]]
+    tasks: list[TaskSpec] = []
+    for priority, level in enumerate(lv for lv in levels if lv):
+        for t in level:
+            t.priority = priority
+            tasks.append(t)
+    spec = ControllerSpec(step.index + 1 if controller_id is None else controller_id,
+                          f"step{step.index} {step.transition}", tasks,
+                          max_switch_velocity_jump=0.1, reference_timeout=0.2)
+    spec.check()
+    return spec
+
+
+def build_specs(steps: list[Step], ctx: FactoryContext) -> list[ControllerSpec]:
+    return [build_spec(s, ctx) for s in steps]
+
+
+# ---- spec file ------------------------------------------------------------------------------
+
+
+def specs_document(steps: list[Step], specs: list[ControllerSpec], plan_name: str) -> dict[str, Any]:
+    return {
+        "format": SPECS_FORMAT,
+        "plan": plan_name,
+        "end_thresholds": END_THRESHOLDS,
+        "steps": [{
+            "index": s.index,
+            "transition": s.transition,
+            "parent_transition": s.parent_transition,
+            "kind": s.kind,
+            "release_at_start": s.released,
+            "grasp_at_end": s.created,
+            "plan_paths": s.path_indices,
+            "controller": spec.to_dict(),
+        } for s, spec in zip(steps, specs)],
+    }
+
+
+def write_specs(path: str | Path, steps: list[Step], specs: list[ControllerSpec], plan_name: str) -> Path:
+    """The readable, diffable controller file (YAML, one entry per FSM state)."""
+    path = Path(path)
+    path.write_text(yaml.safe_dump(specs_document(steps, specs, plan_name), sort_keys=False,
+                                   width=100))
+    return path
+
+
+def read_specs(path: str | Path) -> list[ControllerSpec]:
+    doc = yaml.safe_load(Path(path).read_text())
+    if not isinstance(doc, dict) or doc.get("format") != SPECS_FORMAT:
+        raise SpecError(f"{path}: not a {SPECS_FORMAT} file")
+    return [ControllerSpec.from_dict(s["controller"]) for s in doc["steps"]]
+
+
+# ---- checks before execution ----------------------------------------------------------------
+
+
+def task_jacobian(model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray) -> np.ndarray | None:
+    """The task's Jacobian (rows x nv) at q (kinematics already computed at q), None for the
+    posture task (a regularisation: it never loses rank)."""
+    if task.kind in ("se3", "pbvs"):
+        J = pin.getFrameJacobian(model, data, model.getFrameId(task.frame), pin.LOCAL)
+    elif task.kind == "position":
+        J = pin.getFrameJacobian(model, data, model.getFrameId(task.frame), pin.LOCAL_WORLD_ALIGNED)[:3]
+    elif task.kind == "relative_se3":
+        fa, fb = model.getFrameId(task.frame), model.getFrameId(task.frame_b)
+        X_AB = data.oMf[fa].actInv(data.oMf[fb])
+        J = (pin.getFrameJacobian(model, data, fa, pin.LOCAL)
+             - X_AB.toActionMatrix() @ pin.getFrameJacobian(model, data, fb, pin.LOCAL))
+    elif task.kind == "com":
+        J = pin.jacobianCenterOfMass(model, data, q)
+    else:
+        return None
+    if len(task.mask):
+        J = J[[i for i, m in enumerate(task.mask) if m]]
+    return J
+
+
+def check_specs(steps: list[Step], specs: list[ControllerSpec], ctx: FactoryContext,
+                robot_map: PlanRobotMap, tol: float = 1e-6) -> list[str]:
+    """Problems that would make execution fail, as messages (empty list: good to go)."""
+    problems: list[str] = []
+    model = ctx.model
+    data = model.createData()
+    for step, spec in zip(steps, specs):
+        where = f"step {step.index} ({step.transition})"
+        for t in spec.tasks:
+            for f in (t.frame, t.frame_b):
+                if f and not model.existFrame(f):
+                    problems.append(f"{where}: task {t.name!r}: unknown frame {f!r}")
+        if any(p.startswith(where) for p in problems):
+            continue
+        q = robot_map.robot_q(step.q[0])
+        pin.computeJointJacobians(model, data, q)
+        pin.framesForwardKinematics(model, data, q)
+        pin.centerOfMass(model, data, q)
+        N = np.eye(model.nv)   # null-space basis of the levels above
+        for level in sorted({t.priority for t in spec.tasks}):
+            Js = [task_jacobian(model, data, t, q) for t in spec.tasks if t.priority == level]
+            Js = [J for J in Js if J is not None]
+            if not Js:
+                continue
+            J = np.vstack(Js) @ N
+            s = np.linalg.svd(J, compute_uv=False)
+            rank = int(np.sum(s > tol * max(1.0, s[0])))
+            if rank < J.shape[0]:
+                names = [t.name for t in spec.tasks if t.priority == level]
+                problems.append(f"{where}: priority {level} ({', '.join(names)}) loses rank at the "
+                                f"step's start configuration: {rank} < {J.shape[0]}")
+            _, _, Vt = np.linalg.svd(J)
+            N = N @ Vt[rank:].T if rank < Vt.shape[0] else np.zeros((model.nv, 0))
+    for a, b in zip(steps, steps[1:]):
+        gap = np.linalg.norm(pin.difference(model, robot_map.robot_q(a.q[-1]), robot_map.robot_q(b.q[0])))
+        if gap > 1e-3:  # [rad] a smaller gap is absorbed by the tracking of the first samples
+            problems.append(f"step {a.index} ends {gap:.3g} rad away from where step {b.index} "
+                            "starts: the FSM has no way from one to the other")
+    return problems

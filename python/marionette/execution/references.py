@@ -1,0 +1,164 @@
+"""Task references of a step sampled at the controller rate (thesis 000 §3.3.6, Agimus-HPP: "the
+sampling of the path before the transmission to the controllers ... calls Pinocchio to add the
+positions of the CoM and important parts of the robot, such as the hands").
+
+Time law: the step's robot configurations are a polyline in q parametrised by arc length s
+(|Δq| in the velocity space of the robot's model). It is run along a quintic
+s(t) = L (10 u³ − 15 u⁴ + 6 u⁵), u = t/T, at rest at both ends (so the controller switches
+between steps at rest: the start check of §3.2.5.2 sees no jump), with the duration T chosen so
+that no joint exceeds ``max_joint_velocity``: the quintic's peak speed is 15/8 L/T, and a joint
+moves at |dq_j/ds| ṡ.
+
+References, for a task of a ControllerSpec, sample by sample (rows):
+  se3            X_WF of the task frame: (x y z qw qx qy qz), derivative (v_W, ω_W) (6)
+  relative_se3   X_BA (frame in frame_b): 7 values, derivative (v, ω) in B axes (6)
+  com            c_W (3), derivative ċ_W (3)
+  posture        q (nq), derivative v (nv)
+Derivatives are central differences of the sampled values (one-sided at the ends, where the
+quintic is at rest).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from marionette.control.spec import ControllerSpec, SpecError, TaskSpec
+from marionette.execution.plan_steps import PlanRobotMap, Step
+
+
+@dataclass
+class StepTrajectory:
+    """The time-sampled motion of one step: ``t`` (N,) [s] from the step's start, ``q`` (N x nq)
+    robot configurations, ``q_plan`` (N x nq_plan) full plan configurations (objects too)."""
+
+    dt: float
+    duration: float
+    t: np.ndarray
+    q: np.ndarray
+    q_plan: np.ndarray
+    references: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+
+    @property
+    def num_samples(self) -> int:
+        return len(self.t)
+
+
+def arc_length(model: pin.Model, q: np.ndarray) -> np.ndarray:
+    """Cumulative |Δq| (velocity-space norm) along the rows of q (k x nq) -> (k,)."""
+    seg = [float(np.linalg.norm(pin.difference(model, a, b))) for a, b in zip(q, q[1:])]
+    return np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def step_duration(model: pin.Model, q: np.ndarray, max_joint_velocity: float,
+                  min_duration: float = 0.5) -> float:
+    """Duration [s] of the quintic time law along the polyline q (k x nq) such that no joint
+    (velocity-space component) exceeds ``max_joint_velocity``."""
+    if max_joint_velocity <= 0.0:
+        raise ValueError(f"max_joint_velocity must be > 0, got {max_joint_velocity}")
+    s = arc_length(model, q)
+    length = s[-1]
+    if length <= 0.0:
+        return min_duration
+    dq = np.array([pin.difference(model, a, b) for a, b in zip(q, q[1:])])  # (k-1) x nv
+    ds = np.diff(s)
+    ok = ds > 0
+    slope = np.max(np.abs(dq[ok]) / ds[ok, None])      # max_j |dq_j/ds| <= 1
+    sdot_max = max_joint_velocity / max(slope, 1e-9)
+    return max(min_duration, 15.0 / 8.0 * length / sdot_max)
+
+
+def sample_step(step: Step, robot_map: PlanRobotMap, dt: float = 1e-3,
+                max_joint_velocity: float = 0.5, min_duration: float = 0.5) -> StepTrajectory:
+    """The step's configurations every ``dt`` along its time law (both ends included)."""
+    model = robot_map.model
+    q_robot = robot_map.robot_q(step.q)
+    s = arc_length(model, q_robot)
+    T = step_duration(model, q_robot, max_joint_velocity, min_duration)
+    n = max(1, int(math.ceil(T / dt)))
+    T = n * dt
+    t = np.arange(n + 1) * dt
+    u = t / T
+    sigma = s[-1] * (10 * u**3 - 15 * u**4 + 6 * u**5)
+    idx = np.clip(np.searchsorted(s, sigma, side="right") - 1, 0, len(s) - 2)
+    ds = s[idx + 1] - s[idx]
+    frac = np.where(ds > 0, (sigma - s[idx]) / np.where(ds > 0, ds, 1.0), 0.0)
+    frac = np.clip(frac, 0.0, 1.0)
+    q = np.empty((n + 1, model.nq))
+    for k in range(n + 1):
+        q[k] = pin.interpolate(model, q_robot[idx[k]], q_robot[idx[k] + 1], frac[k])
+    q[0], q[-1] = q_robot[0], q_robot[-1]
+    # The whole plan configuration (objects) linearly between samples, for reports only.
+    q_plan = step.q[idx] + (step.q[idx + 1] - step.q[idx]) * frac[:, None]
+    return StepTrajectory(dt, T, t, q, q_plan)
+
+
+def _central(values: np.ndarray, dt: float) -> np.ndarray:
+    d = np.zeros_like(values)
+    if len(values) > 2:
+        d[1:-1] = (values[2:] - values[:-2]) / (2 * dt)
+    return d
+
+
+def _pose_rows(poses: list[pin.SE3]) -> np.ndarray:
+    out = np.empty((len(poses), 7))
+    for k, X in enumerate(poses):
+        quat = pin.Quaternion(X.rotation)
+        out[k] = [*X.translation, quat.w, quat.x, quat.y, quat.z]
+    return out
+
+
+def _pose_derivatives(poses: list[pin.SE3], dt: float) -> np.ndarray:
+    """(v, ω) in the poses' reference axes, central differences (zero at the ends)."""
+    out = np.zeros((len(poses), 6))
+    for k in range(1, len(poses) - 1):
+        a, b = poses[k - 1], poses[k + 1]
+        out[k, :3] = (b.translation - a.translation) / (2 * dt)
+        out[k, 3:] = poses[k].rotation @ pin.log3(a.rotation.T @ b.rotation) / (2 * dt)
+    return out
+
+
+def compute_references(traj: StepTrajectory, spec: ControllerSpec, model: pin.Model) -> None:
+    """Fills ``traj.references[task] = (values, derivatives)`` for every streamed task."""
+    data = model.createData()
+    streamed = [t for t in spec.tasks if t.streamed]
+    frames = {f for t in streamed for f in (t.frame, t.frame_b) if f}
+    for f in frames:
+        if not model.existFrame(f):
+            raise SpecError(f"controller {spec.name!r}: unknown frame {f!r}")
+    fid = {f: model.getFrameId(f) for f in frames}
+    need_com = any(t.kind == "com" for t in streamed)
+    poses: dict[str, list[pin.SE3]] = {f: [] for f in frames}
+    com = np.empty((traj.num_samples, 3))
+    for k, q in enumerate(traj.q):
+        pin.framesForwardKinematics(model, data, q)
+        for f in frames:
+            poses[f].append(pin.SE3(data.oMf[fid[f]]))
+        if need_com:
+            com[k] = pin.centerOfMass(model, data, q, False)
+    for task in streamed:
+        traj.references[task.name] = _task_reference(task, traj, model, poses, com)
+
+
+def _task_reference(task: TaskSpec, traj: StepTrajectory, model: pin.Model,
+                    poses: dict[str, list[pin.SE3]], com: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    if task.kind in ("se3", "pbvs"):
+        X = poses[task.frame]
+        return _pose_rows(X), _pose_derivatives(X, traj.dt)
+    if task.kind == "relative_se3":
+        X = [b.actInv(a) for a, b in zip(poses[task.frame], poses[task.frame_b])]
+        return _pose_rows(X), _pose_derivatives(X, traj.dt)
+    if task.kind == "position":
+        p = np.array([X.translation for X in poses[task.frame]])
+        return p, _central(p, traj.dt)
+    if task.kind == "com":
+        return com.copy(), _central(com, traj.dt)
+    if task.kind == "posture":
+        v = np.zeros((traj.num_samples, model.nv))
+        for k in range(1, traj.num_samples - 1):
+            v[k] = pin.difference(model, traj.q[k - 1], traj.q[k + 1]) / (2 * traj.dt)
+        return traj.q.copy(), v
+    raise SpecError(f"task {task.name!r}: no planned reference for a {task.kind!r} task")

@@ -1,0 +1,97 @@
+"""Streams a step's task references to marionette-controller on TASK_REFERENCE, ahead of the
+controller's clock, so that the watchdog (which holds the robot when a stream runs dry) never
+fires in a nominal run.
+
+Chunks of ``chunk_samples`` samples are sent while their start time is less than
+``lookahead_s`` ahead of the controller's latest time; the controller keeps up to 5 s of samples
+per stream (ReferenceStream's capacity), so the look-ahead must stay well under that. The last
+chunk of each task carries ``last_chunk`` ("end of reference", §3.2.5.2): the stream then holds
+its final value and the watchdog ignores it.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from marionette.control.spec import reference_chunk
+
+MAX_LOOKAHEAD_S = 4.0   # ReferenceStream keeps 5 s of samples
+
+
+class ReferenceStreamer:
+    """Sends ``references`` (task -> (values N x k, derivatives N x m)) of one controller from
+    controller time ``start_utime``, sample period ``dt_us``; call :meth:`pump` with the
+    controller's time as often as it advances."""
+
+    def __init__(self, send: Callable[[object], None], controller_id: int,
+                 references: dict[str, tuple[np.ndarray, np.ndarray]], start_utime: int,
+                 dt_us: int = 1000, chunk_samples: int = 200, lookahead_s: float = 1.0,
+                 max_chunks_per_pump: int = 2) -> None:
+        if not references:
+            raise ValueError("nothing to stream")
+        sizes = {len(v) for v, _ in references.values()}
+        if len(sizes) != 1:
+            raise ValueError(f"references of different lengths {sorted(sizes)}")
+        if not 0.0 < lookahead_s <= MAX_LOOKAHEAD_S:
+            raise ValueError(f"lookahead_s must be in (0, {MAX_LOOKAHEAD_S}], got {lookahead_s}")
+        if not 1 <= chunk_samples <= 1000:
+            raise ValueError(f"chunk_samples must be in [1, 1000] (the controller's chunk size), "
+                             f"got {chunk_samples}")
+        self.send = send
+        self.controller_id = controller_id
+        self.references = references
+        self.start_utime = int(start_utime)
+        self.dt_us = int(dt_us)
+        self.chunk_samples = chunk_samples
+        self.lookahead_us = int(lookahead_s * 1e6)
+        self.max_chunks_per_pump = max_chunks_per_pump
+        self.num_samples = sizes.pop()
+        self.next_sample = 0
+        self.chunks_sent = 0
+        self.min_margin_us: int | None = None   # smallest lead of the stream over the clock seen
+        self.stopped_at: int | None = None
+
+    @property
+    def end_utime(self) -> int:
+        """Controller time of the last sample (the one held after :meth:`stop_early`)."""
+        last = self.num_samples - 1 if self.stopped_at is None else self.stopped_at
+        return self.start_utime + last * self.dt_us
+
+    @property
+    def done(self) -> bool:
+        return self.next_sample >= self.num_samples
+
+    def pump(self, now_utime: int) -> int:
+        """Sends the chunks due before ``now + lookahead``, at most ``max_chunks_per_pump`` of
+        them (a burst of large UDP datagrams overflows the receiver's socket buffer and LCM
+        drops them); returns the number sent."""
+        if not self.done:
+            margin = self.start_utime + self.next_sample * self.dt_us - now_utime
+            if self.next_sample > 0:
+                self.min_margin_us = margin if self.min_margin_us is None else min(self.min_margin_us, margin)
+        sent = 0
+        while (not self.done and sent < self.max_chunks_per_pump
+               and self.start_utime + self.next_sample * self.dt_us < now_utime + self.lookahead_us):
+            k0 = self.next_sample
+            k1 = min(k0 + self.chunk_samples, self.num_samples)
+            last = k1 >= self.num_samples
+            for task, (values, derivatives) in self.references.items():
+                self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
+                                          values[k0:k1], derivatives[k0:k1], self.dt_us, last))
+            self.next_sample = k1
+            self.chunks_sent += 1
+            sent += 1
+        return sent
+
+    def stop_early(self, now_utime: int, lead_us: int = 20_000) -> None:
+        """Ends every reference at the sample due ``lead_us`` from now (a force event: the goal
+        is reached before the plan says, §3.2.5.2): one last chunk holding that sample."""
+        k = int(np.clip((now_utime + lead_us - self.start_utime) // self.dt_us, 0, self.num_samples - 1))
+        for task, (values, derivatives) in self.references.items():
+            self.send(reference_chunk(self.controller_id, task, self.start_utime + k * self.dt_us,
+                                      values[k:k + 1], np.zeros_like(derivatives[k:k + 1]),
+                                      self.dt_us, last=True))
+        self.next_sample = self.num_samples
+        self.stopped_at = k

@@ -1,0 +1,352 @@
+"""The supervisor (thesis 000 §3.2.5.2, §3.3.6): a finite-state machine generated from the plan,
+one state per step (transition crossed), run against a live marionette-controller.
+
+Per step:
+  start_check   grasps released at this step's start are opened (simulated: weld off); the
+                step's controller spec is sent; the controller swaps it in only if its command
+                does not jump (the start check, done at the tick of the swap), else it refuses
+                -> ``switch_refused``, failed;
+  running       the planned references are streamed ahead of the controller's clock; events:
+                ``force_threshold`` ends the reference early (the goal is already reached),
+                ``abort`` fails; the controller going to hold on its watchdog -> failed;
+  end_check     the whole reference has been played (``end_of_reference``) and every task
+                error is below its threshold (:data:`factory.END_THRESHOLDS`) within
+                ``converge_timeout_s`` of controller time, else ``end_check_failed``;
+  grasps        grasps created at the step's end are closed (simulated: weld on);
+  approval      with ``step_mode``, waits for an ``approve`` event (the operator of §3.4.2).
+On any failure the supervisor sends COMMAND hold and ends in ``failed`` (the robot holds).
+
+State on SUPERVISOR_STATE (10 Hz and on change), events on SUPERVISOR_EVENT; events from other
+sources (``marionette fsm inject``) are read from SUPERVISOR_EVENT too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from marionette import channels, lcmt_controller_status, lcmt_supervisor_event, lcmt_supervisor_state
+from marionette.control.client import ControllerClient
+from marionette.control.spec import ControllerSpec
+from marionette.execution.factory import END_THRESHOLDS
+from marionette.execution.plan_steps import PlanRobotMap, Step
+from marionette.execution.references import StepTrajectory, compute_references, sample_step
+from marionette.execution.streamer import ReferenceStreamer
+
+SOURCE = "supervisor"
+INJECTABLE = ("abort", "force_threshold", "approve", "left_manifold")
+
+
+class SupervisorFailure(RuntimeError):
+    """Why the FSM went to ``failed`` (its ``event`` names the event raised)."""
+
+    def __init__(self, event: str, detail: str) -> None:
+        super().__init__(f"{event}: {detail}")
+        self.event = event
+        self.detail = detail
+
+
+@dataclass
+class SupervisorOptions:
+    max_joint_velocity: float = 0.5     # [rad/s] time law of the planned paths
+    min_step_duration: float = 0.5      # [s]
+    dt_us: int = 1000                   # reference sampling: the controller's period
+    chunk_samples: int = 200
+    lookahead_s: float = 4.0            # controller time streamed ahead (< 5 s kept)
+    start_delay_us: int = 50_000        # first sample this far after the swap is seen
+    accept_timeout_s: float = 20.0      # [s wall] waiting for the swap decision
+    converge_timeout_s: float = 3.0     # [s controller time] end check
+    simulated_grasps: bool = True       # SIM_COMMAND attach/detach welds (MuJoCo backend)
+    step_mode: bool = False             # wait for "approve" before each step
+    approval_timeout_s: float = 600.0
+
+
+@dataclass
+class StepRecord:
+    """What happened in one step (for the report)."""
+
+    index: int
+    transition: str
+    kind: str
+    controller_id: int = 0
+    utime_start: int = 0                # swap seen [us controller time]
+    utime_reference_start: int = 0
+    utime_reference_end: int = 0
+    utime_end: int = 0                  # end check passed
+    wall_s: float = 0.0
+    duration_s: float = 0.0             # planned duration of the reference
+    chunks: int = 0
+    min_lookahead_ms: float | None = None
+    final_errors: dict[str, float] = field(default_factory=dict)
+    max_errors: dict[str, float] = field(default_factory=dict)
+    error_trace: list[tuple[int, dict[str, float]]] = field(default_factory=list)
+    events: list[str] = field(default_factory=list)
+    result: str = ""
+
+
+@dataclass
+class SupervisorResult:
+    success: bool
+    state: str
+    reason: str
+    records: list[StepRecord]
+    events: list[tuple[int, str, str]]
+
+
+class Supervisor:
+    """Runs ``steps`` with their ``specs`` on the controller behind ``client``."""
+
+    def __init__(self, client: ControllerClient, steps: list[Step], specs: list[ControllerSpec],
+                 robot_map: PlanRobotMap, options: SupervisorOptions | None = None,
+                 plan_name: str = "plan", id_base: int | None = None) -> None:
+        if len(steps) != len(specs):
+            raise ValueError(f"{len(steps)} steps but {len(specs)} controller specs")
+        self.client = client
+        self.steps = steps
+        self.specs = specs
+        self.robot_map = robot_map
+        self.options = options or SupervisorOptions()
+        self.plan_name = plan_name
+        # Controller ids are never reused by one controller process: start from the clock.
+        self._next_id = id_base if id_base is not None else int(time.time() * 10) % 1_000_000_000
+        self.trajectories: dict[int, StepTrajectory] = {}
+        self.state = "idle"
+        self.status = ""
+        self.detail = ""
+        self.step_index = -1
+        self.events: list[tuple[int, str, str]] = []
+        self._inbox: list[Any] = []
+        self._lock = threading.Lock()
+        self._statuses: list[Any] = []
+        self._publish_stop = threading.Event()
+        client.bus.subscribe(channels.SUPERVISOR_EVENT, lcmt_supervisor_event, self._on_event)
+        client.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on_status)
+
+    # ---- preparation ------------------------------------------------------------------------
+    def prepare(self, first: int = 0) -> float:
+        """Samples every step's references from ``first`` on; returns the time it took [s]."""
+        t0 = time.perf_counter()
+        o = self.options
+        for step, spec in zip(self.steps[first:], self.specs[first:]):
+            if step.index in self.trajectories:
+                continue
+            traj = sample_step(step, self.robot_map, o.dt_us * 1e-6, o.max_joint_velocity,
+                               o.min_step_duration)
+            compute_references(traj, spec, self.robot_map.model)
+            self.trajectories[step.index] = traj
+        return time.perf_counter() - t0
+
+    # ---- LCM --------------------------------------------------------------------------------
+    def _on_event(self, msg: Any) -> None:
+        if msg.source != SOURCE:
+            with self._lock:
+                self._inbox.append(msg)
+
+    def _on_status(self, msg: Any) -> None:
+        with self._lock:
+            self._statuses.append(msg)
+
+    def _take_events(self) -> list[Any]:
+        with self._lock:
+            inbox, self._inbox = self._inbox, []
+        return inbox
+
+    def _take_statuses(self) -> list[Any]:
+        with self._lock:
+            out, self._statuses = self._statuses, []
+        return out
+
+    def emit(self, name: str, detail: str = "", value: float = 0.0) -> None:
+        msg = lcmt_supervisor_event()
+        msg.utime = self.client.utime()
+        msg.name, msg.source, msg.detail, msg.value = name, SOURCE, detail, float(value)
+        self.client.bus.publish(channels.SUPERVISOR_EVENT, msg)
+        self.events.append((msg.utime, name, detail))
+
+    def _set(self, state: str | None = None, status: str | None = None, detail: str = "") -> None:
+        changed = False
+        if state is not None and state != self.state:
+            self.state, changed = state, True
+        if status is not None and status != self.status:
+            self.status, changed = status, True
+        if detail != self.detail:
+            self.detail, changed = detail, True
+        if changed:
+            self.publish_state()
+
+    def publish_state(self) -> None:
+        msg = lcmt_supervisor_state()
+        msg.utime = self.client.utime()
+        msg.plan_name = self.plan_name
+        msg.state = self.state
+        msg.step_index = self.step_index
+        msg.num_steps = len(self.steps)
+        msg.status = self.status
+        msg.detail = self.detail
+        self.client.bus.publish(channels.SUPERVISOR_STATE, msg)
+
+    def _publisher(self) -> None:
+        while not self._publish_stop.wait(0.1):
+            self.publish_state()
+
+    # ---- the FSM ----------------------------------------------------------------------------
+    def run(self, first: int = 0) -> SupervisorResult:
+        """Executes the steps from ``first`` on; never raises on an execution failure (the
+        result says why), holds the robot when it fails."""
+        self.prepare(first)
+        records: list[StepRecord] = []
+        publisher = threading.Thread(target=self._publisher, name="supervisor-state", daemon=True)
+        publisher.start()
+        try:
+            for step, spec in zip(self.steps[first:], self.specs[first:]):
+                record = StepRecord(step.index, step.transition, step.kind)
+                records.append(record)
+                self.step_index = step.index
+                self._run_step(step, spec, record)
+            self._set("done", "finished", f"{len(records)} steps")
+            self.emit("done", f"{len(records)} steps")
+            return SupervisorResult(True, "done", "", records, self.events)
+        except SupervisorFailure as failure:
+            if records:
+                records[-1].result = str(failure)
+            self.client.send_command("hold", SOURCE, str(failure))
+            self.emit(failure.event, failure.detail)
+            self._set("failed", "holding", str(failure))
+            return SupervisorResult(False, "failed", str(failure), records, self.events)
+        finally:
+            self._publish_stop.set()
+            publisher.join(timeout=1.0)
+            self.publish_state()
+
+    def _run_step(self, step: Step, spec: ControllerSpec, record: StepRecord) -> None:
+        o = self.options
+        wall0 = time.monotonic()
+        self._set(step.transition, "awaiting_approval" if o.step_mode else "starting")
+        if o.step_mode:
+            self._wait_event("approve", o.approval_timeout_s)
+        self.emit("step_started", f"{step.index} {step.transition}")
+        for gripper, handle in step.released.items():
+            self._weld("detach", gripper, handle)
+            record.events.append(f"released {gripper}")
+
+        # Start check: the controller swaps the spec in only without a command jump.
+        cid = self._next_id
+        self._next_id += 1
+        record.controller_id = cid
+        self._set(status="waiting_start_check", detail=f"controller {cid}")
+        self.client.send_spec(dataclasses.replace(spec, controller_id=cid))
+        self._wait_switch(cid, spec.name)
+        record.utime_start = self.client.utime()
+        self.emit("switch_accepted", f"controller {cid} {spec.name}")
+
+        # Streaming.
+        traj = self.trajectories[step.index]
+        start = self.client.utime() + o.start_delay_us
+        streamer = ReferenceStreamer(self.client.send_reference, cid, traj.references, start,
+                                     o.dt_us, o.chunk_samples, o.lookahead_s)
+        record.utime_reference_start = start
+        record.duration_s = traj.duration
+        self._set(status="running")
+        self._take_statuses()
+        while True:
+            now = self.client.utime()
+            streamer.pump(now)
+            for ev in self._take_events():
+                record.events.append(ev.name)
+                if ev.name == "force_threshold" and not streamer.done:
+                    streamer.stop_early(now)
+                    self.emit("reference_stopped", f"force {ev.value:.3g} N", ev.value)
+                elif ev.name in ("abort", "left_manifold"):
+                    raise SupervisorFailure(ev.name, ev.detail or f"from {ev.source}")
+            self._watch_controller(record, cid)
+            if streamer.done and now >= streamer.end_utime:
+                break
+            self.client.wait(lambda c, n=now: c.utime() > n, 5.0, "controller time to advance")
+        record.utime_reference_end = streamer.end_utime
+        record.chunks = streamer.chunks_sent
+        record.min_lookahead_ms = None if streamer.min_margin_us is None else streamer.min_margin_us / 1e3
+        self.emit("end_of_reference", f"{step.index} {step.transition}")
+
+        # End check: every task error converged.
+        self._set(status="waiting_end_check")
+        thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
+        deadline = streamer.end_utime + int(o.converge_timeout_s * 1e6)
+        while True:
+            status = self._watch_controller(record, cid)
+            if status is not None and status.utime > streamer.end_utime:
+                errors = dict(zip(status.task_name, status.task_error_norm))
+                if all(errors.get(n, np.inf) <= thr for n, thr in thresholds.items()):
+                    record.final_errors = errors
+                    break
+                if status.utime > deadline:
+                    worst = {n: errors.get(n) for n, thr in thresholds.items()
+                             if errors.get(n, np.inf) > thr}
+                    record.final_errors = errors
+                    raise SupervisorFailure("end_check_failed",
+                                            f"step {step.index}: errors above threshold {worst}")
+            self.client.wait(lambda c: len(self._statuses) > 0, 10.0, "a controller status")
+        record.utime_end = self.client.utime()
+
+        for gripper, handle in step.created.items():
+            self._weld("attach", gripper, handle)
+            record.events.append(f"grasped {gripper}")
+        record.wall_s = time.monotonic() - wall0
+        record.result = "ok"
+        self.emit("step_done", f"{step.index} {step.transition}")
+
+    def _watch_controller(self, record: StepRecord, cid: int) -> Any:
+        """Folds new statuses into the record; raises when the controller left the step's
+        controller or went to hold/estop. Returns the latest status (or None)."""
+        latest = None
+        for st in self._take_statuses():
+            latest = st
+            if st.active_controller_id == cid:
+                errors = dict(zip(st.task_name, st.task_error_norm))
+                record.error_trace.append((st.utime, errors))
+                for n, e in errors.items():
+                    record.max_errors[n] = max(record.max_errors.get(n, 0.0), e)
+            if st.mode in ("holding", "estopped") and st.active_controller_id == cid:
+                event = "reference_starved" if "watchdog" in st.mode_reason else "controller_" + st.mode
+                raise SupervisorFailure(event, st.mode_reason)
+        return latest
+
+    def _wait_switch(self, cid: int, name: str) -> None:
+        tag = f"(id {cid})"
+
+        def decided(c: ControllerClient) -> bool:
+            s = c.status
+            return (s.active_controller_id == cid or tag in s.last_switch_result
+                    or tag in s.last_rejection)
+
+        try:
+            self.client.wait(decided, self.options.accept_timeout_s, f"the swap to controller {cid}")
+        except TimeoutError as e:
+            raise SupervisorFailure("switch_timeout", str(e)) from None
+        s = self.client.status
+        if s.active_controller_id != cid:
+            if tag in s.last_switch_result:
+                raise SupervisorFailure("switch_refused", s.last_switch_result)
+            raise SupervisorFailure("spec_rejected", s.last_rejection)
+
+    def _wait_event(self, name: str, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for ev in self._take_events():
+                if ev.name == name:
+                    return
+                if ev.name == "abort":
+                    raise SupervisorFailure("abort", ev.detail or f"from {ev.source}")
+            time.sleep(0.02)
+        raise SupervisorFailure("approval_timeout", f"no {name!r} within {timeout_s} s")
+
+    def _weld(self, action: str, gripper: str, handle: str) -> None:
+        obj = handle.split("/")[0]
+        weld = f"grasp/{gripper}/{obj}"
+        if self.options.simulated_grasps:
+            (self.client.attach if action == "attach" else self.client.detach)(weld)
+        self.emit("grasp" if action == "attach" else "release", weld)
