@@ -17,6 +17,8 @@ COMMAND_MODULES: list[str] = [
     "marionette.footsteps.cli",
     "marionette.control.cli",
     "marionette.control.replay_cli",
+    "marionette.execution.cli",
+    "marionette.execution.demo_cli",
 ]
 
 

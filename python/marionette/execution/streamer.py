@@ -28,7 +28,7 @@ class ReferenceStreamer:
     def __init__(self, send: Callable[[object], None], controller_id: int,
                  references: dict[str, tuple[np.ndarray, np.ndarray]], start_utime: int,
                  dt_us: int = 1000, chunk_samples: int = 200, lookahead_s: float = 1.0,
-                 max_chunks_per_pump: int = 2) -> None:
+                 max_chunks_per_pump: int = 4) -> None:
         if not references:
             raise ValueError("nothing to stream")
         sizes = {len(v) for v, _ in references.values()}

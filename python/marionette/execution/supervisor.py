@@ -58,7 +58,7 @@ class SupervisorOptions:
     dt_us: int = 1000                   # reference sampling: the controller's period
     chunk_samples: int = 200
     lookahead_s: float = 4.0            # controller time streamed ahead (< 5 s kept)
-    start_delay_us: int = 50_000        # first sample this far after the swap is seen
+    start_delay_us: int = 100_000       # first sample this far after the swap is seen
     accept_timeout_s: float = 20.0      # [s wall] waiting for the swap decision
     converge_timeout_s: float = 3.0     # [s controller time] end check
     simulated_grasps: bool = True       # SIM_COMMAND attach/detach welds (MuJoCo backend)

@@ -1,0 +1,268 @@
+"""`marionette demo <scenario>`: plan (or load the cached plan), generate the controllers, start
+marionette-controller (MuJoCo) and an LCM logger on one private LCM URL, estimate the initial
+state, run the supervisor FSM, judge the run against the success criteria of ARCHITECTURE.md
+§Demos, and write a report folder (report.md, report.json, plots, controllers.yaml, run.lcmlog).
+
+Scenarios: ``plank-flip`` (TALOS turns the plank upside down, thesis 000 §3.4) and ``ur10-box``
+(UR10 moves the box across the table, issue 7's end-to-end check). Execution is open loop from
+the planned references (the thesis's chapter-3 setting, 80 % success without vision): the demo
+puts the objects where the problem file says before it starts (no displacement perturbation yet).
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pinocchio as pin
+
+import marionette
+from marionette import channels, lcmt_robot_state, robots
+from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
+from marionette.execution.factory import build_specs, check_specs, context_from_plan, write_specs
+from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
+from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
+from marionette.lcm_bus import private_lcm_url
+from marionette.planning.path import Plan, load_plan
+from marionette.processes import ProcessGroup
+
+PROBLEMS_DIR = Path(__file__).resolve().parents[1] / "planning" / "problems"
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A demo: the problem to plan, the MuJoCo scene, execution settings and success limits."""
+
+    name: str
+    problem: str
+    scene: Path
+    seed: int
+    object_name: str
+    max_joint_velocity: float           # [rad/s] time law of the planned paths
+    position_tolerance: float = 0.01    # [m]   object final pose vs the plan's goal
+    angle_tolerance_deg: float = 5.0
+    feet: tuple[str, ...] = ()          # frames that must never move (humanoid)
+    feet_tolerance: float = 0.005       # [m]
+    description: str = ""
+
+
+SCENARIOS: dict[str, Scenario] = {
+    "plank-flip": Scenario(
+        "plank-flip", "talos_plank", marionette.MODELS_DIR / "scenes" / "talos_plank.xml", 4,
+        "plank", 0.5, feet=("left_sole_link", "right_sole_link"),
+        description="TALOS turns the plank upside down with both grippers (thesis 000 §3.4)"),
+    "ur10-box": Scenario(
+        "ur10-box", "ur10_box", marionette.MODELS_DIR / "scenes" / "ur10_box.xml", 0, "box", 1.0,
+        description="UR10 picks the box with its suction cup and places it 0.5 m away"),
+}
+DEFAULT_SCENARIO = "plank-flip"
+
+
+class DemoError(RuntimeError):
+    """The demo could not run (planning failed, a process died, bad arguments)."""
+
+
+def cached_plan(scenario: Scenario, seed: int, cache_dir: Path, log: Callable[[str], None]) -> Plan:
+    """The plan of ``scenario`` for ``seed``: from ``cache_dir`` if planned before, else planned
+    now with ``marionette plan`` (same seed -> same plan)."""
+    out = cache_dir / f"{scenario.problem}-seed{seed}"
+    plan_json = out / "plan.json"
+    problem = PROBLEMS_DIR / f"{scenario.problem}.yaml"
+    if plan_json.exists() and plan_json.stat().st_mtime >= problem.stat().st_mtime:
+        log(f"plan: cached {plan_json}")
+        return load_plan(plan_json)
+    log(f"plan: planning {scenario.problem} with seed {seed} ...")
+    t0 = time.perf_counter()
+    cmd = [sys.executable, "-m", "marionette.cli", "plan", str(problem), "--out", str(out),
+           "--seed", str(seed), "--quiet"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0 or not plan_json.exists():
+        raise DemoError(f"planning failed (exit {proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    log(f"plan: planned in {time.perf_counter() - t0:.1f} s -> {plan_json}")
+    return load_plan(plan_json)
+
+
+@dataclass
+class Recorder:
+    """ROBOT_STATE samples (every ``every``-th) with the simulator's object poses, for plots."""
+
+    model: pin.Model
+    client: ControllerClient
+    every: int = 5
+    utimes: list[int] = field(default_factory=list)
+    q: list[np.ndarray] = field(default_factory=list)
+    objects: list[dict[str, np.ndarray]] = field(default_factory=list)
+    _count: int = 0
+
+    def __post_init__(self) -> None:
+        self.client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
+
+    def _on_state(self, msg: Any) -> None:
+        self._count += 1
+        if self._count % self.every:
+            return
+        objs = self.client.objects
+        poses = {} if objs is None else {
+            o.object_name: np.array([*o.position_world, *o.quaternion_world]) for o in objs.objects}
+        self.utimes.append(msg.utime)
+        self.q.append(configuration_from_state(self.model, msg))
+        self.objects.append(poses)
+
+
+def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
+    err = X_goal.actInv(X)
+    return float(np.linalg.norm(X.translation - X_goal.translation)), float(
+        np.degrees(np.linalg.norm(pin.log3(err.rotation))))
+
+
+def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
+             cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
+    """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
+    after writing the report folder ``out_dir``."""
+    from marionette.execution.report import write_report
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    plan = cached_plan(scenario, seed, cache_dir or (marionette.REPO_ROOT / "reports" / "plans" / "cache"), log)
+    timings["plan_s"] = time.perf_counter() - t0
+
+    # Controllers (factory) and their checks, before anything moves.
+    t1 = time.perf_counter()
+    robot = plan_robot(plan)
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
+    robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
+    steps = steps_from_plan(plan)
+    ctx = context_from_plan(plan.doc, robot, model)
+    specs = build_specs(steps, ctx)
+    write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
+    problems = check_specs(steps, specs, ctx, robot_map)
+    if problems:
+        raise DemoError("controller checks failed:\n  " + "\n  ".join(problems))
+    timings["factory_s"] = time.perf_counter() - t1
+    log(f"factory: {len(steps)} steps, {len(specs)} controllers -> {out_dir / 'controllers.yaml'}")
+
+    from marionette.planning.graph_factory import graph_from_settings
+    from marionette.planning.problem import load_problem
+
+    graph = graph_from_settings(load_problem(plan.doc["problem"]["source"]))
+    url = private_lcm_url()
+    report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description,
+                              "seed": seed, "robot": robot, "speed": speed, "lcm_url": url}
+    result: SupervisorResult | None = None
+    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
+        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
+        group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
+                                   "--robot", robot, "--scene", scenario.scene, "--speed", str(speed),
+                                   "--camera-rate", "0", "--status-rate", "100"])
+        try:
+            client.wait_ready(60.0)
+        except TimeoutError:
+            group.check_alive()
+            raise
+        recorder = Recorder(model, client)
+        # Scene set-up: the objects where the problem file puts them (the planner's initial state).
+        q0 = plan.doc["problem"]["q_init"]
+        for name in robot_map.objects:
+            client.move_object(name, robot_map.object_pose(np.array(q0), name))
+        client.wait_time(0.5)
+        q_start = configuration_from_state(model, client.state)
+
+        # Initial-state estimation (§3.2.2) from the encoders and the simulator's object poses.
+        t2 = time.perf_counter()
+        measured = measured_configuration(np.array(q0), robot_map, q_start,
+                                          {n: client.object_pose(n) for n in robot_map.objects})
+        estimate = estimate_state(graph, measured)
+        first = first_step_to_run(steps, robot_map, estimate)
+        timings["estimation_s"] = time.perf_counter() - t2
+        report["estimation"] = {"state": estimate.state, "residual": estimate.residual,
+                                "first_step": first, "ranking": estimate.ranking[:4]}
+        log(f"estimation: state {estimate.state!r}, residual {estimate.residual:.2e}, "
+            f"starting at step {first}/{len(steps)}")
+
+        options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
+        supervisor = Supervisor(client, steps, specs, robot_map, options, plan.doc["problem"]["name"])
+        timings["references_s"] = supervisor.prepare(first)
+        stop_progress = threading.Event()
+        progress = threading.Thread(target=_progress, args=(supervisor, stop_progress, log), daemon=True)
+        progress.start()
+        t3 = time.perf_counter()
+        utime0 = client.utime()
+        result = supervisor.run(first)
+        timings["execution_wall_s"] = time.perf_counter() - t3
+        timings["execution_controller_s"] = (client.utime() - utime0) * 1e-6
+        stop_progress.set()
+        progress.join(timeout=1.0)
+        client.wait_time(1.0)   # the object settles on the table after the release
+        final_objects = {n: client.object_pose(n) for n in robot_map.objects}
+        status = client.status
+        report["controller"] = {"mode": status.mode, "mode_reason": status.mode_reason,
+                                "realtime_factor": status.realtime_factor,
+                                "deadline_misses": status.deadline_misses,
+                                "num_rejected": status.num_rejected,
+                                "num_switches": status.num_switches,
+                                "num_refused_switches": status.num_refused_switches}
+        group.check_alive()
+    timings["total_s"] = time.perf_counter() - t0
+
+    report.update(_criteria(scenario, plan, robot_map, model, result, recorder, q_start, final_objects))
+    report["supervisor"] = {"state": result.state, "reason": result.reason,
+                            "steps": len(steps), "first_step": first,
+                            "events": [list(e) for e in result.events]}
+    report["timings"] = timings
+    write_report(out_dir, report, scenario, supervisor, result, recorder, model)
+    return report
+
+
+def _progress(supervisor: Supervisor, stop: threading.Event, log: Callable[[str], None]) -> None:
+    last = None
+    while not stop.wait(0.2):
+        now = (supervisor.step_index, supervisor.status)
+        if now != last and supervisor.step_index >= 0:
+            log(f"  [{supervisor.step_index + 1:2d}/{len(supervisor.steps)}] {supervisor.state}: "
+                f"{supervisor.status}")
+            last = now
+
+
+def _criteria(scenario: Scenario, plan: Plan, robot_map: PlanRobotMap, model: pin.Model,
+              result: SupervisorResult, recorder: Recorder, q_start: np.ndarray,
+              final_objects: dict[str, pin.SE3]) -> dict[str, Any]:
+    """The success criteria of ARCHITECTURE.md §Demos, measured."""
+    q_goal = np.array(plan.doc["problem"]["q_goal"])
+    X_goal = robot_map.object_pose(q_goal, scenario.object_name)
+    dp, dtheta = _pose_error(final_objects[scenario.object_name], X_goal)
+    criteria: dict[str, Any] = {
+        "object_position_error_m": dp,
+        "object_angle_error_deg": dtheta,
+        "object_within_tolerance": bool(dp <= scenario.position_tolerance
+                                        and dtheta <= scenario.angle_tolerance_deg),
+        "fsm_done": result.success,
+    }
+    ok = criteria["object_within_tolerance"] and result.success
+    if scenario.feet:
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q_start)
+        feet0 = {f: data.oMf[model.getFrameId(f)].translation.copy() for f in scenario.feet}
+        moved = 0.0
+        base_drop = 0.0
+        for q in recorder.q:
+            pin.framesForwardKinematics(model, data, q)
+            for f in scenario.feet:
+                moved = max(moved, float(np.linalg.norm(data.oMf[model.getFrameId(f)].translation - feet0[f])))
+            base_drop = max(base_drop, float(q_start[2] - q[2]))
+        criteria["feet_max_displacement_m"] = moved
+        criteria["feet_never_moved"] = bool(moved <= scenario.feet_tolerance)
+        criteria["base_max_drop_m"] = base_drop
+        criteria["no_fall"] = bool(base_drop < 0.05)
+        ok = ok and criteria["feet_never_moved"] and criteria["no_fall"]
+    criteria["limits"] = {"position_m": scenario.position_tolerance,
+                          "angle_deg": scenario.angle_tolerance_deg,
+                          "feet_m": scenario.feet_tolerance if scenario.feet else None}
+    return {"success": bool(ok), "criteria": criteria}

@@ -1,0 +1,88 @@
+"""``marionette demo [SCENARIO] [--seed S] [--trials N] [--speed X]``: the seeds' experiments as
+one command, each trial writing ``reports/demo/<scenario>-<time>/`` (exit 0 only on success)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS
+
+    p = subparsers.add_parser(
+        "demo", help="run a demo scenario end to end in MuJoCo and write its report",
+        description="Plan (or load the cached plan), generate one controller per transition, run "
+                    "marionette-controller and the supervisor on a private LCM URL, record an "
+                    "LCM log, and write reports/demo/<scenario>-<time>/ (report.md, report.json, "
+                    "plots). Exit code 0 only when every trial succeeds.")
+    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, choices=sorted(SCENARIOS),
+                   help=f"(default {DEFAULT_SCENARIO})")
+    p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
+    p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="controller pacing: 1 real time (default), 0 as fast as possible")
+    p.add_argument("--out", type=Path, default=None, help="reports folder (default reports/demo)")
+    p.add_argument("--view", action="store_true",
+                   help="browser 3D view (not available yet: the run goes on without it)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import marionette
+    from marionette.execution.demo import SCENARIOS, DemoError, run_demo
+
+    scenario = SCENARIOS[args.scenario]
+    if args.trials < 1:
+        print("marionette demo: --trials must be >= 1", file=sys.stderr)
+        return 2
+    if args.speed < 0:
+        print("marionette demo: --speed must be >= 0", file=sys.stderr)
+        return 2
+    if args.view:
+        print("marionette demo: --view is not implemented yet; running without a viewer", file=sys.stderr)
+    seed0 = scenario.seed if args.seed is None else args.seed
+    root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
+    print(f"demo {scenario.name}: {scenario.description}")
+    rows = []
+    for k in range(args.trials):
+        seed = seed0 + k
+        out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
+        try:
+            report = run_demo(scenario, seed, out, speed=args.speed,
+                              log=lambda m: print(m, flush=True))
+        except DemoError as e:
+            print(f"marionette demo: {e}", file=sys.stderr)
+            rows.append((seed, False, str(e).splitlines()[0], out))
+            continue
+        reason = "" if report["success"] else _failure_reason(report)
+        rows.append((seed, report["success"], reason, out))
+        c = report["criteria"]
+        print(f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {seed}): {scenario.object_name} "
+              f"{c['object_position_error_m'] * 1e3:.1f} mm / {c['object_angle_error_deg']:.2f}° from "
+              f"the goal" + (f", feet moved {c['feet_max_displacement_m'] * 1e3:.2f} mm"
+                             if "feet_max_displacement_m" in c else "") + f" -> {out / 'report.md'}")
+    if args.trials > 1:
+        ok = sum(r[1] for r in rows)
+        print(f"\n{scenario.name}: {ok}/{len(rows)} trials succeeded ({100.0 * ok / len(rows):.0f} %)")
+        print("| seed | success | failure reason |\n|---|---|---|")
+        for seed, success, reason, _ in rows:
+            print(f"| {seed} | {success} | {reason} |")
+    return 0 if all(r[1] for r in rows) else 1
+
+
+def _failure_reason(report) -> str:
+    c = report["criteria"]
+    if not c["fsm_done"]:
+        return f"supervisor: {report['supervisor']['reason']}"
+    reasons = []
+    if not c["object_within_tolerance"]:
+        reasons.append(f"object {c['object_position_error_m'] * 1e3:.1f} mm / "
+                       f"{c['object_angle_error_deg']:.1f}° from the goal")
+    if c.get("feet_never_moved") is False:
+        reasons.append(f"feet moved {c['feet_max_displacement_m'] * 1e3:.1f} mm")
+    if c.get("no_fall") is False:
+        reasons.append("fell")
+    return "; ".join(reasons)

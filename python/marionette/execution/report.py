@@ -1,0 +1,200 @@
+"""The report folder of a demo run: report.json (success, criteria with measured values,
+timings, per-step records), report.md (the same for people) and PNG plots: task errors per step
+(the decay of fig. 5.4), planned vs executed joints and object path, CoM vs support polygon
+(humanoids)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from marionette import robots
+
+
+def _records(result) -> list[dict[str, Any]]:
+    out = []
+    for r in result.records:
+        out.append({
+            "index": r.index, "transition": r.transition, "kind": r.kind, "result": r.result,
+            "controller_id": r.controller_id, "planned_duration_s": r.duration_s,
+            "controller_time_s": (r.utime_end - r.utime_start) * 1e-6 if r.utime_end else None,
+            "wall_s": r.wall_s, "chunks": r.chunks, "min_lookahead_ms": r.min_lookahead_ms,
+            "max_task_errors": r.max_errors, "final_task_errors": r.final_errors, "events": r.events,
+        })
+    return out
+
+
+def write_report(out_dir: Path, report: dict[str, Any], scenario, supervisor, result, recorder,
+                 model: pin.Model) -> None:
+    report["steps"] = _records(result)
+    plots = []
+    try:
+        plots = _plots(out_dir, scenario, supervisor, result, recorder, model)
+    except Exception as e:  # a plot must never hide the run's verdict
+        report["plot_error"] = repr(e)
+    report["plots"] = [p.name for p in plots]
+    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
+    (out_dir / "report.md").write_text(_markdown(report))
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    c = r["criteria"]
+    lines = [f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}", "",
+             r.get("description", ""), "",
+             f"seed {r['seed']}, robot {r['robot']}, controller speed {r['speed']} "
+             f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
+             + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""), "",
+             "## Success criteria (ARCHITECTURE.md §Demos)", "", "| criterion | measured | limit | ok |",
+             "|---|---|---|---|",
+             f"| object position error | {c['object_position_error_m'] * 1e3:.1f} mm | "
+             f"{c['limits']['position_m'] * 1e3:.0f} mm | {c['object_within_tolerance']} |",
+             f"| object angle error | {c['object_angle_error_deg']:.2f}° | {c['limits']['angle_deg']}° | "
+             f"{c['object_within_tolerance']} |"]
+    if "feet_max_displacement_m" in c:
+        lines += [f"| feet displacement (max) | {c['feet_max_displacement_m'] * 1e3:.2f} mm | "
+                  f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
+                  f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | 50 mm | {c['no_fall']} |"]
+    lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", "",
+              "## Estimation (§3.2.2)", "",
+              f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
+              f"started at step {r['estimation']['first_step']}", "",
+              "## Timings", "", "| phase | s |", "|---|---|"]
+    lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
+    lines += ["", "## Steps (one controller each)", "",
+              "| # | transition | kind | planned s | controller s | wall s | min look-ahead ms | result |",
+              "|---|---|---|---|---|---|---|---|"]
+    for s in r["steps"]:
+        ct = f"{s['controller_time_s']:.2f}" if s["controller_time_s"] is not None else "-"
+        la = f"{s['min_lookahead_ms']:.0f}" if s["min_lookahead_ms"] is not None else "-"
+        lines.append(f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
+                     f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |")
+    ctl = r.get("controller", {})
+    lines += ["", "## Controller", "", ", ".join(f"{k}: {v}" for k, v in ctl.items()), "",
+              "## Plots", ""] + [f"![{p}]({p})" for p in r.get("plots", [])]
+    lines += ["", "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
+              "message of the run; `marionette replay run.lcmlog`), `logs/` (process outputs)."]
+    return "\n".join(lines) + "\n"
+
+
+def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Model) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths: list[Path] = []
+    t_rec = np.array(recorder.utimes) * 1e-6
+    q_rec = np.array(recorder.q) if recorder.q else np.zeros((0, model.nq))
+
+    # 1. Task errors per step (fig. 5.4-like decay), step boundaries marked.
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    names: dict[str, Any] = {}
+    for r in result.records:
+        if not r.error_trace:
+            continue
+        t = np.array([u for u, _ in r.error_trace]) * 1e-6
+        for name in r.error_trace[0][1]:
+            e = np.array([errs.get(name, np.nan) for _, errs in r.error_trace])
+            line = names.get(name)
+            kw = {"color": line.get_color()} if line is not None else {"label": name}
+            h, = ax.semilogy(t, np.maximum(e, 1e-7), lw=1, **kw)
+            names.setdefault(name, h)
+        ax.axvline(r.utime_start * 1e-6, color="0.85", lw=0.8)
+    ax.set_xlabel("controller time [s]")
+    ax.set_ylabel("task error ||e||")
+    ax.set_title(f"{scenario.name}: task errors, one controller per step (grey lines: switches)")
+    ax.legend(fontsize=7, ncol=4)
+    paths.append(_save(fig, out_dir / "task_errors.png"))
+
+    # 2. Planned vs executed joints (the 6 that move most) and object path.
+    plan_t, plan_q, plan_obj = [], [], []
+    for r in result.records:
+        traj = supervisor.trajectories.get(r.index)
+        if traj is None or not r.utime_reference_start:
+            continue
+        plan_t.append(traj.t + r.utime_reference_start * 1e-6)
+        plan_q.append(traj.q)
+        plan_obj.append(np.array([supervisor.robot_map.object_pose(q, scenario.object_name).translation
+                                  for q in traj.q_plan[::20]]))
+        plan_obj[-1] = (plan_t[-1][::20], plan_obj[-1])
+    if plan_t:
+        pt, pq = np.concatenate(plan_t), np.vstack(plan_q)
+        first_joint = 7 if model.joints[1].nq == 7 else 0
+        motion = np.ptp(pq[:, first_joint:], axis=0)
+        top = first_joint + np.argsort(motion)[::-1][:6]
+        fig, axes = plt.subplots(2, 3, figsize=(12, 6), sharex=True)
+        labels = [n for j in range(1, model.njoints) for n in [model.names[j]] * model.joints[j].nq]
+        for ax, k in zip(axes.flat, top):
+            ax.plot(pt, pq[:, k], "k--", lw=1, label="planned")
+            if len(q_rec):
+                ax.plot(t_rec, q_rec[:, k], lw=1, label="executed")
+            ax.set_title(labels[k] if k < len(labels) else f"q[{k}]", fontsize=8)
+        axes.flat[0].legend(fontsize=7)
+        fig.suptitle(f"{scenario.name}: planned vs executed joints [rad]")
+        paths.append(_save(fig, out_dir / "joints.png"))
+
+        fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
+        ot = np.concatenate([t for t, _ in plan_obj])
+        op = np.vstack([p for _, p in plan_obj])
+        ex = np.array([o[scenario.object_name][:3] if scenario.object_name in o else [np.nan] * 3
+                       for o in recorder.objects]) if recorder.objects else np.zeros((0, 3))
+        for i, ax in enumerate(axes):
+            ax.plot(ot, op[:, i], "k--", lw=1, label="planned")
+            if len(ex):
+                ax.plot(t_rec, ex[:, i], lw=1, label="executed (simulator)")
+            ax.set_ylabel(f"{'xyz'[i]} [m]")
+        axes[0].legend(fontsize=7)
+        axes[-1].set_xlabel("controller time [s]")
+        fig.suptitle(f"{scenario.name}: {scenario.object_name} position, planned vs executed")
+        paths.append(_save(fig, out_dir / "object_path.png"))
+
+    # 3. CoM vs support polygon (humanoid).
+    if scenario.feet and len(q_rec):
+        data = model.createData()
+        com = np.array([pin.centerOfMass(model, data, q)[:2] for q in q_rec[::4]])
+        pin.framesForwardKinematics(model, data, q_rec[0])
+        sem = robots.semantics(supervisor.robot_map.robot)
+        pts = []
+        for c in sem.contacts:
+            X = data.oMf[model.getFrameId(c.link)]
+            pts += [X.act(np.asarray(p, dtype=float))[:2] for p in c.points]
+        pts = np.array(pts)
+        fig, ax = plt.subplots(figsize=(6, 6))
+        if len(pts) >= 3:
+            from scipy.spatial import ConvexHull
+
+            hull = pts[ConvexHull(pts).vertices]
+            ax.fill(hull[:, 0], hull[:, 1], alpha=0.2, label="support polygon")
+        if plan_t:
+            data2 = model.createData()
+            pcom = np.array([pin.centerOfMass(model, data2, q)[:2] for q in pq[::50]])
+            ax.plot(pcom[:, 0], pcom[:, 1], "k--", lw=1, label="planned CoM")
+        ax.plot(com[:, 0], com[:, 1], lw=1, label="executed CoM")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.legend(fontsize=7)
+        ax.set_title(f"{scenario.name}: CoM over the support polygon")
+        paths.append(_save(fig, out_dir / "com_support.png"))
+    return paths
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    return path
