@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Creates or completes .venv-bench with the peers of bench/sot: pink (+ daqp) and TSID 1.10.0.
+# TSID: libtsid has no cp311 wheel and the binary tsid wheel crashed with heap corruption here
+# (ARCHITECTURE.md), so both are compiled from their sdists (several minutes, once). cmeel builds
+# against the venv's cmeel prefix, which is why eiquadprog is installed first.
+# Idempotent: does nothing when everything is there. Shared with other benchmarks (HPP): only
+# adds packages, with the product's pin version.
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+VENV=${MARIONETTE_BENCH_VENV:-$PWD/.venv-bench}
+PY=${PYTHON:-python3}
+say() { printf '\033[1m[bench venv]\033[0m %s\n' "$*" >&2; }
+[ -x "$VENV/bin/python" ] || { say "creating $VENV"; "$PY" -m venv "$VENV"; }
+pip=("$VENV/bin/python" -m pip install -q --disable-pip-version-check)
+if ! "$VENV/bin/python" -c "import pink, daqp" 2>/dev/null; then
+  say "installing pink + daqp"
+  "${pip[@]}" -r bench/sot_peers/requirements.txt
+fi
+# libtsid first: cmeel builds the tsid bindings against the venv's prefix, so libtsid's CMake
+# config must be installed before tsid's metadata is prepared (one pip command fails).
+if [ ! -f "$VENV/lib/python3.11/site-packages/cmeel.prefix/lib/cmake/tsid/tsidConfig.cmake" ]; then
+  say "compiling libtsid 1.10.0 from source (several minutes, once)"
+  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-binary libtsid "libtsid==1.10.0" -c bench/sot_peers/requirements.txt
+fi
+if ! "$VENV/bin/python" -c "import tsid" 2>/dev/null; then
+  say "compiling the tsid 1.10.0 bindings from source (a few minutes, once)"
+  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-binary tsid "tsid==1.10.0" -c bench/sot_peers/requirements.txt
+fi
