@@ -27,9 +27,13 @@ namespace marionette::walk::testing {
 
 struct WalkRigOptions {
   std::string scene;             // MJCF with a keyframe (the robot standing)
-  double foot_gain = 20.0, com_gain = 20.0, posture_gain = 2.0;
+  // The CoM gain is low on purpose: the CoM feature sees the measured base, so its feedback closes
+  // a loop through the compliant servos; at 10/s and above the body's sway is under-damped and
+  // the measured ZMP rides the sole edges (at 40/s TALOS falls), at 3-5/s it walks with margin.
+  double foot_gain = 20.0, com_gain = 5.0, posture_gain = 2.0;
   // Features at the measured base (the controller's MeasuredBase) or at the integrated command
-  // (the Stack of Tasks' device: the free flyer integrated from the solution, open loop).
+  // (the Stack of Tasks' device: the free flyer integrated from the solution, open loop; TALOS
+  // falls within a few steps that way: the stance leg's compliance is never corrected).
   bool measured_base = true;
   FootstepManagerOptions manager;
 };
@@ -113,9 +117,13 @@ inline WalkRig BuildWalkRig(const WalkRigOptions& o) {
   auto& lf = b.Add<sot::FeatureSE3>("left_foot_feature", r.model, "left_sole_link");
   auto& rf = b.Add<sot::FeatureSE3>("right_foot_feature", r.model, "right_sole_link");
   auto& com = b.Add<sot::FeatureCom>("com_feature", r.model);
+  // The waist stays upright (roll and pitch of base_link at 0; yaw free to turn with the feet):
+  // without it the least-norm solution shifts the CoM partly by rolling the whole body.
+  auto& waist = b.Add<sot::FeatureSE3>("waist_feature", r.model, "base_link",
+                                       sot::Mask{false, false, false, true, true, false});
   auto& posture = b.Add<sot::FeaturePosture>("posture_feature", r.model);
   posture.reference_input().SetValue(r.q0);
-  for (sot::Feature* f : std::initializer_list<sot::Feature*>{&lf, &rf, &com, &posture}) {
+  for (sot::Feature* f : std::initializer_list<sot::Feature*>{&lf, &rf, &com, &waist, &posture}) {
     b.Connect(kin, f->kinematics_input());
   }
   b.Connect(r.steps->left_foot_output(), lf.reference_input());
@@ -127,9 +135,10 @@ inline WalkRig BuildWalkRig(const WalkRigOptions& o) {
   auto& lt = b.Add<sot::Task>("left_foot", lf, sot::Gain::Constant(o.foot_gain));
   auto& rt = b.Add<sot::Task>("right_foot", rf, sot::Gain::Constant(o.foot_gain));
   auto& ct = b.Add<sot::Task>("com", com, sot::Gain::Constant(o.com_gain));
+  auto& wt = b.Add<sot::Task>("waist", waist, sot::Gain::Constant(o.foot_gain));
   auto& pt = b.Add<sot::Task>("posture", posture, sot::Gain::Constant(o.posture_gain));
   auto& limits = sot::AddJointLimits(b, "limits", r.model, kin);
-  r.solver = &b.Add<sot::Solver>("sot", r.model->nv, sot::Solver::Levels{{&limits}, {&lt, &rt, &ct}, {&pt}});
+  r.solver = &b.Add<sot::Solver>("sot", r.model->nv, sot::Solver::Levels{{&limits}, {&lt, &rt, &ct, &wt}, {&pt}});
   b.Connect(r.solver->velocity_output(), r.command->command_input());
   b.Connect(r.solver->velocity_output(), r.device->v_command_input());
   r.graph = b.Build();
