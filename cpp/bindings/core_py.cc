@@ -7,6 +7,7 @@ namespace py = pybind11;
 namespace marionette::bindings {
 void RegisterGraph(py::module_& m);
 void RegisterSim(py::module_& m);
+void RegisterSot(py::module_& m);
 }  // namespace marionette::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -14,4 +15,5 @@ PYBIND11_MODULE(_core, m) {
   m.attr("__version__") = MARIONETTE_VERSION;
   marionette::bindings::RegisterGraph(m);
   marionette::bindings::RegisterSim(m);
+  marionette::bindings::RegisterSot(m);
 }
