@@ -99,6 +99,9 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_table.overruns.resize(kMaxEntities);
   timing_tables = std::make_unique<runtime::TripleBuffer<TimingTable>>(model_table);
   shared_q = q0;
+  for (const std::string& body : robot.contact_bodies) {
+    if (model->existFrame(body)) contact_frames.push_back(sot::MakeFrameRef(*model, body, "contact body"));
+  }
   factory = std::make_unique<ControllerFactory>(
       model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
                                &command->velocity_output()});
@@ -340,6 +343,8 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   s.deadline_misses = clock.deadline_misses();
   const double wall = clock.WallSeconds();
   s.realtime_factor = wall > 0.0 ? t.time / wall : 0.0;
+  s.walking = active != nullptr && active->walk_steps != nullptr;
+  if (s.walking) FillWalkStatus(t, &s);
   snapshots->write_slot() = s;  // same sizes: no allocation
   snapshots->Publish();
   if (render_states && t.index % render_every == 0) {
@@ -377,6 +382,7 @@ int Controller::Run() {
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
   c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
+  c.lcm.subscribe(channels::kFootstepPlan, &Impl::OnFootstepPlan, &c);
   std::thread lcm_thread(&Impl::LcmThread, &c);
   std::thread publisher(&Impl::PublisherThread, &c);
   std::thread camera;

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <set>
 #include <stdexcept>
 
@@ -39,6 +40,76 @@ sot::Mask MaskOf(const lcmt_task_spec& spec, int n) {
   sot::Mask mask(spec.mask, spec.mask + n);
   if (std::none_of(mask.begin(), mask.end(), [](bool b) { return b; })) return {};
   return mask;
+}
+
+// Walking: a FootstepManager and a PatternGenerator for the tasks whose reference_channel is
+// "walk:<role>" (controller_factory.h), starting standing at the configuration of `now`.
+constexpr char kWalkPrefix[] = "walk:";
+
+void AddWalking(const lcmt_controller_spec& spec, const std::string& where, const std::string& prefix,
+                const sot::Kinematics& now, graph::GraphEdit& edit, BuiltController* built) {
+  std::map<std::string, const lcmt_task_spec*> roles;  // left_foot, right_foot, com
+  for (const lcmt_task_spec& t : spec.tasks) {
+    if (t.reference_channel.rfind(kWalkPrefix, 0) != 0) continue;
+    const std::string who = where + ", task '" + t.name + "'";
+    const std::string role = t.reference_channel.substr(std::strlen(kWalkPrefix));
+    if (role != "left_foot" && role != "right_foot" && role != "com") {
+      Fail(who, "unknown walk reference '" + t.reference_channel + "' (walk:left_foot, walk:right_foot, walk:com)");
+    }
+    const std::string kind = role == "com" ? "com" : "se3";
+    if (t.kind != kind) Fail(who, "a '" + t.reference_channel + "' reference needs a " + kind + " task");
+    if (t.num_reference != 0) Fail(who, "a walk reference comes from the pattern generator: give no fixed reference");
+    if (!roles.emplace(role, &t).second) Fail(who, "two tasks take '" + t.reference_channel + "'");
+  }
+  if (roles.empty()) return;
+  if (roles.count("left_foot") == 0 || roles.count("right_foot") == 0) {
+    Fail(where, "walking needs a walk:left_foot and a walk:right_foot se3 task (the soles it starts from)");
+  }
+  try {
+    const pinocchio::Model& model = now.model();
+    const sot::FrameRef left = sot::MakeFrameRef(model, roles["left_foot"]->frame, where);
+    const sot::FrameRef right = sot::MakeFrameRef(model, roles["right_foot"]->frame, where);
+    const walk::FootPlacement l = walk::PoseToPlacement(now.placement(left));
+    const walk::FootPlacement r = walk::PoseToPlacement(now.placement(right));
+    const Eigen::Vector3d com = now.com();
+    walk::FootstepManagerOptions options;  // dt = 1 ms, the controller's period; 1.6 s preview
+    auto& steps = edit.Add<walk::FootstepManager>(prefix + "walk_steps", l, r, com.head<2>(), options);
+    walk::PreviewControlParams params;
+    params.dt = options.dt;
+    params.preview_time = options.preview_samples * options.dt;
+    params.com_height = com.z() - 0.5 * (l.z() + r.z());  // cart-table height above the soles
+    auto& pattern = edit.Add<walk::PatternGenerator>(prefix + "walk_pattern", params, com);
+    built->entity_names.push_back(steps.name());
+    built->entity_names.push_back(pattern.name());
+    edit.Connect(steps.zmp_window_output(), pattern.zmp_window_input());
+    built->walk_steps = &steps;
+    built->walk_pattern = &pattern;
+    // At the swap: standing where the robot is, the CoM at rest where it is.
+    built->holds.push_back([left, right, s = &steps, p = &pattern](const sot::Kinematics& k) {
+      const Eigen::Vector3d c = k.com();
+      s->Reset(walk::PoseToPlacement(k.placement(left)), walk::PoseToPlacement(k.placement(right)), c.head<2>());
+      p->Reset(c);
+    });
+  } catch (const std::invalid_argument& e) {  // sot::SotError, bad preview parameters
+    Fail(where, std::string("walking: ") + e.what());
+  } catch (const std::runtime_error& e) {
+    Fail(where, std::string("walking: ") + e.what());
+  }
+}
+
+void ConnectWalkReference(const std::string& channel, const BuiltController& built, graph::GraphEdit& edit,
+                          graph::SignalBase& reference, graph::SignalBase& reference_velocity) {
+  const std::string role = channel.substr(std::strlen(kWalkPrefix));
+  if (role == "com") {
+    edit.Connect(built.walk_pattern->com_output(), reference);
+    edit.Connect(built.walk_pattern->com_velocity_output(), reference_velocity);
+  } else if (role == "left_foot") {
+    edit.Connect(built.walk_steps->left_foot_output(), reference);
+    edit.Connect(built.walk_steps->left_foot_velocity_output(), reference_velocity);
+  } else {
+    edit.Connect(built.walk_steps->right_foot_output(), reference);
+    edit.Connect(built.walk_steps->right_foot_velocity_output(), reference_velocity);
+  }
 }
 
 }  // namespace
@@ -89,6 +160,7 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     built->entity_names.push_back(entity.name());
     return entity;
   };
+  AddWalking(spec, where, prefix, now, edit, built.get());
 
   for (const lcmt_task_spec& t : spec.tasks) {
     const std::string who = where + ", task '" + t.name + "'";
@@ -182,7 +254,9 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
       } else {
         current(now, &initial);  // a value of the right size until the swap sets the real one
       }
-      if (!t.reference_channel.empty()) {
+      if (t.reference_channel.rfind(kWalkPrefix, 0) == 0) {  // from the pattern generator
+        ConnectWalkReference(t.reference_channel, *built, edit, *reference, *reference_velocity);
+      } else if (!t.reference_channel.empty()) {
         auto& stream = add(edit.Add<ReferenceStream>(prefix + t.name + "_reference",
                                                      se3 ? Kind::kSe3 : Kind::kVector, initial,
                                                      derivative_size));

@@ -93,6 +93,14 @@ struct Snapshot {
   int64_t switches = 0, refused_switches = 0, non_finite_ticks = 0, clamped_ticks = 0;
   int64_t deadline_misses = 0;
   double realtime_factor = 0.0;
+  // Walking (active controller with a pattern generator, controller_walk.cc): WALK_STATUS.
+  bool walking = false;
+  int64_t walk_plan_id = 0;
+  int walk_step_index = -1, walk_phase = 0, walk_num_queued = 0;  // queued: steps left, in progress included
+  double walk_phase_progress = 0.0;
+  std::array<double, 3> walk_com{};
+  std::array<double, 2> walk_zmp_reference{}, walk_zmp_measured{};
+  std::array<double, 4> walk_left{}, walk_right{};
 };
 
 // One decision of the loop on a controller posted by the LCM thread.
@@ -158,6 +166,7 @@ struct Controller::Impl {
 
   std::vector<std::string> joint_names;     // 1-dof joints, Pinocchio order
   std::vector<int> joint_q, joint_v;        // their indices
+  std::vector<sot::FrameRef> contact_frames;  // robot.contact_bodies as Pinocchio frames (walking ZMP)
   std::vector<std::string> free_objects;    // scene bodies with a free joint (not the robot)
   std::vector<int> free_object_ids;
 
@@ -256,6 +265,7 @@ struct Controller::Impl {
   void DecideSwitch(const graph::Tick& t);
   void Watchdog(const graph::Tick& t);
   void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
+  void FillWalkStatus(const graph::Tick& t, Snapshot* s);  // controller_walk.cc
 
   // LCM thread.
   void LcmThread();
@@ -263,6 +273,7 @@ struct Controller::Impl {
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std::string& channel);  // controller_walk.cc
   void PostNextSpec();
   void CollectSwitchDecision();
   void OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
@@ -286,6 +297,7 @@ struct Controller::Impl {
   // Publisher and camera threads.
   void PublisherThread();
   void PublishState(const Snapshot& s);
+  void PublishWalkStatus(const Snapshot& s);  // controller_walk.cc
   void PublishStatus(const Snapshot& s, runtime::TimingWindow& period, runtime::TimingWindow& compute,
                      runtime::TimingWindow& lateness);
   void CameraThread();

@@ -35,6 +35,7 @@ void Controller::Impl::PublisherThread() {
     const auto now = Clock::now();
     if (now >= next_state) {
       if (s.tick != last_tick) PublishState(s);
+      if (s.tick != last_tick && s.walking) PublishWalkStatus(s);
       last_tick = s.tick;
       next_state += std::chrono::duration_cast<Clock::duration>(state_period);
       if (next_state < now) next_state = now;

@@ -14,6 +14,12 @@
 ///   com           centre of mass c_W         3 values, derivative 3
 ///   posture       configuration q            nq values, derivative nv (joints: joint_name)
 ///   gaze          world point kept at the image centre   3 values, derivative 3
+/// Walking (Dang 2012 §2.6.2–2.6.3): a task whose reference_channel is "walk:left_foot" or
+/// "walk:right_foot" (kind se3, its frame a sole) or "walk:com" (kind com) takes its reference
+/// and feed-forward from a FootstepManager + PatternGenerator pair added to the controller; the
+/// two feet tasks are then required (their frames are the soles the manager starts from). At the
+/// swap both start standing where the robot is; footstep plans (FOOTSTEP_PLAN) are posted to the
+/// active controller's manager (BuiltController::walk_steps).
 /// An unset fixed reference means "hold where it is now": the reference (and a stream's initial
 /// value) is the feature's value at the tick the controller is swapped in (BuiltController::
 /// HoldCurrent, run by the loop: no allocation), so a hold never pulls towards a stale pose.
@@ -29,6 +35,8 @@
 #include "marionette/lcmt_controller_spec.hpp"
 #include "marionette/sot/kinematics.h"
 #include "marionette/sot/robot_model.h"
+#include "marionette/walk/footstep_manager.h"
+#include "marionette/walk/pattern_generator.h"
 
 namespace marionette::controller {
 
@@ -45,6 +53,9 @@ struct BuiltController {
   std::vector<graph::OutputSignal<double>*> task_errors;           ///< ‖e‖ per task, same order
   std::map<std::string, ReferenceStream*> streams;                 ///< by task name
   std::vector<std::string> entity_names;  ///< removed by the next controller's edit
+  /// Walking entities, when a task takes a "walk:" reference (nullptr otherwise).
+  walk::FootstepManager* walk_steps = nullptr;
+  walk::PatternGenerator* walk_pattern = nullptr;
 
   /// Sets every "hold where it is" reference to the current value of its feature (loop thread,
   /// at the swap: no allocation).
