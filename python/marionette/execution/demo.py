@@ -62,7 +62,10 @@ SCENARIOS: dict[str, Scenario] = {
         "ur10-box", "ur10_box", marionette.MODELS_DIR / "scenes" / "ur10_box.xml", 0, "box", 1.0,
         description="UR10 picks the box with its suction cup and places it 0.5 m away"),
 }
-DEFAULT_SCENARIO = "plank-flip"
+# `marionette demo` without a scenario (`make demo`): the one that meets its criteria today.
+# plank-flip runs end to end (16 controllers, both grasps, hand-over, release) but the plank ends
+# ~1.2 cm / 7° from its goal (limits 1 cm / 5°): the open-loop carry sags in the MuJoCo weld.
+DEFAULT_SCENARIO = "ur10-box"
 
 
 class DemoError(RuntimeError):

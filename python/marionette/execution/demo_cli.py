@@ -18,8 +18,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "marionette-controller and the supervisor on a private LCM URL, record an "
                     "LCM log, and write reports/demo/<scenario>-<time>/ (report.md, report.json, "
                     "plots). Exit code 0 only when every trial succeeds.")
-    p.add_argument("scenario", nargs="?", default=DEFAULT_SCENARIO, choices=sorted(SCENARIOS),
-                   help=f"(default {DEFAULT_SCENARIO})")
+    p.add_argument("scenario", nargs="?", default=None, choices=sorted(SCENARIOS),
+                   help=f"(default {DEFAULT_SCENARIO}, the scenario that meets its criteria today)")
     p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
     p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
     p.add_argument("--speed", type=float, default=1.0,
@@ -34,6 +34,12 @@ def run(args: argparse.Namespace) -> int:
     import marionette
     from marionette.execution.demo import SCENARIOS, DemoError, run_demo
 
+    if args.scenario is None:
+        from marionette.execution.demo import DEFAULT_SCENARIO
+
+        print(f"marionette demo: no scenario given, running {DEFAULT_SCENARIO!r} (plank-flip runs end "
+              "to end but does not meet its 1 cm / 5° placement yet: `marionette demo plank-flip`)")
+        args.scenario = DEFAULT_SCENARIO
     scenario = SCENARIOS[args.scenario]
     if args.trials < 1:
         print("marionette demo: --trials must be >= 1", file=sys.stderr)
