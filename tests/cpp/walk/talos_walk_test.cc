@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <vector>
 
+#include "allocation_counter.h"
 #include "talos_walk_rig.h"
 
 namespace marionette::walk {
@@ -194,6 +195,27 @@ TEST(TalosWalkTest, TurnsByNinetyDegrees) {
   EXPECT_GT(r.MarginQuantile(0.01), 0.003);
   const FootPlacement left = rig.SolePlacement(0);
   EXPECT_NEAR(WrapAngle(left[3] - M_PI / 2.0), 0.0, 0.05);
+}
+
+// The whole walking tick (MuJoCo device, measured base, kinematics, walk entities, 6 tasks, the
+// solver) allocates nothing and takes no lock once walking (STYLE.md rule 4), plans included.
+TEST(TalosWalkTest, WalkingTickAllocatesNothing) {
+  testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
+  FootstepPlan plan = StraightPlan(rig.SolePlacement(0), rig.SolePlacement(1), 6, 0.1);
+  rig.steps->Post(plan);
+  while (rig.steps->phase_output().value() != static_cast<int>(WalkPhase::kRightSwing)) rig.Step();
+  for (int i = 0; i < 200; ++i) rig.Step();
+  plan.plan_id = 2;
+  plan.first_step_index = 1;  // a replan of the steps not started, consumed inside the counted ticks
+  plan.num_steps = 5;
+  for (int k = 0; k < 5; ++k) plan.steps[k] = plan.steps[k + 1];
+  marionette::testing::ScopedAllocationCounter counter;
+  rig.steps->Post(plan);
+  for (int i = 0; i < 1500; ++i) rig.Step();
+  EXPECT_EQ(counter.allocations(), 0);
+  EXPECT_EQ(counter.locks(), 0);
+  EXPECT_EQ(rig.steps->applied_plans(), 2);
+  EXPECT_GE(rig.steps->completed_steps(), 1);
 }
 
 // A replan during the walk that ends it two steps later: the step in progress is kept, the robot
