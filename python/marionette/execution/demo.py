@@ -126,9 +126,11 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
 
 
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
-             cache_dir: Path | None = None, log: Callable[[str], None] = print) -> dict[str, Any]:
+             cache_dir: Path | None = None, log: Callable[[str], None] = print,
+             controller_url: str | None = None) -> dict[str, Any]:
     """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
-    after writing the report folder ``out_dir``."""
+    after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
+    marionette-controller already running there (another machine: ttl=1) instead of starting one."""
     from marionette.execution.report import write_report
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -156,15 +158,16 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     from marionette.planning.problem import load_problem
 
     graph = graph_from_settings(load_problem(plan.doc["problem"]["source"]))
-    url = private_lcm_url()
+    url = controller_url or private_lcm_url()
     report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description,
                               "seed": seed, "robot": robot, "speed": speed, "lcm_url": url}
     result: SupervisorResult | None = None
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
         group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
-        group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                   "--robot", robot, "--scene", scenario.scene, "--speed", str(speed),
-                                   "--camera-rate", "0", "--status-rate", "100"])
+        if controller_url is None:
+            group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
+                                       "--robot", robot, "--scene", scenario.scene, "--speed", str(speed),
+                                       "--camera-rate", "0", "--status-rate", "100"])
         try:
             client.wait_ready(60.0)
         except TimeoutError:

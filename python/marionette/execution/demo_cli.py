@@ -25,6 +25,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--speed", type=float, default=1.0,
                    help="controller pacing: 1 real time (default), 0 as fast as possible")
     p.add_argument("--out", type=Path, default=None, help="reports folder (default reports/demo)")
+    p.add_argument("--controller-url", default=None, metavar="URL",
+                   help="use the marionette-controller already running on this LCM URL (e.g. on the "
+                        "robot's computer, started with the scenario's --scene) instead of starting one")
     p.add_argument("--view", action="store_true",
                    help="browser 3D view (not available yet: the run goes on without it)")
     p.set_defaults(func=run)
@@ -57,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         seed = seed0 + k
         out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
         try:
-            report = run_demo(scenario, seed, out, speed=args.speed,
+            report = run_demo(scenario, seed, out, speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True))
         except DemoError as e:
             print(f"marionette demo: {e}", file=sys.stderr)

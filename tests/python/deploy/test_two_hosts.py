@@ -74,3 +74,30 @@ def test_ttl_0_keeps_lcm_on_its_host(hosts, build_dir):
         controller.terminate()
         controller.wait(15)
     assert probe.stdout.strip().endswith("unseen"), probe.stdout + probe.stderr
+
+
+def test_ur10_pick_and_place_across_two_hosts(hosts, build_dir, tmp_path):
+    """The UR10 box pick-and-place (`marionette demo ur10-box`): marionette-controller (MuJoCo)
+    on host A; planning, the controller factory, the supervisor and the logger on host B."""
+    a, b = hosts
+    scene = str(robots.MODELS_DIR / "scenes" / "ur10_box.xml")
+    log = open(tmp_path / "controller.log", "w")
+    controller = subprocess.Popen(
+        a.command([str(build_dir / "marionette-controller"), "--robot", "ur10", "--scene", scene,
+                   "--lcm-url", URL, "--speed", "0", "--camera-rate", "0", "--status-rate", "100"]),
+        stdout=log, stderr=subprocess.STDOUT)
+    try:
+        demo = subprocess.run(
+            b.command([str(Path(sys.executable).parent / "marionette"), "demo", "ur10-box", "--controller-url", URL,
+                       "--out", str(tmp_path / "reports")]),
+            capture_output=True, text=True, timeout=600)
+        assert controller.poll() is None, (tmp_path / "controller.log").read_text()[-3000:]
+    finally:
+        controller.terminate()
+        controller.wait(15)
+        log.close()
+    assert demo.returncode == 0, demo.stdout[-3000:] + demo.stderr[-3000:]
+    (report,) = (tmp_path / "reports").glob("ur10-box-*/report.json")
+    result = json.loads(report.read_text())
+    assert result["success"] and result["supervisor"]["state"] == "done", result.get("supervisor")
+    assert (report.parent / "run.lcmlog").stat().st_size > 0  # recorded on host B
