@@ -165,6 +165,10 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   for (ReferenceStream* stream : active_streams) {
     for (int i = 0; i < stream->drained_count(); ++i) Journal(t.index, 1, stream->drained_hash(i));
   }
+  if (active != nullptr && active->walk_steps != nullptr) {
+    const walk::FootstepManager& steps = *active->walk_steps;
+    for (int i = 0; i < steps.drained_count(); ++i) Journal(t.index, kFootstepPlanChannel, steps.drained_hash(i));
+  }
   if (safety->non_finite_output().Eval(t)) {
     ++loop_state.non_finite_ticks;
     if (mode == ControlMode::kRun) {

@@ -138,8 +138,10 @@ struct JournalEntry {
 inline constexpr char kBudgetHoldEntry[] = "CONTROLLER_BUDGET_HOLD";
 inline constexpr const char* kJournalChannels[] = {channels::kControllerSpec, channels::kTaskReference,
                                                    channels::kCommand,        channels::kSimCommand,
-                                                   channels::kDgRequest,      kBudgetHoldEntry};
+                                                   channels::kDgRequest,      kBudgetHoldEntry,
+                                                   channels::kFootstepPlan};
 inline constexpr int kBudgetHoldChannel = 5;
+inline constexpr int kFootstepPlanChannel = 6;  // consumed by the active walking controller's poll
 
 inline std::string ToLower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));

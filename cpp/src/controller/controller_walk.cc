@@ -33,6 +33,7 @@ void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std:
   plan->first_step_index = msg.first_step_index;
   plan->stop_at_end = msg.stop_at_end;
   plan->num_steps = msg.num_steps;
+  plan->source_hash = Fnv1a(rbuf->data, rbuf->data_size);
   for (int k = 0; k < msg.num_steps; ++k) {
     const lcmt_footstep& m = msg.steps[k];
     walk::Footstep& s = plan->steps[k];

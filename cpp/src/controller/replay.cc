@@ -187,6 +187,9 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
           c.OnDgRequest(&rbuf, channel);
           c.ServeDg();
           break;
+        case kFootstepPlanChannel:
+          c.OnFootstepPlan(&rbuf, channel);
+          break;
       }
     }
     c.LoopTick(t, clock);

@@ -87,7 +87,9 @@ void FootstepManager::Reset(const FootPlacement& left, const FootPlacement& righ
 
 void FootstepManager::Poll(const graph::Tick& t) {
   bool changed = false;
+  drained_count_ = 0;
   while (const FootstepPlan* plan = mailbox_.Front()) {
+    if (drained_count_ < static_cast<int>(drained_hashes_.size())) drained_hashes_[drained_count_++] = plan->source_hash;
     ApplyPlan(*plan);
     mailbox_.PopFront();
     changed = true;

@@ -1,15 +1,20 @@
 """marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM (issue 9): a
 controller spec whose feet and CoM tasks take their references from the pattern generator
 ("walk:" reference channels), FOOTSTEP_PLAN in, WALK_STATUS out; the robot walks the steps,
-stops, and the ZMP it reports from the soles' contact wrenches stays under its feet."""
+stops, and the ZMP it reports from the soles' contact wrenches stays under its feet. The run is
+recorded and replayed offline from the controller's journal (plans journaled like every input)."""
 
 from __future__ import annotations
+
+import subprocess
+import time
 
 import numpy as np
 from scipy.spatial import ConvexHull
 
 from marionette import (channels, lcmt_footstep, lcmt_footstep_plan, lcmt_robot_state, lcmt_walk_status,
                         robots)
+from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
 from tests_support import controller_running
 
@@ -70,6 +75,10 @@ def margin(point, corners) -> float:
 def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_path):
     statuses: list = []
     states: list = []
+    log = tmp_path / "walk.lcmlog"
+    logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    time.sleep(0.3)  # subscribed before the controller's first message
     with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
                             str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0") as client:
         client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
@@ -98,6 +107,9 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
         client.wait(lambda c: statuses[-1].phase == "standing", 30.0, "standing again")
         client.wait_time(0.5)
         base = client.base_position()
+    time.sleep(0.5)  # the controller's last journal batch reaches the logger
+    logger.terminate()
+    logger.wait(10)
 
     walked = [s for s in statuses if s.utime > standing.utime]
     assert {s.phase for s in walked} >= {"double_support", "left_swing", "right_swing", "standing"}
@@ -126,3 +138,11 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
     assert len(margins) > 0.8 * len(walked), "statuses and states of the same ticks"
     assert min(margins) > -0.005
     assert np.median(margins) > 0.03
+
+    # Offline replay from the journal: the spec and the plan consumed at their ticks, every
+    # recorded command reproduced.
+    result = replay_controller(log)
+    assert result["problems"] == [] and result["journal_mismatches"] == 0, result["output"]
+    assert result["inputs"] >= 2, result["output"]
+    assert result["max_difference"] <= 1e-9 and result["ok"], result["output"]
+    print(result["output"])

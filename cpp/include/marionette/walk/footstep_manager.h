@@ -76,6 +76,9 @@ class FootstepManager final : public graph::Entity {
   int64_t applied_plans() const { return applied_plans_; }
   int64_t refused_plans() const { return refused_plans_; }
   int64_t dropped_plans() const { return dropped_plans_.load(); }
+  /// Loop thread: the source_hash of the plans the last poll took in (at most 8 per tick).
+  int drained_count() const { return drained_count_; }
+  int64_t drained_hash(int i) const { return drained_hashes_[i]; }
   /// Steps completed since construction.
   int64_t completed_steps() const { return completed_steps_; }
   /// The queued steps (front = in progress when walking); valid between ticks.
@@ -133,6 +136,8 @@ class FootstepManager final : public graph::Entity {
   FootstepManagerOptions options_;
   runtime::SpscQueue<FootstepPlan> mailbox_;
   std::atomic<int64_t> dropped_plans_{0};
+  std::array<int64_t, 8> drained_hashes_{};
+  int drained_count_ = 0;
 
   // The walk, written only by Poll and Reset (loop thread).
   Mode mode_ = Mode::kStanding;

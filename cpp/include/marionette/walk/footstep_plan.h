@@ -34,6 +34,7 @@ struct FootstepPlan {
   bool stop_at_end = true;
   int num_steps = 0;
   std::array<Footstep, kMaxSteps> steps{};
+  int64_t source_hash = 0;       ///< names the message it came from (the controller's journal)
 };
 
 /// Limits a plan must respect (checked before it reaches the loop).
