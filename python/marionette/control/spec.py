@@ -17,7 +17,9 @@ gaze          world point kept at the image centre         3           3
 ============  ==========================================  ==========  ==========
 
 An empty fixed reference means "hold the current value"; ``streamed=True`` makes the task follow
-references streamed on TASK_REFERENCE under the task's name.
+references streamed on TASK_REFERENCE under the task's name; ``reference_channel="walk:<role>"``
+takes the reference from the controller's own pattern generator (Dang 2012 §2.6: the footstep
+manager + ZMP preview control fed by FOOTSTEP_PLAN), see :data:`WALK_REFERENCES`.
 """
 
 from __future__ import annotations
@@ -30,6 +32,10 @@ import numpy as np
 from marionette import channels, lcmt_controller_spec, lcmt_task_reference, lcmt_task_spec
 
 KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze")
+# Walking references produced inside the controller (controller_factory.cc, ConnectWalkReference):
+# reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
+# starts from); the CoM is optional.
+WALK_REFERENCES = {"walk:left_foot": "se3", "walk:right_foot": "se3", "walk:com": "com"}
 
 
 class SpecError(ValueError):
@@ -50,6 +56,7 @@ class TaskSpec:
     streamed: bool = False               # follow TASK_REFERENCE chunks named after the task
     reference: Sequence[float] = ()      # fixed reference (empty = hold the current value)
     joints: Sequence[str] = ()           # posture joints (empty = all)
+    reference_channel: str = ""          # "walk:left_foot|right_foot|com": from the walk (see module)
 
     def check(self) -> None:
         where = f"task {self.name!r}"
@@ -69,6 +76,18 @@ class TaskSpec:
             raise SpecError(f"{where}: gains must be finite and >= 0")
         if not np.all(np.isfinite(np.asarray(self.reference, dtype=float))):
             raise SpecError(f"{where}: non-finite reference")
+        if self.reference_channel:
+            kind = WALK_REFERENCES.get(self.reference_channel)
+            if kind is None:
+                raise SpecError(f"{where}: unknown reference_channel {self.reference_channel!r} "
+                                f"(one of {', '.join(WALK_REFERENCES)}; streamed=True for "
+                                f"{channels.TASK_REFERENCE})")
+            if self.kind != kind:
+                raise SpecError(f"{where}: a {self.reference_channel!r} reference needs a {kind} "
+                                f"task, not {self.kind}")
+            if self.streamed or len(self.reference):
+                raise SpecError(f"{where}: a {self.reference_channel!r} task takes its reference "
+                                "from the walk: no streamed or fixed reference")
 
     def to_lcm(self) -> lcmt_task_spec:
         self.check()
@@ -83,7 +102,7 @@ class TaskSpec:
         msg.gain = float(self.gain)
         msg.gain_max = float(self.gain_max)
         msg.gain_slope = float(self.gain_slope)
-        msg.reference_channel = channels.TASK_REFERENCE if self.streamed else ""
+        msg.reference_channel = self.reference_channel or (channels.TASK_REFERENCE if self.streamed else "")
         msg.reference = [float(x) for x in self.reference]
         msg.num_reference = len(msg.reference)
         msg.joint_name = list(self.joints)
@@ -106,7 +125,23 @@ class TaskSpec:
             d["reference"] = [float(x) for x in self.reference]
         if self.joints:
             d["joints"] = list(self.joints)
+        if self.reference_channel:
+            d["reference_channel"] = self.reference_channel
         return d
+
+    @classmethod
+    def from_lcm(cls, msg: lcmt_task_spec) -> "TaskSpec":
+        """The inverse of :meth:`to_lcm` (TASK_REFERENCE -> ``streamed``); checked."""
+        channel = msg.reference_channel
+        streamed = channel == channels.TASK_REFERENCE
+        mask = tuple(bool(m) for m in msg.mask)
+        spec = cls(msg.name, msg.kind, int(msg.priority), frame=msg.frame, frame_b=msg.frame_b,
+                   mask=mask if any(mask) else (), gain=msg.gain,
+                   gain_max=msg.gain_max, gain_slope=msg.gain_slope, streamed=streamed,
+                   reference=tuple(msg.reference), joints=tuple(msg.joint_name),
+                   reference_channel="" if streamed else channel)
+        spec.check()
+        return spec
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "TaskSpec":
