@@ -104,6 +104,11 @@ class FootstepNode:
                 return None
             if self.last_plan is not None and step >= len(self.last_plan.steps) - 1:
                 return None                          # walking done: nothing left to change
+            if not moved and self.last_plan is not None and step + 2 >= len(self.last_plan.steps):
+                # Only the last step is still to start and it belongs to the frozen posture: with
+                # the target where it was planned, a replan could only append two in-place steps
+                # (the planner's answer to a moved target) and the walk would never end.
+                return None
             self._replan(pose, executed=step + 1)
         self.last_solve_ms = 1e3 * (time.perf_counter() - start)
         self._planned_pose, self._planned_step = pose, step
@@ -150,16 +155,25 @@ def run(options: NodeOptions, lcm_url: str | None = None, rate_hz: float = 50.0,
         print(f"footsteps: ready ({options.mode}) on {bus.url}", flush=True)
         start = time.monotonic()
         period = 1.0 / rate_hz
-        while duration_s is None or time.monotonic() - start < duration_s:
-            tick = time.monotonic()
-            try:
-                msg = node.update(int(1e6 * time.time()))
-            except FootstepError as exc:
-                print(f"footsteps: planning failed: {exc}", flush=True)
-                msg = None
-            if msg is not None:
-                bus.publish(channels.FOOTSTEP_PLAN, msg)
-                print(f"footsteps: plan {msg.plan_id} from step {msg.first_step_index}, "
-                      f"{msg.num_steps} steps ({node.last_solve_ms:.1f} ms)", flush=True)
-            time.sleep(max(0.0, period - (time.monotonic() - tick)))
+        try:
+            _loop(node, bus, start, period, duration_s)
+        except KeyboardInterrupt:   # SIGINT is how ProcessGroup and a terminal stop the process
+            print("footsteps: stopped", flush=True)
     return 0
+
+
+def _loop(node: FootstepNode, bus, start: float, period: float, duration_s: float | None) -> None:
+    from marionette import channels
+
+    while duration_s is None or time.monotonic() - start < duration_s:
+        tick = time.monotonic()
+        try:
+            msg = node.update(int(1e6 * time.time()))
+        except FootstepError as exc:
+            print(f"footsteps: planning failed: {exc}", flush=True)
+            msg = None
+        if msg is not None:
+            bus.publish(channels.FOOTSTEP_PLAN, msg)
+            print(f"footsteps: plan {msg.plan_id} from step {msg.first_step_index}, "
+                  f"{msg.num_steps} steps ({node.last_solve_ms:.1f} ms)", flush=True)
+        time.sleep(max(0.0, period - (time.monotonic() - tick)))
