@@ -1,0 +1,486 @@
+"""`marionette demo grasp-walk` (Dang 2012 ch. 6, issue 10): TALOS walks to a ball that is moved
+while it walks. The footstep process (`marionette footsteps run`, posture frozen when replanning)
+plans the steps to a stance from which the right hand reaches the ball and publishes
+FOOTSTEP_PLAN; marionette-controller's walking stack (:func:`walking.walking_spec`) executes
+them; the ball is moved sideways during the walk, the footstep process replans and the
+controller's footstep manager applies the new steps to the steps not yet started.
+
+Scene: TALOS alone on the floor (``models/talos/talos.xml``). In ``talos_walk`` the bar (1 m
+ahead) lies across the path and the ball sits on a pedestal 2.2 m ahead behind it; both the bar
+and the pedestal are fixtures SIM_COMMAND cannot move, and a ball moved off its pedestal falls.
+The ball here is the target the demo publishes on OBJECT_POSES (the perception output the
+footstep process listens to; Dang's ball was tracked by motion capture) and moves during the
+walk. Success (ARCHITECTURE.md §Demos, without the final grasp): the robot stops on the final
+stance of the last plan with the ball within reach of its right arm, never falls, and its
+measured ZMP stays inside the support polygon of its loaded soles.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pinocchio as pin
+
+import marionette
+from marionette import (channels, lcmt_footstep_plan, lcmt_object_pose, lcmt_object_poses,
+                        lcmt_robot_state, lcmt_walk_status, robots)
+from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.execution.demo import DemoError
+from marionette.execution.walking import (FEET, MergedPlan, loaded_soles, sole_half_size,
+                                          walking_spec, zmp_margins)
+from marionette.lcm_bus import private_lcm_url
+from marionette.processes import ProcessError, ProcessGroup
+
+
+@dataclass(frozen=True)
+class GraspWalkSettings:
+    """Where the ball starts and how it is moved (relative to the initial stance centre)."""
+
+    ball: tuple[float, float, float] = (1.3, -0.10, 0.842)  # [m] ahead, left, height (pedestal top)
+    shift: tuple[float, float] = (0.0, -0.15)   # [m] ball displacement during the walk
+    shift_at_step: int = 1                      # moved when this step starts
+    hand: str = "right"
+    stance_tolerance: float = 0.02              # [m] executed final soles vs the last plan's
+    stance_yaw_tolerance_deg: float = 3.0
+    max_base_drop: float = 0.05                 # [m] fall criterion (base height)
+    zmp_tolerance: float = 0.005                # [m] ZMP outside the soles' polygon allowed by
+    #                                             the sole poses (walk references, mm from the real ones)
+    walk_timeout_s: float = 60.0                # controller time for the whole walk
+
+
+class _Log:
+    """Everything the judgement and the plots need, filled by LCM handlers (background thread)."""
+
+    def __init__(self, client: ControllerClient, model: pin.Model) -> None:
+        self.model = model
+        self.statuses: list[Any] = []
+        self.loaded: dict[int, list[str]] = {}
+        self.utimes: list[int] = []
+        self.q: list[np.ndarray] = []
+        self.plans: list[tuple[int, Any]] = []          # (controller utime at reception, plan)
+        self.merged = MergedPlan()
+        self._lock = threading.Lock()
+        client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, self._on_status)
+        client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
+        client.bus.subscribe(channels.FOOTSTEP_PLAN, lcmt_footstep_plan, self._on_plan)
+        self._last_utime = 0
+
+    def _on_status(self, msg) -> None:
+        with self._lock:
+            self.statuses.append(msg)
+
+    def _on_state(self, msg) -> None:
+        with self._lock:
+            self._last_utime = msg.utime
+            self.loaded[msg.utime] = loaded_soles(msg)
+            if len(self.q) == 0 or msg.utime - self.utimes[-1] >= 20000:   # 50 Hz for plots
+                self.utimes.append(msg.utime)
+                self.q.append(configuration_from_state(self.model, msg))
+
+    def _on_plan(self, msg) -> None:
+        with self._lock:
+            self.plans.append((self._last_utime, msg))
+            self.merged.apply(msg)
+
+    def last_status(self):
+        with self._lock:
+            return self.statuses[-1] if self.statuses else None
+
+
+def _ball_message(utime: int, p_W: np.ndarray) -> lcmt_object_poses:
+    o = lcmt_object_pose()
+    o.utime = int(utime)
+    o.object_name = "ball"
+    o.position_camera, o.quaternion_camera = [0.0] * 3, [1.0, 0.0, 0.0, 0.0]
+    o.position_world, o.quaternion_world = [float(v) for v in p_W], [1.0, 0.0, 0.0, 0.0]
+    o.num_tags, o.tag_id, o.reprojection_error, o.ambiguous = 0, [], 0.0, False
+    msg = lcmt_object_poses()
+    msg.utime, msg.camera_name, msg.latency_us = int(utime), "motion_capture", 0.0
+    msg.objects, msg.num_objects = [o], 1
+    return msg
+
+
+class _BallPublisher(threading.Thread):
+    """Publishes the ball's pose on OBJECT_POSES at 20 Hz (the footstep process's input)."""
+
+    def __init__(self, client: ControllerClient, p_W: np.ndarray) -> None:
+        super().__init__(daemon=True)
+        self.client, self.p_W, self.stop = client, np.array(p_W, dtype=float), threading.Event()
+
+    def run(self) -> None:
+        while not self.stop.wait(0.05):
+            self.client.bus.publish(channels.OBJECT_POSES, _ball_message(self.client.utime(), self.p_W))
+
+
+def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
+    """Reach [m] of the ``hand`` arm: shoulder (``arm_<hand>_1`` joint) to grasp point with the
+    arm stretched (arm joints at zero: TALOS' arm hangs straight), and the shoulder frame."""
+    q = pin.neutral(model)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    shoulder = f"arm_{hand}_1_link"
+    grasp = f"{hand}_grasp_point"
+    d = np.linalg.norm(data.oMf[model.getFrameId(grasp)].translation
+                       - data.oMf[model.getFrameId(shoulder)].translation)
+    return float(d), shoulder
+
+
+def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
+                   log: Callable[[str], None] = print, controller_url: str | None = None,
+                   settings: GraspWalkSettings | None = None) -> dict[str, Any]:
+    """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
+    from marionette.footsteps.robot_model import talos
+
+    settings = settings or GraspWalkSettings()
+    out_dir.mkdir(parents=True, exist_ok=True)
+    desc = robots.robot("talos")
+    model = talos().model                       # with the grasp-point frames of the planner
+    url = controller_url or private_lcm_url()
+    report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description,
+                              "seed": seed, "robot": "talos", "speed": speed, "lcm_url": url,
+                              "scene": str(desc.mjcf.relative_to(marionette.REPO_ROOT)),
+                              "settings": settings.__dict__}
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
+        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
+        if controller_url is None:
+            group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
+                                       "--robot", "talos", "--scene", desc.mjcf, "--speed", str(speed),
+                                       "--camera-rate", "0", "--status-rate", "100"])
+        rec = _Log(client, model)
+        try:
+            client.wait_ready(60.0)
+        except TimeoutError:
+            group.check_alive()
+            raise
+        client.send_spec(walking_spec(1))
+        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
+                    "the walking controller")
+        client.wait(lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
+                    10.0, "WALK_STATUS standing")
+        standing = rec.last_status()
+        start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
+        mid = 0.5 * (start["left"][:2] + start["right"][:2])
+        ball0 = np.array([mid[0] + settings.ball[0], mid[1] + settings.ball[1], settings.ball[2]])
+        ball1 = ball0 + np.array([*settings.shift, 0.0])
+        q_start = rec.q[-1].copy()
+        utime_start = client.utime()
+
+        publisher = _BallPublisher(client, ball0)
+        publisher.start()
+        group.start("footsteps", [sys.executable, "-m", "marionette.cli", "footsteps", "run",
+                                  "--lcm-url", url, "--target", "ball", "--hand", settings.hand])
+        log(f"grasp-walk: ball at {np.round(ball0, 3).tolist()}, footstep process started")
+        t1 = time.perf_counter()
+        try:
+            _wait_alive(client, group, lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
+            timings["first_plan_wall_s"] = time.perf_counter() - t1
+            first_plan = rec.plans[0][1]
+            log(f"grasp-walk: plan 1, {first_plan.num_steps} steps")
+            _wait_alive(client, group,
+                        lambda c: rec.last_status().current_step_index >= settings.shift_at_step,
+                        settings.walk_timeout_s * 2, f"step {settings.shift_at_step}")
+            publisher.p_W = ball1
+            utime_move = client.utime()
+            log(f"grasp-walk: ball moved to {np.round(ball1, 3).tolist()} at step "
+                f"{rec.last_status().current_step_index}")
+            _wait_alive(client, group, lambda c: _walk_done(rec, 1.5), settings.walk_timeout_s * 2,
+                        "the robot standing at the end of the last plan")
+        finally:
+            publisher.stop.set()
+        timings["walk_controller_s"] = (client.utime() - utime_start) * 1e-6
+        q_final = configuration_from_state(model, client.state)
+        status = client.status
+        report["controller"] = {"mode": status.mode, "mode_reason": status.mode_reason,
+                                "realtime_factor": status.realtime_factor,
+                                "deadline_misses": status.deadline_misses,
+                                "num_rejected": status.num_rejected,
+                                "last_rejection": status.last_rejection}
+        group.check_alive()
+    timings["total_wall_s"] = time.perf_counter() - t0
+    footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
+    report["timings"] = timings
+    report.update(_criteria(settings, model, rec, start, q_start, q_final, ball0, ball1,
+                            utime_start, utime_move, footsteps_log))
+    report["summary"] = summary(report)
+    write_grasp_walk_report(out_dir, report, rec, ball0, ball1, utime_move, model)
+    return report
+
+
+def _wait_alive(client: ControllerClient, group: ProcessGroup, cond, timeout_s: float, what: str) -> None:
+    """client.wait in 1 s slices, checking that every process still runs (a dead footstep
+    process must fail the run with its log, not after the timeout)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            client.wait(cond, min(1.0, max(0.01, deadline - time.monotonic())), what)
+            return
+        except TimeoutError as e:
+            try:
+                group.check_alive()
+            except ProcessError as dead:
+                raise DemoError(f"waiting for {what}: {dead}") from dead
+            if time.monotonic() >= deadline:
+                raise DemoError(str(e)) from e
+
+
+def _walk_done(rec: _Log, settle_s: float) -> bool:
+    """Standing on the latest plan, at least one step walked, for ``settle_s`` of controller time
+    with no plan since (a walk starts 1.6 s after its plan arrives, so a later plan would show)."""
+    with rec._lock:
+        if not rec.plans or not rec.statuses:
+            return False
+        last_plan_utime = rec.plans[-1][0]
+        latest = rec.statuses[-1]
+        walked = any(s.current_step_index >= 0 for s in rec.statuses)
+        since = [s for s in rec.statuses if s.utime >= latest.utime - settle_s * 1e6]
+    return (walked and latest.utime - last_plan_utime > 2.0e6 and latest.utime - since[0].utime
+            >= 0.9 * settle_s * 1e6 and all(s.phase == "standing" for s in since))
+
+
+def _sole_poses(model: pin.Model, q: np.ndarray) -> dict[str, np.ndarray]:
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    out = {}
+    for side in FEET:
+        X = data.oMf[model.getFrameId(f"{side}_sole_link")]
+        out[side] = np.array([*X.translation, np.arctan2(X.rotation[1, 0], X.rotation[0, 0])])
+    return out
+
+
+def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: _Log, start, q_start, q_final,
+              ball0, ball1, utime_start: int, utime_move: int, footsteps_log: list[str]) -> dict[str, Any]:
+    """The success criteria, measured (module docstring)."""
+    planned = rec.merged.final_stance(start)
+    executed = _sole_poses(model, q_final)
+    stance_err = max(float(np.linalg.norm(executed[s][:2] - planned[s][:2])) for s in FEET)
+    yaw_err = max(abs(float(np.degrees(np.angle(np.exp(1j * (executed[s][3] - planned[s][3]))))))
+                  for s in FEET)
+    # The ball within reach of the right arm from where the robot stopped.
+    reach, shoulder = arm_reach(model, settings.hand)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q_final)
+    ball_dist = float(np.linalg.norm(ball1 - data.oMf[model.getFrameId(shoulder)].translation))
+    # The replans followed the ball: the final stance moved with it (the first plan's final
+    # stance is where the robot would have stopped for the ball where it was).
+    first = MergedPlan()
+    first.apply(rec.plans[0][1])
+    first_stance = first.final_stance(start)
+    stance_shift = 0.5 * sum(planned[s][:2] - first_stance[s][:2] for s in FEET)
+    base_drop = float(max(q_start[2] - q[2] for q in rec.q))
+    walked = [s for s in rec.statuses if s.utime >= utime_start]
+    margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot("talos").mjcf))
+    indices = [s.current_step_index for s in walked if s.current_step_index >= 0]
+    replans = [p for u, p in rec.plans[1:]]
+    after_move = [p for u, p in rec.plans if u >= utime_move]
+    solve_ms = [float(line.rsplit("(", 1)[1].split(" ms")[0]) for line in footsteps_log
+                if line.startswith("footsteps: plan ") and " ms)" in line]
+    c: dict[str, Any] = {
+        "steps_planned_first": int(rec.plans[0][1].num_steps),
+        "steps_executed": int(max(indices) + 1) if indices else 0,
+        "steps_in_order": bool(indices == sorted(indices)),
+        "footstep_plans": len(rec.plans),
+        "footstep_recomputations": len(replans),
+        "recomputations_after_move": len(after_move),
+        "replan_solve_ms": {"median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
+                            "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
+                            "first_plan": solve_ms[0] if solve_ms else None},
+        "final_stance_error_m": stance_err,
+        "final_stance_yaw_error_deg": yaw_err,
+        "final_stance_ok": bool(stance_err <= settings.stance_tolerance
+                                and yaw_err <= settings.stance_yaw_tolerance_deg),
+        "ball_to_shoulder_m": ball_dist,
+        "arm_reach_m": reach,
+        "ball_within_reach": bool(ball_dist <= reach),
+        "final_stance_shift_m": stance_shift.tolist(),
+        "ball_shift_m": list(settings.shift),
+        "base_max_drop_m": base_drop,
+        "no_fall": bool(base_drop < settings.max_base_drop),
+        "zmp_samples": int(len(margins)),
+        "zmp_statuses": len(walked),
+        "zmp_margin_min_m": float(margins[:, 1].min()) if len(margins) else None,
+        "zmp_margin_p5_m": float(np.percentile(margins[:, 1], 5)) if len(margins) else None,
+        "zmp_margin_median_m": float(np.median(margins[:, 1])) if len(margins) else None,
+        "zmp_inside": bool(len(margins) > 0.8 * len(walked)
+                           and margins[:, 1].min() > -settings.zmp_tolerance),
+        "final_stance": {s: planned[s].tolist() for s in FEET},
+        "executed_final_soles": {s: executed[s].tolist() for s in FEET},
+    }
+    ok = (c["final_stance_ok"] and c["ball_within_reach"] and c["no_fall"] and c["zmp_inside"]
+          and c["steps_in_order"] and c["recomputations_after_move"] > 0)
+    return {"success": bool(ok), "criteria": c}
+
+
+def write_grasp_walk_report(out_dir: Path, report: dict[str, Any], rec: _Log, ball0, ball1,
+                            utime_move: int, model: pin.Model) -> None:
+    """report.json, report.md and the plots (footsteps planned vs executed, CoM/ZMP)."""
+    import json
+
+    from marionette.execution.report import _jsonable
+
+    plots: list[Path] = []
+    try:
+        plots = _plots(out_dir, rec, ball0, ball1, utime_move, model)
+    except Exception as e:  # a plot must never hide the run's verdict
+        report["plot_error"] = repr(e)
+    report["plots"] = [p.name for p in plots]
+    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
+    (out_dir / "report.md").write_text(_markdown(report))
+
+
+def summary(report: dict[str, Any]) -> str:
+    """One line for the terminal."""
+    c = report["criteria"]
+    return (f"{'SUCCESS' if report['success'] else 'FAILURE'}: {c['steps_executed']} steps, "
+            f"{c['footstep_recomputations']} footstep recomputations "
+            f"({c['recomputations_after_move']} after the ball moved), final stance "
+            f"{c['final_stance_error_m'] * 1e3:.1f} mm from the plan, ball {c['ball_to_shoulder_m']:.2f} m "
+            f"from the shoulder (reach {c['arm_reach_m']:.2f} m), base drop "
+            f"{c['base_max_drop_m'] * 1e3:.0f} mm, ZMP margin min "
+            f"{_mm(c['zmp_margin_min_m'])} / median {_mm(c['zmp_margin_median_m'])}")
+
+
+def _mm(v) -> str:
+    return "-" if v is None else f"{v * 1e3:.1f} mm"
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    c = r["criteria"]
+    s = r["settings"]
+    ms = c["replan_solve_ms"]
+    lines = [f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}", "",
+             r.get("description", ""), "",
+             f"robot talos, scene `{r['scene']}` (TALOS alone: the ball is the target published on "
+             f"OBJECT_POSES), controller speed {r['speed']} (0 = as fast as possible)", "",
+             summary(r), "",
+             "## Success criteria", "", "| criterion | measured | limit | ok |", "|---|---|---|---|",
+             f"| executed final soles vs last plan | {c['final_stance_error_m'] * 1e3:.1f} mm, "
+             f"{c['final_stance_yaw_error_deg']:.2f}° | {s['stance_tolerance'] * 1e3:.0f} mm, "
+             f"{s['stance_yaw_tolerance_deg']}° | {c['final_stance_ok']} |",
+             f"| ball to right shoulder | {c['ball_to_shoulder_m']:.3f} m | arm reach "
+             f"{c['arm_reach_m']:.3f} m | {c['ball_within_reach']} |",
+             f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | "
+             f"{s['max_base_drop'] * 1e3:.0f} mm | {c['no_fall']} |",
+             f"| measured ZMP in the loaded soles' polygon (min margin; p5, median) | "
+             f"{_mm(c['zmp_margin_min_m'])}; {_mm(c['zmp_margin_p5_m'])}, {_mm(c['zmp_margin_median_m'])} "
+             f"over {c['zmp_samples']}/{c['zmp_statuses']} statuses | > -{s['zmp_tolerance'] * 1e3:.0f} mm "
+             f"| {c['zmp_inside']} |",
+             f"| steps in order | {c['steps_executed']} executed | - | {c['steps_in_order']} |",
+             f"| replans after the ball moved | {c['recomputations_after_move']} | > 0 | "
+             f"{c['recomputations_after_move'] > 0} |", "",
+             "## Footstep recomputations (Dang 2012 §6.3: 97 in 14 s)", "",
+             f"{c['footstep_plans']} plans: the first ({c['steps_planned_first']} steps, "
+             f"{_num(ms['first_plan'])} ms) and {c['footstep_recomputations']} recomputations "
+             f"(median {_num(ms['median'])} ms, max {_num(ms['max'])} ms, posture frozen). The "
+             f"footstep process replans when the ball moves by more than 2 mm or a step starts. "
+             f"Final stance moved by {np.round(c['final_stance_shift_m'], 3).tolist()} m for a "
+             f"ball moved by {c['ball_shift_m']} m.", "",
+             "## Timings", "", "| phase | s |", "|---|---|"]
+    lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
+    ctl = r.get("controller", {})
+    lines += ["", "## Controller", "", ", ".join(f"{k}: {v}" for k, v in ctl.items()), "",
+              "## Plots", ""] + [f"![{p}]({p})" for p in r.get("plots", [])]
+    lines += ["", "Files: `run.lcmlog` (every LCM message of the run), `logs/` (process outputs: "
+              "controller, footsteps, lcm-logger)."]
+    return "\n".join(lines) + "\n"
+
+
+def _num(v) -> str:
+    return "-" if v is None else f"{v:.0f}"
+
+
+def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.Model) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from marionette.execution.report import _save
+    from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR, _sole_outline
+    from marionette.footsteps.robot_model import FootShape
+
+    half = sole_half_size(robots.robot("talos").mjcf)
+    foot = FootShape(length=2 * half[0], width=2 * half[1])
+    paths = []
+    data = model.createData()
+    com = np.array([pin.centerOfMass(model, data, q) for q in rec.q])
+    t_q = np.array(rec.utimes) * 1e-6
+
+    # 1. Top view: first plan (faded), the steps executed (merged plans), measured soles at
+    # each landing, CoM path, the ball before and after its move.
+    fig, ax = plt.subplots(figsize=(8, 6))
+    first = MergedPlan()
+    first.apply(rec.plans[0][1])
+    for i, is_left, pose in first.rows():
+        o = _sole_outline(pose, foot)
+        ax.plot(o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6)
+    for i, is_left, pose in rec.merged.rows():
+        o = _sole_outline(pose, foot)
+        ax.plot(o[:, 0], o[:, 1], color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1.3)
+        ax.annotate(str(i), pose[:2], ha="center", va="center", fontsize=7)
+    landings = _landings(rec, model)
+    for k, (side, pose) in enumerate(landings):
+        o = _sole_outline(pose, foot)
+        ax.plot(o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None)
+    ax.plot(com[:, 0], com[:, 1], color="tab:green", lw=1, label="CoM (measured)")
+    ax.plot(*ball0[:2], "o", color="0.5", ms=10, label="ball at the start")
+    ax.plot(*ball1[:2], "o", color="tab:orange", ms=10, label="ball after its move")
+    ax.plot([], [], ":", color="0.3", label="first plan")
+    ax.plot([], [], "-", color="0.3", label="executed plan (after replans)")
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title(f"grasp-walk: footsteps planned vs executed ({len(rec.plans)} plans)")
+    paths.append(_save(fig, out_dir / "footsteps.png"))
+
+    # 2. CoM and ZMP along x and y (fig. 2.16): reference ZMP, measured ZMP, CoM reference and
+    # measured CoM; plan arrivals and the ball's move marked.
+    st = [s for s in rec.statuses if np.all(np.isfinite(s.zmp_measured))]
+    t = np.array([s.utime for s in st]) * 1e-6
+    fig, axes = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True)
+    for k, ax in enumerate(axes):
+        ax.plot(t, [s.zmp_measured[k] for s in st], lw=0.7, color="tab:red", label="ZMP measured")
+        ax.plot(t, [s.zmp_reference[k] for s in st], lw=1.2, color="k", label="ZMP reference")
+        ax.plot(t, [s.com[k] for s in st], lw=1.2, color="tab:blue", label="CoM reference")
+        ax.plot(t_q, com[:, k], "--", lw=1, color="tab:green", label="CoM measured")
+        for u, _ in rec.plans:
+            ax.axvline(u * 1e-6, color="0.85", lw=0.6)
+        ax.axvline(utime_move * 1e-6, color="tab:orange", lw=1.2, label="ball moved")
+        ax.set_ylabel(f"{'xy'[k]} [m]")
+    axes[0].legend(fontsize=7, ncol=5)
+    axes[1].set_xlabel("controller time [s] (grey: footstep plans received)")
+    fig.suptitle("grasp-walk: CoM and ZMP (Dang 2012 fig. 2.16)")
+    paths.append(_save(fig, out_dir / "com_zmp.png"))
+
+    # 3. ZMP margin inside the loaded soles' polygon over time.
+    m = zmp_margins(rec.statuses, rec.loaded, half)
+    fig, ax = plt.subplots(figsize=(11, 3))
+    ax.plot(m[:, 0], 1e3 * m[:, 1], lw=0.7)
+    ax.axhline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("controller time [s]")
+    ax.set_ylabel("ZMP margin [mm]")
+    ax.set_title("measured ZMP: distance inside the support polygon of the loaded soles")
+    paths.append(_save(fig, out_dir / "zmp_margin.png"))
+    return paths
+
+
+def _landings(rec: _Log, model: pin.Model) -> list[tuple[str, np.ndarray]]:
+    """Measured sole (x, y, z, yaw) of each swing foot 0.1 s after its swing phase ends."""
+    out = []
+    utimes = np.array(rec.utimes)
+    for a, b in zip(rec.statuses, rec.statuses[1:]):
+        if a.phase.endswith("_swing") and a.phase != b.phase:
+            side = a.phase.split("_")[0]
+            k = int(np.searchsorted(utimes, b.utime + 100000))
+            if k < len(rec.q):
+                out.append((side, _sole_poses(model, rec.q[k])[side]))
+    return out

@@ -1,0 +1,111 @@
+"""Walking with marionette-controller: the walking controller spec and the balance measures a
+walk is judged by (measured ZMP against the support polygon of the loaded soles, Dang 2012
+§2.4 fig. 2.16; footstep plans merged the way the controller's footstep manager applies them).
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from marionette.control.spec import ControllerSpec, TaskSpec
+
+FEET = ("left", "right")
+LOADED_FORCE_N = 10.0   # a sole carries load above this normal force [N]
+
+
+def walking_spec(controller_id: int = 1, name: str = "walk") -> ControllerSpec:
+    """The walking stack: feet (20/s) and CoM (5/s) from the controller's pattern generator and
+    the waist kept upright (roll, pitch; 20/s) at level 0, posture (2/s) at level 1. A CoM gain
+    above ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py)."""
+    return ControllerSpec(controller_id, name, [
+        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0,
+                 reference_channel="walk:left_foot"),
+        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0,
+                 reference_channel="walk:right_foot"),
+        TaskSpec("com", "com", 0, gain=5.0, reference_channel="walk:com"),
+        TaskSpec("waist", "se3", 0, frame="base_link", mask=(False, False, False, True, True, False),
+                 gain=20.0),
+        TaskSpec("posture", "posture", 1, gain=2.0),
+    ])
+
+
+@lru_cache(maxsize=4)
+def sole_half_size(mjcf: Path, geom: str = "left_sole") -> tuple[float, float]:
+    """Half length and half width [m] of the sole contact box ``geom`` of a robot MJCF (the
+    surface MuJoCo's contacts use, hence the support polygon's)."""
+    for g in ET.parse(mjcf).getroot().iter("geom"):
+        if g.get("name") == geom:
+            size = [float(v) for v in g.get("size", "").split()]
+            if g.get("type") != "box" or len(size) != 3:
+                raise ValueError(f"{mjcf}: geom {geom!r} is not a box with 3 half sizes")
+            return size[0], size[1]
+    raise ValueError(f"{mjcf}: no geom named {geom!r}")
+
+
+def sole_corners(foot, half: tuple[float, float]) -> np.ndarray:
+    """(4, 2) corners in world of a sole at ``foot`` = (x, y, z, yaw) with half sizes ``half``."""
+    x, y, _, yaw = (float(v) for v in foot)
+    c, s = np.cos(yaw), np.sin(yaw)
+    local = np.array([[a * half[0], b * half[1]] for a in (-1, 1) for b in (-1, 1)])
+    return np.array([x, y]) + local @ np.array([[c, s], [-s, c]])
+
+
+def polygon_margin(point, corners: np.ndarray) -> float:
+    """Signed distance [m] of the 2D ``point`` inside the convex hull of ``corners`` (> 0 inside):
+    the smallest distance to a facet, each facet being normal . x + offset <= 0 inside."""
+    hull = ConvexHull(np.asarray(corners, dtype=float))
+    return float(-np.max(hull.equations[:, :2] @ np.asarray(point, dtype=float) + hull.equations[:, 2]))
+
+
+def zmp_margins(statuses, loaded_feet: dict[int, list[str]], half: tuple[float, float]) -> np.ndarray:
+    """(n, 2) rows (utime [s], margin [m]) of the measured ZMP of each WALK_STATUS inside the
+    polygon of the soles that carry load at the same tick (``loaded_feet``: utime -> sides).
+    Sole poses are the walk's current soles (its references, within a few mm of the real ones).
+    Statuses without a state of the same tick, without a loaded sole or a finite ZMP are skipped."""
+    rows = []
+    for s in statuses:
+        feet = loaded_feet.get(s.utime)
+        if not feet or not np.all(np.isfinite(s.zmp_measured)):
+            continue
+        corners = np.vstack([sole_corners(s.left_foot if side == "left" else s.right_foot, half)
+                             for side in feet])
+        rows.append((s.utime * 1e-6, polygon_margin(s.zmp_measured, corners)))
+    return np.array(rows).reshape(-1, 2)
+
+
+def loaded_soles(state) -> list[str]:
+    """Sides whose sole carries more than LOADED_FORCE_N in an lcmt_robot_state."""
+    fz = {name: w[2] for name, w in zip(state.contact_frame, state.contact_wrench)}
+    return [side for side in FEET if fz.get(f"{side}_sole_link", 0.0) > LOADED_FORCE_N]
+
+
+class MergedPlan:
+    """The footsteps the controller executes: each FOOTSTEP_PLAN replaces the steps from its
+    ``first_step_index`` on (the footstep manager never changes a started step, Dang §2.6.3)."""
+
+    def __init__(self) -> None:
+        self.steps: dict[int, object] = {}     # global index -> lcmt_footstep
+
+    def apply(self, plan) -> None:
+        first = int(plan.first_step_index)
+        self.steps = {i: s for i, s in self.steps.items() if i < first}
+        for s in plan.steps:
+            self.steps[int(s.index)] = s
+
+    def final_stance(self, start: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Last sole (x, y, z, yaw) of each side, ``start`` for a side that never steps."""
+        out = {side: np.asarray(start[side], dtype=float) for side in FEET}
+        for i in sorted(self.steps):
+            s = self.steps[i]
+            out["left" if s.is_left else "right"] = np.array([s.x, s.y, s.z, s.yaw])
+        return out
+
+    def rows(self) -> list[tuple[int, bool, np.ndarray]]:
+        return [(i, bool(self.steps[i].is_left),
+                 np.array([self.steps[i].x, self.steps[i].y, self.steps[i].z, self.steps[i].yaw]))
+                for i in sorted(self.steps)]
