@@ -44,7 +44,8 @@ class GraspWalkSettings:
 
     ball: tuple[float, float, float] = (1.3, -0.10, 0.842)  # [m] ahead, left, height (pedestal top)
     shift: tuple[float, float] = (0.0, -0.15)   # [m] ball displacement during the walk
-    shift_at_step: int = 1                      # moved when this step starts
+    shift_at_step: int = 1                      # the move starts when this step starts
+    shift_duration_s: float = 1.5               # [s] of controller time: pushed, not teleported
     hand: str = "right"
     stance_tolerance: float = 0.02              # [m] executed final soles vs the last plan's
     stance_yaw_tolerance_deg: float = 3.0
@@ -86,7 +87,8 @@ class _Log:
     def _on_plan(self, msg) -> None:
         with self._lock:
             self.plans.append((self._last_utime, msg))
-            self.merged.apply(msg)
+            current = self.statuses[-1].current_step_index if self.statuses else -1
+            self.merged.apply(msg, current)
 
     def last_status(self):
         with self._lock:
@@ -107,15 +109,30 @@ def _ball_message(utime: int, p_W: np.ndarray) -> lcmt_object_poses:
 
 
 class _BallPublisher(threading.Thread):
-    """Publishes the ball's pose on OBJECT_POSES at 20 Hz (the footstep process's input)."""
+    """Publishes the ball's pose on OBJECT_POSES at 20 Hz (the footstep process's input). After
+    :meth:`move` the ball slides to its new place at constant speed over ``duration_s`` of
+    controller time (Dang ch. 6: the ball is carried while the robot walks)."""
 
     def __init__(self, client: ControllerClient, p_W: np.ndarray) -> None:
         super().__init__(daemon=True)
-        self.client, self.p_W, self.stop = client, np.array(p_W, dtype=float), threading.Event()
+        self.client, self.stop = client, threading.Event()
+        self.p0 = self.p1 = np.array(p_W, dtype=float)
+        self.utime_move, self.duration_us = 0, 1
+
+    def move(self, p_W: np.ndarray, duration_s: float) -> int:
+        """Starts the move now; returns its controller utime."""
+        self.utime_move, self.duration_us = self.client.utime(), max(1, int(duration_s * 1e6))
+        self.p1 = np.array(p_W, dtype=float)
+        return self.utime_move
+
+    def position(self, utime: int) -> np.ndarray:
+        s = float(np.clip((utime - self.utime_move) / self.duration_us, 0.0, 1.0))
+        return self.p0 + s * (self.p1 - self.p0)
 
     def run(self) -> None:
         while not self.stop.wait(0.05):
-            self.client.bus.publish(channels.OBJECT_POSES, _ball_message(self.client.utime(), self.p_W))
+            utime = self.client.utime()
+            self.client.bus.publish(channels.OBJECT_POSES, _ball_message(utime, self.position(utime)))
 
 
 def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
@@ -187,10 +204,9 @@ def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             _wait_alive(client, group,
                         lambda c: rec.last_status().current_step_index >= settings.shift_at_step,
                         settings.walk_timeout_s * 2, f"step {settings.shift_at_step}")
-            publisher.p_W = ball1
-            utime_move = client.utime()
-            log(f"grasp-walk: ball moved to {np.round(ball1, 3).tolist()} at step "
-                f"{rec.last_status().current_step_index}")
+            utime_move = publisher.move(ball1, settings.shift_duration_s)
+            log(f"grasp-walk: ball moving to {np.round(ball1, 3).tolist()} from step "
+                f"{rec.last_status().current_step_index} on, in {settings.shift_duration_s} s")
             _wait_alive(client, group, lambda c: _walk_done(rec, 1.5), settings.walk_timeout_s * 2,
                         "the robot standing at the end of the last plan")
         finally:
@@ -271,7 +287,7 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: _Log, start, q
     # The replans followed the ball: the final stance moved with it (the first plan's final
     # stance is where the robot would have stopped for the ball where it was).
     first = MergedPlan()
-    first.apply(rec.plans[0][1])
+    first.apply(rec.plans[0][1], -1)
     first_stance = first.final_stance(start)
     stance_shift = 0.5 * sum(planned[s][:2] - first_stance[s][:2] for s in FEET)
     base_drop = float(max(q_start[2] - q[2] for q in rec.q))
@@ -417,7 +433,7 @@ def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.M
     # each landing, CoM path, the ball before and after its move.
     fig, ax = plt.subplots(figsize=(8, 6))
     first = MergedPlan()
-    first.apply(rec.plans[0][1])
+    first.apply(rec.plans[0][1], -1)
     for i, is_left, pose in first.rows():
         o = _sole_outline(pose, foot)
         ax.plot(o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6)
@@ -454,7 +470,7 @@ def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.M
         ax.plot(t_q, com[:, k], "--", lw=1, color="tab:green", label="CoM measured")
         for u, _ in rec.plans:
             ax.axvline(u * 1e-6, color="0.85", lw=0.6)
-        ax.axvline(utime_move * 1e-6, color="tab:orange", lw=1.2, label="ball moved")
+        ax.axvline(utime_move * 1e-6, color="tab:orange", lw=1.2, label="ball starts moving")
         ax.set_ylabel(f"{'xy'[k]} [m]")
     axes[0].legend(fontsize=7, ncol=5)
     axes[1].set_xlabel("controller time [s] (grey: footstep plans received)")

@@ -86,16 +86,22 @@ def loaded_soles(state) -> list[str]:
 
 class MergedPlan:
     """The footsteps the controller executes: each FOOTSTEP_PLAN replaces the steps from its
-    ``first_step_index`` on (the footstep manager never changes a started step, Dang §2.6.3)."""
+    ``first_step_index`` on, except a step that has started meanwhile (the footstep manager
+    never changes a started step, Dang §2.6.3; FootstepManager::ApplyPlan)."""
 
     def __init__(self) -> None:
         self.steps: dict[int, object] = {}     # global index -> lcmt_footstep
 
-    def apply(self, plan) -> None:
-        first = int(plan.first_step_index)
+    def apply(self, plan, current_step: int) -> None:
+        """``current_step``: WALK_STATUS.current_step_index when the plan arrived (-1 standing)."""
+        if not self.steps:
+            self.steps = {int(s.index): s for s in plan.steps}
+            return
+        first = max(int(plan.first_step_index), int(current_step) + 1)
         self.steps = {i: s for i, s in self.steps.items() if i < first}
         for s in plan.steps:
-            self.steps[int(s.index)] = s
+            if s.index >= first:
+                self.steps[int(s.index)] = s
 
     def final_stance(self, start: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Last sole (x, y, z, yaw) of each side, ``start`` for a side that never steps."""
