@@ -118,11 +118,14 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     first_step_at = next(s.utime for s in statuses if s.current_step_index >= 0)
     assert moved_at > first_step_at, "the ball moved during the walk"
 
-    # Within reach of the right arm: shoulder to ball no longer than the stretched arm (shoulder
-    # to the grasp point with every arm joint at zero, TALOS' arm hanging straight).
-    pin.framesForwardKinematics(model, data, q_last)
+    # Within reach of the right arm where the robot stopped: shoulder to ball no longer than the
+    # stretched arm (shoulder to the grasp point with every arm joint at zero, TALOS' arm hanging
+    # straight). The last state before the reach controller took over:
+    stop = max(i for i, st in enumerate(states) if st.utime < report["reach_start_utime"])
+    q_stop = configuration_from_state(model, states[stop])
+    pin.framesForwardKinematics(model, data, q_stop)
     shoulder = data.oMf[model.getFrameId("arm_right_1_link")].translation.copy()
-    q_straight = q_last.copy()
+    q_straight = q_stop.copy()
     for j in range(1, 8):
         q_straight[model.idx_qs[model.getJointId(f"arm_right_{j}_joint")]] = 0.0
     pin.framesForwardKinematics(model, data, q_straight)
@@ -130,6 +133,14 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     reach = np.linalg.norm(grasp_point - data.oMf[model.getFrameId("arm_right_1_link")].translation)
     assert np.linalg.norm(balls[-1] - shoulder) < reach
     print(f"ball {np.linalg.norm(balls[-1] - shoulder):.3f} m from the shoulder, arm reach {reach:.3f} m")
+
+    # Bonus: after the walk, the grasp point reaches the ball (final state, after the reach).
+    reach = report["reach"]
+    assert reach["done"], reach["reason"]
+    pin.framesForwardKinematics(model, data, q_last)
+    grasp = data.oMf[model.getFrameId("gripper_right_base_link")].act(TALOS_GRASP_POINT)
+    assert np.linalg.norm(grasp - balls[-1]) < 0.03
+    print(f"grasp point {1e3 * np.linalg.norm(grasp - balls[-1]):.1f} mm from the ball after the reach")
 
     # No fall: the base never dropped 5 cm.
     z = np.array([s.base_position[2] for s in states])
