@@ -579,7 +579,7 @@ def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.M
     ax.grid(alpha=0.3)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title(f"grasp-walk: footsteps planned vs executed ({len(rec.plans)} plans)")
     paths.append(_save(fig, out_dir / "footsteps.png"))
 
