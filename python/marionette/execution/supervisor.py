@@ -328,6 +328,16 @@ class Supervisor:
         except TimeoutError as e:
             raise SupervisorFailure("switch_timeout", str(e)) from None
         s = self.client.status
+        if s.active_controller_id != cid and tag in s.last_switch_result and \
+                s.last_switch_result.startswith("accepted"):
+            # The decision text comes from the LCM thread and may be published one status ahead
+            # of the loop snapshot that carries the new active id: wait for the snapshot.
+            try:
+                self.client.wait(lambda c: c.status.active_controller_id == cid, self.options.accept_timeout_s,
+                                 f"controller {cid} to show as active")
+            except TimeoutError as e:
+                raise SupervisorFailure("switch_timeout", str(e)) from None
+            s = self.client.status
         if s.active_controller_id != cid:
             if tag in s.last_switch_result:
                 raise SupervisorFailure("switch_refused", s.last_switch_result)

@@ -84,7 +84,7 @@ def test_ur10_pick_and_place_across_two_hosts(hosts, build_dir, tmp_path):
     log = open(tmp_path / "controller.log", "w")
     controller = subprocess.Popen(
         a.command([str(build_dir / "marionette-controller"), "--robot", "ur10", "--scene", scene,
-                   "--lcm-url", URL, "--speed", "0", "--camera-rate", "0", "--status-rate", "100"]),
+                   "--lcm-url", URL, "--speed", "3", "--camera-rate", "0", "--status-rate", "100"]),
         stdout=log, stderr=subprocess.STDOUT)
     try:
         demo = subprocess.run(

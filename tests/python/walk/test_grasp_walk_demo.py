@@ -75,7 +75,7 @@ def zmp_inside(zmp, feet, half, tolerance):
 
 
 def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_env):
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "grasp-walk", "--speed", "0",
+    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "grasp-walk", "--speed", "3",
                            "--out", str(tmp_path)], capture_output=True, text=True, timeout=110,
                           env=lcm_env)
     print(proc.stdout)
