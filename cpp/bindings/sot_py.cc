@@ -56,6 +56,7 @@ void RegisterSot(py::module_& m) {
         py::dict report;
         report["ranks"] = r.ranks;
         report["num_qp"] = r.num_qp;
+        report["num_active_set"] = r.num_active_set;
         report["qp_failures"] = r.qp_failures;
         return py::make_tuple(v, report);
       },

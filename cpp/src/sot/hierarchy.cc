@@ -1,5 +1,6 @@
 #include "marionette/sot/hierarchy.h"
 
+#include <Eigen/Cholesky>
 #include <Eigen/Householder>
 #include <algorithm>
 #include <cmath>
@@ -71,6 +72,16 @@ struct HierarchyWorkspace::Impl {
     glo.resize(mc);
     ghi.resize(mc);
     g_col.resize(mc);
+    R1.resize(n, me);
+    H1.resize(n, n);
+    AW.resize(n, n);
+    HiA.resize(n, n);
+    S.resize(n, n);
+    for (Eigen::VectorXd* e : {&g1, &hig, &lambda, &ut, &a_row, &dx, &x_free}) e->resize(n);
+    W_rows.reserve(mc);
+    W_sides.reserve(mc);
+    active.resize(h.levels().size());
+    for (auto& a : active) a.reserve(mc);
     int carried = 0;
     for (const auto& level : h.levels()) {
       int level_rows = 0;
@@ -125,12 +136,26 @@ struct HierarchyWorkspace::Impl {
     eiquadprog::solvers::EiquadprogFast solver;
   };
   std::vector<std::unique_ptr<LevelQp>> qps;
+  // Active-set shortcut (TryActiveSet), all in the r coordinates ũ of the rotated Z_blk:
+  // R1 (ρ x m) the level's triangular factor, H1 = R1 R1^T + (μ² + 1e-12) I (ρ x ρ, then its
+  // Cholesky factor in place), g1 = -R1 cperm (ρ), hig = H^-1 g (r); for the k fixed rows:
+  // AW (r x k) their directions, HiA = H^-1 AW (r x k), S = AW^T H^-1 AW (k x k), lambda (k);
+  // ut the candidate ũ (r), a_row one carried row's direction (r), dx a step in v (n), x_free
+  // the unconstrained step (n).
+  Eigen::MatrixXd R1, H1, AW, HiA, S;
+  Eigen::VectorXd g1, hig, lambda, ut, a_row, dx, x_free;
+  // The working set: carried-row index, side (+1 upper, -1 lower).
+  std::vector<int> W_rows, W_sides;
+  // Per level, the carried rows active at the last tick's QP optimum (row, side): only the
+  // first guess, never the result.
+  std::vector<std::vector<std::pair<int, int>>> active;
 };
 
 HierarchyWorkspace::HierarchyWorkspace(const Hierarchy& hierarchy)
     : impl_(std::make_unique<Impl>(hierarchy)) {
   report_.ranks.assign(hierarchy.num_levels(), 0);
   report_.qp_levels.assign(hierarchy.num_levels(), false);
+  report_.active_set_levels.assign(hierarchy.num_levels(), false);
   report_.dampings.assign(hierarchy.num_levels(), 0.0);
 }
 HierarchyWorkspace::~HierarchyWorkspace() = default;
@@ -330,6 +355,213 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& q, const Eigen::Ref<const Eigen::Matri
   return true;
 }
 
+// Direction of carried row i in the ũ coordinates (a = Z_blk^T G_i^T, r) and its value at x_old.
+// Returns false for a row the levels above already fixed (|a|² < 1e-24): the QP skips it too.
+bool CarriedRow(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int i, double* value) {
+  const int r = static_cast<int>(Z_blk.cols());
+  if (w.g_col[i] >= 0) {
+    w.a_row.head(r) = Z_blk.row(w.g_col[i]).transpose();
+    *value = w.x_old[w.g_col[i]];
+  } else {
+    w.a_row.head(r).noalias() = Z_blk.transpose() * w.G.row(i).transpose();
+    *value = w.G.row(i).dot(w.x_old);
+  }
+  return w.a_row.head(r).squaredNorm() >= 1e-24;
+}
+
+// ũ ← H^-1 ũ for H = blockdiag(H1 (Cholesky-factored in place), ε I_{r-ρ}).
+void ApplyHInverse(const Impl& w, int rho, double eps, Eigen::Ref<Eigen::VectorXd> u) {
+  if (rho > 0) {
+    const auto L = w.H1.topLeftCorner(rho, rho);
+    L.triangularView<Eigen::Lower>().solveInPlace(u.head(rho));
+    L.triangularView<Eigen::Lower>().transpose().solveInPlace(u.head(rho));
+  }
+  u.tail(u.size() - rho) /= eps;
+}
+
+// Active-set shortcut for a QP level without inequality rows of its own (mi = 0). The level's
+// QP (SolveLevelQp, the same objective and the same widened bounds) is
+//   min_ũ ½ ũ^T H ũ + g^T ũ   s.t.  lo'_i <= value_i + a_i^T ũ <= hi'_i  (carried rows i)
+// with H = blockdiag(R1 R1^T + (μ² + 1e-12) I_ρ, ε I_{r-ρ}), ε = max(regularization, 1e-12),
+// g = [-R1 cperm; 0]: strictly convex, so a point satisfying its KKT conditions is its unique
+// optimum (Nocedal & Wright 2006, Thm 16.4), the one eiquadprog returns. For a working set W of
+// rows fixed at a bound (A_W ũ = β_W) the equality QP is solved by its Schur complement:
+//   S λ = β_W + A_W H^-1 g,  S = A_W H^-1 A_W^T,  ũ = H^-1 (A_W^T λ - g)
+// (stationarity H ũ + g = A_W^T λ; H^-1 is cheap, H being block diagonal). The point is the
+// QP's optimum when every carried row is within its bounds and every λ_i has the sign of a
+// binding bound (λ_i <= 0 on an upper bound, >= 0 on a lower one).
+//  1. Warm guess: W = the rows active at the last tick's optimum (at 1 kHz the active set
+//     rarely changes); accepted only if the KKT conditions verify.
+//  2. Else the primal active-set method (Nocedal & Wright §16.5) from ũ = 0, which is feasible
+//     (the bounds are widened to include x_old): step towards the equality-QP solution up to
+//     the first blocking row, which joins W (its direction is independent of W's, so S stays
+//     positive definite), or, at a full step, drop the row with the worst multiplier; stop when
+//     none is wrong.
+// Returns false (→ eiquadprog) on a rank-deficient W, on rounding leaving the final point off
+// the KKT conditions by more than tol, or after too many iterations (degenerate cycling).
+// On success writes w.x and records W as the level's next first guess.
+bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int m,
+                  int rho, double mu, double regularization, double tol) {
+  const int r = static_cast<int>(Z_blk.cols());
+  if (r == 0) return false;
+  const double eps = std::max(regularization, 1e-12);
+  if (rho > 0) {
+    auto R1 = w.R1.topLeftCorner(rho, m);
+    R1 = w.Mt.topLeftCorner(rho, m);
+    R1.triangularView<Eigen::StrictlyLower>().setZero();
+    auto H1 = w.H1.topLeftCorner(rho, rho);
+    H1.noalias() = R1 * R1.transpose();
+    H1.diagonal().array() += mu * mu + 1e-12;
+    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H1);  // in place: no allocation
+    if (llt.info() != Eigen::Success) return false;
+    w.g1.head(rho).noalias() = -R1 * w.cperm.head(m);
+  }
+  w.hig.head(r).setZero();
+  w.hig.head(rho) = w.g1.head(rho);
+  ApplyHInverse(w, rho, eps, w.hig.head(r));
+  // The QP's bounds: widened to include the current value (rounding of the levels above may
+  // leave it ~1e-15 outside).
+  auto bound = [&](int i, int side, double value_old) {
+    return side > 0 ? std::max(w.ghi[i], value_old) : std::min(w.glo[i], value_old);
+  };
+  auto row_value = [&](int i, const Eigen::VectorXd& x) {
+    return w.g_col[i] >= 0 ? x[w.g_col[i]] : w.G.row(i).dot(x);
+  };
+  // Solves the equality QP of W into w.ut (r) and w.lambda (k); false if S is not positive definite.
+  auto solve_working_set = [&]() {
+    const int k = static_cast<int>(w.W_rows.size());
+    w.ut.head(r) = -w.hig.head(r);
+    if (k == 0) return true;
+    if (k > r) return false;
+    auto AW = w.AW.topLeftCorner(r, k);
+    auto HiA = w.HiA.topLeftCorner(r, k);
+    auto lambda = w.lambda.head(k);
+    for (int i = 0; i < k; ++i) {
+      double value_old;
+      CarriedRow(w, Z_blk, w.W_rows[i], &value_old);
+      AW.col(i) = w.a_row.head(r);
+      HiA.col(i) = w.a_row.head(r);
+      ApplyHInverse(w, rho, eps, HiA.col(i));
+      lambda[i] = bound(w.W_rows[i], w.W_sides[i], value_old) - value_old;  // β_i
+    }
+    lambda.noalias() += AW.transpose() * w.hig.head(r);
+    auto S = w.S.topLeftCorner(k, k);
+    S.noalias() = AW.transpose() * HiA;
+    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(S);
+    if (llt.info() != Eigen::Success) return false;
+    const auto L = w.S.topLeftCorner(k, k);
+    L.triangularView<Eigen::Lower>().solveInPlace(lambda);
+    L.triangularView<Eigen::Lower>().transpose().solveInPlace(lambda);
+    w.ut.head(r).noalias() += HiA * lambda;
+    return true;
+  };
+  // KKT check of w.ut (with w.lambda): returns the index in W of the worst multiplier (-1 if
+  // none), or -2 when a row is off its bounds by more than tol.
+  auto verify = [&]() {
+    w.x = w.x_old;
+    w.x.noalias() += Z_blk * w.ut.head(r);
+    const int k = static_cast<int>(w.W_rows.size());
+    for (int i = 0; i < w.num_carried; ++i) {
+      double value_old;
+      if (!CarriedRow(w, Z_blk, i, &value_old)) continue;  // fixed above: the QP skips it too
+      const double value = row_value(i, w.x);
+      const auto it = std::find(w.W_rows.begin(), w.W_rows.end(), i);
+      if (it != w.W_rows.end()) {
+        const int side = w.W_sides[it - w.W_rows.begin()];
+        if (std::abs(value - bound(i, side, value_old)) > tol) return -2;
+      } else if (!Inside(value, bound(i, -1, value_old), bound(i, 1, value_old), tol)) {
+        return -2;
+      }
+    }
+    int wrong = -1;
+    for (int i = 0; i < k; ++i) {
+      const double pull = w.W_sides[i] * w.lambda[i];
+      if (pull > 0.0 && (wrong < 0 || pull > w.W_sides[wrong] * w.lambda[wrong])) wrong = i;
+    }
+    return wrong;
+  };
+  auto accept = [&]() {
+    w.active[level].clear();
+    for (size_t i = 0; i < w.W_rows.size(); ++i) w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
+    return true;
+  };
+  // 1. The warm guess.
+  w.W_rows.clear();
+  w.W_sides.clear();
+  for (const auto& [row, side] : w.active[level]) {
+    double value_old;
+    if (row < w.num_carried && CarriedRow(w, Z_blk, row, &value_old) &&
+        !std::isinf(side > 0 ? w.ghi[row] : w.glo[row])) {
+      w.W_rows.push_back(row);
+      w.W_sides.push_back(side);
+    }
+  }
+  if (!w.W_rows.empty() && solve_working_set() && verify() == -1) return accept();
+  // 2. The primal active-set method from ũ = 0.
+  w.W_rows.clear();
+  w.W_sides.clear();
+  auto current = w.u.head(r);  // the feasible iterate ũ (r); w.u is free after the level's step
+  current.setZero();
+  const int max_iterations = 2 * r + 10;
+  for (int iteration = 0; iteration < max_iterations; ++iteration) {
+    if (!solve_working_set()) return false;
+    // Step p = ũ_W - ũ; in v: dx = Z p, from x_cur = x_old + Z ũ.
+    w.ut.head(r) -= current;
+    w.dx.noalias() = Z_blk * w.ut.head(r);
+    w.x = w.x_old;
+    w.x.noalias() += Z_blk * current;  // x_cur
+    double alpha = 1.0;
+    int blocking = -1, blocking_side = 0;
+    for (int i = 0; i < w.num_carried; ++i) {
+      if (std::find(w.W_rows.begin(), w.W_rows.end(), i) != w.W_rows.end()) continue;
+      double value_old;
+      if (!CarriedRow(w, Z_blk, i, &value_old)) continue;  // fixed above: never blocks
+      const double slope = row_value(i, w.dx), value = row_value(i, w.x);
+      double step = 1.0;
+      int side = 0;
+      if (slope > 0.0 && !std::isinf(w.ghi[i])) {
+        step = (bound(i, 1, value_old) - value) / slope;
+        side = 1;
+      } else if (slope < 0.0 && !std::isinf(w.glo[i])) {
+        step = (bound(i, -1, value_old) - value) / slope;
+        side = -1;
+      }
+      if (side != 0 && step < alpha) {
+        alpha = std::max(step, 0.0);
+        blocking = i;
+        blocking_side = side;
+      }
+    }
+    if (blocking >= 0) {
+      current.noalias() += alpha * w.ut.head(r);
+      w.W_rows.push_back(blocking);
+      w.W_sides.push_back(blocking_side);
+      continue;
+    }
+    current += w.ut.head(r);  // full step: ũ = ũ_W
+    w.ut.head(r) = current;
+    const int wrong = verify();
+    if (wrong == -2) return false;
+    if (wrong == -1) return accept();
+    w.W_rows.erase(w.W_rows.begin() + wrong);
+    w.W_sides.erase(w.W_sides.begin() + wrong);
+  }
+  return false;
+}
+
+// After an eiquadprog solve, the carried rows at their bounds: the next tick's first guess.
+void RecordActiveBounds(Impl& w, int level, double tol) {
+  w.active[level].clear();
+  for (int i = 0; i < w.num_carried; ++i) {
+    const double value = w.g_col[i] >= 0 ? w.x[w.g_col[i]] : w.G.row(i).dot(w.x);
+    if (std::abs(value - w.ghi[i]) <= tol) {
+      w.active[level].emplace_back(i, 1);
+    } else if (std::abs(value - w.glo[i]) <= tol) {
+      w.active[level].emplace_back(i, -1);
+    }
+  }
+}
+
 }  // namespace
 
 void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerms*>& tasks,
@@ -363,6 +595,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   const HierarchyOptions& options = hierarchy.options();
   const double tol = options.constraint_tolerance;
   report.num_qp = 0;
+  report.num_active_set = 0;
   report.qp_failures = 0;
   w.Z.setIdentity();
   w.x.setZero();
@@ -412,6 +645,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     const int r = n - off;
     report.ranks[l] = 0;
     report.qp_levels[l] = false;
+    report.active_set_levels[l] = false;
     report.dampings[l] = 0.0;
     w.x_old = w.x;
     int rho = 0;
@@ -462,8 +696,9 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       }
     }
     // The unconstrained step is the cascade's solution when it keeps every inequality.
-    if (w.num_carried + mi > 0 &&
-        !(CarriedFeasible(w, w.x, tol) && LevelFeasible(w, mi, w.x, tol))) {
+    const bool inside = CarriedFeasible(w, w.x, tol) && LevelFeasible(w, mi, w.x, tol);
+    if (inside) w.active[l].clear();
+    if (w.num_carried + mi > 0 && !inside) {
       if (r > 0) {
         if (rho > 0) {
           RotateBasis(Z_blk, w.Mt.topLeftCorner(r, m), w.hcoeffs, rho, w.work);
@@ -471,9 +706,17 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
         }
         report.qp_levels[l] = true;
         ++report.num_qp;
-        if (!SolveLevelQp(w, *w.qps[l], Z_blk, m, rho, mi, report.dampings[l],
-                          options.qp_regularization, &report)) {
+        w.x_free = w.x;  // the unconstrained step, kept if the QP fails too
+        if (options.active_set_shortcut && mi == 0 &&
+            TryActiveSet(w, l, Z_blk, m, rho, report.dampings[l], options.qp_regularization, tol)) {
+          report.active_set_levels[l] = true;
+          ++report.num_active_set;
+        } else if (!SolveLevelQp(w, *w.qps[l], Z_blk, m, rho, mi, report.dampings[l],
+                                 options.qp_regularization, &report)) {
+          w.x = w.x_free;
           ++report.qp_failures;
+        } else {
+          RecordActiveBounds(w, l, 1e-9);
         }
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.

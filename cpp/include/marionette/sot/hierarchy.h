@@ -15,7 +15,17 @@
 /// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10). The
 /// unconstrained step is exact for the cascade whenever it satisfies every inequality carried
 /// from above and the level's own: that is checked, and only when it fails is the level solved
-/// as a QP (in the r coordinates of Z, plus one slack per inequality row) by eiquadprog's dual
+/// as a QP. When the level has no inequality rows of its own (the carried rows are then the
+/// only constraints, e.g. joint-velocity bounds under the feet or gripper tasks), that QP is
+/// first tried by an active-set shortcut: the bounds active at the last tick are fixed as
+/// equalities and the equality-constrained QP solved through its KKT system; if that point
+/// does not verify the QP's KKT conditions (every carried row within its bounds, every fixed
+/// row's multiplier of the sign of a binding bound), a primal active-set iteration from the
+/// current point follows. The QP being strictly convex, a verified point is its unique
+/// optimum, the one the QP solver below returns. Only when neither verifies (a rank-deficient
+/// or ill-conditioned working set: many bounds at once under the exact cascade's tiny
+/// regularization) is the level solved (in the r coordinates of Z, plus one slack per
+/// inequality row) by eiquadprog's dual
 /// active-set method (Goldfarb–Idnani, the QP of TSID): exact, and robust on the degenerate
 /// vertices met when many velocity bounds bind at once (proxsuite, tried first, stalled or
 /// reported such feasible QPs infeasible). An
@@ -57,6 +67,10 @@ struct HierarchyOptions {
   double qp_regularization = 1e-2;
   /// Active-set iteration limit of the QP levels (eiquadprog).
   int qp_max_iterations = 1000;
+  /// Try the active-set shortcut (fixed bounds + KKT check) before eiquadprog on QP levels
+  /// without inequality rows of their own. Exact either way (the shortcut's point is accepted
+  /// only when it is the QP's optimum); false = always eiquadprog (for comparison).
+  bool active_set_shortcut = true;
 };
 
 /// Shape of a task in a hierarchy (from its TaskTerms model).
@@ -92,9 +106,11 @@ class Hierarchy {
 /// What happened in the last solve (per level where relevant).
 struct HierarchyReport {
   std::vector<int> ranks;       ///< DoF used by each level's equality rows
-  std::vector<bool> qp_levels;  ///< true where the level was solved as a QP
+  std::vector<bool> qp_levels;  ///< true where the level was solved as a QP (either way)
+  std::vector<bool> active_set_levels;  ///< true where that QP was solved by the active-set shortcut
   std::vector<double> dampings; ///< μ used at each level (0 = undamped)
-  int num_qp = 0;               ///< QPs solved in the last solve
+  int num_qp = 0;               ///< QP levels in the last solve (eiquadprog or the shortcut)
+  int num_active_set = 0;       ///< of which solved by the active-set shortcut
   int qp_failures = 0;          ///< QPs that did not converge (their level kept the unconstrained step)
   int remaining_dof = 0;        ///< r after the last level
   int last_qp_status = -1;      ///< eiquadprog status of the last QP (0 = optimal)
