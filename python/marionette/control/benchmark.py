@@ -102,6 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float,
                         default=float(os.environ.get("MARIONETTE_BENCH_DURATION", 600)))
     parser.add_argument("--out", type=Path, default=marionette.REPO_ROOT / "reports" / "bench" / "controller.json")
+    parser.add_argument("--only", action="append", default=[], metavar="TEXT",
+                        help="run only the cases whose name contains TEXT (repeatable)")
     args = parser.parse_args(argv)
     scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
     realtime = ["--realtime"] if os.geteuid() == 0 else []
@@ -111,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
         "kinematic": ["--backend", "kinematic", "--camera-rate", "0", *realtime],
         "mujoco + camera, no RT": ["--scene", scene, "--camera-rate", "30"],
     }
+    if args.only:
+        cases = {n: c for n, c in cases.items() if any(t in n for t in args.only)}
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i, (name, extra) in enumerate(cases.items()):
