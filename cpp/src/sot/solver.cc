@@ -145,14 +145,7 @@ void Solver::CalcStackVelocity(const graph::Tick& t, Eigen::VectorXd* out) const
 void Solver::CalcUnblendedVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
   for (size_t i = 0; i < task_inputs_.size(); ++i) terms_[i] = &task_inputs_[i]->Eval(t);
   SolveHierarchy(hierarchy_, terms_, &workspace_, out, nullptr);
-  for (int i : hard_box_tasks_) {  // the same bounds as the command
-    const TaskTerms& box = *terms_[i];
-    if (!box.active) continue;
-    for (size_t j = 0; j < box.unit_columns.size(); ++j) {
-      const int c = box.unit_columns[j];
-      (*out)[c] = std::clamp((*out)[c], box.lower[j], std::max(box.lower[j], box.upper[j]));
-    }
-  }
+  ClampToHardBoxes(t, out);  // the same bounds as the command
 }
 
 void Solver::CalcJointOffset(const graph::Tick& t, Eigen::VectorXd* out) const {
@@ -167,12 +160,16 @@ void Solver::CalcJointOffset(const graph::Tick& t, Eigen::VectorXd* out) const {
 
 void Solver::CalcVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
   *out = stack_velocity_->Eval(t) + joint_offset_->Eval(t);
+  ClampToHardBoxes(t, out);
+}
+
+void Solver::ClampToHardBoxes(const graph::Tick& t, Eigen::VectorXd* v) const {
   for (int i : hard_box_tasks_) {
     const TaskTerms& box = task_inputs_[i]->Eval(t);
     if (!box.active) continue;
     for (size_t j = 0; j < box.unit_columns.size(); ++j) {
       const int c = box.unit_columns[j];
-      (*out)[c] = std::clamp((*out)[c], box.lower[j], std::max(box.lower[j], box.upper[j]));
+      (*v)[c] = std::clamp((*v)[c], box.lower[j], std::max(box.lower[j], box.upper[j]));
     }
   }
 }

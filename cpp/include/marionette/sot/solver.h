@@ -69,6 +69,8 @@ class Solver final : public graph::Entity {
   void CalcUnblendedVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcJointOffset(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
+  // Box bounds of level-0 inequality tasks (joint limits) enforced on v by clamping.
+  void ClampToHardBoxes(const graph::Tick& t, Eigen::VectorXd* v) const;
   void UpdatePrevious(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
   void UpdateTargetOffsets(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
   void UpdateJointOffset(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
