@@ -202,8 +202,7 @@ class FootstepOptimizer:
             report.qp_solves += solution.qp_solves
             if self._predicted_settled(error, above, below, solution):
                 # Already there: the linearised lower levels predict no useful improvement.
-                if s.auto_steps and s.relax_stretched and k < s.max_steps and \
-                        self._stretched(config, free):
+                if self._relaxing_step_wanted(k, config, free):
                     config, kin = self._add_step(config, robot_free, report)
                     error, above, below = self._merits(kin)
                     history = [error]
@@ -226,10 +225,9 @@ class FootstepOptimizer:
             settled = step < s.step_tolerance or bool(np.all(
                 previous_below - below < s.settle_ratio * previous_below + s.settle_absolute))
             if reached and settled:
-                if s.auto_steps and s.relax_stretched and k < s.max_steps and \
-                        self._stretched(config, free):
-                    # Reached, but only with every step at full length: the tasks below are
-                    # strained (the robot twists to reach). One more step relaxes the chain.
+                # Reached, but only with every step at full length: the tasks below are
+                # strained (the robot twists to reach). One more step relaxes the chain.
+                if self._relaxing_step_wanted(k, config, free):
                     config, kin = self._add_step(config, robot_free, report)
                     error, above, below = self._merits(kin)
                     history = [error]
@@ -335,6 +333,11 @@ class FootstepOptimizer:
                 break
             alpha *= 0.5
         return candidate, kin_c, alpha
+
+    def _relaxing_step_wanted(self, k: int, config: AugmentedConfiguration, free: np.ndarray) -> bool:
+        """Automatic steps may add one more, and every step is stretched to full length."""
+        s = self.settings
+        return s.auto_steps and s.relax_stretched and k < s.max_steps and self._stretched(config, free)
 
     def _stretched(self, config: AugmentedConfiguration, free: np.ndarray) -> bool:
         """The free steps are (nearly) all at their forward limit: the chain cannot extend.
