@@ -53,7 +53,8 @@ class Task:
     name = "task"
     max_step = np.inf
     regularisation = False   # True: only shapes the solution; ignored by convergence tests
-    best_effort = False      # True: scaled down instead of a QP when limits bind (lowest level)
+    best_effort = False      # True: scaled down instead of a proxsuite QP when limits bind and
+                             # the active-set paths fail (lowest level; see hierarchy)
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         raise NotImplementedError

@@ -12,12 +12,14 @@ after level i, Z ← Z N(A_i Z), so lower levels cannot change A_i x. Inequality
 constraints C_i x ≤ d_i + w_i* of every lower level (w_i* the least violation reached).
 
 Each level is one small least-squares problem. When its minimiser violates a bound or an
-inequality, the violated rows are held as equalities and the KKT system re-solved; that answer
-is kept only if it is feasible and its multipliers have the right signs (then it is the QP's
-optimum). Otherwise proxsuite solves the level's QP, built by constraint generation: first with
-the violated rows only, then adding rows until none is violated, which returns the optimum of
-the full QP (the reduced problem is a relaxation whose optimum is feasible). Levels marked
-``best_effort`` (regularisation) scale their step down to feasibility instead of a QP.
+inequality, the level's QP in the free space (box and the rows of the inequality levels above)
+is solved by DAQP's dual active set, exact and a few tens of microseconds at these sizes. If
+DAQP reports no optimum, the violated rows are held as equalities and the KKT system re-solved;
+that answer is kept only if it is feasible and its multipliers have the right signs (then it is
+the QP's optimum). Otherwise proxsuite solves the level's QP, built by constraint generation:
+first with the violated rows only, then adding rows until none is violated, which returns the
+optimum of the full QP (the reduced problem is a relaxation whose optimum is feasible). Levels
+marked ``best_effort`` (regularisation) then scale their step down to feasibility instead.
 
 A small damping μ||x||² (Levenberg–Marquardt) regularises each level; its effect vanishes at a
 fixed point of the outer Gauss–Newton loop (x = 0 there).
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import daqp
 import numpy as np
 from proxsuite import proxqp
 
@@ -43,8 +46,9 @@ class Level:
     matrix: np.ndarray   # (m, n)
     vector: np.ndarray   # (m,)
     equality: bool
-    # Best effort (regularisation levels): when bounds or inequalities bind, the step is scaled
-    # down to stay feasible (SNS task scaling) instead of solving a QP.
+    # Best effort (regularisation levels): when bounds or inequalities bind and the active-set
+    # paths fail, the step is scaled down to stay feasible (SNS task scaling) instead of
+    # solving a proxsuite QP.
     best_effort: bool = False
 
     @staticmethod
@@ -172,7 +176,9 @@ class _Cascade:
         dx = dx_ls
         used_qp = False
         if not self._feasible(self.x0 + dx_ls):
-            dx = self._clamped_least_squares(H, g, dx_ls)
+            dx = self._active_set_qp(H, g)
+            if dx is None:
+                dx = self._clamped_least_squares(H, g, dx_ls)
             if dx is None and best_effort:
                 dx = self._scaled(dx_ls)
         if dx is None:
@@ -214,6 +220,27 @@ class _Cascade:
         self.x0 = self.x0 + y[:n]
         self._append(C, d + np.maximum(C @ self.x0 - d, 0.0))
         return True
+
+    def _active_set_qp(self, H: np.ndarray, g: np.ndarray) -> np.ndarray | None:
+        """The level's QP in the free space, min ½zᵀHz − gᵀz s.t. the box on x0 + Z z and the
+        cascade's rows G (x0 + Z z) ≤ h, by DAQP's dual active set (Arnström et al. 2022):
+        exact, and tens of microseconds for these sizes where proxsuite's ADMM took a
+        millisecond. Returns dx = Z z, or None when DAQP reports no optimum (the caller falls
+        back to proxsuite). As in :meth:`_qp`, rows x0 already violates by a rounding error are
+        relaxed to keep z = 0 feasible."""
+        tol = self.s.feasibility_tolerance
+        Zr = np.eye(self.n) if self.Z is None else self.Z
+        A = np.vstack([Zr, self.G @ Zr]) if self.G.shape[0] else Zr
+        upper = np.concatenate([np.maximum(self.upper - self.x0, 0.0),
+                                np.maximum(self.h - self.G @ self.x0, 0.0)]) + tol
+        lower = np.concatenate([np.minimum(self.lower - self.x0, 0.0) - tol,
+                                np.full(self.G.shape[0], -_INF)])
+        z, _, exitflag, _ = daqp.solve(H, -g, np.ascontiguousarray(A), upper, lower,
+                                       primal_tol=tol)
+        self.qp_solves += 1
+        if exitflag != 1:
+            return None
+        return Zr @ z
 
     def _clamped_least_squares(self, H: np.ndarray, g: np.ndarray, dx: np.ndarray
                                ) -> np.ndarray | None:

@@ -213,8 +213,8 @@ class GraspPlanner:
         if self.obstacles:
             levels.append(ObstacleAvoidance(self.obstacles, first_step=first))
         preference = StepPreferenceTask(self.options.nominal_width, first, -1)
-        # Replans start from a plan whose preference level has converged: when limits bind,
-        # scale its step (best effort) rather than solve a QP for the lowest level.
+        # Replans start from a plan whose preference level has converged: should the exact
+        # active-set paths fail, scale its step (best effort) rather than solve a proxsuite QP.
         preference.best_effort = True
         levels += [goal, preference]
         # Replanning keeps the plan's step count unless the stance is out of reach (Algorithm 1

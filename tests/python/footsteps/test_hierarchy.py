@@ -93,3 +93,31 @@ def test_inconsistent_sizes_are_rejected():
         solve_hierarchy([Level("a", np.eye(2), np.zeros(2), True)], np.zeros(3), np.ones(3))
     with pytest.raises(InvalidProblem, match="lower <= upper"):
         solve_hierarchy([], np.ones(2), np.zeros(2))
+
+
+def test_lowest_level_under_bounds_and_rows_is_the_qp_optimum_even_when_best_effort():
+    # A goal-like level, then inequality rows, then a best-effort regularisation level whose
+    # least-squares step leaves the box in many directions (the footstep chain's preference
+    # level): its answer must be the constrained optimum (SLSQP on the same problem), not a
+    # feasible but scaled-down step.
+    rng = np.random.default_rng(5)
+    n = 12
+    A1, b1 = rng.normal(size=(2, n)), rng.normal(size=2)
+    C, d = rng.normal(size=(3, n)), 0.05 * np.ones(3)
+    A2, b2 = np.eye(n), 2.0 * rng.normal(size=n)
+    lower, upper = -0.3 * np.ones(n), 0.3 * np.ones(n)
+    mu = 1e-6
+    solution = solve_hierarchy([Level("goal", A1, b1, True), Level("rows", C, d, False),
+                                Level("pref", A2, b2, True, best_effort=True)],
+                               lower, upper, HierarchySettings(damping=mu))
+    x = solution.x
+    assert solution.levels[1].residual < 1e-6 and np.all(np.abs(x) <= 0.3 + 1e-7)  # QP eps
+    fixed = A1 @ x
+    ref = minimize(lambda y: np.sum((A2 @ y - b2) ** 2) + mu * y @ y, np.zeros(n),
+                   jac=lambda y: 2.0 * A2.T @ (A2 @ y - b2) + 2.0 * mu * y, method="SLSQP",
+                   bounds=list(zip(lower, upper)),
+                   constraints=[{"type": "eq", "fun": lambda y: A1 @ y - fixed},
+                                {"type": "ineq", "fun": lambda y: d - C @ y}],
+                   options={"ftol": 1e-14, "maxiter": 500})
+    assert ref.success
+    assert np.sum((A2 @ x - b2) ** 2) == pytest.approx(np.sum((A2 @ ref.x - b2) ** 2), rel=1e-6)
