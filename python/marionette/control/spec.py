@@ -14,6 +14,8 @@ position      origin of ``frame`` in world                 3           3
 com           centre of mass                               3           3
 posture       joints (``joints``, empty = all 1-dof)       nq          nv
 gaze          world point kept at the image centre         3           3
+gripper_      one gripper joint (``joints``): position,    1 (target)  1
+admittance    then force (``parameters``, thesis 000 eq. 3.11-3.13, gripper_admittance_spec.h)
 ============  ==========================================  ==========  ==========
 
 An empty fixed reference means "hold the current value"; ``streamed=True`` makes the task follow
@@ -31,7 +33,11 @@ import numpy as np
 
 from marionette import channels, lcmt_controller_spec, lcmt_task_reference, lcmt_task_spec
 
-KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze")
+KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze", "gripper_admittance")
+# Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h).
+GRIPPER_ADMITTANCE_PARAMETERS = ("force_target", "force_threshold", "release_force", "admittance_gain",
+                                 "lever_arm", "torque_per_effort", "cutoff_frequency", "speed",
+                                 "closing_direction", "release")
 # Walking references produced inside the controller (controller_factory.cc, ConnectWalkReference):
 # reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
 # starts from); the CoM is optional.
@@ -57,6 +63,7 @@ class TaskSpec:
     reference: Sequence[float] = ()      # fixed reference (empty = hold the current value)
     joints: Sequence[str] = ()           # posture joints (empty = all)
     reference_channel: str = ""          # "walk:left_foot|right_foot|com": from the walk (see module)
+    parameters: dict[str, float] = field(default_factory=dict)  # kind-specific (gripper_admittance)
 
     def check(self) -> None:
         where = f"task {self.name!r}"
@@ -76,6 +83,16 @@ class TaskSpec:
             raise SpecError(f"{where}: gains must be finite and >= 0")
         if not np.all(np.isfinite(np.asarray(self.reference, dtype=float))):
             raise SpecError(f"{where}: non-finite reference")
+        if self.parameters and self.kind != "gripper_admittance":
+            raise SpecError(f"{where}: only gripper_admittance tasks take parameters")
+        if self.kind == "gripper_admittance":
+            unknown = sorted(set(self.parameters) - set(GRIPPER_ADMITTANCE_PARAMETERS))
+            if unknown:
+                raise SpecError(f"{where}: unknown parameters {unknown} "
+                                f"(one of {', '.join(GRIPPER_ADMITTANCE_PARAMETERS)})")
+            if len(self.joints) != 1 or len(self.reference) != 1 or self.streamed or self.gain_slope:
+                raise SpecError(f"{where}: a gripper_admittance task needs one joint, its position "
+                                "target as a 1-value fixed reference and a constant gain")
         if self.reference_channel:
             kind = WALK_REFERENCES.get(self.reference_channel)
             if kind is None:
@@ -107,6 +124,9 @@ class TaskSpec:
         msg.num_reference = len(msg.reference)
         msg.joint_name = list(self.joints)
         msg.num_joints = len(msg.joint_name)
+        msg.parameter_name = list(self.parameters)
+        msg.parameter_value = [float(v) for v in self.parameters.values()]
+        msg.num_parameters = len(msg.parameter_name)
         return msg
 
     def to_dict(self) -> dict[str, Any]:
@@ -127,6 +147,8 @@ class TaskSpec:
             d["joints"] = list(self.joints)
         if self.reference_channel:
             d["reference_channel"] = self.reference_channel
+        if self.parameters:
+            d["parameters"] = {k: float(v) for k, v in self.parameters.items()}
         return d
 
     @classmethod
@@ -139,7 +161,8 @@ class TaskSpec:
                    mask=mask if any(mask) else (), gain=msg.gain,
                    gain_max=msg.gain_max, gain_slope=msg.gain_slope, streamed=streamed,
                    reference=tuple(msg.reference), joints=tuple(msg.joint_name),
-                   reference_channel="" if streamed else channel)
+                   reference_channel="" if streamed else channel,
+                   parameters=dict(zip(msg.parameter_name, msg.parameter_value)))
         spec.check()
         return spec
 

@@ -10,6 +10,13 @@ step of a plan, with the three task groups of §3.2.5.1, by priority:
    steps 4-6; relative to the measured object once vision closes the loop, ch. 5);
 3. ``posture`` following the planned configuration (regularisation, lowest priority).
 
+With ``gripper_admittance`` (opt-in, :func:`gripper_admittance_tasks`) group 2 also gets, for every
+gripper with a joint, a ``gripper_admittance`` task while it holds a handle (closing, then holding
+5 N: thesis 000 §3.2.4.3 and §3.2.5.1 "the transition where the robot closes its gripper ...
+adds the position and admittance tasks", kept while the grasp holds) and at the step that
+releases it (admittance down to 0 N, then position control to the open position); the posture
+then leaves those joints alone.
+
 The correspondence constraint kind -> task lives in one table, :data:`CONSTRAINT_TASKS`
 (extend it there). Grasp / release events of a step are in the step (``created`` at its end,
 ``released`` at its start); the supervisor turns them into simulated grasp welds.
@@ -40,8 +47,24 @@ SPECS_FORMAT = "marionette-controllers/1"
 END_THRESHOLDS: dict[str, float] = {
     "se3": 0.02, "relative_se3": 0.02, "pbvs": 0.01, "position": 0.02,
     "com": 0.01, "posture": 0.1, "gaze": 0.05,
+    # ||e|| = K_a |f - f*| / lambda while holding: 0.01 is 1 N with ADMITTANCE's K_a and GAINS' lambda;
+    # in position control it is the lag behind the closing ramp [rad].
+    "gripper_admittance": 0.01,
 }
-GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0}
+GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0, "gripper": 2.0}
+# Gripper admittance parameters (thesis 000 §3.2.4.3: ~5 N, switch slightly below it); the others
+# (gain K_a, lever arm, 5 Hz filter, ramp speed) are the controller's defaults
+# (GripperAdmittanceOptions, cpp/include/marionette/sot/feature_gripper_admittance.h).
+ADMITTANCE: dict[str, float] = {"force_target": 5.0, "force_threshold": 4.0}
+
+
+@dataclass(frozen=True)
+class GripperJoint:
+    """The actuated joint of a gripper and its open / closed positions (grippers.yaml)."""
+
+    joint: str
+    open_position: float
+    closed_position: float
 
 
 @dataclass
@@ -56,6 +79,8 @@ class FactoryContext:
     handle_objects: dict[str, str]
     constraint_definitions: dict[str, dict[str, Any]] = field(default_factory=dict)
     graph_constraints: list[str] = field(default_factory=list)
+    # Grippers that get gripper_admittance tasks (empty: none, the default).
+    gripper_joints: dict[str, GripperJoint] = field(default_factory=dict)
 
     def local(self, name: str) -> str:
         """'talos/left_sole_link' -> 'left_sole_link' (the controller's model is unprefixed)."""
@@ -63,9 +88,15 @@ class FactoryContext:
         return name[len(prefix):] if name.startswith(prefix) else name
 
 
-def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model) -> FactoryContext:
-    links = {g.name: g.link for g in robots.semantics(robot).grippers}
+def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model,
+                      gripper_admittance: bool = False) -> FactoryContext:
+    """The factory's context for a plan; ``gripper_admittance`` adds admittance tasks for the
+    plan's grippers that have a joint."""
+    semantics = robots.semantics(robot).grippers
+    links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
+    joints = {g.name: GripperJoint(g.joint, g.open_position, g.closed_position) for g in semantics
+              if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]}
     return FactoryContext(
         robot=robot,
         model=model,
@@ -73,6 +104,7 @@ def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model) -> Fact
         handle_objects={h: d["object"] for h, d in doc["problem"]["handles"].items()},
         constraint_definitions=graph.get("constraint_definitions", {}),
         graph_constraints=list(graph.get("graph_constraints", [])),
+        gripper_joints=joints,
     )
 
 
@@ -121,6 +153,13 @@ def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
     return tasks
 
 
+# Waypoint state a step leads to (suffix of the graph's state name) -> task kind of a gripper
+# that holds its object all along the step: the carry to the pre-placement and the placement
+# are servoed on the object pose the camera measures (thesis 000 §5.3.1: PBVS between
+# pre-placement and placement; the reference is corrected by execution.visual_servo).
+VISUAL_WAYPOINTS: dict[str, str] = {"preplace": "pbvs", "intersec": "pbvs"}
+
+
 def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
     """Group 2: a streamed pose task per active gripper; a gripper on an object that another
     gripper already holds is placed relative to that gripper."""
@@ -133,7 +172,11 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
         name = _task_name(gripper)
-        if obj in holder_of:
+        if gripper in step.grasps and step.to_state.rsplit("_", 1)[-1] in VISUAL_WAYPOINTS:
+            tasks.append(TaskSpec(name, VISUAL_WAYPOINTS[step.to_state.rsplit("_", 1)[-1]], priority,
+                                  frame=frame, gain=GAINS["grasp"], streamed=True))
+            holder_of[obj] = gripper
+        elif obj in holder_of:
             other = ctx.gripper_frames[holder_of[obj]]
             tasks.append(TaskSpec(name, "relative_se3", priority, frame=frame, frame_b=other,
                                   gain=GAINS["grasp"], streamed=True))
@@ -144,10 +187,38 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
     return tasks
 
 
+def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
+    """A ``gripper_admittance`` task per gripper of ``ctx.gripper_joints`` that holds a handle all
+    along the step (close on it, then hold 5 N) or releases one at the step's start (admittance to
+    0 N, then open). The grasp's own step (``created`` at its end) has none: the gripper closes
+    once the hand is on the handle, in the next step (§3.2.5.1)."""
+    tasks: list[TaskSpec] = []
+    for gripper, g in sorted(ctx.gripper_joints.items()):
+        release = gripper in step.released
+        if not release and gripper not in step.grasps:
+            continue
+        target = g.open_position if release else g.closed_position
+        parameters = dict(ADMITTANCE, closing_direction=float(np.sign(g.closed_position - g.open_position)),
+                          release=float(release))
+        tasks.append(TaskSpec(f"{_task_name(gripper)}_admittance", "gripper_admittance", priority,
+                              gain=GAINS["gripper"], reference=[target], joints=[g.joint],
+                              parameters=parameters))
+    return tasks
+
+
+def _posture_task(ctx: FactoryContext, admittance: list[TaskSpec]) -> TaskSpec:
+    """The posture over every 1-DoF joint but those an admittance task drives (it would pull the
+    gripper back to the planned opening and never converge)."""
+    driven = {j for t in admittance for j in t.joints}
+    joints = [] if not driven else [ctx.model.names[j] for j in range(1, ctx.model.njoints)
+                                    if ctx.model.joints[j].nv == 1 and ctx.model.names[j] not in driven]
+    return TaskSpec("posture", "posture", 0, gain=GAINS["posture"], streamed=True, joints=joints)
+
+
 def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None) -> ControllerSpec:
     """The controller of one step (levels numbered from 0 without gaps)."""
-    levels = [balance_tasks(ctx), grasp_tasks(step, ctx, 0),
-              [TaskSpec("posture", "posture", 0, gain=GAINS["posture"], streamed=True)]]
+    admittance = gripper_admittance_tasks(step, ctx, 0)
+    levels = [balance_tasks(ctx), grasp_tasks(step, ctx, 0) + admittance, [_posture_task(ctx, admittance)]]
     tasks: list[TaskSpec] = []
     for priority, level in enumerate(lv for lv in levels if lv):
         for t in level:

@@ -1,0 +1,71 @@
+"""The factory's gripper admittance (issue 7, thesis 000 §3.2.5.1: the transition that closes a
+gripper adds the admittance task, kept while the grasp holds; release in reverse) on the TALOS
+plank-flip plan, checked against the plan's own grasp bookkeeping, and the spec's wire format."""
+
+from __future__ import annotations
+
+import pytest
+
+from marionette import robots
+from marionette.control.spec import SpecError, TaskSpec
+from marionette.execution.factory import ADMITTANCE, build_specs, context_from_plan
+
+
+@pytest.fixture(scope="module")
+def talos_admittance(talos_plank):
+    ctx = context_from_plan(talos_plank.plan.doc, talos_plank.robot, talos_plank.model, gripper_admittance=True)
+    return ctx, build_specs(talos_plank.steps, ctx)
+
+
+def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
+    ctx, specs = talos_admittance
+    joints = {g.name: g for g in robots.semantics("talos").grippers}
+    seen_hold = seen_release = 0
+    for step, spec in zip(talos_plank.steps, specs):
+        tasks = {t.joints[0]: t for t in spec.tasks if t.kind == "gripper_admittance"}
+        expected_hold = {joints[g].joint for g in step.grasps}
+        expected_release = {joints[g].joint for g in step.released}
+        assert set(tasks) == expected_hold | expected_release, step.transition
+        for joint, t in tasks.items():
+            g = next(g for g in joints.values() if g.joint == joint)
+            releasing = joint in expected_release
+            assert t.reference == [g.open_position if releasing else g.closed_position]
+            assert t.parameters["release"] == float(releasing)
+            assert t.parameters["closing_direction"] == -1.0       # closed -1.0 < open -0.02
+            assert t.parameters["force_target"] == ADMITTANCE["force_target"] == 5.0
+            assert t.parameters["force_threshold"] < t.parameters["force_target"]
+            seen_hold += not releasing
+            seen_release += releasing
+        # the posture leaves the admittance joints alone, and only them
+        (posture,) = [t for t in spec.tasks if t.kind == "posture"]
+        if tasks:
+            assert not set(posture.joints) & set(tasks)
+            one_dof = [talos_plank.model.names[j] for j in range(1, talos_plank.model.njoints)
+                       if talos_plank.model.joints[j].nv == 1]
+            assert set(posture.joints) | set(tasks) == set(one_dof)
+        else:
+            assert not posture.joints
+    assert seen_hold > 0 and seen_release > 0
+
+
+def test_default_factory_has_no_admittance(talos_plank):
+    assert not any(t.kind == "gripper_admittance" for s in talos_plank.specs for t in s.tasks)
+
+
+def test_admittance_spec_round_trips_through_lcm(talos_admittance):
+    _, specs = talos_admittance
+    t = next(t for s in specs for t in s.tasks if t.kind == "gripper_admittance")
+    back = TaskSpec.from_lcm(t.to_lcm())
+    assert back.to_dict() == t.to_dict() and back.parameters == t.parameters
+    assert TaskSpec.from_dict(t.to_dict()).to_dict() == t.to_dict()
+
+
+def test_bad_admittance_specs_are_refused_with_the_reason():
+    ok = dict(name="g", kind="gripper_admittance", priority=0, reference=[-1.0], joints=["gripper_left_joint"])
+    TaskSpec(**ok).check()
+    with pytest.raises(SpecError, match="unknown parameters \\['force'\\]"):
+        TaskSpec(**ok, parameters={"force": 5.0}).check()
+    with pytest.raises(SpecError, match="one joint"):
+        TaskSpec(**dict(ok, reference=[])).check()
+    with pytest.raises(SpecError, match="only gripper_admittance tasks take parameters"):
+        TaskSpec("p", "posture", 0, parameters={"force_target": 5.0}).check()
