@@ -1,10 +1,11 @@
 """The prioritised cascade against closed forms and independent solvers (numpy pseudo-inverse,
-scipy's bounded least squares and SLSQP)."""
+scipy's bounded least squares and SLSQP, proxsuite)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from proxsuite import proxqp
 from scipy.optimize import lsq_linear, minimize
 
 from marionette.footsteps.errors import InvalidProblem
@@ -98,7 +99,7 @@ def test_inconsistent_sizes_are_rejected():
 def test_lowest_level_under_bounds_and_rows_is_the_qp_optimum_even_when_best_effort():
     # A goal-like level, then inequality rows, then a best-effort regularisation level whose
     # least-squares step leaves the box in many directions (the footstep chain's preference
-    # level): its answer must be the constrained optimum (SLSQP on the same problem), not a
+    # level): its answer must be the constrained optimum (proxsuite on the same problem), not a
     # feasible but scaled-down step.
     rng = np.random.default_rng(5)
     n = 12
@@ -112,12 +113,13 @@ def test_lowest_level_under_bounds_and_rows_is_the_qp_optimum_even_when_best_eff
                                lower, upper, HierarchySettings(damping=mu))
     x = solution.x
     assert solution.levels[1].residual < 1e-6 and np.all(np.abs(x) <= 0.3 + 1e-7)  # QP eps
-    fixed = A1 @ x
-    ref = minimize(lambda y: np.sum((A2 @ y - b2) ** 2) + mu * y @ y, np.zeros(n),
-                   jac=lambda y: 2.0 * A2.T @ (A2 @ y - b2) + 2.0 * mu * y, method="SLSQP",
-                   bounds=list(zip(lower, upper)),
-                   constraints=[{"type": "eq", "fun": lambda y: A1 @ y - fixed},
-                                {"type": "ineq", "fun": lambda y: d - C @ y}],
-                   options={"ftol": 1e-14, "maxiter": 500})
-    assert ref.success
+    # Reference: proxsuite's dense QP on the same problem over the full x (A1 x held at what
+    # level 1 achieved, the rows and the box as constraints).
+    qp = proxqp.dense.QP(n, 2, 3, True)
+    qp.settings.eps_abs = 1e-10
+    qp.init(2.0 * (A2.T @ A2 + mu * np.eye(n)), -2.0 * A2.T @ b2, A1, A1 @ x, C,
+            np.full(3, -1e20), d, lower, upper)
+    qp.solve()
+    assert qp.results.info.status == proxqp.QPSolverOutput.PROXQP_SOLVED
+    ref = qp.results
     assert np.sum((A2 @ x - b2) ** 2) == pytest.approx(np.sum((A2 @ ref.x - b2) ** 2), rel=1e-6)
