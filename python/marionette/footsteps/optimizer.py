@@ -47,6 +47,8 @@ class OptimizerSettings:
     stretched_fraction: float = 0.6    # ... or when this fraction of free steps is at max length
     stretched_tolerance: float = 0.005  # (within this) [m]
     auto_steps: bool = True            # Algorithm 1 on/off
+    reach_check: bool = False          # add steps before iterating while the linearised primary
+                                       # cannot be reached within the limits (see solve)
     relax_stretched: bool = True       # one more step when converged fully stretched (see solve)
     line_search_steps: int = 5         # step halvings at most (see _line_search)
     line_search_slack: float = 1e-4    # the levels above the primary may reach this meanwhile
@@ -177,6 +179,7 @@ class FootstepOptimizer:
         error, above, below = self._merits(kin)
         history = [error]
         blocked_count = 0
+        reach_check = s.reach_check and s.auto_steps      # at the first iteration only
         for _ in range(s.max_iterations):
             k = config.num_steps
             free = self.free_indices(k, frozen_steps, posture_frozen)
@@ -189,17 +192,21 @@ class FootstepOptimizer:
                 break
             levels = self.linearise(kin, free)
             lo, hi = self.bounds(config, free, robot_free)
-            # Metric of the step space: yaw variables are solved in units of yaw/yaw_scale, so
-            # the least-norm steps of each level do not favour turning (a yaw moves the far
-            # end of the chain by its lever arm) and plans do not zig-zag.
-            scale = np.where((free < 3 * k) & (free % 3 == 2), s.yaw_scale, 1.0)
-            for level in levels:
-                level.matrix = level.matrix * scale
-            solution = solve_hierarchy(levels, lo / scale, hi / scale, s.hierarchy)
-            solution.x = solution.x * scale
-            solution.x_after = [x * scale for x in solution.x_after]
+            solution = self._solve_levels(levels, lo, hi, free, k)
             report.iterations += 1
             report.qp_solves += solution.qp_solves
+            if reach_check and solution.levels[primary_index].residual > s.stall_min_error:
+                # The trust region keeps the primary out of reach this iteration: is it out of
+                # reach of the chain's limits too?
+                reach_check = False
+                k_before = config.num_steps
+                config, kin = self._extend_to_reach(config, kin, frozen_steps, posture_frozen,
+                                                    robot_free, report)
+                if config.num_steps != k_before:
+                    error, above, below = self._merits(kin)
+                    history = [error]
+                    continue
+            reach_check = False
             if self._predicted_settled(error, above, below, solution):
                 # Already there: the linearised lower levels predict no useful improvement.
                 if self._relaxing_step_wanted(k, config, free):
@@ -257,6 +264,44 @@ class FootstepOptimizer:
         report.level_residuals = self.residuals(kin)
         report.time_s = time.perf_counter() - start
         return config, report
+
+    def _solve_levels(self, levels, lo: np.ndarray, hi: np.ndarray, free: np.ndarray, k: int):
+        """solve_hierarchy in the metric of the step space: yaw variables are solved in units of
+        yaw/yaw_scale, so the least-norm steps of each level do not favour turning (a yaw moves
+        the far end of the chain by its lever arm) and plans do not zig-zag."""
+        s = self.settings
+        scale = np.where((free < 3 * k) & (free % 3 == 2), s.yaw_scale, 1.0)
+        for level in levels:
+            level.matrix = level.matrix * scale
+        solution = solve_hierarchy(levels, lo / scale, hi / scale, s.hierarchy)
+        solution.x = solution.x * scale
+        solution.x_after = [x * scale for x in solution.x_after]
+        return solution
+
+    def _extend_to_reach(self, config, kin, frozen_steps, posture_frozen, robot_free, report):
+        """Algorithm 1's step additions decided up front: while the levels down to the primary
+        task, linearised with the full (unclamped) primary error and the step/joint limits alone
+        (no trust region), leave more than ``stall_min_error`` of it, the chain is too short and
+        a step is added. For a footsteps-only chain the footprint positions are linear in
+        (Δx, Δy) at fixed yaws, so the test is exact but for the yaws' curvature; the
+        Gauss–Newton loop would otherwise spend iterations at the trust region before
+        detecting the same block (its additions remain as the fallback). Called only when the
+        first trust-region-bounded iteration leaves the primary task short."""
+        s = self.settings
+        primary_index = self.levels.index(self.primary)
+        while config.num_steps < s.max_steps:
+            k = config.num_steps
+            free = self.free_indices(k, frozen_steps, posture_frozen)
+            if free.shape[0] == 0:
+                break
+            levels = self.linearise(kin, free)[:primary_index + 1]
+            levels[-1].vector = -self.value(self.primary, kin)
+            lo, hi = self.limit_gaps(config, free, robot_free)
+            solution = self._solve_levels(levels, lo, hi, free, k)
+            if solution.levels[primary_index].residual <= s.stall_min_error:
+                break
+            config, kin = self._add_step(config, robot_free, report)
+        return config, kin
 
     def _predicted_settled(self, error: float, above: float, below: np.ndarray,
                            solution) -> bool:

@@ -223,7 +223,7 @@ class GraspPlanner:
         # warm-starts from here anyway.
         # The stance error mixes metres and radians; a hand ~0.6 m from the sole turns θ errors
         # into position errors, hence a tolerance well below the hand's.
-        settings = dataclasses.replace(self.settings, relax_stretched=False,
+        settings = dataclasses.replace(self.settings, relax_stretched=False, reach_check=True,
                                        settle_ratio=self.options.replan_settle_ratio,
                                        task_tolerance=0.2 * self.settings.task_tolerance,
                                        blocked_iterations=1)

@@ -114,3 +114,22 @@ def test_bad_hand_is_rejected(robot, stance):
     planner = GraspPlanner(robot, stance, BALL)
     with pytest.raises(InvalidProblem, match="executed_steps must be >= 0"):
         planner.replan(BALL, executed_steps=-1)
+
+
+def test_frozen_replan_adds_steps_exactly_when_the_stance_is_beyond_the_chains_reach(
+        grasp_planner_factory):
+    """Algorithm 1 in replanning: the free steps can lengthen by Σ (max_length − Δx_i) at most
+    (their heading unchanged); a ball moved farther ahead than that needs new steps, a ball
+    moved less does not."""
+    planner = grasp_planner_factory()
+    free = planner.config.steps[:-1]                  # the last step belongs to the posture
+    room = float(np.sum(planner.limits.default.max_length - free[:, 0]))
+    heading = np.array([np.cos(planner.config.steps[:, 2].sum()),
+                        np.sin(planner.config.steps[:, 2].sum()), 0.0])
+    for move, needs_steps in ((0.5 * room, False), (2.0 * room, True)):
+        planner = grasp_planner_factory()
+        target = BALL + move * heading
+        report = planner.replan(target, executed_steps=0, posture_frozen=True)
+        assert report.converged
+        assert (report.steps_added > 0) == needs_steps, (move, room, report.steps_added)
+        _check_plan(planner, target, hand_axes=(0, 1))
