@@ -144,6 +144,7 @@ def test_box_pulled_off_the_suction_cup_fails_the_step_and_holds(ur10_box_mujoco
     c.wait(lambda c: sup.step_index == held.index and sup.status == "running", 120.0, "the carry step")
     c.wait_time(0.3)
     assert not node.events, f"false alarm before the perturbation: {node.events}"
+    before = dict(node.monitor.max_residual)
     (gripper, handle), = held.grasps.items()
     obj = ur10_box.ctx.handle_objects[handle]
     c.detach(f"grasp/{gripper}/{obj}")
@@ -153,4 +154,5 @@ def test_box_pulled_off_the_suction_cup_fails_the_step_and_holds(ur10_box_mujoco
     assert result.state == "failed" and result.reason.startswith("left_manifold"), result.reason
     assert obj in result.reason and "mm" in result.reason        # the residual is reported
     assert node.events and node.events[0][1].position > 0.02
+    print(f"residuals before the perturbation (max per object, m, rad): {before}; reported: {result.reason}")
     c.wait(lambda c: c.status.mode == "holding", 10.0, "the hold")
