@@ -223,7 +223,11 @@ class GraspPlanner:
         # warm-starts from here anyway.
         # The stance error mixes metres and radians; a hand ~0.6 m from the sole turns θ errors
         # into position errors, hence a tolerance well below the hand's.
+        # Footprints are linear in the (Δx, Δy) of the steps at fixed yaws: only the yaws need
+        # the trust region of the posture-free problem; a wider one on (Δx, Δy) lets new steps
+        # reach their length in one iteration (0.5 m replans: 3.8 -> 3.4 iterations on average).
         settings = dataclasses.replace(self.settings, relax_stretched=False, reach_check=True,
+                                       trust_region_steps=0.25,
                                        settle_ratio=self.options.replan_settle_ratio,
                                        task_tolerance=0.2 * self.settings.task_tolerance,
                                        blocked_iterations=1)
