@@ -301,6 +301,7 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   if (mode == ControlMode::kEstop || !(jump <= next->max_switch_velocity_jump) ||
       !graph->Apply(next->edit.get())) {
     refused_jump = mode == ControlMode::kEstop ? -1.0 : jump;
+    decided_tick = t.index;
     ++loop_state.refused_switches;
     switch_state.store(static_cast<int>(SwitchState::kRefused), std::memory_order_release);
     return;
@@ -313,6 +314,7 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   if (mode == ControlMode::kHold) mode = ControlMode::kRun;
   loop_state.reason = Reason::kControllerAccepted;
   loop_state.active_id = next->id;
+  decided_tick = t.index;
   switch_state.store(static_cast<int>(SwitchState::kApplied), std::memory_order_release);
 }
 

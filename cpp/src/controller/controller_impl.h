@@ -183,6 +183,7 @@ struct Controller::Impl {
   std::atomic<int> switch_state{static_cast<int>(SwitchState::kNone)};
   BuiltController* posted = nullptr;            // valid while switch_state == kPosted
   double refused_jump = 0.0;                    // written before kRefused
+  int64_t decided_tick = -1;                    // written before kApplied / kRefused
   std::atomic<int> command_request{static_cast<int>(Command::kNone)};
   std::atomic<int64_t> command_hash{0};           // of the message behind command_request
   int64_t posted_hash = 0;                        // of the spec behind `posted`
@@ -247,7 +248,11 @@ struct Controller::Impl {
   std::map<std::string, int64_t> rejections;  // "CHANNEL: category" -> count
   int64_t num_rejected = 0;
   std::string last_rejection;
+  // The decision text is published with the first snapshot of the tick that took it, never
+  // before: a status never says "accepted" while still showing the previous active id.
   std::string last_switch_result;
+  std::string pending_switch_result;
+  int64_t pending_switch_tick = -1;
   struct Names {
     std::string controller;
     std::vector<std::string> tasks;    // in the order of BuiltController::task_errors

@@ -103,7 +103,8 @@ void Controller::Impl::CollectSwitchDecision() {
   }
   {
     std::lock_guard<std::mutex> lock(stats_mutex);
-    last_switch_result = result;
+    pending_switch_result = result;
+    pending_switch_tick = decided_tick;
   }
   if (options.verbose) std::cerr << "[controller] " << result << "\n";
   posted = nullptr;

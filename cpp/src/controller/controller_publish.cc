@@ -230,6 +230,10 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
   st.last_rejection = last_rejection;
   st.num_switches = s.switches;
   st.num_refused_switches = s.refused_switches;
+  if (pending_switch_tick >= 0 && s.tick >= pending_switch_tick) {
+    last_switch_result = std::move(pending_switch_result);
+    pending_switch_tick = -1;
+  }
   st.last_switch_result = last_switch_result;
   lcm.publish(channels::kControllerStatus, &st);
 }
