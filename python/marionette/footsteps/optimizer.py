@@ -338,7 +338,14 @@ class FootstepOptimizer:
 
     def _above_primary(self, kin) -> float:
         """Residual of the levels above the primary task: limit and constraint violations, task
-        errors."""
+        errors (computed once per kinematics: the line search and the merits both ask)."""
+        cache = kin.__dict__.setdefault("_above_primary", {})
+        key = id(self)
+        if key not in cache:
+            cache[key] = self._compute_above_primary(kin)
+        return cache[key]
+
+    def _compute_above_primary(self, kin) -> float:
         free = self.free_indices(kin.k, *self._frozen)
         lo, hi = self.limit_gaps(kin.config, free, kin.robot_free)
         total = float(max(0.0, np.max(lo, initial=0.0), -np.min(hi, initial=0.0)))
@@ -403,9 +410,9 @@ class FootstepOptimizer:
         """Per level: ||e|| for tasks, worst violation max(−g, 0) for constraints."""
         out = {}
         for item in self.levels:
+            v = self.value(item, kin)
             if isinstance(item, Constraint):
-                v = item.compute_value(kin)
                 out[item.name] = float(max(0.0, -v.min())) if v.shape[0] else 0.0
             else:
-                out[item.name] = float(np.linalg.norm(item.compute_error(kin)))
+                out[item.name] = float(np.linalg.norm(v))
         return out
