@@ -1,0 +1,173 @@
+#include "marionette/sot/feature_gripper_admittance.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <pinocchio/algorithm/joint-configuration.hpp>
+
+namespace marionette::sot {
+namespace {
+
+// Indices of the machine state (phase, y, r, primed).
+constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3;
+
+bool IsAdmittance(double phase) {
+  const int p = static_cast<int>(phase);
+  return p == static_cast<int>(GripperPhase::kHolding) || p == static_cast<int>(GripperPhase::kReleasing);
+}
+
+}  // namespace
+
+void GripperAdmittanceOptions::Check(const std::string& who) const {
+  const auto positive = [&](double x, const char* what) {
+    if (!(x > 0.0) || !std::isfinite(x)) throw SotError(who + ": " + what + " must be > 0, got " + std::to_string(x));
+  };
+  positive(force_target, "force_target");
+  positive(force_threshold, "force_threshold");
+  positive(release_force, "release_force");
+  positive(admittance_gain, "admittance_gain");
+  positive(lever_arm, "lever_arm");
+  positive(cutoff_frequency, "cutoff_frequency");
+  positive(speed, "speed");
+  positive(task_gain, "task_gain");
+  positive(dt, "dt");
+  if (!std::isfinite(torque_per_effort) || torque_per_effort == 0.0) {
+    throw SotError(who + ": torque_per_effort must be finite and non-zero");
+  }
+  if (closing_direction != 1.0 && closing_direction != -1.0) {
+    throw SotError(who + ": closing_direction must be +1 or -1, got " + std::to_string(closing_direction));
+  }
+  // The switch must happen before the target is reached, and the release must end below it
+  // (§3.2.4.3: "a selected threshold, slightly below the desired gripping force").
+  if (force_threshold >= force_target) {
+    throw SotError(who + ": force_threshold (" + std::to_string(force_threshold) +
+                   " N) must be below force_target (" + std::to_string(force_target) + " N)");
+  }
+  if (release_force >= force_threshold) {
+    throw SotError(who + ": release_force (" + std::to_string(release_force) +
+                   " N) must be below force_threshold (" + std::to_string(force_threshold) + " N)");
+  }
+}
+
+FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr model,
+                                                   const std::string& joint, double position_target,
+                                                   bool release, GripperAdmittanceOptions options)
+    : Feature(std::move(name), std::move(model), 1, {}), options_(options) {
+  options_.Check(who());
+  if (!model_->existJointName(joint)) {
+    throw SotError(who() + ": unknown joint '" + joint + "' in model '" + model_->name + "'");
+  }
+  const pinocchio::JointIndex j = model_->getJointId(joint);
+  if (model_->nvs[j] != 1 || model_->nqs[j] != 1) {
+    throw SotError(who() + ": joint '" + joint + "' is not a 1-DoF bounded joint (a gripper joint)");
+  }
+  if (!std::isfinite(position_target)) throw SotError(who() + ": position_target is not finite");
+  iq_ = model_->idx_qs[j];
+  iv_ = model_->idx_vs[j];
+  alpha_ = 1.0 - std::exp(-2.0 * M_PI * options_.cutoff_frequency * options_.dt);
+  SetUnitJacobian({iv_});
+
+  effort_ = &DeclareInput<Eigen::VectorXd>("effort", Eigen::VectorXd::Zero(model_->nv));
+  q_measured_ = &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
+  position_target_ = &DeclareParameter<double>("position_target", position_target);
+  release_ = &DeclareParameter<bool>("release", release);
+  Eigen::VectorXd initial(4);
+  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0, 0.0, 0.0;
+  force_ = &DeclareOutput<double>("force", 0.0, &FeatureGripperAdmittance::CalcForce, {effort_});
+  machine_ = &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
+                                            {kinematics_, force_, position_target_, release_});
+  force_filtered_ = &DeclareOutput<double>("force_filtered", 0.0, &FeatureGripperAdmittance::CalcForceFiltered,
+                                           {machine_, force_});
+  phase_ = &DeclareOutput<double>("phase", initial[kPhase], &FeatureGripperAdmittance::CalcPhase, {machine_});
+  measured_position_ = &DeclareOutput<double>("measured_position", 0.0,
+                                              &FeatureGripperAdmittance::CalcMeasuredPosition, {q_measured_});
+  DeclareTermsOutput({effort_, position_target_, machine_, force_filtered_});
+}
+
+double FeatureGripperAdmittance::RampRate(double r, double target) const {
+  return std::clamp((target - r) / options_.dt, -options_.speed, options_.speed);
+}
+
+void FeatureGripperAdmittance::CalcForce(const graph::Tick& t, double* out) const {
+  // eq. 3.11–3.13: f = s · k_τ k_gear · I / d.
+  *out = options_.closing_direction * options_.torque_per_effort * effort_->Eval(t)[iv_] / options_.lever_arm;
+}
+
+double FeatureGripperAdmittance::FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const {
+  return x[kPrimed] != 0.0 ? x[kFiltered] : force_->Eval(t);
+}
+
+void FeatureGripperAdmittance::CalcForceFiltered(const graph::Tick& t, double* out) const {
+  *out = FilteredNow(t, machine_->Eval(t));
+}
+
+void FeatureGripperAdmittance::CalcPhase(const graph::Tick& t, double* out) const {
+  *out = machine_->Eval(t)[kPhase];
+}
+
+void FeatureGripperAdmittance::CalcMeasuredPosition(const graph::Tick& t, double* out) const {
+  *out = q_measured_->Eval(t)[iq_];
+}
+
+void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematics& kinematics,
+                                           FeatureTerms* full) const {
+  const Eigen::VectorXd& x = machine_->Eval(t);
+  const double q = kinematics.q()[iq_];
+  if (IsAdmittance(x[kPhase])) {
+    const double f_target = static_cast<int>(x[kPhase]) == static_cast<int>(GripperPhase::kHolding)
+                                ? options_.force_target
+                                : 0.0;
+    // λ e = s K_a (y − f*)  →  the task's v = −λ e = s K_a (f* − y).
+    const double y = force_filtered_->Eval(t);
+    full->error[0] = options_.closing_direction * options_.admittance_gain * (y - f_target) / options_.task_gain;
+    full->drift[0] = 0.0;
+  } else {
+    const double r = x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is
+    full->error[0] = q - r;
+    full->drift[0] = -RampRate(r, position_target_->Eval(t));
+  }
+}
+
+void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::VectorXd& x,
+                                             Eigen::VectorXd* next) const {
+  const double q = kinematics_->Eval(t).q()[iq_];
+  const double f = force_->Eval(t);
+  const double y = FilteredNow(t, x);
+  const double y_next = y + alpha_ * (f - y);
+  const bool release = release_->Eval(t);
+  const double target = position_target_->Eval(t);
+  int phase = static_cast<int>(x[kPhase]);
+  double r = x[kPrimed] != 0.0 ? x[kRamp] : q;
+  if (IsAdmittance(phase)) {
+    // Where the command goes this tick (v = −λ e of ComputeFull), so a switch back to position
+    // control starts its ramp on the joint: no jump in the error.
+    const double f_target = phase == static_cast<int>(GripperPhase::kHolding) ? options_.force_target : 0.0;
+    r = q + options_.dt * options_.closing_direction * options_.admittance_gain * (f_target - y);
+  } else {
+    r += options_.dt * RampRate(r, target);
+  }
+  switch (static_cast<GripperPhase>(phase)) {
+    case GripperPhase::kClosing:
+      if (release) {
+        phase = static_cast<int>(y_next < options_.release_force ? GripperPhase::kOpening : GripperPhase::kReleasing);
+      } else if (y_next > options_.force_threshold) {
+        phase = static_cast<int>(GripperPhase::kHolding);
+      }
+      break;
+    case GripperPhase::kHolding:
+      if (release) phase = static_cast<int>(GripperPhase::kReleasing);
+      break;
+    case GripperPhase::kReleasing:
+      if (y_next < options_.release_force) phase = static_cast<int>(GripperPhase::kOpening);
+      break;
+    case GripperPhase::kOpening:
+      if (!release) phase = static_cast<int>(GripperPhase::kClosing);
+      break;
+  }
+  (*next)[kPhase] = phase;
+  (*next)[kFiltered] = y_next;
+  (*next)[kRamp] = r;
+  (*next)[kPrimed] = 1.0;
+}
+
+}  // namespace marionette::sot
