@@ -23,6 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-joint-velocity", type=float, default=0.5, help="[rad/s] (default 0.5)")
     p.add_argument("--no-sim-grasp", action="store_true",
                    help="do not weld grasps in the simulator (kinematic backend, real robot)")
+    p.add_argument("--gripper-admittance", action="store_true",
+                   help="gripper_admittance tasks while a gripper with a joint holds (thesis 000 §3.2.4.3)")
+    p.add_argument("--monitor", action="store_true",
+                   help="execution monitor: left_manifold when OBJECT_POSES leave the step's constraints")
     p.add_argument("--from-step", type=int, default=None,
                    help="start at this step (default: from the estimated state)")
     p.set_defaults(func=run_supervise)
@@ -61,7 +65,7 @@ def run_supervise(args: argparse.Namespace) -> int:
     except (OSError, ValueError, PlanError) as e:
         print(f"marionette supervise: {args.plan}: {e}", file=sys.stderr)
         return 2
-    ctx = context_from_plan(plan.doc, robot, model)
+    ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=args.gripper_admittance)
     specs = build_specs(steps, ctx)
     specs_path = args.specs or args.plan.with_name("controllers.yaml")
     write_specs(specs_path, steps, specs, plan.doc["problem"]["name"])
@@ -97,6 +101,10 @@ def run_supervise(args: argparse.Namespace) -> int:
         options = SupervisorOptions(max_joint_velocity=args.max_joint_velocity,
                                     simulated_grasps=not args.no_sim_grasp, step_mode=args.step)
         supervisor = Supervisor(client, steps, specs, robot_map, options, plan.doc["problem"]["name"])
+        if args.monitor:
+            from marionette.execution.monitor import ExecutionMonitor, MonitorNode
+
+            MonitorNode(client.bus, ExecutionMonitor(model, ctx), steps)
         result = supervisor.run(first)
     for r in result.records:
         print(f"  step {r.index:2d} {r.transition:45s} {r.result}")
