@@ -19,6 +19,7 @@ COMMAND_MODULES: list[str] = [
     "marionette.control.replay_cli",
     "marionette.execution.cli",
     "marionette.execution.demo_cli",
+    "marionette.viewer.cli",
 ]
 
 

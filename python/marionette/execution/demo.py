@@ -139,7 +139,7 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
 
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
              cache_dir: Path | None = None, log: Callable[[str], None] = print,
-             controller_url: str | None = None) -> dict[str, Any]:
+             controller_url: str | None = None, view: bool = False) -> dict[str, Any]:
     """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
     after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
     marionette-controller already running there (another machine: ttl=1) instead of starting one."""
@@ -187,6 +187,10 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
         except TimeoutError:
             group.check_alive()
             raise
+        if view:   # the browser 3D view of the run (issue #10), stopped with the group
+            from marionette.viewer.node import start_viewer
+
+            report["viewer_url"] = start_viewer(group, robot, scenario.scene, log)
         recorder = Recorder(model, client)
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
