@@ -40,3 +40,19 @@ def require_program(name: str) -> str:
     if path is None:
         pytest.fail(f"{name} not found: scripts/setup installs it")
     return path
+
+
+@pytest.fixture(scope="session")
+def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
+    """One recorded `marionette demo ur10-box --speed 3 --view` run (≈ 30 s), shared by the replay
+    and viewer tests: its report folder (run.lcmlog, report.json, logs/viewer.log, ...)."""
+    import subprocess
+    import sys
+
+    out = tmp_path_factory.mktemp("ur10_box_run")
+    env = dict(os.environ, MARIONETTE_LCM_URL=lcm_url, MARIONETTE_BUILD_DIR=str(marionette.BUILD_DIR))
+    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "ur10-box", "--speed", "3", "--view",
+                           "--out", str(out)], capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    (run,) = out.glob("ur10-box-*")
+    return run

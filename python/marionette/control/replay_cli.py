@@ -1,4 +1,8 @@
-"""``marionette replay LOG --controller``: re-run a recorded controller run offline and check it.
+"""``marionette replay LOG --controller|--supervisor|--view``: re-run a recorded run offline.
+
+``--supervisor`` re-takes the supervisor FSM's decisions from the recorded inputs
+(:mod:`marionette.execution.decision_replay`); ``--view`` plays the log in the browser viewer and
+re-plots the report (:mod:`marionette.viewer.replay`). ``--controller``:
 
 The controller journals which input messages its loop consumed at which tick; with the LCM log
 of the run, ``marionette-controller --replay`` rebuilds the same controller, runs the same loop
@@ -45,14 +49,20 @@ def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = No
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("replay", help="re-run a recorded run offline and check it reproduces the recording")
     p.add_argument("log", type=Path, help="LCM log of the run (lcm-logger, or a demo's report folder's run.lcmlog)")
-    p.add_argument("--controller", action="store_true", required=True,
-                   help="replay the C++ controller's graph from its journal (the only replay so far)")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--controller", action="store_true",
+                      help="replay the C++ controller's graph from its journal")
+    mode.add_argument("--supervisor", action="store_true",
+                      help="re-take the supervisor's decisions from the recorded statuses and events and "
+                           "compare them with the recorded SUPERVISOR_DECISION messages")
     p.add_argument("--tolerance", type=float, default=1e-9, help="largest accepted command difference")
     p.add_argument("--scene", default=None, help="MJCF scene to use instead of the recorded path")
     p.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.supervisor:
+        return _run_supervisor(args)
     try:
         result = replay_controller(args.log, args.tolerance, args.scene)
     except (FileNotFoundError, RuntimeError) as e:
@@ -60,3 +70,15 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     sys.stdout.write(result["output"])
     return 0 if result["ok"] else 1
+
+
+def _run_supervisor(args: argparse.Namespace) -> int:
+    from marionette.execution.decision_replay import DecisionLogError, format_verdict, replay_supervisor
+
+    try:
+        result = replay_supervisor(args.log)
+    except (FileNotFoundError, DecisionLogError) as e:
+        print(f"marionette replay: {e}", file=sys.stderr)
+        return 2
+    sys.stdout.write(format_verdict(args.log, result))
+    return 0 if result.ok else 1

@@ -18,6 +18,11 @@ On any failure the supervisor sends COMMAND hold and ends in ``failed`` (the rob
 
 State on SUPERVISOR_STATE (10 Hz and on change), events on SUPERVISOR_EVENT; events from other
 sources (``marionette fsm inject``) are read from SUPERVISOR_EVENT too.
+
+Every decision above is taken by :class:`decisions.DecisionMachine` from the received
+CONTROLLER_STATUS / SUPERVISOR_EVENT messages, fed one at a time in arrival order, at the tick of
+the last status (never the wall clock), and published on SUPERVISOR_DECISION with its inputs:
+``marionette replay LOG --supervisor`` re-takes them offline.
 """
 
 from __future__ import annotations
@@ -28,9 +33,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 
 from marionette import channels, lcmt_controller_status, lcmt_supervisor_event, lcmt_supervisor_state
+from marionette.execution import decisions
+from marionette.execution.decisions import Decision, DecisionMachine
 from marionette.control.client import ControllerClient
 from marionette.control.spec import ControllerSpec
 from marionette.execution.factory import END_THRESHOLDS
@@ -115,14 +121,17 @@ class Supervisor:
         # Controller ids are never reused by one controller process: start from the clock.
         self._next_id = id_base if id_base is not None else int(time.time() * 10) % 1_000_000_000
         self.trajectories: dict[int, StepTrajectory] = {}
+        self.servo: Any = None   # a visual_servo.VisualServo: corrects the pbvs tasks' references
         self.state = "idle"
         self.status = ""
         self.detail = ""
         self.step_index = -1
         self.events: list[tuple[int, str, str]] = []
-        self._inbox: list[Any] = []
+        self._inputs: list[tuple[str, Any]] = []   # (channel, message) in arrival order
         self._lock = threading.Lock()
-        self._statuses: list[Any] = []
+        self.machine = DecisionMachine()
+        self.decisions: list[Decision] = []
+        self._taken: list[Decision] = []           # decisions not yet awaited by the step's flow
         self._publish_stop = threading.Event()
         client.bus.subscribe(channels.SUPERVISOR_EVENT, lcmt_supervisor_event, self._on_event)
         client.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on_status)
@@ -145,21 +154,21 @@ class Supervisor:
     def _on_event(self, msg: Any) -> None:
         if msg.source != SOURCE:
             with self._lock:
-                self._inbox.append(msg)
+                self._inputs.append((decisions.EVENT, msg))
 
     def _on_status(self, msg: Any) -> None:
         with self._lock:
-            self._statuses.append(msg)
+            self._inputs.append((decisions.STATUS, msg))
 
-    def _take_events(self) -> list[Any]:
+    def _next_input(self) -> tuple[str, Any] | None:
         with self._lock:
-            inbox, self._inbox = self._inbox, []
-        return inbox
+            return self._inputs.pop(0) if self._inputs else None
 
-    def _take_statuses(self) -> list[Any]:
-        with self._lock:
-            out, self._statuses = self._statuses, []
-        return out
+    def _decided(self, d: Decision) -> Decision:
+        """Publishes a decision of the machine on SUPERVISOR_DECISION and keeps it."""
+        self.client.bus.publish(channels.SUPERVISOR_DECISION, d.to_lcm(len(self.decisions), self.plan_name))
+        self.decisions.append(d)
+        return d
 
     def emit(self, name: str, detail: str = "", value: float = 0.0) -> None:
         msg = lcmt_supervisor_event()
@@ -227,69 +236,54 @@ class Supervisor:
         o = self.options
         wall0 = time.monotonic()
         self._set(step.transition, "awaiting_approval" if o.step_mode else "starting")
+        cid = self._next_id
+        self._next_id += 1
+        record.controller_id = cid
+        thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
+        if self.servo is not None:
+            thresholds = self.servo.end_thresholds(spec, thresholds)
+        self._decided(self.machine.begin_step(step.index, step.transition, cid, thresholds,
+                                              int(o.converge_timeout_s * 1e6), o.step_mode))
         if o.step_mode:
-            self._wait_event("approve", o.approval_timeout_s)
+            self._drive(record, ("approved",), None, o.approval_timeout_s, "approval_timeout",
+                        "no 'approve' within {} s")
         self.emit("step_started", f"{step.index} {step.transition}")
         for gripper, handle in step.released.items():
             self._weld("detach", gripper, handle)
             record.events.append(f"released {gripper}")
 
         # Start check: the controller swaps the spec in only without a command jump.
-        cid = self._next_id
-        self._next_id += 1
-        record.controller_id = cid
         self._set(status="waiting_start_check", detail=f"controller {cid}")
         self.client.send_spec(dataclasses.replace(spec, controller_id=cid))
-        self._wait_switch(cid, spec.name)
+        self._drive(record, ("switch_accepted",), None, o.accept_timeout_s, "switch_timeout",
+                    f"no decision on the swap to controller {cid} within {{}} s")
         record.utime_start = self.client.utime()
         self.emit("switch_accepted", f"controller {cid} {spec.name}")
 
         # Streaming.
         traj = self.trajectories[step.index]
         start = self.client.utime() + o.start_delay_us
+        # Visual servoing (execution.visual_servo): the streamer corrects the pbvs tasks and
+        # re-sends what it already streamed of them when a measurement arrives.
+        corrections = self.servo.begin_step(step, spec, start, o.dt_us) if self.servo else []
         streamer = ReferenceStreamer(self.client.send_reference, cid, traj.references, start,
-                                     o.dt_us, o.chunk_samples, o.lookahead_s)
+                                     o.dt_us, o.chunk_samples, o.lookahead_s,
+                                     corrections=corrections, servo=self.servo)
+        self._decided(self.machine.start_reference(start, streamer.end_utime))
         record.utime_reference_start = start
         record.duration_s = traj.duration
         self._set(status="running")
-        self._take_statuses()
-        while True:
-            now = self.client.utime()
-            streamer.pump(now)
-            for ev in self._take_events():
-                record.events.append(ev.name)
-                if ev.name == "force_threshold" and not streamer.done:
-                    streamer.stop_early(now)
-                    self.emit("reference_stopped", f"force {ev.value:.3g} N", ev.value)
-                elif ev.name in ("abort", "left_manifold"):
-                    raise SupervisorFailure(ev.name, ev.detail or f"from {ev.source}")
-            self._watch_controller(record, cid)
-            if streamer.done and now >= streamer.end_utime:
-                break
-            self.client.wait(lambda c, n=now: c.utime() > n, 5.0, "controller time to advance")
+        self._drive(record, ("end_of_reference",), streamer)
         record.utime_reference_end = streamer.end_utime
+        if self.servo is not None:
+            self.servo.end_step(corrections)
         record.chunks = streamer.chunks_sent
         record.min_lookahead_ms = None if streamer.min_margin_us is None else streamer.min_margin_us / 1e3
         self.emit("end_of_reference", f"{step.index} {step.transition}")
 
-        # End check: every task error converged.
+        # End check: every task error converged (decided on the statuses after the last sample).
         self._set(status="waiting_end_check")
-        thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
-        deadline = streamer.end_utime + int(o.converge_timeout_s * 1e6)
-        while True:
-            status = self._watch_controller(record, cid)
-            if status is not None and status.utime > streamer.end_utime:
-                errors = dict(zip(status.task_name, status.task_error_norm))
-                if all(errors.get(n, np.inf) <= thr for n, thr in thresholds.items()):
-                    record.final_errors = errors
-                    break
-                if status.utime > deadline:
-                    worst = {n: errors.get(n) for n, thr in thresholds.items()
-                             if errors.get(n, np.inf) > thr}
-                    record.final_errors = errors
-                    raise SupervisorFailure("end_check_failed",
-                                            f"step {step.index}: errors above threshold {worst}")
-            self.client.wait(lambda c: len(self._statuses) > 0, 10.0, "a controller status")
+        self._drive(record, ("end_check_passed",), None)
         record.utime_end = self.client.utime()
 
         for gripper, handle in step.created.items():
@@ -299,60 +293,64 @@ class Supervisor:
         record.result = "ok"
         self.emit("step_done", f"{step.index} {step.transition}")
 
-    def _watch_controller(self, record: StepRecord, cid: int) -> Any:
-        """Folds new statuses into the record; raises when the controller left the step's
-        controller or went to hold/estop. Returns the latest status (or None)."""
-        latest = None
-        for st in self._take_statuses():
-            latest = st
-            if st.active_controller_id == cid:
-                errors = dict(zip(st.task_name, st.task_error_norm))
-                record.error_trace.append((st.utime, errors))
-                for n, e in errors.items():
-                    record.max_errors[n] = max(record.max_errors.get(n, 0.0), e)
-            if st.mode in ("holding", "estopped") and st.active_controller_id == cid:
-                event = "reference_starved" if "watchdog" in st.mode_reason else "controller_" + st.mode
-                raise SupervisorFailure(event, st.mode_reason)
-        return latest
+    def _drive(self, record: StepRecord, until: tuple[str, ...], streamer: ReferenceStreamer | None,
+               timeout_s: float | None = None, timeout_event: str = "", timeout_detail: str = "") -> Decision:
+        """Feeds the received messages to the decision machine one at a time (streaming the
+        references as the controller's clock advances) until it takes a decision in ``until``;
+        raises SupervisorFailure on a failure decision. A wall-clock timeout is itself an input
+        (a TIMER decision)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            # One status can decide twice (the end of the reference and the end check): a
+            # decision is published and acted on when taken, and awaited from this list.
+            while self._taken:
+                d = self._taken.pop(0)
+                if d.event in until:
+                    return d
+            if self.machine.status in ("ended", "failed"):
+                raise RuntimeError(f"supervisor: the step ended ({self.machine.status}) without {until}")
+            now = self.client.utime()
+            if streamer is not None:
+                streamer.pump(now)
+                if streamer.done and not self.machine.reference_sent:
+                    self._decided(self.machine.reference_end(streamer.end_utime, True))
+            while (item := self._next_input()) is not None:
+                channel, msg = item
+                if channel == decisions.STATUS:
+                    self._fold_status(record, msg)
+                else:
+                    record.events.append(msg.name)
+                for d in self.machine.feed(channel, msg):
+                    self._taken.append(d)
+                    self._act(self._decided(d), record, streamer, msg)
+                if self._taken:
+                    break
+            if self._taken:
+                continue
+            if deadline is not None and time.monotonic() > deadline:
+                d = self._decided(self.machine.timeout(timeout_event, timeout_detail.format(timeout_s)))
+                raise SupervisorFailure(d.event, d.detail)
+            self.client.wait(lambda c, n=now: c.utime() > n or bool(self._inputs), 5.0,
+                             "controller time to advance")
 
-    def _wait_switch(self, cid: int, name: str) -> None:
-        tag = f"(id {cid})"
+    def _act(self, d: Decision, record: StepRecord, streamer: ReferenceStreamer | None, msg: Any) -> None:
+        """What the supervisor does on a decision besides publishing it."""
+        if d.event.startswith("end_check_"):
+            record.final_errors = dict(zip(msg.task_name, msg.task_error_norm))
+        if d.event in decisions.FAILURES:
+            raise SupervisorFailure(d.event, d.detail)
+        if d.event == "reference_stopped" and streamer is not None:
+            streamer.stop_early(self.client.utime())
+            self.emit("reference_stopped", d.detail, msg.value)
+            self._decided(self.machine.reference_end(streamer.end_utime, True))
 
-        def decided(c: ControllerClient) -> bool:
-            s = c.status
-            return (s.active_controller_id == cid or tag in s.last_switch_result
-                    or tag in s.last_rejection)
-
-        try:
-            self.client.wait(decided, self.options.accept_timeout_s, f"the swap to controller {cid}")
-        except TimeoutError as e:
-            raise SupervisorFailure("switch_timeout", str(e)) from None
-        s = self.client.status
-        if s.active_controller_id != cid and tag in s.last_switch_result and \
-                s.last_switch_result.startswith("accepted"):
-            # The decision text comes from the LCM thread and may be published one status ahead
-            # of the loop snapshot that carries the new active id: wait for the snapshot.
-            try:
-                self.client.wait(lambda c: c.status.active_controller_id == cid, self.options.accept_timeout_s,
-                                 f"controller {cid} to show as active")
-            except TimeoutError as e:
-                raise SupervisorFailure("switch_timeout", str(e)) from None
-            s = self.client.status
-        if s.active_controller_id != cid:
-            if tag in s.last_switch_result:
-                raise SupervisorFailure("switch_refused", s.last_switch_result)
-            raise SupervisorFailure("spec_rejected", s.last_rejection)
-
-    def _wait_event(self, name: str, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            for ev in self._take_events():
-                if ev.name == name:
-                    return
-                if ev.name == "abort":
-                    raise SupervisorFailure("abort", ev.detail or f"from {ev.source}")
-            time.sleep(0.02)
-        raise SupervisorFailure("approval_timeout", f"no {name!r} within {timeout_s} s")
+    def _fold_status(self, record: StepRecord, st: Any) -> None:
+        """The step's task errors, for the report (not a decision)."""
+        if st.active_controller_id == record.controller_id and self.machine.status in ("running", "waiting_end_check"):
+            errors = dict(zip(st.task_name, st.task_error_norm))
+            record.error_trace.append((st.utime, errors))
+            for n, e in errors.items():
+                record.max_errors[n] = max(record.max_errors.get(n, 0.0), e)
 
     def _weld(self, action: str, gripper: str, handle: str) -> None:
         obj = handle.split("/")[0]

@@ -17,6 +17,7 @@ inline constexpr char kFootstepPlan[] = "FOOTSTEP_PLAN";
 inline constexpr char kWalkStatus[] = "WALK_STATUS";
 inline constexpr char kSupervisorState[] = "SUPERVISOR_STATE";
 inline constexpr char kSupervisorEvent[] = "SUPERVISOR_EVENT";
+inline constexpr char kSupervisorDecision[] = "SUPERVISOR_DECISION";
 inline constexpr char kPlannedPath[] = "PLANNED_PATH";
 inline constexpr char kSimCommand[] = "SIM_COMMAND";
 inline constexpr char kSimObjectPoses[] = "SIM_OBJECT_POSES";
