@@ -4,9 +4,12 @@ state, run the supervisor FSM, judge the run against the success criteria of ARC
 §Demos, and write a report folder (report.md, report.json, plots, controllers.yaml, run.lcmlog).
 
 Scenarios: ``plank-flip`` (TALOS turns the plank upside down, thesis 000 §3.4) and ``ur10-box``
-(UR10 moves the box across the table, issue 7's end-to-end check). Execution is open loop from
-the planned references (the thesis's chapter-3 setting, 80 % success without vision): the demo
-puts the objects where the problem file says before it starts (no displacement perturbation yet).
+(UR10 moves the box across the table, issue 7's end-to-end check). ur10-box runs open loop from
+the planned references (the thesis's chapter-3 setting); plank-flip closes the loop on vision
+(§5.3.1): the controller renders the head camera, ``marionette perceive`` publishes the plank's
+pose, the head looks at the plank and the carry to the placement is servoed on the measured pose
+(:mod:`.visual_servo`). ``perturbation`` (:mod:`.perturbations`, ``--perturb issue10``) adds the
+seeded perturbations of issue #10; without it the objects start where the problem file says.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
 from marionette.execution.factory import build_specs, check_specs, context_from_plan, write_specs
+from marionette.execution.perturbations import Perturbation, displaced, scene_with_joint_offsets, slipped
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
 from marionette.lcm_bus import private_lcm_url
@@ -52,6 +56,8 @@ class Scenario:
     feet_tolerance: float = 0.005       # [m]
     description: str = ""
     runner: Callable[..., dict[str, Any]] | None = None   # a demo with its own flow (no plan/FSM)
+    vision: bool = False                # camera + perception + PBVS on the carried object (ch. 5)
+    camera_rate: float = 5.0            # [Hz of controller time] head camera frames with vision
 
 
 def _grasp_walk(*args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -64,7 +70,9 @@ SCENARIOS: dict[str, Scenario] = {
     "plank-flip": Scenario(
         "plank-flip", "talos_plank", marionette.MODELS_DIR / "scenes" / "talos_plank.xml", 4,
         "plank", 0.5, feet=("left_sole_link", "right_sole_link"),
-        description="TALOS turns the plank upside down with both grippers (thesis 000 §3.4)"),
+        description="TALOS turns the plank upside down with both grippers (thesis 000 §3.4), "
+                    "the placement servoed on the plank pose seen by the head camera (§5.3.1)",
+        vision=True),
     "ur10-box": Scenario(
         "ur10-box", "ur10_box", marionette.MODELS_DIR / "scenes" / "ur10_box.xml", 0, "box", 1.0,
         description="UR10 picks the box with its suction cup and places it 0.5 m away"),
@@ -139,13 +147,18 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
 
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
              cache_dir: Path | None = None, log: Callable[[str], None] = print,
-             controller_url: str | None = None, view: bool = False) -> dict[str, Any]:
+             controller_url: str | None = None, perturbation: Perturbation | None = None,
+             view: bool = False) -> dict[str, Any]:
     """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
     after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
-    marionette-controller already running there (another machine: ttl=1) instead of starting one."""
+    marionette-controller already running there (another machine: ttl=1) instead of starting one.
+    ``perturbation`` (:mod:`.perturbations`): joint offsets in the simulated robot, the object
+    displaced before execution and slipping in the hand during it, camera noise."""
     from marionette.execution.report import write_report
 
     if scenario.runner is not None:
+        if perturbation is not None and perturbation.any:
+            raise DemoError(f"{scenario.name} has its own perturbations (no --perturb)")
         return scenario.runner(scenario, seed, out_dir, speed=speed, log=log, controller_url=controller_url)
     out_dir.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
@@ -177,11 +190,22 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
                               "seed": seed, "robot": robot, "speed": speed, "lcm_url": url}
     result: SupervisorResult | None = None
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
+        # Camera frames (1.5 MB each) stay out of the log: the object poses measured in them are in.
+        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
+                    + (["--channel=^CAMERA_.*", "--invert-channels"] if scenario.vision else []))
+        scene = scenario.scene
+        if perturbation is not None and perturbation.joint_offsets:
+            if controller_url is not None:
+                raise DemoError("joint offsets need the demo's own controller (no --controller-url)")
+            scene = scene_with_joint_offsets(scene, perturbation.joint_offsets, out_dir / "scene.xml")
         if controller_url is None:
             group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                       "--robot", robot, "--scene", scenario.scene, "--speed", str(speed),
-                                       "--camera-rate", "0", "--status-rate", "100"])
+                                       "--robot", robot, "--scene", scene, "--speed", str(speed),
+                                       "--camera-rate", str(scenario.camera_rate if scenario.vision else 0),
+                                       "--status-rate", "100"])
+        if scenario.vision:
+            group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
+                                     "--robot", robot, "--stats-period", "30"])
         try:
             client.wait_ready(60.0)
         except TimeoutError:
@@ -195,7 +219,10 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
         for name in robot_map.objects:
-            client.move_object(name, robot_map.object_pose(np.array(q0), name))
+            X = robot_map.object_pose(np.array(q0), name)
+            if perturbation is not None and name == scenario.object_name:
+                X = displaced(X, perturbation.displacement)   # moved after planning
+            client.move_object(name, X)
         client.wait_time(0.5)
         q_start = configuration_from_state(model, client.state)
 
@@ -214,9 +241,25 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
         options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
         supervisor = Supervisor(client, steps, specs, robot_map, options, plan.doc["problem"]["name"])
         timings["references_s"] = supervisor.prepare(first)
+        servo = None
+        if scenario.vision:
+            from marionette.execution.visual_servo import ServoOptions, VisualServo, add_gaze
+
+            t_gaze = time.perf_counter()
+            add_gaze(supervisor.trajectories, steps[first:], robot_map, scenario.object_name,
+                     robots.robot(robot).camera_frame)
+            timings["gaze_s"] = time.perf_counter() - t_gaze
+            servo_options = ServoOptions() if perturbation is None else ServoOptions(
+                noise_position_m=perturbation.camera_noise_m,
+                noise_angle_rad=perturbation.camera_noise_rad, seed=perturbation.seed)
+            servo = VisualServo(client.bus, steps, specs, robot_map, supervisor.trajectories, servo_options)
+            supervisor.servo = servo
         stop_progress = threading.Event()
         progress = threading.Thread(target=_progress, args=(supervisor, stop_progress, log), daemon=True)
         progress.start()
+        if perturbation is not None and any(perturbation.slip):
+            threading.Thread(target=_slip, args=(supervisor, client, steps, scenario.object_name,
+                                                 perturbation, stop_progress, log), daemon=True).start()
         t3 = time.perf_counter()
         utime0 = client.utime()
         result = supervisor.run(first)
@@ -241,8 +284,31 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
                             "steps": len(steps), "first_step": first,
                             "events": [list(e) for e in result.events]}
     report["timings"] = timings
+    if perturbation is not None:
+        report["perturbation"] = perturbation.to_dict()
+    if servo is not None:
+        report["vision"] = servo.summary()
     write_report(out_dir, report, scenario, supervisor, result, recorder, model)
     return report
+
+
+def _slip(supervisor: Supervisor, client: ControllerClient, steps: list, obj: str,
+          perturbation: Perturbation, stop: threading.Event, log: Callable[[str], None]) -> None:
+    """At the start of step ``slip_step`` the object slips in the hands holding it: welds off,
+    object moved by the slip twist (its own frame), welds on again where it now is."""
+    k = perturbation.slip_step
+    while not stop.wait(0.01):
+        if supervisor.step_index < k:
+            continue
+        if supervisor.step_index == k and k < len(steps):
+            welds = [f"grasp/{g}/{obj}" for g, h in steps[k].grasps.items() if h.split("/")[0] == obj]
+            for w in welds:
+                client.detach(w)
+            client.move_object(obj, slipped(client.object_pose(obj), perturbation.slip))
+            for w in welds:
+                client.attach(w)
+            log(f"perturbation: {obj} slipped in {', '.join(welds) or 'no hand'} at step {k}")
+        return
 
 
 def _progress(supervisor: Supervisor, stop: threading.Event, log: Callable[[str], None]) -> None:
@@ -281,10 +347,15 @@ def _criteria(scenario: Scenario, plan: Plan, robot_map: PlanRobotMap, model: pi
             for f in scenario.feet:
                 moved = max(moved, float(np.linalg.norm(data.oMf[model.getFrameId(f)].translation - feet0[f])))
             base_drop = max(base_drop, float(q_start[2] - q[2]))
+        # The plan itself lowers the base (TALOS bends to reach the table): a fall is the base
+        # going lower than the plan's lowest point.
+        z_plan = [robot_map.robot_q(q)[2] for q in plan.configurations()]
+        planned_drop = max(0.0, float(robot_map.robot_q(np.array(plan.doc["problem"]["q_init"]))[2] - min(z_plan)))
         criteria["feet_max_displacement_m"] = moved
         criteria["feet_never_moved"] = bool(moved <= scenario.feet_tolerance)
         criteria["base_max_drop_m"] = base_drop
-        criteria["no_fall"] = bool(base_drop < 0.05)
+        criteria["base_planned_drop_m"] = planned_drop
+        criteria["no_fall"] = bool(base_drop - planned_drop < 0.05)
         ok = ok and criteria["feet_never_moved"] and criteria["no_fall"]
     criteria["limits"] = {"position_m": scenario.position_tolerance,
                           "angle_deg": scenario.angle_tolerance_deg,

@@ -4,6 +4,7 @@ one command, each trial writing ``reports/demo/<scenario>-<time>/`` (exit 0 only
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -22,6 +23,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"(default {DEFAULT_SCENARIO}, the scenario that meets its criteria today)")
     p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
     p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
+    p.add_argument("--perturb", choices=("none", "issue10"), default="none",
+                   help="seeded perturbations per trial (execution/perturbations.py): issue10 = object "
+                        "displaced <= 5 cm / 10 deg before execution and slipping in the hand during it, "
+                        "7 deg shoulder / 4 deg wrist encoder offsets, 2 mm / 0.5 deg camera noise")
     p.add_argument("--speed", type=float, default=1.0,
                    help="controller pacing: 1 real time (default), 0 as fast as possible")
     p.add_argument("--out", type=Path, default=None, help="reports folder (default reports/demo)")
@@ -61,16 +66,21 @@ def run(args: argparse.Namespace) -> int:
     for k in range(args.trials):
         seed = seed0 + k
         out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
+        perturbation = None
+        if args.perturb == "issue10":
+            from marionette.execution.perturbations import ISSUE_10, draw
+
+            perturbation = draw(ISSUE_10, seed)
         try:
             report = run_demo(scenario, seed, out, speed=args.speed, controller_url=args.controller_url,
-                              log=lambda m: print(m, flush=True),
+                              log=lambda m: print(m, flush=True), perturbation=perturbation,
                               **({"view": True} if args.view and scenario.runner is None else {}))
         except DemoError as e:
             print(f"marionette demo: {e}", file=sys.stderr)
-            rows.append((seed, False, str(e).splitlines()[0], out))
+            rows.append((seed, False, str(e).splitlines()[0], out, None))
             continue
         reason = "" if report["success"] else _failure_reason(report)
-        rows.append((seed, report["success"], reason, out))
+        rows.append((seed, report["success"], reason, out, report.get("criteria")))
         if "summary" in report:   # a demo with its own criteria (grasp-walk)
             print(f"{report['summary']} -> {out / 'report.md'}")
             continue
@@ -82,9 +92,20 @@ def run(args: argparse.Namespace) -> int:
     if args.trials > 1:
         ok = sum(r[1] for r in rows)
         print(f"\n{scenario.name}: {ok}/{len(rows)} trials succeeded ({100.0 * ok / len(rows):.0f} %)")
-        print("| seed | success | failure reason |\n|---|---|---|")
-        for seed, success, reason, _ in rows:
-            print(f"| {seed} | {success} | {reason} |")
+        print("| seed | success | error mm | error ° | failure reason |\n|---|---|---|---|---|")
+        for seed, success, reason, _, c in rows:
+            mm = f"{c['object_position_error_m'] * 1e3:.1f}" if c else "-"
+            deg = f"{c['object_angle_error_deg']:.2f}" if c else "-"
+            print(f"| {seed} | {success} | {mm} | {deg} | {reason} |")
+        summary = root / f"{scenario.name}-trials-{time.strftime('%Y%m%d-%H%M%S')}.json"
+        summary.write_text(json.dumps({
+            "scenario": scenario.name, "perturb": args.perturb, "speed": args.speed,
+            "succeeded": ok, "trials": len(rows),
+            "rows": [{"seed": seed, "success": success, "failure_reason": reason, "report": str(o),
+                      "object_position_error_m": c and c["object_position_error_m"],
+                      "object_angle_error_deg": c and c["object_angle_error_deg"]}
+                     for seed, success, reason, o, c in rows]}, indent=1))
+        print(f"trials: {summary}")
     return 0 if all(r[1] for r in rows) else 1
 
 

@@ -65,9 +65,28 @@ def _markdown(r: dict[str, Any]) -> str:
     if "feet_max_displacement_m" in c:
         lines += [f"| feet displacement (max) | {c['feet_max_displacement_m'] * 1e3:.2f} mm | "
                   f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
-                  f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | 50 mm | {c['no_fall']} |"]
-    lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", "",
-              "## Estimation (§3.2.2)", "",
+                  f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | planned "
+                  f"{c.get('base_planned_drop_m', 0.0) * 1e3:.1f} + 50 mm | {c['no_fall']} |"]
+    lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", ""]
+    if "perturbation" in r:
+        p = r["perturbation"]
+        lines += ["## Perturbations (seeded)", "",
+                  f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
+                  f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); slip in the hand "
+                  f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
+                  f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
+                  + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
+                  + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°", ""]
+    if "vision" in r:
+        v = r["vision"]
+        lines += ["## Vision in the loop (thesis 000 §5.3.1)", "",
+                  f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected.", "",
+                  "| step | last measured object error | correction |", "|---|---|---|"]
+        lines += [f"| {k} | {t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
+                  f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
+                  for k, t in v["last_per_step"].items()]
+        lines += [""]
+    lines += ["## Estimation (§3.2.2)", "",
               f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
               f"started at step {r['estimation']['first_step']}", "",
               "## Timings", "", "| phase | s |", "|---|---|"]

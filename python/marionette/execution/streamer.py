@@ -7,6 +7,11 @@ Chunks of ``chunk_samples`` samples are sent while their start time is less than
 per stream (ReferenceStream's capacity), so the look-ahead must stay well under that. The last
 chunk of each task carries ``last_chunk`` ("end of reference", §3.2.5.2): the stream then holds
 its final value and the watchdog ignores it.
+
+Visual servoing (:mod:`.visual_servo`): with ``corrections`` the pose rows of those tasks are
+right-multiplied by their current correction when sent, and when a correction changes the
+samples already sent from ``now + lead`` on are sent again (a chunk replaces the stream's
+future from its start, ReferenceStream), so a new measurement acts within ``lead``.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ class ReferenceStreamer:
     def __init__(self, send: Callable[[object], None], controller_id: int,
                  references: dict[str, tuple[np.ndarray, np.ndarray]], start_utime: int,
                  dt_us: int = 1000, chunk_samples: int = 200, lookahead_s: float = 1.0,
-                 max_chunks_per_pump: int = 4) -> None:
+                 max_chunks_per_pump: int = 4, corrections: list | None = None,
+                 servo=None) -> None:
         if not references:
             raise ValueError("nothing to stream")
         sizes = {len(v) for v, _ in references.values()}
@@ -52,6 +58,10 @@ class ReferenceStreamer:
         self.chunks_sent = 0
         self.min_margin_us: int | None = None   # smallest lead of the stream over the clock seen
         self.stopped_at: int | None = None
+        self.corrections = {c.task: c for c in corrections or []}
+        self.servo = servo
+        self._sent_versions: dict[str, int] = {}
+        self._last_refresh_us = -(1 << 62)
 
     @property
     def end_utime(self) -> int:
@@ -78,12 +88,51 @@ class ReferenceStreamer:
             k1 = min(k0 + self.chunk_samples, self.num_samples)
             last = k1 >= self.num_samples
             for task, (values, derivatives) in self.references.items():
+                v, d = self._corrected(task, k0, k1)
                 self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
-                                          values[k0:k1], derivatives[k0:k1], self.dt_us, last))
+                                          v, d, self.dt_us, last))
             self.next_sample = k1
             self.chunks_sent += 1
             sent += 1
+        if self.corrections and self.stopped_at is None:
+            self._refresh(now_utime)
         return sent
+
+    def _corrected(self, task: str, k0: int, k1: int) -> tuple[np.ndarray, np.ndarray]:
+        values, derivatives = self.references[task]
+        c = self.corrections.get(task)
+        if c is None:
+            return values[k0:k1], derivatives[k0:k1]
+        from marionette.execution.visual_servo import right_multiply
+
+        if not c.blend_out:
+            return right_multiply(values[k0:k1], derivatives[k0:k1], c.C)
+        rows = [right_multiply(values[k:k + 1], derivatives[k:k + 1], c.at_sample(k, self.dt_us))
+                for k in range(k0, k1)]
+        return np.vstack([r[0] for r in rows]), np.vstack([r[1] for r in rows])
+
+    def _refresh(self, now_utime: int) -> None:
+        """Folds new measurements in; re-sends the corrected tasks' future already sent."""
+        if self.servo is None:
+            return
+        self.servo.update(self.references, self.dt_us, now_utime)
+        if now_utime - self._last_refresh_us < self.servo.options.refresh_us:
+            return
+        stale = [t for t, c in self.corrections.items()
+                 if not c.blend_out and self._sent_versions.get(t, -1) != c.version]
+        if not stale:
+            return
+        self._last_refresh_us = now_utime
+        k_from = max(0, (now_utime + self.servo.options.lead_us - self.start_utime) // self.dt_us)
+        for task in stale:
+            k0 = int(k_from)
+            while k0 < self.next_sample:
+                k1 = min(k0 + 1000, self.next_sample)
+                v, d = self._corrected(task, k0, k1)
+                self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
+                                          v, d, self.dt_us, k1 >= self.num_samples))
+                k0 = k1
+            self._sent_versions[task] = self.corrections[task].version
 
     def stop_early(self, now_utime: int, lead_us: int = 20_000) -> None:
         """Ends every reference at the sample due ``lead_us`` from now (a force event: the goal

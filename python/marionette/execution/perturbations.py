@@ -1,0 +1,126 @@
+"""Seeded perturbations of a demo trial (ARCHITECTURE §Demos, issue #10): what vision must
+close (thesis 000 ch. 4-5).
+
+* **displacement before execution** — the object is moved on the table between planning and
+  execution (uniform in a disc of ``displacement_m`` and a yaw within ``displacement_deg``);
+* **slip during execution** — while carried, the object turns and shifts in the hand
+  (``slip_m`` / ``slip_deg``): the weld is released, the object moved, the weld closed again,
+  at the start of step ``slip_step`` (the carry after the hand-over in plank-flip);
+* **joint offsets** in the controller's model (ch. 4: encoder offsets, 7° shoulder, 4° wrist):
+  the MuJoCo joint's ``ref`` is set to the offset, so the simulator reports q + offset for the
+  true angle q and the controller's Pinocchio model places the links off by it;
+* **camera noise** — Gaussian noise on each measured object pose, on top of the detection's
+  own error on the rendered images (:class:`visual_servo.ServoOptions`).
+
+Everything is drawn from ``numpy.random.default_rng(seed)``: a trial is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+
+@dataclass(frozen=True)
+class PerturbationSettings:
+    """Magnitudes (maxima for uniform draws, sigmas for noise); zero disables a perturbation."""
+
+    displacement_m: float = 0.0
+    displacement_deg: float = 0.0
+    slip_m: float = 0.0
+    slip_deg: float = 0.0
+    slip_step: int = 10
+    joint_offsets_deg: dict[str, float] = field(default_factory=dict)   # joint -> |offset|
+    camera_noise_m: float = 0.0
+    camera_noise_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("displacement_m", "displacement_deg", "slip_m", "slip_deg",
+                     "camera_noise_m", "camera_noise_deg"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"perturbation {name} must be >= 0, got {getattr(self, name)}")
+
+
+# Issue #10's set for plank-flip.
+ISSUE_10 = PerturbationSettings(displacement_m=0.05, displacement_deg=10.0, slip_m=0.01, slip_deg=5.0,
+                                joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
+                                camera_noise_m=0.002, camera_noise_deg=0.5)
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One trial's draw: table displacement (dx, dy [m], dyaw [rad]), slip in the hand (a twist
+    of the object frame, (v, w) [m, rad]), joint offsets [rad], camera noise sigmas."""
+
+    seed: int
+    displacement: tuple[float, float, float]
+    slip: tuple[float, ...]
+    slip_step: int
+    joint_offsets: dict[str, float]
+    camera_noise_m: float
+    camera_noise_rad: float
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["displacement_mm_deg"] = [1e3 * self.displacement[0], 1e3 * self.displacement[1],
+                                    math.degrees(self.displacement[2])]
+        d["joint_offsets_deg"] = {k: math.degrees(v) for k, v in self.joint_offsets.items()}
+        return d
+
+    @property
+    def any(self) -> bool:
+        return bool(any(self.displacement) or any(self.slip) or self.joint_offsets
+                    or self.camera_noise_m or self.camera_noise_rad)
+
+
+def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
+    """The perturbation of the trial with ``seed``."""
+    rng = np.random.default_rng(seed)
+    r = settings.displacement_m * math.sqrt(rng.uniform())   # uniform in the disc
+    a = rng.uniform(0.0, 2 * math.pi)
+    yaw = math.radians(settings.displacement_deg) * rng.uniform(-1.0, 1.0)
+    v = rng.normal(size=3)
+    w = rng.normal(size=3)
+    v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(np.linalg.norm(v), 1e-12)
+    w *= math.radians(settings.slip_deg) * rng.uniform(0.5, 1.0) / max(np.linalg.norm(w), 1e-12)
+    offsets = {j: math.radians(m) * float(rng.choice([-1.0, 1.0]))
+               for j, m in sorted(settings.joint_offsets_deg.items()) if m}
+    return Perturbation(seed, (r * math.cos(a), r * math.sin(a), yaw), tuple(map(float, [*v, *w])),
+                        settings.slip_step, offsets, settings.camera_noise_m,
+                        math.radians(settings.camera_noise_deg))
+
+
+def displaced(X_WO: pin.SE3, displacement: tuple[float, float, float]) -> pin.SE3:
+    """The object moved on the table: translated in x, y and turned about the world z through
+    its own origin (it stays on its face)."""
+    dx, dy, dyaw = displacement
+    R = pin.rpy.rpyToMatrix(0.0, 0.0, dyaw)
+    return pin.SE3(R @ X_WO.rotation, X_WO.translation + np.array([dx, dy, 0.0]))
+
+
+def slipped(X_WO: pin.SE3, slip: tuple[float, ...]) -> pin.SE3:
+    """The object after slipping in the hand by the twist ``slip`` in its own frame."""
+    return X_WO * pin.exp6(np.asarray(slip, dtype=float))
+
+
+def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) -> Path:
+    """A copy of the MJCF ``scene`` in which each joint of ``offsets`` has ``ref`` = offset [rad]
+    (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
+    text = scene.read_text()
+    base = scene.resolve().parent
+    text = re.sub(r'(meshdir|texturedir)="([^"]*)"',
+                  lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"', text)
+    for joint, offset in offsets.items():
+        pattern = re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
+        text, n = pattern.subn(lambda m: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1)
+        if n != 1:
+            raise ValueError(f"{scene}: no joint {joint!r} to offset")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return out

@@ -1,0 +1,356 @@
+"""Vision in the loop of execution (thesis 000 ch. 5, §5.2.2-5.2.3, §5.3.1 plank flip): the
+gripper task that carries an object to its placement is servoed on the object pose measured by
+the head camera (OBJECT_POSES from ``marionette perceive``), and the head looks at the object.
+
+PBVS on the carried object (eq. 5.1-5.3 with the object as H1). The factory marks the gripper
+tasks of the placement approach ``pbvs`` (:func:`factory.visual_steps`). Their planned reference
+P(t) (gripper in world) is streamed right-multiplied by a correction C (gripper frame),
+R(t) = P(t) C. The controller drives the gripper it computes from its encoders onto R(t), and
+whatever sits between that reference and the real object — the grasp slipping in the hand, the
+arm sagging under the load, encoder offsets in the controller's model (ch. 4) — is one unknown
+rigid map B with O = R B (O the object in world). A camera measurement O_m at image time t_i,
+with the reference R(t_i) that was tracked then, gives B = R(t_i)^-1 O_m; the reference that puts
+the object on its plan O_p(t) = P(t) X_GO (X_GO the planned grasp, constant in a grasp state) is
+R' = O_p B^-1, i.e.
+
+    C* = X_GO O_m^-1 R(t_i)                                                  (fixed point)
+
+C moves towards C* by a fraction ``alpha`` of the geodesic per measurement (an integrator on
+the measured object error, eq. 5.1 e = log(O_m^-1 O_p), which averages the camera noise) and at
+most ``max_speed`` / ``max_angular_speed`` (the reference never jumps). Only measured poses and
+the controller's own reference enter C*: the camera's pose error through the head cancels to
+first order the way eq. 5.3 cancels it (both O_m and, through the camera, the hand).
+
+§5.2.3, after the servoed steps: the last correction is kept ("the planned reference shifted
+using the last information available") while the gripper releases the object, then blended out
+with a C2 ramp over the next step of that gripper, so no controller switch sees a jump.
+
+Gaze: the posture references of every step turn the head (its two joints, nothing else) so
+that the camera's optical axis points at the planned position of the object, ramped in over the
+first step — the camera then keeps the object in view throughout (the head is free in the plan).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from marionette import channels, lcmt_object_poses
+from marionette.control.spec import ControllerSpec
+from marionette.execution.plan_steps import PlanRobotMap, Step
+from marionette.execution.references import StepTrajectory
+from marionette.perception.pbvs import activation, interpolate
+
+
+@dataclass(frozen=True)
+class ServoOptions:
+    """Gains and limits of the visual correction; ``noise_*`` perturb each measurement (a
+    seeded camera-noise model on top of the rendered images' own error)."""
+
+    alpha: float = 0.3                  # fraction of the way to C* per measurement
+    max_speed: float = 0.03             # [m/s] of the correction's translation
+    max_angular_speed: float = 0.3      # [rad/s]
+    max_correction: float = 0.08        # [m] larger fixed points are rejected as outliers
+    max_reprojection_px: float = 3.0    # measurements with a larger RMS are ignored
+    noise_position_m: float = 0.0       # [m] sigma per axis
+    noise_angle_rad: float = 0.0        # [rad] sigma per axis
+    seed: int = 0
+    lead_us: int = 20_000               # corrected samples re-sent from now + lead
+    refresh_us: int = 50_000            # at most one re-send per this much controller time
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.alpha <= 1.0:
+            raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
+        if self.max_speed <= 0 or self.max_angular_speed <= 0 or self.max_correction <= 0:
+            raise ValueError("max_speed, max_angular_speed and max_correction must be > 0")
+        if self.noise_position_m < 0 or self.noise_angle_rad < 0:
+            raise ValueError("camera noise sigmas must be >= 0")
+
+
+def correction_fixed_point(X_GO_plan: pin.SE3, X_WO_measured: pin.SE3, X_WR: pin.SE3) -> pin.SE3:
+    """C* = X_GO O_m^-1 R(t_i): the right correction of the gripper reference that brings the
+    measured object onto its plan, given the reference ``X_WR`` tracked at the image time."""
+    return X_GO_plan * X_WO_measured.inverse() * X_WR
+
+
+def step_toward(C: pin.SE3, C_target: pin.SE3, alpha: float, max_dp: float, max_dtheta: float) -> pin.SE3:
+    """C exp(s log(C^-1 C*)) with s = alpha, shortened so that the translation moves at most
+    ``max_dp`` and the rotation at most ``max_dtheta``."""
+    xi = pin.log6(C.actInv(C_target)).vector
+    s = alpha
+    dp, dth = np.linalg.norm(xi[:3]) * s, np.linalg.norm(xi[3:]) * s
+    if dp > max_dp:
+        s *= max_dp / dp
+    if dth * (s / alpha) > max_dtheta:
+        s = min(s, max_dtheta / np.linalg.norm(xi[3:]))
+    return C * pin.exp6(s * xi)
+
+
+def right_multiply(values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+    """Pose rows (x y z qw qx qy qz) X -> X C and their world twists (v, ω): the point
+    p + R t_C moves at v + ω × (R t_C), the rotation at the same ω."""
+    out_v = values.copy()
+    out_d = derivatives.copy()
+    for k, row in enumerate(values):
+        R = pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix()
+        X = pin.SE3(R, row[:3]) * C
+        q = pin.Quaternion(X.rotation)
+        out_v[k] = [*X.translation, q.w, q.x, q.y, q.z]
+        if derivatives.shape[1] == 6:
+            out_d[k, :3] = derivatives[k, :3] + np.cross(derivatives[k, 3:], R @ C.translation)
+    return out_v, out_d
+
+
+@dataclass
+class TaskCorrection:
+    """The correction of one streamed gripper task during one step (used by the streamer)."""
+
+    task: str
+    servoed: bool                       # updated from measurements (pbvs task)
+    C_start: pin.SE3
+    blend_out: bool                     # ramp C_start -> identity over the step
+    duration_us: int = 1
+    start_utime: int = 0
+    C: pin.SE3 = field(default_factory=pin.SE3.Identity)
+    history: list[tuple[int, pin.SE3]] = field(default_factory=list)   # (from utime, C)
+    version: int = 0
+    frame: str = ""
+
+    def at_sample(self, k: int, dt_us: int) -> pin.SE3:
+        if not self.blend_out:
+            return self.C
+        a = activation(k * dt_us / max(self.duration_us, 1))
+        return interpolate(self.C_start, pin.SE3.Identity(), a)
+
+    def active_at(self, utime: int) -> pin.SE3:
+        C = self.C_start
+        for t, value in self.history:
+            if t > utime:
+                break
+            C = value
+        return C
+
+
+class VisualServo:
+    """Owns the corrections of the servoed gripper tasks across the steps of one run.
+
+    ``bus`` delivers OBJECT_POSES; call :meth:`begin_step` when a step's references start and
+    hand the result to the streamer; the streamer calls :meth:`update` as controller time
+    advances (measurements are folded in there, never in the LCM thread)."""
+
+    def __init__(self, bus: Any, steps: list[Step], specs: list[ControllerSpec], robot_map: PlanRobotMap,
+                 trajectories: dict[int, StepTrajectory], options: ServoOptions | None = None) -> None:
+        self.steps = steps
+        self.specs = specs
+        self.robot_map = robot_map
+        self.trajectories = trajectories
+        self.options = options or ServoOptions()
+        self._rng = np.random.default_rng(self.options.seed)
+        self._lock = threading.Lock()
+        self._pending: list[tuple[int, str, pin.SE3, float]] = []
+        self._carried: dict[str, pin.SE3] = {}      # gripper frame -> last correction
+        self._current: list[tuple[TaskCorrection, Step, str, pin.SE3]] = []
+        self.measurements_used = 0
+        self.measurements_rejected = 0
+        self.trace: list[dict[str, Any]] = []        # per used measurement, for the report
+        bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._on_objects)
+
+    def _on_objects(self, msg: Any) -> None:
+        with self._lock:
+            for o in msg.objects:
+                X = pin.SE3(pin.Quaternion(*o.quaternion_world).normalized().matrix(), np.array(o.position_world))
+                self._pending.append((int(o.utime), o.object_name, X, float(o.reprojection_error)))
+
+    def end_thresholds(self, spec: ControllerSpec, thresholds: dict[str, float]) -> dict[str, float]:
+        """The end check of a step whose gripper reference is corrected by vision leaves out the
+        posture: the planned configuration no longer agrees with the corrected gripper pose, and
+        the posture (the lowest level, a regularisation) cannot converge onto it."""
+        corrected = any(t.kind == "pbvs" or (t.frame in self._carried and not
+                                              self._carried[t.frame].isIdentity()) for t in spec.tasks)
+        if not corrected:
+            return thresholds
+        return {n: v for n, v in thresholds.items()
+                if next(t.kind for t in spec.tasks if t.name == n) != "posture"}
+
+    def summary(self) -> dict[str, Any]:
+        """Measurements used / rejected and the servo trace (report.json ``vision``)."""
+        last = {}
+        for row in self.trace:
+            last[row["step"]] = row
+        return {"measurements_used": self.measurements_used,
+                "measurements_rejected": self.measurements_rejected,
+                "last_per_step": {str(k): v for k, v in sorted(last.items())},
+                "trace": self.trace}
+
+    # ---- per step ----------------------------------------------------------------------------
+    def begin_step(self, step: Step, spec: ControllerSpec, start_utime: int, dt_us: int) -> list[TaskCorrection]:
+        """The corrections of this step's gripper tasks (empty: nothing to correct)."""
+        traj = self.trajectories[step.index]
+        corrections: list[TaskCorrection] = []
+        self._current = []
+        with self._lock:
+            self._pending.clear()   # measurements of the previous step's images
+        for task in spec.tasks:
+            if task.kind not in ("se3", "pbvs") or not task.streamed or task.frame in ("left_sole_link", "right_sole_link"):
+                continue
+            C0 = self._carried.get(task.frame)
+            if task.kind != "pbvs" and C0 is None:
+                continue
+            holds = {g.split("/")[-1]: h for g, h in step.grasps.items()}
+            gripper = next((g for g in step.active_grippers if task.name == g.split("/")[-1]), None)
+            releasing = any(g.split("/")[-1] == task.name for g in step.released)
+            C0 = C0 or pin.SE3.Identity()
+            blend = task.kind != "pbvs" and not releasing
+            c = TaskCorrection(task.name, task.kind == "pbvs", C0, blend, int(traj.duration * 1e6),
+                               start_utime, C0, [(start_utime, C0)], frame=task.frame)
+            corrections.append(c)
+            if task.kind == "pbvs" and gripper is not None and task.name in holds:
+                obj = holds[task.name].split("/")[0]
+                X_GO = self._planned_grasp(traj, task.frame, obj)
+                self._current.append((c, step, obj, X_GO))
+            self._carried[task.frame] = pin.SE3.Identity() if blend else C0
+        return corrections
+
+    def end_step(self, corrections: list[TaskCorrection]) -> None:
+        for c in corrections:
+            if c.servoed:
+                self._carried[c.frame] = c.C
+
+    def _planned_grasp(self, traj: StepTrajectory, frame: str, obj: str) -> pin.SE3:
+        model = self.robot_map.model
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, traj.q[-1])
+        X_WG = data.oMf[model.getFrameId(frame)]
+        return X_WG.actInv(self.robot_map.object_pose(traj.q_plan[-1], obj))
+
+    def update(self, planned: dict[str, tuple[np.ndarray, np.ndarray]], dt_us: int, now_utime: int) -> bool:
+        """Folds the measurements received since the last call into the servoed corrections;
+        True when a correction changed."""
+        with self._lock:
+            pending, self._pending = self._pending, []
+        changed = False
+        o = self.options
+        for c, step, obj, X_GO in self._current:
+            values = planned[c.task][0]
+            for utime, name, X_WO, reproj in pending:
+                if name != obj:
+                    continue
+                if reproj > o.max_reprojection_px or utime < c.start_utime:
+                    self.measurements_rejected += 1
+                    continue
+                if o.noise_position_m > 0 or o.noise_angle_rad > 0:
+                    X_WO = X_WO * pin.exp6(np.concatenate([self._rng.normal(0, o.noise_position_m, 3),
+                                                           self._rng.normal(0, o.noise_angle_rad, 3)]))
+                k = int(np.clip((utime - c.start_utime) // dt_us, 0, len(values) - 1))
+                row = values[k]
+                P = pin.SE3(pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3])
+                X_WR = P * c.active_at(utime)
+                C_star = correction_fixed_point(X_GO, X_WO, X_WR)
+                if np.linalg.norm(C_star.translation) > o.max_correction:
+                    self.measurements_rejected += 1
+                    continue
+                dt = max(now_utime - (c.history[-1][0] if c.history else now_utime), 0) * 1e-6
+                dt = min(max(dt, 0.01), 0.2)
+                c.C = step_toward(c.C, C_star, o.alpha, o.max_speed * dt, o.max_angular_speed * dt)
+                c.history.append((now_utime, c.C))
+                c.version += 1
+                changed = True
+                self.measurements_used += 1
+                err = (X_GO.inverse() * P.inverse() * X_WO)   # measured object vs its plan
+                self.trace.append({"utime": utime, "step": step.index,
+                                   "object_error_m": float(np.linalg.norm(
+                                       X_WO.translation - (P * X_GO).translation)),
+                                   "object_error_deg": math.degrees(float(np.linalg.norm(pin.log3(err.rotation)))),
+                                   "correction_m": float(np.linalg.norm(c.C.translation)),
+                                   "correction_deg": math.degrees(float(np.linalg.norm(pin.log3(c.C.rotation))))})
+        return changed
+
+
+# ---- gaze through the posture references ---------------------------------------------------
+
+
+def head_gaze_posture(model: pin.Model, traj: StepTrajectory, targets_W: np.ndarray, camera_frame: str,
+                      joints: tuple[str, ...] = ("head_1_joint", "head_2_joint"),
+                      extra_joints: tuple[str, ...] = (), ramp_in: bool = False,
+                      every: int = 20, tolerance: float = 0.2) -> None:
+    """Rewrites the gaze joints of ``traj.references['posture']`` so that the optical axis (z)
+    of ``camera_frame`` points at ``targets_W`` (N x 3, one per sample): the two head joints for
+    the two image coordinates (x/z, y/z), Gauss-Newton with a finite-difference Jacobian, every
+    ``every`` samples and linear in between; when the head reaches its limits and the target
+    stays more than ``tolerance`` (normalised image coordinate) off the centre,
+    ``extra_joints`` (e.g. the torso pitch) join in, only as far as bringing it ``tolerance`` from
+    the centre (0.2 ≈ 11°). Not used by the plank demo: pitching the torso to centre the plank
+    views its tagged face edge-on and behind the hand (rendered check), the head alone sees it
+    in the second half of the carry to the pre-placement and during the placement. ``ramp_in`` blends from the planned posture over
+    the step with a C2 ramp. Velocities: central differences."""
+    values, derivs = traj.references["posture"]
+    names = tuple(joints) + tuple(extra_joints)
+    idx = [model.joints[model.getJointId(j)].idx_q for j in names]
+    vdx = [model.joints[model.getJointId(j)].idx_v for j in names]
+    margin = 0.03   # [rad] inside the limits: the controller's joint-limit task keeps off them
+    lo, hi = model.lowerPositionLimit[idx] + margin, model.upperPositionLimit[idx] - margin
+    fid = model.getFrameId(camera_frame)
+    data = model.createData()
+    n = len(values)
+    ks = list(range(0, n, every)) + ([n - 1] if (n - 1) % every else [])
+
+    def image_point(q: np.ndarray, p_W: np.ndarray) -> np.ndarray:
+        pin.framesForwardKinematics(model, data, q)
+        p_C = data.oMf[fid].actInv(p_W)
+        return p_C[:2] / max(p_C[2], 1e-3)
+
+    def solve(q: np.ndarray, x: np.ndarray, active: list[int], target: np.ndarray,
+              radius: float = 0.0) -> np.ndarray:
+        # Brings the target's image point within ``radius`` of the centre (0: onto it).
+        for _ in range(5):
+            q[idx] = x
+            p = image_point(q, target)
+            e = p * max(0.0, 1.0 - radius / max(np.linalg.norm(p), 1e-12)) if radius > 0.0 else p
+            J = np.empty((2, len(active)))
+            for c, j in enumerate(active):
+                qd = q.copy()
+                qd[idx[j]] += 1e-6
+                J[:, c] = (image_point(qd, target) - p) / 1e-6
+            step = np.linalg.lstsq(J, e, rcond=None)[0]
+            for c, j in enumerate(active):
+                x[j] = np.clip(x[j] - step[c], lo[j], hi[j])
+        q[idx] = x
+        return x
+
+    out = np.empty((len(ks), len(names)))
+    for i, k in enumerate(ks):
+        q = values[k].copy()
+        x = np.clip(q[idx], lo, hi)
+        x = solve(q, x, list(range(len(joints))), targets_W[k])
+        if np.linalg.norm(image_point(q, targets_W[k])) > tolerance and extra_joints:
+            free = [j for j in range(len(joints)) if lo[j] + 1e-6 < x[j] < hi[j] - 1e-6]
+            x = solve(q, x, free + list(range(len(joints), len(names))), targets_W[k], radius=tolerance)
+        out[i] = x
+    full = np.column_stack([np.interp(np.arange(n), ks, out[:, j]) for j in range(len(names))])
+    if ramp_in:
+        a = np.array([activation(k / max(n - 1, 1)) for k in range(n)])[:, None]
+        full = values[:, idx] + a * (full - values[:, idx])
+    values[:, idx] = full
+    d = np.zeros_like(full)
+    d[1:-1] = (full[2:] - full[:-2]) / (2 * traj.dt)
+    derivs[:, vdx] = d
+
+
+def planned_object_positions(traj: StepTrajectory, robot_map: PlanRobotMap, obj: str) -> np.ndarray:
+    """(N, 3) planned world position of ``obj`` at every sample of the step."""
+    return np.array([robot_map.object_pose(q, obj).translation for q in traj.q_plan])
+
+
+def add_gaze(trajectories: dict[int, StepTrajectory], steps: list[Step], robot_map: PlanRobotMap,
+             obj: str, camera_frame: str) -> None:
+    """The head of every step's posture reference looks at the planned ``obj`` (ramped in over
+    the first step, so the first controller starts where the robot is)."""
+    for i, step in enumerate(steps):
+        traj = trajectories[step.index]
+        head_gaze_posture(robot_map.model, traj, planned_object_positions(traj, robot_map, obj),
+                          camera_frame, ramp_in=(i == 0))
