@@ -160,6 +160,16 @@ def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
 VISUAL_WAYPOINTS: dict[str, str] = {"preplace": "pbvs", "intersec": "pbvs"}
 
 
+def visual_task_kind(step: Step) -> str | None:
+    """The task kind of a gripper holding its object in ``step`` when vision corrects it
+    (:data:`VISUAL_WAYPOINTS`), None otherwise. Lifting the object off its placement
+    (intersec -> preplace) approaches no placement: not servoed."""
+    to, frm = step.to_state.rsplit("_", 1)[-1], step.from_state.rsplit("_", 1)[-1]
+    if to == "preplace" and frm == "intersec":
+        return None
+    return VISUAL_WAYPOINTS.get(to)
+
+
 def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
     """Group 2: a streamed pose task per active gripper; a gripper on an object that another
     gripper already holds is placed relative to that gripper."""
@@ -172,8 +182,8 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
         name = _task_name(gripper)
-        if gripper in step.grasps and step.to_state.rsplit("_", 1)[-1] in VISUAL_WAYPOINTS:
-            tasks.append(TaskSpec(name, VISUAL_WAYPOINTS[step.to_state.rsplit("_", 1)[-1]], priority,
+        if gripper in step.grasps and visual_task_kind(step) is not None:
+            tasks.append(TaskSpec(name, visual_task_kind(step), priority,
                                   frame=frame, gain=GAINS["grasp"], streamed=True))
             holder_of[obj] = gripper
         elif obj in holder_of:

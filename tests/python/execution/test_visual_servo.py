@@ -201,3 +201,72 @@ def test_gaze_posture_points_the_camera_at_the_target_with_the_head_only():
     vals, ders = traj.references["posture"]
     j = model.joints[model.getJointId("head_2_joint")]
     assert ders[50, j.idx_v] == pytest.approx((vals[51, j.idx_q] - vals[49, j.idx_q]) / 2e-3)
+
+
+def test_the_factory_servoes_exactly_the_carry_to_the_placement(talos_plank):
+    """Thesis 000 §5.3.1: PBVS between pre-placement and placement. In the plank plan those are
+    the two steps that end in the placement waypoints (..._preplace, ..._intersec) while the
+    left gripper holds the plank — not the right gripper lifting it off the table at the start
+    (intersec -> preplace); every other gripper task follows its planned pose (se3)."""
+    servoed = {(s.index, t.name) for s, spec in zip(talos_plank.steps, talos_plank.specs)
+               for t in spec.tasks if t.kind == "pbvs"}
+    expected = {(s.index, "left_gripper") for s in talos_plank.steps
+                if s.to_state.endswith(("_preplace", "_intersec")) and not s.from_state.endswith("_intersec")
+                and "talos/left_gripper" in s.grasps and "talos/left_gripper" in s.grasps_to}
+    assert servoed == expected and len(servoed) == 2
+    for s, spec in zip(talos_plank.steps, talos_plank.specs):
+        for t in spec.tasks:
+            if t.kind == "pbvs":
+                assert t.streamed and t.frame == talos_plank.ctx.gripper_frames["talos/left_gripper"]
+
+
+def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos_plank):
+    """Rendered check of the gaze (MuJoCo, the demo scene): at the end of the carry to the
+    pre-placement and during the placement, with the head turned by the posture references, the
+    plank's tags are detected in the head camera's image and the plank pose is within 5 mm / 1°."""
+    import marionette
+    from marionette._core import sim
+    from marionette.execution.references import compute_references, sample_step
+    from marionette.execution.visual_servo import add_gaze
+    from marionette.perception.camera import CameraIntrinsics
+    from marionette.perception.detector import AprilTagDetector, DetectorConfig
+    from marionette.perception.objects import estimate_body_pose, load_tagged_bodies, tag_sizes
+
+    p = talos_plank
+    servoed = [i for i, spec in enumerate(p.specs) if any(t.kind == "pbvs" for t in spec.tasks)]
+    trajs = {}
+    for s in p.steps[: servoed[-1] + 1]:
+        trajs[s.index] = sample_step(s, p.robot_map, 1e-3, 0.5, 0.5)
+        compute_references(trajs[s.index], p.specs[s.index], p.model)
+    add_gaze(trajs, p.steps[: servoed[-1] + 1], p.robot_map, "plank", robots.robot("talos").camera_frame)
+    scene = sim.MjScene(str(marionette.MODELS_DIR / "scenes" / "talos_plank.xml"))
+    scene.reset_keyframe("reference")
+    renderer = sim.RgbdRenderer(scene, "head_rgbd", 640, 480)
+    k = renderer.intrinsics
+    K = CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+    (plank,) = load_tagged_bodies([marionette.MODELS_DIR / "objects" / "plank.yaml"])
+    detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([plank])))
+    seen = 0
+    for i, fraction in ((servoed[0], 1.0), (servoed[1], 0.0), (servoed[1], 1.0)):
+        traj = trajs[i]
+        n = int(fraction * (traj.num_samples - 1))
+        q = traj.references["posture"][0][n]
+        X_WO = p.robot_map.object_pose(traj.q_plan[n], "plank")
+        qpos = scene.qpos.copy()
+        qpos[: p.model.nq] = robots.pinocchio_to_mujoco("talos", q)
+        quat = pin.Quaternion(X_WO.rotation)
+        qpos[p.model.nq: p.model.nq + 7] = [*X_WO.translation, quat.w, quat.x, quat.y, quat.z]
+        scene.qpos = qpos
+        scene.forward()
+        rgb, depth = renderer.render(scene)
+        gray = np.rint(rgb.mean(axis=2)).astype(np.uint8)
+        detections = [d for d in detector.detect(gray, K, depth=depth) if plank.tag(d.tag_id)]
+        if not detections:
+            continue
+        seen += 1
+        X_WC = pin.SE3(renderer.camera_pose(scene))
+        X_CB = estimate_body_pose(plank, detections, K, depth=depth).X_CB
+        X_true = X_WC.inverse() * pin.SE3(scene.body_pose("plank"))
+        assert np.linalg.norm(X_CB.translation - X_true.translation) < 5e-3
+        assert math.degrees(np.linalg.norm(pin.log3(X_true.rotation.T @ X_CB.rotation))) < 1.0
+    assert seen == 3
