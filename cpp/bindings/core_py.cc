@@ -8,6 +8,7 @@ namespace marionette::bindings {
 void RegisterGraph(py::module_& m);
 void RegisterSim(py::module_& m);
 void RegisterSot(py::module_& m);
+void RegisterPlanning(py::module_& m);
 }  // namespace marionette::bindings
 
 PYBIND11_MODULE(_core, m) {
@@ -16,4 +17,5 @@ PYBIND11_MODULE(_core, m) {
   marionette::bindings::RegisterGraph(m);
   marionette::bindings::RegisterSim(m);
   marionette::bindings::RegisterSot(m);
+  marionette::bindings::RegisterPlanning(m);
 }
