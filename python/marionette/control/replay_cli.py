@@ -55,6 +55,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--supervisor", action="store_true",
                       help="re-take the supervisor's decisions from the recorded statuses and events and "
                            "compare them with the recorded SUPERVISOR_DECISION messages")
+    mode.add_argument("--view", action="store_true",
+                      help="play the log in the browser viewer (its URL is printed) and re-plot the report")
+    p.add_argument("--speed", type=float, default=1.0, help="--view: playback speed (0 = unpaced)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="--view: folder of the re-plotted report (default: <log folder>/replay)")
+    p.add_argument("--no-hold", action="store_true", help="--view: exit once played instead of serving on")
     p.add_argument("--tolerance", type=float, default=1e-9, help="largest accepted command difference")
     p.add_argument("--scene", default=None, help="MJCF scene to use instead of the recorded path")
     p.set_defaults(func=_run)
@@ -63,6 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _run(args: argparse.Namespace) -> int:
     if args.supervisor:
         return _run_supervisor(args)
+    if args.view:
+        return _run_view(args)
     try:
         result = replay_controller(args.log, args.tolerance, args.scene)
     except (FileNotFoundError, RuntimeError) as e:
@@ -82,3 +90,18 @@ def _run_supervisor(args: argparse.Namespace) -> int:
         return 2
     sys.stdout.write(format_verdict(args.log, result))
     return 0 if result.ok else 1
+
+
+def _run_view(args: argparse.Namespace) -> int:
+    from marionette.viewer.replay import ReplayError, serve_replay
+    from marionette.viewer.scene import ViewerError
+
+    if args.speed < 0:
+        print("marionette replay: --speed must be >= 0", file=sys.stderr)
+        return 2
+    try:
+        return serve_replay(args.log, args.speed, args.scene and Path(args.scene),
+                            args.out or Path(args.log).parent / "replay", not args.no_hold)
+    except (FileNotFoundError, ReplayError, ViewerError) as e:
+        print(f"marionette replay: {e}", file=sys.stderr)
+        return 2

@@ -116,7 +116,10 @@ def serve(robot: str, scene: Path | None, lcm_url: str | None, url_file: Path | 
 
     server = MeshcatServer()
     stop = threading.Event()
+    # SIGINT too: a KeyboardInterrupt in the middle of a meshcat request would leave its REQ
+    # socket waiting for a reply, and the LCM thread's next draw would fail.
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         view = ViewerScene(server.visualizer(), robot, scene)
         node = ViewerNode(view, rate_hz)
@@ -130,6 +133,7 @@ def serve(robot: str, scene: Path | None, lcm_url: str | None, url_file: Path | 
                 tmp.replace(url_file)
             while not stop.wait(node.min_period_s):
                 node.flush()
+            bus.stop()
     except KeyboardInterrupt:
         pass
     finally:

@@ -33,9 +33,9 @@ class ViewerError(ValueError):
     """The viewer cannot draw what it was asked to (unknown robot, bad scene file)."""
 
 
-def scene_objects(scene: Path | None) -> dict[str, str]:
-    """Object instance name -> object model name from a scene's YAML (``models/scenes/<s>.yaml``
-    next to the MJCF ``scene``), or {} without one."""
+def scene_objects(scene: Path | None) -> dict[str, tuple[str, np.ndarray]]:
+    """Object instance name -> (object model name, initial X_WO 4 x 4) from a scene's YAML
+    (``models/scenes/<s>.yaml`` next to the MJCF ``scene``), or {} without one."""
     if scene is None:
         return {}
     path = Path(scene).with_suffix(".yaml")
@@ -43,8 +43,12 @@ def scene_objects(scene: Path | None) -> dict[str, str]:
         return {}
     try:
         doc = yaml.safe_load(path.read_text()) or {}
-        return {o["name"]: o["object"] for o in doc.get("objects", [])}
-    except (yaml.YAMLError, KeyError, TypeError) as e:
+        out = {}
+        for o in doc.get("objects", []):
+            x, y, z, w = o["pose"]["xyzw"]
+            out[o["name"]] = (o["object"], _X(o["pose"]["xyz"], (w, x, y, z)))
+        return out
+    except (yaml.YAMLError, KeyError, TypeError, ValueError) as e:
         raise ViewerError(f"{path}: cannot read the scene's objects: {e}") from None
 
 
@@ -76,8 +80,12 @@ class ViewerScene:
         self._robot_viz.loadViewerModel(rootNodeName="robot")
         vis["robot"].set_property("visible", False)    # until the first ROBOT_STATE
         self.grippers = robots.semantics(robot).grippers
-        self.object_models = scene_objects(scene)
+        initial = scene_objects(scene)
+        self.object_models = {n: kind for n, (kind, _) in initial.items()}
         self._objects: dict[str, Any] = {}             # name -> (handles) once loaded
+        for name, (_, X_WO) in initial.items():        # static objects (a mocap table) never move
+            if self._object(name) is not None:
+                self.vis[f"objects/{name}"].set_transform(X_WO)
         self.robot_states = 0
         self.fsm_text = ""
         self.footsteps = 0

@@ -1,0 +1,115 @@
+"""The browser viewer (issue #10), loaded in headless Chromium: the page shows the robot, changes
+as the robot moves, shows the FSM text; `marionette demo --view` served it during a run;
+`marionette replay LOG --view` plays a recorded run and re-plots its report from the log."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import marionette
+from marionette import channels, lcmt_robot_state, lcmt_supervisor_state, robots
+from marionette.execution.decision_replay import read_decision_log
+from marionette.lcm_bus import LcmBus
+from marionette.processes import ProcessGroup
+from marionette.viewer.node import MeshcatServer, start_viewer
+from marionette.viewer.replay import play, replot_report
+from marionette.viewer.scene import ViewerScene
+from marionette.viewer.screenshot import screenshot
+
+SCENE = marionette.MODELS_DIR / "scenes" / "ur10_box.xml"
+
+
+def changed(a: np.ndarray, b: np.ndarray, threshold: int = 40) -> np.ndarray:
+    """Pixels whose colour differs by more than ``threshold`` (sum over RGB)."""
+    return np.abs(a.astype(int) - b.astype(int)).sum(-1) > threshold
+
+
+def ur10_state(q: np.ndarray, model) -> lcmt_robot_state:
+    names = [model.names[j] for j in range(1, model.njoints)]
+    m = lcmt_robot_state()
+    m.robot_name, m.num_joints, m.joint_name = "ur10", len(names), names
+    m.joint_position, m.joint_velocity, m.joint_effort = list(q), [0.0] * len(q), [0.0] * len(q)
+    m.base_quaternion = [1.0, 0.0, 0.0, 0.0]
+    return m
+
+
+def test_viewer_process_shows_the_robot_moving_and_the_fsm_state(lcm_url, tmp_path):
+    model, _ = robots.load_pinocchio("ur10", with_collision=False)
+    q_a = robots.reference_configuration("ur10", model)
+    q_b = q_a.copy()
+    q_b[0] += 1.2                      # shoulder pan: the whole arm swings sideways
+    with ProcessGroup(lcm_url, tmp_path / "logs") as group, LcmBus(lcm_url) as bus:
+        url = start_viewer(group, "ur10", SCENE, log=lambda m: None)
+        empty = screenshot(url, tmp_path / "empty.png")
+        bus.publish(channels.ROBOT_STATE, ur10_state(q_a, model))
+        time.sleep(1.0)
+        shot_a = screenshot(url, tmp_path / "a.png")
+        st = lcmt_supervisor_state()
+        st.plan_name, st.state, st.step_index, st.num_steps, st.status = "ur10_box", "grasp", 1, 8, "running"
+        bus.publish(channels.SUPERVISOR_STATE, st)
+        bus.publish(channels.ROBOT_STATE, ur10_state(q_b, model))
+        time.sleep(1.0)
+        shot_b = screenshot(url, tmp_path / "b.png")
+        group.check_alive()
+    h, w, _ = empty.shape
+    # Not blank: the sky gradient and the grid (a blank or failed WebGL page is one colour).
+    assert empty.std() > 20
+    # The robot appears with the first ROBOT_STATE (hidden before): light-grey mesh pixels.
+    robot_px = changed(empty, shot_a)
+    grey = (np.ptp(shot_a.astype(int), axis=-1) < 25) & (shot_a.min(-1) > 120)
+    assert (robot_px & grey).sum() > 0.005 * h * w, (robot_px & grey).sum()
+    # It moves: the arm's pixels change between the two configurations.
+    moved = changed(shot_a, shot_b)
+    assert moved.sum() > 0.002 * h * w
+    # The FSM panel (dark, (20, 20, 20)) shows the new state: its text pixels changed.
+    rows, cols = np.nonzero(shot_b.max(-1) < 40)
+    assert len(rows) > 2000, "no FSM panel"
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    assert changed(shot_a[box], shot_b[box]).sum() > 100
+
+
+def test_demo_view_served_the_run_and_stopped_with_it(ur10_box_run):
+    report = json.loads((ur10_box_run / "report.json").read_text())
+    assert report["success"] and report["viewer_url"].startswith("http://127.0.0.1:")
+    viewer_log = (ur10_box_run / "logs" / "viewer.log").read_text()
+    assert "marionette view: open " + report["viewer_url"] in viewer_log
+    assert "Traceback" not in viewer_log
+
+
+def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_path):
+    log = ur10_box_run / "run.lcmlog"
+    report = json.loads((ur10_box_run / "report.json").read_text())
+    server = MeshcatServer()
+    try:
+        scene = ViewerScene(server.visualizer(), "ur10", SCENE)
+        early = play(log, scene, speed=0.0, until_s=2.0)
+        shot_early = screenshot(server.web_url, tmp_path / "early.png")
+        full = play(log, scene, speed=0.0)
+        shot_end = screenshot(server.web_url, tmp_path / "end.png")
+    finally:
+        server.close()
+    assert early.robot_frames >= 1 and full.counts[channels.ROBOT_STATE] > 1000
+    assert full.counts[channels.SUPERVISOR_STATE] > 0 and "done" in scene.fsm_text
+    assert scene._objects.get("box") is not None and scene._objects.get("table") is not None  # box: SIM_OBJECT_POSES; table: the scene YAML
+    h, w, _ = shot_end.shape
+    assert changed(shot_early, shot_end).sum() > 0.002 * h * w   # the arm and the box moved
+    plots = replot_report(log, tmp_path / "replot")
+    assert [p.name for p in plots] == ["task_errors.png"] and plots[0].stat().st_size > 10_000
+    decisions, _ = read_decision_log(log)
+    ids = [int(d.inputs["controller_id"]) for d in decisions if d.event == "step_started"]
+    assert ids == [s["controller_id"] for s in report["steps"]]
+
+
+def test_replay_view_rejects_bad_input(tmp_path):
+    import subprocess
+
+    missing = subprocess.run([sys.executable, "-m", "marionette.cli", "replay", str(tmp_path / "nope.lcmlog"),
+                              "--view", "--no-hold"], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "no LCM log at" in missing.stderr
+    with pytest.raises(ValueError, match="speed must be >= 0"):
+        play(tmp_path / "x.lcmlog", None, speed=-1.0)
