@@ -23,10 +23,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"(default {DEFAULT_SCENARIO}, the scenario that meets its criteria today)")
     p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
     p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
-    p.add_argument("--perturb", choices=("none", "issue10"), default="none",
-                   help="seeded perturbations per trial (execution/perturbations.py): issue10 = object "
-                        "displaced <= 5 cm / 10 deg before execution and slipping in the hand during it, "
-                        "7 deg shoulder / 4 deg wrist encoder offsets, 2 mm / 0.5 deg camera noise")
+    p.add_argument("--perturb", choices=("none", "issue10", "in-hand", "displacement", "joint-offsets"),
+                   default="none",
+                   help="seeded perturbations per trial (execution/perturbations.py PRESETS): issue10 = "
+                        "object displaced <= 5 cm / 10 deg before execution and slipping in the hand during "
+                        "it, 7 deg shoulder / 4 deg wrist encoder offsets, 2 mm / 0.5 deg camera noise; the "
+                        "others are its parts (in-hand = slip + camera noise)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="controller pacing: 1 real time (default), 0 as fast as possible")
     p.add_argument("--out", type=Path, default=None, help="reports folder (default reports/demo)")
@@ -67,10 +69,10 @@ def run(args: argparse.Namespace) -> int:
         seed = seed0 + k
         out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
         perturbation = None
-        if args.perturb == "issue10":
-            from marionette.execution.perturbations import ISSUE_10, draw
+        if args.perturb != "none":
+            from marionette.execution.perturbations import PRESETS, draw
 
-            perturbation = draw(ISSUE_10, seed)
+            perturbation = draw(PRESETS[args.perturb], seed)
         try:
             report = run_demo(scenario, seed, out, speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True), perturbation=perturbation,

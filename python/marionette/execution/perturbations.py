@@ -51,6 +51,14 @@ class PerturbationSettings:
 ISSUE_10 = PerturbationSettings(displacement_m=0.05, displacement_deg=10.0, slip_m=0.01, slip_deg=5.0,
                                 joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
                                 camera_noise_m=0.002, camera_noise_deg=0.5)
+# `marionette demo --perturb NAME`: issue #10's set, and its parts.
+PRESETS: dict[str, PerturbationSettings] = {
+    "issue10": ISSUE_10,
+    # What the placement servo alone is built to close: the object slipping in the hand, noise.
+    "in-hand": PerturbationSettings(slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5),
+    "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
+    "joint-offsets": PerturbationSettings(joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}),
+}
 
 
 @dataclass(frozen=True)

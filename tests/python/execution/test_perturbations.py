@@ -71,3 +71,14 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
     assert np.allclose(a.body_pose("gripper_left_base_link"), b.body_pose("gripper_left_base_link"), atol=1e-9)
     with pytest.raises(ValueError, match="no joint 'nope'"):
         scene_with_joint_offsets(original, {"nope": 0.1}, tmp_path / "bad.xml")
+
+
+def test_every_preset_is_a_part_of_issue_10():
+    from marionette.execution.perturbations import PRESETS
+
+    full = PRESETS["issue10"]
+    for name, settings in PRESETS.items():
+        for field_name in ("displacement_m", "displacement_deg", "slip_m", "slip_deg",
+                           "camera_noise_m", "camera_noise_deg"):
+            assert getattr(settings, field_name) in (0.0, getattr(full, field_name)), (name, field_name)
+        assert set(settings.joint_offsets_deg) <= set(full.joint_offsets_deg)
