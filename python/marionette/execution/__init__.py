@@ -13,4 +13,6 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `estimation.py` | nearest graph state of a measured configuration, steps already done |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
 | `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
+| `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |
+| `perturbations.py` | seeded trial perturbations: displacement, slip, encoder offsets, camera noise (issue #10) |
 """
