@@ -181,6 +181,7 @@ class RelativeTransformation(Constraint):
         self._cache_version = -1
         self._cache_kin: Kinematics | None = None
         self._M: pin.SE3 | None = None
+        self._v6: np.ndarray | None = None
         self._all = bool(self.mask.all())
         if rhs is not None:
             self.rhs = np.asarray(rhs, dtype=float).copy()
@@ -204,16 +205,21 @@ class RelativeTransformation(Constraint):
             self._oMi1 = oMi[self.joint1]
             self._X2 = oMi[self.joint2] * self.M2
             self._M = (self._oMi1 * self.M1).actInv(self._X2)
+            self._v6 = None
             self._cache_version, self._cache_kin = kin.version, kin
         return self._M
 
     def value6(self, kin: Kinematics) -> np.ndarray:
-        """[p, log3(R)] of the relative pose, all 6 rows."""
+        """[p, log3(R)] of the relative pose, all 6 rows (read-only: cached per kinematics
+        version, a Newton iteration reads it for the error and again for the Jacobian)."""
         M = self.relative_pose(kin)
-        v = np.empty(6)
-        v[:3] = M.translation
-        v[3:] = pin.log3(M.rotation)
-        return v
+        if self._v6 is None:
+            v = np.empty(6)
+            v[:3] = M.translation
+            v[3:] = pin.log3(M.rotation)
+            v.flags.writeable = False
+            self._v6 = v
+        return self._v6
 
     def value(self, kin: Kinematics) -> np.ndarray:
         v = self.value6(kin)
