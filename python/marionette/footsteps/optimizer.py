@@ -243,6 +243,14 @@ class FootstepOptimizer:
                 break
             if reached or not s.auto_steps or k >= s.max_steps:
                 continue
+            if error <= s.task_tolerance:
+                # The primary task is reached; only levels above it are not (e.g. step-over's
+                # crossing footprints held on a moved bar beyond the free steps' reach).
+                # Algorithm 1's steps, appended at the end of the chain, serve the primary task:
+                # at a fixed point stop (not converged) instead of adding them up to max_steps.
+                if step < s.step_tolerance:
+                    break
+                continue
             # Algorithm 1: at a local minimum of the primary task the chain is too short. The
             # hierarchy tells it directly: its linearised primary level cannot reduce the
             # (clamped) error, because the levels above and the limits block every direction.

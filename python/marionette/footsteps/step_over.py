@@ -17,6 +17,7 @@ Priorities: step limits (bounds) > non-overlap > obstacles (bar + others) > cros
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,12 @@ class StepOverOptions:
     crossing_max_length: float | None = None     # None: computed from the bar (+ 2 cm)
     crossing_duration: float = 1.2               # single support of the crossing steps [s]
     swing_margin: float = 0.03                   # eq. 5.1 clearance of the swing [m]
+    # Replans (Algorithm 3): the crossing footprints are tasks above the goal, and once the
+    # crossing stride is at its bound a moved bar leaves them short by a fraction of a
+    # millimetre; with the default 10 µm the Gauss–Newton loop ran its 300 iterations (5 s).
+    # 0.1 mm is well inside the bar's 3 cm buffer; the iteration cap bounds a replan's time.
+    replan_constraint_tolerance: float = 1e-4    # [m]
+    replan_max_iterations: int = 60
 
 
 class StepOverPlanner:
@@ -126,7 +133,9 @@ class StepOverPlanner:
         if executed_steps is not None:
             self.frozen_steps = executed_steps
         self.bar = bar
-        return self._solve(with_bar=True, crossing_targets=True)
+        return self._solve(with_bar=True, crossing_targets=True, settings=dataclasses.replace(
+            self.settings, constraint_tolerance=self.options.replan_constraint_tolerance,
+            max_iterations=self.options.replan_max_iterations))
 
     def set_goal(self, goal) -> None:
         self.goal.set_target(goal)
@@ -173,9 +182,10 @@ class StepOverPlanner:
         levels.append(StepPreferenceTask(self.options.nominal_width, first))
         return levels
 
-    def _solve(self, with_bar: bool, crossing_targets: bool = False) -> SolveReport:
+    def _solve(self, with_bar: bool, crossing_targets: bool = False,
+               settings: OptimizerSettings | None = None) -> SolveReport:
         optimizer = FootstepOptimizer(self.augmented, self._levels(with_bar, crossing_targets),
-                                      self.goal, self.limits, self.settings)
+                                      self.goal, self.limits, settings or self.settings)
         self.config, report = optimizer.solve(self.config, self.frozen_steps)
         self.last_report = report
         return report

@@ -78,3 +78,18 @@ def test_moved_bar_keeps_the_crossing_steps_fixed_relative_to_it(planner, move):
     for i in planner.crossing:
         assert np.allclose(planar_relative(moved.pose(), kin.footprint(i)), before[i], atol=1e-4)
     _check(planner)
+
+
+def test_bar_moved_beyond_the_free_steps_reach_leaves_a_safe_plan_without_new_steps(planner):
+    """Algorithm 3 cannot hold the crossing footprints on a bar moved 15 cm farther once a step
+    is taken (the steps before it are near full length): the replan must stop within its
+    iteration budget with the soles still clear of the bar (obstacles rank above the crossing
+    targets), and not append steps at the end of the chain (Algorithm 1 serves the goal)."""
+    moved = planner.bar.moved_to(planner.bar.center + np.array([0.15, 0.0]), planner.bar.yaw)
+    k = planner.config.num_steps
+    report = planner.update_bar(moved, executed_steps=1)
+    assert report.steps_added == 0 and planner.config.num_steps == k
+    assert report.iterations <= planner.options.replan_max_iterations
+    plan = planner.result()
+    for i, p in enumerate(plan.footprints()):
+        assert _gap_to_bar(np.array([p[0], p[1], p[3]]), moved, planner.foot) >= moved.buffer - 2e-3, i
