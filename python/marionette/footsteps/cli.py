@@ -22,7 +22,7 @@ def _options(args):
     return NodeOptions(mode=args.mode, target=args.target, hand=args.hand,
                        posture_frozen=not args.full_replan, bar=args.bar,
                        bar_radius=args.bar_radius, bar_length=args.bar_length,
-                       goal=tuple(args.goal))
+                       goal=tuple(args.goal), swing_margin=args.swing_margin)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -49,11 +49,12 @@ def _plan(args: argparse.Namespace) -> int:
         obstacles, goal, hand = [], None, target
         foot = planner.augmented.foot
     else:
-        from marionette.footsteps.step_over import StepOverPlanner
+        from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
         bar = Bar(np.array(args.bar_pose[:2]), args.bar_pose[2], args.bar_radius,
                   args.bar_length)
-        planner = StepOverPlanner(stance, np.array(args.goal), bar)
+        planner = StepOverPlanner(stance, np.array(args.goal), bar,
+                                  options=StepOverOptions(swing_margin=args.swing_margin))
         report = planner.plan()
         obstacles, goal, hand = [bar], np.array(args.goal), None
         foot = planner.foot
@@ -81,6 +82,8 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bar-length", type=float, default=2.0)
     p.add_argument("--goal", type=float, nargs=3, default=[2.0, 0.0, 0.0],
                    metavar=("X", "Y", "YAW"), help="final stance (step-over)")
+    p.add_argument("--swing-margin", type=float, default=0.03,
+                   help="clearance [m] of the crossing swings above the bar (step-over, eq. 5.1)")
 
 
 def register(subparsers) -> None:

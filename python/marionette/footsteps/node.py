@@ -41,6 +41,7 @@ class NodeOptions:
     bar_length: float = 2.0
     goal: tuple[float, float, float] = (2.0, 0.0, 0.0)   # final stance (step-over)
     move_threshold: float = 0.002        # [m] object displacement that triggers a replan
+    swing_margin: float = 0.03           # [m] eq. 5.1 clearance of the crossing swings (step-over)
 
 
 class FootstepNode:
@@ -126,10 +127,12 @@ class FootstepNode:
                                         options=GraspPlannerOptions(hand=self.options.hand))
             self.planner.plan()
         else:
-            from marionette.footsteps.step_over import StepOverPlanner
+            from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
             bar = Bar(pose[:2], pose[3], self.options.bar_radius, self.options.bar_length)
-            self.planner = StepOverPlanner(stance, np.array(self.options.goal), bar)
+            self.planner = StepOverPlanner(
+                stance, np.array(self.options.goal), bar,
+                options=StepOverOptions(swing_margin=self.options.swing_margin))
             self.planner.plan()
 
     def _replan(self, pose: np.ndarray, executed: int) -> None:
