@@ -10,8 +10,21 @@ import time
 from pathlib import Path
 
 
+def _step_over(*args, **kwargs):
+    from marionette.execution.step_over import run_step_over
+
+    return run_step_over(*args, **kwargs)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS
+    import marionette
+    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS, Scenario
+
+    SCENARIOS.setdefault("step-over", Scenario(
+        "step-over", "", marionette.MODELS_DIR / "scenes" / "talos_walk.xml", 0, "bar", 0.0,
+        description="TALOS walks over a bar to a goal zone while the bar's perceived pose moves; "
+                    "the footstep process replans (thesis 001 ch. 5, Algorithm 3)",
+        runner=_step_over))
 
     p = subparsers.add_parser(
         "demo", help="run a demo scenario end to end in MuJoCo and write its report",
@@ -23,6 +36,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"(default {DEFAULT_SCENARIO}, the scenario that meets its criteria today)")
     p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
     p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
+    p.add_argument("--plan-seed", type=int, default=None,
+                   help="plan once with this seed for every trial (default: each trial plans with its "
+                        "own seed); the trial's seed still draws its --perturb perturbations")
     p.add_argument("--perturb", choices=("none", "issue10", "in-hand", "displacement", "joint-offsets"),
                    default="none",
                    help="seeded perturbations per trial (execution/perturbations.py PRESETS): issue10 = "
@@ -74,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
 
             perturbation = draw(PRESETS[args.perturb], seed)
         try:
-            report = run_demo(scenario, seed, out, speed=args.speed, controller_url=args.controller_url,
+            report = run_demo(scenario, seed if args.plan_seed is None else args.plan_seed, out,
+                              speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True), perturbation=perturbation,
                               **({"view": True} if args.view and scenario.runner is None else {}))
         except DemoError as e:
