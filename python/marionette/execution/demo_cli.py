@@ -10,8 +10,21 @@ import time
 from pathlib import Path
 
 
+def _step_over(*args, **kwargs):
+    from marionette.execution.step_over import run_step_over
+
+    return run_step_over(*args, **kwargs)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS
+    import marionette
+    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS, Scenario
+
+    SCENARIOS.setdefault("step-over", Scenario(
+        "step-over", "", marionette.MODELS_DIR / "scenes" / "talos_walk.xml", 0, "bar", 0.0,
+        description="TALOS walks over a bar to a goal zone while the bar's perceived pose moves; "
+                    "the footstep process replans (thesis 001 ch. 5, Algorithm 3)",
+        runner=_step_over))
 
     p = subparsers.add_parser(
         "demo", help="run a demo scenario end to end in MuJoCo and write its report",
