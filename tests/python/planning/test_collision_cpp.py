@@ -154,3 +154,54 @@ def test_bad_input_is_a_precise_error(ur5_box):
         collision_cpp._planning.PathValidator(
             [collision_cpp._planning.JointSpec("j", 0, "Planar", np.zeros(3), np.eye(4))], [], [],
             1e-6, 10)
+
+
+def _two_spheres(kind: str, lever: float):
+    """Sphere A (radius 0.1) on joint 1 (``kind``), ``lever`` along x from its axis; sphere B
+    (radius 0.2) fixed in the world."""
+    P = collision_cpp._planning
+    joints = [P.JointSpec("a", 0, kind, np.zeros(3), np.eye(4))]
+    XA = np.eye(4)
+    XA[0, 3] = lever
+    return P, joints, XA
+
+
+@pytest.mark.parametrize("kind", ["PX", "RZ"])
+def test_stops_at_the_closed_form_first_contact(kind):
+    """A sphere driven towards another: the certified prefix ends at the analytic contact
+    (never after it, within CONTACT-sized steps of it); a path ending before it is accepted."""
+    from marionette.planning.collision import CONTACT, MAX_QUERIES
+    if kind == "PX":
+        P, joints, XA = _two_spheres(kind, 0.0)
+        XB = np.eye(4)
+        XB[0, 3] = 1.0
+        s_contact = 1.0 - 0.3               # centres 0.3 apart
+        R, L = [[0.0, 0.1]], [[0.0, 1.0]]   # translation: |dq| per unit t
+        q_end = 2.0
+    else:
+        P, joints, XA = _two_spheres(kind, 1.0)
+        theta_b = 2.0
+        XB = np.eye(4)
+        XB[:2, 3] = [np.cos(theta_b), np.sin(theta_b)]
+        # Centres on the unit circle: chord 2 sin(dtheta / 2) = 0.3 at first contact.
+        s_contact = theta_b - 2.0 * np.arcsin(0.15)
+        R, L = [[0.0, 1.1]], [[0.0, 0.0]]   # a point of A is at most 1.1 from the axis
+        q_end = np.pi
+    geoms = [P.GeometrySpec("A", 1, XA, "sphere", radius=0.1),
+             P.GeometrySpec("B", 0, XB, "sphere", radius=0.2)]
+    v = P.PathValidator(joints, geoms, [(0, 1)], CONTACT, MAX_QUERIES)
+    motion = P.PairMotion(np.zeros(1, bool), np.zeros(1, bool), np.array(R), np.array(L))
+    sub = P.Substitution([], [], [], [], [])
+    ok, s_valid, queries, grazing = v.validate(np.array([[0.0], [q_end]]), np.array([0.0, q_end]),
+                                               sub, motion, False)
+    assert not ok and not grazing
+    assert s_contact - 1e-4 <= s_valid <= s_contact
+    assert v.distances(np.array([s_valid]))[0] == pytest.approx(0.0, abs=2e-4)
+    short = 0.95 * s_contact
+    ok, s_valid, _, _ = v.validate(np.array([[0.0], [short]]), np.array([0.0, short]), sub,
+                                   motion, False)
+    assert ok and s_valid == short
+    # All or nothing: the probe at half the length already sees the spheres overlap.
+    ok, s_valid, queries, _ = v.validate(np.array([[0.0], [2 * s_contact + 0.05]]),
+                                         np.array([0.0, 2 * s_contact + 0.05]), sub, motion, True)
+    assert not ok and s_valid == 0.0 and queries == 0
