@@ -57,6 +57,7 @@ void RegisterSot(py::module_& m) {
         report["ranks"] = r.ranks;
         report["num_qp"] = r.num_qp;
         report["num_active_set"] = r.num_active_set;
+        report["gram_levels"] = r.gram_levels;
         report["qp_failures"] = r.qp_failures;
         return py::make_tuple(v, report);
       },

@@ -74,6 +74,7 @@ struct HierarchyWorkspace::Impl {
     ghi.resize(mc);
     g_col.resize(mc);
     B1.resize(n, n);
+    Gram.resize(n, n);
     order.resize(n);
     in_group.resize(n);
     row_count.resize(me);
@@ -83,6 +84,8 @@ struct HierarchyWorkspace::Impl {
     HiA.resize(n, n);
     S.resize(n, n);
     for (Eigen::VectorXd* e : {&g1, &hig, &lambda, &ut, &a_row, &dx, &x_free}) e->resize(n);
+    row_old.resize(mc);
+    row_live.resize(mc);
     W_rows.reserve(mc);
     W_sides.reserve(mc);
     active.resize(h.levels().size());
@@ -125,6 +128,10 @@ struct HierarchyWorkspace::Impl {
   // then act on those s coordinates only, and B1 (s x s) accumulates them (RotateBasis).
   // in_group: per coordinate, whether it is in S (then per row of A, scratch).
   Eigen::MatrixXd B1;
+  // A level solved on its Gram matrix (GramLevel): M^T M (r x r, symmetric), its Cholesky
+  // factor going to H1 and -M^T c to g1 (the active-set shortcut's H and g for ρ = r).
+  Eigen::MatrixXd Gram;
+  bool gram = false;
   std::vector<int> order;
   std::vector<char> in_group;
   std::vector<int> row_count;
@@ -157,6 +164,10 @@ struct HierarchyWorkspace::Impl {
   // the unconstrained step (n).
   Eigen::MatrixXd R1, H1, AW, HiA, S;
   Eigen::VectorXd g1, hig, lambda, ut, a_row, dx, x_free;
+  // Per carried row, for the level's TryActiveSet: its value at x_old and whether the levels
+  // above left it free (CarriedRow's verdict, computed once per level instead of per check).
+  Eigen::VectorXd row_old;
+  std::vector<char> row_live;
   // The working set: carried-row index, side (+1 upper, -1 lower).
   std::vector<int> W_rows, W_sides;
   // Per level, the carried rows active at the last tick's QP optimum (row, side): only the
@@ -169,6 +180,7 @@ HierarchyWorkspace::HierarchyWorkspace(const Hierarchy& hierarchy)
   report_.ranks.assign(hierarchy.num_levels(), 0);
   report_.qp_levels.assign(hierarchy.num_levels(), false);
   report_.active_set_levels.assign(hierarchy.num_levels(), false);
+  report_.gram_levels.assign(hierarchy.num_levels(), false);
   report_.dampings.assign(hierarchy.num_levels(), 0.0);
 }
 HierarchyWorkspace::~HierarchyWorkspace() = default;
@@ -334,14 +346,68 @@ bool LevelFeasible(const Impl& w, int mi, const Eigen::VectorXd& x, double tol) 
   return true;
 }
 
+// A level whose rows outnumber the remaining DoF (m >= r; TALOS's posture: 32 rows on 11 DoF)
+// and use them all: M = A Z_blk (m x r, mt = M^T) then has full column rank r, its
+// least-squares step needs no rank-revealing factorization, and nothing remains to rotate:
+//   u = (M^T M)^-1 M^T c,  v += Z_blk u,  ρ = r,
+// and a QP on the level (the active-set shortcut, eiquadprog) has the objective
+// ½ u^T M^T M u - c^T M u in the unrotated coordinates u (= ũ, ũ_1 being all of them). Taken
+// only when the Cholesky factor L of M^T M (|L_ii| = |R_ii| of the unpivoted QR of M, each
+// >= σ_min) shows a well-conditioned M: min |L_ii| >= the damping threshold (so the level
+// needs no damping; with damping off, >= 1e-4 x the row scale), and max/min |L_ii| <= 100 (the
+// normal equations' error ~ε κ² then stays ~1e-12). Otherwise false, and the pivoted QR path
+// (rank, damping) decides as before. Replaces a QR of the r x m mt, a QR of the least squares
+// and, under a QP, the basis rotation by one r x r Gram product and its Cholesky factor.
+bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, double row_scale,
+               const HierarchyOptions& options) {
+  const int r = static_cast<int>(mt.rows());
+  auto G = w.Gram.topLeftCorner(r, r);
+  G.setZero();
+  G.selfadjointView<Eigen::Lower>().rankUpdate(mt);
+  auto H = w.H1.topLeftCorner(r, r);
+  H.triangularView<Eigen::Lower>() = G.triangularView<Eigen::Lower>();
+  Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H);  // in place: no allocation
+  if (llt.info() != Eigen::Success) return false;
+  const double smallest = H.diagonal().cwiseAbs().minCoeff(), largest = H.diagonal().cwiseAbs().maxCoeff();
+  const double floor = options.damping > 0.0 ? options.damping_threshold : 1e-4 * std::sqrt(row_scale);
+  if (!(smallest >= floor && largest <= 100.0 * smallest)) return false;
+  for (int i = 0; i < r; ++i) {
+    for (int j = i + 1; j < r; ++j) G(i, j) = G(j, i);  // the QP fallback reads all of it
+  }
+  w.g1.head(r).noalias() = -mt * w.c.head(m);
+  w.u.head(r) = -w.g1.head(r);
+  llt.solveInPlace(w.u.head(r));
+  return true;
+}
+
 // Least squares min ||R1^T y - cperm||² + μ²||y||² with R1 = upper part of mt's first ρ rows
-// (ρ x m). Plain triangular solve when full row rank and undamped.
+// (ρ x m). Plain triangular solve when full row rank and undamped. Otherwise, when the system
+// is well conditioned, its normal equations (R1 R1^T + μ² I) y = R1 cperm by Cholesky (half the
+// cost of the QR of [R1^T; μ I] for TALOS's posture level, m = 32 rows on ρ = 11 DoF): their
+// relative error is ~ε κ², κ² = (σ_max² + μ²) / (σ_min² + μ²), estimated from the pivoted
+// QR's diagonal (|R_00| ~ σ_max, |R_ρ-1,ρ-1| ~ σ_min); accepted up to 1e4 (error ~1e-12,
+// allowing for the estimate's looseness), else the QR below.
 void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
   auto R1 = w.Mt.topLeftCorner(rho, m);
   if (rho == m && mu == 0.0) {
     w.y.head(rho) = w.cperm.head(rho);
     R1.leftCols(rho).triangularView<Eigen::Upper>().transpose().solveInPlace(w.y.head(rho));
     return;
+  }
+  const double largest = w.Mt(0, 0) * w.Mt(0, 0), smallest = w.Mt(rho - 1, rho - 1) * w.Mt(rho - 1, rho - 1);
+  if (largest + mu * mu <= 1e4 * (smallest + mu * mu)) {
+    auto U = w.R1.topLeftCorner(rho, m);  // scratch (TryActiveSet rebuilds its own)
+    U = R1.triangularView<Eigen::Upper>();
+    auto H = w.H1.topLeftCorner(rho, rho);
+    H.setZero();
+    H.selfadjointView<Eigen::Lower>().rankUpdate(U);
+    H.diagonal().array() += mu * mu;
+    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H);  // in place: no allocation
+    if (llt.info() == Eigen::Success) {
+      w.y.head(rho).noalias() = U * w.cperm.head(m);
+      llt.solveInPlace(w.y.head(rho));
+      return;
+    }
   }
   const int mb = m + (mu > 0.0 ? rho : 0);
   auto B = w.B.topLeftCorner(mb, rho);
@@ -385,7 +451,11 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& q, const Eigen::Ref<const Eigen::Matri
   q.H.diagonal().head(n).setConstant(std::max(regularization, 1e-12));
   q.H.diagonal().head(rho).setConstant(1e-12);
   q.H.diagonal().tail(q.H.rows() - n).setOnes();  // ½||s||² (and unused slacks)
-  if (rho > 0) {
+  if (w.gram) {
+    // ρ = r, unrotated: ½||M u - c||² = ½ u^T M^T M u - c^T M u + const.
+    q.H.topLeftCorner(r, r) += w.Gram.topLeftCorner(r, r);
+    q.g.head(r) = w.g1.head(r);
+  } else if (rho > 0) {
     // A Z_blk = [Π R1^T, 0] after the rotation, so ||A v - b||² = ||R1^T ũ_1 - cperm||².
     auto R1 = q.R1.topLeftCorner(rho, m);
     R1 = w.Mt.topLeftCorner(rho, m);
@@ -509,7 +579,7 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
   const int r = static_cast<int>(Z_blk.cols());
   if (r == 0) return false;
   const double eps = std::max(regularization, 1e-12);
-  if (rho > 0) {
+  if (rho > 0 && !w.gram) {  // (a Gram level has set H1 and g1, ρ = r)
     auto R1 = w.R1.topLeftCorner(rho, m);
     R1 = w.Mt.topLeftCorner(rho, m);
     R1.triangularView<Eigen::StrictlyLower>().setZero();
@@ -566,15 +636,16 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
     w.x.noalias() += Z_blk * w.ut.head(r);
     const int k = static_cast<int>(w.W_rows.size());
     for (int i = 0; i < w.num_carried; ++i) {
-      double value_old;
-      if (!CarriedRow(w, Z_blk, i, &value_old)) continue;  // fixed above: the QP skips it too
-      const double value = row_value(i, w.x);
+      const double value_old = row_value(i, w.x_old), value = row_value(i, w.x);
       const auto it = std::find(w.W_rows.begin(), w.W_rows.end(), i);
-      if (it != w.W_rows.end()) {
+      if (it != w.W_rows.end()) {  // W's rows are free (checked when they joined)
         const int side = w.W_sides[it - w.W_rows.begin()];
         if (std::abs(value - bound(i, side, value_old)) > tol) return -2;
       } else if (!Inside(value, bound(i, -1, value_old), bound(i, 1, value_old), tol)) {
-        return -2;
+        // Off its bounds: a failure unless the levels above fixed the row (the QP skips it
+        // too); that costlier check only here, where it decides.
+        double unused;
+        if (CarriedRow(w, Z_blk, i, &unused)) return -2;
       }
     }
     int wrong = -1;
@@ -606,6 +677,11 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
   w.W_sides.clear();
   auto current = w.u.head(r);  // the feasible iterate ũ (r); w.u is free after the level's step
   current.setZero();
+  for (int i = 0; i < w.num_carried; ++i) {
+    double value_old;
+    w.row_live[i] = CarriedRow(w, Z_blk, i, &value_old);
+    w.row_old[i] = value_old;
+  }
   const int max_iterations = 2 * r + 10;
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
     if (!solve_working_set()) return false;
@@ -618,8 +694,8 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
     int blocking = -1, blocking_side = 0;
     for (int i = 0; i < w.num_carried; ++i) {
       if (std::find(w.W_rows.begin(), w.W_rows.end(), i) != w.W_rows.end()) continue;
-      double value_old;
-      if (!CarriedRow(w, Z_blk, i, &value_old)) continue;  // fixed above: never blocks
+      if (!w.row_live[i]) continue;  // fixed above: never blocks
+      const double value_old = w.row_old[i];
       const double slope = row_value(i, w.dx), value = row_value(i, w.x);
       double step = 1.0;
       int side = 0;
@@ -750,9 +826,11 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     report.ranks[l] = 0;
     report.qp_levels[l] = false;
     report.active_set_levels[l] = false;
+    report.gram_levels[l] = false;
     report.dampings[l] = 0.0;
     w.x_old = w.x;
     int rho = 0, rho1 = 0, m1 = 0, s_group = 0;
+    w.gram = false;
     bool rotated = false;
     auto Z_blk = w.Z.middleCols(off, r);
     if (m > 0 && r > 0) {
@@ -787,10 +865,17 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
           w.c[i] = w.b[i] - w.x[w.a_col[i]];
         }
       }
-      rho = PivotedQr(mt, w.perm, w.hcoeffs, w.norms, w.norms_exact, w.work,
-                      options.rank_tolerance * std::sqrt(row_scale), m1, s_group, &rho1);
-      for (int i = 0; i < m; ++i) w.cperm[i] = w.c[w.perm[i]];
-      if (rho > 0) {
+      w.gram = m >= r && GramLevel(w, mt, m, row_scale, options);
+      if (w.gram) {
+        rho = r;
+        report.gram_levels[l] = true;
+        w.x.noalias() += Z_blk * w.u.head(r);
+      } else {
+        rho = PivotedQr(mt, w.perm, w.hcoeffs, w.norms, w.norms_exact, w.work,
+                        options.rank_tolerance * std::sqrt(row_scale), m1, s_group, &rho1);
+        for (int i = 0; i < m; ++i) w.cperm[i] = w.c[w.perm[i]];
+      }
+      if (rho > 0 && !w.gram) {
         double mu = 0.0;
         const double smallest = std::abs(w.Mt(rho - 1, rho - 1));
         if (options.damping > 0.0 && smallest < options.damping_threshold) {
@@ -814,7 +899,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     if (inside) w.active[l].clear();
     if (w.num_carried + mi > 0 && !inside) {
       if (r > 0) {
-        if (rho > 0) {
+        if (rho > 0 && !w.gram) {  // a Gram level's QP works in the unrotated u
           RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
           rotated = true;
         }
@@ -835,7 +920,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.
     }
-    if (rho > 0 && !rotated && l < last_rotation_level) {
+    if (rho > 0 && !rotated && !w.gram && l < last_rotation_level) {  // (Gram: ρ = r, no null space)
       RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
     }
     // Carry the level's inequality rows, shifted by their optimal slack s = Cv - clip(Cv).

@@ -166,3 +166,29 @@ def test_binding_bounds_hold_and_lower_levels_never_alter_higher_ones(talos, see
             # 5e-6: the accuracy of the QP levels (eiquadprog; 3.4e-6 measured at worst here)
             np.testing.assert_allclose(achieved(levels[j], v), achieved(levels[j], v_cut), atol=5e-6, rtol=0,
                                        err_msg=f"level {j} changed by levels below {k} (seed {seed})")
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.02])
+@pytest.mark.parametrize("seed", range(6))
+def test_posture_under_feet_and_hands_matches_the_textbook_cascade(talos, seed, damping):
+    """Issue 4's stack: the posture of all 32 joints below feet + CoM and both grippers has more
+    rows than the 11 DoF left, which it uses all: solved on its Gram matrix (no QR, no basis
+    rotation) when well conditioned, it gives the pseudo-inverse recursion's velocity within
+    1e-8 per level; the first level (feet factored on the 18 coordinates they touch, then the
+    CoM) as well. Damped or not: a well-conditioned level gets no damping either way."""
+    rng = np.random.default_rng(100 + seed)
+    pool = task_pool(talos, random_configuration(talos, rng), rng)
+    pool["bounds"] = wide_bounds(pool, talos.nv)
+    # every actuated joint (drawn after the pool so that the other tests' draws are unchanged)
+    pool["posture_all"] = {"jacobian": np.eye(talos.nv)[6:], "lower": rng.normal(0.0, 0.3, talos.nv - 6)}
+    names = [["bounds"], ["left_foot", "right_foot", "com"], ["right_gripper", "relative_grippers"],
+             ["posture_all"]]
+    levels = [[pool[n] for n in level] for level in names]
+    v, report = _core.solve_hierarchy(levels, damping=damping)
+    assert report["ranks"] == [0, 15, 12, 11]
+    assert report["gram_levels"] == [False, False, False, True]
+    reference = brute_force_cascade(levels, talos.nv)
+    for k, level in enumerate(levels):
+        np.testing.assert_allclose(achieved(level, v), achieved(level, reference), atol=TOL, rtol=0,
+                                   err_msg=f"level {k} {names[k]} (seed {seed})")
+    np.testing.assert_allclose(v, reference, atol=1e-7, rtol=0)

@@ -12,7 +12,12 @@
 /// remaining freedom (n x r, r shrinking level by level) is kept explicitly. At each level,
 /// M = A Z is decomposed by a Householder QR with column pivoting of M^T (rank revealing, much
 /// cheaper than an SVD); the least-squares step (damped near singularities) moves v within
-/// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10). The
+/// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10). Two
+/// shortcuts keep that exact while cutting its cost: the first level with equality rows factors
+/// its sparse rows first on the few coordinates they touch (a foot: free flyer + one leg), so
+/// their reflectors rotate a small block of Z; a level whose rows outnumber the remaining DoF
+/// and, well conditioned, use them all (a posture under feet and hands) is solved on its Gram
+/// matrix M^T M (Cholesky) with no QR and no rotation, nothing remaining below it. The
 /// unconstrained step is exact for the cascade whenever it satisfies every inequality carried
 /// from above and the level's own: that is checked, and only when it fails is the level solved
 /// as a QP. When the level has no inequality rows of its own (the carried rows are then the
@@ -108,6 +113,7 @@ struct HierarchyReport {
   std::vector<int> ranks;       ///< DoF used by each level's equality rows
   std::vector<bool> qp_levels;  ///< true where the level was solved as a QP (either way)
   std::vector<bool> active_set_levels;  ///< true where that QP was solved by the active-set shortcut
+  std::vector<bool> gram_levels;  ///< true where the level was solved on its Gram matrix (no QR)
   std::vector<double> dampings; ///< μ used at each level (0 = undamped)
   int num_qp = 0;               ///< QP levels in the last solve (eiquadprog or the shortcut)
   int num_active_set = 0;       ///< of which solved by the active-set shortcut
