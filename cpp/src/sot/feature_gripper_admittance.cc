@@ -8,8 +8,8 @@
 namespace marionette::sot {
 namespace {
 
-// Indices of the machine state (phase, y, r, primed).
-constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3;
+// Indices of the machine state (phase, y, r, primed, ṙ).
+constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3, kRampRate = 4;
 
 bool IsAdmittance(double phase) {
   const int p = static_cast<int>(phase);
@@ -29,6 +29,7 @@ void GripperAdmittanceOptions::Check(const std::string& who) const {
   positive(lever_arm, "lever_arm");
   positive(cutoff_frequency, "cutoff_frequency");
   positive(speed, "speed");
+  positive(acceleration, "acceleration");
   positive(task_gain, "task_gain");
   positive(dt, "dt");
   if (!std::isfinite(torque_per_effort) || torque_per_effort == 0.0) {
@@ -71,8 +72,8 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   q_measured_ = &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
-  Eigen::VectorXd initial(4);
-  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0, 0.0, 0.0;
+  Eigen::VectorXd initial(5);
+  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0, 0.0, 0.0, 0.0;
   force_ = &DeclareOutput<double>("force", 0.0, &FeatureGripperAdmittance::CalcForce, {effort_});
   machine_ = &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
                                             {kinematics_, force_, position_target_, release_});
@@ -84,8 +85,14 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   DeclareTermsOutput({effort_, position_target_, machine_, force_filtered_});
 }
 
-double FeatureGripperAdmittance::RampRate(double r, double target) const {
-  return std::clamp((target - r) / options_.dt, -options_.speed, options_.speed);
+double FeatureGripperAdmittance::RampRate(double r, double rate, double target) const {
+  // The speed from which a deceleration `acceleration` stops on the target, |ṙ| <= speed, reached
+  // from the current rate within ±acceleration·dt (no velocity step: the controller's start
+  // check refuses a command that jumps).
+  const double e = target - r, a = options_.acceleration, dt = options_.dt;
+  double stop = std::abs(e) <= a * dt * dt ? e / dt : std::copysign(std::sqrt(2.0 * a * std::abs(e)), e);
+  stop = std::clamp(stop, -options_.speed, options_.speed);
+  return std::clamp(stop, rate - a * dt, rate + a * dt);
 }
 
 void FeatureGripperAdmittance::CalcForce(const graph::Tick& t, double* out) const {
@@ -122,9 +129,9 @@ void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematic
     full->error[0] = options_.closing_direction * options_.admittance_gain * (y - f_target) / options_.task_gain;
     full->drift[0] = 0.0;
   } else {
-    const double r = x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is
+    const double r = x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is, at rest
     full->error[0] = q - r;
-    full->drift[0] = -RampRate(r, position_target_->Eval(t));
+    full->drift[0] = -RampRate(r, x[kRampRate], position_target_->Eval(t));
   }
 }
 
@@ -138,13 +145,16 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   const double target = position_target_->Eval(t);
   int phase = static_cast<int>(x[kPhase]);
   double r = x[kPrimed] != 0.0 ? x[kRamp] : q;
+  double rate = x[kRampRate];
   if (IsAdmittance(phase)) {
     // Where the command goes this tick (v = −λ e of ComputeFull), so a switch back to position
-    // control starts its ramp on the joint: no jump in the error.
+    // control starts its ramp on the joint and at its speed: no jump in the error or the command.
     const double f_target = phase == static_cast<int>(GripperPhase::kHolding) ? options_.force_target : 0.0;
-    r = q + options_.dt * options_.closing_direction * options_.admittance_gain * (f_target - y);
+    rate = options_.closing_direction * options_.admittance_gain * (f_target - y);
+    r = q + options_.dt * rate;
   } else {
-    r += options_.dt * RampRate(r, target);
+    rate = RampRate(r, rate, target);
+    r += options_.dt * rate;
   }
   switch (static_cast<GripperPhase>(phase)) {
     case GripperPhase::kClosing:
@@ -168,6 +178,7 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   (*next)[kFiltered] = y_next;
   (*next)[kRamp] = r;
   (*next)[kPrimed] = 1.0;
+  (*next)[kRampRate] = rate;
 }
 
 }  // namespace marionette::sot

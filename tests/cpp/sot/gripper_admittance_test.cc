@@ -57,6 +57,7 @@ struct Bench {
   std::unique_ptr<graph::Graph> graph;
   FeatureGripperAdmittance* feature = nullptr;
   sim::MujocoDevice* device = nullptr;
+  graph::OutputSignal<Eigen::VectorXd>* velocity = nullptr;  // the solver's command (nv = 1)
   graph::Tick tick;
   int fingertip = -1;
 
@@ -77,6 +78,7 @@ struct Bench {
     feature = &b.Add<FeatureGripperAdmittance>("gripper", model, "gripper_right_joint", kClosed, false, options);
     auto& task = b.Add<Task>("gripper_task", *feature, Gain::Constant(options.task_gain));
     auto& solver = b.Add<Solver>("sot", 1, Solver::Levels{{&task}});
+    velocity = &solver.velocity_output();
     b.Connect(command.configuration_output(), robot.configuration_input());
     b.Connect(robot.kinematics_output(), feature->kinematics_input());
     b.Connect(device->effort_output(), feature->effort_input());
@@ -177,10 +179,13 @@ TEST(GripperAdmittanceTest, ClosesOnTheBlockAndHoldsFiveNewtons) {
 
 TEST(GripperAdmittanceTest, WithoutObjectClosesToTheLimitAndReportsNoContact) {
   Bench bench(/*with_block=*/false);
-  double max_y = 0.0, y_moving = 0.0;
+  double max_y = 0.0, y_moving = 0.0, v_previous = 0.0, max_dv = 0.0;
   while (bench.tick.index < 12000) {
     const graph::Tick now = bench.tick;
     bench.Step();
+    const double v = bench.velocity->value()[0];
+    max_dv = std::max(max_dv, std::abs(v - v_previous));
+    v_previous = v;
     max_y = std::max(max_y, bench.Filtered());
     if (now.index == 5000) y_moving = bench.Filtered();  // mid-way, the ramp at full speed
     ASSERT_EQ(bench.Phase(), 0.0) << "switched without contact at " << now.index;
@@ -191,6 +196,10 @@ TEST(GripperAdmittanceTest, WithoutObjectClosesToTheLimitAndReportsNoContact) {
   // Moving freely at the ramp speed the servo only fights the joint's damping and friction loss:
   // f̂ = (b q̇ + τ_fl) / d = (1 · 0.1 + 0.1) / 0.1 = 2 N — what the threshold must stay above.
   EXPECT_NEAR(y_moving, 2.0, 0.1);
+  // The ramp never steps the command (the controller's start check refuses a jump): at most
+  // acceleration · dt per tick, from rest (+5 %: the solver's 50 ms switch blend lags the ramp a
+  // little at the start, and the task's λ e takes the lag back).
+  EXPECT_LE(max_dv, 1.05 * bench.feature->options().acceleration * 1e-3);
   EXPECT_EQ(bench.ContactForce(), 0.0);
   EXPECT_LT(max_y, bench.feature->options().force_threshold);
   std::printf("free closing: largest force estimate %.3f N (damping and friction at the ramp speed)\n", max_y);

@@ -10,7 +10,7 @@
 /// exactly for the period dt:  y_{k+1} = y_k + α (f̂_k − y_k),  α = 1 − exp(−2π f_c dt).
 ///
 /// Phases (the state machine; switch tests on the filtered force y):
-///   0 closing    position control towards `position_target` along a ramp of at most `speed`;
+///   0 closing    position control towards `position_target` along a ramp (speed, acceleration);
 ///                y > force_threshold → 1
 ///   1 holding    admittance   q̇ = s K_a (f* − y)
 ///   2 releasing  admittance   q̇ = s K_a (0 − y);  y < release_force → 3
@@ -24,7 +24,7 @@
 /// @entity  inputs: kinematics (q: the commanded joint), effort (nv, actuator force/torque per
 ///          dof, MujocoDevice.effort), q_measured (nq, for reporting; default: unplugged = none),
 ///          position_target (settable), release (bool, settable)
-///          states: machine (phase, y, r, primed)
+///          states: machine (phase, y, r, primed, ṙ)
 ///          outputs: terms, error, jacobian, force (f̂ [N] unfiltered), force_filtered (y [N]),
 ///          phase, measured_position (the joint in q_measured [rad])
 
@@ -44,6 +44,7 @@ struct GripperAdmittanceOptions {
   double torque_per_effort = 1.0;   ///< k_τ k_gear [N m per unit of effort], eq. 3.11–3.12
   double cutoff_frequency = 5.0;    ///< f_c [Hz] of the force low-pass
   double speed = 0.1;               ///< [rad/s] position ramp speed ("slowly", §3.2.4.3: the friction and damping it costs read as force)
+  double acceleration = 1.0;        ///< [rad/s²] of the ramp (starts and stops without a velocity step)
   double closing_direction = -1.0;  ///< s: sign of q̇ when closing (TALOS: −1, closed < open)
   double task_gain = 2.0;           ///< λ [1/s] of the Task that reads this feature
   double dt = 1e-3;                 ///< control period [s]
@@ -85,8 +86,9 @@ class FeatureGripperAdmittance final : public Feature {
   void CalcPhase(const graph::Tick& t, double* out) const;
   void CalcMeasuredPosition(const graph::Tick& t, double* out) const;
   void UpdateMachine(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
-  // ṙ of the position ramp at r towards the target: (target − r)/dt clamped to ±speed.
-  double RampRate(double r, double target) const;
+  // ṙ of the position ramp at r (moving at `rate`) towards the target: trapezoidal (|ṙ| <= speed,
+  // |r̈| <= acceleration), stopping on the target.
+  double RampRate(double r, double rate, double target) const;
   // Filtered force y this tick: the state, or f̂ itself on the first tick (the filter starts at
   // the current force, so a releasing controller starts from the force being held).
   double FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const;
@@ -98,7 +100,7 @@ class FeatureGripperAdmittance final : public Feature {
   graph::InputSignal<Eigen::VectorXd>* q_measured_{};
   graph::InputSignal<double>* position_target_{};
   graph::InputSignal<bool>* release_{};
-  graph::OutputSignal<Eigen::VectorXd>* machine_{};  // (phase, y, r, primed)
+  graph::OutputSignal<Eigen::VectorXd>* machine_{};  // (phase, y, r, primed, ṙ)
   graph::OutputSignal<double>* force_{};
   graph::OutputSignal<double>* force_filtered_{};
   graph::OutputSignal<double>* phase_{};
