@@ -12,7 +12,6 @@ meshcat paths: ``robot/...``, ``objects/<name>/...``, ``frames/<gripper|handle>`
 
 from __future__ import annotations
 
-import io
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +65,7 @@ class ViewerScene:
         try:
             desc = robots.robot(robot)
         except robots.UnknownModel as e:
-            raise ViewerError(str(e)) from None
+            raise ViewerError(e.args[0]) from None
         self.vis = vis
         self.robot = robot
         self.model, _ = robots.load_pinocchio(robot, with_collision=False)
@@ -177,22 +176,32 @@ class ViewerScene:
         node.set_transform(X)
 
     def _draw_fsm(self, text: str) -> None:
-        """The FSM text on a panel above the scene (meshcat has no 2D overlay: a textured box)."""
+        """The FSM text on a panel above the scene, one line per text layer. meshcat has no 2D
+        overlay; its "_text" texture is drawn on a canvas when the page builds the scene (an
+        image texture decodes asynchronously and meshcat renders only on change: a page loaded
+        after the last command could show an empty panel)."""
         import meshcat.geometry as g
-        from PIL import Image, ImageDraw
 
         self.fsm_text = text
-        img = Image.new("RGB", (512, 128), (20, 20, 20))
-        ImageDraw.Draw(img).multiline_text((10, 8), text, fill=(255, 255, 255), spacing=8,
-                                           font_size=28)
-        buf = io.BytesIO()
-        img.save(buf, format="PNG")
-        texture = g.ImageTexture(image=g.PngImage(buf.getvalue()))
-        node = self.vis["fsm"]
-        node.set_object(g.Box([1.2, 0.001, 0.3]), g.MeshBasicMaterial(map=texture))
         target, _ = ROBOT_CAMERA.get(self.robot, ((0.0, 0.0, 0.8), None))
         # In the x-z plane behind the robot, facing the default eye (which looks from -y).
-        node.set_transform(pin.SE3(np.eye(3), np.array([target[0], target[1] + 0.8, target[2] + 1.2])).homogeneous)
+        centre = np.array([target[0], target[1] + 0.8, target[2] + 1.2])
+        panel = self.vis["fsm/panel"]
+        panel.set_object(g.Box([1.3, 0.001, 0.34]), g.MeshBasicMaterial(color=0xF0F0F0))
+        panel.set_transform(pin.SE3(np.eye(3), centre).homogeneous)
+        self.vis["fsm/lines"].delete()
+        for i, line in enumerate(text.splitlines()[:3]):
+            texture = g.GenericTexture({"type": "_text", "text": line or " ", "font_size": 36,
+                                        "font_face": "sans-serif"})
+            node = self.vis[f"fsm/lines/{i}"]
+            # The 256 x 256 canvas holds the line in its middle band: a 1.2 x 0.4 m face puts
+            # lines 0.1 m apart; just in front of the panel (towards -y).
+            # Front faces only (meshcat draws both by default): the box's +y face would show the
+            # canvas upside down through the transparent -y face. The layers overlap: their
+            # transparent texels must not hide the lines behind them in the depth buffer.
+            node.set_object(g.Box([1.2, 0.001, 0.4]), g.MeshBasicMaterial(map=texture, transparent=True, side=0,
+                                                                      alphaTest=0.1, depthWrite=False))
+            node.set_transform(pin.SE3(np.eye(3), centre + [0.0, -0.01, 0.1 - 0.1 * i]).homogeneous)
 
 
 def _placement(p) -> pin.SE3:

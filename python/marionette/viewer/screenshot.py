@@ -10,6 +10,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -28,13 +29,33 @@ def chromium() -> str:
     raise ScreenshotError("no Chromium found (scripts/setup installs Debian's `chromium`)")
 
 
-def screenshot(url: str, out: Path, size: tuple[int, int] = (800, 600), settle_ms: int = 8000,
-               timeout_s: float = 120.0) -> np.ndarray:
+def scene_loaded(img: np.ndarray) -> bool:
+    """True when the page shows the viewer's FSM panel (unlit grey 240, drawn with the scene):
+    the page has applied the scene, not only meshcat's empty default."""
+    panel = np.all(np.abs(img[25:].astype(int) - 240) <= 2, axis=-1)
+    return int(panel.sum()) > 1500
+
+
+def screenshot(url: str, out: Path, size: tuple[int, int] = (800, 600), settle_ms: int = 10000,
+               timeout_s: float = 120.0, ready: Callable[[np.ndarray], bool] | None = scene_loaded,
+               attempts: int = 3) -> np.ndarray:
     """Loads ``url`` headless, waits ``settle_ms`` of page time (meshes load over the websocket),
-    writes the PNG ``out`` and returns it as an (H, W, 3) uint8 array."""
+    writes the PNG ``out`` and returns it as an (H, W, 3) uint8 array. The page's virtual time
+    does not wait for the websocket: a heavy scene (TALOS' meshes) may not be applied yet, so the
+    page is loaded again (up to ``attempts`` times, settling longer) until ``ready(image)``."""
+    img = _screenshot(url, Path(out), size, settle_ms, timeout_s)
+    for k in range(1, attempts):
+        if ready is None or ready(img):
+            break
+        img = _screenshot(url, Path(out), size, settle_ms * (k + 1), timeout_s)
+    if ready is not None and not ready(img):
+        raise ScreenshotError(f"the page {url} showed no scene after {attempts} loads ({out})")
+    return img
+
+
+def _screenshot(url: str, out: Path, size: tuple[int, int], settle_ms: int, timeout_s: float) -> np.ndarray:
     from PIL import Image
 
-    out = Path(out)
     out.unlink(missing_ok=True)
     argv = [chromium(), "--headless=new", "--no-sandbox", "--disable-gpu-sandbox", "--use-angle=swiftshader",
             "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--disable-extensions",

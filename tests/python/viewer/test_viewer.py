@@ -66,11 +66,16 @@ def test_viewer_process_shows_the_robot_moving_and_the_fsm_state(lcm_url, tmp_pa
     # It moves: the arm's pixels change between the two configurations.
     moved = changed(shot_a, shot_b)
     assert moved.sum() > 0.002 * h * w
-    # The FSM panel (dark, (20, 20, 20)) shows the new state: its text pixels changed.
-    rows, cols = np.nonzero(shot_b.max(-1) < 40)
-    assert len(rows) > 2000, "no FSM panel"
+    # The FSM panel (light grey (240, 240, 240), below meshcat's 20-pixel control bar) shows the
+    # new state: its dark text pixels changed.
+    # (unlit: exactly 240, unlike the lit grey meshes).
+    panel = np.all(np.abs(shot_b.astype(int) - 240) <= 2, axis=-1)
+    panel[:25] = False
+    rows, cols = np.nonzero(panel)
+    assert len(rows) > 1500, "no FSM panel"
     box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
-    assert changed(shot_a[box], shot_b[box]).sum() > 100
+    text_a, text_b = shot_a[box].max(-1) < 200, shot_b[box].max(-1) < 200
+    assert text_a.sum() > 30 and text_b.sum() > 30 and (text_a != text_b).sum() > 50
 
 
 def test_demo_view_served_the_run_and_stopped_with_it(ur10_box_run):
@@ -113,3 +118,30 @@ def test_replay_view_rejects_bad_input(tmp_path):
     assert missing.returncode == 2 and "no LCM log at" in missing.stderr
     with pytest.raises(ValueError, match="speed must be >= 0"):
         play(tmp_path / "x.lcmlog", None, speed=-1.0)
+
+
+def test_footstep_plan_is_drawn_as_soles(tmp_path):
+    """FOOTSTEP_PLAN -> one sole box per step, right feet orange (no orange elsewhere)."""
+    from marionette import lcmt_footstep, lcmt_footstep_plan
+
+    def orange(img: np.ndarray) -> np.ndarray:
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        return (r > 150) & (r - b > 80) & (g < r - 30)
+
+    server = MeshcatServer()
+    try:
+        scene = ViewerScene(server.visualizer(), "talos", None)
+        before = screenshot(server.web_url, tmp_path / "before.png")
+        plan = lcmt_footstep_plan()
+        for i, (x, y) in enumerate([(0.2, -0.1), (0.4, 0.1), (0.6, -0.1)]):
+            s = lcmt_footstep()
+            s.index, s.is_left, s.x, s.y, s.z, s.yaw = i, y > 0, x, y, 0.0, 0.0
+            plan.steps.append(s)
+        plan.num_steps = len(plan.steps)
+        scene.on_footstep_plan(plan)
+        after = screenshot(server.web_url, tmp_path / "after.png")
+    finally:
+        server.close()
+    assert scene.footsteps == 3
+    # (the world triad's red x axis has a few orange-ish pixels already)
+    assert (orange(after) & ~orange(before)).sum() > 300
