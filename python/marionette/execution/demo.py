@@ -175,6 +175,7 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
     steps = steps_from_plan(plan)
     ctx = context_from_plan(plan.doc, robot, model)
+    ctx.visual_servoing = scenario.vision
     specs = build_specs(steps, ctx)
     write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
     problems = check_specs(steps, specs, ctx, robot_map)

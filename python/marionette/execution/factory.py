@@ -81,6 +81,9 @@ class FactoryContext:
     graph_constraints: list[str] = field(default_factory=list)
     # Grippers that get gripper_admittance tasks (empty: none, the default).
     gripper_joints: dict[str, GripperJoint] = field(default_factory=dict)
+    # Vision in the loop (a camera and `marionette perceive` run): the placement approach gets
+    # pbvs tasks (VISUAL_WAYPOINTS); off, every gripper task follows its planned pose.
+    visual_servoing: bool = False
 
     def local(self, name: str) -> str:
         """'talos/left_sole_link' -> 'left_sole_link' (the controller's model is unprefixed)."""
@@ -182,7 +185,7 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
         name = _task_name(gripper)
-        if gripper in step.grasps and visual_task_kind(step) is not None:
+        if ctx.visual_servoing and gripper in step.grasps and visual_task_kind(step) is not None:
             tasks.append(TaskSpec(name, visual_task_kind(step), priority,
                                   frame=frame, gain=GAINS["grasp"], streamed=True))
             holder_of[obj] = gripper

@@ -207,14 +207,22 @@ def test_the_factory_servoes_exactly_the_carry_to_the_placement(talos_plank):
     """Thesis 000 §5.3.1: PBVS between pre-placement and placement. In the plank plan those are
     the two steps that end in the placement waypoints (..._preplace, ..._intersec) while the
     left gripper holds the plank — not the right gripper lifting it off the table at the start
-    (intersec -> preplace); every other gripper task follows its planned pose (se3)."""
-    servoed = {(s.index, t.name) for s, spec in zip(talos_plank.steps, talos_plank.specs)
+    (intersec -> preplace); every other gripper task follows its planned pose (se3). Without
+    vision (the factory's default) no task is pbvs."""
+    import dataclasses
+
+    from marionette.execution.factory import build_specs
+
+    assert not any(t.kind == "pbvs" for spec in talos_plank.specs for t in spec.tasks)
+    ctx = dataclasses.replace(talos_plank.ctx, visual_servoing=True)
+    specs = build_specs(talos_plank.steps, ctx)
+    servoed = {(s.index, t.name) for s, spec in zip(talos_plank.steps, specs)
                for t in spec.tasks if t.kind == "pbvs"}
     expected = {(s.index, "left_gripper") for s in talos_plank.steps
                 if s.to_state.endswith(("_preplace", "_intersec")) and not s.from_state.endswith("_intersec")
                 and "talos/left_gripper" in s.grasps and "talos/left_gripper" in s.grasps_to}
     assert servoed == expected and len(servoed) == 2
-    for s, spec in zip(talos_plank.steps, talos_plank.specs):
+    for s, spec in zip(talos_plank.steps, specs):
         for t in spec.tasks:
             if t.kind == "pbvs":
                 assert t.streamed and t.frame == talos_plank.ctx.gripper_frames["talos/left_gripper"]
@@ -232,12 +240,17 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
     from marionette.perception.detector import AprilTagDetector, DetectorConfig
     from marionette.perception.objects import estimate_body_pose, load_tagged_bodies, tag_sizes
 
+    import dataclasses
+
+    from marionette.execution.factory import build_specs
+
     p = talos_plank
-    servoed = [i for i, spec in enumerate(p.specs) if any(t.kind == "pbvs" for t in spec.tasks)]
+    specs = build_specs(p.steps, dataclasses.replace(p.ctx, visual_servoing=True))
+    servoed = [i for i, spec in enumerate(specs) if any(t.kind == "pbvs" for t in spec.tasks)]
     trajs = {}
     for s in p.steps[: servoed[-1] + 1]:
         trajs[s.index] = sample_step(s, p.robot_map, 1e-3, 0.5, 0.5)
-        compute_references(trajs[s.index], p.specs[s.index], p.model)
+        compute_references(trajs[s.index], specs[s.index], p.model)
     add_gaze(trajs, p.steps[: servoed[-1] + 1], p.robot_map, "plank", robots.robot("talos").camera_frame)
     scene = sim.MjScene(str(marionette.MODELS_DIR / "scenes" / "talos_plank.xml"))
     scene.reset_keyframe("reference")
