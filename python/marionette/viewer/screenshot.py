@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import subprocess
+import tempfile
 from pathlib import Path
 from typing import Callable
 
@@ -61,10 +62,14 @@ def _screenshot(url: str, out: Path, size: tuple[int, int], settle_ms: int, time
             "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--disable-extensions",
             f"--window-size={size[0]},{size[1]}", f"--virtual-time-budget={settle_ms}",
             f"--screenshot={out}", url]
-    try:
-        proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        raise ScreenshotError(f"chromium took more than {timeout_s} s on {url}") from None
+    # A profile of its own: Chromium instances sharing one (other tests, a user's browser) hand
+    # the URL to the first instance and exit without a screenshot.
+    with tempfile.TemporaryDirectory(prefix="marionette-chromium-") as profile:
+        try:
+            proc = subprocess.run(argv[:1] + [f"--user-data-dir={profile}"] + argv[1:], capture_output=True,
+                                  text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            raise ScreenshotError(f"chromium took more than {timeout_s} s on {url}") from None
     if not out.is_file():
         raise ScreenshotError(f"chromium wrote no screenshot of {url} (exit {proc.returncode}): "
                               f"{proc.stderr.strip()[-500:]}")
