@@ -16,6 +16,12 @@ def _step_over(*args, **kwargs):
     return run_step_over(*args, **kwargs)
 
 
+def _drill(*args, **kwargs):
+    from marionette.execution.drill import run_drill
+
+    return run_drill(*args, **kwargs)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     import marionette
     from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS, Scenario
@@ -25,6 +31,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="TALOS walks over a bar to a goal zone while the bar's perceived pose moves; "
                     "the footstep process replans (thesis 001 ch. 5, Algorithm 3)",
         runner=_step_over))
+    SCENARIOS.setdefault("drill", Scenario(
+        "drill", "", marionette.MODELS_DIR / "scenes" / "ur10_drill.xml", 0, "part", 0.0,
+        description="UR10 aligns its drill on the reference holes R1, R2 of the displaced aircraft "
+                    "part, then interpolates the other holes (thesis 000 §6.3; 0.2 mm / 0.5°)",
+        runner=_drill))
 
     p = subparsers.add_parser(
         "demo", help="run a demo scenario end to end in MuJoCo and write its report",
