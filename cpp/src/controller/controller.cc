@@ -104,7 +104,9 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   }
   factory = std::make_unique<ControllerFactory>(
       model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
-                               &command->velocity_output()});
+                               &command->velocity_output(),
+                               device ? &device->effort_output() : nullptr,   // gripper admittance
+                               device ? &device->q_output() : nullptr});
 
   Snapshot model_snapshot;
   model_snapshot.q = q0;

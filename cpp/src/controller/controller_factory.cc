@@ -6,6 +6,7 @@
 #include <set>
 #include <stdexcept>
 
+#include "marionette/controller/gripper_admittance_spec.h"
 #include "marionette/sot/feature_com.h"
 #include "marionette/sot/feature_gaze.h"
 #include "marionette/sot/feature_position.h"
@@ -122,8 +123,9 @@ std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) c
   if (kind == "se3" || kind == "pbvs" || kind == "relative_se3") return {7, 6};
   if (kind == "position" || kind == "com" || kind == "gaze") return {3, 3};
   if (kind == "posture") return {model_->nq, model_->nv};
+  if (kind == kGripperAdmittanceKind) return {1, 1};  // the position-control target
   throw std::invalid_argument("unknown task kind '" + kind +
-                              "' (se3, pbvs, relative_se3, position, com, posture, gaze)");
+                              "' (se3, pbvs, relative_se3, position, com, posture, gaze, gripper_admittance)");
 }
 
 std::unique_ptr<BuiltController> ControllerFactory::Build(
@@ -182,7 +184,9 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     for (double x : t.reference) {
       if (!std::isfinite(x)) Fail(who, "non-finite reference value");
     }
-    if (t.num_parameters > 0) Fail(who, "unknown parameter '" + t.parameter_name[0] + "'");
+    if (t.num_parameters > 0 && t.kind != kGripperAdmittanceKind) {
+      Fail(who, "unknown parameter '" + t.parameter_name[0] + "'");
+    }
 
     const auto [value_size, derivative_size] = [&] {
       try {
@@ -204,6 +208,29 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     const sot::Gain g = t.gain_slope > 0.0 ? sot::Gain::Adaptive(gain, t.gain_max, t.gain_slope)
                                            : sot::Gain::Constant(gain);
     const std::string fname = prefix + t.name + "_feature";
+    if (t.kind == kGripperAdmittanceKind) {  // its own reference and state machine
+      const GripperAdmittanceSpec ga = ParseGripperAdmittance(t, gain, who);
+      try {
+        auto& f = add(edit.Add<sot::FeatureGripperAdmittance>(fname, model_, ga.joint, ga.position_target,
+                                                             ga.release, ga.options));
+        edit.Connect(*sockets_.kinematics, f.kinematics_input());
+        if (sockets_.effort) {
+          edit.Connect(*sockets_.effort, f.effort_input());
+        } else {  // kinematic backend: nothing measured, the gripper closes in position control
+          f.effort_input().SetValue(Eigen::VectorXd::Zero(model_->nv));
+        }
+        if (sockets_.q_measured) edit.Connect(*sockets_.q_measured, f.q_measured_input());
+        auto& task = add(edit.Add<sot::Task>(prefix + t.name, f, sot::Gain::Constant(gain)));
+        by_priority[t.priority].push_back(&task);
+        built->task_names.push_back(t.name);
+        built->task_errors.push_back(&task.error_norm_output());
+      } catch (const std::invalid_argument& e) {
+        Fail(who, e.what());
+      } catch (const graph::GraphError& e) {
+        Fail(who, e.what());
+      }
+      continue;
+    }
 
     try {
       sot::Feature* feature = nullptr;

@@ -82,7 +82,7 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   phase_ = &DeclareOutput<double>("phase", initial[kPhase], &FeatureGripperAdmittance::CalcPhase, {machine_});
   measured_position_ = &DeclareOutput<double>("measured_position", 0.0,
                                               &FeatureGripperAdmittance::CalcMeasuredPosition, {q_measured_});
-  DeclareTermsOutput({effort_, position_target_, machine_, force_filtered_});
+  DeclareTermsOutput({effort_, position_target_, machine_, force_, force_filtered_, phase_, measured_position_});
 }
 
 double FeatureGripperAdmittance::RampRate(double r, double rate, double target) const {
@@ -120,6 +120,11 @@ void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematic
                                            FeatureTerms* full) const {
   const Eigen::VectorXd& x = machine_->Eval(t);
   const double q = kinematics.q()[iq_];
+  // Pulled every tick with the terms, so that introspection (`marionette dg get/trace`, which
+  // reads cached values) sees this tick's force, phase and measured position.
+  force_filtered_->Eval(t);
+  phase_->Eval(t);
+  measured_position_->Eval(t);
   if (IsAdmittance(x[kPhase])) {
     const double f_target = static_cast<int>(x[kPhase]) == static_cast<int>(GripperPhase::kHolding)
                                 ? options_.force_target

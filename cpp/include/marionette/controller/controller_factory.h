@@ -14,6 +14,8 @@
 ///   com           centre of mass c_W         3 values, derivative 3
 ///   posture       configuration q            nq values, derivative nv (joints: joint_name)
 ///   gaze          world point kept at the image centre   3 values, derivative 3
+///   gripper_admittance  a gripper joint's position then force (gripper_admittance_spec.h)
+///                 position target [rad]   1 value, fixed only
 /// Walking (Dang 2012 §2.6.2–2.6.3): a task whose reference_channel is "walk:left_foot" or
 /// "walk:right_foot" (kind se3, its frame a sole) or "walk:com" (kind com) takes its reference
 /// and feed-forward from a FootstepManager + PatternGenerator pair added to the controller; the
@@ -70,6 +72,11 @@ struct ControllerSockets {
   graph::OutputSignal<sot::Kinematics>* kinematics = nullptr;  ///< RobotModel.kinematics
   graph::InputSignal<Eigen::VectorXd>* command = nullptr;      ///< SafetyFilter.velocity
   graph::OutputSignal<Eigen::VectorXd>* applied_velocity = nullptr;  ///< last applied command
+  /// Measured actuator efforts (nv) and configuration (nq) for gripper_admittance tasks
+  /// (MujocoDevice.effort / .q); nullptr without a simulated or real device (kinematic backend:
+  /// the effort stays 0, the gripper closes in position control).
+  graph::OutputSignal<Eigen::VectorXd>* effort = nullptr;
+  graph::OutputSignal<Eigen::VectorXd>* q_measured = nullptr;
 };
 
 class ControllerFactory {
