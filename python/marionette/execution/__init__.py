@@ -11,6 +11,8 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `streamer.py` | chunks on TASK_REFERENCE, ahead of the controller's clock |
 | `supervisor.py` | the FSM: start check, streaming, end check, grasp welds, events, LCM state |
 | `estimation.py` | nearest graph state of a measured configuration, steps already done |
+| `monitor.py` | execution monitor: grasp / placement residuals from OBJECT_POSES -> `left_manifold` |
+| `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
 | `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
 | `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |
