@@ -84,9 +84,11 @@ SCENARIOS: dict[str, Scenario] = {
                     "replans, the controller walks the new steps (thesis 001 ch. 6, no final grasp)",
         runner=_grasp_walk),
 }
-# `marionette demo` without a scenario (`make demo`): the one that meets its criteria today.
-# plank-flip runs end to end (16 controllers, both grasps, hand-over, release) but the plank ends
-# ~1.2 cm / 7° from its goal (limits 1 cm / 5°): the open-loop carry sags in the MuJoCo weld.
+# `marionette demo` without a scenario (`make demo`): the one that meets its criteria reliably.
+# plank-flip with vision in the loop met 1 cm / 5° in 2/3 unperturbed trials and 3/4 with the
+# plank slipping in the hand (the release drags it 6-9 mm), 1/4 under issue #10's perturbations
+# (the open-loop hand-over breaks with a displaced plank or the arm's encoder offsets), and it
+# needs ~2 min of rendering and perception: not the default yet (execution/README.md).
 DEFAULT_SCENARIO = "ur10-box"
 
 
