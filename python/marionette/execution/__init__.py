@@ -17,4 +17,5 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
 | `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |
 | `perturbations.py` | seeded trial perturbations: displacement, slip, encoder offsets, camera noise (issue #10) |
+| `drill.py` | `marionette demo drill`: align on reference holes R1, R2, interpolate the rest (§6.3) |
 """

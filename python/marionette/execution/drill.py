@@ -95,6 +95,8 @@ class DrillSettings:
     camera_size: tuple[int, int] = (640, 480)
     camera_frames: int = 3                 # scene camera frames to measure the part on
     camera_noise_grey: float = 2.0         # image noise [grey levels]
+    camera: bool = True                    # False: go to R1/R2 on the nominal model (offline
+    #                                        program only): the tool sensor must then fail
 
 
 # ---- geometry --------------------------------------------------------------------------------
@@ -416,13 +418,11 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
 
         # §6.3 detection: the scene camera measures the part (tags 20-23).
         t = time.perf_counter()
-        X_WC, K, gray = render_part(X_WP_true, st, rng)
         deadline = time.monotonic() + 30.0
-        while True:
+        while st.camera:
             with lock:
-                n = len(poses)
-            if n >= st.camera_frames:
-                break
+                if len(poses) >= st.camera_frames:
+                    break
             if time.monotonic() > deadline:
                 group.check_alive()
                 raise DemoError("the perception process published no pose of the part in 30 s "
@@ -431,11 +431,12 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             client.bus.publish(SCENE_CAMERA_CHANNEL, camera_message(client.utime(), X_WC, K, gray))
             time.sleep(0.3)
         with lock:
-            X_WP_cam = poses[-1]
+            X_WP_cam = poses[-1] if st.camera else X_WP_nom
         timings["camera_s"] = time.perf_counter() - t
         cam_err = (float(np.linalg.norm(X_WP_cam.translation - X_WP_true.translation)),
                    float(np.degrees(np.linalg.norm(pin.log3(X_WP_cam.rotation.T @ X_WP_true.rotation)))))
-        log(f"drill: camera measured the part {cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} deg from its true pose")
+        log(f"drill: {'camera measured' if st.camera else 'no camera: nominal'} part "
+            f"{cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} deg from its true pose")
         report["camera"] = {"part_measured": pose_to_vector(X_WP_cam).tolist(), "frames": len(poses),
                             "position_error_m": cam_err[0], "angle_error_deg": cam_err[1]}
 

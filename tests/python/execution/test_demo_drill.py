@@ -15,6 +15,7 @@ import sys
 
 import lcm
 import numpy as np
+import pytest
 import pinocchio as pin
 import yaml
 
@@ -77,3 +78,17 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir):
         da = np.degrees(np.arccos(np.clip(X_tool.rotation[:, 0] @ axis, -1.0, 1.0)))
         assert dp <= 2e-4 and da <= 0.5, (row["hole"], dp, da)
         assert abs(dp - row["position_error_m"]) < 1e-6 and abs(da - row["angle_error_deg"]) < 1e-3
+
+
+def test_drill_without_camera_detects_that_the_sensor_cannot_see_r1(tmp_path, build_dir):
+    """§6.3: "Whenever one of those steps cannot be performed, the robot should autonomously detect
+    its failure". Going to R1 on the nominal model alone (the offline program), the displaced
+    hole is outside the tool sensor's view: the demo stops with that reason, it does not drill
+    blind."""
+    from marionette.execution.demo import DemoError, Scenario
+    from marionette.execution.drill import SCENE, DrillSettings, run_drill
+
+    st = DrillSettings(camera=False)
+    with pytest.raises(DemoError, match=r"part/R1: the tool sensor does not see the hole"):
+        run_drill(Scenario("drill", "", SCENE, 0, "part", 0.0), 3, tmp_path, speed=2.0, log=lambda m: None,
+                  settings=st)
