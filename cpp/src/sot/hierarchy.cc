@@ -374,7 +374,7 @@ bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, doub
   for (int i = 0; i < r; ++i) {
     for (int j = i + 1; j < r; ++j) G(i, j) = G(j, i);  // the QP fallback reads all of it
   }
-  w.g1.head(r).noalias() = -mt * w.c.head(m);
+  w.g1.head(r).noalias() = -mt * w.cperm.head(m);  // mt's column i is row perm[i] of A
   w.u.head(r) = -w.g1.head(r);
   llt.solveInPlace(w.u.head(r));
   return true;
@@ -865,6 +865,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
           w.c[i] = w.b[i] - w.x[w.a_col[i]];
         }
       }
+      for (int i = 0; i < m; ++i) w.cperm[i] = w.c[w.perm[i]];
       w.gram = m >= r && GramLevel(w, mt, m, row_scale, options);
       if (w.gram) {
         rho = r;

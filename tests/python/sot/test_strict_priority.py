@@ -192,3 +192,19 @@ def test_posture_under_feet_and_hands_matches_the_textbook_cascade(talos, seed, 
         np.testing.assert_allclose(achieved(level, v), achieved(level, reference), atol=TOL, rtol=0,
                                    err_msg=f"level {k} {names[k]} (seed {seed})")
     np.testing.assert_allclose(v, reference, atol=1e-7, rtol=0)
+
+
+def test_sparse_rows_after_dense_ones_on_a_square_level_solved_on_its_gram_matrix():
+    """A first level whose sparse rows (3 rows on coordinates 0-2) are listed after dense ones,
+    with as many rows as DoF (10): factored sparse rows first (its rows reordered) and solved on
+    its Gram matrix, v must solve the square system A v = b (numpy's solve, κ(A) = 22)."""
+    rng = np.random.default_rng(2)
+    n = 10
+    dense = rng.normal(size=(7, n))
+    sparse = np.zeros((3, n))
+    sparse[:, :3] = rng.normal(size=(3, 3))
+    b = rng.normal(size=n)
+    levels = [[{"jacobian": dense, "lower": b[:7]}, {"jacobian": sparse, "lower": b[7:]}]]
+    v, report = _core.solve_hierarchy(levels)
+    assert report["ranks"] == [n] and report["gram_levels"] == [True]
+    np.testing.assert_allclose(v, np.linalg.solve(np.vstack([dense, sparse]), b), atol=1e-10, rtol=0)
