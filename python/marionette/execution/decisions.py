@@ -84,7 +84,10 @@ class DecisionMachine:
         self.thresholds: dict[str, float] = {}
         self.converge_timeout_us = 0
         self.end_utime = 0                # [us] last reference sample (after a force stop: the held one)
-        self.reference_sent = False       # every chunk streamed (a force event no longer shortens it)
+        self.reference_sent = False       # every chunk streamed
+        # A force event cuts the reference once per step, also after everything was streamed: a
+        # chunk redefines the controller's stream from its first sample on (reference_stream.cc).
+        self.reference_stopped = False
         self.awaiting = ""                # event name awaited in "awaiting_approval"
 
     # ---- inputs -----------------------------------------------------------------------------
@@ -103,7 +106,7 @@ class DecisionMachine:
         self.controller_id = int(controller_id)
         self.thresholds = dict(thresholds)
         self.converge_timeout_us = int(converge_timeout_us)
-        self.end_utime, self.reference_sent = 0, False
+        self.end_utime, self.reference_sent, self.reference_stopped = 0, False, False
         inputs = {"controller_id": float(controller_id), "converge_timeout_us": float(converge_timeout_us),
                   "approval": float(approval)}
         inputs.update({f"threshold:{n}": float(t) for n, t in thresholds.items()})
@@ -185,7 +188,8 @@ class DecisionMachine:
             return []
         if self.status not in ("waiting_start_check", "accepted", "running", "waiting_end_check"):
             return []
-        if ev.name == "force_threshold" and self.status == "running" and not self.reference_sent:
+        if ev.name == "force_threshold" and self.status == "running" and not self.reference_stopped:
+            self.reference_stopped = True
             return [self._decide("reference_stopped", "running", f"force {ev.value:.3g} N", EVENT, ev.utime, ins)]
         if ev.name in ("abort", "left_manifold") and self.status in ("accepted", "running", "waiting_end_check"):
             return [self._decide(ev.name, "failed", ev.detail or f"from {ev.source}", EVENT, ev.utime, ins)]

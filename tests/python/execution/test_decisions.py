@@ -86,11 +86,13 @@ def test_force_event_applies_at_the_last_status_tick_and_watchdog_fails():
     ds = run_step(DecisionMachine(), [(STATUS, status(30_000)),
                                       (STATUS, status(60_000, mode="holding", reason="watchdog: stale"))])
     assert (ds[-1].event, ds[-1].utime) == ("reference_starved", 60_000)
-    # once every chunk is sent, a force event no longer shortens the reference
+    # once every chunk is sent, a force event still cuts the reference (a chunk redefines the
+    # stream from its first sample), but only the first one of the step
     m = DecisionMachine()
     run_step(m, [(STATUS, status(30_000))])
     m.reference_end(1_000_000, True)
-    assert m.feed(EVENT, event("force_threshold", 5.0)) == []
+    assert [d.event for d in m.feed(EVENT, event("force_threshold", 5.0))] == ["reference_stopped"]
+    assert m.feed(EVENT, event("force_threshold", 6.0)) == []
 
 
 def test_decision_round_trips_through_lcm():

@@ -115,9 +115,6 @@ def test_force_event_cuts_the_reference_at_its_tick_and_the_fsm_goes_on(build_di
     _check_cut(*_run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, 0.4))
 
 
-@pytest.mark.xfail(strict=True, reason="the supervisor ignores force_threshold once the whole reference is "
-                   "streamed (guard 'not streamer.done' / 'not reference_sent'), i.e. in the last 4 s (the "
-                   "look-ahead) of every step, although a chunk replaces the samples from its start on")
 def test_force_event_in_the_last_lookahead_window_cuts_the_reference(build_dir, lcm_url, tmp_path, ur10_box):
     """Event at 90 % of the step: everything was already streamed; it must still cut."""
     _check_cut(*_run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, 0.9))
