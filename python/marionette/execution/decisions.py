@@ -142,8 +142,8 @@ class DecisionMachine:
         ins = {"active_controller_id": float(st.active_controller_id)}
         if s == "waiting_start_check":
             tag = f"(id {cid})"
-            # Accepted only once the loop snapshot shows the new active id: the decision text may
-            # be published one status ahead of it (LCM thread vs loop).
+            # Accepted when the loop snapshot shows the new active id (the controller publishes
+            # the decision text with the first status of the deciding tick, never before it).
             if st.active_controller_id == cid:
                 return [self._status_decision("switch_accepted", "accepted", f"controller {cid}", st, ins)]
             if tag in st.last_switch_result and not st.last_switch_result.startswith("accepted"):
