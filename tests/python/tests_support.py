@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import select
+import subprocess
+import sys
 import time
 from pathlib import Path
-from typing import IO, Iterator
+from typing import IO, Any, Iterator
+
+import lcm
 
 from marionette.control.client import ControllerClient
 from marionette.processes import ProcessGroup
@@ -46,3 +51,29 @@ def controller_running(build_dir: Path, lcm_url: str, log_dir: Path, *args: str,
         group.check_alive()
         code = group.stop("controller", timeout_s=10.0)
         assert code == 0, f"controller exited with {code}:\n{proc.log_tail()}"
+
+
+def run_demo(name: str, out_dir: Path, env: dict[str, str], speed: float, timeout_s: float,
+             files: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any]]:
+    """Runs ``marionette demo <name> --speed <speed> --out <out_dir>`` and checks what a user
+    checks first: exit code 0, a single run folder whose report says success, and ``files`` of
+    that folder not empty. Returns the run folder and its report.json."""
+    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", name, "--speed", str(speed),
+                           "--out", str(out_dir)], capture_output=True, text=True, timeout=timeout_s,
+                          env=env)
+    print(proc.stdout)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    (run,) = out_dir.glob(f"{name}-*")
+    report = json.loads((run / "report.json").read_text())
+    assert report["success"], report["summary"]
+    for file in files:
+        assert (run / file).stat().st_size > 0, file
+    return run, report
+
+
+def lcm_log_messages(path: Path, types: dict[str, Any]) -> Iterator[tuple[str, Any]]:
+    """(channel, decoded message) of every event of an LCM log on one of ``types``' channels
+    (channel -> LCM type), in log order."""
+    for event in lcm.EventLog(str(path), "r"):
+        if event.channel in types:
+            yield event.channel, types[event.channel].decode(event.data)

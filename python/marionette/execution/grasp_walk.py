@@ -17,8 +17,6 @@ measured ZMP stays inside the support polygon of its loaded soles.
 
 from __future__ import annotations
 
-import sys
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,16 +25,17 @@ from typing import Any, Callable
 import numpy as np
 import pinocchio as pin
 
-import marionette
-from marionette import (channels, lcmt_footstep_plan, lcmt_object_pose, lcmt_object_poses,
-                        lcmt_robot_state, lcmt_walk_status, robots)
+from marionette import lcmt_object_poses, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.execution.demo import DemoError
-from marionette.execution.walking import (FEET, MergedPlan, loaded_soles, sole_half_size,
-                                          walking_spec, zmp_margins)
+from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
+from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
+                                                   finish_footsteps_axes, object_poses_message,
+                                                   plot_footsteps, replan_solve_ms,
+                                                   scenario_report, sole_poses, step_counts,
+                                                   walk_while_object_moves, walking_run,
+                                                   write_report_files)
 from marionette.lcm_bus import private_lcm_url
-from marionette.processes import ProcessError, ProcessGroup
 
 
 @dataclass(frozen=True)
@@ -59,84 +58,10 @@ class GraspWalkSettings:
     reach_tolerance: float = 0.03               # [m] grasp point to ball after the reach
 
 
-class _Log:
-    """Everything the judgement and the plots need, filled by LCM handlers (background thread)."""
-
-    def __init__(self, client: ControllerClient, model: pin.Model) -> None:
-        self.model = model
-        self.statuses: list[Any] = []
-        self.loaded: dict[int, list[str]] = {}
-        self.utimes: list[int] = []
-        self.q: list[np.ndarray] = []
-        self.plans: list[tuple[int, Any]] = []          # (controller utime at reception, plan)
-        self.merged = MergedPlan()
-        self._lock = threading.Lock()
-        client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, self._on_status)
-        client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
-        client.bus.subscribe(channels.FOOTSTEP_PLAN, lcmt_footstep_plan, self._on_plan)
-        self._last_utime = 0
-
-    def _on_status(self, msg) -> None:
-        with self._lock:
-            self.statuses.append(msg)
-
-    def _on_state(self, msg) -> None:
-        with self._lock:
-            self._last_utime = msg.utime
-            self.loaded[msg.utime] = loaded_soles(msg)
-            if len(self.q) == 0 or msg.utime - self.utimes[-1] >= 20000:   # 50 Hz for plots
-                self.utimes.append(msg.utime)
-                self.q.append(configuration_from_state(self.model, msg))
-
-    def _on_plan(self, msg) -> None:
-        with self._lock:
-            self.plans.append((self._last_utime, msg))
-            current = self.statuses[-1].current_step_index if self.statuses else -1
-            self.merged.apply(msg, current)
-
-    def last_status(self):
-        with self._lock:
-            return self.statuses[-1] if self.statuses else None
-
-
-def _ball_message(utime: int, p_W: np.ndarray) -> lcmt_object_poses:
-    o = lcmt_object_pose()
-    o.utime = int(utime)
-    o.object_name = "ball"
-    o.position_camera, o.quaternion_camera = [0.0] * 3, [1.0, 0.0, 0.0, 0.0]
-    o.position_world, o.quaternion_world = [float(v) for v in p_W], [1.0, 0.0, 0.0, 0.0]
-    o.num_tags, o.tag_id, o.reprojection_error, o.ambiguous = 0, [], 0.0, False
-    msg = lcmt_object_poses()
-    msg.utime, msg.camera_name, msg.latency_us = int(utime), "motion_capture", 0.0
-    msg.objects, msg.num_objects = [o], 1
-    return msg
-
-
-class _BallPublisher(threading.Thread):
-    """Publishes the ball's pose on OBJECT_POSES at 20 Hz (the footstep process's input). After
-    :meth:`move` the ball slides to its new place at constant speed over ``duration_s`` of
-    controller time (Dang ch. 6: the ball is carried while the robot walks)."""
-
-    def __init__(self, client: ControllerClient, p_W: np.ndarray) -> None:
-        super().__init__(daemon=True)
-        self.client, self.stop = client, threading.Event()
-        self.p0 = self.p1 = np.array(p_W, dtype=float)
-        self.utime_move, self.duration_us = 0, 1
-
-    def move(self, p_W: np.ndarray, duration_s: float) -> int:
-        """Starts the move now; returns its controller utime."""
-        self.utime_move, self.duration_us = self.client.utime(), max(1, int(duration_s * 1e6))
-        self.p1 = np.array(p_W, dtype=float)
-        return self.utime_move
-
-    def position(self, utime: int) -> np.ndarray:
-        s = float(np.clip((utime - self.utime_move) / self.duration_us, 0.0, 1.0))
-        return self.p0 + s * (self.p1 - self.p0)
-
-    def run(self) -> None:
-        while not self.stop.wait(0.05):
-            utime = self.client.utime()
-            self.client.bus.publish(channels.OBJECT_POSES, _ball_message(utime, self.position(utime)))
+def ball_message(utime: int, p_W: np.ndarray) -> lcmt_object_poses:
+    """OBJECT_POSES with the ball (name "ball") at ``p_W``, as motion capture gives it (Dang's
+    ball was tracked by motion capture)."""
+    return object_poses_message(utime, "ball", p_W, (1.0, 0.0, 0.0, 0.0), "motion_capture")
 
 
 def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
@@ -163,77 +88,23 @@ def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     desc = robots.robot("talos")
     model = talos().model                       # with the grasp-point frames of the planner
     url = controller_url or private_lcm_url()
-    report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description,
-                              "seed": seed, "robot": "talos", "speed": speed, "lcm_url": url,
-                              "scene": str(desc.mjcf.relative_to(marionette.REPO_ROOT)),
-                              "settings": settings.__dict__}
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
-        if controller_url is None:
-            group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                       "--robot", "talos", "--scene", desc.mjcf, "--speed", str(speed),
-                                       "--camera-rate", "0", "--status-rate", "100"])
-        rec = _Log(client, model)
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
-        client.send_spec(walking_spec(1))
-        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                    "the walking controller")
-        client.wait(lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
-                    10.0, "WALK_STATUS standing")
-        standing = rec.last_status()
-        start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
-        mid = 0.5 * (start["left"][:2] + start["right"][:2])
+    report = scenario_report(scenario, seed, speed, url, desc.mjcf, settings)
+    with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url) as run:
+        client, rec, mid = run.client, run.rec, run.mid
         ball0 = np.array([mid[0] + settings.ball[0], mid[1] + settings.ball[1], settings.ball[2]])
         ball1 = ball0 + np.array([*settings.shift, 0.0])
-        q_start = rec.q[-1].copy()
-        utime_start = client.utime()
-
-        publisher = _BallPublisher(client, ball0)
-        publisher.start()
-        group.start("footsteps", [sys.executable, "-m", "marionette.cli", "footsteps", "run",
-                                  "--lcm-url", url, "--target", "ball", "--hand", settings.hand])
-        log(f"grasp-walk: ball at {np.round(ball0, 3).tolist()}, footstep process started")
-        t1 = time.perf_counter()
-        try:
-            _wait_alive(client, group, lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
-            timings["first_plan_wall_s"] = time.perf_counter() - t1
-            first_plan = rec.plans[0][1]
-            log(f"grasp-walk: plan 1, {first_plan.num_steps} steps")
-            _wait_alive(client, group,
-                        lambda c: rec.last_status().current_step_index >= settings.shift_at_step,
-                        settings.walk_timeout_s * 2, f"step {settings.shift_at_step}")
-            utime_move = publisher.move(ball1, settings.shift_duration_s)
-            log(f"grasp-walk: ball moving to {np.round(ball1, 3).tolist()} from step "
-                f"{rec.last_status().current_step_index} on, in {settings.shift_duration_s} s")
-            _wait_alive(client, group, lambda c: _walk_done(rec, 1.5), settings.walk_timeout_s * 2,
-                        "the robot standing at the end of the last plan")
-        finally:
-            publisher.stop.set()
-        timings["walk_controller_s"] = (client.utime() - utime_start) * 1e-6
-        q_final = configuration_from_state(model, client.state)
+        publisher = MovingObjectPublisher(client, "ball", ball0, ball_message)
+        utime_move = walk_while_object_moves(
+            run, publisher, ["--target", "ball", "--hand", settings.hand], ball1, settings.shift_at_step,
+            settings.shift_duration_s, settings.walk_timeout_s,
+            f"grasp-walk: ball at {np.round(ball0, 3).tolist()}, footstep process started", "grasp-walk", log)
         report["reach_start_utime"] = client.utime()
         if settings.reach:
             t2 = time.perf_counter()
             report["reach"] = _reach(client, model, ball1, settings, rec.last_status(), log)
-            timings["reach_wall_s"] = time.perf_counter() - t2
-        status = client.status
-        report["controller"] = {"mode": status.mode, "mode_reason": status.mode_reason,
-                                "realtime_factor": status.realtime_factor,
-                                "deadline_misses": status.deadline_misses,
-                                "num_rejected": status.num_rejected,
-                                "last_rejection": status.last_rejection}
-        group.check_alive()
-    timings["total_wall_s"] = time.perf_counter() - t0
-    footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
-    report["timings"] = timings
-    report.update(_criteria(settings, model, rec, start, q_start, q_final, ball0, ball1,
-                            utime_start, utime_move, footsteps_log))
+            run.timings["reach_wall_s"] = time.perf_counter() - t2
+    report.update(_criteria(settings, model, rec, run.start, run.q_start, run.q_final, ball0, ball1,
+                            run.utime_start, utime_move, run.footsteps_log))
     report["summary"] = summary(report)
     write_grasp_walk_report(out_dir, report, rec, ball0, ball1, utime_move, model)
     return report
@@ -340,52 +211,11 @@ def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, setting
             "chunks": chunks, "min_lookahead_ms": min(lookahead) if lookahead else None}
 
 
-def _wait_alive(client: ControllerClient, group: ProcessGroup, cond, timeout_s: float, what: str) -> None:
-    """client.wait in 1 s slices, checking that every process still runs (a dead footstep
-    process must fail the run with its log, not after the timeout)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            client.wait(cond, min(1.0, max(0.01, deadline - time.monotonic())), what)
-            return
-        except TimeoutError as e:
-            try:
-                group.check_alive()
-            except ProcessError as dead:
-                raise DemoError(f"waiting for {what}: {dead}") from dead
-            if time.monotonic() >= deadline:
-                raise DemoError(str(e)) from e
-
-
-def _walk_done(rec: _Log, settle_s: float) -> bool:
-    """Standing on the latest plan, at least one step walked, for ``settle_s`` of controller time
-    with no plan since (a walk starts 1.6 s after its plan arrives, so a later plan would show)."""
-    with rec._lock:
-        if not rec.plans or not rec.statuses:
-            return False
-        last_plan_utime = rec.plans[-1][0]
-        latest = rec.statuses[-1]
-        walked = any(s.current_step_index >= 0 for s in rec.statuses)
-        since = [s for s in rec.statuses if s.utime >= latest.utime - settle_s * 1e6]
-    return (walked and latest.utime - last_plan_utime > 2.0e6 and latest.utime - since[0].utime
-            >= 0.9 * settle_s * 1e6 and all(s.phase == "standing" for s in since))
-
-
-def _sole_poses(model: pin.Model, q: np.ndarray) -> dict[str, np.ndarray]:
-    data = model.createData()
-    pin.framesForwardKinematics(model, data, q)
-    out = {}
-    for side in FEET:
-        X = data.oMf[model.getFrameId(f"{side}_sole_link")]
-        out[side] = np.array([*X.translation, np.arctan2(X.rotation[1, 0], X.rotation[0, 0])])
-    return out
-
-
-def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: _Log, start, q_start, q_final,
+def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, start, q_start, q_final,
               ball0, ball1, utime_start: int, utime_move: int, footsteps_log: list[str]) -> dict[str, Any]:
     """The success criteria, measured (module docstring)."""
     planned = rec.merged.final_stance(start)
-    executed = _sole_poses(model, q_final)
+    executed = sole_poses(model, q_final)
     stance_err = max(float(np.linalg.norm(executed[s][:2] - planned[s][:2])) for s in FEET)
     yaw_err = max(abs(float(np.degrees(np.angle(np.exp(1j * (executed[s][3] - planned[s][3]))))))
                   for s in FEET)
@@ -403,21 +233,13 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: _Log, start, q
     base_drop = float(max(q_start[2] - q[2] for q in rec.q))
     walked = [s for s in rec.statuses if s.utime >= utime_start]
     margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot("talos").mjcf))
-    indices = [s.current_step_index for s in walked if s.current_step_index >= 0]
     replans = [p for u, p in rec.plans[1:]]
     after_move = [p for u, p in rec.plans if u >= utime_move]
-    solve_ms = [float(line.rsplit("(", 1)[1].split(" ms")[0]) for line in footsteps_log
-                if line.startswith("footsteps: plan ") and " ms)" in line]
     c: dict[str, Any] = {
-        "steps_planned_first": int(rec.plans[0][1].num_steps),
-        "steps_executed": int(max(indices) + 1) if indices else 0,
-        "steps_in_order": bool(indices == sorted(indices)),
-        "footstep_plans": len(rec.plans),
+        **step_counts(rec, walked),
         "footstep_recomputations": len(replans),
         "recomputations_after_move": len(after_move),
-        "replan_solve_ms": {"median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
-                            "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
-                            "first_plan": solve_ms[0] if solve_ms else None},
+        "replan_solve_ms": replan_solve_ms(footsteps_log),
         "final_stance_error_m": stance_err,
         "final_stance_yaw_error_deg": yaw_err,
         "final_stance_ok": bool(stance_err <= settings.stance_tolerance
@@ -444,21 +266,11 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: _Log, start, q
     return {"success": bool(ok), "criteria": c}
 
 
-def write_grasp_walk_report(out_dir: Path, report: dict[str, Any], rec: _Log, ball0, ball1,
+def write_grasp_walk_report(out_dir: Path, report: dict[str, Any], rec: WalkRecorder, ball0, ball1,
                             utime_move: int, model: pin.Model) -> None:
     """report.json, report.md and the plots (footsteps planned vs executed, CoM/ZMP)."""
-    import json
-
-    from marionette.execution.report import _jsonable
-
-    plots: list[Path] = []
-    try:
-        plots = _plots(out_dir, rec, ball0, ball1, utime_move, model)
-    except Exception as e:  # a plot must never hide the run's verdict
-        report["plot_error"] = repr(e)
-    report["plots"] = [p.name for p in plots]
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
-    (out_dir / "report.md").write_text(_markdown(report))
+    write_report_files(out_dir, report, lambda: _plots(out_dir, rec, ball0, ball1, utime_move, model),
+                       _markdown)
 
 
 def summary(report: dict[str, Any]) -> str:
@@ -537,14 +349,13 @@ def _num(v) -> str:
     return "-" if v is None else f"{v:.0f}"
 
 
-def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.Model) -> list[Path]:
+def _plots(out_dir: Path, rec: WalkRecorder, ball0, ball1, utime_move: int, model: pin.Model) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from marionette.execution.report import _save
-    from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR, _sole_outline
     from marionette.footsteps.robot_model import FootShape
 
     half = sole_half_size(robots.robot("talos").mjcf)
@@ -557,29 +368,11 @@ def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.M
     # 1. Top view: first plan (faded), the steps executed (merged plans), measured soles at
     # each landing, CoM path, the ball before and after its move.
     fig, ax = plt.subplots(figsize=(8, 6))
-    first = MergedPlan()
-    first.apply(rec.plans[0][1], -1)
-    for i, is_left, pose in first.rows():
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6)
-    for i, is_left, pose in rec.merged.rows():
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1.3)
-        ax.annotate(str(i), pose[:2], ha="center", va="center", fontsize=7)
-    landings = _landings(rec, model)
-    for k, (side, pose) in enumerate(landings):
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None)
+    plot_footsteps(ax, rec, model, foot)
     ax.plot(com[:, 0], com[:, 1], color="tab:green", lw=1, label="CoM (measured)")
     ax.plot(*ball0[:2], "o", color="0.5", ms=10, label="ball at the start")
     ax.plot(*ball1[:2], "o", color="tab:orange", ms=10, label="ball after its move")
-    ax.plot([], [], ":", color="0.3", label="first plan")
-    ax.plot([], [], "-", color="0.3", label="executed plan (after replans)")
-    ax.set_aspect("equal")
-    ax.grid(alpha=0.3)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    finish_footsteps_axes(ax)
     ax.set_title(f"grasp-walk: footsteps planned vs executed ({len(rec.plans)} plans)")
     paths.append(_save(fig, out_dir / "footsteps.png"))
 
@@ -612,16 +405,3 @@ def _plots(out_dir: Path, rec: _Log, ball0, ball1, utime_move: int, model: pin.M
     ax.set_title("measured ZMP: distance inside the support polygon of the loaded soles")
     paths.append(_save(fig, out_dir / "zmp_margin.png"))
     return paths
-
-
-def _landings(rec: _Log, model: pin.Model) -> list[tuple[str, np.ndarray]]:
-    """Measured sole (x, y, z, yaw) of each swing foot 0.1 s after its swing phase ends."""
-    out = []
-    utimes = np.array(rec.utimes)
-    for a, b in zip(rec.statuses, rec.statuses[1:]):
-        if a.phase.endswith("_swing") and a.phase != b.phase:
-            side = a.phase.split("_")[0]
-            k = int(np.searchsorted(utimes, b.utime + 100000))
-            if k < len(rec.q):
-                out.append((side, _sole_poses(model, rec.q[k])[side]))
-    return out

@@ -21,10 +21,6 @@ stance in the goal zone beyond the bar, no fall, and replans after the bar moved
 
 from __future__ import annotations
 
-import json
-import sys
-import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -33,14 +29,15 @@ import numpy as np
 import pinocchio as pin
 
 import marionette
-from marionette import channels, lcmt_object_pose, lcmt_object_poses, robots
-from marionette.control.client import ControllerClient, configuration_from_state
-from marionette.execution.grasp_walk import (_landings, _Log, _sole_poses, _wait_alive,
-                                             _walk_done)
-from marionette.execution.walking import (FEET, MergedPlan, sole_corners, sole_half_size,
-                                          walking_spec)
+from marionette import lcmt_object_poses, robots
+from marionette.execution.walking import FEET, sole_corners, sole_half_size
+from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
+                                                   finish_footsteps_axes, object_poses_message,
+                                                   plot_footsteps, replan_solve_ms,
+                                                   scenario_report, sole_poses, step_counts,
+                                                   walk_while_object_moves, walking_run,
+                                                   write_report_files)
 from marionette.lcm_bus import private_lcm_url
-from marionette.processes import ProcessGroup
 
 SCENE = marionette.MODELS_DIR / "scenes" / "talos_walk.xml"
 
@@ -69,46 +66,8 @@ class StepOverSettings:
 def bar_pose_message(utime: int, pose: np.ndarray, radius: float) -> lcmt_object_poses:
     """OBJECT_POSES with the bar (name "bar") at ``pose`` = (x, y, axis yaw) on the floor."""
     x, y, yaw = (float(v) for v in pose)
-    o = lcmt_object_pose()
-    o.utime = int(utime)
-    o.object_name = "bar"
-    o.position_camera, o.quaternion_camera = [0.0] * 3, [1.0, 0.0, 0.0, 0.0]
-    o.position_world = [x, y, radius]
-    o.quaternion_world = [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))]
-    o.num_tags, o.tag_id, o.reprojection_error, o.ambiguous = 0, [], 0.0, False
-    msg = lcmt_object_poses()
-    msg.utime, msg.camera_name, msg.latency_us = int(utime), "perception", 0.0
-    msg.objects, msg.num_objects = [o], 1
-    return msg
-
-
-class _BarPublisher(threading.Thread):
-    """Publishes the perceived bar on OBJECT_POSES at 20 Hz; after :meth:`move` the estimate
-    slides linearly to its new pose over ``duration_s`` of controller time. Keeps the history
-    (controller utime, pose) for the verdict and the plots."""
-
-    def __init__(self, client: ControllerClient, pose: np.ndarray, radius: float) -> None:
-        super().__init__(daemon=True)
-        self.client, self.radius, self.stop = client, radius, threading.Event()
-        self.p0 = self.p1 = np.array(pose, dtype=float)
-        self.utime_move, self.duration_us = 0, 1
-        self.history: list[tuple[int, np.ndarray]] = []
-
-    def move(self, pose: np.ndarray, duration_s: float) -> int:
-        self.utime_move, self.duration_us = self.client.utime(), max(1, int(duration_s * 1e6))
-        self.p1 = np.array(pose, dtype=float)
-        return self.utime_move
-
-    def pose(self, utime: int) -> np.ndarray:
-        s = float(np.clip((utime - self.utime_move) / self.duration_us, 0.0, 1.0))
-        return self.p0 + s * (self.p1 - self.p0)
-
-    def run(self) -> None:
-        while not self.stop.wait(0.05):
-            utime = self.client.utime()
-            pose = self.pose(utime)
-            self.history.append((utime, pose))
-            self.client.bus.publish(channels.OBJECT_POSES, bar_pose_message(utime, pose, self.radius))
+    return object_poses_message(utime, "bar", (x, y, radius),
+                                (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)), "perception")
 
 
 def rectangles_overlap(a: np.ndarray, b: np.ndarray) -> bool:
@@ -147,84 +106,32 @@ def run_step_over(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     out_dir.mkdir(parents=True, exist_ok=True)
     model = talos().model
     url = controller_url or private_lcm_url()
-    report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description,
-                              "seed": seed, "robot": "talos", "speed": speed, "lcm_url": url,
-                              "scene": str(SCENE.relative_to(marionette.REPO_ROOT)),
-                              "settings": settings.__dict__}
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
+    report = scenario_report(scenario, seed, speed, url, SCENE, settings)
     bar_real = np.array(settings.bar, dtype=float)
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
-        if controller_url is None:
-            group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                       "--robot", "talos", "--scene", SCENE, "--speed", str(speed),
-                                       "--camera-rate", "0", "--status-rate", "100"])
-        rec = _Log(client, model)
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
-        client.send_spec(walking_spec(1))
-        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                    "the walking controller")
-        client.wait(lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
-                    10.0, "WALK_STATUS standing")
-        standing = rec.last_status()
-        start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
-        mid = 0.5 * (start["left"][:2] + start["right"][:2])
+    with walking_run(model, SCENE, out_dir, url, report, speed, controller_url) as run:
+        mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])
         bar_seen = bar_real + np.array(settings.perceived_offset)
-        q_start = rec.q[-1].copy()
-        utime_start = client.utime()
-
-        publisher = _BarPublisher(client, bar_seen, settings.bar_radius)
-        publisher.start()
-        group.start("footsteps", [sys.executable, "-m", "marionette.cli", "footsteps", "run",
-                                  "--lcm-url", url, "--mode", "step-over", "--bar", "bar",
-                                  "--bar-radius", str(settings.bar_radius),
-                                  "--bar-length", str(settings.bar_length),
-                                  "--goal", *(str(v) for v in goal),
-                                  "--swing-margin", str(settings.swing_margin)])
-        log(f"step-over: bar seen at {np.round(bar_seen, 3).tolist()} (real "
-            f"{np.round(bar_real, 3).tolist()}), goal {np.round(goal, 3).tolist()}")
-        t1 = time.perf_counter()
-        utime_move = None
-        try:
-            _wait_alive(client, group, lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
-            timings["first_plan_wall_s"] = time.perf_counter() - t1
-            log(f"step-over: plan 1, {rec.plans[0][1].num_steps} steps")
-            _wait_alive(client, group,
-                        lambda c: rec.last_status().current_step_index >= settings.correct_at_step,
-                        settings.walk_timeout_s * 2, f"step {settings.correct_at_step}")
-            utime_move = publisher.move(bar_real, settings.correction_s)
-            log(f"step-over: bar moving to {np.round(bar_real, 3).tolist()} from step "
-                f"{rec.last_status().current_step_index} on, in {settings.correction_s} s")
-            _wait_alive(client, group, lambda c: _walk_done(rec, 1.5), settings.walk_timeout_s * 2,
-                        "the robot standing at the end of the last plan")
-        finally:
-            publisher.stop.set()
-        timings["walk_controller_s"] = (client.utime() - utime_start) * 1e-6
-        q_final = configuration_from_state(model, client.state)
-        status = client.status
-        report["controller"] = {"mode": status.mode, "mode_reason": status.mode_reason,
-                                "realtime_factor": status.realtime_factor,
-                                "deadline_misses": status.deadline_misses,
-                                "num_rejected": status.num_rejected,
-                                "last_rejection": status.last_rejection}
-        group.check_alive()
-    timings["total_wall_s"] = time.perf_counter() - t0
-    footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
-    report["timings"] = timings
-    report.update(step_over_criteria(settings, model, rec, start, q_start, q_final, goal,
-                                     bar_real, bar_seen, utime_move, footsteps_log))
+        publisher = MovingObjectPublisher(run.client, "bar", bar_seen,
+                                          lambda utime, pose: bar_pose_message(utime, pose, settings.bar_radius))
+        footsteps_args = ["--mode", "step-over", "--bar", "bar",
+                          "--bar-radius", str(settings.bar_radius),
+                          "--bar-length", str(settings.bar_length),
+                          "--goal", *(str(v) for v in goal),
+                          "--swing-margin", str(settings.swing_margin)]
+        utime_move = walk_while_object_moves(
+            run, publisher, footsteps_args, bar_real, settings.correct_at_step, settings.correction_s,
+            settings.walk_timeout_s,
+            f"step-over: bar seen at {np.round(bar_seen, 3).tolist()} (real "
+            f"{np.round(bar_real, 3).tolist()}), goal {np.round(goal, 3).tolist()}", "step-over", log)
+    report.update(step_over_criteria(settings, model, run.rec, run.start, run.q_start, run.q_final, goal,
+                                     bar_real, bar_seen, utime_move, run.footsteps_log))
     report["summary"] = summary(report)
-    _write(out_dir, report, rec, publisher.history, bar_real, bar_seen, goal, model, settings)
+    _write(out_dir, report, run.rec, publisher.history, bar_real, bar_seen, goal, model, settings)
     return report
 
 
-def step_over_criteria(settings: StepOverSettings, model: pin.Model, rec: _Log, start, q_start,
+def step_over_criteria(settings: StepOverSettings, model: pin.Model, rec: WalkRecorder, start, q_start,
                        q_final, goal, bar_real, bar_seen, utime_move, footsteps_log) -> dict[str, Any]:
     """The success criteria, measured on the robot states (module docstring)."""
     half = sole_half_size(robots.robot("talos").mjcf)
@@ -245,27 +152,19 @@ def step_over_criteria(settings: StepOverSettings, model: pin.Model, rec: _Log, 
             clearance = min(clearance, height - top)
             inside += int(height < top)
             loaded_over += int(side in loaded)
-    executed = _sole_poses(model, q_final)
+    executed = sole_poses(model, q_final)
     centre = 0.5 * (executed["left"][:2] + executed["right"][:2])
     n = np.array([-np.sin(bar_real[2]), np.cos(bar_real[2])])
     beyond = all(np.sign(n @ (executed[s][:2] - bar_real[:2])) != np.sign(n @ (start[s][:2] - bar_real[:2]))
                  for s in FEET)
     goal_error = float(np.linalg.norm(centre - goal[:2]))
     base_drop = float(max(q_start[2] - q[2] for q in rec.q))
-    indices = [s.current_step_index for s in rec.statuses if s.current_step_index >= 0]
     after_move = [p for u, p in rec.plans if utime_move is not None and u >= utime_move]
-    solve_ms = [float(line.rsplit("(", 1)[1].split(" ms")[0]) for line in footsteps_log
-                if line.startswith("footsteps: plan ") and " ms)" in line]
     planned = rec.merged.final_stance(start)
     c: dict[str, Any] = {
-        "steps_planned_first": int(rec.plans[0][1].num_steps),
-        "steps_executed": int(max(indices) + 1) if indices else 0,
-        "steps_in_order": bool(indices == sorted(indices)),
-        "footstep_plans": len(rec.plans),
+        **step_counts(rec, rec.statuses),
         "recomputations_after_move": len(after_move),
-        "replan_solve_ms": {"median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
-                            "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
-                            "first_plan": solve_ms[0] if solve_ms else None},
+        "replan_solve_ms": replan_solve_ms(footsteps_log),
         "samples": len(rec.q),
         "loaded_sole_samples_over_bar": loaded_over,
         "sole_samples_inside_bar": inside,
@@ -299,17 +198,15 @@ def summary(report: dict[str, Any]) -> str:
             f"the bar), base drop {c['base_max_drop_m'] * 1e3:.0f} mm")
 
 
-def _write(out_dir: Path, report: dict[str, Any], rec: _Log, history, bar_real, bar_seen, goal,
+def _write(out_dir: Path, report: dict[str, Any], rec: WalkRecorder, history, bar_real, bar_seen, goal,
            model: pin.Model, settings: StepOverSettings) -> None:
-    from marionette.execution.report import _jsonable
+    """report.json, report.md and the plots (footsteps and bar, sole heights)."""
+    write_report_files(out_dir, report,
+                       lambda: _plots(out_dir, rec, history, bar_real, bar_seen, goal, model, settings),
+                       _markdown)
 
-    plots: list[Path] = []
-    try:
-        plots = _plots(out_dir, rec, history, bar_real, bar_seen, goal, model, settings)
-    except Exception as e:  # a plot must never hide the run's verdict
-        report["plot_error"] = repr(e)
-    report["plots"] = [p.name for p in plots]
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
+
+def _markdown(report: dict[str, Any]) -> str:
     c, s = report["criteria"], report["settings"]
     ms = c["replan_solve_ms"]
     lines = [f"# Demo `{report['scenario']}` — {'SUCCESS' if report['success'] else 'FAILURE'}", "",
@@ -333,11 +230,11 @@ def _write(out_dir: Path, report: dict[str, Any], rec: _Log, history, bar_real, 
              f"{ms['median']} ms, max {ms['max']} ms).", "", "## Timings", "", "| phase | s |", "|---|---|"]
     lines += [f"| {k} | {v:.2f} |" for k, v in report["timings"].items()]
     lines += ["", "## Controller", "", ", ".join(f"{k}: {v}" for k, v in report["controller"].items()),
-              "", "## Plots", ""] + [f"![{p.name}]({p.name})" for p in plots]
-    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+              "", "## Plots", ""] + [f"![{p}]({p})" for p in report["plots"]]
+    return "\n".join(lines) + "\n"
 
 
-def _plots(out_dir: Path, rec: _Log, history, bar_real, bar_seen, goal, model: pin.Model,
+def _plots(out_dir: Path, rec: WalkRecorder, history, bar_real, bar_seen, goal, model: pin.Model,
            settings: StepOverSettings) -> list[Path]:
     import matplotlib
 
@@ -345,7 +242,7 @@ def _plots(out_dir: Path, rec: _Log, history, bar_real, bar_seen, goal, model: p
     import matplotlib.pyplot as plt
 
     from marionette.execution.report import _save
-    from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR, _sole_outline
+    from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR
     from marionette.footsteps.robot_model import FootShape
 
     half = sole_half_size(robots.robot("talos").mjcf)
@@ -353,18 +250,7 @@ def _plots(out_dir: Path, rec: _Log, history, bar_real, bar_seen, goal, model: p
     data = model.createData()
     com = np.array([pin.centerOfMass(model, data, q) for q in rec.q])
     fig, ax = plt.subplots(figsize=(9, 5))
-    first = MergedPlan()
-    first.apply(rec.plans[0][1], -1)
-    for _, is_left, pose in first.rows():
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6)
-    for i, is_left, pose in rec.merged.rows():
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1.3)
-        ax.annotate(str(i), pose[:2], ha="center", va="center", fontsize=7)
-    for k, (_, pose) in enumerate(_landings(rec, model)):
-        o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None)
+    plot_footsteps(ax, rec, model, foot)
     for pose, style, label in ((bar_seen, dict(color="0.6", alpha=0.5), "bar as first perceived"),
                                (bar_real, dict(color="tab:brown", alpha=0.8), "bar (real, last perceived)")):
         b = bar_corners(pose, settings.bar_radius, settings.bar_length)
@@ -373,15 +259,9 @@ def _plots(out_dir: Path, rec: _Log, history, bar_real, bar_seen, goal, model: p
     circle = plt.Circle(goal[:2], settings.goal_tolerance, fill=False, color="tab:purple",
                         label="goal zone")
     ax.add_patch(circle)
-    ax.plot([], [], ":", color="0.3", label="first plan")
-    ax.plot([], [], "-", color="0.3", label="executed plan (after replans)")
     ax.set_xlim(min(-0.3, bar_seen[0] - 0.5), goal[0] + 0.4)
     ax.set_ylim(-0.7, 0.7)
-    ax.set_aspect("equal")
-    ax.grid(alpha=0.3)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    finish_footsteps_axes(ax)
     ax.set_title(f"step-over: footsteps and bar ({len(rec.plans)} plans, {len(history)} bar poses)")
     paths = [_save(fig, out_dir / "footsteps.png")]
     # Sole heights along x: the crossing swings over the bar.

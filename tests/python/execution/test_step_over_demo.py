@@ -6,17 +6,13 @@ point distances, the plans merged by index."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
-import lcm
 import numpy as np
 import pinocchio as pin
 
 from marionette import (channels, lcmt_footstep_plan, lcmt_object_poses, lcmt_robot_state,
                         lcmt_walk_status, robots)
 from marionette.control.client import configuration_from_state
+from tests_support import lcm_log_messages, run_demo
 
 TYPES = {channels.FOOTSTEP_PLAN: lcmt_footstep_plan, channels.ROBOT_STATE: lcmt_robot_state,
          channels.WALK_STATUS: lcmt_walk_status, channels.OBJECT_POSES: lcmt_object_poses}
@@ -27,9 +23,8 @@ HALF = (0.1025, 0.061)              # models/talos/talos.xml sole boxes
 
 def read_log(path):
     out = {name: [] for name in TYPES}
-    for event in lcm.EventLog(str(path), "r"):
-        if event.channel in TYPES:
-            out[event.channel].append(TYPES[event.channel].decode(event.data))
+    for channel, msg in lcm_log_messages(path, TYPES):
+        out[channel].append(msg)
     return out
 
 
@@ -48,17 +43,9 @@ def over_bar(points) -> bool:
 
 
 def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lcm_env):
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "step-over", "--speed", "3",
-                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=90,
-                          env=lcm_env)
-    print(proc.stdout)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    (run,) = tmp_path.glob("step-over-*")
-    report = json.loads((run / "report.json").read_text())
+    run, report = run_demo("step-over", tmp_path, lcm_env, speed=3, timeout_s=90,
+                           files=("report.md", "run.lcmlog", "footsteps.png", "sole_heights.png"))
     c = report["criteria"]
-    assert report["success"], report["summary"]
-    for name in ("report.md", "run.lcmlog", "footsteps.png", "sole_heights.png"):
-        assert (run / name).stat().st_size > 0, name
 
     # --- the same verdict from the log alone ---------------------------------------------------
     log = read_log(run / "run.lcmlog")

@@ -5,11 +5,6 @@ by index, soles by a separate Pinocchio model, ZMP containment by hull areas."""
 
 from __future__ import annotations
 
-import json
-import subprocess
-import sys
-
-import lcm
 import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
@@ -18,6 +13,7 @@ from marionette import (channels, lcmt_footstep_plan, lcmt_object_poses, lcmt_ro
                         lcmt_walk_status, robots)
 from marionette.control.client import configuration_from_state
 from marionette.footsteps.robot_model import TALOS_GRASP_POINT
+from tests_support import lcm_log_messages, run_demo
 
 TYPES = {channels.FOOTSTEP_PLAN: lcmt_footstep_plan, channels.ROBOT_STATE: lcmt_robot_state,
          channels.WALK_STATUS: lcmt_walk_status, channels.OBJECT_POSES: lcmt_object_poses}
@@ -27,13 +23,11 @@ def read_log(path):
     """Messages per channel, and each plan with the step in progress when it was logged."""
     out = {name: [] for name in TYPES}
     out["plans_at"] = []
-    for event in lcm.EventLog(str(path), "r"):
-        if event.channel in TYPES:
-            msg = TYPES[event.channel].decode(event.data)
-            out[event.channel].append(msg)
-            if event.channel == channels.FOOTSTEP_PLAN:
-                statuses = out[channels.WALK_STATUS]
-                out["plans_at"].append((msg, statuses[-1].current_step_index if statuses else -1))
+    for channel, msg in lcm_log_messages(path, TYPES):
+        out[channel].append(msg)
+        if channel == channels.FOOTSTEP_PLAN:
+            statuses = out[channels.WALK_STATUS]
+            out["plans_at"].append((msg, statuses[-1].current_step_index if statuses else -1))
     return out
 
 
@@ -75,17 +69,9 @@ def zmp_inside(zmp, feet, half, tolerance):
 
 
 def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_env):
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "grasp-walk", "--speed", "3",
-                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=110,
-                          env=lcm_env)
-    print(proc.stdout)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    (run,) = tmp_path.glob("grasp-walk-*")
-    report = json.loads((run / "report.json").read_text())
+    run, report = run_demo("grasp-walk", tmp_path, lcm_env, speed=3, timeout_s=110,
+                           files=("report.md", "run.lcmlog", "footsteps.png", "com_zmp.png", "zmp_margin.png"))
     c = report["criteria"]
-    assert report["success"], report["summary"]
-    for name in ("report.md", "run.lcmlog", "footsteps.png", "com_zmp.png", "zmp_margin.png"):
-        assert (run / name).stat().st_size > 0, name
     assert report["controller"]["num_rejected"] == 0, report["controller"]["last_rejection"]
 
     # --- the same verdict from the log alone ---------------------------------------------------
