@@ -82,14 +82,17 @@ class DrillSettings:
     standoff_m: float = 0.01               # tool origin this far before the hole on its axis
     move_duration_s: float = 1.0           # minimum-jerk move between holes
     correction_duration_s: float = 0.4     # minimum-jerk correction moves
-    settle_s: float = 0.3                  # controller time before a measurement
+    settle_s: float = 0.3                  # controller time before a measurement ...
+    still_velocity: float = 5e-4           # ... then until every joint is below this [rad/s]
+    settle_timeout_s: float = 3.0          # ... or this much more time has passed
     sensor_noise_m: float = 2e-5           # tool sensor: 0.02 mm (1 sigma per axis)
     sensor_noise_deg: float = 0.03         # 0.03 deg (1 sigma per axis)
     sensor_range_m: float = 0.01           # hole seen only within 1 cm of the tool axis
     sensor_samples: int = 4                # readings averaged per measurement
     aligned_m: float = 5e-5                # alignment stops below 0.05 mm ...
     aligned_deg: float = 0.05              # ... and 0.05 deg (sensor or kinematics)
-    max_corrections: int = 6
+    max_corrections: int = 10
+    max_reference_offset_m: float = 0.015  # reference this far from the target: cannot hold it
     position_tolerance_m: float = 2e-4     # §6.3: 0.2 mm ...
     angle_tolerance_deg: float = 0.5       # ... and 0.5 deg
     camera_size: tuple[int, int] = (640, 480)
@@ -284,8 +287,16 @@ class _Tool:
             streamer.pump(self.client.utime())
             time.sleep(0.005)
         self.reference = X1
-        end = streamer.end_utime + int(self.settings.settle_s * 1e6)
+        st = self.settings
+        end = streamer.end_utime + int(st.settle_s * 1e6)
         self.client.wait(lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move")
+        # The MuJoCo joint servos ring for a while after a move in some postures: measuring a
+        # moving arm makes the next correction chase it. Wait until it is still (or give up
+        # after settle_timeout_s of controller time and let the correction loop judge).
+        give_up = end + int(st.settle_timeout_s * 1e6)
+        self.client.wait(lambda c: c.state.utime >= give_up
+                         or max(abs(v) for v in c.state.joint_velocity) < st.still_velocity,
+                         10.0 + 10.0 * st.settle_timeout_s, "the arm to be still")
 
     def reference_tool(self) -> pin.SE3:
         """The tool pose the controller was last asked for."""
@@ -313,8 +324,21 @@ class _Tool:
                 return X, k, True
             if k == st.max_corrections:
                 return X, k, False
-            self.move((X_t * X.inverse()) * self.reference_tool(), st.correction_duration_s)
+            X_ref = (X_t * X.inverse()) * self.reference_tool()
+            if tool_error(X_ref, X_t)[0] > st.max_reference_offset_m:
+                # anti-windup: the sag is a few mm; a reference pushed farther than this means
+                # the arm cannot hold the pose (actuators at their torque limits)
+                return X, k, False
+            self.move(X_ref, st.correction_duration_s)
         raise AssertionError("unreachable")
+
+    def saturated_joints(self) -> list[str]:
+        """Joints whose actuator effort is within 1 % of its MJCF ``forcerange``."""
+        limits = {n: max(abs(float(a)), abs(float(b))) for n, a, b in re.findall(
+            r'<general name="([^"]+)"[^>]*forcerange="(\S+) (\S+)"', SCENE.read_text())}
+        s = self.client.state
+        return [f"{n} {e:.0f} N.m" for n, e in zip(s.joint_name, s.joint_effort)
+                if n in limits and abs(e) >= 0.99 * limits[n]]
 
 
 class HoleSensor:
@@ -454,21 +478,29 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         converged: dict[str, bool] = {}
         for name in REFERENCES:
             X_hole_true = X_WP_true * holes[name]
-            tool.move(tool_target(X_WP_cam * holes[name], tool.pose().rotation, st.standoff_m),
-                      st.move_duration_s)
+            X_cam_target = tool_target(X_WP_cam * holes[name], tool.pose().rotation, st.standoff_m)
+            tool.move(X_cam_target, st.move_duration_s)
+            # the arm's sag out first (encoders): the sensor needs the hole in its view only
+            X, _, _ = tool.servo(lambda X: X_cam_target)
+            if tool_error(X, X_cam_target)[0] > 0.5 * st.sensor_range_m:
+                raise DemoError(f"{name}: the arm does not hold the pose before the hole: tool "
+                                f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
+                                f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}")
             lost: list[str] = []
 
-            def sensed(X: pin.SE3, X_hole_true=X_hole_true, lost=lost) -> pin.SE3:
+            def sensed(X: pin.SE3, X_hole_true=X_hole_true, lost=lost, X_cam_target=X_cam_target) -> pin.SE3:
                 m = sensor.hole(X, X_hole_true)
                 if m is None:
-                    lost.append("out of view")
+                    off = X.actInv(X_hole_true).translation
+                    lost.append(f"hole at {off[1] * 1e3:.1f}, {off[2] * 1e3:.1f} mm across the tool axis, "
+                                f"tool {tool_error(X, X_cam_target)[0] * 1e3:.2f} mm from its target")
                     return X      # nothing measured: stop (judged below)
                 return tool_target(X * m, X.rotation, st.standoff_m)
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
             if lost:
                 raise DemoError(f"{name}: the tool sensor does not see the hole (more than "
-                                f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis): alignment failed")
+                                f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): alignment failed")
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
             corrected[name] = pin.SE3(X_aligned.rotation, X_aligned.translation
                                       + st.standoff_m * X_aligned.rotation[:, 0])
