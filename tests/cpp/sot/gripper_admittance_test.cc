@@ -1,6 +1,6 @@
 // FeatureGripperAdmittance (thesis 000 §3.2.4.3, eq. 3.11–3.13): the force filter against the
 // closed-form step response of the continuous first-order low-pass, and the whole loop in MuJoCo
-// on models/scenes/gripper_bench.xml (the TALOS gripper joint, servo and friction closing on a
+// on tests/data/gripper_bench.xml (the TALOS gripper joint, servo and friction closing on a
 // block) through the controller's own pieces (command integrator, RobotModel, Task, Solver,
 // MujocoDevice): the grip force measured independently from MuJoCo's contacts.
 #include <gtest/gtest.h>
@@ -21,7 +21,7 @@ namespace marionette::sot {
 namespace {
 
 namespace pin = pinocchio;
-const std::string kScene = std::string(MARIONETTE_MODELS_DIR) + "/scenes/gripper_bench.xml";
+const std::string kScene = std::string(MARIONETTE_TEST_DATA_DIR) + "/gripper_bench.xml";
 constexpr double kLever = 0.1;         // fingertip distance to the axis in the scene [m]
 constexpr double kClosed = -1.0;       // TALOS closed_position (robots.cc)
 constexpr double kOpen = -0.02;        // TALOS open_position

@@ -2,7 +2,7 @@
 MuJoCo closes its right gripper with nothing between the fingers — it reaches its closed position
 in position control and never reports a contact (the TALOS MJCF moves the driven link only, so
 its fingertips never touch anything: the contact case is tests/cpp/sot/gripper_admittance_test.cc
-on models/scenes/gripper_bench.xml); the entity's signals are listed and read by `marionette dg`;
+on tests/data/gripper_bench.xml); the entity's signals are listed and read by `marionette dg`;
 a bad parameter is refused with its name."""
 
 from __future__ import annotations
