@@ -80,7 +80,9 @@ class DrillSettings:
     max_displacement_m: float = 0.05       # issue #10: part displaced <= 5 cm ...
     max_rotation_deg: float = 10.0         # ... and <= 10 deg (about the hole pattern's centre)
     standoff_m: float = 0.01               # tool origin this far before the hole on its axis
-    move_duration_s: float = 1.0           # minimum-jerk move between holes
+    move_duration_s: float = 1.0           # minimum-jerk move between holes (at least)
+    max_tool_speed: float = 0.15           # [m/s] mean tool speed of a move
+    max_tool_rate: float = 0.4             # [rad/s] mean tool rotation rate of a move
     correction_duration_s: float = 0.4     # minimum-jerk correction moves
     settle_s: float = 0.3                  # controller time before a measurement ...
     still_velocity: float = 5e-4           # ... then until every joint is below this [rad/s]
@@ -278,6 +280,12 @@ class _Tool:
         X0 = self.reference if self.reference is not None else self.pose() * self.X_tip_tool.inverse()
         X1 = X_W_tool * self.X_tip_tool.inverse()
         xi = pin.log6(X0.actInv(X1)).vector
+        # at least the duration that keeps the mean speed under the limits (the first move turns
+        # the spindle from vertical to horizontal: a wrist joint swept 2.3 rad in 1 s, its
+        # actuator saturated (54 N.m) and the wrist ended 0.23 rad past its command, stuck)
+        st = self.settings
+        duration_s = max(duration_s, np.linalg.norm(xi[:3]) / st.max_tool_speed,
+                         np.linalg.norm(xi[3:]) / st.max_tool_rate)
         s, ds = minimum_jerk(np.zeros(6), xi, duration_s, 0.001)
         values = np.array([pose_to_vector(X0 * pin.exp6(r)) for r in s])
         start = self.client.utime() + 30_000
@@ -287,7 +295,6 @@ class _Tool:
             streamer.pump(self.client.utime())
             time.sleep(0.005)
         self.reference = X1
-        st = self.settings
         end = streamer.end_utime + int(st.settle_s * 1e6)
         self.client.wait(lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move")
         # The MuJoCo joint servos ring for a while after a move in some postures: measuring a
