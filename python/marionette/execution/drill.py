@@ -10,7 +10,7 @@ The procedure of §6.3 (steps 1-6), on the ``ur10_drill`` scene:
 2. The fixed scene camera ``scene_rgbd`` measures the part from its four AprilTags (ids 20-23):
    the frames are rendered by exact ray casting at the true part pose
    (:mod:`marionette.perception.synthetic`; marionette-controller renders only a robot's head
-   camera and the UR10 has none) and published on :data:`SCENE_CAMERA_CHANNEL`;
+   camera and the UR10 has none) and published on ``CAMERA_SCENE_RGBD``;
    ``marionette perceive`` (a separate process, camera pose from the message) publishes the
    part's pose on OBJECT_POSES. This is the thesis's "detection of the reference holes with the
    cameras" - mm-level, not 0.2 mm.
@@ -59,7 +59,7 @@ from marionette import channels, lcmt_camera_image, lcmt_object_poses, robots
 from marionette.control.client import ControllerClient, configuration_from_state, pose_to_vector
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.demo import DemoError
-from marionette.execution.grasp_walk import minimum_jerk
+from marionette.execution.references import minimum_jerk
 from marionette.execution.streamer import ReferenceStreamer
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ProcessGroup
@@ -67,7 +67,6 @@ from marionette.processes import ProcessGroup
 SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
 GRIPPERS_YAML = marionette.MODELS_DIR / "ur10" / "grippers.yaml"
-SCENE_CAMERA_CHANNEL = "CAMERA_SCENE_RGBD"   # the fixed scene camera's frames (this demo's)
 TOOL = "ur10/drill"
 TIP_FRAME = "drill_tip_link"     # URDF frame at the tool's origin; tool x axis = its z axis
 REFERENCES = ("part/R1", "part/R2")
@@ -427,7 +426,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                                    "--camera-rate", "0", "--status-rate", "50"])
         group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                  "--robot", "none", "--camera-pose-source", "message", "--no-depth",
-                                 "--camera-channel", SCENE_CAMERA_CHANNEL, "--objects", str(PART_YAML)])
+                                 "--camera-channel", channels.CAMERA_SCENE_RGBD, "--objects", str(PART_YAML)])
         poses: list[pin.SE3] = []
         lock = threading.Lock()
 
@@ -459,7 +458,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                 raise DemoError("the perception process published no pose of the part in 30 s "
                                 "(tags out of view?)")
             X_WC, K, gray = render_part(X_WP_true, st, rng)   # a new noise draw per frame
-            client.bus.publish(SCENE_CAMERA_CHANNEL, camera_message(client.utime(), X_WC, K, gray))
+            client.bus.publish(channels.CAMERA_SCENE_RGBD, camera_message(client.utime(), X_WC, K, gray))
             time.sleep(0.3)
         with lock:
             X_WP_cam = poses[-1] if st.camera else X_WP_nom

@@ -28,6 +28,7 @@ import pinocchio as pin
 from marionette import lcmt_object_poses, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
 from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
                                                    finish_footsteps_axes, object_poses_message,
@@ -138,16 +139,6 @@ def reach_spec(controller_id: int, hand: str, walk_status) -> ControllerSpec:
         TaskSpec("hand", "position", 1, frame=f"gripper_{hand}_base_link", gain=5.0, streamed=True),
         TaskSpec("posture", "posture", 2, gain=2.0),
     ])
-
-
-def minimum_jerk(p0: np.ndarray, p1: np.ndarray, duration_s: float, dt_s: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Samples (N x 3) of p(t) = p0 + (p1 - p0) s(t/T), s = 10 u^3 - 15 u^4 + 6 u^5, and their
-    time derivatives (Flash & Hogan), from t = 0 to T inclusive."""
-    u = np.linspace(0.0, 1.0, int(round(duration_s / dt_s)) + 1)[:, None]
-    s = 10 * u**3 - 15 * u**4 + 6 * u**5
-    ds = (30 * u**2 - 60 * u**3 + 30 * u**4) / duration_s
-    return p0 + s * (p1 - p0), ds * (p1 - p0)
 
 
 def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, settings: GraspWalkSettings,

@@ -47,6 +47,17 @@ class StepTrajectory:
         return len(self.t)
 
 
+def minimum_jerk(p0: np.ndarray, p1: np.ndarray, duration_s: float, dt_s: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Samples (N x d) of p(t) = p0 + (p1 - p0) s(t/T), s = 10 u^3 - 15 u^4 + 6 u^5 (the time law
+    of :func:`sample_step`, at rest at both ends), and their time derivatives (Flash & Hogan),
+    from t = 0 to T inclusive, for points p0, p1 of any dimension d."""
+    u = np.linspace(0.0, 1.0, int(round(duration_s / dt_s)) + 1)[:, None]
+    s = 10 * u**3 - 15 * u**4 + 6 * u**5
+    ds = (30 * u**2 - 60 * u**3 + 30 * u**4) / duration_s
+    return p0 + s * (p1 - p0), ds * (p1 - p0)
+
+
 def arc_length(model: pin.Model, q: np.ndarray) -> np.ndarray:
     """Cumulative |Δq| (velocity-space norm) along the rows of q (k x nq) -> (k,)."""
     seg = [float(np.linalg.norm(pin.difference(model, a, b))) for a, b in zip(q, q[1:])]

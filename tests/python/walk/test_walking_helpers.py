@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from marionette import lcmt_footstep, lcmt_footstep_plan, robots
-from marionette.execution.grasp_walk import minimum_jerk
+from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import MergedPlan, polygon_margin, sole_corners, sole_half_size
 
 

@@ -11,6 +11,7 @@ inline constexpr char kControllerSpec[] = "CONTROLLER_SPEC";
 inline constexpr char kTaskReference[] = "TASK_REFERENCE";
 inline constexpr char kCommand[] = "COMMAND";
 inline constexpr char kCameraHead[] = "CAMERA_HEAD";
+inline constexpr char kCameraSceneRgbd[] = "CAMERA_SCENE_RGBD";
 inline constexpr char kAprilTagDetections[] = "APRILTAG_DETECTIONS";
 inline constexpr char kObjectPoses[] = "OBJECT_POSES";
 inline constexpr char kFootstepPlan[] = "FOOTSTEP_PLAN";
