@@ -113,15 +113,14 @@ def run_supervise(args: argparse.Namespace) -> int:
 
 
 def run_fsm(args: argparse.Namespace) -> int:
-    from marionette import channels, lcmt_supervisor_event, lcmt_supervisor_state
+    from marionette import channels, lcmt_supervisor_state
+    from marionette.execution.decisions import event_message
     from marionette.lcm_bus import LcmBus, MessageLog
 
     with LcmBus(args.lcm_url) as bus:
         if args.fsm_command == "inject":
-            msg = lcmt_supervisor_event()
-            msg.utime = int(time.time() * 1e6)
-            msg.name, msg.source, msg.detail, msg.value = args.event, "cli", args.detail, args.value
-            bus.publish(channels.SUPERVISOR_EVENT, msg)
+            bus.publish(channels.SUPERVISOR_EVENT,
+                        event_message(int(time.time() * 1e6), args.event, "cli", args.detail, args.value))
             print(f"sent {args.event}")
             return 0
         if args.fsm_command == "state":

@@ -32,6 +32,17 @@ FAILURES = ("switch_refused", "spec_rejected", "switch_timeout", "reference_star
             "controller_estopped", "abort", "left_manifold", "end_check_failed", "approval_timeout")
 
 
+def event_message(utime: int, name: str, source: str, detail: str = "", value: float = 0.0) -> Any:
+    """A SUPERVISOR_EVENT message (``lcmt_supervisor_event``) as every process writes one: the
+    machine acts on ``name`` from any ``source`` but the supervisor's own (see :meth:`on_event`)."""
+    from marionette import lcmt_supervisor_event
+
+    msg = lcmt_supervisor_event()
+    msg.utime = int(utime)
+    msg.name, msg.source, msg.detail, msg.value = name, source, detail, float(value)
+    return msg
+
+
 @dataclass(frozen=True)
 class Decision:
     """One transition of the FSM: ``event`` taken at controller tick ``utime`` because of the input

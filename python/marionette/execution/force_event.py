@@ -19,7 +19,8 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from marionette import channels, lcmt_robot_state, lcmt_supervisor_event
+from marionette import channels, lcmt_robot_state
+from marionette.execution.decisions import event_message
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "force_monitor"
@@ -91,8 +92,6 @@ class ForceEventNode:
         if value is None:
             return
         self.events.append((int(msg.utime), value))
-        ev = lcmt_supervisor_event()
-        ev.utime = int(msg.utime)
-        ev.name, ev.source, ev.value = "force_threshold", SOURCE, float(value)
-        ev.detail = f"{self.detector.joint}: {value:.2f} N > {self.detector.threshold:.2f} N"
-        self.bus.publish(channels.SUPERVISOR_EVENT, ev)
+        detail = f"{self.detector.joint}: {value:.2f} N > {self.detector.threshold:.2f} N"
+        self.bus.publish(channels.SUPERVISOR_EVENT,
+                         event_message(msg.utime, "force_threshold", SOURCE, detail, value))

@@ -33,8 +33,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from marionette import channels, lcmt_object_poses, lcmt_robot_state, lcmt_supervisor_event, lcmt_supervisor_state
+from marionette import channels, lcmt_object_poses, lcmt_robot_state, lcmt_supervisor_state
 from marionette.control.client import configuration_from_state
+from marionette.execution.decisions import event_message
 from marionette.execution.factory import FactoryContext
 from marionette.execution.plan_steps import Step
 from marionette.lcm_bus import LcmBus
@@ -195,7 +196,5 @@ class MonitorNode:
         if residual is None:
             return
         self.events.append((int(msg.utime), residual))
-        ev = lcmt_supervisor_event()
-        ev.utime = int(msg.utime)
-        ev.name, ev.source, ev.detail, ev.value = "left_manifold", SOURCE, residual.describe(), residual.position
-        self.bus.publish(channels.SUPERVISOR_EVENT, ev)
+        self.bus.publish(channels.SUPERVISOR_EVENT, event_message(
+            msg.utime, "left_manifold", SOURCE, residual.describe(), residual.position))

@@ -36,7 +36,7 @@ from typing import Any
 
 from marionette import channels, lcmt_controller_status, lcmt_supervisor_event, lcmt_supervisor_state
 from marionette.execution import decisions
-from marionette.execution.decisions import Decision, DecisionMachine
+from marionette.execution.decisions import Decision, DecisionMachine, event_message
 from marionette.control.client import ControllerClient
 from marionette.control.spec import ControllerSpec
 from marionette.execution.factory import END_THRESHOLDS
@@ -171,9 +171,7 @@ class Supervisor:
         return d
 
     def emit(self, name: str, detail: str = "", value: float = 0.0) -> None:
-        msg = lcmt_supervisor_event()
-        msg.utime = self.client.utime()
-        msg.name, msg.source, msg.detail, msg.value = name, SOURCE, detail, float(value)
+        msg = event_message(self.client.utime(), name, SOURCE, detail, value)
         self.client.bus.publish(channels.SUPERVISOR_EVENT, msg)
         self.events.append((msg.utime, name, detail))
 
