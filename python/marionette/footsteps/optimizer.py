@@ -49,6 +49,7 @@ class OptimizerSettings:
     auto_steps: bool = True            # Algorithm 1 on/off
     reach_check: bool = False          # add steps before iterating while the linearised primary
                                        # cannot be reached within the limits (see solve)
+    reach_tolerance: float = 0.02      # ... by more than this [m] (see _extend_to_reach)
     relax_stretched: bool = True       # one more step when converged fully stretched (see solve)
     line_search_steps: int = 5         # step halvings at most (see _line_search)
     line_search_slack: float = 1e-4    # the levels above the primary may reach this meanwhile
@@ -197,7 +198,7 @@ class FootstepOptimizer:
             solution = self._solve_levels(levels, lo, hi, free, k)
             report.iterations += 1
             report.qp_solves += solution.qp_solves
-            if reach_check and solution.levels[primary_index].residual > s.stall_min_error:
+            if reach_check and solution.levels[primary_index].residual > s.reach_tolerance:
                 # The trust region keeps the primary out of reach this iteration: is it out of
                 # reach of the chain's limits too?
                 reach_check = False
@@ -291,9 +292,10 @@ class FootstepOptimizer:
     def _extend_to_reach(self, config, kin, frozen_steps, posture_frozen, robot_free, report):
         """Algorithm 1's step additions decided up front: while the levels down to the primary
         task, linearised with the full (unclamped) primary error and the step/joint limits alone
-        (no trust region), leave more than ``stall_min_error`` of it, the chain is too short and
+        (no trust region), leave more than ``reach_tolerance`` of it, the chain is too short and
         a step is added. For a footsteps-only chain the footprint positions are linear in
-        (Δx, Δy) at fixed yaws, so the test is exact but for the yaws' curvature; the
+        (Δx, Δy) at fixed yaws, so the test is exact but for the yaws' curvature (which only
+        shortens the reach: a linearised yaw moves the far end along the tangent of its arc); the
         Gauss–Newton loop would otherwise spend iterations at the trust region before
         detecting the same block (its additions remain as the fallback). Called only when the
         first trust-region-bounded iteration leaves the primary task short."""
@@ -308,7 +310,7 @@ class FootstepOptimizer:
             levels[-1].vector = -self.value(self.primary, kin)
             lo, hi = self.limit_gaps(config, free, robot_free)
             solution = self._solve_levels(levels, lo, hi, free, k)
-            if solution.levels[primary_index].residual <= s.stall_min_error:
+            if solution.levels[primary_index].residual <= s.reach_tolerance:
                 break
             config, kin = self._add_step(config, robot_free, report)
         return config, kin
