@@ -183,6 +183,17 @@ class FootstepOptimizer:
         history = [error]
         blocked_count = 0
         reach_check = s.reach_check and s.auto_steps      # at the first iteration only
+        if reach_check and error > s.trust_region_steps:
+            # Farther than a trust-region step: the first iteration would most likely leave the
+            # primary short and call the reach check below, whose added steps would discard
+            # that iteration. Check first (the same test, on the same configuration).
+            reach_check = False
+            k_before = config.num_steps
+            config, kin = self._extend_to_reach(config, kin, frozen_steps, posture_frozen,
+                                                robot_free, report)
+            if config.num_steps != k_before:
+                error, above, below = self._merits(kin)
+                history = [error]
         for _ in range(s.max_iterations):
             k = config.num_steps
             free = self.free_indices(k, frozen_steps, posture_frozen)
