@@ -14,6 +14,8 @@ namespace py = pybind11;
 
 namespace marionette::bindings {
 
+void RegisterPlanningProjector(py::module_& m);  // planning_projector_py.cc
+
 namespace {
 
 pinocchio::SE3 SE3From(const Eigen::Matrix4d& M) {
@@ -136,6 +138,7 @@ void RegisterPlanning(py::module_& parent) {
       .def_property_readonly("idx_qs", [](const PathValidator& v) {
         return std::vector<int>(v.model().idx_qs.begin(), v.model().idx_qs.end());
       });
+  RegisterPlanningProjector(m);
 }
 
 }  // namespace marionette::bindings

@@ -249,12 +249,15 @@ class ConstraintGraph:
         self.line_search = line_search
         self.states: dict[str, State] = {}
         self.edges: dict[str, Edge] = {}
+        # "cpp": Newton loop in C++ where the constraint kinds allow it; "python": the reference.
+        self.projector_backend = "cpp"
 
     def make_projector(self, constraints: Sequence[AnyConstraint], name: str,
                        threshold: float | None = None) -> Projector:
         return Projector(self.problem, _unique(list(constraints)), name=name,
                          error_threshold=threshold or self.error_threshold,
-                         max_iterations=self.max_iterations, line_search=self.line_search)
+                         max_iterations=self.max_iterations, line_search=self.line_search,
+                         backend=self.projector_backend)
 
     def add_state(self, name: str, constraints: Sequence[AnyConstraint], waypoint: bool = False,
                   priority: int = 0, grasps: dict[str, str] | None = None) -> State:

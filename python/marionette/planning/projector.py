@@ -16,6 +16,12 @@
   (clamping, saturated directions removed), a step-size schedule and an iteration limit.
 
 :meth:`Projector.project` returns a :class:`ProjectionResult` telling why it failed when it does.
+
+``backend="cpp"`` (default) runs the Newton loop of a compiled projector in C++
+(``projector_cpp.py``, ``cpp/src/planning/projector.cc``): same steps, schedule, limits and
+failure reasons.  A projector with a constraint kind the C++ side lacks (centre of mass) stays
+in Python, decided once when it is built (``backend`` then reads "python" and
+``fallback_reason`` says why).  ``backend="python"`` is the reference implementation.
 """
 
 from __future__ import annotations
@@ -105,7 +111,9 @@ class Projector:
                  constraints: Sequence[Constraint | ExplicitConstraint],
                  levels: Sequence[int] | None = None, error_threshold: float = 1e-4,
                  max_iterations: int = 40, line_search: LineSearch = LineSearch(),
-                 damping: float = 1e-8, name: str = "") -> None:
+                 damping: float = 1e-8, name: str = "", backend: str = "cpp") -> None:
+        if backend not in ("cpp", "python"):
+            raise ValueError(f"projector backend must be 'cpp' or 'python', got {backend!r}")
         if error_threshold <= 0:
             raise ValueError(f"error_threshold must be > 0, got {error_threshold}")
         if max_iterations < 1:
@@ -122,6 +130,14 @@ class Projector:
         self.constraints = list(constraints)
         lv = list(levels) if levels is not None else None
         self._compile(lv)
+        self.fallback_reason: str | None = None
+        self._cpp = None
+        if backend == "cpp":
+            from marionette.planning import projector_cpp
+            self.fallback_reason = projector_cpp.unsupported(self)
+            if self.fallback_reason is None:
+                self._cpp = projector_cpp.CppProjector(self)
+        self.backend = "cpp" if self._cpp is not None else "python"
 
     # ----------------------------------------------------------------------------- compilation
     def _compile(self, levels: list[int] | None) -> None:
@@ -307,6 +323,13 @@ class Projector:
     # ----------------------------------------------------------------------------- projection
     def project(self, q: np.ndarray) -> ProjectionResult:
         """Project q (nq, modified in place) onto the constraints."""
+        if self._cpp is not None:
+            code, it, err = self._cpp.project(q, self.error_threshold, self.max_iterations)
+            return ProjectionResult(_STATUS[code], it, err)
+        return self._project_python(q)
+
+    def _project_python(self, q: np.ndarray) -> ProjectionResult:
+        """The reference implementation of :meth:`project` (Algorithm 1)."""
         if not self.implicit:
             self.apply_explicit(q)
             return ProjectionResult(ProjectionStatus.SUCCESS, 0, 0.0)
@@ -437,6 +460,11 @@ class Projector:
                 P = np.linalg.pinv(A, rcond=1e-8) @ A
                 N = (np.eye(n) - P) if N is None else N @ (np.eye(n) - P)
         return step
+
+
+# C++ status codes (ProjectionStatus in cpp/include/marionette/planning/projector.h).
+_STATUS = (ProjectionStatus.SUCCESS, ProjectionStatus.MAX_ITERATIONS, ProjectionStatus.NOT_DECREASING,
+           ProjectionStatus.LOCAL_MINIMUM, ProjectionStatus.NOT_FINITE)
 
 
 def _norm2(errors: list[np.ndarray]) -> float:
