@@ -32,6 +32,7 @@ class RigidStanceKinematics:
         self._frames = frames_L            # name -> (p_L (3,), R_L (3, 3))
         self._floor_z = floor_z
         self._R = rotation_z(self.pose[2])
+        self._placements: dict = {}
 
     def footprint(self, i: int) -> np.ndarray:
         return self.pose
@@ -40,9 +41,12 @@ class RigidStanceKinematics:
         return np.eye(3)
 
     def frame_placement(self, frame: str) -> tuple[np.ndarray, np.ndarray]:
-        p_L, R_L = self._frames[frame]
-        p = np.array([self.pose[0], self.pose[1], self._floor_z]) + self._R @ p_L
-        return p, self._R @ R_L
+        placement = self._placements.get(frame)      # tasks ask for it in error and Jacobian
+        if placement is None:
+            p_L, R_L = self._frames[frame]
+            p = np.array([self.pose[0], self.pose[1], self._floor_z]) + self._R @ p_L
+            placement = self._placements[frame] = (p, self._R @ R_L)
+        return placement
 
     def frame_jacobian(self, frame: str) -> np.ndarray:
         """(6, 3): d/d(x, y, θ) of [position; angular velocity] in world."""
@@ -55,26 +59,29 @@ class RigidStanceKinematics:
         return J
 
 
-def prioritised_least_squares(levels: list[tuple[np.ndarray, np.ndarray]], n: int,
-                              damping: float = 1e-4, rank_tolerance: float = 1e-7
-                              ) -> np.ndarray:
+def prioritised_least_squares(levels, n: int, damping: float = 1e-4,
+                              rank_tolerance: float = 1e-7) -> np.ndarray:
     """Strict hierarchy of unconstrained least-squares levels (A_i x = b_i), highest first:
     x = x_(i-1) + Z_(i-1) z_i with z_i the damped least-squares solution of level i in the null
     space Z_(i-1) of the levels above (Siciliano–Slotine). No bounds: the rigid-stance problem has
     none, so this is :func:`~marionette.footsteps.hierarchy.solve_hierarchy` without its QP
-    machinery, at a fraction of its cost for 3 variables."""
+    machinery, at a fraction of its cost for 3 variables.
+
+    ``levels``: an iterable of (A_i, b_i), consumed lazily: once the levels above leave no
+    freedom the rest are not evaluated (the hand and gaze tasks take all 3 dofs of a stance)."""
     x = np.zeros(n)
-    Z = np.eye(n)
+    Z = None                                   # None: identity (no level yet)
     for A, b in levels:
-        if Z.shape[1] == 0:
-            break
-        M = A @ Z
+        M = A if Z is None else A @ Z
         H = M.T @ M
         H.flat[:: H.shape[0] + 1] += damping
-        x = x + Z @ np.linalg.solve(H, M.T @ (b - A @ x))
+        z = np.linalg.solve(H, M.T @ (b - A @ x))
+        x = x + (z if Z is None else Z @ z)
         _, sv, vt = np.linalg.svd(M, full_matrices=True)
         rank = int(np.sum(sv > rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)))
-        Z = Z @ vt[rank:].T
+        if rank == M.shape[1]:
+            break                              # no freedom left for the levels below
+        Z = vt[rank:].T if Z is None else Z @ vt[rank:].T
     return x
 
 
@@ -88,7 +95,7 @@ def solve_final_pose(tasks: list, pose0: np.ndarray, frames_L: dict, floor_z: fl
     pose = np.asarray(pose0, dtype=float).copy()
     for iteration in range(1, max_iterations + 1):
         kin = RigidStanceKinematics(pose, frames_L, floor_z)
-        levels = [(task.compute_jacobian(kin), -task.compute_error(kin)) for task in tasks]
+        levels = ((task.compute_jacobian(kin), -task.compute_error(kin)) for task in tasks)
         dx = prioritised_least_squares(levels, 3)
         pose += dx
         if np.max(np.abs(dx)) < tolerance:

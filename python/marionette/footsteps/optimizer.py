@@ -427,56 +427,37 @@ class FootstepOptimizer:
         back under the tolerance). The correction removes the gap between the primary error
         e_c reached and the error the linearised step predicted (``predicted``, e + J dv: the
         trust region and the clamp of the error stay in force): the least-norm δ over the free
-        steps with J δ = −(e_c − predicted) (Newton on the primary task alone, in the yaw
-        metric of :meth:`_solve_levels`), at most two rounds: a footprint, and any frame rigid
-        on it, is linear in the steps' (Δx, Δy) at fixed yaws (module doc of
-        :mod:`.augmented_robot`), so δ is exact but for its own small yaw part. Columns that would cross a step limit are held on it and the
-        others take the rest. The corrected point replaces the candidate only if it lowers the
-        primary error without raising the levels above it (the line search then judges it as
-        any candidate).
+        steps' (Δx, Δy) with J δ = −(e_c − predicted). A footprint, and any frame rigid on it,
+        is linear in the (Δx, Δy) at fixed yaws (module doc of :mod:`.augmented_robot`), so one
+        such δ removes the gap exactly. Columns that would cross a step limit are held on it
+        and the others take the rest. The corrected point replaces the candidate only if it
+        lowers the gap without raising the levels above the primary (the line search then
+        judges it as any candidate).
         """
-        s = self.settings
+        tolerance = 0.05 * self.settings.task_tolerance
+        gap = self.value(self.primary, kin_c) - predicted
+        norm = float(np.sqrt(gap @ gap))
+        if norm <= tolerance:
+            return candidate, kin_c
         k = candidate.num_steps
         free = self.free_indices(k, *self._frozen)
-        free = free[free < 3 * k]
-        scale = np.where(free % 3 == 2, s.yaw_scale, 1.0)
-        error = self.value(self.primary, kin_c) - predicted
-        norm = float(np.linalg.norm(error))
-        above = self._above_primary(kin_c)
-        best = (candidate, kin_c)
-        for _ in range(2):
-            if norm <= 0.05 * s.task_tolerance:
-                break
-            lo, hi = self.limit_gaps(candidate, free, robot_free)
-            lo, hi = np.minimum(lo, 0.0) / scale, np.maximum(hi, 0.0) / scale
-            J = self.primary.compute_jacobian(kin_c)[:, free] * scale
-            delta = np.zeros(free.shape[0])
-            clamped = np.zeros(free.shape[0], dtype=bool)
-            for _ in range(4):
-                open_ = ~clamped
-                if not open_.any():
-                    return best
-                M = J[:, open_]
-                G = M @ M.T
-                G.flat[:: G.shape[0] + 1] += 1e-12
-                delta[open_] = M.T @ np.linalg.solve(G, -error - J[:, clamped] @ delta[clamped])
-                over, under = delta > hi, delta < lo
-                if not (over.any() or under.any()):
-                    break
-                delta = np.where(over, hi, np.where(under, lo, delta))
-                clamped |= over | under
-            else:
-                return best
-            dv = np.zeros(kin_c.nv)
-            dv[free] = delta * scale
-            candidate = self.augmented.integrate(candidate, dv)
-            kin_c = self.augmented.evaluate(candidate, robot_free=robot_free)
-            error = self.value(self.primary, kin_c) - predicted
-            corrected = float(np.linalg.norm(error))
-            if corrected >= norm or self._above_primary(kin_c) > above + 1e-9:
-                return best
-            norm, best = corrected, (candidate, kin_c)
-        return best
+        free = free[(free < 3 * k) & (free % 3 != 2)]
+        lo, hi = self.limit_gaps(candidate, free, robot_free)
+        J = self.primary.compute_jacobian(kin_c)[:, free]
+        moved = np.einsum("ij,ij->i", J, J) > 1e-18          # rows (Δx, Δy) move: not yaws
+        delta = _bounded_least_norm(J[moved], -gap[moved], np.minimum(lo, 0.0),
+                                    np.maximum(hi, 0.0))
+        if delta is None:
+            return candidate, kin_c
+        dv = np.zeros(kin_c.nv)
+        dv[free] = delta
+        corrected = self.augmented.integrate(candidate, dv)
+        kin_r = self.augmented.evaluate(corrected, robot_free=robot_free)
+        gap_r = self.value(self.primary, kin_r) - predicted
+        if float(np.sqrt(gap_r @ gap_r)) < norm and \
+                self._above_primary(kin_r) <= self._above_primary(kin_c) + 1e-9:
+            return corrected, kin_r
+        return candidate, kin_c
 
     def _relaxing_step_wanted(self, k: int, config: AugmentedConfiguration, free: np.ndarray) -> bool:
         """Automatic steps may add one more, and every step is stretched to full length."""
@@ -508,3 +489,26 @@ class FootstepOptimizer:
             else:
                 out[item.name] = float(np.linalg.norm(v))
         return out
+
+
+def _bounded_least_norm(J: np.ndarray, target: np.ndarray, lower: np.ndarray,
+                        upper: np.ndarray, rounds: int = 4) -> np.ndarray | None:
+    """Least-norm δ with J δ = target and lower ≤ δ ≤ upper (lower ≤ 0 ≤ upper), by clamping:
+    the entries that cross a bound are held on it and the others solve for the rest. Exact
+    when nothing is clamped; None when the free entries run out or the rounds do."""
+    delta = np.zeros(J.shape[1])
+    held = np.zeros(J.shape[1], dtype=bool)
+    for _ in range(rounds):
+        open_ = ~held
+        if not open_.any() or J.shape[0] == 0:
+            return None
+        M = J[:, open_]
+        G = M @ M.T
+        G.flat[:: G.shape[0] + 1] += 1e-12
+        delta[open_] = M.T @ np.linalg.solve(G, target - J[:, held] @ delta[held])
+        over, under = delta > upper, delta < lower
+        if not (over.any() or under.any()):
+            return delta
+        delta = np.where(over, upper, np.where(under, lower, delta))
+        held |= over | under
+    return None
