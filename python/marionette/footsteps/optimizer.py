@@ -405,17 +405,29 @@ class FootstepOptimizer:
                     J = self.primary.compute_jacobian(kin)
                     predicted = self.value(self.primary, kin) + J @ dv_high
                     slope = J @ dv_low
-                candidate, kin_c = self._restored(candidate, kin_c, predicted + alpha * slope,
-                                                  robot_free)
-            above_c = self._above_primary(kin_c)
-            error_c = float(np.linalg.norm(self.value(self.primary, kin_c)))
-            if above_c < above - 1e-7:
-                break
-            if above_c <= max(above, s.line_search_slack) + 1e-9 and \
-                    error_c <= max(error, 0.5 * s.task_tolerance) + 1e-9:
+                restored = self._restored(candidate, kin_c, predicted + alpha * slope,
+                                          robot_free)
+                # The correction moves the (Δx, Δy) the levels above did not ask for: it may
+                # not cost them anything (no slack), else the plain candidate is tried.
+                if restored is not None and \
+                        self._above_primary(restored[1]) <= above + 1e-9 and \
+                        self._acceptable(restored[1], error, above):
+                    return restored[0], restored[1], alpha
+            if self._acceptable(kin_c, error, above):
                 break
             alpha *= 0.5
         return candidate, kin_c, alpha
+
+    def _acceptable(self, kin_c, error: float, above: float) -> bool:
+        """The line search's test: the levels above the primary task improve, or they stay
+        (within the slack) and the primary task does not grow."""
+        s = self.settings
+        above_c = self._above_primary(kin_c)
+        if above_c < above - 1e-7:
+            return True
+        return above_c <= max(above, s.line_search_slack) + 1e-9 and \
+            float(np.linalg.norm(self.value(self.primary, kin_c))) <= \
+            max(error, 0.5 * s.task_tolerance) + 1e-9
 
     def _restored(self, candidate: AugmentedConfiguration, kin_c, predicted: np.ndarray,
                   robot_free: bool):
@@ -430,15 +442,13 @@ class FootstepOptimizer:
         steps' (Δx, Δy) with J δ = −(e_c − predicted). A footprint, and any frame rigid on it,
         is linear in the (Δx, Δy) at fixed yaws (module doc of :mod:`.augmented_robot`), so one
         such δ removes the gap exactly. Columns that would cross a step limit are held on it
-        and the others take the rest. The corrected point replaces the candidate only if it
-        lowers the gap without raising the levels above the primary (the line search then
-        judges it as any candidate).
+        and the others take the rest. Returns the corrected (configuration, kinematics), which
+        the line search tries before the uncorrected candidate, or None (no gap to correct, or
+        no room within the limits).
         """
-        tolerance = 0.05 * self.settings.task_tolerance
         gap = self.value(self.primary, kin_c) - predicted
-        norm = float(np.sqrt(gap @ gap))
-        if norm <= tolerance:
-            return candidate, kin_c
+        if float(np.sqrt(gap @ gap)) <= 0.05 * self.settings.task_tolerance:
+            return None
         k = candidate.num_steps
         free = self.free_indices(k, *self._frozen)
         free = free[(free < 3 * k) & (free % 3 != 2)]
@@ -448,16 +458,11 @@ class FootstepOptimizer:
         delta = _bounded_least_norm(J[moved], -gap[moved], np.minimum(lo, 0.0),
                                     np.maximum(hi, 0.0))
         if delta is None:
-            return candidate, kin_c
+            return None
         dv = np.zeros(kin_c.nv)
         dv[free] = delta
         corrected = self.augmented.integrate(candidate, dv)
-        kin_r = self.augmented.evaluate(corrected, robot_free=robot_free)
-        gap_r = self.value(self.primary, kin_r) - predicted
-        if float(np.sqrt(gap_r @ gap_r)) < norm and \
-                self._above_primary(kin_r) <= self._above_primary(kin_c) + 1e-9:
-            return corrected, kin_r
-        return candidate, kin_c
+        return corrected, self.augmented.evaluate(corrected, robot_free=robot_free)
 
     def _relaxing_step_wanted(self, k: int, config: AugmentedConfiguration, free: np.ndarray) -> bool:
         """Automatic steps may add one more, and every step is stretched to full length."""
