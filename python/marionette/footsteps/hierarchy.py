@@ -229,18 +229,22 @@ class _Cascade:
         back to proxsuite). As in :meth:`_qp`, rows x0 already violates by a rounding error are
         relaxed to keep z = 0 feasible."""
         tol = self.s.feasibility_tolerance
-        Zr = np.eye(self.n) if self.Z is None else self.Z
-        A = np.vstack([Zr, self.G @ Zr]) if self.G.shape[0] else Zr
         upper = np.concatenate([np.maximum(self.upper - self.x0, 0.0),
                                 np.maximum(self.h - self.G @ self.x0, 0.0)]) + tol
         lower = np.concatenate([np.minimum(self.lower - self.x0, 0.0) - tol,
                                 np.full(self.G.shape[0], -_INF)])
+        if self.Z is None:
+            # z = dx: the box is DAQP's simple bounds (the first n entries of upper/lower
+            # when they outnumber A's rows), far cheaper than n identity rows.
+            A = self.G
+        else:
+            A = np.vstack([self.Z, self.G @ self.Z]) if self.G.shape[0] else self.Z
         z, _, exitflag, _ = daqp.solve(H, -g, np.ascontiguousarray(A), upper, lower,
                                        primal_tol=tol)
         self.qp_solves += 1
         if exitflag != 1:
             return None
-        return Zr @ z
+        return self._lift(z)
 
     def _clamped_least_squares(self, H: np.ndarray, g: np.ndarray, dx: np.ndarray
                                ) -> np.ndarray | None:
