@@ -143,6 +143,15 @@ void RegisterPlanningProjector(py::module_& m) {
           "Project q (float64 contiguous nq array, modified in place): (status code, iterations, |e|, surface "
           "pairs); status 0 success, 1 iteration limit, 2 not decreasing, 3 local minimum, 4 not finite")
       .def(
+          "is_satisfied",
+          [](Projector& p, const Eigen::VectorXd& q, const Eigen::VectorXd& rhs, std::vector<int> pairs,
+             double threshold) {
+            const bool ok = p.IsSatisfied(q, rhs, &pairs, threshold);
+            return py::make_tuple(ok, pairs);
+          },
+          py::arg("q"), py::arg("rhs"), py::arg("pairs"), py::arg("threshold"),
+          "(does q satisfy every constraint within threshold, surface pairs)")
+      .def(
           "error",
           [](Projector& p, Eigen::VectorXd q, const Eigen::VectorXd& rhs, std::vector<int> pairs) {
             return p.Error(q, rhs, &pairs);

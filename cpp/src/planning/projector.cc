@@ -611,6 +611,47 @@ ProjectionOutcome Projector::Project(Eigen::Ref<Eigen::VectorXd> q, const Eigen:
   return {ProjectionStatus::kSuccess, it, std::sqrt(norm2)};
 }
 
+bool Projector::IsSatisfied(const Eigen::Ref<const Eigen::VectorXd>& q, const Eigen::VectorXd& rhs,
+                            std::vector<int>* pairs, double threshold) {
+  if (q.size() != model_.nq)
+    throw std::invalid_argument("C++ projector: q has " + std::to_string(q.size()) + " entries, expected " +
+                                std::to_string(model_.nq));
+  SetRhs(rhs, *pairs);
+  double err = 0.0;
+  for (size_t i = 0; i < spec_.locked_idx_q.size(); ++i) {
+    const int iq = spec_.locked_idx_q[i], n = spec_.locked_nq[i], off = locked_value_offset_[i];
+    if (n == 7) {  // translation distance + quaternion distance up to sign (q and -q: one rotation)
+      const auto a = q.segment<4>(iq + 3);
+      const auto v = rhs_.segment<4>(off + 3);
+      err = std::max(err, (q.segment<3>(iq) - rhs_.segment<3>(off)).norm() +
+                              std::min((a - v).norm(), (a + v).norm()));
+    } else {
+      err = std::max(err, (q.segment(iq, n) - rhs_.segment(off, n)).norm());
+    }
+  }
+  if (!spec_.relative_idx_q.empty()) {
+    pinocchio::forwardKinematics(model_, data_, q);
+    for (size_t i = 0; i < spec_.relative_idx_q.size(); ++i) {
+      const pinocchio::SE3 X = ReadPose(q, spec_.relative_idx_q[i]);
+      const pinocchio::SE3 pose = data_.oMi[spec_.relative_parent[i]] * spec_.relative_M_PO[i];
+      err = std::max(err, pinocchio::log6(pose.actInv(X)).toVector().norm());
+    }
+  }
+  if (err > threshold) return false;
+  if (spec_.implicit.empty()) return true;
+  pinocchio::forwardKinematics(model_, data_, q);
+  q_cur_ = q;
+  std::fill(jac_valid_.begin(), jac_valid_.end(), 0);  // data_.J is not that of q
+  SelectPairs();
+  *pairs = pair_;
+  double n2 = 0.0;
+  for (int L = 0; L < static_cast<int>(level_rows_.size()); ++L) {
+    Errors(L, &errors_[L]);
+    n2 += errors_[L].squaredNorm();
+  }
+  return n2 <= threshold * threshold;
+}
+
 Eigen::VectorXd Projector::Error(Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs,
                                  std::vector<int>* pairs) {
   if (q.size() != model_.nq) throw std::invalid_argument("C++ projector: q must have nq entries");

@@ -304,6 +304,8 @@ class Projector:
     def is_satisfied(self, q: np.ndarray, threshold: float | None = None) -> bool:
         """Do q satisfy every constraint (explicit ones too) within ``threshold``?"""
         th = self.error_threshold if threshold is None else threshold
+        if self._cpp is not None:
+            return self._cpp.is_satisfied(q, th)
         if self.explicit_error(q) > th:
             return False
         if not self.implicit:

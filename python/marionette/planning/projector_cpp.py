@@ -106,29 +106,36 @@ class CppProjector:
 
     def rhs(self) -> np.ndarray:
         """Packed right-hand sides, read now (they change with set_rhs_from / restore_rhs)."""
-        return np.concatenate([c.rhs for c in self.order] + [lk.value for lk in self.locked]
-                              + [lk.value for lk in self.implicit_locked])
+        parts = [c.rhs for c in self.order] + [lk.value for lk in self.locked]
+        if self.implicit_locked:
+            parts += [lk.value for lk in self.implicit_locked]
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def pairs(self) -> list[int]:
         return [plc.pair for plc in self.placements]
 
+    def _set_pairs(self, pairs: list[int]) -> None:
+        for plc, k in zip(self.placements, pairs):
+            plc.pair = k
+
     def project(self, q: np.ndarray, error_threshold: float,
                 max_iterations: int) -> tuple[int, int, float]:
         """(status code, iterations, |e|); q (nq) projected in place, selected pairs written back."""
-        parts = [c.rhs for c in self.order] + [lk.value for lk in self.locked]
-        if self.implicit_locked:
-            parts += [lk.value for lk in self.implicit_locked]
-        rhs = np.concatenate(parts) if parts else np.zeros(0)
-        pairs = [plc.pair for plc in self.placements]
+        rhs, pairs = self.rhs(), self.pairs()
         if q.dtype == np.float64 and q.flags.c_contiguous and q.flags.writeable:
             code, it, err, pairs = self.cpp.project(q, rhs, pairs, error_threshold, max_iterations)
         else:
             qc = np.ascontiguousarray(q, dtype=np.float64)
             code, it, err, pairs = self.cpp.project(qc, rhs, pairs, error_threshold, max_iterations)
             q[:] = qc
-        for plc, k in zip(self.placements, pairs):
-            plc.pair = k
+        self._set_pairs(pairs)
         return code, it, err
+
+    def is_satisfied(self, q: np.ndarray, threshold: float) -> bool:
+        """Projector.is_satisfied (explicit and implicit errors within threshold)."""
+        ok, pairs = self.cpp.is_satisfied(q, self.rhs(), self.pairs(), threshold)
+        self._set_pairs(pairs)
+        return ok
 
 
 def build(projector: "Projector") -> CppProjector | None:

@@ -259,3 +259,33 @@ def test_bad_input_is_a_precise_error(ur5_box):
     r = proj.project(q32)
     q64 = ur5_box.q_init.copy()
     assert proj.project(q64).status is r.status
+
+
+@pytest.mark.parametrize("problem_file", ["ur5_box", "ur10_box"])
+def test_membership_verdicts_match_python(ur5_box, problem_file):
+    """State.contains / Edge.can_connect (is_satisfied): the same verdict as the reference on
+    configurations of each state, on them moved by 1e-5 to 1e-3 (across the 1e-4 threshold)
+    and on uniform samples; the surface pair chosen is the same."""
+    problem = ur5_box if problem_file == "ur5_box" else load_problem(PROBLEMS / "ur10_box.yaml")
+    graph = graph_from_settings(problem)
+    model = problem.model
+    rng = np.random.default_rng(8)
+    verdicts = {True: 0, False: 0}
+    for label, proj in every_projector(graph):
+        py = python_twin(proj)
+        for k in range(8):
+            q_rhs = problem.q_init if k % 2 else problem.q_goal
+            proj.set_rhs_from(q_rhs)
+            py.set_rhs_from(q_rhs)
+            q = random_configuration(problem, rng)
+            candidates = [q.copy()]
+            if proj.project(q):
+                candidates += [q] + [pin.integrate(model, q, s * rng.standard_normal(model.nv))
+                                     for s in (1e-5, 1e-4, 1e-3)]
+            for c in candidates:
+                expected = py.is_satisfied(c)
+                pairs_py = [p.pair for p in proj._cpp.placements]
+                assert proj.is_satisfied(c) == expected, label
+                assert [p.pair for p in proj._cpp.placements] == pairs_py, label
+                verdicts[expected] += 1
+    assert verdicts[True] >= 100 and verdicts[False] >= 100, verdicts

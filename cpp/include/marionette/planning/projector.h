@@ -91,7 +91,14 @@ class Projector {
   ProjectionOutcome Project(Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs,
                             std::vector<int>* pairs, double error_threshold, int max_iterations);
 
-  /// Stacked implicit errors at q after substitution (for tests: Python's Projector.error).
+  /// Does q satisfy every constraint within threshold (Python Projector.is_satisfied): the
+  /// explicit ones (locked values, quaternions sign-insensitive; attached poses, |log6|) and
+  /// the implicit ones (|e| at q as it is, no substitution)?  Placements that select their
+  /// surface pair select it at q (written to pairs).
+  bool IsSatisfied(const Eigen::Ref<const Eigen::VectorXd>& q, const Eigen::VectorXd& rhs,
+                   std::vector<int>* pairs, double threshold);
+
+  /// Stacked implicit errors at q without substitution (Python's Projector.error, for tests).
   Eigen::VectorXd Error(Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs,
                         std::vector<int>* pairs);
   /// Stacked implicit Jacobian (size x nv, before the chain rule and column selection) at q
