@@ -315,6 +315,16 @@ class _Cascade:
         return max(s, 0.0) * dx
 
     def _append(self, C: np.ndarray, h: np.ndarray) -> None:
+        """Adds rows C x ≤ h for the levels below, except those the box implies: max over the
+        box of C_i x = Σ_j max(C_ij l_j, C_ij u_j) ≤ h_i. Every point the cascade keeps is in
+        the box, so such a row never binds; dropping it spares the QPs and the feasibility
+        checks (e.g. the non-overlap rows of steps whose width limits already keep them apart).
+        """
+        with np.errstate(invalid="ignore"):           # 0·inf on unbounded variables
+            reach = np.where(C > 0.0, C * self.upper, 0.0) + np.where(C < 0.0, C * self.lower, 0.0)
+        binding = ~(reach.sum(axis=1) <= h)
+        if not binding.all():
+            C, h = C[binding], h[binding]
         self.G = np.vstack([self.G, C])
         self.h = np.concatenate([self.h, h])
 
