@@ -123,3 +123,33 @@ def test_lowest_level_under_bounds_and_rows_is_the_qp_optimum_even_when_best_eff
     assert qp.results.info.status == proxqp.QPSolverOutput.PROXQP_SOLVED
     ref = qp.results
     assert np.sum((A2 @ x - b2) ** 2) == pytest.approx(np.sum((A2 @ ref.x - b2) ** 2), rel=1e-6)
+
+
+def test_rows_the_box_implies_change_nothing_below_them():
+    # Inequality rows that the box alone satisfies everywhere (|C_i|·0.3 summed ≤ d_i) are
+    # dropped by the cascade; the optimum of the level below must still be the QP's optimum
+    # over every row (proxsuite), the binding rows included.
+    rng = np.random.default_rng(11)
+    n = 10
+    implied = rng.normal(size=(6, n))
+    implied_d = 0.3 * np.abs(implied).sum(axis=1) + 0.01
+    binding = rng.normal(size=(3, n))
+    C = np.vstack([implied, binding])
+    d = np.concatenate([implied_d, 0.02 * np.ones(3)])
+    A2, b2 = np.eye(n), 2.0 * rng.normal(size=n)
+    lower, upper = -0.3 * np.ones(n), 0.3 * np.ones(n)
+    mu = 1e-6
+    solution = solve_hierarchy([Level("rows", C, d, False), Level("pref", A2, b2, True)],
+                               lower, upper, HierarchySettings(damping=mu))
+    x = solution.x
+    # DAQP's primal tolerance plus the cascade's 1e-7 relaxation of its rows.
+    assert np.all(C @ x <= d + 1e-6) and np.all(np.abs(x) <= 0.3 + 1e-7)
+    assert np.any(binding @ x > 0.02 - 1e-6)          # the problem does bind a kept row
+    qp = proxqp.dense.QP(n, 0, C.shape[0], True)
+    qp.settings.eps_abs = 1e-10
+    qp.init(2.0 * (A2.T @ A2 + mu * np.eye(n)), -2.0 * A2.T @ b2, None, None, C,
+            np.full(C.shape[0], -1e20), d, lower, upper)
+    qp.solve()
+    assert qp.results.info.status == proxqp.QPSolverOutput.PROXQP_SOLVED
+    ref = qp.results.x
+    assert np.sum((A2 @ x - b2) ** 2) == pytest.approx(np.sum((A2 @ ref - b2) ** 2), rel=1e-6)
