@@ -73,11 +73,12 @@ def prioritised_least_squares(levels, n: int, damping: float = 1e-4,
     Z = None                                   # None: identity (no level yet)
     for A, b in levels:
         M = A if Z is None else A @ Z
-        H = M.T @ M
-        H.flat[:: H.shape[0] + 1] += damping
-        z = np.linalg.solve(H, M.T @ (b - A @ x))
+        # One SVD M = U S Vᵀ gives both the damped least squares, (MᵀM + μI)⁻¹ Mᵀ r =
+        # V diag(σ / (σ² + μ)) Uᵀ r, and the null space of M for the levels below.
+        u, sv, vt = np.linalg.svd(M, full_matrices=True)
+        p = sv.shape[0]
+        z = vt[:p].T @ ((sv / (sv * sv + damping)) * (u[:, :p].T @ (b - A @ x)))
         x = x + (z if Z is None else Z @ z)
-        _, sv, vt = np.linalg.svd(M, full_matrices=True)
         rank = int(np.sum(sv > rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)))
         if rank == M.shape[1]:
             break                              # no freedom left for the levels below

@@ -171,7 +171,15 @@ class _Cascade:
         H = M.T @ M
         H.flat[:: r + 1] += mu
         g = M.T @ rhs - mu * Zt_x0
-        z = np.linalg.solve(H, g)
+        if last:
+            z = np.linalg.solve(H, g)
+        else:
+            # The SVD M = U S Vᵀ the null space needs below also solves the system:
+            # MᵀM + μI = V diag(σ² + μ) Vᵀ (σ = 0 past the rank).
+            _, sv, vt = np.linalg.svd(M, full_matrices=True)
+            s2 = np.zeros(r)
+            s2[:sv.shape[0]] = sv * sv
+            z = vt.T @ ((vt @ g) / (s2 + mu))
         dx_ls = self._lift(z)
         dx = dx_ls
         used_qp = False
@@ -192,7 +200,6 @@ class _Cascade:
         if last:
             return used_qp
         # Lower levels move only in the null space of M (keep A x exactly).
-        _, sv, vt = np.linalg.svd(M, full_matrices=True)
         tol = self.s.rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)
         rank = int(np.sum(sv > tol))
         N = vt[rank:].T                           # (r, r - rank)
