@@ -7,11 +7,13 @@ import numpy as np
 import pytest
 
 from footsteps_checks import sole_points, soles_overlap, step_variables_within
-from marionette.footsteps.augmented_robot import AugmentedRobot
-from marionette.footsteps.constraints import (FINAL_STANCE, FootNonOverlap, ObstacleAvoidance,
-                                              StanceGoalTask, StepLimits, StepPreferenceTask)
+from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot,
+                                                  planar_compose)
+from marionette.footsteps.constraints import (FINAL_STANCE, FootNonOverlap, FootprintPoseTask,
+                                              ObstacleAvoidance, StanceGoalTask, StepLimits,
+                                              StepPreferenceTask)
 from marionette.footsteps.obstacles import CircleObstacle
-from marionette.footsteps.optimizer import FootstepOptimizer
+from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings
 from marionette.footsteps.robot_model import TALOS_FOOT
 
 
@@ -67,3 +69,37 @@ def test_moving_the_obstacle_deforms_the_steps_locally(stance):
     for pose in after:
         d = np.min(np.linalg.norm(sole_points(pose, TALOS_FOOT) - moved.center, axis=1))
         assert d >= moved.radius + moved.buffer - 2e-3
+
+
+def test_second_order_correction_puts_the_goal_back_with_the_yaws_untouched(stance):
+    """A lower level's step lies in the null space of the goal's Jacobian, but turning the yaws
+    moves the far end of the chain at second order. The correction (``restore_primary``) must
+    put the last footprint back where the linearised step predicted, moving only the steps'
+    (Δx, Δy), within their limits. Reference: the footprints composed step by step."""
+    augmented = AugmentedRobot(None, stance, "right", TALOS_FOOT)
+    steps = np.array([[0.15, -0.17 if i % 2 == 0 else 0.17, 0.0] for i in range(6)])
+    config = AugmentedConfiguration(steps)
+    goal = FootprintPoseTask(None, augmented.footprints(steps)[-1], weights=(1.0, 1.0, 1.0))
+    limits = StepLimits()
+    optimizer = FootstepOptimizer(augmented, [FootNonOverlap(), goal, StepPreferenceTask(0.17)],
+                                  goal, limits, OptimizerSettings(restore_primary=True))
+    optimizer._frozen = (0, False)                    # set by solve(); here one step by hand
+    kin = augmented.evaluate(config)
+    J = goal.compute_jacobian(kin)
+    rng = np.random.default_rng(3)
+    dv = rng.normal(size=18) * np.tile([0.01, 0.01, 0.08], 6)
+    dv -= np.linalg.pinv(J) @ (J @ dv)                # null space of the goal: no first-order move
+    candidate = augmented.integrate(config, dv)
+
+    def last_footprint(steps):
+        pose = augmented.root
+        for step in steps:
+            pose = planar_compose(pose, step)
+        return pose
+
+    assert np.linalg.norm(last_footprint(candidate.steps) - goal.target) > 1e-3
+    predicted = goal.compute_error(kin) + J @ dv     # = 0 here
+    corrected, _ = optimizer._restored(candidate, augmented.evaluate(candidate), predicted, False)
+    assert np.allclose(last_footprint(corrected.steps), goal.target + predicted, atol=1e-9)
+    assert np.array_equal(corrected.steps[:, 2], candidate.steps[:, 2])
+    assert step_variables_within(corrected.steps, augmented.is_left(6)[2:], limits)
