@@ -76,7 +76,7 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   b.Connect(idle.out_output(), safety->velocity_input());
   b.Connect(safety->velocity_output(), command->command_input());
   if (scene) {
-    device = &b.Add<sim::MujocoDevice>("device", scene.get(), robot.contact_bodies, kDt);
+    device = &b.Add<sim::MujocoDevice>("device", scene.get(), robot.measured_bodies(), kDt);
     const int base_nq = robot.base == "free_flyer" ? 7 : robot.base == "planar" ? 4 : 0;
     measured_base = &b.Add<MeasuredBase>("measured_base", model->nq, base_nq);
     b.Connect(command->configuration_output(), measured_base->q_command_input());
@@ -115,7 +115,7 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_snapshot.q_kinematics = q0;
   model_snapshot.v_command = Eigen::VectorXd::Zero(model->nv);
   model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
-  model_snapshot.wrenches.assign(6 * robot.contact_bodies.size() * (scene ? 1 : 0), 0.0);
+  model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (scene ? 1 : 0), 0.0);
   model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
   loop_state = model_snapshot;
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
@@ -333,7 +333,7 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   if (device) {
     s.q = device->q_output().value();
     s.effort = device->effort_output().value();
-    for (size_t i = 0; i < robot.contact_bodies.size(); ++i) {
+    for (size_t i = 0; i < s.wrenches.size() / 6; ++i) {
       for (int k = 0; k < 6; ++k) s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
     }
     for (size_t i = 0; i < free_object_ids.size(); ++i) {

@@ -124,8 +124,9 @@ void Controller::Impl::PublishState(const Snapshot& s) {
     state.base_angular_velocity[2] = s.v[2];
   }
   state.num_contacts = static_cast<int32_t>(s.wrenches.size() / 6);
+  const std::vector<std::string> measured_bodies = robot.measured_bodies();  // soles, then fingers
   for (int i = 0; i < state.num_contacts; ++i) {
-    state.contact_frame.push_back(robot.contact_bodies[i]);
+    state.contact_frame.push_back(measured_bodies[i]);
     state.contact_wrench.emplace_back(s.wrenches.begin() + 6 * i, s.wrenches.begin() + 6 * i + 6);
   }
   lcm.publish(channels::kRobotState, &state);

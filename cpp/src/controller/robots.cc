@@ -16,6 +16,13 @@ RobotInfo Talos(const std::string& dir) {
   r.camera_frame = "rgbd_rgb_optical_frame";
   r.grippers = {{"talos/left_gripper", "gripper_left_joint", -0.02, -1.0},
                 {"talos/right_gripper", "gripper_right_joint", -0.02, -1.0}};
+  // Both jaws of each gripper: the "double" jaw (two fingertips) and the "single" one.
+  for (const char* side : {"left", "right"}) {
+    for (const char* link : {"motor_double", "inner_double", "fingertip_1", "fingertip_2",
+                             "motor_single", "inner_single", "fingertip_3"}) {
+      r.grip_bodies.push_back(std::string("gripper_") + side + "_" + link + "_link");
+    }
+  }
   return r;
 }
 

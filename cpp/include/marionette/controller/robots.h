@@ -25,6 +25,16 @@ struct RobotInfo {
   std::string base;          ///< "free_flyer" | "planar" | "fixed"
   std::string reference;     ///< SRDF group_state of the initial posture
   std::vector<std::string> contact_bodies;  ///< wrenches measured on these (soles)
+  /// Gripper finger bodies whose contact wrenches (MuJoCo contact forces) are measured and
+  /// published after the soles' in ROBOT_STATE: the grip force an admittance task holds, seen
+  /// independently of its motor-current estimate (issue 7). Not soles: no balance or ZMP use.
+  std::vector<std::string> grip_bodies;
+  /// contact_bodies then grip_bodies: the bodies MujocoDevice measures, in ROBOT_STATE's order.
+  std::vector<std::string> measured_bodies() const {
+    std::vector<std::string> out = contact_bodies;
+    out.insert(out.end(), grip_bodies.begin(), grip_bodies.end());
+    return out;
+  }
   std::string camera;        ///< MuJoCo camera name, "" if none
   std::string camera_frame;  ///< Pinocchio frame of the camera's optical centre, "" if none
   std::vector<GripperInfo> grippers;
