@@ -23,6 +23,7 @@ with S the +90° rotation (Δθ_j turns everything downstream about p_j).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -311,14 +312,23 @@ class AugmentedKinematics:
         self.nv_robot = augmented.nv_robot() if robot_free else 0
         self.nv = self.nv_steps + self.nv_robot
         self._robot = robot_data
-        theta = self.footprints[1:, 2]                              # θ_0..θ_k
-        self._rot_prev = rotation_2d(theta[:-1])                    # (k, 2, 2): R(θ_(j-1))
         self._rot_last = rotation_z(self.footprints[-1, 2])
-        # Translation columns of a point attached to the last footprint: R(θ_(j-1)) per step.
-        self._xy_columns = np.zeros((2, self.nv))
+
+    # The Jacobians' shared blocks are built on first use: the line search evaluates candidate
+    # configurations for their values alone.
+    @functools.cached_property
+    def _rot_prev(self) -> np.ndarray:
+        """(k, 2, 2): R(θ_(j-1)) of every step j."""
+        return rotation_2d(self.footprints[1:-1, 2])
+
+    @functools.cached_property
+    def _xy_columns(self) -> np.ndarray:
+        """Translation columns of a point attached to the last footprint: R(θ_(j-1)) per step."""
+        columns = np.zeros((2, self.nv))
         if self.k:
-            view = self._xy_columns[:, : 3 * self.k].reshape(2, self.k, 3)
+            view = columns[:, : 3 * self.k].reshape(2, self.k, 3)
             view[:, :, :2] = np.transpose(self._rot_prev, (1, 0, 2))
+        return columns
 
     # -- footprints --------------------------------------------------------------------------
     def footprint(self, i: int) -> np.ndarray:

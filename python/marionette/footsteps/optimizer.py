@@ -143,10 +143,11 @@ class FootstepOptimizer:
                 item.compute_error(kin)
         return cache[key]
 
-    def linearise(self, kin, free: np.ndarray) -> list[Level]:
-        """One Level per constraint/task (in priority order), restricted to the free dofs."""
+    def linearise(self, kin, free: np.ndarray, count: int | None = None) -> list[Level]:
+        """One Level per constraint/task (in priority order), restricted to the free dofs;
+        the first ``count`` levels only if given."""
         levels = []
-        for item in self.levels:
+        for item in self.levels[:count]:
             if isinstance(item, Constraint):
                 value = self.value(item, kin)
                 jacobian = item.compute_jacobian(kin)[:, free] if value.shape[0] else \
@@ -317,7 +318,7 @@ class FootstepOptimizer:
             free = self.free_indices(k, frozen_steps, posture_frozen)
             if free.shape[0] == 0:
                 break
-            levels = self.linearise(kin, free)[:primary_index + 1]
+            levels = self.linearise(kin, free, primary_index + 1)
             levels[-1].vector = -self.value(self.primary, kin)
             lo, hi = self.limit_gaps(config, free, robot_free)
             solution = self._solve_levels(levels, lo, hi, free, k)
