@@ -100,7 +100,9 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   timing_tables = std::make_unique<runtime::TripleBuffer<TimingTable>>(model_table);
   shared_q = q0;
   for (const std::string& body : robot.contact_bodies) {
-    if (model->existFrame(body)) contact_frames.push_back(sot::MakeFrameRef(*model, body, "contact body"));
+    if (!model->existFrame(body)) continue;
+    contact_frames.push_back(sot::MakeFrameRef(*model, body, "contact body"));
+    soles.push_back(body);
   }
   factory = std::make_unique<ControllerFactory>(
       model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
@@ -191,10 +193,12 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
 void Controller::Impl::CheckBudgets(const graph::Tick& t) {
   if (replaying) {  // the recorded decision, not this machine's timing
     if (replay_budget_hold >= 0 && mode == ControlMode::kRun) {
-      Journal(t.index, kBudgetHoldChannel, replay_budget_hold);
-      mode = ControlMode::kHold;
+      const bool engage = (replay_budget_hold & kBudgetHoldEngaged) != 0;
+      const bool engaged = engage && EngageHoldController(t) == Engage::kEngaged;
+      Journal(t.index, kBudgetHoldChannel, replay_budget_hold & ~(engage && !engaged ? kBudgetHoldEngaged : 0));
+      if (!engaged) mode = ControlMode::kHold;
       loop_state.reason = Reason::kBudget;
-      loop_state.reason_index = static_cast<int>(replay_budget_hold);
+      loop_state.reason_index = static_cast<int>(replay_budget_hold & (kBudgetHoldEngaged - 1));
     }
     replay_budget_hold = -1;
     return;
@@ -205,16 +209,45 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
     for (size_t i = 0; i < entities.size(); ++i) {
       if (entities[i].get() != e) continue;
       // One event when an overrun starts, not one per tick.
-      if (e->timing().consecutive_overruns == 1) overrun_events.Push({t.index, static_cast<int>(i)});
-      if (e->timing().consecutive_overruns >= overrun_hold_ticks && mode == ControlMode::kRun) {
-        Journal(t.index, kBudgetHoldChannel, static_cast<int64_t>(i));
-        mode = ControlMode::kHold;
-        loop_state.reason = Reason::kBudget;
-        loop_state.reason_index = static_cast<int>(i);
-        loop_state.reason_value = static_cast<double>(e->timing().consecutive_overruns);
-      }
+      const int64_t overruns = e->timing().consecutive_overruns;
+      if (overruns == 1) overrun_events.Push({t.index, static_cast<int>(i)});
+      if (overruns < overrun_hold_ticks || mode != ControlMode::kRun) continue;
+      // First the hold controller (balance + posture); when it is not armed (a swap pending, it
+      // is the one overrunning, or it failed to build), zero velocity. A busy lease is retried
+      // next tick, for as many ticks again at most.
+      const Engage engage = EngageHoldController(t);
+      if (engage == Engage::kRetry && overruns < 2 * overrun_hold_ticks) return;
+      const bool engaged = engage == Engage::kEngaged;
+      Journal(t.index, kBudgetHoldChannel, static_cast<int64_t>(i) + (engaged ? kBudgetHoldEngaged : 0));
+      if (!engaged) mode = ControlMode::kHold;
+      loop_state.reason = Reason::kBudget;
+      loop_state.reason_index = static_cast<int>(i);
+      loop_state.reason_value = static_cast<double>(overruns);
+      return;  // engaged: `overran` points into the replaced topology
     }
   }
+}
+
+Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t) {
+  if (hold_state.load(std::memory_order_acquire) != kHoldArmed) return Engage::kUnavailable;
+  int free = 0;
+  if (!graph_lease.compare_exchange_strong(free, 2, std::memory_order_acquire)) return Engage::kRetry;
+  BuiltController* hold = armed_hold;
+  hold->HoldCurrent(robot_model->kinematics_output().Eval(t));
+  if (!graph->Apply(hold->edit.get())) {  // built against another version: the LCM thread rebuilds it
+    hold_state.store(kHoldStale, std::memory_order_release);
+    graph_lease.store(0, std::memory_order_release);
+    return Engage::kUnavailable;
+  }
+  service.Invalidate();  // watched entities of the old controller are gone
+  active = hold;
+  active_streams.clear();
+  ++loop_state.switches;
+  loop_state.active_id = hold->id;
+  hold_engaged_tick = t.index;
+  hold_state.store(kHoldEngaged, std::memory_order_release);
+  graph_lease.store(0, std::memory_order_release);
+  return Engage::kEngaged;
 }
 
 void Controller::Impl::CopyTimings(const graph::Tick& t) {
@@ -291,6 +324,7 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   if (switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted)) return;
   BuiltController* next = posted;
   Journal(t.index, 0, posted_hash);
+  Journal(t.index, kBuildTickChannel, posted_build_tick);
   // "Hold where it is" references take the values of this very tick.
   next->HoldCurrent(robot_model->kinematics_output().Eval(t));
   // Agimus's start check (§3.2.5.2), real-time safe here: the new stack's solution at this very
@@ -324,7 +358,9 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   Snapshot& s = loop_state;
   s.tick = t.index;
   s.utime = TickUs(t);
-  s.mode = static_cast<int>(mode);
+  // The hold controller runs (the safety filter passes its command) but the robot is holding.
+  const bool hold_controller_running = mode == ControlMode::kRun && active != nullptr && active->id == kHoldControllerId;
+  s.mode = static_cast<int>(hold_controller_running ? ControlMode::kHold : mode);
   s.q = q_kinematics->value();
   s.q_kinematics = q_kinematics->value();
   s.v = device ? device->v_output().value() : command->velocity_output().value();

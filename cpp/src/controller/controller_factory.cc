@@ -48,7 +48,8 @@ sot::Mask MaskOf(const lcmt_task_spec& spec, int n) {
 constexpr char kWalkPrefix[] = "walk:";
 
 void AddWalking(const lcmt_controller_spec& spec, const std::string& where, const std::string& prefix,
-                const sot::Kinematics& now, graph::GraphEdit& edit, BuiltController* built) {
+                const sot::Kinematics& now, graph::GraphEdit& edit, const BuiltController* continue_walk,
+                BuiltController* built) {
   std::map<std::string, const lcmt_task_spec*> roles;  // left_foot, right_foot, com
   for (const lcmt_task_spec& t : spec.tasks) {
     if (t.reference_channel.rfind(kWalkPrefix, 0) != 0) continue;
@@ -65,6 +66,14 @@ void AddWalking(const lcmt_controller_spec& spec, const std::string& where, cons
   if (roles.empty()) return;
   if (roles.count("left_foot") == 0 || roles.count("right_foot") == 0) {
     Fail(where, "walking needs a walk:left_foot and a walk:right_foot se3 task (the soles it starts from)");
+  }
+  if (continue_walk != nullptr) {  // adopt the running walk as it is
+    if (continue_walk->walk_steps == nullptr) Fail(where, "the controller to continue does not walk");
+    built->walk_steps = continue_walk->walk_steps;
+    built->walk_pattern = continue_walk->walk_pattern;
+    built->entity_names.push_back(built->walk_steps->name());
+    built->entity_names.push_back(built->walk_pattern->name());
+    return;
   }
   try {
     const pinocchio::Model& model = now.model();
@@ -130,7 +139,8 @@ std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) c
 
 std::unique_ptr<BuiltController> ControllerFactory::Build(
     const lcmt_controller_spec& spec, const graph::Graph& graph,
-    const std::vector<std::string>& previous_entities, const Eigen::VectorXd& q) const {
+    const std::vector<std::string>& previous_entities, const Eigen::VectorXd& q,
+    const BuiltController* continue_walk) const {
   const std::string where = "controller '" + spec.name + "' (id " + std::to_string(spec.controller_id) + ")";
   if (spec.num_tasks != static_cast<int>(spec.tasks.size()) || spec.num_tasks < 1) {
     Fail(where, "needs at least one task (num_tasks " + std::to_string(spec.num_tasks) + ")");
@@ -162,7 +172,15 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     built->entity_names.push_back(entity.name());
     return entity;
   };
-  AddWalking(spec, where, prefix, now, edit, built.get());
+  AddWalking(spec, where, prefix, now, edit, continue_walk, built.get());
+  int first_level = 100;
+  for (const lcmt_task_spec& t : spec.tasks) first_level = std::min(first_level, t.priority);
+  for (const lcmt_task_spec& t : spec.tasks) {
+    const bool streamed = !t.reference_channel.empty() && t.reference_channel.rfind(kWalkPrefix, 0) != 0;
+    if (t.priority == first_level && !streamed && (t.kind == "se3" || t.kind == "position" || t.kind == "com")) {
+      built->balance_tasks.push_back(t);
+    }
+  }
 
   for (const lcmt_task_spec& t : spec.tasks) {
     const std::string who = where + ", task '" + t.name + "'";

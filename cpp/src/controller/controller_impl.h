@@ -25,6 +25,7 @@
 #include <thread>
 #include "marionette/controller/controller_factory.h"
 #include "marionette/controller/graph_service.h"
+#include "marionette/controller/hold_controller.h"
 #include "marionette/controller/measured_base.h"
 #include "marionette/controller/reference_stream.h"
 #include "marionette/controller/robots.h"
@@ -136,12 +137,20 @@ struct JournalEntry {
 /// Not a channel: the loop's own decision to hold for an overrun budget (timing is not
 /// reproducible, so the decision is journaled and replayed as an input).
 inline constexpr char kBudgetHoldEntry[] = "CONTROLLER_BUDGET_HOLD";
+/// Not a channel: the tick whose configuration a controller spec was built against (its hash;
+/// -1: the initial configuration), journaled with the spec's swap — a walking controller's
+/// pattern generator takes its CoM height from it, so a replay builds against the same one.
+inline constexpr char kBuildTickEntry[] = "CONTROLLER_BUILD_TICK";
 inline constexpr const char* kJournalChannels[] = {channels::kControllerSpec, channels::kTaskReference,
                                                    channels::kCommand,        channels::kSimCommand,
                                                    channels::kDgRequest,      kBudgetHoldEntry,
-                                                   channels::kFootstepPlan};
+                                                   channels::kFootstepPlan,   kBuildTickEntry};
 inline constexpr int kBudgetHoldChannel = 5;
+/// A budget-hold entry's hash is the overrunning entity's index, plus this flag when the hold
+/// controller was engaged (else the loop held with zero velocity).
+inline constexpr int64_t kBudgetHoldEngaged = int64_t{1} << 32;
 inline constexpr int kFootstepPlanChannel = 6;  // consumed by the active walking controller's poll
+inline constexpr int kBuildTickChannel = 7;
 
 inline std::string ToLower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -187,6 +196,7 @@ struct Controller::Impl {
   std::atomic<int> command_request{static_cast<int>(Command::kNone)};
   std::atomic<int64_t> command_hash{0};           // of the message behind command_request
   int64_t posted_hash = 0;                        // of the spec behind `posted`
+  int64_t posted_build_tick = -1;                 // the tick of the configuration it was built against
   struct SimRequest {
     enum Kind { kMove, kAttach, kDetach } kind = kMove;
     int id = -1;  // body (move) or weld equality (attach, detach)
@@ -233,6 +243,20 @@ struct Controller::Impl {
   int64_t overrun_hold_ticks = 100;              // consecutive overruns before holding
   runtime::SpscQueue<std::pair<int64_t, int>> overrun_events{256};  // (tick, entity index)
 
+  // The hold controller (hold_controller.h): built and armed by the LCM thread against the
+  // running controller, engaged by the loop on repeated overruns, collected by the LCM thread.
+  enum HoldState : int { kHoldEmpty = 0, kHoldArmed, kHoldEngaged, kHoldStale };
+  std::atomic<int> hold_state{kHoldEmpty};
+  std::unique_ptr<BuiltController> hold_controller;  // LCM-thread-owned, lent while armed
+  BuiltController* armed_hold = nullptr;             // for the loop, valid while kHoldArmed
+  int64_t hold_engaged_tick = -1;                    // written by the loop before kHoldEngaged
+  int64_t hold_unbuildable_for = -1;                 // active id whose hold failed to build
+  std::vector<std::string> soles;                    // robot.contact_bodies the model has
+  // The graph's structure is read off the loop only under this lease (0 free, 1 LCM thread,
+  // 2 loop); the loop engages the hold controller only if it gets the lease at once.
+  std::atomic<int> graph_lease{0};
+  enum class Engage { kEngaged, kRetry, kUnavailable };
+
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};
   std::atomic<int64_t> journal_lost{0};
@@ -244,6 +268,7 @@ struct Controller::Impl {
   std::mutex shared_mutex;    // the publisher's latest snapshot, for the LCM thread
   Eigen::VectorXd shared_q;   // kinematics configuration (nq): measured base, commanded joints
   int64_t shared_utime = 0;
+  int64_t shared_tick = -1;   // the tick of shared_q (-1: the initial configuration)
   std::mutex stats_mutex;
   std::map<std::string, int64_t> rejections;  // "CHANNEL: category" -> count
   int64_t num_rejected = 0;
@@ -271,6 +296,7 @@ struct Controller::Impl {
   void CopyTimings(const graph::Tick& t);
   void DecideSwitch(const graph::Tick& t);
   void Watchdog(const graph::Tick& t);
+  Engage EngageHoldController(const graph::Tick& t);
   void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
   void FillWalkStatus(const graph::Tick& t, Snapshot* s);  // controller_walk.cc
 
@@ -282,6 +308,8 @@ struct Controller::Impl {
   void OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std::string& channel);  // controller_walk.cc
   void PostNextSpec();
+  void ArmHoldController();
+  void CollectHoldController();
   void CollectSwitchDecision();
   void OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void ServeDg();

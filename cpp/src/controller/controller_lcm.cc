@@ -6,24 +6,46 @@ namespace marionette::controller {
 
 // ---- LCM thread --------------------------------------------------------------------------------
 
+namespace {
+
+template <typename Msg>
+bool Decode(const lcm::ReceiveBuffer* rbuf, Msg* msg) {
+  return msg->decode(rbuf->data, 0, rbuf->data_size) == static_cast<int>(rbuf->data_size);
+}
+
+// The graph's structure is read (controllers built, requests served) only while this thread
+// holds the lease; the loop takes it for the few microseconds of engaging the hold controller.
+class GraphReadLease {
+ public:
+  explicit GraphReadLease(std::atomic<int>& lease) : lease_(lease) {
+    for (int free = 0; !lease_.compare_exchange_weak(free, 1, std::memory_order_acquire); free = 0) {
+      std::this_thread::yield();
+    }
+  }
+  ~GraphReadLease() { lease_.store(0, std::memory_order_release); }
+  GraphReadLease(const GraphReadLease&) = delete;
+  GraphReadLease& operator=(const GraphReadLease&) = delete;
+
+ private:
+  std::atomic<int>& lease_;
+};
+
+}  // namespace
+
 void Controller::Impl::LcmThread() {
   while (!stop) {
     lcm.handleTimeout(2);
+    GraphReadLease lease(graph_lease);
     CollectSwitchDecision();
+    CollectHoldController();
     service.CollectGarbage();
     ServeSamples();
     ServeDg();
     PublishTiming();
     PostNextSpec();
+    ArmHoldController();
   }
 }
-
-namespace {
-template <typename Msg>
-bool Decode(const lcm::ReceiveBuffer* rbuf, Msg* msg) {
-  return msg->decode(rbuf->data, 0, rbuf->data_size) == static_cast<int>(rbuf->data_size);
-}
-}  // namespace
 
 void Controller::Impl::OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string&) {
   lcmt_controller_spec spec;
@@ -43,6 +65,11 @@ void Controller::Impl::PostNextSpec() {
       switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kNone)) {
     return;
   }
+  // The armed hold controller replaces the running controller: disarm it (a new one is built
+  // for the new controller once its swap is decided).
+  int armed = kHoldArmed;
+  if (hold_state.compare_exchange_strong(armed, kHoldEmpty, std::memory_order_acq_rel)) hold_controller.reset();
+  CollectHoldController();  // engaged just now: the new controller replaces the hold controller
   const lcmt_controller_spec spec = std::move(waiting_specs.front().first);
   const int64_t spec_hash = waiting_specs.front().second;
   waiting_specs.pop_front();
@@ -53,9 +80,11 @@ void Controller::Impl::PostNextSpec() {
   }
   // A recent configuration to check the spec against (its holds take the swap tick's values).
   Eigen::VectorXd q;
+  int64_t build_tick = -1;
   {
     std::lock_guard<std::mutex> lock(shared_mutex);
     q = shared_q;
+    build_tick = shared_tick;
   }
   std::vector<std::string> previous;
   if (active_owned_id >= 0) previous = controllers.at(active_owned_id)->entity_names;
@@ -75,8 +104,61 @@ void Controller::Impl::PostNextSpec() {
   }
   posted = built.get();
   posted_hash = spec_hash;
+  posted_build_tick = build_tick;
   controllers[built->id] = std::move(built);
   switch_state.store(static_cast<int>(SwitchState::kPosted), std::memory_order_release);
+}
+
+void Controller::Impl::ArmHoldController() {
+  if (hold_state.load(std::memory_order_acquire) != kHoldEmpty || !waiting_specs.empty() ||
+      switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kNone) ||
+      active_owned_id < 0 || active_owned_id == kHoldControllerId || active_owned_id == hold_unbuildable_for) {
+    return;
+  }
+  Eigen::VectorXd q;
+  {
+    std::lock_guard<std::mutex> lock(shared_mutex);
+    q = shared_q;
+  }
+  try {
+    hold_controller = BuildHoldController(*factory, *graph, *controllers.at(active_owned_id), q, model, soles);
+  } catch (const std::exception& e) {  // reported once per controller; overruns then hold still
+    hold_unbuildable_for = active_owned_id;
+    Reject(channels::kControllerSpec, "hold controller", e.what());
+    return;
+  }
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    Names& names = names_by_id[kHoldControllerId];
+    names = Names{hold_controller->name, hold_controller->task_names, {}};
+  }
+  armed_hold = hold_controller.get();
+  hold_state.store(kHoldArmed, std::memory_order_release);
+}
+
+void Controller::Impl::CollectHoldController() {
+  const int state = hold_state.load(std::memory_order_acquire);
+  if (state == kHoldStale) {
+    hold_controller.reset();
+    hold_state.store(kHoldEmpty, std::memory_order_release);
+    return;
+  }
+  if (state != kHoldEngaged) return;
+  // As for a swap: the edit holds the replaced topology, freed here with its controller.
+  hold_controller->edit.reset();
+  if (active_owned_id >= 0) controllers.erase(active_owned_id);
+  active_owned_id = kHoldControllerId;
+  const std::string result = "engaged the hold controller '" + hold_controller->name + "' (id " +
+                             std::to_string(kHoldControllerId) + "): time budget overrun";
+  controllers[kHoldControllerId] = std::move(hold_controller);
+  armed_hold = nullptr;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    pending_switch_result = result;
+    pending_switch_tick = hold_engaged_tick;
+  }
+  if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  hold_state.store(kHoldEmpty, std::memory_order_release);
 }
 
 void Controller::Impl::CollectSwitchDecision() {
@@ -316,8 +398,8 @@ void Controller::Impl::OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::st
 }
 
 void Controller::Impl::ServeDg() {
-  // The structure is read here only while no swap is pending: the loop changes it only by
-  // applying a swap this thread posted.
+  // The structure is read here only while no swap is pending (the loop applies a swap this
+  // thread posted) and under the graph lease (the loop engages the hold controller).
   while (!waiting_dg.empty() &&
          switch_state.load(std::memory_order_acquire) == static_cast<int>(SwitchState::kNone)) {
     const lcmt_dg_request request = std::move(waiting_dg.front());

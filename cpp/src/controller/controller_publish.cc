@@ -30,6 +30,7 @@ void Controller::Impl::PublisherThread() {
       std::lock_guard<std::mutex> lock(shared_mutex);
       shared_q = fresh.q_kinematics;
       shared_utime = fresh.utime;
+      shared_tick = fresh.tick;
     }
     const Snapshot& s = snapshots->read_slot();
     const auto now = Clock::now();
@@ -192,6 +193,9 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
                     "time budget: entity #%d over its budget %.0f ticks in a row", s.reason_index,
                     s.reason_value);
       st.mode_reason = buffer;
+      st.mode_reason += s.active_id == kHoldControllerId && names != names_by_id.end()
+                            ? "; the " + names->second.controller + " controller holds the robot"
+                            : "; zero-velocity hold";
       break;
     }
   }

@@ -57,6 +57,11 @@ void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std:
     Reject(channels::kFootstepPlan, "invalid plan", which + ": " + problem);
     return;
   }
+  // Posted even to a hold controller's stopped walk, which refuses it at its next tick: the
+  // plan is then journaled as consumed at the same tick live and in a replay.
+  if (active_owned_id == kHoldControllerId) {
+    Reject(channels::kFootstepPlan, "holding", which + ": the hold controller ends the walk after the current step");
+  }
   if (!steps->Post(*plan)) Reject(channels::kFootstepPlan, "queue full", which + " dropped");
 }
 

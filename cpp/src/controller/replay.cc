@@ -148,10 +148,28 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
   graph::Tick t{0, 0.0, kDt};
   size_t next_entry = 0;
   std::vector<std::pair<int, int64_t>> expected, replayed;  // (channel, hash) consumed at this tick
+  // The configurations of the last ticks: a spec is built against the one its journal names.
+  const Eigen::VectorXd initial_q = c.shared_q;
+  constexpr int64_t kHistoryTicks = 10000;
+  std::vector<Eigen::VectorXd> history(kHistoryTicks);
   for (; t.index <= last_tick; ++t) {
     // The journaled inputs of this tick, through the live decoding and validation.
     expected.clear();
-    c.shared_q = c.q_kinematics->value();  // what the LCM thread would check specs against
+    c.shared_q = c.q_kinematics->value();  // logs without build ticks: the best guess
+    c.shared_tick = t.index - 1;
+    for (size_t k = next_entry; k < run.entries.size() && run.entries[k].tick == t.index; ++k) {
+      const JournalEntry& e = run.entries[k];
+      if (e.channel != kBuildTickChannel) continue;
+      if (e.hash < 0) {
+        c.shared_q = initial_q;
+      } else if (e.hash < t.index && t.index - e.hash <= kHistoryTicks) {
+        c.shared_q = history[e.hash % kHistoryTicks];
+      } else {
+        result.problems.push_back("the spec swapped at tick " + std::to_string(t.index) + " was built at tick " +
+                                  std::to_string(e.hash) + ", beyond the replay's history");
+      }
+      c.shared_tick = e.hash;
+    }
     for (; next_entry < run.entries.size() && run.entries[next_entry].tick == t.index; ++next_entry) {
       const JournalEntry& e = run.entries[next_entry];
       expected.emplace_back(e.channel, e.hash);
@@ -160,6 +178,7 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
         c.replay_budget_hold = e.hash;
         continue;
       }
+      if (e.channel == kBuildTickChannel) continue;  // applied above, before the spec is built
       const auto message = run.messages.find(e.hash);
       if (message == run.messages.end()) {
         result.problems.push_back(std::string("the ") + kJournalChannels[e.channel] + " message consumed at tick " +
@@ -193,7 +212,10 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
       }
     }
     c.LoopTick(t, clock);
+    history[t.index % kHistoryTicks] = c.q_kinematics->value();
     c.CollectSwitchDecision();
+    c.CollectHoldController();
+    c.ArmHoldController();  // as the LCM thread does once a swap is decided
     // Same inputs consumed at the same tick?
     replayed.clear();
     JournalEntry e;

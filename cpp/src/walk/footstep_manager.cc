@@ -82,6 +82,17 @@ void FootstepManager::Reset(const FootPlacement& left, const FootPlacement& righ
   rest_zmp_ = rest_zmp;
   previous_zmp_ = rest_zmp;
   phase_start_ = 0.0;
+  stopped_ = false;
+  RebuildSegments();
+}
+
+void FootstepManager::StopAfterCurrentStep() {
+  stopped_ = true;
+  // Walking: the front step is in progress (from its double support on); stopping or standing:
+  // whatever is queued has not started.
+  const int keep = mode_ == Mode::kWalking ? std::min(queue_size_, 1) : 0;
+  if (keep == queue_size_) return;
+  queue_size_ = keep;
   RebuildSegments();
 }
 
@@ -101,6 +112,10 @@ void FootstepManager::Poll(const graph::Tick& t) {
 }
 
 void FootstepManager::ApplyPlan(const FootstepPlan& plan) {
+  if (stopped_) {
+    ++refused_plans_;
+    return;
+  }
   if (queue_size_ == 0) {  // nothing started nor pending: a new walk, whatever its numbering
     queue_size_ = std::min(plan.num_steps, FootstepPlan::kMaxSteps);
     std::copy_n(plan.steps.begin(), queue_size_, queue_.begin());

@@ -42,6 +42,9 @@ GRIPPER_ADMITTANCE_PARAMETERS = ("force_target", "force_threshold", "release_for
 # reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
 # starts from); the CoM is optional.
 WALK_REFERENCES = {"walk:left_foot": "se3", "walk:right_foot": "se3", "walk:com": "com"}
+# The id the controller's own hold controller reports as active once repeated time-budget
+# overruns engaged it (cpp/include/marionette/controller/hold_controller.h).
+HOLD_CONTROLLER_ID = -2
 
 
 class SpecError(ValueError):

@@ -22,6 +22,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Iterable
 
+from marionette.control.spec import HOLD_CONTROLLER_ID
+
 STATUS = "CONTROLLER_STATUS"
 EVENT = "SUPERVISOR_EVENT"
 STEP = "STEP"
@@ -164,7 +166,9 @@ class DecisionMachine:
             return []
         if s not in ("running", "waiting_end_check"):
             return []
-        if st.mode in ("holding", "estopped") and st.active_controller_id == cid:
+        # Holding with this step's controller, or with the controller's own hold controller that
+        # replaced it (repeated time-budget overruns): the step failed.
+        if st.mode in ("holding", "estopped") and st.active_controller_id in (cid, HOLD_CONTROLLER_ID):
             event = "reference_starved" if "watchdog" in st.mode_reason else "controller_" + st.mode
             return [self._status_decision(event, "failed", st.mode_reason, st, ins)]
         out = []

@@ -129,6 +129,31 @@ TEST(FootstepManagerTest, ReplanningNeverChangesTheStepInProgress) {
   EXPECT_NEAR(rig.manager->queued(2).placement.x(), 0.75, 1e-12);
 }
 
+TEST(FootstepManagerTest, StopAfterCurrentStepLandsItStandsAndRefusesPlans) {
+  FootstepManagerOptions options;
+  options.start_delay = 0.0;
+  options.min_first_double_support = 0.2;
+  options.final_double_support = 0.6;
+  Rig rig(options);
+  rig.manager->Post(Forward(4, 0.2));
+  rig.Run(1.5);  // step 0: 0.2 s double support + 0.8 s swing; step 1 (left) swinging since 1.2 s
+  rig.Eval();
+  ASSERT_EQ(rig.manager->step_index_output().value(), 1);
+  ASSERT_EQ(rig.manager->phase_output().value(), static_cast<int>(WalkPhase::kLeftSwing));
+  rig.manager->StopAfterCurrentStep();  // what the hold controller does at its swap
+  EXPECT_EQ(rig.manager->num_queued(), 1);
+  rig.manager->Post(Forward(4, 0.3, /*first=*/2, /*id=*/2));
+  rig.Run(4.0);  // step 1 lands at 2.0 s, 0.6 s of final double support
+  rig.Eval();
+  EXPECT_EQ(rig.manager->phase_output().value(), static_cast<int>(WalkPhase::kStanding));
+  EXPECT_EQ(rig.manager->completed_steps(), 2);
+  EXPECT_EQ(rig.manager->refused_plans(), 1);
+  // Step 1 landed where planned, the right foot stayed at step 0's place, the ZMP between them.
+  EXPECT_LT((PoseToPlacement(rig.manager->left_foot_output().value()) - FootPlacement(0.4, 0.085, 0, 0)).norm(), 1e-12);
+  EXPECT_LT((PoseToPlacement(rig.manager->right_foot_output().value()) - FootPlacement(0.2, -0.085, 0, 0)).norm(), 1e-12);
+  EXPECT_LT((rig.manager->zmp_reference_output().value() - Eigen::Vector2d(0.3, 0.0)).norm(), 1e-12);
+}
+
 TEST(FootstepManagerTest, ValidationNamesTheBadStep) {
   FootstepPlan plan = Forward(3, 0.2);
   EXPECT_EQ(ValidateFootstepPlan(plan), "");

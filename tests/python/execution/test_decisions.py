@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 
 from marionette import lcmt_controller_status, lcmt_supervisor_decision, lcmt_supervisor_event
+from marionette.control.spec import HOLD_CONTROLLER_ID
 from marionette.execution.decisions import (EVENT, STATUS, Decision, DecisionMachine, replay_decisions)
 
 CID = 7
@@ -86,6 +87,11 @@ def test_force_event_applies_at_the_last_status_tick_and_watchdog_fails():
     ds = run_step(DecisionMachine(), [(STATUS, status(30_000)),
                                       (STATUS, status(60_000, mode="holding", reason="watchdog: stale"))])
     assert (ds[-1].event, ds[-1].utime) == ("reference_starved", 60_000)
+    # the controller's hold controller replaced this step's one (time budget): failed, not waiting
+    ds = run_step(DecisionMachine(), [(STATUS, status(30_000)),
+                                      (STATUS, status(70_000, active=HOLD_CONTROLLER_ID, mode="holding",
+                                                      reason="time budget: ...; the hold (posture) controller"))])
+    assert (ds[-1].event, ds[-1].utime, ds[-1].to_status) == ("controller_holding", 70_000, "failed")
     # once every chunk is sent, a force event still cuts the reference (a chunk redefines the
     # stream from its first sample), but only the first one of the step
     m = DecisionMachine()

@@ -16,7 +16,10 @@
 ///
 /// Modes: hold (zero velocity, the servos hold the last command) until a controller is
 /// accepted; run; hold again when a streamed reference goes stale (watchdog) or on COMMAND
-/// "hold"; estop latches until "reset_estop". Every rejected input is counted with its reason
+/// "hold"; estop latches until "reset_estop". An entity over its time budget for
+/// --overrun-hold-ticks ticks in a row engages the hold controller (hold_controller.h: balance
+/// + posture for humanoids, posture for arms; status "holding", active id -2), or holds with
+/// zero velocity when it is not armed. Every rejected input is counted with its reason
 /// in CONTROLLER_STATUS; the robot never moves on garbage.
 
 #include <atomic>

@@ -58,6 +58,10 @@ struct BuiltController {
   /// Walking entities, when a task takes a "walk:" reference (nullptr otherwise).
   walk::FootstepManager* walk_steps = nullptr;
   walk::PatternGenerator* walk_pattern = nullptr;
+  /// The balance tasks of the spec: its first level's se3, position and com tasks that are not
+  /// streamed (walk references, fixed or held ones: feet, CoM, waist) — what a hold controller
+  /// keeps of a walking controller to finish the step in progress (hold_controller.h).
+  std::vector<lcmt_task_spec> balance_tasks;
 
   /// Sets every "hold where it is" reference to the current value of its feature (loop thread,
   /// at the swap: no allocation).
@@ -87,9 +91,14 @@ class ControllerFactory {
   /// `previous_entities`; `q` (nq) is a recent configuration (to check the spec against). Throws
   /// std::invalid_argument naming the task and the problem (unknown kind, frame or joint, bad
   /// mask, gain or reference, duplicate names...). The returned edit is prepared.
+  /// With `continue_walk` (a running walking controller whose walk entities are not among
+  /// `previous_entities`), the spec's "walk:" tasks take their references from its footstep
+  /// manager and pattern generator, which the new controller adopts as they are (the walk goes
+  /// on), instead of new ones starting standing.
   std::unique_ptr<BuiltController> Build(const lcmt_controller_spec& spec, const graph::Graph& graph,
                                          const std::vector<std::string>& previous_entities,
-                                         const Eigen::VectorXd& q) const;
+                                         const Eigen::VectorXd& q,
+                                         const BuiltController* continue_walk = nullptr) const;
 
   /// The value size and derivative size of a task kind's reference (throws on an unknown kind).
   std::pair<int, int> ReferenceSizes(const std::string& kind) const;

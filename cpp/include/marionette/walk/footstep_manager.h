@@ -71,6 +71,12 @@ class FootstepManager final : public graph::Entity {
   /// Loop thread, between ticks: standing on these feet, ZMP reference at `rest_zmp`, queue
   /// emptied (plans in the mailbox stay). No allocation.
   void Reset(const FootPlacement& left, const FootPlacement& right, const Eigen::Vector2d& rest_zmp);
+  /// Loop thread, between ticks: the walk ends with the step in progress (it is never changed)
+  /// — queued steps after it are dropped, the final double support then brings the ZMP to the
+  /// middle of the feet — and every later plan is refused (counted) until Reset. No allocation.
+  /// What a hold controller does to stop a walking robot safely (controller/hold_controller.h).
+  void StopAfterCurrentStep();
+  bool stopped() const { return stopped_; }
 
   /// Plans applied and refused (a gap between the queue's last index and the plan's first).
   int64_t applied_plans() const { return applied_plans_; }
@@ -148,6 +154,7 @@ class FootstepManager final : public graph::Entity {
                                             // stopping: the final double-support start
   Eigen::Vector2d previous_zmp_ = Eigen::Vector2d::Zero();  // ZMP where the current phase started
   Eigen::Vector2d rest_zmp_ = Eigen::Vector2d::Zero();
+  bool stopped_ = false;                    // StopAfterCurrentStep: no plan taken until Reset
   int64_t current_plan_id_ = 0;
   int64_t applied_plans_ = 0, refused_plans_ = 0, completed_steps_ = 0;
   std::array<ZmpSegment, kMaxSegments> segments_{};
