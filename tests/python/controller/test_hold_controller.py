@@ -149,3 +149,58 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(build_di
     result = replay_controller(log)
     assert result["problems"] == [] and result["journal_mismatches"] == 0, result["output"]
     assert result["max_difference"] <= 1e-9 and result["ok"], result["output"]
+
+
+def test_a_standing_humanoid_over_budget_holds_its_feet_and_aims_its_com_between_them(build_dir, lcm_url,
+                                                                                       tmp_path):
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    data = model.createData()
+    frames = {side: model.getFrameId(f"{side}_sole_link") for side in ("left", "right")}
+
+    def measured(c):
+        q = configuration_from_state(model, c.state)
+        pin.framesForwardKinematics(model, data, q)
+        fz = {n: w[2] for n, w in zip(c.state.contact_frame, c.state.contact_wrench)}
+        return (q, pin.centerOfMass(model, data, q), {s: data.oMf[f].copy() for s, f in frames.items()},
+                {s: fz.get(f"{s}_sole_link", 0.0) for s in frames})
+
+    with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
+                            str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0",
+                            "--overrun-hold-ticks", "10") as c, GraphClient(lcm_url) as dg:
+        c.wait_time(0.5)  # settled on the floor
+        _, com0, soles0, _ = measured(c)
+        middle = 0.5 * (soles0["left"].translation + soles0["right"].translation)
+        # Lean: the CoM 5 cm towards the left foot, feet where they are.
+        c.send_spec(ControllerSpec(1, "lean", [
+            TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0),
+            TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0),
+            TaskSpec("com", "com", 0, gain=2.0, reference=[middle[0], middle[1] + 0.05, com0[2]]),
+            TaskSpec("posture", "posture", 1, gain=2.0)], max_switch_velocity_jump=1.0))
+        c.wait(lambda c: c.status.active_controller_id == 1, 30.0, "leaning")
+        c.wait_time(3.0)
+        _, leaning, _, _ = measured(c)
+        dg.budget("c1_solver", 0.001)
+        c.wait(lambda c: c.status.active_controller_id == HOLD_CONTROLLER_ID, 20.0, "the hold controller")
+        assert c.status.mode == "holding" and c.status.active_controller == "hold (balance + posture)"
+        # The soles stay where they were at the engagement; the CoM aims at the middle of them.
+        values = dg.get("c-2_hold_com_feature.reference", "c-2_hold_sole_0_feature.reference",
+                        "c-2_hold_sole_1_feature.reference")
+        c.wait_time(3.0)
+        q, com, soles, load = measured(c)
+    held = [np.asarray(values[f"c-2_hold_sole_{i}_feature.reference"])[:3, 3] for i in range(2)]
+    target = values["c-2_hold_com_feature.reference"]
+    half = sole_half_size(TALOS.mjcf)
+    corners = np.vstack([sole_corners([*soles[s].translation[:2], 0.0, pin.rpy.matrixToRpy(soles[s].rotation)[2]],
+                                      half) for s in frames])
+    rpy = pin.rpy.matrixToRpy(pin.Quaternion(q[6], *q[3:6]).toRotationMatrix())
+    print(f"CoM {1e3 * (leaning[1] - middle[1]):.1f} mm left of the middle of the feet when the solver overran, "
+          f"{1e3 * (com[1] - middle[1]):.1f} mm 3 s into the hold ({1e3 * polygon_margin(com[:2], corners):.0f} mm "
+          f"inside the feet); load left/right {load['left']:.0f}/{load['right']:.0f} N; trunk roll "
+          f"{np.degrees(rpy[0]):.1f} pitch {np.degrees(rpy[1]):.1f} deg")
+    assert leaning[1] - middle[1] > 0.04, "leaning towards the left foot when the solver overran"
+    np.testing.assert_allclose(target[:2], 0.5 * (held[0][:2] + held[1][:2]), atol=1e-9)
+    assert np.linalg.norm(target[:2] - middle[:2]) < 0.01, "the CoM reference between the feet"
+    assert max(np.abs(soles[s].translation - soles0[s].translation).max() for s in frames) < 0.005, "feet held"
+    assert q[2] > 0.95 and max(abs(rpy[0]), abs(rpy[1])) < np.radians(8), "standing upright"
+    assert min(load.values()) > 0.2 * sum(load.values()), "standing on both feet"
+    assert polygon_margin(com[:2], corners) > 0.03, "the CoM well inside the feet"
