@@ -274,8 +274,8 @@ void Projector::RelativePose(int joint1, const pinocchio::SE3& M1, int joint2, c
   out->v6.tail<3>() = pinocchio::log3(out->M.rotation());
 }
 
-void Projector::RelativeJacobian(int joint1, const pinocchio::SE3& /*M1*/, int joint2,
-                                 const pinocchio::SE3& M2, const Relative& rel, Matrix6x* J) {
+void Projector::RelativeJacobian(int joint1, int joint2, const pinocchio::SE3& M2, const Relative& rel,
+                                 Matrix6x* J) {
   // Body twist of M in F2: nu = Ad(M2^-1) J_2 - Ad(X2^-1 oMi1) J_1; dp = R nu_lin,
   // d log3(R) = Jlog3(R) nu_ang.
   const int nv = model_.nv;
@@ -394,7 +394,7 @@ void Projector::Jacobians(int level, Eigen::MatrixXd* Jout) {
     switch (s.kind) {
       case ImplicitSpec::Kind::kRelative: {
         RelativePose(s.joint1, s.M1, s.joint2, s.M2, &rel);
-        RelativeJacobian(s.joint1, s.M1, s.joint2, s.M2, rel, &J6);
+        RelativeJacobian(s.joint1, s.joint2, s.M2, rel, &J6);
         for (int i = 0, k = 0; i < 6; ++i)
           if (s.mask[i]) J.row(row + k++) = J6.row(i);
         break;
@@ -403,7 +403,7 @@ void Projector::Jacobians(int level, Eigen::MatrixXd* Jout) {
         const PlacementSpec& p = spec_.placements[s.placement];
         const int pr = pair_[s.placement];
         RelativePose(p.joint_e[pr], p.M_env[pr], p.joint_o[pr], p.M_obj[pr], &rel);
-        RelativeJacobian(p.joint_e[pr], p.M_env[pr], p.joint_o[pr], p.M_obj[pr], rel, &J6);
+        RelativeJacobian(p.joint_e[pr], p.joint_o[pr], p.M_obj[pr], rel, &J6);
         for (int i = 0; i < 3; ++i) J.row(row + i) = J6.row(kPlacementRows[i]);
         Eigen::Vector2d r;
         Eigen::Matrix2d D;
@@ -417,7 +417,7 @@ void Projector::Jacobians(int level, Eigen::MatrixXd* Jout) {
         const PlacementSpec& p = spec_.placements[s.placement];
         const int pr = pair_[s.placement];
         RelativePose(p.joint_e[pr], p.M_env[pr], p.joint_o[pr], p.M_obj[pr], &rel);
-        RelativeJacobian(p.joint_e[pr], p.M_env[pr], p.joint_o[pr], p.M_obj[pr], rel, &J6);
+        RelativeJacobian(p.joint_e[pr], p.joint_o[pr], p.M_obj[pr], rel, &J6);
         for (int i = 0; i < 3; ++i) J.row(row + i) = J6.row(kComplementRows[i]);
         break;
       }

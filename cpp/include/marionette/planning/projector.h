@@ -121,8 +121,8 @@ class Projector {
   const Eigen::Matrix<double, 6, Eigen::Dynamic>& JointJacobian(int joint);
   void RelativePose(int joint1, const pinocchio::SE3& M1, int joint2, const pinocchio::SE3& M2,
                     Relative* out) const;
-  void RelativeJacobian(int joint1, const pinocchio::SE3& M1, int joint2, const pinocchio::SE3& M2,
-                        const Relative& rel, Eigen::Matrix<double, 6, Eigen::Dynamic>* J);
+  void RelativeJacobian(int joint1, int joint2, const pinocchio::SE3& M2, const Relative& rel,
+                        Eigen::Matrix<double, 6, Eigen::Dynamic>* J);
   void Errors(int level, Eigen::VectorXd* e);
   void Jacobians(int level, Eigen::MatrixXd* J);
   void Descent(const Eigen::Ref<const Eigen::VectorXd>& q, Eigen::VectorXd* step);
