@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 
 _planning = _core.planning
 
+_EMPTY = np.zeros(0)
 SUPPORTED = (RelativeTransformation, Placement, PlacementComplement, _ImplicitLockedJoint)
 
 
@@ -109,7 +110,9 @@ class CppProjector:
         parts = [c.rhs for c in self.order] + [lk.value for lk in self.locked]
         if self.implicit_locked:
             parts += [lk.value for lk in self.implicit_locked]
-        return np.concatenate(parts) if parts else np.zeros(0)
+        if len(parts) > 1:
+            return np.concatenate(parts)
+        return parts[0] if parts else _EMPTY
 
     def pairs(self) -> list[int]:
         return [plc.pair for plc in self.placements]
@@ -122,13 +125,18 @@ class CppProjector:
                 max_iterations: int) -> tuple[int, int, float]:
         """(status code, iterations, |e|); q (nq) projected in place, selected pairs written back."""
         rhs, pairs = self.rhs(), self.pairs()
-        if q.dtype == np.float64 and q.flags.c_contiguous and q.flags.writeable:
+        try:
+            # In place: pybind11 refuses (TypeError) an array it cannot write without a copy.
             code, it, err, pairs = self.cpp.project(q, rhs, pairs, error_threshold, max_iterations)
-        else:
+        except TypeError:
+            if not isinstance(q, np.ndarray) or q.shape != (self.cpp.nq,):
+                raise ValueError(f"q must be an array of {self.cpp.nq} entries, got "
+                                 f"{getattr(q, 'shape', type(q).__name__)}") from None
             qc = np.ascontiguousarray(q, dtype=np.float64)
             code, it, err, pairs = self.cpp.project(qc, rhs, pairs, error_threshold, max_iterations)
             q[:] = qc
-        self._set_pairs(pairs)
+        if self.placements:
+            self._set_pairs(pairs)
         return code, it, err
 
     def is_satisfied(self, q: np.ndarray, threshold: float) -> bool:
