@@ -136,7 +136,9 @@ class GripForceRecorder:
             ax.plot(self.t, self.estimate[name], label="estimate (effort, eq. 3.11-3.13)", alpha=0.8)
             ax.axhline(5.0, color="k", lw=0.6, ls="--")
             ax.set_ylabel(f"{name} [N]")
-            ax.set_ylim(-2, 12)
+            c = np.array(self.contact[name], dtype=float)
+            top = float(np.nanpercentile(c, 99.5)) if np.isfinite(c).any() else 0.0
+            ax.set_ylim(-2, min(40.0, max(12.0, 1.2 * top)))   # a wedged jaw reads 10-25 N
             ax.legend(loc="upper right", fontsize=7)
         axes[-1, 0].set_xlabel("controller time [s]")
         fig.suptitle("grip force: 5 N target (shaded: admittance holding)")
