@@ -414,12 +414,6 @@ void Controller::Stop() {
 
 int Controller::Run() {
   Impl& c = *impl_;
-  if (c.options.realtime) {
-    const runtime::RealtimeStatus rt = runtime::RequestRealtime(80);
-    std::cerr << "[controller] " << rt.message << "\n";
-  } else {
-    std::cerr << "[controller] real-time scheduling not requested (--realtime): normal priority\n";
-  }
   // Subscribed before anything is published: whoever sees our first status can talk to us.
   c.lcm.subscribe(channels::kControllerSpec, &Impl::OnSpec, &c);
   c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c);
@@ -431,6 +425,15 @@ int Controller::Run() {
   std::thread publisher(&Impl::PublisherThread, &c);
   std::thread camera;
   if (c.render_states) camera = std::thread(&Impl::CameraThread, &c);
+  // The loop alone at the top priority, requested once the other threads exist (they would
+  // inherit it): the LCM and publisher threads ask for kIoPriority themselves, the camera
+  // thread runs at SCHED_IDLE.
+  if (c.options.realtime) {
+    const runtime::RealtimeStatus rt = runtime::RequestRealtime(kLoopPriority);
+    std::cerr << "[controller] loop thread " << rt.message << "\n";
+  } else {
+    std::cerr << "[controller] real-time scheduling not requested (--realtime): normal priority\n";
+  }
   std::cerr << "[controller] " << c.robot.name << " on " << c.options.backend << " backend, "
             << c.model->nv << " dofs, graph of " << c.graph->entities().size() << " entities; "
             << (c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"

@@ -61,6 +61,10 @@ namespace marionette::controller {
 using Clock = std::chrono::steady_clock;
 inline constexpr double kDt = 1e-3;      // the control period [s]
 inline constexpr int kMaxTasks = 64;     // task error norms reported per controller
+// --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (inputs,
+// introspection samples, state): above any normal process, below the loop.
+inline constexpr int kLoopPriority = 80;
+inline constexpr int kIoPriority = 40;
 
 inline int64_t TickUs(const graph::Tick& t) { return static_cast<int64_t>(std::llround(t.time * 1e6)); }
 

@@ -33,6 +33,9 @@ class GraphReadLease {
 }  // namespace
 
 void Controller::Impl::LcmThread() {
+  if (options.realtime) {
+    std::cerr << "[controller] LCM thread " << runtime::RequestThreadPriority(kIoPriority).message << "\n";
+  }
   while (!stop) {
     lcm.handleTimeout(2);
     GraphReadLease lease(graph_lease);

@@ -7,6 +7,9 @@ namespace marionette::controller {
 // ---- publisher --------------------------------------------------------------------------------
 
 void Controller::Impl::PublisherThread() {
+  if (options.realtime) {
+    std::cerr << "[controller] publisher thread " << runtime::RequestThreadPriority(kIoPriority).message << "\n";
+  }
   runtime::TimingWindow period(10000), compute(10000), lateness(10000);
   const auto state_period = std::chrono::duration<double>(1.0 / std::max(1.0, options.state_rate));
   const auto status_period = std::chrono::duration<double>(1.0 / std::max(0.1, options.status_rate));

@@ -1,5 +1,6 @@
 #include "marionette/runtime/loop_clock.h"
 
+#include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
 
@@ -79,6 +80,17 @@ RealtimeStatus RequestRealtime(int priority) {
                    (status.locked ? "granted"
                                   : std::string("REFUSED (") + std::strerror(lock_error) +
                                         "; needs CAP_IPC_LOCK or a memlock limit)");
+  return status;
+}
+
+RealtimeStatus RequestThreadPriority(int priority) {
+  RealtimeStatus status;
+  sched_param param{};
+  param.sched_priority = priority;
+  const int error = pthread_setschedparam(pthread_self(), SCHED_FIFO, &param);
+  status.fifo = error == 0;
+  status.message = std::string("SCHED_FIFO priority ") + std::to_string(priority) +
+                   (status.fifo ? " granted" : std::string(" REFUSED (") + std::strerror(error) + ")");
   return status;
 }
 

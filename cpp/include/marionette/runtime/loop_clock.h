@@ -59,5 +59,8 @@ struct RealtimeStatus {
 
 /// Tries SCHED_FIFO at `priority` for the calling thread and mlockall(MCL_CURRENT | MCL_FUTURE).
 RealtimeStatus RequestRealtime(int priority);
+/// Tries SCHED_FIFO at `priority` for the calling thread only (threads serving a real-time loop
+/// below its priority); the message says whether it was granted and why not.
+RealtimeStatus RequestThreadPriority(int priority);
 
 }  // namespace marionette::runtime
