@@ -123,6 +123,7 @@ void Controller::Impl::ArmHoldController() {
     std::lock_guard<std::mutex> lock(shared_mutex);
     q = shared_q;
   }
+  const auto start = Clock::now();
   try {
     hold_controller = BuildHoldController(*factory, *graph, *controllers.at(active_owned_id), q, model, soles);
   } catch (const std::exception& e) {  // reported once per controller; overruns then hold still
@@ -137,6 +138,11 @@ void Controller::Impl::ArmHoldController() {
   }
   armed_hold = hold_controller.get();
   hold_state.store(kHoldArmed, std::memory_order_release);
+  if (options.verbose) {
+    std::cerr << "[controller] hold controller '" << hold_controller->name << "' armed for controller "
+              << active_owned_id << " in " << std::chrono::duration<double, std::milli>(Clock::now() - start).count()
+              << " ms\n";
+  }
 }
 
 void Controller::Impl::CollectHoldController() {
