@@ -255,6 +255,7 @@ struct Controller::Impl {
   BuiltController* armed_hold = nullptr;             // for the loop, valid while kHoldArmed
   int64_t hold_engaged_tick = -1;                    // written by the loop before kHoldEngaged
   int64_t hold_unbuildable_for = -1;                 // active id whose hold failed to build
+  int64_t last_decision_utime = 0;                   // of the last swap (LcmThread arms 1 s later)
   std::vector<std::string> soles;                    // robot.contact_bodies the model has
   // The graph's structure is read off the loop only under this lease (0 free, 1 LCM thread,
   // 2 loop); the loop engages the hold controller only if it gets the lease at once.

@@ -37,7 +37,7 @@ void Controller::Impl::LcmThread() {
     std::cerr << "[controller] LCM thread " << runtime::RequestThreadPriority(kIoPriority).message << "\n";
   }
   while (!stop) {
-    lcm.handleTimeout(2);
+    const bool idle = lcm.handleTimeout(2) == 0;
     GraphReadLease lease(graph_lease);
     CollectSwitchDecision();
     CollectHoldController();
@@ -46,7 +46,10 @@ void Controller::Impl::LcmThread() {
     ServeDg();
     PublishTiming();
     PostNextSpec();
-    ArmHoldController();
+    // Building a TALOS hold controller keeps this thread off the socket for 20-50 ms: not while
+    // messages come in, nor in the first second (controller time) after a swap, when a step's
+    // first chunks arrive just ahead of their start (a late chunk makes the stream skip samples).
+    if (idle && loop_utime() > last_decision_utime + 1'000'000) ArmHoldController();
   }
 }
 
@@ -167,6 +170,7 @@ void Controller::Impl::CollectHoldController() {
     pending_switch_tick = hold_engaged_tick;
   }
   if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  last_decision_utime = hold_engaged_tick * 1000;
   hold_state.store(kHoldEmpty, std::memory_order_release);
 }
 
@@ -198,6 +202,7 @@ void Controller::Impl::CollectSwitchDecision() {
     pending_switch_tick = decided_tick;
   }
   if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  last_decision_utime = decided_tick * 1000;
   posted = nullptr;
   switch_state.store(static_cast<int>(SwitchState::kNone), std::memory_order_release);
 }

@@ -48,7 +48,7 @@ def test_an_arm_over_budget_holds_its_posture_and_takes_a_new_controller(run_con
                                                         reference=reference.tolist())],
                                    max_switch_velocity_jump=1.0))  # the solver's blend starts it smoothly
         c.wait(lambda c: c.status.active_controller_id == 2, 20, "controller 2")
-        c.wait_time(0.2)
+        c.wait_time(1.3)  # the hold controller is armed 1 s after a swap (controller_lcm.cc)
         assert max(abs(v) for v in c.state.joint_velocity) > 0.05, "moving before the overrun"
         dg.budget("c2_solver", 0.001)  # every tick over budget
         c.wait(lambda c: c.status.active_controller_id == HOLD_CONTROLLER_ID, 20, "the hold controller")
