@@ -228,16 +228,19 @@ class GraspPlanner:
         # reach their length in one iteration (0.5 m replans: 3.8 -> 3.4 iterations on average).
         # The step preference's yaws break the stance at second order (the chain turns about
         # them); each step's second-order correction restores it (0.5 m: 3.7 -> 2.8 iterations).
-        # The reach check adds steps when the linearised chain misses the stance by more than
-        # 1 mm: the yaws' curvature only lengthens a miss, and of the 0.5 m replans of the
-        # benchmark every one that missed by 2.2-58 mm added its steps anyway, 3-4 iterations
-        # later, while a 0.9 mm miss was closed by the iterations.
+        # Without obstacles the reach check adds steps when the linearised chain misses the
+        # stance by more than 1 mm: the yaws' curvature only lengthens a miss, and of the
+        # 0.5 m replans of the benchmark every one that missed by 2.2-58 mm added its steps
+        # anyway, 3-4 iterations later, while a 0.9 mm miss was closed by the iterations.
+        # An obstacle's linearised rows block directions the chain can still take around it
+        # (a 1 mm check added steps there that the iterations did not need): the default then.
+        reach_tolerance = self.settings.reach_tolerance if self.obstacles else 1e-3
         settings = dataclasses.replace(self.settings, relax_stretched=False, reach_check=True,
                                        trust_region_steps=0.25,
                                        settle_ratio=self.options.replan_settle_ratio,
                                        task_tolerance=0.2 * self.settings.task_tolerance,
                                        blocked_iterations=1, restore_primary=True,
-                                       reach_tolerance=1e-3)
+                                       reach_tolerance=reach_tolerance)
         optimizer = FootstepOptimizer(self.augmented, levels, goal, self.limits, settings)
         self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen=True)
         return report
