@@ -23,9 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-joint-velocity", type=float, default=0.5, help="[rad/s] (default 0.5)")
     p.add_argument("--no-sim-grasp", action="store_true",
                    help="do not weld grasps in the simulator (kinematic backend, real robot)")
-    p.add_argument("--gripper-admittance", action=argparse.BooleanOptionalAction, default=True,
-                   help="gripper_admittance tasks while a gripper with a joint holds (thesis 000 "
-                        "§3.2.4.3; default on, --no-gripper-admittance: weld-only grasps)")
+    p.add_argument("--gripper-admittance", action="store_true",
+                   help="gripper_admittance tasks while a gripper with a joint holds (thesis 000 §3.2.4.3)")
     p.add_argument("--monitor", action="store_true",
                    help="execution monitor: left_manifold when OBJECT_POSES leave the step's constraints")
     p.add_argument("--from-step", type=int, default=None,

@@ -29,9 +29,7 @@ import marionette
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
-from marionette.execution.factory import (ADMITTANCE, ADMITTANCE_LEVER_ARM, build_specs, check_specs,
-                                          context_from_plan, write_specs)
-from marionette.execution.grip_force import GripForceRecorder, holding_windows, recorder_for, settled_windows
+from marionette.execution.factory import build_specs, check_specs, context_from_plan, write_specs
 from marionette.execution.perturbations import Perturbation, displaced, scene_with_joint_offsets, slipped
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.references import compute_references, sample_step
@@ -154,13 +152,12 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
              cache_dir: Path | None = None, log: Callable[[str], None] = print,
              controller_url: str | None = None, perturbation: Perturbation | None = None,
-             view: bool = False, gripper_admittance: bool = True) -> dict[str, Any]:
+             view: bool = False) -> dict[str, Any]:
     """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
     after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
     marionette-controller already running there (another machine: ttl=1) instead of starting one.
     ``perturbation`` (:mod:`.perturbations`): joint offsets in the simulated robot, the object
-    displaced before execution and slipping in the hand during it, camera noise.
-    ``gripper_admittance`` False: weld-only grasps (no gripper_admittance tasks, issue 7)."""
+    displaced before execution and slipping in the hand during it, camera noise."""
     from marionette.execution.report import write_report
 
     if scenario.runner is not None:
@@ -179,7 +176,7 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     model, _ = robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
     steps = steps_from_plan(plan)
-    ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=gripper_admittance)
+    ctx = context_from_plan(plan.doc, robot, model)
     ctx.visual_servoing = scenario.vision
     specs = build_specs(steps, ctx)
     write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
@@ -224,9 +221,6 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
 
             report["viewer_url"] = start_viewer(group, robot, scenario.scene, log)
         recorder = Recorder(model, client)
-        grip = recorder_for(ctx, model, ADMITTANCE_LEVER_ARM.get(robot, 0.1))   # issue 7
-        if grip is not None:
-            grip.subscribe(client.bus)
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
         for name in robot_map.objects:
@@ -305,34 +299,12 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
                             "steps": len(steps), "first_step": first,
                             "events": [list(e) for e in result.events]}
     report["timings"] = timings
-    if grip is not None:
-        try:
-            report["grip"] = _grip_report(grip, steps, result, out_dir)
-        except Exception as e:  # the grip report must never hide the run's verdict
-            report["grip_error"] = repr(e)
     if perturbation is not None:
         report["perturbation"] = perturbation.to_dict()
     if servo is not None:
         report["vision"] = servo.summary()
     write_report(out_dir, report, scenario, supervisor, result, recorder, model)
     return report
-
-
-def _grip_report(grip: GripForceRecorder, steps: list, result: SupervisorResult,
-                 out_dir: Path) -> dict[str, Any]:
-    """Grip force held by each admittance gripper (issue 7): contact force (MuJoCo) and estimate
-    over each holding window from 1 s after the switch to admittance; plot grip_force.png."""
-    grip.compute()
-    out: dict[str, Any] = {"target_n": ADMITTANCE["force_target"], "plot": "grip_force.png", "grippers": {}}
-    spans = {}
-    for name in grip.grippers:
-        windows = holding_windows(steps, result.records, name)
-        spans[name] = windows
-        settled = settled_windows(grip, name, windows, ADMITTANCE["force_threshold"])
-        out["grippers"][name] = {"holding_windows_s": windows,
-                                 "held": [grip.holding_summary(name, a, b) for a, b in settled]}
-    grip.plot(out_dir / "grip_force.png", spans)
-    return out
 
 
 def _slip(supervisor: Supervisor, client: ControllerClient, steps: list, obj: str,

@@ -62,9 +62,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--controller-url", default=None, metavar="URL",
                    help="use the marionette-controller already running on this LCM URL (e.g. on the "
                         "robot's computer, started with the scenario's --scene) instead of starting one")
-    p.add_argument("--gripper-admittance", action=argparse.BooleanOptionalAction, default=True,
-                   help="gripper_admittance tasks on the grippers with a joint (TALOS: close on the "
-                        "handle, hold 5 N, release; default on); --no-gripper-admittance: weld-only grasps")
     p.add_argument("--view", action="store_true",
                    help="serve a browser 3D view of the run (meshcat; its URL is printed; `marionette "
                         "replay LOG --view` plays a recorded run in it)")
@@ -108,8 +105,7 @@ def run(args: argparse.Namespace) -> int:
             report = run_demo(scenario, seed if args.plan_seed is None else args.plan_seed, out,
                               speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True), perturbation=perturbation,
-                              **({"view": True} if args.view and scenario.runner is None else {}),
-                              **({} if args.gripper_admittance else {"gripper_admittance": False}))
+                              **({"view": True} if args.view and scenario.runner is None else {}))
         except DemoError as e:
             print(f"marionette demo: {e}", file=sys.stderr)
             rows.append((seed, False, str(e).splitlines()[0], out, None))

@@ -10,9 +10,8 @@ step of a plan, with the three task groups of §3.2.5.1, by priority:
    steps 4-6; relative to the measured object once vision closes the loop, ch. 5);
 3. ``posture`` following the planned configuration (regularisation, lowest priority).
 
-Where the hardware has it (:func:`gripper_admittance_tasks`; on by default for the grippers with a
-joint, whose motor current or effort gives the force estimate: TALOS'; never for the UR10 suction
-cup or the tools) group 2 also gets, for every such gripper, a ``gripper_admittance`` task while it holds a handle (closing, then holding
+With ``gripper_admittance`` (opt-in, :func:`gripper_admittance_tasks`) group 2 also gets, for every
+gripper with a joint, a ``gripper_admittance`` task while it holds a handle (closing, then holding
 5 N: thesis 000 §3.2.4.3 and §3.2.5.1 "the transition where the robot closes its gripper ...
 adds the position and admittance tasks", kept while the grasp holds) and at the step that
 releases it (admittance down to 0 N, then position control to the open position); the posture
@@ -57,12 +56,6 @@ GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0, "gripp
 # (gain K_a, lever arm, 5 Hz filter, ramp speed) are the controller's defaults
 # (GripperAdmittanceOptions, cpp/include/marionette/sot/feature_gripper_admittance.h).
 ADMITTANCE: dict[str, float] = {"force_target": 5.0, "force_threshold": 4.0}
-# d_axis-gripper of eq. 3.13 per robot [m]: joint torque per newton of grip. TALOS' one motor drives
-# both jaws (the URDF mimics); by virtual work tau = F (|dp_d/dq| + |dp_s/dq|) over the two jaws'
-# contact points. The thesis "measured it roughly on the robot"; so is this one, in MuJoCo: on the
-# plank handles the jaws meet the 43 mm board with their inner links, ~4.2 cm from the pivots
-# (tau / F = 0.70 N m / 8.2 N on H1 with d = 0.14 in a plank-flip run: 2 x 4.25 cm).
-ADMITTANCE_LEVER_ARM: dict[str, float] = {"talos": 0.085}
 
 
 @dataclass(frozen=True)
@@ -86,7 +79,7 @@ class FactoryContext:
     handle_objects: dict[str, str]
     constraint_definitions: dict[str, dict[str, Any]] = field(default_factory=dict)
     graph_constraints: list[str] = field(default_factory=list)
-    # Grippers that get gripper_admittance tasks (context_from_plan: those with a joint).
+    # Grippers that get gripper_admittance tasks (empty: none, the default).
     gripper_joints: dict[str, GripperJoint] = field(default_factory=dict)
     # Vision in the loop (a camera and `marionette perceive` run): the placement approach gets
     # pbvs tasks (VISUAL_WAYPOINTS); off, every gripper task follows its planned pose.
@@ -99,11 +92,9 @@ class FactoryContext:
 
 
 def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model,
-                      gripper_admittance: bool = True) -> FactoryContext:
-    """The factory's context for a plan. ``gripper_admittance`` (default on) adds admittance tasks
-    for the plan's grippers that have a joint (an actuated gripper joint whose effort stands for
-    the motor current of eq. 3.11, TALOS'); grippers without one (UR10 suction, tools) never get
-    them; False turns them off (weld-only grasps, the behaviour before issue 7)."""
+                      gripper_admittance: bool = False) -> FactoryContext:
+    """The factory's context for a plan; ``gripper_admittance`` adds admittance tasks for the
+    plan's grippers that have a joint."""
     semantics = robots.semantics(robot).grippers
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
@@ -222,8 +213,6 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
         target = g.open_position if release else g.closed_position
         parameters = dict(ADMITTANCE, closing_direction=float(np.sign(g.closed_position - g.open_position)),
                           release=float(release))
-        if ctx.robot in ADMITTANCE_LEVER_ARM:
-            parameters["lever_arm"] = ADMITTANCE_LEVER_ARM[ctx.robot]
         tasks.append(TaskSpec(f"{_task_name(gripper)}_admittance", "gripper_admittance", priority,
                               gain=GAINS["gripper"], reference=[target], joints=[g.joint],
                               parameters=parameters))

@@ -86,20 +86,6 @@ def _markdown(r: dict[str, Any]) -> str:
                   f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
                   for k, t in v["last_per_step"].items()]
         lines += [""]
-    if "grip" in r:   # issue 7: the grip force the admittance holds, measured on the contacts
-        g = r["grip"]
-        lines += ["## Gripper admittance (thesis 000 §3.2.4.3)", "",
-                  f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
-                  "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.", "",
-                  "| gripper | window [s] | contact mean (min-max) | estimate mean |", "|---|---|---|---|"]
-        for name, d in g["grippers"].items():
-            for h in d["held"] or [{"samples": 0}]:
-                if not h.get("samples"):
-                    lines.append(f"| {name} | - | never switched to admittance | - |")
-                    continue
-                lines.append(f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_mean_n']:.2f} N "
-                             f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |")
-        lines += ["", f"![{g['plot']}]({g['plot']})", ""]
     lines += ["## Estimation (§3.2.2)", "",
               f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
               f"started at step {r['estimation']['first_step']}", "",

@@ -47,9 +47,7 @@ def test_talos_plank_controllers_are_those_of_fig_3_13(talos_plank):
     seen = set()
     for step, spec in zip(talos_plank.steps, talos_plank.specs):
         assert step.transition in FIG_3_13, f"unexpected transition {step.transition}"
-        # gripper_admittance tasks (on by default for TALOS) follow the grasps:
-        # test_gripper_admittance_specs.py checks them against the plan's bookkeeping.
-        tasks = {(t.name, t.kind, t.frame_b) for t in spec.tasks if t.kind != "gripper_admittance"}
+        tasks = {(t.name, t.kind, t.frame_b) for t in spec.tasks}
         assert tasks == BALANCE | FIG_3_13[step.transition] | {("posture", "posture", "")}, step.transition
         levels = {t.name: t.priority for t in spec.tasks}
         assert {levels[n] for n, _, _ in BALANCE} == {0}                    # balance first

@@ -8,7 +8,7 @@ import pytest
 
 from marionette import robots
 from marionette.control.spec import SpecError, TaskSpec
-from marionette.execution.factory import ADMITTANCE, ADMITTANCE_LEVER_ARM, build_specs, context_from_plan
+from marionette.execution.factory import ADMITTANCE, build_specs, context_from_plan
 
 
 @pytest.fixture(scope="module")
@@ -48,22 +48,8 @@ def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
     assert seen_hold > 0 and seen_release > 0
 
 
-def test_admittance_is_on_by_default_where_the_gripper_has_a_joint(talos_plank, talos_admittance, ur10_box):
-    # TALOS (gripper joints with an effort reading): the default factory is the admittance one.
-    _, specs = talos_admittance
-    assert [s.to_dict() for s in talos_plank.specs] == [s.to_dict() for s in specs]
-    # the UR10 suction cup has no joint: never an admittance task
-    assert ur10_box.ctx.gripper_joints == {}
-    assert not any(t.kind == "gripper_admittance" for s in ur10_box.specs for t in s.tasks)
-    # turned off: weld-only grasps, as before issue 7
-    off = context_from_plan(talos_plank.plan.doc, talos_plank.robot, talos_plank.model, gripper_admittance=False)
-    assert not any(t.kind == "gripper_admittance" for s in build_specs(talos_plank.steps, off) for t in s.tasks)
-
-
-def test_talos_admittance_uses_the_two_jaw_lever_arm(talos_admittance):
-    _, specs = talos_admittance
-    tasks = [t for s in specs for t in s.tasks if t.kind == "gripper_admittance"]
-    assert tasks and all(t.parameters["lever_arm"] == ADMITTANCE_LEVER_ARM["talos"] for t in tasks)
+def test_default_factory_has_no_admittance(talos_plank):
+    assert not any(t.kind == "gripper_admittance" for s in talos_plank.specs for t in s.tasks)
 
 
 def test_admittance_spec_round_trips_through_lcm(talos_admittance):

@@ -138,11 +138,10 @@ def test_talos_head_camera_in_the_plank_scene(rig):
     scene.reset_keyframe("reference")
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     qpos = scene.qpos.copy()
-    n = robots.mujoco_nq("talos")   # the robot's qpos block (with the fingers' mimic joints)
-    q = robots.mujoco_to_pinocchio("talos", qpos[:n])
+    q = robots.mujoco_to_pinocchio("talos", qpos[: model.nq])
     for joint, value in (("torso_2_joint", 0.2), ("head_1_joint", 0.78)):
         q[model.joints[model.getJointId(joint)].idx_q] = value
-    qpos[:n] = robots.pinocchio_to_mujoco("talos", q)
+    qpos[: model.nq] = robots.pinocchio_to_mujoco("talos", q)
     scene.qpos = qpos
     scene.forward()
     renderer = sim.RgbdRenderer(scene, "head_rgbd", 640, 480)
