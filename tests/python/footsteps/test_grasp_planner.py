@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from footsteps_checks import BALL, depth_inside_hull, soles_overlap, step_variables_within
+from footsteps_checks import (BALL, depth_inside_hull, sole_points, soles_overlap,
+                              step_variables_within)
 
 
 def _check_plan(planner, target, hand_axes=(0, 1, 2), hand_tol=1e-3):
@@ -133,3 +134,29 @@ def test_frozen_replan_adds_steps_exactly_when_the_stance_is_beyond_the_chains_r
         assert report.converged
         assert (report.steps_added > 0) == needs_steps, (move, room, report.steps_added)
         _check_plan(planner, target, hand_axes=(0, 1))
+
+
+def test_replanning_beside_obstacles_adds_no_steps_for_a_closer_ball(robot, stance):
+    """Moving the ball 0.5 m back towards the robot, beside two discs, never needs a longer
+    walk: the replan keeps at most the initial plan's steps plus the pair a full replan's chain
+    may add, and stays clear of the discs (their linearised rows once made the chain's reach
+    check append steps up to the 40-step cap)."""
+    from marionette.footsteps.obstacles import CircleObstacle
+    from marionette.footsteps.planner import GraspPlanner
+
+    discs = [CircleObstacle([1.0, 0.0], 0.12, buffer=0.03),
+             CircleObstacle([1.5, -0.35], 0.1, buffer=0.03)]
+    planner = GraspPlanner(robot, stance, BALL, obstacles=discs)
+    assert planner.plan().converged
+    initial_steps = planner.config.num_steps
+    target = BALL + 0.5 * np.array([np.cos(np.radians(182.0)), np.sin(np.radians(182.0)), 0.0])
+    report = planner.replan(target, executed_steps=0, posture_frozen=False)
+    assert report.converged
+    assert planner.config.num_steps <= initial_steps + 2
+    _check_plan(planner, target)
+    kin = planner.augmented.evaluate(planner.config)
+    for i in range(1, kin.k + 1):
+        points = sole_points(kin.footprint(i), planner.augmented.foot)
+        for disc in discs:
+            gap = np.min(np.linalg.norm(points - disc.center, axis=1))
+            assert gap >= disc.radius + disc.buffer - 2e-3, (i, disc.center)
