@@ -56,7 +56,9 @@ class GraphClient:
         self._replies: dict[int, object] = {}
         self._trace: list[object] = []
         self.bus.subscribe(channels.DG_REPLY, lcmt_dg_reply, self._on_reply)
-        self.bus.subscribe(channels.DG_TRACE, lcmt_dg_reply, self._on_trace)
+        # LCM drops a subscription's messages beyond its queue (30 by default) while the handling
+        # thread is off the CPU: 10 s of a 1 kHz trace may wait here.
+        self.bus.subscribe(channels.DG_TRACE, lcmt_dg_reply, self._on_trace).set_queue_capacity(10_000)
         self.bus.start()
 
     def close(self) -> None:

@@ -63,7 +63,11 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
 
 
 def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, lcm_url):
-    with run_controller(*UR10) as c, GraphClient(lcm_url) as dg:
+    # As deployed: the loop at SCHED_FIFO 80, the LCM thread that serves the trace at 40. At normal
+    # priority on 2 cores the loop shares the CPU with this test's receiver of 1000 samples/s, and
+    # the comparison measures that, not what tracing costs the loop.
+    with run_controller(*UR10, "--realtime") as c, GraphClient(lcm_url) as dg:
+        realtime = "loop thread real-time: SCHED_FIFO priority 80 granted" in c.process.log_tail(50)
         c.send_spec(arm(1))
         c.wait(lambda c: c.status.active_controller_id == 1, 20, "controller 1")
         c.wait_time(2.0)
@@ -79,5 +83,8 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
         v = np.array([s.values["c1_solver.velocity"] for s in samples])
         np.testing.assert_allclose(q[1:], q[:-1] + 1e-3 * v[:-1], atol=1e-12)
         # Tracing costs the loop a few copies: its timing is unchanged (noisy machines: loose).
+        if not realtime:
+            pytest.skip("SCHED_FIFO refused (needs root or CAP_SYS_NICE): the timing comparison needs it; "
+                        "samples checked")
         assert during.compute.p99_us <= 2.0 * before.compute.p99_us + 100.0
         assert during.deadline_misses - before.deadline_misses <= 0.01 * 3000 + 20
