@@ -14,6 +14,7 @@ seeded perturbations of issue #10; without it the objects start where the proble
 
 from __future__ import annotations
 
+import hashlib
 import subprocess
 import sys
 import threading
@@ -24,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 import pinocchio as pin
+import yaml
 
 import marionette
 from marionette import channels, lcmt_robot_state, robots
@@ -96,13 +98,39 @@ class DemoError(RuntimeError):
     """The demo could not run (planning failed, a process died, bad arguments)."""
 
 
+PLAN_INPUTS_FILE = "inputs.sha256"  # beside a cached plan.json: the digest it was planned from
+
+
+def plan_inputs_digest(problem: Path) -> str:
+    """SHA-256 of what a plan of ``problem`` depends on besides the seed: the problem file and
+    the model files of its robots and objects (URDF, SRDF, grippers / handles YAML). A handle
+    moved in models/objects/ changes it; a cache judged by the problem file's date alone kept
+    planning with the old handle."""
+    doc = yaml.safe_load(problem.read_text())
+    files = [problem]
+    for r in doc.get("robots", []):
+        if "robot" in r:
+            desc = robots.robot(r["robot"])
+            files += [desc.urdf, desc.srdf, desc.urdf.parent / "grippers.yaml"]
+        files += [Path(r[k]) for k in ("urdf", "srdf") if k in r]
+    for o in [*doc.get("objects", []), *doc.get("environment", [])]:
+        files += [marionette.MODELS_DIR / "objects" / f"{o['object']}{ext}" for ext in (".urdf", ".yaml")]
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.name).encode() + b"\0" + (f.read_bytes() if f.exists() else b"(missing)") + b"\0")
+    return h.hexdigest()
+
+
 def cached_plan(scenario: Scenario, seed: int, cache_dir: Path, log: Callable[[str], None]) -> Plan:
-    """The plan of ``scenario`` for ``seed``: from ``cache_dir`` if planned before, else planned
-    now with ``marionette plan`` (same seed -> same plan)."""
+    """The plan of ``scenario`` for ``seed``: from ``cache_dir`` if planned before from the same
+    problem and model files (:func:`plan_inputs_digest`), else planned now with ``marionette
+    plan`` (same seed and inputs -> same plan)."""
     out = cache_dir / f"{scenario.problem}-seed{seed}"
     plan_json = out / "plan.json"
     problem = PROBLEMS_DIR / f"{scenario.problem}.yaml"
-    if plan_json.exists() and plan_json.stat().st_mtime >= problem.stat().st_mtime:
+    digest = plan_inputs_digest(problem)
+    stamp = out / PLAN_INPUTS_FILE
+    if plan_json.exists() and stamp.exists() and stamp.read_text().strip() == digest:
         log(f"plan: cached {plan_json}")
         return load_plan(plan_json)
     log(f"plan: planning {scenario.problem} with seed {seed} ...")
@@ -112,6 +140,7 @@ def cached_plan(scenario: Scenario, seed: int, cache_dir: Path, log: Callable[[s
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0 or not plan_json.exists():
         raise DemoError(f"planning failed (exit {proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+    stamp.write_text(digest + "\n")
     log(f"plan: planned in {time.perf_counter() - t0:.1f} s -> {plan_json}")
     return load_plan(plan_json)
 
