@@ -79,38 +79,40 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(build_di
     logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     time.sleep(0.3)
-    with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
-                            str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0",
-                            "--overrun-hold-ticks", "10") as c, GraphClient(lcm_url) as dg:
-        c.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
-        c.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
-        c.send_spec(walking_spec())
-        c.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0, "walking")
-        c.wait(lambda c: len(statuses) > 0, 10.0, "WALK_STATUS")
-        standing = statuses[-1]
-        base0 = c.base_position()
-        plan = forward_plan(standing.left_foot, standing.right_foot, 6, 0.15)
-        c.bus.publish(channels.FOOTSTEP_PLAN, plan)
-        # Early in the second step's single support: the CoM is on its way to the next foot.
-        c.wait(lambda c: statuses[-1].current_step_index == 1 and statuses[-1].phase.endswith("swing")
-               and statuses[-1].phase_progress > 0.25, 60.0, "the second step's swing")
-        dg.budget("c1_solver", 0.001)  # every tick over budget
-        c.wait(lambda c: c.status.active_controller_id == HOLD_CONTROLLER_ID, 20.0, "the hold controller")
-        held_at = c.status.utime  # the first status after the engagement (10 Hz)
-        swing = statuses[-1].phase.split("_")[0]
-        st = c.status
-        assert st.mode == "holding" and st.active_controller == "hold (stop walking + posture)"
-        assert "hold (stop walking + posture) controller holds" in st.mode_reason
-        # The walk goes on to the end of the step in progress, and no further.
-        c.bus.publish(channels.FOOTSTEP_PLAN, plan)
-        c.wait(lambda c: "the hold controller ends the walk" in c.status.last_rejection, 10.0, "the refused plan")
-        c.wait(lambda c: statuses[-1].phase == "standing", 20.0, "standing")
-        c.wait_time(1.5)
-        end = c.status.utime
-        last_walk = statuses[-1]
-    time.sleep(0.5)  # the last journal batch reaches the logger
-    logger.terminate()
-    logger.wait(10)
+    try:
+        with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
+                                str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0",
+                                "--overrun-hold-ticks", "10") as c, GraphClient(lcm_url) as dg:
+            c.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
+            c.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
+            c.send_spec(walking_spec())
+            c.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0, "walking")
+            c.wait(lambda c: len(statuses) > 0, 10.0, "WALK_STATUS")
+            standing = statuses[-1]
+            base0 = c.base_position()
+            plan = forward_plan(standing.left_foot, standing.right_foot, 6, 0.15)
+            c.bus.publish(channels.FOOTSTEP_PLAN, plan)
+            # Early in the second step's single support: the CoM is on its way to the next foot.
+            c.wait(lambda c: statuses[-1].current_step_index == 1 and statuses[-1].phase.endswith("swing")
+                   and statuses[-1].phase_progress > 0.25, 60.0, "the second step's swing")
+            dg.budget("c1_solver", 0.001)  # every tick over budget
+            c.wait(lambda c: c.status.active_controller_id == HOLD_CONTROLLER_ID, 20.0, "the hold controller")
+            held_at = c.status.utime  # the first status after the engagement (10 Hz)
+            swing = statuses[-1].phase.split("_")[0]
+            st = c.status
+            assert st.mode == "holding" and st.active_controller == "hold (stop walking + posture)"
+            assert "hold (stop walking + posture) controller holds" in st.mode_reason
+            # The walk goes on to the end of the step in progress, and no further.
+            c.bus.publish(channels.FOOTSTEP_PLAN, plan)
+            c.wait(lambda c: "the hold controller ends the walk" in c.status.last_rejection, 10.0, "the refused plan")
+            c.wait(lambda c: statuses[-1].phase == "standing", 20.0, "standing")
+            c.wait_time(1.5)
+            end = c.status.utime
+            last_walk = statuses[-1]
+        time.sleep(0.5)  # the last journal batch reaches the logger
+    finally:  # never leave the logger running, whatever failed
+        logger.terminate()
+        logger.wait(10)
 
     def at(utime):
         st = min(states, key=lambda s: abs(s.utime - utime))

@@ -79,37 +79,39 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
     logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     time.sleep(0.3)  # subscribed before the controller's first message
-    with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
-                            str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0") as client:
-        client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
-        client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
-        # A plan before any walking controller is refused with its reason.
-        early = forward_plan([0, 0.085, 0, 0], [0, -0.085, 0, 0], 2, 0.1)
-        for _ in range(20):  # UDP: resend until the controller has seen one
-            client.bus.publish(channels.FOOTSTEP_PLAN, early)
-            try:
-                client.wait(lambda c: "has no walk: tasks" in c.status.last_rejection, 0.5, "the refused plan")
-                break
-            except TimeoutError:
-                continue
-        assert "has no walk: tasks" in client.status.last_rejection
+    try:
+        with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
+                                str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0") as client:
+            client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
+            client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
+            # A plan before any walking controller is refused with its reason.
+            early = forward_plan([0, 0.085, 0, 0], [0, -0.085, 0, 0], 2, 0.1)
+            for _ in range(20):  # UDP: resend until the controller has seen one
+                client.bus.publish(channels.FOOTSTEP_PLAN, early)
+                try:
+                    client.wait(lambda c: "has no walk: tasks" in c.status.last_rejection, 0.5, "the refused plan")
+                    break
+                except TimeoutError:
+                    continue
+            assert "has no walk: tasks" in client.status.last_rejection
 
-        client.bus.publish(channels.CONTROLLER_SPEC, walking_spec())
-        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                    "the walking controller")
-        client.wait(lambda c: len(statuses) > 0, 10.0, "WALK_STATUS")
-        standing = statuses[-1]
-        assert standing.phase == "standing" and standing.current_step_index == -1
-        base0 = client.base_position()
+            client.bus.publish(channels.CONTROLLER_SPEC, walking_spec())
+            client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
+                        "the walking controller")
+            client.wait(lambda c: len(statuses) > 0, 10.0, "WALK_STATUS")
+            standing = statuses[-1]
+            assert standing.phase == "standing" and standing.current_step_index == -1
+            base0 = client.base_position()
 
-        client.bus.publish(channels.FOOTSTEP_PLAN, forward_plan(standing.left_foot, standing.right_foot, 6, 0.1))
-        client.wait(lambda c: any(s.current_step_index == 5 for s in statuses), 60.0, "the last step")
-        client.wait(lambda c: statuses[-1].phase == "standing", 30.0, "standing again")
-        client.wait_time(0.5)
-        base = client.base_position()
-    time.sleep(0.5)  # the controller's last journal batch reaches the logger
-    logger.terminate()
-    logger.wait(10)
+            client.bus.publish(channels.FOOTSTEP_PLAN, forward_plan(standing.left_foot, standing.right_foot, 6, 0.1))
+            client.wait(lambda c: any(s.current_step_index == 5 for s in statuses), 60.0, "the last step")
+            client.wait(lambda c: statuses[-1].phase == "standing", 30.0, "standing again")
+            client.wait_time(0.5)
+            base = client.base_position()
+        time.sleep(0.5)  # the controller's last journal batch reaches the logger
+    finally:  # never leave the logger running, whatever failed
+        logger.terminate()
+        logger.wait(10)
 
     walked = [s for s in statuses if s.utime > standing.utime]
     assert {s.phase for s in walked} >= {"double_support", "left_swing", "right_swing", "standing"}
