@@ -217,7 +217,9 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
       Fail(who, "reference has " + std::to_string(t.num_reference) + " values, a " + t.kind +
                     " task takes " + std::to_string(value_size));
     }
-    const bool se3 = value_size == 7;
+    // A pose reference (xyz + quaternion) by kind, never by size: a 7-value posture (the UR10
+    // with its gripper joint) is a vector.
+    const bool se3 = t.kind == "se3" || t.kind == "pbvs" || t.kind == "relative_se3";
     if (se3 && t.num_reference == 7) {
       const double n = Eigen::Vector4d(t.reference[3], t.reference[4], t.reference[5], t.reference[6]).norm();
       if (std::abs(n - 1.0) > 1e-3) Fail(who, "reference quaternion has norm " + std::to_string(n));
