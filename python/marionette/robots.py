@@ -18,7 +18,12 @@ planar        x y cos(yaw) sin(yaw) (JointModelPlanar)     slides ``root_x``, ``
 fixed         —                                            —
 ============  ===========================================  =====================================
 
-:func:`pinocchio_to_mujoco` and :func:`mujoco_to_pinocchio` convert configurations.
+MuJoCo may also have joints the URDF declares ``<mimic>`` but Pinocchio keeps fixed (the UR10
+gripper's ``finger_mimic_joint``; TALOS' fingers stay fixed in MuJoCo too,
+models.robot_models.MOVING_MIMICS), each tied to its driver by an ``<equality><joint>``; they sit in ``qpos``
+where their bodies are (in the middle of the robot's block), have no actuator and are not in the
+controller's configuration. :func:`pinocchio_to_mujoco` and :func:`mujoco_to_pinocchio` convert
+configurations (:func:`mujoco_nq`: the size of the robot's qpos block).
 """
 
 from __future__ import annotations
@@ -217,27 +222,84 @@ def semantics(name: str) -> Semantics:
     return load_semantics(robot(name).semantics)
 
 
-def pinocchio_to_mujoco(name: str, q: np.ndarray) -> np.ndarray:
-    """MuJoCo ``qpos`` of the robot alone (model <robot>.xml) from Pinocchio ``q`` (nq,)."""
+@dataclass(frozen=True)
+class MujocoJoint:
+    """A hinge or slide of a robot's MJCF, in qpos order. ``mimic`` = (driver, multiplier,
+    offset) when an ``<equality><joint>`` ties it to another joint (a URDF mimic joint that
+    Pinocchio keeps fixed): q = multiplier * q_driver + offset."""
+
+    name: str
+    mimic: tuple[str, float, float] | None = None
+
+
+def mujoco_layout(bodies: ET.Element, equalities=None) -> tuple[MujocoJoint, ...]:
+    """The hinges/slides under ``bodies`` (a <body> or <worldbody>) in document order (= qpos
+    order), mimics from ``equalities`` (<joint joint1 joint2 polycoef> elements; default: the
+    ``<equality>`` children of ``bodies`` itself when it is a <mujoco> element)."""
+    if equalities is None:
+        equalities = [e for eq in bodies.findall("equality") for e in eq]
+    if bodies.tag == "mujoco":
+        bodies = bodies.find("worldbody")  # <equality> holds <joint> elements too
+    ties = {}
+    for e in equalities:
+        if e.tag == "joint" and e.get("joint2"):
+            a = [float(x) for x in e.get("polycoef", "0 1 0 0 0").split()]
+            ties[e.get("joint1")] = (e.get("joint2"), a[1], a[0])
+    return tuple(MujocoJoint(j.get("name"), ties.get(j.get("name"))) for j in bodies.iter("joint"))
+
+
+@lru_cache(maxsize=None)
+def _robot_layout(name: str) -> tuple[MujocoJoint, ...]:
+    return mujoco_layout(ET.parse(robot(name).mjcf).getroot())
+
+
+def pinocchio_to_mujoco(name: str, q: np.ndarray, layout=None) -> np.ndarray:
+    """MuJoCo ``qpos`` of the robot alone (model <robot>.xml) from Pinocchio ``q`` (nq,); mimic
+    joints (MuJoCo only) get their driver's value through the mimic relation. ``layout``: the
+    model's :func:`mujoco_layout` (default: models/<robot>/<robot>.xml)."""
     q = np.asarray(q, dtype=float)
+    layout = _robot_layout(name) if layout is None else layout
     base = robot(name).base
     if base == "free_flyer":
-        return np.concatenate([q[:3], q[[6, 3, 4, 5]], q[7:]])
-    if base == "planar":
-        return np.concatenate([q[:2], [np.arctan2(q[3], q[2])], q[4:]])
-    return q.copy()
+        head, tail = np.concatenate([q[:3], q[[6, 3, 4, 5]]]), q[7:]
+    elif base == "planar":
+        head, tail = np.concatenate([q[:2], [np.arctan2(q[3], q[2])]]), q[4:]
+        layout = layout[3:]  # root_x, root_y, root_yaw
+    else:
+        head, tail = np.zeros(0), q
+    driven = [j.name for j in layout if j.mimic is None]
+    if len(driven) != tail.size:
+        raise ValueError(f"{name}: q has {tail.size} joint values after the base, the MJCF "
+                         f"{len(driven)} joints that are not mimics")
+    value = dict(zip(driven, tail))
+    out = [value[j.name] if j.mimic is None else j.mimic[1] * value[j.mimic[0]] + j.mimic[2]
+           for j in layout]
+    return np.concatenate([head, out])
 
 
-def mujoco_to_pinocchio(name: str, qpos: np.ndarray) -> np.ndarray:
-    """Pinocchio ``q`` from MuJoCo ``qpos`` of the robot alone (inverse of the above)."""
+def mujoco_to_pinocchio(name: str, qpos: np.ndarray, layout=None) -> np.ndarray:
+    """Pinocchio ``q`` from MuJoCo ``qpos`` of the robot alone (inverse of the above: mimic
+    joints dropped)."""
     qpos = np.asarray(qpos, dtype=float)
+    layout = _robot_layout(name) if layout is None else layout
     base = robot(name).base
     if base == "free_flyer":
-        quat_xyzw = qpos[[4, 5, 6, 3]] / np.linalg.norm(qpos[3:7])
-        return np.concatenate([qpos[:3], quat_xyzw, qpos[7:]])
-    if base == "planar":
-        return np.concatenate([qpos[:2], [np.cos(qpos[2]), np.sin(qpos[2])], qpos[3:]])
-    return qpos.copy()
+        head, n_head = np.concatenate([qpos[:3], qpos[[4, 5, 6, 3]] / np.linalg.norm(qpos[3:7])]), 7
+    elif base == "planar":
+        head, n_head = np.array([qpos[0], qpos[1], np.cos(qpos[2]), np.sin(qpos[2])]), 3
+        layout = layout[3:]
+    else:
+        head, n_head = np.zeros(0), 0
+    tail = qpos[n_head:]
+    if tail.size != len(layout):
+        raise ValueError(f"{name}: qpos has {tail.size} joint values after the base, the MJCF "
+                         f"{len(layout)} joints")
+    return np.concatenate([head, [a for a, j in zip(tail, layout) if j.mimic is None]])
+
+
+def mujoco_nq(name: str) -> int:
+    """Size of the robot's block of MuJoCo ``qpos`` (mimic joints included)."""
+    return {"free_flyer": 7, "planar": 0, "fixed": 0}[robot(name).base] + len(_robot_layout(name))
 
 
 # --- objects ---------------------------------------------------------------------------------

@@ -41,6 +41,9 @@ RobotInfo Ur10(const std::string& dir) {
   r.name = "ur10";
   r.base = "fixed";
   r.reference = "home";
+  r.grippers = {{"ur10/gripper", "finger_joint", 0.0, 0.04}};
+  // Both fingers: finger_right_link moves in MuJoCo only (a mimic of finger_joint).
+  r.grip_bodies = {"finger_left_link", "finger_right_link"};
   return r;
 }
 

@@ -145,6 +145,20 @@ void MujocoScene::WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorX
     qpos[j.qpos_adr] = q[j.idx_q];
     qvel[j.dof_adr] = v[j.idx_v];
   }
+  // Joints tied to another by an <equality><joint> (URDF mimics: the UR10 gripper's right
+  // finger, absent from the controller's model) follow it: q1 - q1_0 = Σ_k a_k (q2 - q2_0)^k, q̇1 = dq1/dq2 q̇2.
+  for (int e = 0; e < model_->neq; ++e) {
+    if (model_->eq_type[e] != mjEQ_JOINT || model_->eq_obj2id[e] < 0) continue;
+    const int j1 = model_->eq_obj1id[e], j2 = model_->eq_obj2id[e];
+    const int a1 = model_->jnt_qposadr[j1], a2 = model_->jnt_qposadr[j2];
+    const double* c = model_->eq_data + e * mjNEQDATA;
+    const double x = qpos[a2] - model_->qpos0[a2];
+    double y = 0.0, dy = 0.0;
+    for (int k = 4; k >= 0; --k) y = y * x + c[k];
+    for (int k = 4; k >= 1; --k) dy = dy * x + k * c[k];
+    qpos[a1] = model_->qpos0[a1] + y;
+    qvel[model_->jnt_dofadr[j1]] = dy * qvel[model_->jnt_dofadr[j2]];
+  }
   mj_forward(model_, data_);
 }
 

@@ -29,14 +29,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from marionette.robots import pinocchio_to_mujoco, robot
+from marionette.robots import mujoco_layout, pinocchio_to_mujoco, robot
 
 from . import apriltag
 from .objects import ObjectSpec
-from .robot_models import (PLANAR_BASE, SOLE_BOX_THICKNESS, TALOS_SOLE, hand_links, parsed_urdf,
-                           robot_semantics, servo_gains)
+from .robot_models import (MOVING_MIMICS, PLANAR_BASE, SOLE_BOX_THICKNESS, TALOS_SOLE, hand_links,
+                           parsed_urdf, robot_semantics, servo_gains)
 from .semantics import Semantics
-from .urdf import parse_urdf, urdf_to_mjcf
+from .urdf import mimic_equality, parse_urdf, urdf_to_mjcf
 from .xml_util import fmt, fmt_vec, homogeneous, matrix_to_quat_wxyz, sub
 
 TIMESTEP = 0.001
@@ -73,6 +73,7 @@ class Part:
     tag_meshes: dict[str, float] = field(default_factory=dict)  # mesh name -> printed size
     actuators: list[ET.Element] = field(default_factory=list)
     sensors: list[ET.Element] = field(default_factory=list)
+    equalities: list[ET.Element] = field(default_factory=list)
     qpos: list[float] = field(default_factory=list)  # reference configuration, MuJoCo order
     ctrl: list[float] = field(default_factory=list)
     mocap_pos: list[float] = field(default_factory=list)
@@ -101,8 +102,12 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
     def armature(joint) -> float:
         return servo_gains(name, joint.name).armature
 
-    tree = urdf_to_mjcf(urdf, mesh_file, f"{name}/", geom_class, armature)
-    part = Part(meshes=dict(tree.meshes))
+    # The URDF's mimic joints (the UR10 gripper's second finger) move in MuJoCo, tied to their
+    # driver by equalities, so a closing gripper really squeezes; the controller's model keeps
+    # them fixed (MOVING_MIMICS says why TALOS' stay fixed).
+    tree = urdf_to_mjcf(urdf, mesh_file, f"{name}/", geom_class, armature,
+                        mimics=name in MOVING_MIMICS)
+    part = Part(meshes=dict(tree.meshes), equalities=[mimic_equality(j) for j in tree.mimics])
     root = tree.root
     if desc.base == "free_flyer":
         root.insert(0, ET.Element("freejoint", name="root_joint"))
@@ -142,10 +147,11 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
             **({"ctrllimited": "true", "ctrlrange": fmt_vec([lo, hi])} if lo is not None
                else {"ctrllimited": "false"}),
             "forcelimited": "true", "forcerange": fmt_vec([-effort, effort])}))
-    qpos = pinocchio_to_mujoco(name, q_reference)
+    layout = mujoco_layout(root, part.equalities)
+    qpos = pinocchio_to_mujoco(name, q_reference, layout=layout)
     part.qpos = [float(a) for a in qpos]
     n_base = {"free_flyer": 7, "planar": 0, "fixed": 0}[desc.base]
-    part.ctrl = [float(a) for a in qpos[n_base:]]
+    part.ctrl = [float(a) for a, j in zip(qpos[n_base:], layout) if j.mimic is None]
     return part
 
 
@@ -323,6 +329,9 @@ def assemble(model: str, parts: list[Part], comment: str, extra_world: list[ET.E
     if actuators:
         act = sub(m, "actuator")
         act.extend(actuators)
+    equalities = [e for p in parts for e in p.equalities]
+    if equalities:
+        sub(m, "equality").extend(equalities)
     sensors = [s for p in parts for s in p.sensors]
     if sensors:
         sen = sub(m, "sensor")

@@ -468,7 +468,9 @@ class Drill(ObjectSpec):
 @dataclass
 class Box(ObjectSpec):
     """The 12 cm box of the UR10 pick-and-place scene; handle ``box/top`` approached from
-    above (suction), tags 40-43 on its sides."""
+    above by the two-finger gripper, which closes on the ±x faces ``grasp_depth`` below the top
+    (its pads span 1-4 cm down), tags 40-43 on its sides (40 and 42 half hidden by the
+    fingers once grasped)."""
 
     name: str = "box"
     sim: SimKind = "free"
@@ -476,6 +478,7 @@ class Box(ObjectSpec):
     side: float = 0.12
     mass_kg: float = 0.3
     tag_size: float = 0.07
+    grasp_depth: float = 0.025
 
     def shapes(self) -> list[Shape]:
         return [Shape("box", (self.side,) * 3, rgba=(0.75, 0.6, 0.4, 1))]
@@ -486,7 +489,7 @@ class Box(ObjectSpec):
     def semantics(self) -> Semantics:
         ex, ey, ez = np.eye(3)
         s = self.side / 2
-        top = Handle("box/top", LINK, Placement.from_matrix(frame(-ez, ex, [0, 0, s])),
+        top = Handle("box/top", LINK, Placement.from_matrix(frame(-ez, ex, [0, 0, s - self.grasp_depth])),
                      clearance=0.05)
         tags = [Tag(40 + i, TAG_FAMILY, self.tag_size, LINK, tag_frame(s * n, n, ez))
                 for i, n in enumerate((ex, ey, -ex, -ey))]

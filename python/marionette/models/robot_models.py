@@ -8,8 +8,10 @@
   offset a demo may perturb. MJCF: planar base as slides ``root_x``, ``root_y`` and hinge
   ``root_yaw``, servos, head camera at ``xtion_rgb_optical_frame``.
 * UR10: ``ur10_robot.urdf`` on a 0.80 m stand (``stand_link`` replaces ``world``), with a
-  drilling spindle on ``tool0`` (tip gripper ``ur10/drill``) and a suction cup on its side
-  (gripper ``ur10/suction``, for the box scene).
+  drilling spindle on ``tool0`` (tip gripper ``ur10/drill``) and a two-finger parallel gripper
+  on its side (gripper ``ur10/gripper``, for the box scene): one prismatic joint
+  ``finger_joint`` drives the left finger; the right finger's ``finger_mimic_joint`` is fixed
+  for Pinocchio and follows it in MuJoCo (:data:`MOVING_MIMICS`).
 """
 
 from __future__ import annotations
@@ -36,6 +38,37 @@ TALOS_SOLE = (0.205, 0.122)
 SOLE_BOX_THICKNESS = 0.02
 
 UR10_STAND_HEIGHT = 0.80
+
+# Robots whose URDF mimic joints move in MuJoCo, tied to their driver by an equality. TALOS'
+# fingers stay fixed: moving, they wedge the plank, whose handles sit 5.8 cm deep in the 43 mm
+# board, between their inner links (issue 7: tried, then reverted in 09e85a6).
+MOVING_MIMICS = frozenset({"ur10"})
+
+
+@dataclass(frozen=True)
+class ParallelGripper:
+    """The UR10's two-finger gripper (frame ``gripper_link``: z out of the palm, fingers closing
+    along y). Each finger is a 2 x 2 x 7 cm bar; ``finger_joint`` (0 = open) moves both inner
+    faces inwards from ±``open_half_gap``; its range goes past a 12 cm box by ``2 * 0.025`` so
+    the servo can squeeze it. The grasp frame sits between the finger pads, 1.5 cm from the
+    tips."""
+
+    palm: tuple[float, float, float] = (0.04, 0.19, 0.02)
+    finger: tuple[float, float, float] = (0.02, 0.02, 0.07)
+    open_half_gap: float = 0.075
+    stroke: float = 0.04
+    grasp_depth: float = 0.015       # grasp frame to fingertips, along z
+    effort: float = 40.0             # [N] on finger_joint (both fingers share it)
+    mass: float = 0.4                # [kg] palm + fingers
+
+    def finger_origin_y(self) -> float:
+        return self.open_half_gap + self.finger[1] / 2
+
+    def finger_z(self) -> float:     # the finger bar's centre
+        return self.palm[2] + self.finger[2] / 2
+
+    def grasp_z(self) -> float:
+        return self.palm[2] + self.finger[2] - self.grasp_depth
 
 
 @dataclass(frozen=True)
@@ -86,6 +119,8 @@ SERVO_GAINS: dict[str, list[tuple[str, ServoGains]]] = {
         ("shoulder_", ServoGains(kp=20000.0, kv=400.0, armature=0.1)),
         ("elbow_", ServoGains(kp=15000.0, kv=300.0, armature=0.1)),
         ("wrist_", ServoGains(kp=2000.0, kv=40.0, armature=0.02)),
+        # 1 mm of servo error = 2 N of motor force = 1 N on each finger.
+        ("finger_", ServoGains(kp=2000.0, kv=40.0, armature=0.01)),
     ],
 }
 
@@ -114,7 +149,7 @@ def derived_urdf(name: str) -> str:
                 "wrist_ft_tool_link")
     elif name == "ur10":
         _ur10_edits(root)
-        note = f"robots/{desc.source} on a stand, with a drilling spindle and a suction cup"
+        note = f"robots/{desc.source} on a stand, with a drilling spindle and a two-finger gripper"
     else:
         raise KeyError(name)
     return indent_and_serialize(root, f"{GENERATED}: {note}.")
@@ -170,16 +205,42 @@ def _ur10_edits(root: ET.Element) -> None:
                                 rgba=(0.3, 0.3, 0.32, 1))], mass=40.0)
     b.fixed_joint("stand_joint", "stand_link", "base_link", homogeneous(p=[0, 0, h]))
     _add_drill(root, "tool0", ur10_drill_mount())
-    # Suction cup on the side of the spindle housing, facing -x of the drill frame.
-    r = Drill().housing_radius
-    b.link("suction_link", [Shape("cylinder", (0.02, 0.04), homogeneous(p=[0, 0, 0.02]),
-                                  rgba=(0.1, 0.1, 0.1, 1))], mass=0.1)
-    b.fixed_joint("suction_joint", "drill_link", "suction_link",
-                  homogeneous(rot_y(-np.pi / 2), [-r, 0, 0.05]))
+    _add_parallel_gripper(b, "drill_link",
+                          homogeneous(rot_y(-np.pi / 2), [-Drill().housing_radius, 0, 0.05]))
     # Move the new root (stand_link) first so that Pinocchio and readers see it first.
     stand = [e for e in root if e.tag == "link" and e.get("name") == "stand_link"][0]
     root.remove(stand)
     root.insert(0, stand)
+
+
+# The parallel gripper's gripper_admittance parameters that differ from the controller's
+# defaults (set for TALOS' hinge, GripperAdmittanceOptions): a slide has no lever arm, and the
+# motor force splits between the two fingers (virtual work: τ dq = F dq + F dq), so each finger
+# squeezes with F = τ/2; K_a gives the loop the same 10/s as TALOS' (0.01 m/(s N) x 1000 N/m of
+# finger force per metre of servo error); the closing ramp goes at 2 cm/s (a 1.5 cm gap: 0.8 s).
+PARALLEL_GRIPPER_ADMITTANCE = {"lever_arm": 1.0, "torque_per_effort": 0.5,
+                               "admittance_gain": 0.01, "speed": 0.02, "acceleration": 0.2}
+
+
+def _add_parallel_gripper(b: UrdfBuilder, parent: str, X_PG: np.ndarray) -> None:
+    """``gripper_link`` at X_PG (on the side of the spindle housing, facing -x of the drill
+    frame) with its two fingers (:class:`ParallelGripper`)."""
+    g = ParallelGripper()
+    dark = (0.15, 0.15, 0.17, 1)
+    b.link("gripper_link", [Shape("box", g.palm, homogeneous(p=[0, 0, g.palm[2] / 2]), rgba=dark)],
+           mass=g.mass / 2)
+    b.fixed_joint("gripper_joint", parent, "gripper_link", X_PG)
+    bar = [Shape("box", g.finger, homogeneous(p=[0, 0, g.finger_z()]), rgba=(0.55, 0.55, 0.6, 1))]
+    y = g.finger_origin_y()
+    b.link("finger_left_link", bar, mass=g.mass / 4)
+    b.prismatic_joint("finger_joint", "gripper_link", "finger_left_link", homogeneous(p=[0, y, 0]),
+                      # 5 mm of margin both ends: the open (0) and closed (stroke) commands sit
+                      # strictly inside the limits, where no limit constraint is active.
+                      axis=(0, -1, 0), lower=-0.005, upper=g.stroke + 0.005, effort=g.effort,
+                      velocity=0.1)
+    b.link("finger_right_link", bar, mass=g.mass / 4)
+    b.fixed_joint("finger_mimic_joint", "gripper_link", "finger_right_link",
+                  homogeneous(p=[0, -y, 0]), mimic="finger_joint", axis=(0, 1, 0))
 
 
 # --- grippers, contact surfaces ----------------------------------------------------------------
@@ -211,11 +272,14 @@ def robot_semantics(name: str) -> Semantics:
                                                                                np.eye(4)))
     if name == "ur10":
         drill = Drill(grip=False).tip_gripper("ur10/drill", "drill_link", np.eye(4))
-        # The cup's face, 4 cm out of suction_link along its z (x of the gripper frame).
-        suction = Gripper("ur10/suction", "suction_link",
-                          Placement.from_matrix(homogeneous(rot_y(-np.pi / 2), [0, 0, 0.04])),
-                          clearance=0.05)
-        return Semantics("ur10", grippers=[drill, suction])
+        # Between the finger pads: x along the approach (z of gripper_link), y along which the
+        # fingers close, as TALOS' grippers.
+        g = ParallelGripper()
+        gripper = Gripper("ur10/gripper", "gripper_link",
+                          Placement.from_matrix(homogeneous(rot_y(-np.pi / 2), [0, 0, g.grasp_z()])),
+                          clearance=0.05, joint="finger_joint", open_position=0.0,
+                          closed_position=g.stroke, admittance=PARALLEL_GRIPPER_ADMITTANCE)
+        return Semantics("ur10", grippers=[drill, gripper])
     raise KeyError(name)
 
 
@@ -230,7 +294,7 @@ REFERENCE_POSTURES = {
     # UR10 "home": upper arm up, forearm forward, spindle pointing down.
     "ur10": {"shoulder_pan_joint": 0.0, "shoulder_lift_joint": -1.5707963267948966,
              "elbow_joint": 1.5707963267948966, "wrist_1_joint": -1.5707963267948966,
-             "wrist_2_joint": -1.5707963267948966, "wrist_3_joint": 0.0},
+             "wrist_2_joint": -1.5707963267948966, "wrist_3_joint": 0.0, "finger_joint": 0.0},
 }
 
 
@@ -300,7 +364,7 @@ def parsed_urdf(name: str) -> Urdf:
 def hand_links(name: str, urdf: Urdf) -> set[str]:
     """Links whose geoms may touch objects (class robot_hand): grippers, tools."""
     roots = {"talos": ["wrist_left_ft_tool_link", "wrist_right_ft_tool_link"],
-             "tiago": ["drill_link"], "ur10": ["drill_link"]}[name]
+             "tiago": ["drill_link"], "ur10": ["drill_link"]}[name]  # the UR10 gripper: under it
     out: set[str] = set()
     for r in roots:
         out |= set(urdf.subtree(r))

@@ -29,9 +29,16 @@ from typing import Any
 import numpy as np
 import yaml
 
+from marionette.control.spec import GRIPPER_ADMITTANCE_PARAMETERS
+
 
 class SemanticsError(ValueError):
     """A YAML declaration is malformed; the message names the file and the entry."""
+
+
+# The gripper_admittance task's parameters a gripper may set (the factory derives the others
+# from the step and the gripper's open / closed positions).
+ADMITTANCE_PARAMETERS = frozenset(GRIPPER_ADMITTANCE_PARAMETERS) - {"closing_direction", "release"}
 
 
 @dataclass(frozen=True)
@@ -94,7 +101,7 @@ class Gripper:
     """A robot (or tool) frame that grasps handles.
 
     ``name`` is ``<robot>/<gripper>``; ``pose`` places the gripper frame in ``link``.
-    ``joint`` is the finger joint, or None for a tool tip or suction cup; ``open_position`` and
+    ``joint`` is the finger joint, or None for a tool tip; ``open_position`` and
     ``closed_position`` are its commands [rad or m].
     """
 
@@ -105,6 +112,9 @@ class Gripper:
     joint: str | None = None
     open_position: float | None = None
     closed_position: float | None = None
+    # Parameters of its gripper_admittance task that differ from the controller's defaults
+    # (ADMITTANCE_PARAMETERS: a slide gripper's force transmission, gain and ramp speed).
+    admittance: dict[str, float] = field(default_factory=dict, hash=False)
 
 
 @dataclass(frozen=True)
@@ -227,15 +237,22 @@ def semantics_from_dict(data: Any, source: str = "<dict>") -> Semantics:
     for i, g in enumerate(data.get("grippers") or []):
         where = f"{source}: grippers[{i}]"
         _keys(g, where, {"name", "link", "pose", "clearance"},
-              {"joint", "open_position", "closed_position"})
+              {"joint", "open_position", "closed_position", "admittance"})
         joint = g.get("joint")
         if joint is not None and ("open_position" not in g or "closed_position" not in g):
             raise SemanticsError(f"{where}: a gripper joint needs open_position and closed_position")
+        admittance = g.get("admittance") or {}
+        if admittance and joint is None:
+            raise SemanticsError(f"{where}: admittance parameters need a gripper joint")
+        if not isinstance(admittance, dict) or set(admittance) - ADMITTANCE_PARAMETERS:
+            raise SemanticsError(f"{where}: admittance must map parameters among "
+                                 f"{sorted(ADMITTANCE_PARAMETERS)} to numbers, got {admittance!r}")
         s.grippers.append(Gripper(
             name=_str(g, "name", where), link=_str(g, "link", where),
             pose=_placement(g["pose"], where), clearance=_nonneg(g, "clearance", where),
             joint=joint, open_position=_opt_float(g, "open_position", where),
-            closed_position=_opt_float(g, "closed_position", where)))
+            closed_position=_opt_float(g, "closed_position", where),
+            admittance={k: _opt_float(admittance, k, f"{where}: admittance") for k in admittance}))
     for i, h in enumerate(data.get("handles") or []):
         where = f"{source}: handles[{i}]"
         _keys(h, where, {"name", "link", "pose", "clearance"}, {"approach", "mask"})
@@ -288,6 +305,8 @@ def _gripper_dict(g: Gripper) -> dict[str, Any]:
     if g.joint is not None:
         d.update(joint=g.joint, open_position=_clean(g.open_position),
                  closed_position=_clean(g.closed_position))
+    if g.admittance:
+        d["admittance"] = {k: _clean(v) for k, v in g.admittance.items()}
     return d
 
 

@@ -66,6 +66,16 @@ class Joint:
     velocity: float | None = None
     damping: float = 0.0
     friction: float = 0.0
+    mimic: Mimic | None = None  # <mimic>: this joint's value follows another joint's
+
+
+@dataclass(frozen=True)
+class Mimic:
+    """URDF ``<mimic joint multiplier offset>``: q = multiplier * q_joint + offset."""
+
+    joint: str
+    multiplier: float = 1.0
+    offset: float = 0.0
 
 
 @dataclass
@@ -148,6 +158,10 @@ def parse_urdf(text: str) -> Urdf:
         if dyn is not None:
             j.damping = float(dyn.get("damping", "0"))
             j.friction = float(dyn.get("friction", "0"))
+        mimic = je.find("mimic")
+        if mimic is not None:
+            j.mimic = Mimic(mimic.get("joint"), float(mimic.get("multiplier", "1")),
+                            float(mimic.get("offset", "0")))
         joints[j.name] = j
     return Urdf(root.get("name"), links, joints, text)
 
@@ -172,6 +186,10 @@ class MjcfTree:
     meshes: dict[str, tuple[str, tuple[float, float, float]]]  # asset name -> (file, scale)
     joints: list[Joint]  # movable joints, in MJCF (= Pinocchio) order
     bodies: dict[str, ET.Element]  # link name -> its <body>
+    # Joints that follow another one (URDF <mimic>), made hinges or slides in MJCF and tied to
+    # their joint by an equality (:func:`mimic_equality`); Pinocchio keeps them fixed, so they
+    # are not in ``joints`` (no actuator, not in the controller's configuration).
+    mimics: list[Joint] = field(default_factory=list)
 
 
 def urdf_to_mjcf(
@@ -181,6 +199,7 @@ def urdf_to_mjcf(
     geom_class: Callable[[str], str],
     armature: Callable[[Joint], float] = lambda j: 0.0,
     visuals: bool = False,
+    mimics: bool = False,
 ) -> MjcfTree:
     """Translate ``urdf`` into a body tree rooted at its root link (placed at the origin).
 
@@ -189,7 +208,9 @@ def urdf_to_mjcf(
     the default class of the link's collision geoms. Collision geoms are also what MuJoCo
     renders; with ``visuals``, visual elements that differ from every collision element are
     added in class "visual". A DAE collision mesh (MuJoCo 2.2 reads STL/OBJ/MSH only) is
-    replaced by the link's first STL visual mesh.
+    replaced by the link's first STL visual mesh. With ``mimics``, a joint that carries a
+    ``<mimic>`` of a movable joint becomes an unactuated MJCF joint (listed in ``tree.mimics``)
+    even when the URDF fixes it (TALOS' reduced URDF fixes its grippers' fingers).
     """
     order = {name: i for i, name in enumerate(pinocchio_link_order(urdf))}
     tree = MjcfTree(root=ET.Element("body"), meshes={}, joints=[], bodies={})
@@ -200,7 +221,12 @@ def urdf_to_mjcf(
         if link.inertial is not None and link.inertial.mass > 0:
             _add_inertial(body, link.inertial)
         joint = urdf.parent_joint(link_name)
-        if joint is not None and joint.type in MOVABLE:
+        if mimics and joint is not None and _is_mimic(urdf, joint):
+            # A mimic moves as its driver does (a slide for a prismatic driver), whatever type
+            # the URDF gives it (fixed, for Pinocchio).
+            _add_joint(body, joint, armature(joint), mimic=urdf.joints[joint.mimic.joint].type)
+            tree.mimics.append(joint)
+        elif joint is not None and joint.type in MOVABLE:
             _add_joint(body, joint, armature(joint))
             tree.joints.append(joint)
         elif joint is not None and joint.type != "fixed":
@@ -219,6 +245,28 @@ def urdf_to_mjcf(
     tree.root.set("name", urdf.root)
     add_link(tree.root, urdf.root)
     return tree
+
+
+def _is_mimic(urdf: Urdf, joint: Joint) -> bool:
+    if joint.mimic is None:
+        return False
+    driver = urdf.joints.get(joint.mimic.joint)
+    if driver is None or driver.type not in MOVABLE:
+        raise UrdfError(f"{urdf.name}: joint {joint.name} mimics {joint.mimic.joint}, "
+                        "which is not a movable joint")
+    if driver.mimic is not None:
+        raise UrdfError(f"{urdf.name}: joint {joint.name} mimics {driver.name}, itself a mimic")
+    return True
+
+
+def mimic_equality(joint: Joint) -> ET.Element:
+    """MuJoCo 2.2 ``<equality><joint>`` for a URDF mimic: q1 - q1_0 = a0 + a1 (q2 - q2_0) with
+    q1 the mimic joint, q2 its driver (both with qpos0 = 0: the URDF's zero); a0 = offset,
+    a1 = multiplier. Stiffer than MuJoCo's default (time constant 5 ms instead of 20 ms, critically
+    damped), so a finger pressed by a contact lags its driver by little."""
+    m = joint.mimic
+    return ET.Element("joint", name=f"{joint.name}_mimic", joint1=joint.name, joint2=m.joint,
+                      polycoef=fmt_vec([m.offset, m.multiplier, 0, 0, 0]), solref="0.005 1")
 
 
 def _collision_geometries(link: Link) -> list[Geometry]:
@@ -261,9 +309,12 @@ def _add_inertial(body: ET.Element, inertial: Inertial) -> None:
         diaginertia=fmt_vec(np.maximum(w, 0.0)))
 
 
-def _add_joint(body: ET.Element, joint: Joint, armature: float) -> None:
-    kind = "slide" if joint.type == "prismatic" else "hinge"
-    limited = joint.type != "continuous" and joint.lower is not None and joint.upper is not None
+def _add_joint(body: ET.Element, joint: Joint, armature: float, mimic: str | None = None) -> None:
+    """``mimic``: the URDF type of the joint this one follows (None: not a mimic)."""
+    kind = "slide" if (mimic or joint.type) == "prismatic" else "hinge"
+    # A mimic joint is bounded through its driver: its own limit would only fight the equality.
+    limited = (not mimic and joint.type != "continuous" and joint.lower is not None
+               and joint.upper is not None)
     # Dry friction as in the URDF, but at most 10 % of the effort limit: TALOS' URDF gives its
     # grippers 1 N m of friction for 1 N m of effort, which would lock them.
     friction = joint.friction

@@ -61,7 +61,7 @@ def rigid_inertia(shapes: list[Shape], density: float) -> tuple[float, np.ndarra
 
 
 class UrdfBuilder:
-    """Accumulates links and fixed joints, then serializes the URDF."""
+    """Accumulates links and joints (fixed, prismatic), then serializes the URDF."""
 
     def __init__(self, name: str, comment: str, root: ET.Element | None = None) -> None:
         """A new URDF, or (``root`` given) additions to a parsed one."""
@@ -88,11 +88,29 @@ class UrdfBuilder:
             if s.collision:
                 self._geometry(link, "collision", s)
 
-    def fixed_joint(self, name: str, parent: str, child: str, X: np.ndarray) -> None:
+    def fixed_joint(self, name: str, parent: str, child: str, X: np.ndarray,
+                    mimic: str | None = None, axis: tuple[float, float, float] | None = None) -> None:
+        """A fixed joint; ``mimic`` names the joint it follows (multiplier 1, offset 0) along
+        ``axis`` where the simulation moves it (TALOS' reduced URDF declares its fingers the
+        same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
         j = sub(self.root, "joint", name=name, type="fixed")
         sub(j, "parent", link=parent)
         sub(j, "child", link=child)
         _origin(j, X)
+        if mimic is not None:
+            sub(j, "axis", xyz=fmt_vec(axis))
+            sub(j, "mimic", joint=mimic, multiplier="1", offset="0")
+
+    def prismatic_joint(self, name: str, parent: str, child: str, X: np.ndarray,
+                        axis: tuple[float, float, float], lower: float, upper: float,
+                        effort: float, velocity: float) -> None:
+        j = sub(self.root, "joint", name=name, type="prismatic")
+        sub(j, "parent", link=parent)
+        sub(j, "child", link=child)
+        _origin(j, X)
+        sub(j, "axis", xyz=fmt_vec(axis))
+        sub(j, "limit", lower=fmt(lower), upper=fmt(upper), effort=fmt(effort),
+            velocity=fmt(velocity))
 
     def text(self) -> str:
         return indent_and_serialize(self.root, self.comment)

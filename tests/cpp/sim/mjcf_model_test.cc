@@ -16,6 +16,8 @@
 #include <pinocchio/parsers/urdf.hpp>
 
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <memory>
 #include <random>
 #include <string>
@@ -109,48 +111,62 @@ Eigen::VectorXd RandomConfiguration(const pin::Model& model, Base base, std::mt1
   return q;
 }
 
+// True when joint j of m follows another joint through an <equality><joint> (a URDF mimic
+// joint that Pinocchio keeps fixed: the UR10 gripper's right finger). Such joints are MuJoCo-only.
+bool IsMimic(const mjModel* m, int j) {
+  for (int e = 0; e < m->neq; ++e) {
+    if (m->eq_type[e] == mjEQ_JOINT && m->eq_obj1id[e] == j && m->eq_obj2id[e] >= 0) return true;
+  }
+  return false;
+}
+
+int CountMimics(const mjModel* m) {
+  int n = 0;
+  for (int j = 0; j < m->njnt; ++j) n += IsMimic(m, j);
+  return n;
+}
+
 // MuJoCo qpos (robot first in the model) from Pinocchio q: free joint quaternion w x y z,
-// planar base as x, y, yaw.
-void PinocchioToMujoco(const Eigen::VectorXd& q, Base base, mjtNum* qpos) {
-  int i = 0, k = 0;
+// planar base as x, y, yaw; 1-dof joints by name (mimic joints keep their qpos, 0: where
+// Pinocchio's fixed joints put their links).
+void PinocchioToMujoco(const mjModel* m, const pin::Model& model, const Eigen::VectorXd& q, Base base,
+                       mjtNum* qpos) {
   if (base == Base::kFreeFlyer) {
-    for (; i < 3; ++i) qpos[i] = q[i];
+    for (int i = 0; i < 3; ++i) qpos[i] = q[i];
     qpos[3] = q[6];
     qpos[4] = q[3];
     qpos[5] = q[4];
     qpos[6] = q[5];
-    i = 7;
-    k = 7;
   } else if (base == Base::kPlanar) {
     qpos[0] = q[0];
     qpos[1] = q[1];
     qpos[2] = std::atan2(q[3], q[2]);
-    i = 3;
-    k = 4;
   }
-  for (; k < q.size(); ++i, ++k) qpos[i] = q[k];
+  for (pin::JointIndex j = base == Base::kFixed ? 1 : 2; j < model.joints.size(); ++j) {
+    const int id = mj_name2id(m, mjOBJ_JOINT, model.names[j].c_str());
+    ASSERT_GE(id, 0) << model.names[j];
+    qpos[m->jnt_qposadr[id]] = q[model.joints[j].idx_q()];
+  }
 }
 
-Eigen::VectorXd MujocoToPinocchio(const mjtNum* qpos, int nq, Base base) {
-  Eigen::VectorXd q(nq);
-  int i = 0, k = 0;
+Eigen::VectorXd MujocoToPinocchio(const mjModel* m, const pin::Model& model, const mjtNum* qpos, Base base) {
+  Eigen::VectorXd q(model.nq);
   if (base == Base::kFreeFlyer) {
-    for (; i < 3; ++i) q[i] = qpos[i];
+    for (int i = 0; i < 3; ++i) q[i] = qpos[i];
     q[3] = qpos[4];
     q[4] = qpos[5];
     q[5] = qpos[6];
     q[6] = qpos[3];
-    i = 7;
-    k = 7;
   } else if (base == Base::kPlanar) {
     q[0] = qpos[0];
     q[1] = qpos[1];
     q[2] = std::cos(qpos[2]);
     q[3] = std::sin(qpos[2]);
-    i = 3;
-    k = 4;
   }
-  for (; k < nq; ++i, ++k) q[k] = qpos[i];
+  for (pin::JointIndex j = base == Base::kFixed ? 1 : 2; j < model.joints.size(); ++j) {
+    const int id = mj_name2id(m, mjOBJ_JOINT, model.names[j].c_str());
+    q[model.joints[j].idx_q()] = id < 0 ? std::nan("") : qpos[m->jnt_qposadr[id]];
+  }
   return q;
 }
 
@@ -166,12 +182,25 @@ struct PoseErrors {
   int compared = 0;
 };
 
+// True when a mimic joint (MuJoCo-only) lies between body b and the world.
+bool BelowMimic(const mjModel* m, int b) {
+  for (; b > 0; b = m->body_parentid[b]) {
+    for (int k = 0; k < m->body_jntnum[b]; ++k) {
+      if (IsMimic(m, m->body_jntadr[b] + k)) return true;
+    }
+  }
+  return false;
+}
+
+// With `skip_mimic`, bodies moved by mimic joints are left out (where their qpos is not 0:
+// Pinocchio keeps them fixed at 0).
 PoseErrors CompareBodies(const mjModel* m, const mjData* d, const pin::Model& model,
-                         const pin::Data& data, const pin::SE3& X_WB) {
+                         const pin::Data& data, const pin::SE3& X_WB, bool skip_mimic = false) {
   PoseErrors e;
   for (int b = 1; b < m->nbody; ++b) {
     const char* name = mj_id2name(m, mjOBJ_BODY, b);
     if (name == nullptr || !model.existBodyName(name)) continue;
+    if (skip_mimic && BelowMimic(m, b)) continue;
     const pin::SE3 X_WF = X_WB * data.oMf[model.getBodyId(name)];
     const Eigen::Vector3d p(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]);
     const double dp = (p - X_WF.translation()).norm();
@@ -203,20 +232,23 @@ class RobotMjcfTest : public ::testing::TestWithParam<RobotCase> {
 
 TEST_P(RobotMjcfTest, JointNamesAndOrderMatchPinocchio) {
   const std::vector<std::string> expected = ExpectedMujocoJoints(model_, GetParam().base);
-  ASSERT_EQ(m_->njnt, static_cast<int>(expected.size()));
+  std::vector<std::string> joints;  // MuJoCo's, mimic joints aside (MuJoCo-only, 1 dof each)
   for (int j = 0; j < m_->njnt; ++j) {
-    EXPECT_EQ(mj_id2name(m_.get(), mjOBJ_JOINT, j), expected[j]) << "joint " << j;
+    if (!IsMimic(m_.get(), j)) joints.push_back(mj_id2name(m_.get(), mjOBJ_JOINT, j));
   }
+  EXPECT_EQ(joints, expected);
   const int base_nq = GetParam().base == Base::kPlanar ? -1 : 0;  // planar: 4 (Pinocchio) vs 3
-  EXPECT_EQ(m_->nq, model_.nq + base_nq);
-  EXPECT_EQ(m_->nv, model_.nv);
+  const int mimics = CountMimics(m_.get());
+  EXPECT_EQ(mimics, GetParam().name == "ur10" ? 1 : 0) << "the UR10 gripper's right finger (TALOS' stay fixed)";
+  EXPECT_EQ(m_->nq, model_.nq + base_nq + mimics);
+  EXPECT_EQ(m_->nv, model_.nv + mimics);
 }
 
 TEST_P(RobotMjcfTest, EveryBodyPoseMatchesPinocchioFrameAtRandomConfigurations) {
   std::mt19937 rng(42);
   for (int trial = 0; trial < 8; ++trial) {
     const Eigen::VectorXd q = RandomConfiguration(model_, GetParam().base, &rng);
-    PinocchioToMujoco(q, GetParam().base, d_->qpos);
+    PinocchioToMujoco(m_.get(), model_, q, GetParam().base, d_->qpos);
     mj_kinematics(m_.get(), d_.get());
     pin::framesForwardKinematics(model_, data_, q);
     const PoseErrors e = CompareBodies(m_.get(), d_.get(), model_, data_, pin::SE3::Identity());
@@ -236,7 +268,7 @@ TEST_P(RobotMjcfTest, MassAndCentreOfMassMatchPinocchio) {
   std::mt19937 rng(7);
   for (int trial = 0; trial < 5; ++trial) {
     const Eigen::VectorXd q = RandomConfiguration(model_, GetParam().base, &rng);
-    PinocchioToMujoco(q, GetParam().base, d_->qpos);
+    PinocchioToMujoco(m_.get(), model_, q, GetParam().base, d_->qpos);
     mj_kinematics(m_.get(), d_.get());
     mj_comPos(m_.get(), d_.get());
     // Centre of mass of the subtree of the first joint (the whole robot for a free or planar
@@ -254,10 +286,11 @@ TEST_P(RobotMjcfTest, MassAndCentreOfMassMatchPinocchio) {
 }
 
 TEST_P(RobotMjcfTest, EveryJointHasAServoNamedLikeIt) {
-  const int first = GetParam().base == Base::kFreeFlyer ? 1 : 0;  // the free joint is passive
-  ASSERT_EQ(m_->nu, m_->njnt - first);
-  for (int a = 0; a < m_->nu; ++a) {
-    const int j = first + a;
+  // The free joint and the mimic joints (tied to their driver by an equality) are passive.
+  const int first = GetParam().base == Base::kFreeFlyer ? 1 : 0;
+  ASSERT_EQ(m_->nu, m_->njnt - first - CountMimics(m_.get()));
+  for (int a = 0, j = first; a < m_->nu; ++a, ++j) {
+    while (IsMimic(m_.get(), j)) ++j;
     EXPECT_STREQ(mj_id2name(m_.get(), mjOBJ_ACTUATOR, a), mj_id2name(m_.get(), mjOBJ_JOINT, j));
     EXPECT_EQ(m_->actuator_trnid[2 * a], j);
     // Position servo: tau = kp ctrl - kp q - kv dq.
@@ -280,9 +313,8 @@ TEST_P(RobotMjcfTest, ReferenceKeyframeIsWithinLimitsAndServosHoldIt) {
   ASSERT_GE(key, 0);
   const mjtNum* qpos = m_->key_qpos + key * m_->nq;
   const mjtNum* ctrl = m_->key_ctrl + key * m_->nu;
-  const int first = GetParam().base == Base::kFreeFlyer ? 1 : 0;
   for (int a = 0; a < m_->nu; ++a) {
-    const int j = first + a;
+    const int j = m_->actuator_trnid[2 * a];
     const double q = qpos[m_->jnt_qposadr[j]];
     EXPECT_DOUBLE_EQ(ctrl[a], q) << mj_id2name(m_.get(), mjOBJ_JOINT, j);
     if (m_->jnt_limited[j]) {
@@ -291,6 +323,36 @@ TEST_P(RobotMjcfTest, ReferenceKeyframeIsWithinLimitsAndServosHoldIt) {
       EXPECT_LT(q, m_->jnt_range[2 * j + 1]) << mj_id2name(m_.get(), mjOBJ_JOINT, j);
     }
   }
+}
+
+// The URDF's mimic joints (the UR10 gripper's right finger): joint1 = offset + multiplier * joint2 in the
+// keyframe, read back from the URDF text itself (<mimic joint multiplier offset>).
+TEST_P(RobotMjcfTest, MimicJointsFollowTheUrdfMimicInTheKeyframe) {
+  std::ifstream in(kModels + "/" + GetParam().name + "/" + GetParam().name + ".urdf");
+  const std::string urdf((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const mjtNum* qpos = m_->key_qpos + mj_name2id(m_.get(), mjOBJ_KEY, "reference") * m_->nq;
+  int seen = 0;
+  for (int e = 0; e < m_->neq; ++e) {
+    if (m_->eq_type[e] != mjEQ_JOINT) continue;
+    const std::string j1 = mj_id2name(m_.get(), mjOBJ_JOINT, m_->eq_obj1id[e]);
+    const std::string j2 = mj_id2name(m_.get(), mjOBJ_JOINT, m_->eq_obj2id[e]);
+    const size_t at = urdf.find("<joint name=\"" + j1 + "\"");
+    ASSERT_NE(at, std::string::npos) << j1;
+    const size_t mimic = urdf.find("<mimic", at);
+    ASSERT_LT(mimic, urdf.find("</joint>", at)) << j1 << " has no <mimic> in the URDF";
+    const auto attr = [&](const std::string& name) {
+      const size_t a = urdf.find(name + "=\"", mimic) + name.size() + 2;
+      return urdf.substr(a, urdf.find('"', a) - a);
+    };
+    EXPECT_EQ(attr("joint"), j2);
+    const double multiplier = std::stod(attr("multiplier")), offset = std::stod(attr("offset"));
+    EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 0], offset) << j1;
+    EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 1], multiplier) << j1;
+    EXPECT_NEAR(qpos[m_->jnt_qposadr[m_->eq_obj1id[e]]],
+                offset + multiplier * qpos[m_->jnt_qposadr[m_->eq_obj2id[e]]], 1e-12) << j1;
+    ++seen;
+  }
+  EXPECT_EQ(seen, CountMimics(m_.get()));
 }
 
 INSTANTIATE_TEST_SUITE_P(Robots, RobotMjcfTest, ::testing::ValuesIn(kRobots),
@@ -403,7 +465,7 @@ TEST_P(SceneTest, LoadsAndPlacesTheRobotAsPinocchio) {
   mj_forward(m.get(), d.get());
   const pin::Model model = LoadPinocchio(c.robot);
   pin::Data data(model);
-  const Eigen::VectorXd q = MujocoToPinocchio(d->qpos, model.nq, c.robot.base);
+  const Eigen::VectorXd q = MujocoToPinocchio(m.get(), model, d->qpos, c.robot.base);
   pin::framesForwardKinematics(model, data, q);
   // Fixed bases: the robot's root body placement in the scene.
   pin::SE3 X_WB = pin::SE3::Identity();
@@ -414,7 +476,9 @@ TEST_P(SceneTest, LoadsAndPlacesTheRobotAsPinocchio) {
                     Eigen::Vector3d(d->xpos[3 * root], d->xpos[3 * root + 1], d->xpos[3 * root + 2])) *
            data.oMf[1].inverse();
   }
-  const PoseErrors e = CompareBodies(m.get(), d.get(), model, data, X_WB);
+  // Bodies moved by mimic joints (MuJoCo only) are left out: Pinocchio keeps them where the URDF
+  // fixes them (MimicJointsFollowTheUrdfMimicInTheKeyframe checks those).
+  const PoseErrors e = CompareBodies(m.get(), d.get(), model, data, X_WB, /*skip_mimic=*/true);
   EXPECT_GT(e.compared, 10);
   EXPECT_LT(e.position, 1e-6);
   EXPECT_LT(e.rotation, 1e-6);

@@ -169,6 +169,20 @@ GOOD = {"name": "thing", "handles": [{"name": "thing/h", "link": "base_link", "c
     (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
                                    "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
      r"grippers\[0\]: a gripper joint needs open_position and closed_position"),
+    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
+                                   "open_position": 0, "closed_position": 0.04,
+                                   "admittance": {"lever_arm": 1.0, "stiffness": 3.0},
+                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
+     r"grippers\[0\]: admittance must map parameters among \['acceleration'.*got .*stiffness"),
+    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1,
+                                   "admittance": {"lever_arm": 1.0},
+                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
+     r"grippers\[0\]: admittance parameters need a gripper joint"),
+    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
+                                   "open_position": 0, "closed_position": 0.04,
+                                   "admittance": {"speed": float("nan")},
+                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
+     r"grippers\[0\]: admittance: speed must be a finite number"),
 ])
 def test_bad_declarations_raise_precise_errors(mutate, message):
     import copy
