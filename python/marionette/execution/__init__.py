@@ -13,6 +13,7 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `estimation.py` | nearest graph state of a measured configuration, steps already done |
 | `monitor.py` | execution monitor: grasp / placement residuals from OBJECT_POSES -> `left_manifold` |
 | `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
+| `grip_force.py` | the grip force a gripper holds: effort estimate (eq. 3.11-3.13) and MuJoCo contact forces on its jaws |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
 | `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
 | `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |

@@ -31,7 +31,8 @@ import marionette
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
-from marionette.execution.factory import build_specs, check_specs, context_from_plan, write_specs
+from marionette.execution.factory import ADMITTANCE, build_specs, check_specs, context_from_plan, write_specs
+from marionette.execution.grip_force import GripForceRecorder, holding_windows, recorder_for, settled_windows
 from marionette.execution.perturbations import Perturbation, displaced, scene_with_joint_offsets, slipped
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.references import compute_references, sample_step
@@ -62,6 +63,10 @@ class Scenario:
     vision: bool = False                # camera + perception + PBVS on the carried object (ch. 5)
     camera_rate: float = 5.0            # [Hz of controller time] head camera frames with vision
     servo_slowdown: float = 3.0         # servoed steps run this much slower: more frames to servo on
+    # gripper_admittance tasks on the grippers with a joint (issue 7: close on the handle, hold
+    # 5 N, release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
+    gripper_admittance: bool = False
+    grip_tolerance: float = 1.0         # [N]
 
 
 def _grasp_walk(*args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -79,7 +84,9 @@ SCENARIOS: dict[str, Scenario] = {
         vision=True),
     "ur10-box": Scenario(
         "ur10-box", "ur10_box", marionette.MODELS_DIR / "scenes" / "ur10_box.xml", 0, "box", 1.0,
-        description="UR10 picks the box with its suction cup and places it 0.5 m away"),
+        description="UR10 picks the box with its two-finger gripper, holds it with 5 N (gripper "
+                    "admittance, thesis 000 §3.2.4.3) and places it 0.5 m away",
+        gripper_admittance=True),
     "grasp-walk": Scenario(
         "grasp-walk", "", marionette.MODELS_DIR / "talos" / "talos.xml", 0, "ball", 0.0,
         description="TALOS walks to a ball moved sideways while it walks; the footstep process "
@@ -181,10 +188,11 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
              cache_dir: Path | None = None, log: Callable[[str], None] = print,
              controller_url: str | None = None, perturbation: Perturbation | None = None,
-             view: bool = False) -> dict[str, Any]:
+             view: bool = False, gripper_admittance: bool | None = None) -> dict[str, Any]:
     """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
     after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
     marionette-controller already running there (another machine: ttl=1) instead of starting one.
+    ``gripper_admittance``: overrides the scenario's (False: weld-only grasps).
     ``perturbation`` (:mod:`.perturbations`): joint offsets in the simulated robot, the object
     displaced before execution and slipping in the hand during it, camera noise."""
     from marionette.execution.report import write_report
@@ -205,7 +213,9 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     model, _ = robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
     steps = steps_from_plan(plan)
-    ctx = context_from_plan(plan.doc, robot, model)
+    if gripper_admittance is None:
+        gripper_admittance = scenario.gripper_admittance
+    ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=gripper_admittance)
     ctx.visual_servoing = scenario.vision
     specs = build_specs(steps, ctx)
     write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
@@ -250,6 +260,9 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
 
             report["viewer_url"] = start_viewer(group, robot, scenario.scene, log)
         recorder = Recorder(model, client)
+        grip = recorder_for(ctx, model)   # the grip force on the jaws (issue 7)
+        if grip is not None:
+            grip.subscribe(client.bus)
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
         for name in robot_map.objects:
@@ -324,6 +337,14 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     timings["total_s"] = time.perf_counter() - t0
 
     report.update(_criteria(scenario, plan, robot_map, model, result, recorder, q_start, final_objects))
+    if grip is not None:
+        report["grip"] = _grip_report(grip, scenario, steps, result, out_dir)
+        held = [h for g in report["grip"]["grippers"].values() for h in g["held"]]
+        within = bool(held) and all(abs(h.get("contact_median_n", np.inf) - ADMITTANCE["force_target"])
+                                    <= scenario.grip_tolerance for h in held)
+        report["criteria"]["grip_within_tolerance"] = within
+        report["criteria"]["limits"]["grip_n"] = scenario.grip_tolerance
+        report["success"] = bool(report["success"] and within)
     report["supervisor"] = {"state": result.state, "reason": result.reason,
                             "steps": len(steps), "first_step": first,
                             "events": [list(e) for e in result.events]}
@@ -334,6 +355,28 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
         report["vision"] = servo.summary()
     write_report(out_dir, report, scenario, supervisor, result, recorder, model)
     return report
+
+
+def _grip_report(grip: GripForceRecorder, scenario: Scenario, steps: list, result: SupervisorResult,
+                 out_dir: Path) -> dict[str, Any]:
+    """Grip force held by each admittance gripper (issue 7): contact force (MuJoCo) and estimate
+    over each holding window from 1 s after the switch to admittance to the release (median,
+    mean, range); plot grip_force.png."""
+    grip.compute()
+    target, tolerance = ADMITTANCE["force_target"], scenario.grip_tolerance
+    out: dict[str, Any] = {"target_n": target, "plot": "grip_force.png", "grippers": {}}
+    spans = {}
+    for name in grip.grippers:
+        windows = holding_windows(steps, result.records, name)
+        spans[name] = windows
+        held = []
+        for a, b in windows:   # a window where the estimate never reached the switch counts as failed
+            settled = settled_windows(grip, name, [(a, b)], ADMITTANCE["force_threshold"])
+            held += ([grip.holding_summary(name, *settled[0], target, tolerance)] if settled
+                     else [{"samples": 0, "never_switched": True, "t_from_s": a, "t_to_s": b}])
+        out["grippers"][name] = {"holding_windows_s": windows, "held": held}
+    grip.plot(out_dir / "grip_force.png", target, spans)
+    return out
 
 
 def _slip(supervisor: Supervisor, client: ControllerClient, steps: list, obj: str,

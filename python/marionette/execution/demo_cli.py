@@ -62,6 +62,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--controller-url", default=None, metavar="URL",
                    help="use the marionette-controller already running on this LCM URL (e.g. on the "
                         "robot's computer, started with the scenario's --scene) instead of starting one")
+    p.add_argument("--gripper-admittance", action=argparse.BooleanOptionalAction, default=None,
+                   help="gripper_admittance tasks on the grippers with a joint (close on the handle, hold "
+                        "5 N, release; default: the scenario's, on for ur10-box); --no-gripper-admittance: "
+                        "weld-only grasps")
     p.add_argument("--view", action="store_true",
                    help="serve a browser 3D view of the run (meshcat; its URL is printed; `marionette "
                         "replay LOG --view` plays a recorded run in it)")
@@ -105,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
             report = run_demo(scenario, seed if args.plan_seed is None else args.plan_seed, out,
                               speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True), perturbation=perturbation,
-                              **({"view": True} if args.view and scenario.runner is None else {}))
+                              **({"view": True} if args.view and scenario.runner is None else {}),
+                              **({} if args.gripper_admittance is None or scenario.runner is not None
+                                 else {"gripper_admittance": args.gripper_admittance}))
         except DemoError as e:
             print(f"marionette demo: {e}", file=sys.stderr)
             rows.append((seed, False, str(e).splitlines()[0], out, None))

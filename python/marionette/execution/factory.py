@@ -60,11 +60,13 @@ ADMITTANCE: dict[str, float] = {"force_target": 5.0, "force_threshold": 4.0}
 
 @dataclass(frozen=True)
 class GripperJoint:
-    """The actuated joint of a gripper and its open / closed positions (grippers.yaml)."""
+    """The actuated joint of a gripper, its open / closed positions and the admittance
+    parameters it sets over ADMITTANCE and the controller's defaults (grippers.yaml)."""
 
     joint: str
     open_position: float
     closed_position: float
+    parameters: dict[str, float] = field(default_factory=dict, hash=False)
 
 
 @dataclass
@@ -98,7 +100,8 @@ def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model,
     semantics = robots.semantics(robot).grippers
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
-    joints = {g.name: GripperJoint(g.joint, g.open_position, g.closed_position) for g in semantics
+    joints = {g.name: GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
+              for g in semantics
               if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]}
     return FactoryContext(
         robot=robot,
@@ -211,7 +214,8 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
         if not release and gripper not in step.grasps:
             continue
         target = g.open_position if release else g.closed_position
-        parameters = dict(ADMITTANCE, closing_direction=float(np.sign(g.closed_position - g.open_position)),
+        parameters = dict(ADMITTANCE, **g.parameters,
+                          closing_direction=float(np.sign(g.closed_position - g.open_position)),
                           release=float(release))
         tasks.append(TaskSpec(f"{_task_name(gripper)}_admittance", "gripper_admittance", priority,
                               gain=GAINS["gripper"], reference=[target], joints=[g.joint],

@@ -67,6 +67,11 @@ def _markdown(r: dict[str, Any]) -> str:
                   f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
                   f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | planned "
                   f"{c.get('base_planned_drop_m', 0.0) * 1e3:.1f} + 50 mm | {c['no_fall']} |"]
+    if "grip_within_tolerance" in c:
+        medians = [h.get("contact_median_n") for g in r["grip"]["grippers"].values() for h in g["held"]]
+        shown = ", ".join("never switched" if m is None else f"{m:.2f} N" for m in medians) or "no hold"
+        lines += [f"| grip force on the jaws (median per hold) | {shown} | "
+                  f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | {c['grip_within_tolerance']} |"]
     lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", ""]
     if "perturbation" in r:
         p = r["perturbation"]
@@ -86,6 +91,20 @@ def _markdown(r: dict[str, Any]) -> str:
                   f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
                   for k, t in v["last_per_step"].items()]
         lines += [""]
+    if "grip" in r:   # issue 7: the grip force the admittance holds, measured on the contacts
+        g = r["grip"]
+        lines += ["## Gripper admittance (thesis 000 §3.2.4.3)", "",
+                  f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
+                  "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.", "",
+                  "| gripper | window [s] | contact median (min-max) | estimate mean |", "|---|---|---|---|"]
+        for name, d in g["grippers"].items():
+            for h in d["held"] or [{"never_switched": True}]:
+                if "contact_median_n" not in h:
+                    lines.append(f"| {name} | - | never switched to admittance or no contact measured | - |")
+                    continue
+                lines.append(f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_median_n']:.2f} N "
+                             f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |")
+        lines += ["", f"![{g['plot']}]({g['plot']})", ""]
     lines += ["## Estimation (§3.2.2)", "",
               f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
               f"started at step {r['estimation']['first_step']}", "",

@@ -50,7 +50,7 @@ def test_continuous_swap_is_accepted_and_a_discontinuous_one_refused(run_control
         assert np.abs(np.diff(v, axis=0)).max() < 0.05, "the command jumped at the swap"
         # A posture reference 1 rad away at the top level would jump: refused, 2 stays active.
         q = np.array(c.state.joint_position)
-        far = q + np.array([1.0, 0, 0, 0, 0, 0])
+        far = q + np.eye(len(q))[0]   # the shoulder 1 rad away
         spec = ControllerSpec(3, "far", [TaskSpec("posture", "posture", 0, gain=5.0, reference=list(far))],
                               max_switch_velocity_jump=0.05)
         c.send_spec(spec)

@@ -29,13 +29,13 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
         c.wait(lambda c: c.status.active_controller_id == 1, 20, "controller 1")
         listing = dg.ls()
         for line in ("command (KinematicDevice)", "safety (SafetyFilter)", "c1_solver (Solver)",
-                     "input velocity : vector 6x1 <- c1_solver.velocity"):
+                     "input velocity : vector 7x1 <- c1_solver.velocity"):
             assert line in listing, listing
         dot = dg.dot()
         assert '"c1_solver":"velocity":e -> "safety":"velocity":w' in dot
         # Values: the commanded configuration the graph integrates equals the published command.
         tick, values = dg.get_with_tick("command.configuration", "c1_posture.gain")
-        assert values["command.configuration"].shape == (6,)
+        assert values["command.configuration"].shape == (7,)
         np.testing.assert_allclose(values["command.configuration"], c.command.joint_position, atol=1e-3)
         assert float(values["c1_posture.gain"]) == 1.0 and tick > 0
         # Only settable inputs: a gain yes, the safety mode and an output no.
@@ -45,7 +45,7 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
         with pytest.raises(IntrospectionError, match="safety.mode is not settable"):
             dg.set("safety.mode", 0)
         with pytest.raises(IntrospectionError, match="is an output"):
-            dg.set("c1_solver.velocity", np.zeros(6))
+            dg.set("c1_solver.velocity", np.zeros(7))
         with pytest.raises(IntrospectionError, match="takes 1 values, 2 given"):
             dg.set("c1_posture.gain", [1.0, 2.0])
         with pytest.raises(IntrospectionError, match="no entity 'nobody'"):

@@ -32,7 +32,7 @@ def test_perturbed_start_of_each_step_is_recognised_and_resumed(ur10_box, ur10_g
         estimate = estimate_state(ur10_graph, _perturbed(p, step.q[0], rng))
         expected = {step.start_state}
         if step.kind == "release" or step.transition.endswith("_23"):
-            expected |= {"free", "ur10/suction grasps box/top"}   # box grasped on the table: both
+            expected |= {"free", "ur10/gripper grasps box/top"}   # box grasped on the table: both
         assert estimate.state in expected, step.transition
         assert estimate.residual < 0.05
         assert first_step_to_run(p.steps, p.robot_map, estimate) == step.index, step.transition
@@ -50,6 +50,6 @@ def test_box_in_the_gripper_is_the_grasp_state(ur10_box, ur10_graph):
     carry = next(s for s in p.steps if s.transition.endswith("_34"))
     q = carry.q[len(carry.q) // 2]                      # mid-transfer, box in the air
     estimate = estimate_state(ur10_graph, _perturbed(p, q, np.random.default_rng(2)))
-    assert estimate.state == "ur10/suction grasps box/top"
+    assert estimate.state == "ur10/gripper grasps box/top"
     ranking = dict(estimate.ranking)
     assert ranking["free"] is None or ranking["free"] > 2 * estimate.residual   # box 5 cm up

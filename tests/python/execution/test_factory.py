@@ -163,5 +163,5 @@ def test_spec_file_round_trips(ur10_box, tmp_path):
     p = ur10_box
     path = write_specs(tmp_path / "controllers.yaml", p.steps, p.specs, "ur10_box")
     text = path.read_text()
-    assert "grasp_at_end" in text and "ur10/suction" in text
+    assert "grasp_at_end" in text and "ur10/gripper" in text
     assert [s.to_dict() for s in read_specs(path)] == [s.to_dict() for s in p.specs]

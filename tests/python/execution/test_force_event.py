@@ -61,13 +61,14 @@ KINEMATIC = ("--robot", "ur10", "--backend", "kinematic", "--speed", "4", "--cam
 
 
 def _run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, at_fraction: float):
-    """The ur10-box plan's longest step, with the force detector on the live
+    """The ur10-box plan's first step (from the home posture the controller starts in: 17.7 s at
+    0.5 rad/s), with the force detector on the live
     ROBOT_STATE. The kinematic backend measures no effort, so the effort a contact would add
     (10 N at the joint's 1 m lever, s = -1) is written into the states the detector reads from
     ``at_fraction`` of the first step on: what runs for real is the path from a state's tick to
     the event, the supervisor, the streamer and the controller's reference stream."""
     with controller_running(build_dir, lcm_url, tmp_path / "logs", *KINEMATIC) as c:
-        first = max(ur10_box.steps, key=lambda s: len(s.q))
+        first = ur10_box.steps[0]
         steps, specs = [first], [ur10_box.specs[first.index]]
         # 0.5 rad/s: the first step lasts longer than the supervisor's 4 s look-ahead.
         sup = Supervisor(c, steps, specs, ur10_box.robot_map,

@@ -1,11 +1,13 @@
 """Execution monitor (issue 7, thesis 000 §3.4.4.1): residuals of the ur10-box plan's own grasp
 and placement constraints. Along the planned path the grasp holds by construction (the planner
-projected every sample on it), so the residual there must stay ~0; a box displaced in the suction
-cup by a known offset must give that offset back and fire after `consecutive` messages; a single
+projected every sample on it), so the residual there must stay ~0; a box displaced in the gripper
+by a known offset must give that offset back and fire after `consecutive` messages; a single
 outlier must not fire. Then the same monitor in a live MuJoCo run: the weld of the held box is
 broken and the box moved away, the supervisor fails with left_manifold and the robot holds."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import threading
 
@@ -91,8 +93,12 @@ def test_box_slid_in_the_cup_fires_after_consecutive_messages(ur10_box):
 
 def test_placed_object_moved_fires_on_placement(ur10_box):
     monitor = ExecutionMonitor(ur10_box.model, ur10_box.ctx, MonitorOptions(consecutive=2))
-    step = next(s for s in ur10_box.steps if not s.grasps and not s.grasps_from and not s.grasps_to
-                and not s.parent_grasps_from and not s.parent_grasps_to)
+    # A transit in the free state with the box placed: the plan's last step (the retreat after the
+    # release) without its transition's grasps, as a `Loop | f` step has none (this plan has no
+    # such step).
+    last = ur10_box.steps[-1]
+    step = dataclasses.replace(last, grasps={}, grasps_from={}, grasps_to={}, parent_grasps_from={},
+                               parent_grasps_to={})
     monitor.begin_step(step)
     monitor.on_configuration(ur10_box.robot_map.robot_q(step.q[0]))
     X = ur10_box.robot_map.object_pose(step.q[0], "box")
@@ -119,7 +125,7 @@ def ur10_box_mujoco(build_dir, lcm_url, tmp_path):
         yield client
 
 
-def test_box_pulled_off_the_suction_cup_fails_the_step_and_holds(ur10_box_mujoco, ur10_box):
+def test_box_pulled_out_of_the_gripper_fails_the_step_and_holds(ur10_box_mujoco, ur10_box):
     """Live: the ur10-box plan in MuJoCo with the ground truth relayed as OBJECT_POSES (motion
     capture); once the box is carried, its weld is broken and the box put back on the table: the
     monitor reports the residual, the FSM fails with left_manifold and the controller holds."""

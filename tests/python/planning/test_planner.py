@@ -108,7 +108,7 @@ def test_start_in_collision_or_in_no_state_is_refused(setup):
 
 
 def test_ur10_box_moved_across_the_table_in_at_least_19_of_20_seeds():
-    """The models' UR10 (suction gripper) moves the box 0.5 m across the models' table."""
+    """The models' UR10 (two-finger gripper) moves the box 0.5 m across the models' table."""
     from marionette.planning.problem import load_problem
 
     problem = load_problem(marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems"
