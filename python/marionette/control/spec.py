@@ -32,12 +32,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from marionette import channels, lcmt_controller_spec, lcmt_task_reference, lcmt_task_spec
+from marionette.models.semantics import GRIPPER_ADMITTANCE_PARAMETERS
 
 KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze", "gripper_admittance")
-# Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h).
-GRIPPER_ADMITTANCE_PARAMETERS = ("force_target", "force_threshold", "release_force", "admittance_gain",
-                                 "lever_arm", "torque_per_effort", "cutoff_frequency", "speed", "acceleration",
-                                 "closing_direction", "release")
 # Walking references produced inside the controller (controller_factory.cc, ConnectWalkReference):
 # reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
 # starts from); the CoM is optional.

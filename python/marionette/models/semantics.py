@@ -29,15 +29,18 @@ from typing import Any
 import numpy as np
 import yaml
 
-from marionette.control.spec import GRIPPER_ADMITTANCE_PARAMETERS
-
 
 class SemanticsError(ValueError):
     """A YAML declaration is malformed; the message names the file and the entry."""
 
 
-# The gripper_admittance task's parameters a gripper may set (the factory derives the others
-# from the step and the gripper's open / closed positions).
+# Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h;
+# marionette.control.spec checks task specs against it).
+GRIPPER_ADMITTANCE_PARAMETERS = ("force_target", "force_threshold", "release_force", "admittance_gain",
+                                 "lever_arm", "torque_per_effort", "cutoff_frequency", "speed", "acceleration",
+                                 "closing_direction", "release")
+# Those a gripper may set in its semantics (the factory derives the others from the step and the
+# gripper's open / closed positions).
 ADMITTANCE_PARAMETERS = frozenset(GRIPPER_ADMITTANCE_PARAMETERS) - {"closing_direction", "release"}
 
 
