@@ -37,6 +37,9 @@ pinocchio::SE3 VectorToPose(const Eigen::VectorXd& v) {
 }
 
 // lcmt_task_spec.mask as a feature mask over n components; all false means all (LCM's default).
+// Task kinds whose reference is a pose (xyz + quaternion, 7 values; velocity 6).
+bool IsPoseKind(const std::string& kind) { return kind == "se3" || kind == "pbvs" || kind == "relative_se3"; }
+
 sot::Mask MaskOf(const lcmt_task_spec& spec, int n) {
   sot::Mask mask(spec.mask, spec.mask + n);
   if (std::none_of(mask.begin(), mask.end(), [](bool b) { return b; })) return {};
@@ -129,7 +132,7 @@ ControllerFactory::ControllerFactory(sot::ModelPtr model, ControllerSockets sock
     : model_(std::move(model)), sockets_(sockets), default_gain_(default_gain) {}
 
 std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) const {
-  if (kind == "se3" || kind == "pbvs" || kind == "relative_se3") return {7, 6};
+  if (IsPoseKind(kind)) return {7, 6};
   if (kind == "position" || kind == "com" || kind == "gaze") return {3, 3};
   if (kind == "posture") return {model_->nq, model_->nv};
   if (kind == kGripperAdmittanceKind) return {1, 1};  // the position-control target
@@ -219,7 +222,7 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     }
     // A pose reference (xyz + quaternion) by kind, never by size: a 7-value posture (the UR10
     // with its gripper joint) is a vector.
-    const bool se3 = t.kind == "se3" || t.kind == "pbvs" || t.kind == "relative_se3";
+    const bool se3 = IsPoseKind(t.kind);
     if (se3 && t.num_reference == 7) {
       const double n = Eigen::Vector4d(t.reference[3], t.reference[4], t.reference[5], t.reference[6]).norm();
       if (std::abs(n - 1.0) > 1e-3) Fail(who, "reference quaternion has norm " + std::to_string(n));

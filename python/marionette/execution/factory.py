@@ -68,6 +68,11 @@ class GripperJoint:
     closed_position: float
     parameters: dict[str, float] = field(default_factory=dict, hash=False)
 
+    @property
+    def closing_direction(self) -> float:
+        """s of eq. 3.11-3.13: the sign of q̇ when closing."""
+        return float(np.sign(self.closed_position - self.open_position))
+
 
 @dataclass
 class FactoryContext:
@@ -215,7 +220,7 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
             continue
         target = g.open_position if release else g.closed_position
         parameters = dict(ADMITTANCE, **g.parameters,
-                          closing_direction=float(np.sign(g.closed_position - g.open_position)),
+                          closing_direction=g.closing_direction,
                           release=float(release))
         tasks.append(TaskSpec(f"{_task_name(gripper)}_admittance", "gripper_admittance", priority,
                               gain=GAINS["gripper"], reference=[target], joints=[g.joint],

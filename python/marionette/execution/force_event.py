@@ -24,6 +24,16 @@ from marionette.execution.decisions import event_message
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "force_monitor"
+# The controller's defaults of eq. 3.11-3.13's constants (GripperAdmittanceOptions,
+# cpp/include/marionette/sot/feature_gripper_admittance.h), which a task's parameters override.
+DEFAULT_LEVER_ARM = 0.1           # d [m]
+DEFAULT_TORQUE_PER_EFFORT = 1.0   # k_τ k_gear
+
+
+def force_estimate(effort: float, closing_direction: float, torque_per_effort: float,
+                   lever_arm: float) -> float:
+    """f = s k τ / d [N] of eq. 3.11-3.13 from a gripper joint's actuator effort τ (> 0 squeezes)."""
+    return closing_direction * torque_per_effort * effort / lever_arm
 
 
 @dataclass
@@ -31,8 +41,8 @@ class ForceEventDetector:
     joint: str
     threshold: float                    # [N]
     closing_direction: float = -1.0     # s (TALOS grippers close towards negative angles)
-    lever_arm: float = 0.1              # d [m]
-    torque_per_effort: float = 1.0      # k_τ k_gear
+    lever_arm: float = DEFAULT_LEVER_ARM
+    torque_per_effort: float = DEFAULT_TORQUE_PER_EFFORT
     cutoff_frequency: float = 5.0       # [Hz]
 
     def __post_init__(self) -> None:
@@ -53,7 +63,8 @@ class ForceEventDetector:
             i = list(state.joint_name).index(self.joint)
         except ValueError:
             raise KeyError(f"ForceEventDetector: joint {self.joint!r} not in the robot state") from None
-        return self.closing_direction * self.torque_per_effort * state.joint_effort[i] / self.lever_arm
+        return force_estimate(state.joint_effort[i], self.closing_direction, self.torque_per_effort,
+                              self.lever_arm)
 
     def feed(self, state: Any) -> float | None:
         """Updates the filter with one state; returns the filtered force when it first crosses the

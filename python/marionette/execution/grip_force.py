@@ -23,6 +23,7 @@ import pinocchio as pin
 
 from marionette import channels, lcmt_robot_state
 from marionette.control.client import configuration_from_state
+from marionette.execution.force_event import DEFAULT_LEVER_ARM, DEFAULT_TORQUE_PER_EFFORT, force_estimate
 
 # Gripper joint -> (base link, jaw links on +y, jaw links on -y of the base link).
 JAWS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
@@ -35,9 +36,6 @@ JAWS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
         tuple(f"gripper_{side}_{n}_link" for n in ("motor_single", "inner_single", "fingertip_3")))
        for side in ("left", "right")},
 }
-# The controller's defaults of the estimate's constants (GripperAdmittanceOptions,
-# cpp/include/marionette/sot/feature_gripper_admittance.h), which a task's parameters override.
-ESTIMATE_DEFAULTS = {"lever_arm": 0.1, "torque_per_effort": 1.0}
 
 
 @dataclass(frozen=True)
@@ -50,16 +48,16 @@ class GripperGeometry:
     minus_jaw: tuple[str, ...]
     lever_arm: float          # d [m] of eq. 3.13 (the admittance task's `lever_arm`)
     closing_direction: float  # s: sign of q̇ when closing
-    torque_per_effort: float = 1.0
+    torque_per_effort: float = DEFAULT_TORQUE_PER_EFFORT
 
     @staticmethod
     def of(joint: str, parameters: dict[str, float], closing_direction: float) -> "GripperGeometry":
         """The geometry of the gripper driven by ``joint`` (:data:`JAWS`) with the estimate of an
         admittance task with ``parameters``; KeyError for a joint without known jaws."""
         base, plus, minus = JAWS[joint]
-        p = {**ESTIMATE_DEFAULTS, **{k: v for k, v in parameters.items() if k in ESTIMATE_DEFAULTS}}
-        return GripperGeometry(joint, base, plus, minus, p["lever_arm"], closing_direction,
-                               p["torque_per_effort"])
+        return GripperGeometry(joint, base, plus, minus, parameters.get("lever_arm", DEFAULT_LEVER_ARM),
+                               closing_direction,
+                               parameters.get("torque_per_effort", DEFAULT_TORQUE_PER_EFFORT))
 
 
 def grip_forces(state: Any, model: pin.Model, data: pin.Data, g: GripperGeometry) -> tuple[float, float, float]:
@@ -67,7 +65,7 @@ def grip_forces(state: Any, model: pin.Model, data: pin.Data, g: GripperGeometry
     gripper ``g`` in one ``lcmt_robot_state``; NaN contact values when the state carries no jaw
     wrenches (kinematic backend)."""
     efforts = dict(zip(state.joint_name, state.joint_effort))
-    estimate = g.closing_direction * g.torque_per_effort * efforts[g.joint] / g.lever_arm
+    estimate = force_estimate(efforts[g.joint], g.closing_direction, g.torque_per_effort, g.lever_arm)
     wrenches = dict(zip(state.contact_frame, state.contact_wrench))
     if not all(b in wrenches for b in g.plus_jaw + g.minus_jaw):
         return estimate, float("nan"), float("nan")
@@ -92,14 +90,13 @@ class GripForceRecorder:
     t: list[float] = field(default_factory=list)                           # [s] controller time
     estimate: dict[str, list[float]] = field(default_factory=dict)          # [N]
     contact: dict[str, list[float]] = field(default_factory=dict)           # [N]
-    joint: dict[str, list[float]] = field(default_factory=dict)             # [rad or m]
     _messages: list[Any] = field(default_factory=list)
     _count: int = 0
 
     def __post_init__(self) -> None:
         self._data = self.model.createData()
         for name in self.grippers:
-            self.estimate[name], self.contact[name], self.joint[name] = [], [], []
+            self.estimate[name], self.contact[name] = [], []
 
     def subscribe(self, bus: Any) -> "GripForceRecorder":
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self.on_state)
@@ -111,16 +108,14 @@ class GripForceRecorder:
             self._messages.append(msg)
 
     def compute(self) -> "GripForceRecorder":
-        """Turns the messages kept so far into the time series (t, estimate, contact, joint)."""
+        """Turns the messages kept so far into the time series (t, estimate, contact)."""
         messages, self._messages = self._messages, []
         for msg in messages:
-            positions = dict(zip(msg.joint_name, msg.joint_position))
             self.t.append(msg.utime * 1e-6)
             for n, g in self.grippers.items():
                 est, contact, _ = grip_forces(msg, self.model, self._data, g)
                 self.estimate[n].append(est)
                 self.contact[n].append(contact)
-                self.joint[n].append(positions[g.joint])
         return self
 
     def holding_summary(self, name: str, t_from: float, t_to: float, target: float,
@@ -170,7 +165,7 @@ def recorder_for(ctx: Any, model: pin.Model) -> GripForceRecorder | None:
     for name, gj in sorted(ctx.gripper_joints.items()):
         if gj.joint not in JAWS:
             continue
-        g = GripperGeometry.of(gj.joint, gj.parameters, float(np.sign(gj.closed_position - gj.open_position)))
+        g = GripperGeometry.of(gj.joint, gj.parameters, gj.closing_direction)
         if all(model.existFrame(b) for b in (g.base_link, *g.plus_jaw, *g.minus_jaw)):
             grippers[name] = g
     return GripForceRecorder(model, grippers) if grippers else None
