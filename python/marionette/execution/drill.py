@@ -29,7 +29,7 @@ The procedure of §6.3 (steps 1-6), on the ``ur10_drill`` scene:
    from the interpolation, its orientation is adjusted on the surface normal the tool sensor
    measures (§6.3 step 6, :meth:`HoleSensor.normal`).
 
-Every move ends with corrections on the measured tool pose (:meth:`_Tool.servo`): the joint
+Every move ends with corrections on the measured tool pose (:meth:`tool_task.ToolTask.servo`): the joint
 servos of the MuJoCo arm sag under gravity by a few mm, which the controller's task does not see
 (it tracks its own integrated configuration); the corrections move the reference by the error
 measured from the joint encoders until it is below ``aligned_m`` / ``aligned_deg``.
@@ -56,11 +56,11 @@ import pinocchio as pin
 
 import marionette
 from marionette import channels, lcmt_camera_image, lcmt_object_poses, robots
-from marionette.control.client import ControllerClient, configuration_from_state, pose_to_vector
-from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.control.client import ControllerClient, pose_to_vector
+from marionette.execution import tool_task
 from marionette.execution.demo import DemoError
-from marionette.execution.references import minimum_jerk
-from marionette.execution.streamer import ReferenceStreamer
+from marionette.execution.tool_task import (ToolTask, axis_angle_deg, placement_se3, tool_error,
+                                            tool_target)
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ProcessGroup
 
@@ -105,18 +105,6 @@ class DrillSettings:
 
 # ---- geometry --------------------------------------------------------------------------------
 
-def placement_se3(p) -> pin.SE3:
-    """A YAML :class:`~marionette.models.semantics.Placement` (xyz, xyzw) as pinocchio.SE3."""
-    x, y, z, w = p.xyzw
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(p.xyz, dtype=float))
-
-
-def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    """Angle [deg] between two directions."""
-    c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
 def part_pose_from_references(p1_W: np.ndarray, p2_W: np.ndarray, axis_W: np.ndarray,
                               p1_P: np.ndarray, p2_P: np.ndarray, axis_P: np.ndarray) -> pin.SE3:
     """X_WP from two reference holes and the hole axis (§6.3 step 5, interpolation).
@@ -140,51 +128,18 @@ def part_pose_from_references(p1_W: np.ndarray, p2_W: np.ndarray, axis_W: np.nda
     return pin.SE3(R, p)
 
 
-def tool_target(X_W_hole: pin.SE3, R_W_tool_now: np.ndarray, standoff: float) -> pin.SE3:
-    """Tool pose on the hole: x axis along the hole axis (x of the handle), origin ``standoff``
-    before it, and the rotation about the axis (masked in the task) kept from the current tool
-    pose: the smallest rotation taking the current tool axis onto the hole's."""
-    a = X_W_hole.rotation[:, 0]
-    x = R_W_tool_now[:, 0]
-    v = np.cross(x, a)
-    s, c = np.linalg.norm(v), float(np.dot(x, a))
-    R_align = np.eye(3) if s < 1e-12 else pin.exp3(v / s * np.arctan2(s, c))
-    return pin.SE3(R_align @ R_W_tool_now, X_W_hole.translation - standoff * a)
-
-
-def tool_error(X_W_tool: pin.SE3, X_W_target: pin.SE3) -> tuple[float, float]:
-    """(position error [m], axis angle error [deg]) of the tool against a target tool pose;
-    rotation about the tool axis is free (masked)."""
-    return (float(np.linalg.norm(X_W_tool.translation - X_W_target.translation)),
-            axis_angle_deg(X_W_tool.rotation[:, 0], X_W_target.rotation[:, 0]))
-
-
 def draw_displacement(seed: int, settings: DrillSettings, centre_P: np.ndarray) -> pin.SE3:
-    """Seeded displacement D of the part, applied as X_true = X_nominal D: a rotation of at most
-    ``max_rotation_deg`` about a random axis through ``centre_P`` (part frame) and a translation
-    of at most ``max_displacement_m``; both magnitudes uniform in [1/2, 1] of their bound."""
-    rng = np.random.default_rng(seed)
-    def unit():
-        v = rng.normal(size=3)
-        return v / np.linalg.norm(v)
-    angle = np.radians(settings.max_rotation_deg) * rng.uniform(0.5, 1.0)
-    R = pin.exp3(angle * unit())
-    t = settings.max_displacement_m * rng.uniform(0.5, 1.0) * unit()
-    # rotation about centre_P, then translation: p -> R (p - c) + c + t
-    return pin.SE3(R, centre_P - R @ centre_P + t)
+    """The part's seeded displacement (:func:`tool_task.draw_displacement` within the settings'
+    bounds, about the centre of its hole pattern)."""
+    return tool_task.draw_displacement(np.random.default_rng(seed), settings.max_displacement_m,
+                                       settings.max_rotation_deg, centre_P)
 
 
 # ---- scene file and camera ------------------------------------------------------------------
 
 def displaced_scene(X_WP: pin.SE3, out: Path) -> Path:
     """Writes the ur10_drill MJCF with the part's mocap body at ``X_WP`` (asset paths absolute)."""
-    text = SCENE.read_text()
-    q = pin.Quaternion(X_WP.rotation)
-    body = (f'<body name="part" pos="{" ".join(f"{v:.12g}" for v in X_WP.translation)}" '
-            f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}" mocap="true">')
-    text, n = re.subn(r'<body name="part" [^>]*mocap="true">', body, text)
-    if n != 1:
-        raise DemoError(f"{SCENE}: no mocap body 'part' to displace")
+    text = tool_task.place_mocap_body(SCENE.read_text(), "part", X_WP)
     models = str(marionette.MODELS_DIR)
     text = text.replace('meshdir=".."', f'meshdir="{models}"').replace('texturedir=".."', f'texturedir="{models}"')
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -241,110 +196,16 @@ def render_part(X_WP: pin.SE3, settings: DrillSettings, rng: np.random.Generator
 
 # ---- the run ---------------------------------------------------------------------------------
 
-class _Tool:
-    """Tool pose from ROBOT_STATE (MuJoCo's joint positions) through the robot's kinematics, and
-    the tool SE3 task's moves streamed on TASK_REFERENCE."""
+def _tool(client: ControllerClient, settings: DrillSettings) -> ToolTask:
+    """The spindle's SE3 task on ``drill_tip_link`` (tool x axis = its z axis)."""
+    from marionette.models.semantics import load_semantics
 
-    CONTROLLER_ID = 1
-
-    def __init__(self, client: ControllerClient, settings: DrillSettings) -> None:
-        from marionette.models.semantics import load_semantics
-
-        self.client, self.settings = client, settings
-        self.model, _ = robots.load_pinocchio("ur10", with_collision=False)
-        self.data = self.model.createData()
-        self.tip = self.model.getFrameId(TIP_FRAME)
-        gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
-        X_link_tool = placement_se3(gripper.pose)
-        X_link_tip = self.model.frames[self.model.getFrameId(gripper.link)].placement.actInv(
-            self.model.frames[self.tip].placement)
-        self.X_tip_tool = X_link_tip.actInv(X_link_tool)
-        self.reference: pin.SE3 | None = None   # last tip reference streamed
-
-    def spec(self) -> ControllerSpec:
-        """Tool pose task (rotation about the tool axis = tip z masked), posture below it."""
-        return ControllerSpec(self.CONTROLLER_ID, "drill", [
-            TaskSpec("tool", "se3", 0, frame=TIP_FRAME, mask=(1, 1, 1, 1, 1, 0), gain=10.0, streamed=True),
-            TaskSpec("posture", "posture", 1, gain=1.0)], reference_timeout=0.2)
-
-    def pose(self, state=None) -> pin.SE3:
-        """Tool pose X_W_tool from ``state`` (default the latest ROBOT_STATE)."""
-        q = configuration_from_state(self.model, state if state is not None else self.client.state)
-        pin.framesForwardKinematics(self.model, self.data, q)
-        return self.data.oMf[self.tip] * self.X_tip_tool
-
-    def move(self, X_W_tool: pin.SE3, duration_s: float) -> None:
-        """Minimum-jerk geodesic of the tip frame's reference from the last reference sent to
-        ``X_W_tool``; returns when the last sample's time has passed plus ``settle_s``."""
-        X0 = self.reference if self.reference is not None else self.pose() * self.X_tip_tool.inverse()
-        X1 = X_W_tool * self.X_tip_tool.inverse()
-        xi = pin.log6(X0.actInv(X1)).vector
-        # at least the duration that keeps the mean speed under the limits (the first move turns
-        # the spindle from vertical to horizontal: a wrist joint swept 2.3 rad in 1 s, its
-        # actuator saturated (54 N.m) and the wrist ended 0.23 rad past its command, stuck)
-        st = self.settings
-        duration_s = max(duration_s, np.linalg.norm(xi[:3]) / st.max_tool_speed,
-                         np.linalg.norm(xi[3:]) / st.max_tool_rate)
-        s, ds = minimum_jerk(np.zeros(6), xi, duration_s, 0.001)
-        values = np.array([pose_to_vector(X0 * pin.exp6(r)) for r in s])
-        start = self.client.utime() + 30_000
-        streamer = ReferenceStreamer(self.client.send_reference, self.CONTROLLER_ID,
-                                     {"tool": (values, ds)}, start)
-        while not streamer.done:
-            streamer.pump(self.client.utime())
-            time.sleep(0.005)
-        self.reference = X1
-        end = streamer.end_utime + int(st.settle_s * 1e6)
-        self.client.wait(lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move")
-        # The MuJoCo joint servos ring for a while after a move in some postures: measuring a
-        # moving arm makes the next correction chase it. Wait until it is still (or give up
-        # after settle_timeout_s of controller time and let the correction loop judge).
-        give_up = end + int(st.settle_timeout_s * 1e6)
-        self.client.wait(lambda c: c.state.utime >= give_up
-                         or max(abs(v) for v in c.state.joint_velocity) < st.still_velocity,
-                         10.0 + 10.0 * st.settle_timeout_s, "the arm to be still")
-
-    def reference_tool(self) -> pin.SE3:
-        """The tool pose the controller was last asked for."""
-        return self.reference * self.X_tip_tool
-
-    def servo(self, target: Callable[[pin.SE3], pin.SE3]) -> tuple[pin.SE3, int, bool]:
-        """Corrects the tool until ``target(current tool pose)`` is within ``aligned_*`` of it;
-        returns the final tool pose, the number of corrections and whether it got there within
-        ``max_corrections``.
-
-        The measured tool pose X (joint encoders, i.e. MuJoCo's joints) differs from the
-        reference the controller tracks by the arm's sag under gravity in the joint servos, so a
-        correction moves the *reference* by the measured error, X_ref <- (X_t X^-1) X_ref (an
-        integral action on the pose: exact when the offset does not change with the small
-        correction), rather than sending X_t again."""
-        st = self.settings
-        for k in range(st.max_corrections + 1):
-            if self.client.status.mode != "running":
-                raise DemoError(f"the controller stopped tracking the tool: {self.client.status.mode} "
-                                f"({self.client.status.mode_reason})")
-            X = self.pose()
-            X_t = target(X)
-            dp, da = tool_error(X, X_t)
-            if dp < st.aligned_m and da < st.aligned_deg:
-                return X, k, True
-            if k == st.max_corrections:
-                return X, k, False
-            X_ref = (X_t * X.inverse()) * self.reference_tool()
-            if tool_error(X_ref, X_t)[0] > st.max_reference_offset_m:
-                # anti-windup: the sag is a few mm; a reference pushed farther than this means
-                # the arm cannot hold the pose (actuators at their torque limits)
-                return X, k, False
-            self.move(X_ref, st.correction_duration_s)
-        raise AssertionError("unreachable")
-
-    def saturated_joints(self) -> list[str]:
-        """Joints whose actuator effort is within 1 % of its MJCF ``forcerange``."""
-        limits = {n: max(abs(float(a)), abs(float(b))) for n, a, b in re.findall(
-            r'<general name="([^"]+)"[^>]*forcerange="(\S+) (\S+)"', SCENE.read_text())}
-        s = self.client.state
-        return [f"{n} {e:.0f} N.m" for n, e in zip(s.joint_name, s.joint_effort)
-                if n in limits and abs(e) >= 0.99 * limits[n]]
+    model, _ = robots.load_pinocchio("ur10", with_collision=False)
+    gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
+    X_link_tip = model.frames[model.getFrameId(gripper.link)].placement.actInv(
+        model.frames[model.getFrameId(TIP_FRAME)].placement)
+    return ToolTask(client, settings, "ur10", TIP_FRAME, X_link_tip.actInv(placement_se3(gripper.pose)),
+                    SCENE, name="drill")
 
 
 class HoleSensor:
@@ -470,7 +331,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         report["camera"] = {"part_measured": pose_to_vector(X_WP_cam).tolist(), "frames": len(poses),
                             "position_error_m": cam_err[0], "angle_error_deg": cam_err[1]}
 
-        tool = _Tool(client, st)
+        tool = _tool(client, st)
         client.send_spec(tool.spec())
         tool.move(tool.pose(), 0.05)   # stream the current pose first: the task holds still
         client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,

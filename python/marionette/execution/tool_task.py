@@ -1,0 +1,278 @@
+"""A tool held by an arm, moved by one streamed SE3 task: what the drill (thesis 000 §6.3) and
+deburr (§5.3.3) demos share.
+
+* geometry of a tool on a hole: the tool's x axis along the hole axis (the x axis of the hole's
+  handle frame, ``mask: [1, 1, 1, 0, 1, 1]``: the rotation about it is free), its origin a
+  standoff before the hole (:func:`tool_target`, :func:`tool_error`, :func:`axis_offset`);
+* the seeded displacement of a workpiece (:func:`draw_displacement`);
+* :class:`ToolTask`: the controller spec (tool SE3 task, posture below it), minimum-jerk moves
+  streamed on TASK_REFERENCE, and corrections on a measured tool pose (:meth:`ToolTask.servo`).
+
+Settings are duck-typed: any object with the attributes :class:`ToolTask` reads (the drill's and
+the deburr's settings dataclasses both have them).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from marionette import robots
+from marionette.control.client import ControllerClient, configuration_from_state, pose_to_vector
+from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.execution.demo import DemoError
+from marionette.execution.references import minimum_jerk
+from marionette.execution.streamer import ReferenceStreamer
+
+
+# ---- geometry --------------------------------------------------------------------------------
+
+def placement_se3(p) -> pin.SE3:
+    """A YAML :class:`~marionette.models.semantics.Placement` (xyz, xyzw) as pinocchio.SE3."""
+    x, y, z, w = p.xyzw
+    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(p.xyz, dtype=float))
+
+
+def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle [deg] between two directions."""
+    c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def tool_target(X_W_hole: pin.SE3, R_W_tool_now: np.ndarray, standoff: float) -> pin.SE3:
+    """Tool pose on the hole: x axis along the hole axis (x of the handle), origin ``standoff``
+    before it, and the rotation about the axis (masked in the task) kept from the current tool
+    pose: the smallest rotation taking the current tool axis onto the hole's."""
+    a = X_W_hole.rotation[:, 0]
+    x = R_W_tool_now[:, 0]
+    v = np.cross(x, a)
+    s, c = np.linalg.norm(v), float(np.dot(x, a))
+    R_align = np.eye(3) if s < 1e-12 else pin.exp3(v / s * np.arctan2(s, c))
+    return pin.SE3(R_align @ R_W_tool_now, X_W_hole.translation - standoff * a)
+
+
+def tool_error(X_W_tool: pin.SE3, X_W_target: pin.SE3) -> tuple[float, float]:
+    """(position error [m], axis angle error [deg]) of the tool against a target tool pose;
+    rotation about the tool axis is free (masked)."""
+    return (float(np.linalg.norm(X_W_tool.translation - X_W_target.translation)),
+            axis_angle_deg(X_W_tool.rotation[:, 0], X_W_target.rotation[:, 0]))
+
+
+def axis_offset(X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> tuple[float, float, float]:
+    """(distance [m] of the hole's centre from the tool axis, angle [deg] between the tool axis
+    and the hole axis, standoff [m] of the tool origin before the hole along the hole axis): the
+    deburring criterion "tool axis within 1 mm / 1 deg of the hole axis" is the first two."""
+    a = X_W_tool.rotation[:, 0]
+    d = X_W_hole.translation - X_W_tool.translation
+    across = d - np.dot(d, a) * a
+    return (float(np.linalg.norm(across)), axis_angle_deg(a, X_W_hole.rotation[:, 0]),
+            float(np.dot(d, X_W_hole.rotation[:, 0])))
+
+
+def draw_displacement(rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float,
+                      centre: np.ndarray) -> pin.SE3:
+    """Seeded displacement D of a workpiece, applied as X_true = X_nominal D: a rotation of at most
+    ``max_rotation_deg`` about a random axis through ``centre`` (workpiece frame) and a
+    translation of at most ``max_translation_m``; both magnitudes uniform in [1/2, 1] of their
+    bound."""
+    def unit():
+        v = rng.normal(size=3)
+        return v / np.linalg.norm(v)
+    angle = np.radians(max_rotation_deg) * rng.uniform(0.5, 1.0)
+    R = pin.exp3(angle * unit())
+    t = max_translation_m * rng.uniform(0.5, 1.0) * unit()
+    # rotation about the centre, then translation: p -> R (p - c) + c + t
+    return pin.SE3(R, centre - R @ centre + t)
+
+
+def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
+    """MJCF text with mocap body ``name`` at ``X``: its ``pos``/``quat`` and its entries of every
+    keyframe's ``mpos``/``mquat`` (MuJoCo resets mocap bodies to the keyframe's values: changing
+    the body alone leaves the simulated workpiece at its nominal pose)."""
+    mocaps = re.findall(r'<body name="([^"]+)"[^>]*mocap="true"', mjcf)
+    if name not in mocaps:
+        raise DemoError(f"no mocap body {name!r} in the scene (mocap bodies: {mocaps})")
+    i = mocaps.index(name)
+    q = pin.Quaternion(X.rotation)
+    pos, quat = list(X.translation), [q.w, q.x, q.y, q.z]
+    mjcf = re.sub(rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
+                  f'<body name="{name}" pos="{" ".join(f"{v:.12g}" for v in pos)}" '
+                  f'quat="{" ".join(f"{v:.12g}" for v in quat)}" mocap="true">', mjcf)
+
+    def key(m: re.Match) -> str:
+        text = m.group(0)
+        for attr, values in (("mpos", pos), ("mquat", quat)):
+            a = re.search(rf'{attr}="([^"]+)"', text)
+            if a is None:
+                continue
+            v = a.group(1).split()
+            n = len(values)
+            v[n * i:n * (i + 1)] = [f"{x:.12g}" for x in values]
+            text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
+        return text
+
+    return re.sub(r"<key [^>]*/>", key, mjcf)
+
+
+def actuator_limits(scene: Path) -> dict[str, float]:
+    """Joint name -> |force limit| of the scene's MJCF actuators (``forcerange``)."""
+    return {n: max(abs(float(a)), abs(float(b))) for n, a, b in re.findall(
+        r'<general name="([^"]+)"[^>]*forcerange="(\S+) (\S+)"', Path(scene).read_text())}
+
+
+# ---- the task --------------------------------------------------------------------------------
+
+class ToolTask:
+    """Tool pose from ROBOT_STATE (MuJoCo's joint positions) through the robot's kinematics, and
+    the tool SE3 task's moves streamed on TASK_REFERENCE.
+
+    ``frame``: the URDF frame the task drives; ``X_frame_tool``: the tool frame in it (x axis =
+    the tool axis, which must be ``frame``'s z axis: the rotation about it is masked).
+    ``stream_posture``: the posture task below follows a streamed configuration as well
+    (:meth:`move` with ``q``), else it holds the configuration the controller started with."""
+
+    CONTROLLER_ID = 1
+
+    def __init__(self, client: ControllerClient, settings, robot: str, frame: str,
+                 X_frame_tool: pin.SE3, scene: Path, name: str = "tool",
+                 stream_posture: bool = False) -> None:
+        self.client, self.settings, self.scene, self.name = client, settings, Path(scene), name
+        self.robot, self.frame = robot, frame
+        self.model, _ = robots.load_pinocchio(robot, with_collision=False)
+        self.data = self.model.createData()
+        if not self.model.existFrame(frame):
+            raise DemoError(f"{robot} has no frame {frame} for the tool task")
+        self.fid = self.model.getFrameId(frame)
+        self.X_frame_tool = X_frame_tool
+        self.stream_posture = stream_posture
+        self.reference: pin.SE3 | None = None      # last frame reference streamed
+        self.posture: np.ndarray | None = None     # last posture reference streamed
+
+    def spec(self) -> ControllerSpec:
+        """Tool pose task (rotation about the tool axis = the frame's z masked), posture below."""
+        return ControllerSpec(self.CONTROLLER_ID, self.name, [
+            TaskSpec("tool", "se3", 0, frame=self.frame, mask=(1, 1, 1, 1, 1, 0), gain=10.0, streamed=True),
+            TaskSpec("posture", "posture", 1, gain=1.0, streamed=self.stream_posture)], reference_timeout=0.2)
+
+    def configuration(self, state=None) -> np.ndarray:
+        """The robot's configuration (controller layout) from ``state`` (default the latest)."""
+        return configuration_from_state(self.model, state if state is not None else self.client.state)
+
+    def tool_of(self, q: np.ndarray) -> pin.SE3:
+        """Tool pose X_W_tool at configuration ``q`` (nominal kinematics)."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.fid] * self.X_frame_tool
+
+    def pose(self, state=None) -> pin.SE3:
+        """Tool pose X_W_tool from ``state`` (default the latest ROBOT_STATE)."""
+        return self.tool_of(self.configuration(state))
+
+    def move(self, X_W_tool: pin.SE3, duration_s: float, q: np.ndarray | None = None) -> None:
+        """Minimum-jerk geodesic of the frame's reference from the last reference sent to
+        ``X_W_tool`` (and, with a streamed posture, of the posture to ``q``, default the last
+        one); returns when the last sample's time has passed plus ``settle_s``."""
+        X1 = X_W_tool * self.X_frame_tool.inverse()
+        self.move_along([X1], duration_s, None if q is None else [q])
+
+    def move_along(self, frames: Sequence[pin.SE3], duration_s: float,
+                   postures: Sequence[np.ndarray] | None = None) -> None:
+        """Like :meth:`move` through the frame references ``frames`` (and postures): one
+        minimum-jerk time law over the polyline of both, its knots equally spaced in time."""
+        st = self.settings
+        X0 = self.reference if self.reference is not None else self.pose() * self.X_frame_tool.inverse()
+        Xs = [X0, *frames]
+        xis = [pin.log6(a.actInv(b)).vector for a, b in zip(Xs, Xs[1:])]
+        # at least the duration that keeps the mean speed under the limits (the drill's first
+        # move turns the spindle from vertical to horizontal: a wrist joint swept 2.3 rad in 1 s,
+        # its actuator saturated (54 N.m) and the wrist ended 0.23 rad past its command, stuck)
+        duration_s = max(duration_s, sum(np.linalg.norm(x[:3]) for x in xis) / st.max_tool_speed,
+                         sum(np.linalg.norm(x[3:]) for x in xis) / st.max_tool_rate)
+        n = len(xis)
+        s, ds = minimum_jerk(np.zeros(1), np.array([float(n)]), duration_s, 0.001)
+        u, du = s[:, 0], ds[:, 0]
+        k = np.minimum(u.astype(int), n - 1)
+        frac = u - k
+        tool = np.empty((len(u), 7))
+        vel = np.empty((len(u), 6))
+        for i in range(len(u)):
+            Xi = Xs[k[i]] * pin.exp6(frac[i] * xis[k[i]])
+            tool[i] = pose_to_vector(Xi)
+            vel[i] = du[i] * xis[k[i]]   # d/dt of the log coordinates (the drill's stream)
+        streams = {"tool": (tool, vel)}
+        if self.stream_posture:
+            q0 = self.posture if self.posture is not None else self.configuration()
+            qs = [q0, *(postures if postures is not None else [q0] * n)]
+            if len(qs) != n + 1:
+                raise ValueError("one posture per frame reference")
+            dq = [pin.difference(self.model, a, b) for a, b in zip(qs, qs[1:])]
+            values = np.array([pin.integrate(self.model, qs[k[i]], frac[i] * dq[k[i]]) for i in range(len(u))])
+            streams["posture"] = (values, np.array([du[i] * dq[k[i]] for i in range(len(u))]))
+            self.posture = qs[-1]
+        self._stream(streams, duration_s)
+        self.reference = Xs[-1]
+
+    def _stream(self, streams: dict, duration_s: float) -> None:
+        st = self.settings
+        start = self.client.utime() + 30_000
+        streamer = ReferenceStreamer(self.client.send_reference, self.CONTROLLER_ID, streams, start)
+        while not streamer.done:
+            streamer.pump(self.client.utime())
+            time.sleep(0.005)
+        end = streamer.end_utime + int(st.settle_s * 1e6)
+        self.client.wait(lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move")
+        # The MuJoCo joint servos ring for a while after a move in some postures: measuring a
+        # moving arm makes the next correction chase it. Wait until it is still (or give up
+        # after settle_timeout_s of controller time and let the correction loop judge).
+        give_up = end + int(st.settle_timeout_s * 1e6)
+        self.client.wait(lambda c: c.state.utime >= give_up
+                         or max(abs(v) for v in c.state.joint_velocity) < st.still_velocity,
+                         10.0 + 10.0 * st.settle_timeout_s, "the arm to be still")
+
+    def reference_tool(self) -> pin.SE3:
+        """The tool pose the controller was last asked for."""
+        return self.reference * self.X_frame_tool
+
+    def servo(self, target: Callable[[pin.SE3], pin.SE3],
+              measure: Callable[[], pin.SE3] | None = None) -> tuple[pin.SE3, int, bool]:
+        """Corrects the tool until ``target(measured tool pose)`` is within ``aligned_*`` of it;
+        returns the final measured tool pose, the number of corrections and whether it got there
+        within ``max_corrections``.
+
+        ``measure`` gives the tool pose (default :meth:`pose`: the joint encoders, i.e. MuJoCo's
+        joints). It differs from the reference the controller tracks (the arm's sag under
+        gravity in the joint servos; a tool held off its nominal pose), so a correction moves the
+        *reference* by the measured error, X_ref <- (X_t X^-1) X_ref (an integral action on the
+        pose: exact when the offset does not change with the small correction), rather than
+        sending X_t again."""
+        st = self.settings
+        measure = measure or self.pose
+        for k in range(st.max_corrections + 1):
+            if self.client.status.mode != "running":
+                raise DemoError(f"the controller stopped tracking the tool: {self.client.status.mode} "
+                                f"({self.client.status.mode_reason})")
+            X = measure()
+            X_t = target(X)
+            dp, da = tool_error(X, X_t)
+            if dp < st.aligned_m and da < st.aligned_deg:
+                return X, k, True
+            if k == st.max_corrections:
+                return X, k, False
+            X_ref = (X_t * X.inverse()) * self.reference_tool()
+            if tool_error(X_ref, X_t)[0] > st.max_reference_offset_m:
+                # anti-windup: the sag is a few mm; a reference pushed farther than this means
+                # the arm cannot hold the pose (actuators at their torque limits)
+                return X, k, False
+            self.move(X_ref, st.correction_duration_s)
+        raise AssertionError("unreachable")
+
+    def saturated_joints(self) -> list[str]:
+        """Joints whose actuator effort is within 1 % of its MJCF ``forcerange``."""
+        limits = actuator_limits(self.scene)
+        s = self.client.state
+        return [f"{n} {e:.0f} N.m" for n, e in zip(s.joint_name, s.joint_effort)
+                if n in limits and abs(e) >= 0.99 * limits[n]]
