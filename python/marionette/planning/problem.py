@@ -445,7 +445,7 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
     for r in desc["robots"]:
         name = r.get("name", r.get("robot"))
         before = model.njoints
-        append(name, r, r.get("root_joint", _robot_root(r)))
+        append(name, r, r["root_joint"] if "root_joint" in r else _robot_root(r))
         robot_names.append(name)
         robot_joint_ids.extend(range(before, model.njoints))
         for jn, b in (r.get("joint_bounds") or {}).items():
@@ -585,8 +585,7 @@ def _configuration(problem: ManipulationProblem, value: Any, what: str,
                 model_name = (robot_models or {}).get(name)
                 if model_name is None:
                     raise ProblemError(f"{what}.{name}: '{v}' needs a robot given by 'robot: <name>'")
-                from marionette import robots
-                parts.append(np.asarray(robots.reference_configuration(model_name), dtype=float))
+                parts.append(_reference_of(problem, name, model_name))
             else:
                 parts.append(np.asarray(v, dtype=float))
         unknown = set(value) - set(problem.robot_names) - set(problem.objects)
@@ -604,6 +603,28 @@ def _configuration(problem: ManipulationProblem, value: Any, what: str,
         if abs(np.linalg.norm(quat) - 1.0) > 1e-6:
             raise ProblemError(f"{what}: quaternion of {o.name} is not unit: {quat}")
     return q
+
+
+def _reference_of(problem: ManipulationProblem, name: str, model_name: str) -> np.ndarray:
+    """Robot ``name``'s part of a configuration at its model's reference posture, joint by joint:
+    the problem may root the robot differently (``root_joint: fixed`` for TIAGo's planar base),
+    so the reference's base coordinates are dropped then."""
+    from marionette import robots
+
+    full, _ = robots.load_pinocchio(model_name, with_collision=False)
+    q_ref = np.asarray(robots.reference_configuration(model_name), dtype=float)
+    prefix = f"{name}/"
+    parts = []
+    for jid in range(1, problem.model.njoints):
+        jname = problem.model.names[jid]
+        if not jname.startswith(prefix):
+            continue
+        local = jname[len(prefix):]
+        if not full.existJointName(local):
+            raise ProblemError(f"{name}: joint {local} is not in robot model {model_name}")
+        j = full.joints[full.getJointId(local)]
+        parts.append(q_ref[j.idx_q:j.idx_q + j.nq])
+    return np.concatenate(parts) if parts else np.zeros(0)
 
 
 def _add_collision_pairs(model: pin.Model, geom: pin.GeometryModel,
