@@ -22,6 +22,12 @@ def _drill(*args, **kwargs):
     return run_drill(*args, **kwargs)
 
 
+def _deburr(*args, **kwargs):
+    from marionette.execution.deburr import run_deburr
+
+    return run_deburr(*args, **kwargs)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     import marionette
     from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS, Scenario
@@ -36,6 +42,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="UR10 aligns its drill on the reference holes R1, R2 of the displaced aircraft "
                     "part, then interpolates the other holes (thesis 000 §6.3; 0.2 mm / 0.5°)",
         runner=_drill))
+    SCENARIOS.setdefault("deburr", Scenario(
+        "deburr", "", marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml", 0, "part", 0.0,
+        description="TIAGo deburrs the holes of the displaced aircraft part with a tool held off its "
+                    "nominal pose, holes ordered by a TSP solver, each reached under visual servoing "
+                    "(thesis 000 §5.3.3; tool axis within 1 mm / 1°)",
+        runner=_deburr))
 
     p = subparsers.add_parser(
         "demo", help="run a demo scenario end to end in MuJoCo and write its report",
