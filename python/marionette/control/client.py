@@ -109,8 +109,16 @@ class ControllerClient:
                     raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}{detail}")
                 self._lock.wait(min(remaining, 0.05))
 
-    def wait_ready(self, timeout_s: float = 30.0) -> None:
-        self.wait(lambda c: c.status is not None and c.state is not None, timeout_s, "the controller")
+    def wait_ready(self, timeout_s: float = 30.0, processes: Any = None) -> None:
+        """Waits for the controller's first state and status. ``processes`` (a
+        :class:`~marionette.processes.ProcessGroup` that started it): on a timeout, a process of it
+        that exited is reported first (ProcessError with its log's tail), it usually says why."""
+        try:
+            self.wait(lambda c: c.status is not None and c.state is not None, timeout_s, "the controller")
+        except TimeoutError:
+            if processes is not None:
+                processes.check_alive()
+            raise
 
     def wait_time(self, seconds: float, timeout_s: float | None = None) -> None:
         """Waits until the controller's clock has advanced by ``seconds``."""

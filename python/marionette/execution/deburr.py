@@ -53,8 +53,10 @@ import marionette
 from marionette import channels, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
 from marionette.execution.demo import DemoError
+from marionette.execution.monitor import pose_from_message
+from marionette.execution.perturbations import mjcf_pose_attributes, place_mocap_body, write_scene
 from marionette.execution.tool_task import (ToolTask, axis_angle_deg, axis_offset, draw_displacement,
-                                            place_mocap_body, placement_se3, tool_target)
+                                            tool_target)
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ProcessGroup
 
@@ -107,12 +109,6 @@ def draw_tool_offset(rng: np.random.Generator, settings: DeburrSettings) -> pin.
     return draw_displacement(rng, settings.tool_offset_m, settings.tool_offset_deg, np.zeros(3))
 
 
-def _body_pose_attributes(X: pin.SE3) -> str:
-    q = pin.Quaternion(X.rotation)
-    return (f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
-            f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"')
-
-
 def _mjcf_pose(attributes: str) -> pin.SE3:
     pos = re.search(r'pos="([^"]+)"', attributes)
     quat = re.search(r'quat="([^"]+)"', attributes)
@@ -124,17 +120,16 @@ def _mjcf_pose(attributes: str) -> pin.SE3:
 def perturbed_scene(X_WP: pin.SE3, tool_offset: pin.SE3, out: Path) -> Path:
     """Writes the tiago_deburr MJCF with the part's mocap body at ``X_WP`` and the drill body moved
     by ``tool_offset`` in its parent (asset paths absolute)."""
-    text = place_mocap_body(SCENE.read_text(), "part", X_WP)
+    try:
+        text = place_mocap_body(SCENE.read_text(), "part", X_WP)
+    except ValueError as e:
+        raise DemoError(f"{SCENE}: {e}") from e
     m = re.search(rf'<body name="{TOOL_LINK}"([^>]*)>', text)
     if m is None:
         raise DemoError(f"{SCENE}: no body {TOOL_LINK}")
     X_true = _mjcf_pose(m.group(1)) * tool_offset
-    text = text.replace(m.group(0), f'<body name="{TOOL_LINK}" {_body_pose_attributes(X_true)}>', 1)
-    models = str(marionette.MODELS_DIR)
-    text = text.replace('meshdir=".."', f'meshdir="{models}"').replace('texturedir=".."', f'texturedir="{models}"')
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    return out
+    text = text.replace(m.group(0), f'<body name="{TOOL_LINK}" {mjcf_pose_attributes(X_true)}>', 1)
+    return write_scene(text, SCENE, out)
 
 
 # ---- vision ------------------------------------------------------------------------------------
@@ -155,11 +150,7 @@ class Vision:
         client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._on)
 
     def _on(self, msg) -> None:
-        seen = {}
-        for o in msg.objects:
-            w, x, y, z = o.quaternion_world
-            seen[o.object_name] = pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                                          np.array(o.position_world, dtype=float))
+        seen = {o.object_name: pose_from_message(o) for o in msg.objects}
         with self._cond:
             self.frames.append((int(msg.utime), seen))
             self._cond.notify_all()
@@ -230,7 +221,8 @@ def plan_deburring(X_WP: pin.SE3, q_robot: dict[str, float], settings: DeburrSet
     data = model.createData()
     camera = model.getFrameId(f"tiago/{robots.robot('tiago').camera_frame}")
     link = model.getFrameId(f"tiago/{TOOL_LINK}")
-    tags = [(placement_se3(t.pose).translation, np.array([np.sign(placement_se3(t.pose).translation[0]), 0, 0]))
+    # (tag centre, outward normal) in the tool link: the tags sit on its +-x sides
+    tags = [(np.array(t.pose.xyz), np.array([np.sign(t.pose.xyz[0]), 0.0, 0.0]))
             for t in robots.semantics("tiago").tags if t.link == TOOL_LINK]
 
     def tag_view_angle(q: np.ndarray) -> float:
@@ -357,9 +349,9 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         raise DemoError("deburr perturbs the scene file it starts the controller with: no --controller-url")
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
-    holes = {h.name: placement_se3(h.pose) for h in load_semantics(PART_YAML).handles}
+    holes = {h.name: h.pose.se3() for h in load_semantics(PART_YAML).handles}
     gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
-    X_link_tool = placement_se3(gripper.pose)
+    X_link_tool = gripper.pose.se3()
     import yaml
     nominal = next(o["pose"] for o in yaml.safe_load(SCENE.with_suffix(".yaml").read_text())["objects"]
                    if o["name"] == "part")
@@ -395,13 +387,10 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                  "--robot", "tiago", "--objects", str(PART_YAML), "--quad-decimate", "1"])
         vision = Vision(client, st)
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
+        client.wait_ready(60.0, processes=group)
         timings["start_s"] = time.perf_counter() - t0
-        tool = ToolTask(client, st, "tiago", TOOL_LINK, X_link_tool, scene, name="deburr", stream_posture=True)
+        tool = ToolTask(client, st, "tiago", TOOL_LINK, TOOL_LINK, X_link_tool, scene, name="deburr",
+                        stream_posture=True)
         model = tool.model
         camera = robots.robot("tiago").camera_frame
         q_home = aim_head(model, tool.configuration(), camera, X_WP_nom * centre_P)
@@ -457,14 +446,11 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             tool.move(correction * tool.tool_of(q_grasp) * back_off, st.move_duration_s, q=q_grasp)
             X_meas, k_hole, ok_hole = tool.servo(hole_target, lambda: measured_tool(X_WP_cam))
             state = client.state
-            q_true = tool.configuration(state)
-            pin.framesForwardKinematics(model, tool.data, q_true)
-            X_tool_true = tool.data.oMf[tool.fid] * X_link_tool_true
+            X_tool_true = tool.frame_of(tool.configuration(state)) * X_link_tool_true
             dist, angle, standoff = axis_offset(X_tool_true, X_WP_true * holes[plan.name])
             ok = dist <= st.position_tolerance_m and angle <= st.angle_tolerance_deg
             # what the plan alone (nominal tool, camera part) would have missed the hole by
-            pin.framesForwardKinematics(model, tool.data, q_grasp)
-            d_open, a_open, _ = axis_offset(tool.data.oMf[tool.fid] * X_link_tool_true * back_off,
+            d_open, a_open, _ = axis_offset(tool.frame_of(q_grasp) * X_link_tool_true * back_off,
                                             X_WP_true * holes[plan.name])
             rows.append({"hole": plan.name, "utime": int(state.utime), "axis_distance_m": dist,
                          "axis_angle_deg": angle, "standoff_m": standoff, "within_tolerance": ok,

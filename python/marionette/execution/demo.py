@@ -250,11 +250,7 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
         if scenario.vision:
             group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                      "--robot", robot, "--stats-period", "30"])
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
+        client.wait_ready(60.0, processes=group)
         if view:   # the browser 3D view of the run (issue #10), stopped with the group
             from marionette.viewer.node import start_viewer
 

@@ -55,12 +55,13 @@ import numpy as np
 import pinocchio as pin
 
 import marionette
-from marionette import channels, lcmt_camera_image, lcmt_object_poses, robots
+from marionette import channels, lcmt_camera_image, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
 from marionette.execution import tool_task
 from marionette.execution.demo import DemoError
-from marionette.execution.tool_task import (ToolTask, axis_angle_deg, placement_se3, tool_error,
-                                            tool_target)
+from marionette.execution.monitor import pose_from_message
+from marionette.execution.perturbations import place_mocap_body, write_scene
+from marionette.execution.tool_task import ToolTask, tool_error, tool_target
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ProcessGroup
 
@@ -139,12 +140,11 @@ def draw_displacement(seed: int, settings: DrillSettings, centre_P: np.ndarray) 
 
 def displaced_scene(X_WP: pin.SE3, out: Path) -> Path:
     """Writes the ur10_drill MJCF with the part's mocap body at ``X_WP`` (asset paths absolute)."""
-    text = tool_task.place_mocap_body(SCENE.read_text(), "part", X_WP)
-    models = str(marionette.MODELS_DIR)
-    text = text.replace('meshdir=".."', f'meshdir="{models}"').replace('texturedir=".."', f'texturedir="{models}"')
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    return out
+    try:
+        text = place_mocap_body(SCENE.read_text(), "part", X_WP)
+    except ValueError as e:
+        raise DemoError(f"{SCENE}: {e}") from e
+    return write_scene(text, SCENE, out)
 
 
 def scene_camera() -> tuple[pin.SE3, float]:
@@ -200,11 +200,8 @@ def _tool(client: ControllerClient, settings: DrillSettings) -> ToolTask:
     """The spindle's SE3 task on ``drill_tip_link`` (tool x axis = its z axis)."""
     from marionette.models.semantics import load_semantics
 
-    model, _ = robots.load_pinocchio("ur10", with_collision=False)
     gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
-    X_link_tip = model.frames[model.getFrameId(gripper.link)].placement.actInv(
-        model.frames[model.getFrameId(TIP_FRAME)].placement)
-    return ToolTask(client, settings, "ur10", TIP_FRAME, X_link_tip.actInv(placement_se3(gripper.pose)),
+    return ToolTask(client, settings, "ur10", TIP_FRAME, gripper.link, gripper.pose.se3(),
                     SCENE, name="drill")
 
 
@@ -257,7 +254,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     part = load_semantics(PART_YAML)
-    holes = {h.name: placement_se3(h.pose) for h in part.handles}
+    holes = {h.name: h.pose.se3() for h in part.handles}
     for r in REFERENCES:
         if r not in holes:
             raise DemoError(f"{PART_YAML}: no reference hole {r}")
@@ -295,16 +292,10 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             for o in msg.objects:
                 if o.object_name == "part":
                     with lock:
-                        w, x, y, z = o.quaternion_world
-                        poses.append(pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                                             np.array(o.position_world)))
+                        poses.append(pose_from_message(o))
 
         client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, on_poses)
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
+        client.wait_ready(60.0, processes=group)
         timings["start_s"] = time.perf_counter() - t0
 
         # §6.3 detection: the scene camera measures the part (tags 20-23).

@@ -117,18 +117,60 @@ def slipped(X_WO: pin.SE3, slip: tuple[float, ...]) -> pin.SE3:
     return X_WO * pin.exp6(np.asarray(slip, dtype=float))
 
 
+def mjcf_pose_attributes(X: pin.SE3) -> str:
+    """``pos="..." quat="..."`` of an MJCF body at ``X`` (MuJoCo's quaternion order w x y z)."""
+    q = pin.Quaternion(X.rotation)
+    return (f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
+            f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"')
+
+
+def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
+    """MJCF text with mocap body ``name`` at ``X``: its ``pos``/``quat`` and its entries of every
+    keyframe's ``mpos``/``mquat`` (MuJoCo resets mocap bodies to the keyframe's values: changing
+    the body alone leaves the simulated workpiece at its nominal pose). ValueError when the
+    scene has no such mocap body."""
+    mocaps = re.findall(r'<body name="([^"]+)"[^>]*mocap="true"', mjcf)
+    if name not in mocaps:
+        raise ValueError(f"no mocap body {name!r} in the scene (mocap bodies: {mocaps})")
+    i = mocaps.index(name)
+    q = pin.Quaternion(X.rotation)
+    pos, quat = list(X.translation), [q.w, q.x, q.y, q.z]
+    mjcf = re.sub(rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
+                  f'<body name="{name}" {mjcf_pose_attributes(X)} mocap="true">', mjcf)
+
+    def key(m: re.Match) -> str:
+        text = m.group(0)
+        for attr, values in (("mpos", pos), ("mquat", quat)):
+            a = re.search(rf'{attr}="([^"]+)"', text)
+            if a is None:
+                continue
+            v = a.group(1).split()
+            n = len(values)
+            v[n * i:n * (i + 1)] = [f"{x:.12g}" for x in values]
+            text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
+        return text
+
+    return re.sub(r"<key [^>]*/>", key, mjcf)
+
+
+def write_scene(text: str, source: Path, out: Path) -> Path:
+    """Writes the MJCF ``text`` of scene ``source`` to ``out``, its asset folders (``meshdir``,
+    ``texturedir``, relative to ``source``) made absolute so that it loads from anywhere."""
+    base = source.resolve().parent
+    text = re.sub(r'(meshdir|texturedir)="([^"]*)"',
+                  lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"', text)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return out
+
+
 def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) -> Path:
     """A copy of the MJCF ``scene`` in which each joint of ``offsets`` has ``ref`` = offset [rad]
     (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
     text = scene.read_text()
-    base = scene.resolve().parent
-    text = re.sub(r'(meshdir|texturedir)="([^"]*)"',
-                  lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"', text)
     for joint, offset in offsets.items():
         pattern = re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
         text, n = pattern.subn(lambda m: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1)
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(text)
-    return out
+    return write_scene(text, scene, out)

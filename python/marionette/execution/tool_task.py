@@ -32,12 +32,6 @@ from marionette.execution.streamer import ReferenceStreamer
 
 # ---- geometry --------------------------------------------------------------------------------
 
-def placement_se3(p) -> pin.SE3:
-    """A YAML :class:`~marionette.models.semantics.Placement` (xyz, xyzw) as pinocchio.SE3."""
-    x, y, z, w = p.xyzw
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(p.xyz, dtype=float))
-
-
 def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle [deg] between two directions."""
     c = float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b)))
@@ -90,35 +84,6 @@ def draw_displacement(rng: np.random.Generator, max_translation_m: float, max_ro
     return pin.SE3(R, centre - R @ centre + t)
 
 
-def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
-    """MJCF text with mocap body ``name`` at ``X``: its ``pos``/``quat`` and its entries of every
-    keyframe's ``mpos``/``mquat`` (MuJoCo resets mocap bodies to the keyframe's values: changing
-    the body alone leaves the simulated workpiece at its nominal pose)."""
-    mocaps = re.findall(r'<body name="([^"]+)"[^>]*mocap="true"', mjcf)
-    if name not in mocaps:
-        raise DemoError(f"no mocap body {name!r} in the scene (mocap bodies: {mocaps})")
-    i = mocaps.index(name)
-    q = pin.Quaternion(X.rotation)
-    pos, quat = list(X.translation), [q.w, q.x, q.y, q.z]
-    mjcf = re.sub(rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
-                  f'<body name="{name}" pos="{" ".join(f"{v:.12g}" for v in pos)}" '
-                  f'quat="{" ".join(f"{v:.12g}" for v in quat)}" mocap="true">', mjcf)
-
-    def key(m: re.Match) -> str:
-        text = m.group(0)
-        for attr, values in (("mpos", pos), ("mquat", quat)):
-            a = re.search(rf'{attr}="([^"]+)"', text)
-            if a is None:
-                continue
-            v = a.group(1).split()
-            n = len(values)
-            v[n * i:n * (i + 1)] = [f"{x:.12g}" for x in values]
-            text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
-        return text
-
-    return re.sub(r"<key [^>]*/>", key, mjcf)
-
-
 def actuator_limits(scene: Path) -> dict[str, float]:
     """Joint name -> |force limit| of the scene's MJCF actuators (``forcerange``)."""
     return {n: max(abs(float(a)), abs(float(b))) for n, a, b in re.findall(
@@ -131,24 +96,28 @@ class ToolTask:
     """Tool pose from ROBOT_STATE (MuJoCo's joint positions) through the robot's kinematics, and
     the tool SE3 task's moves streamed on TASK_REFERENCE.
 
-    ``frame``: the URDF frame the task drives; ``X_frame_tool``: the tool frame in it (x axis =
-    the tool axis, which must be ``frame``'s z axis: the rotation about it is masked).
+    ``frame``: the URDF frame the task drives; the tool frame is ``X_link_tool`` in ``tool_link``
+    (a gripper's declaration), both on one joint; its x axis (the tool axis) must be ``frame``'s z
+    axis: the rotation about it is masked.
     ``stream_posture``: the posture task below follows a streamed configuration as well
     (:meth:`move` with ``q``), else it holds the configuration the controller started with."""
 
     CONTROLLER_ID = 1
 
-    def __init__(self, client: ControllerClient, settings, robot: str, frame: str,
-                 X_frame_tool: pin.SE3, scene: Path, name: str = "tool",
+    def __init__(self, client: ControllerClient, settings, robot: str, frame: str, tool_link: str,
+                 X_link_tool: pin.SE3, scene: Path, name: str = "tool",
                  stream_posture: bool = False) -> None:
         self.client, self.settings, self.scene, self.name = client, settings, Path(scene), name
         self.robot, self.frame = robot, frame
         self.model, _ = robots.load_pinocchio(robot, with_collision=False)
         self.data = self.model.createData()
-        if not self.model.existFrame(frame):
-            raise DemoError(f"{robot} has no frame {frame} for the tool task")
+        for f in (frame, tool_link):
+            if not self.model.existFrame(f):
+                raise DemoError(f"{robot} has no frame {f} for the tool task")
         self.fid = self.model.getFrameId(frame)
-        self.X_frame_tool = X_frame_tool
+        X_frame_link = self.model.frames[self.fid].placement.actInv(
+            self.model.frames[self.model.getFrameId(tool_link)].placement)
+        self.X_frame_tool = X_frame_link * X_link_tool
         self.stream_posture = stream_posture
         self.reference: pin.SE3 | None = None      # last frame reference streamed
         self.posture: np.ndarray | None = None     # last posture reference streamed
@@ -163,10 +132,14 @@ class ToolTask:
         """The robot's configuration (controller layout) from ``state`` (default the latest)."""
         return configuration_from_state(self.model, state if state is not None else self.client.state)
 
+    def frame_of(self, q: np.ndarray) -> pin.SE3:
+        """Pose X_W_frame of the task's frame at configuration ``q``."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.fid]
+
     def tool_of(self, q: np.ndarray) -> pin.SE3:
         """Tool pose X_W_tool at configuration ``q`` (nominal kinematics)."""
-        pin.framesForwardKinematics(self.model, self.data, q)
-        return self.data.oMf[self.fid] * self.X_frame_tool
+        return self.frame_of(q) * self.X_frame_tool
 
     def pose(self, state=None) -> pin.SE3:
         """Tool pose X_W_tool from ``state`` (default the latest ROBOT_STATE)."""

@@ -258,11 +258,7 @@ def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: 
                                        "--robot", "talos", "--scene", scene, "--speed", str(speed),
                                        "--camera-rate", "0", "--status-rate", "100"])
         rec = WalkRecorder(client, model)
-        try:
-            client.wait_ready(60.0)
-        except TimeoutError:
-            group.check_alive()
-            raise
+        client.wait_ready(60.0, processes=group)
         client.send_spec(walking_spec(1))
         client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
                     "the walking controller")

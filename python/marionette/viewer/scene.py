@@ -113,7 +113,7 @@ class ViewerScene:
             if not self.model.existFrame(g.link):
                 continue
             X_WL = self.data.oMf[self.model.getFrameId(g.link)]
-            self._triad(f"frames/{g.name}", (X_WL * _placement(g.pose)).homogeneous)
+            self._triad(f"frames/{g.name}", (X_WL * g.pose.se3()).homogeneous)
 
     def on_object_poses(self, msg: Any) -> None:
         """SIM_OBJECT_POSES or OBJECT_POSES: every object's mesh and handle frames, world pose."""
@@ -124,7 +124,7 @@ class ViewerScene:
             X_WO = _X(o.position_world, o.quaternion_world)
             self.vis[f"objects/{o.object_name}"].set_transform(X_WO)
             for h in handles:
-                self._triad(f"frames/{h.name}", X_WO @ _placement(h.pose).homogeneous)
+                self._triad(f"frames/{h.name}", X_WO @ h.pose.se3().homogeneous)
 
     def on_footstep_plan(self, msg: Any) -> None:
         """FOOTSTEP_PLAN: one sole box per planned step (left blue, right orange)."""
@@ -202,8 +202,3 @@ class ViewerScene:
             node.set_object(g.Box([1.2, 0.001, 0.4]), g.MeshBasicMaterial(map=texture, transparent=True, side=0,
                                                                       alphaTest=0.1, depthWrite=False))
             node.set_transform(pin.SE3(np.eye(3), centre + [0.0, -0.01, 0.1 - 0.1 * i]).homogeneous)
-
-
-def _placement(p) -> pin.SE3:
-    x, y, z, w = p.xyzw
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.asarray(p.xyz, float))

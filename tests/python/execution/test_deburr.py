@@ -12,9 +12,9 @@ import pinocchio as pin
 import pytest
 
 from marionette import robots
-from marionette.execution.deburr import (DeburrSettings, aim_head, draw_tool_offset, perturbed_scene,
-                                         plan_deburring)
-from marionette.execution.tool_task import axis_offset, place_mocap_body
+from marionette.execution.deburr import DeburrSettings, aim_head, draw_tool_offset, perturbed_scene
+from marionette.execution.perturbations import place_mocap_body
+from marionette.execution.tool_task import axis_offset
 
 
 def _pose(attrs: str) -> pin.SE3:

@@ -12,9 +12,9 @@ import pinocchio as pin
 import pytest
 
 from marionette.execution.demo import DemoError, Scenario
-from marionette.execution.drill import (SCENE, DrillSettings, HoleSensor, axis_angle_deg, displaced_scene,
-                                        draw_displacement, part_pose_from_references, run_drill,
-                                        scene_camera, tool_target)
+from marionette.execution.drill import (SCENE, DrillSettings, HoleSensor, displaced_scene, draw_displacement,
+                                        part_pose_from_references, run_drill, scene_camera)
+from marionette.execution.tool_task import axis_angle_deg, tool_target
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.objects import load_tagged_bodies
 from marionette.execution.drill import PART_YAML
