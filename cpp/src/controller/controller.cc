@@ -108,7 +108,8 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
       model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
                                &command->velocity_output(),
                                device ? &device->effort_output() : nullptr,   // gripper admittance
-                               device ? &device->q_output() : nullptr});
+                               device ? &device->q_output() : nullptr},
+      /*default_gain=*/2.0, HeldBaseVelocities(robot));
 
   Snapshot model_snapshot;
   model_snapshot.q = q0;

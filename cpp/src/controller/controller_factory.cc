@@ -128,8 +128,9 @@ void ConnectWalkReference(const std::string& channel, const BuiltController& bui
 }  // namespace
 
 ControllerFactory::ControllerFactory(sot::ModelPtr model, ControllerSockets sockets,
-                                     double default_gain)
-    : model_(std::move(model)), sockets_(sockets), default_gain_(default_gain) {}
+                                     double default_gain, std::vector<int> held_velocities)
+    : model_(std::move(model)), sockets_(sockets), default_gain_(default_gain),
+      held_velocities_(std::move(held_velocities)) {}
 
 std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) const {
   if (IsPoseKind(kind)) return {7, 6};
@@ -362,6 +363,13 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
       prefix + "joint_limits", limits_feature, sot::Gain::Constant(sot::JointLimitsOptions{}.position_gain),
       sot::JointLimitBounds(*model_, limits_feature, sot::JointLimitsOptions{})));
   sot::Solver::Levels levels = {{&limits}};
+  if (!held_velocities_.empty()) {
+    auto& held_feature = add(edit.Add<sot::FeatureHeldVelocities>(prefix + "held_velocities_feature",
+                                                                   model_, held_velocities_));
+    edit.Connect(*sockets_.kinematics, held_feature.kinematics_input());
+    levels[0].push_back(&add(edit.Add<sot::Task>(prefix + "held_velocities", held_feature, sot::Gain::Constant(1.0),
+                                                 sot::HeldVelocityBounds(held_feature))));
+  }
   for (auto& [priority, tasks] : by_priority) levels.push_back(tasks);
 
   auto& solver = add(edit.Add<sot::Solver>(prefix + "solver", model_->nv, levels));

@@ -71,6 +71,11 @@ RobotInfo FindRobot(const std::string& name, const std::string& models_dir) {
   return r;
 }
 
+std::vector<int> HeldBaseVelocities(const RobotInfo& robot) {
+  if (robot.base == "planar") return {0, 1, 2};  // JointModelPlanar: vx vy wz, the first 3 of v
+  return {};
+}
+
 std::string ToJson(const RobotInfo& r) {
   std::ostringstream os;
   const auto list = [&os](const std::vector<std::string>& v) {

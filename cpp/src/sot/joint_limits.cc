@@ -60,4 +60,33 @@ Task& AddJointLimits(graph::GraphBuilder& builder, const std::string& name, Mode
                            JointLimitBounds(*model, feature, options));
 }
 
+FeatureHeldVelocities::FeatureHeldVelocities(std::string name, ModelPtr model,
+                                             const std::vector<int>& v_indices)
+    : Feature(name, model, static_cast<int>(v_indices.size()), {}) {
+  if (v_indices.empty()) throw SotError(who() + ": no velocity to hold");
+  std::vector<bool> seen(model_->nv, false);
+  for (int i : v_indices) {
+    if (i < 0 || i >= model_->nv) {
+      throw SotError(who() + ": velocity index " + std::to_string(i) + " outside [0, " +
+                     std::to_string(model_->nv) + ")");
+    }
+    if (seen[i]) throw SotError(who() + ": velocity index " + std::to_string(i) + " twice");
+    seen[i] = true;
+  }
+  SetUnitJacobian(v_indices);
+  DeclareTermsOutput({});
+}
+
+void FeatureHeldVelocities::ComputeFull(const graph::Tick&, const Kinematics&, FeatureTerms* full) const {
+  full->error.setZero();
+  full->drift.setZero();
+}
+
+TaskBounds HeldVelocityBounds(const FeatureHeldVelocities& feature) {
+  TaskBounds b;
+  b.rate_lower = Eigen::VectorXd::Zero(feature.dimension());
+  b.rate_upper = Eigen::VectorXd::Zero(feature.dimension());
+  return b;
+}
+
 }  // namespace marionette::sot

@@ -16,6 +16,7 @@
 #include "marionette/sot/feature_posture.h"
 #include "marionette/sot/feature_relative_se3.h"
 #include "marionette/sot/feature_se3.h"
+#include "marionette/sot/joint_limits.h"
 #include "marionette/sot/robot_model.h"
 
 namespace marionette::sot {
@@ -332,6 +333,24 @@ TEST_F(FeatureTest, ConstructorsRejectBadArgumentsWithPreciseMessages) {
   EXPECT_THROW(FeatureRelativeSE3("r", talos_, "left_sole_link", "left_sole_link"), SotError);
   EXPECT_THROW(LoadModel("/nonexistent.urdf", BaseJoint::kFixed), SotError);
   EXPECT_THROW(ParseBaseJoint("floating"), SotError);
+  EXPECT_THROW(FeatureHeldVelocities("h", talos_, {}), SotError);
+  EXPECT_THROW(FeatureHeldVelocities("h", talos_, {0, 0}), SotError);
+  EXPECT_THROW(FeatureHeldVelocities("h", talos_, {talos_->nv}), SotError);
+  EXPECT_THROW(FeatureHeldVelocities("h", talos_, {-1}), SotError);
+}
+
+TEST(FeatureRobotsTest, HeldVelocitiesAreUnitRowsWithZeroErrorAndAZeroRateBox) {
+  const ModelPtr tiago = Tiago();
+  FeatureHeldVelocities held("held", tiago, {0, 1, 2});
+  const FeatureTerms& f = Probe(held).At(RandomConfiguration(*tiago, 16));
+  Eigen::MatrixXd expected = Eigen::MatrixXd::Zero(3, tiago->nv);
+  expected.leftCols(3).setIdentity();
+  EXPECT_EQ(f.jacobian, expected);
+  EXPECT_EQ(f.error, Eigen::Vector3d::Zero());
+  EXPECT_EQ(held.unit_columns(), (std::vector<int>{0, 1, 2}));
+  const TaskBounds b = HeldVelocityBounds(held);
+  EXPECT_EQ(b.rate_lower, Eigen::Vector3d::Zero());
+  EXPECT_EQ(b.rate_upper, Eigen::Vector3d::Zero());
 }
 
 }  // namespace

@@ -85,7 +85,10 @@ struct ControllerSockets {
 
 class ControllerFactory {
  public:
-  ControllerFactory(sot::ModelPtr model, ControllerSockets sockets, double default_gain = 2.0);
+  /// `held_velocities`: velocity components no device executes (sot::FeatureHeldVelocities):
+  /// every controller holds them at zero at level 0, beside the joint limits.
+  ControllerFactory(sot::ModelPtr model, ControllerSockets sockets, double default_gain = 2.0,
+                    std::vector<int> held_velocities = {});
 
   /// Builds the controller of `spec` against `graph`, replacing the controller whose entities are
   /// `previous_entities`; `q` (nq) is a recent configuration (to check the spec against). Throws
@@ -107,6 +110,7 @@ class ControllerFactory {
   sot::ModelPtr model_;
   ControllerSockets sockets_;
   double default_gain_;
+  std::vector<int> held_velocities_;
 };
 
 }  // namespace marionette::controller

@@ -46,6 +46,12 @@ std::vector<std::string> RobotNames();
 /// listing the known robots.
 RobotInfo FindRobot(const std::string& name, const std::string& models_dir);
 /// JSON of a RobotInfo (for the agreement test and users).
+/// The base velocities every controller holds at zero (ControllerFactory's held_velocities): a
+/// planar base's three (TIAGo's wheels are not simulated: the MuJoCo device commands 1-DoF
+/// joints only and the scene holds the base; a differential drive could not follow a sideways
+/// velocity anyway); none for a free flyer (it moves through the contacts) or a fixed base.
+std::vector<int> HeldBaseVelocities(const RobotInfo& robot);
+
 std::string ToJson(const RobotInfo& robot);
 
 }  // namespace marionette::controller

@@ -36,4 +36,22 @@ Task& AddJointLimits(graph::GraphBuilder& builder, const std::string& name, Mode
                      graph::OutputSignal<Kinematics>& kinematics,
                      const JointLimitsOptions& options = {});
 
+/// Velocity components held at zero: degrees of freedom the model has but no device executes
+/// (TIAGo's planar base: the simulated wheels do not exist, and a differential drive could not
+/// follow a sideways base velocity anyway). e = 0, J = unit rows on `v_indices`; as an inequality
+/// task with rates bounded to [0, 0] at level 0 (HeldVelocityBounds) it is a hard box: no level may
+/// reach a task through these velocities, which would integrate into a command nobody executes.
+class FeatureHeldVelocities final : public Feature {
+ public:
+  /// Throws SotError on an empty list, an index outside [0, nv) or a repeated index.
+  FeatureHeldVelocities(std::string name, ModelPtr model, const std::vector<int>& v_indices);
+  const char* type_name() const override { return "FeatureHeldVelocities"; }
+
+ protected:
+  void ComputeFull(const graph::Tick& t, const Kinematics& kinematics, FeatureTerms* full) const override;
+};
+
+/// Rates bounded to [0, 0], error unbounded: the bounds that make FeatureHeldVelocities a hold.
+TaskBounds HeldVelocityBounds(const FeatureHeldVelocities& feature);
+
 }  // namespace marionette::sot
