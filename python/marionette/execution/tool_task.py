@@ -189,6 +189,26 @@ class ToolTask:
         self._stream(streams, duration_s)
         self.reference = Xs[-1]
 
+    def follow(self, q_path: Sequence[np.ndarray], duration_s: float,
+               correction: pin.SE3 | None = None, max_step_rad: float = 0.05) -> None:
+        """Moves along a joint path (a planned one): the streamed posture follows it and the
+        frame reference follows its forward kinematics, left-multiplied by ``correction`` (a
+        world-frame map from the kinematics to the reference, e.g. the one a servo found). The
+        knots are at most ``max_step_rad`` apart in every joint so that both tasks agree between
+        them: with the frame on the SE3 geodesic between far-apart configurations and the posture
+        on the straight joint line, the frame task (above) wins and the arm takes another branch
+        (a TIAGo wrist flipped on its way to the first pre-grasp, 3 rad off the planned posture)."""
+        if not self.stream_posture:
+            raise ValueError("follow needs a streamed posture (stream_posture=True)")
+        C = correction if correction is not None else pin.SE3.Identity()
+        q0 = self.posture if self.posture is not None else self.configuration()
+        knots = []
+        for a, b in zip([q0, *q_path], q_path):
+            d = pin.difference(self.model, a, b)
+            n = max(1, int(np.ceil(np.max(np.abs(d), initial=0.0) / max_step_rad)))
+            knots += [pin.integrate(self.model, a, d * (i / n)) for i in range(1, n + 1)]
+        self.move_along([C * self.frame_of(q) for q in knots], duration_s, postures=knots)
+
     def _stream(self, streams: dict, duration_s: float) -> None:
         st = self.settings
         start = self.client.utime() + 30_000
@@ -210,11 +230,12 @@ class ToolTask:
         """The tool pose the controller was last asked for."""
         return self.reference * self.X_frame_tool
 
-    def servo(self, target: Callable[[pin.SE3], pin.SE3],
-              measure: Callable[[], pin.SE3] | None = None) -> tuple[pin.SE3, int, bool]:
-        """Corrects the tool until ``target(measured tool pose)`` is within ``aligned_*`` of it;
-        returns the final measured tool pose, the number of corrections and whether it got there
-        within ``max_corrections``.
+    def servo(self, target: Callable[[pin.SE3], pin.SE3], measure: Callable[[], pin.SE3] | None = None,
+              aligned: tuple[float, float] | None = None) -> tuple[pin.SE3, int, bool]:
+        """Corrects the tool until ``target(measured tool pose)`` is within ``aligned`` ([m],
+        [deg]; default the settings' ``aligned_m``, ``aligned_deg``) of it; returns the final
+        measured tool pose, the number of corrections and whether it got there within
+        ``max_corrections``.
 
         ``measure`` gives the tool pose (default :meth:`pose`: the joint encoders, i.e. MuJoCo's
         joints). It differs from the reference the controller tracks (the arm's sag under
@@ -224,6 +245,7 @@ class ToolTask:
         sending X_t again."""
         st = self.settings
         measure = measure or self.pose
+        aligned_m, aligned_deg = aligned or (st.aligned_m, st.aligned_deg)
         for k in range(st.max_corrections + 1):
             if self.client.status.mode != "running":
                 raise DemoError(f"the controller stopped tracking the tool: {self.client.status.mode} "
@@ -231,7 +253,7 @@ class ToolTask:
             X = measure()
             X_t = target(X)
             dp, da = tool_error(X, X_t)
-            if dp < st.aligned_m and da < st.aligned_deg:
+            if dp < aligned_m and da < aligned_deg:
                 return X, k, True
             if k == st.max_corrections:
                 return X, k, False
