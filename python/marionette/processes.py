@@ -10,10 +10,11 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Sequence
 
 import marionette
 
@@ -47,6 +48,7 @@ class ProcessGroup:
     log_dir: Path
     env: dict[str, str] = field(default_factory=dict)
     processes: list[ManagedProcess] = field(default_factory=list)
+    _previous_sigterm: Any = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.log_dir = Path(self.log_dir)
@@ -101,10 +103,24 @@ class ProcessGroup:
             _stop(p, timeout_s)
 
     def __enter__(self) -> "ProcessGroup":
+        # SIGTERM (`timeout`, `kill`, a cancelled job) ends Python without unwinding, and the
+        # processes, each in its own session, would outlive it: while the group is open it raises
+        # SystemExit instead, so that __exit__ stops them.
+        if threading.current_thread() is threading.main_thread():
+            self._previous_sigterm = signal.signal(signal.SIGTERM, _exit_on_sigterm)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.close()
+        try:
+            self.close()
+        finally:
+            if self._previous_sigterm is not None:
+                signal.signal(signal.SIGTERM, self._previous_sigterm)
+                self._previous_sigterm = None
+
+
+def _exit_on_sigterm(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
 
 
 def _stop(p: ManagedProcess, timeout_s: float) -> int | None:

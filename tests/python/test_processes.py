@@ -1,0 +1,46 @@
+"""ProcessGroup never leaves a process behind, even when the Python process that opened it is
+ended by SIGTERM (`timeout`, `kill`, a cancelled CI job): the children run in their own sessions,
+so nothing else would stop them (issue-10 trials left a controller, perceive and lcm-logger
+running after the demo was killed)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PARENT = """
+import sys, time
+from marionette.processes import ProcessGroup
+with ProcessGroup("udpm://239.255.76.67:7667?ttl=0", sys.argv[1]) as group:
+    child = group.start("sleeper", ["sleep", "60"])
+    print(child.popen.pid, flush=True)
+    time.sleep(60)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # a zombie (exited, not yet reaped by its dead parent's reaper) counts as gone
+    return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+
+
+def test_sigterm_to_the_parent_stops_the_group(tmp_path):
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    try:
+        child = int(parent.stdout.readline())
+        assert _alive(child)
+        parent.send_signal(signal.SIGTERM)
+        assert parent.wait(timeout=10) == 128 + signal.SIGTERM
+        deadline = time.monotonic() + 5
+        while _alive(child) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not _alive(child), "the group's process outlived its parent"
+    finally:
+        parent.kill()
