@@ -54,12 +54,12 @@ def controller_running(build_dir: Path, lcm_url: str, log_dir: Path, *args: str,
 
 
 def run_demo(name: str, out_dir: Path, env: dict[str, str], speed: float, timeout_s: float,
-             files: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any]]:
-    """Runs ``marionette demo <name> --speed <speed> --out <out_dir>`` and checks what a user
-    checks first: exit code 0, a single run folder whose report says success, and ``files`` of
-    that folder not empty. Returns the run folder and its report.json."""
+             files: tuple[str, ...] = (), args: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any]]:
+    """Runs ``marionette demo <name> --speed <speed> --out <out_dir> <args>`` and checks what a
+    user checks first: exit code 0, a single run folder whose report says success, and ``files``
+    of that folder not empty. Returns the run folder and its report.json."""
     proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", name, "--speed", str(speed),
-                           "--out", str(out_dir)], capture_output=True, text=True, timeout=timeout_s,
+                           "--out", str(out_dir), *args], capture_output=True, text=True, timeout=timeout_s,
                           env=env)
     print(proc.stdout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -77,3 +77,14 @@ def lcm_log_messages(path: Path, types: dict[str, Any]) -> Iterator[tuple[str, A
     for event in lcm.EventLog(str(path), "r"):
         if event.channel in types:
             yield event.channel, types[event.channel].decode(event.data)
+
+
+def robot_states_at(path: Path, utimes: set[int]) -> dict[int, Any]:
+    """The ROBOT_STATE messages of an LCM log stamped at ``utimes`` (a demo report's verdict
+    times), by utime; asserts that every one is there."""
+    from marionette import channels, lcmt_robot_state
+
+    states = {msg.utime: msg for _, msg in lcm_log_messages(path, {channels.ROBOT_STATE: lcmt_robot_state})
+              if msg.utime in utimes}
+    assert set(states) == set(utimes), f"{len(set(utimes) - set(states))} verdict times not in {path}"
+    return states

@@ -21,12 +21,14 @@ step 1 is optional there):
   it is collision-free, else a Manipulation-RRT path.
 * **Steps 4-7: execute.** One controller: an SE3 task on the tool (rotation about its axis
   masked, as the holes' handles mask it), the posture below it following the planned
-  configurations. At each pre-grasp the tool's tags (ids 30-31 on the drill, 3 cm) and the
-  part's are seen in the same frames: the tool's pose *relative to the part* (the camera's own
-  pose cancels out) is servoed onto the hole's pre-grasp (:meth:`ToolTask.servo` on the visual
-  measurement), then the tool approaches the hole along its axis to ``standoff_m`` before it
-  and is servoed again. The correction found is kept for the next transit (the thesis's
-  improvement: "the following paths could be modified to integrate the measured difference").
+  configurations (:meth:`ToolTask.follow`: the frame reference on the path's forward
+  kinematics). At each pre-grasp the tool's tags (ids 30-31 on the drill, 3 cm) and the part's
+  are seen in the same frames: the tool's pose *relative to the part* (the camera's own pose
+  cancels out), pooled over the hole's frames (:class:`ToolEstimate`), is servoed onto the hole's
+  pre-grasp (:meth:`ToolTask.servo`), then the tool approaches the hole along its axis to
+  ``standoff_m`` before it and is servoed again. The correction found is kept for the next
+  transit (the thesis's improvement: "the following paths could be modified to integrate the
+  measured difference").
 
 Verdict (ARCHITECTURE.md §Demos): for every hole, the tool axis within 1 mm / 1 deg of the hole
 axis (distance of the hole's centre from the tool axis, angle between the axes), in ground
@@ -42,7 +44,7 @@ import re
 import sys
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -54,7 +56,8 @@ from marionette import channels, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
 from marionette.execution.demo import DemoError
 from marionette.execution.monitor import pose_from_message
-from marionette.execution.perturbations import mjcf_pose_attributes, place_mocap_body, write_scene
+from marionette.execution.perturbations import (mjcf_pose_attributes, place_mocap_body, scene_with_joint_offsets,
+                                                write_scene)
 from marionette.execution.tool_task import (ToolTask, axis_angle_deg, axis_offset, draw_displacement,
                                             tool_target)
 from marionette.lcm_bus import private_lcm_url
@@ -78,6 +81,11 @@ class DeburrSettings:
     max_rotation_deg: float = 10.0         # ... and <= 10 deg (about the hole pattern's centre)
     tool_offset_m: float = 0.005           # tool off its nominal pose in the hand <= 5 mm ...
     tool_offset_deg: float = 3.0           # ... and <= 3 deg
+    # encoder offsets (issue #10, ch. 4: 7 deg shoulder, 4 deg wrist), joint -> |offset| [deg], sign
+    # drawn per trial; the simulated joint reports q + offset (MJCF ref), the controller's model
+    # believes it: the plan alone then misses the holes by ~9 cm, only vision closes the gap
+    joint_offsets_deg: dict[str, float] = field(
+        default_factory=lambda: {"arm_1_joint": 7.0, "arm_6_joint": 4.0})
     standoff_m: float = 0.005              # tool tip this far before the hole (no contact)
     move_duration_s: float = 1.5           # minimum-jerk moves (at least)
     max_tool_speed: float = 0.12           # [m/s] mean tool speed of a move
@@ -91,9 +99,13 @@ class DeburrSettings:
     pregrasp_aligned_m: float = 1e-3       # at the pre-grasp (it finds the correction the
     pregrasp_aligned_deg: float = 0.5      # approach starts from): 1 mm, 0.5 deg
     max_corrections: int = 6
-    max_reference_offset_m: float = 0.03   # anti-windup of the servo (tool offset + part error)
-    vision_frames: int = 8                 # frames per visual measurement (their median pose):
-                                           # one frame puts the tool tip 0.34 mm off (median), 0.9 mm (p90)
+    max_reference_offset_m: float = 0.15   # anti-windup of the servo (encoder offsets: ~9 cm)
+    vision_frames: int = 4                 # frames at least per look (part: 4 still frames) ...
+    pool_frames: int = 16                  # ... and per tool estimate, taken near the current pose:
+    pool_radius_m: float = 3e-3            # the tool (kinematics) within 3 mm ...
+    pool_radius_deg: float = 0.5           # ... and 0.5 deg of where it is now (ToolEstimate)
+    head_scan_deg: float = 1.5             # while the head circles its aim by this much ...
+    head_scan_s: float = 2.0               # ... in this time (new pixels in every frame)
     vision_timeout_s: float = 30.0         # wall time to get them
     position_tolerance_m: float = 1e-3     # ARCHITECTURE.md: tool axis within 1 mm ...
     angle_tolerance_deg: float = 1.0       # ... and 1 deg of each hole axis
@@ -161,14 +173,15 @@ class Vision:
             self._cond.notify_all()
 
     def measure(self, names: tuple[str, ...], after_utime: int, what: str) -> list[dict[str, pin.SE3]]:
-        """``vision_frames`` frames taken after ``after_utime`` (controller time) that see every
-        body of ``names``; DemoError naming what was not seen after ``vision_timeout_s``."""
+        """The frames taken after ``after_utime`` (controller time) that see every body of
+        ``names``, once there are at least ``vision_frames``; DemoError naming what was not seen
+        after ``vision_timeout_s``."""
         deadline = time.monotonic() + self.settings.vision_timeout_s
         with self._cond:
             while True:
                 got = [seen for t, seen in self.frames if t > after_utime and all(n in seen for n in names)]
                 if len(got) >= self.settings.vision_frames:
-                    return got[:self.settings.vision_frames]
+                    return got
                 left = deadline - time.monotonic()
                 if left <= 0:
                     recent = [seen for t, seen in self.frames if t > after_utime]
@@ -182,29 +195,61 @@ class Vision:
 class ToolEstimate:
     """The tool's pose from vision, through the kinematics. Each camera frame gives the tool
     relative to the part (both tag sets in one image: the camera's pose cancels out), placed on the
-    part's pose measured at the start, hence the tool's offset from where the nominal kinematics
-    put it: D = X_kin(q)^-1 X_vision. D is what the servo corrects (the tool off its nominal pose
-    in the hand, the arm's sag); it does not change with the servo's small corrections, so every
-    frame since :meth:`reset` (at each hole's pre-grasp) counts: the estimate is the kinematics
-    now times their median D. One frame puts the tool tip 0.3-0.55 mm (sd per axis) off; the
-    median of a measurement's last 8 frames missed by up to 1 mm, the mean of a hole's ~100
-    frames by at most 0.5 mm (seed 1)."""
+    part's pose measured at the start, hence the tool's offset from where the kinematics put it:
+    D = X_kin(q)^-1 X_vision. D is what the servo corrects (the tool off its nominal pose in the
+    hand, the arm's sag, encoder offsets); it barely changes over the servo's small corrections,
+    so every frame taken with the tool near where it is now (``pool_radius_*``, kinematics) counts,
+    and the estimate is the kinematics now times the median D of ``pool_frames`` of them; frames
+    from elsewhere are dropped (with encoder offsets D changes by mm over the 10 cm approach).
+
+    The frames of a still scene are the same image again: their errors do not average out (one
+    pose put the tool tip 1 mm off in 8 frames while the frames of a whole hole were 0.5 mm off,
+    seed 1). So the head circles its aim by ``head_scan_deg`` while the frames are taken: the
+    tags fall on other pixels in every frame, and the camera's own motion cancels out of the
+    relative pose."""
 
     def __init__(self, tool: ToolTask, vision: Vision, X_WP: pin.SE3, X_link_tool: pin.SE3) -> None:
         self.tool, self.vision, self.X_WP, self.X_link_tool = tool, vision, X_WP, X_link_tool
-        self.offsets: list[pin.SE3] = []
-
-    def reset(self) -> None:
-        self.offsets = []
+        self.samples: list[tuple[pin.SE3, pin.SE3]] = []     # (X_kin when seen, D)
+        model = tool.model
+        self.head = [model.joints[model.getJointId(j)].idx_q for j in HEAD_JOINTS]
 
     def measure(self) -> pin.SE3:
-        """``vision_frames`` new frames (the arm is still: :meth:`ToolTask.move` waited), the
-        tool's pose estimated from them and the earlier ones since :meth:`reset`."""
-        frames = self.vision.measure(("part", TOOL_BODY), self.tool.client.utime(), "seeing the tool and the part")
-        X_kin = self.tool.pose()
-        self.offsets += [X_kin.actInv(self.X_WP * s["part"].actInv(s[TOOL_BODY]) * self.X_link_tool)
-                         for s in frames]
-        return X_kin * median_pose(self.offsets)
+        """Frames taken from now on (the arm is still: :meth:`ToolTask.move` waited), the head
+        circling, until ``pool_frames`` were taken near the current pose; the tool's pose
+        estimated from them."""
+        st = self.tool.settings
+        while True:
+            start = self.tool.client.utime()
+            self._scan_head()
+            frames = self.vision.measure(("part", TOOL_BODY), start, "seeing the tool and the part")
+            X_kin = self.tool.pose()
+            self.samples += [(X_kin, X_kin.actInv(self.X_WP * s["part"].actInv(s[TOOL_BODY]) * self.X_link_tool))
+                             for s in frames]
+            self.samples = [(X, D) for X, D in self.samples
+                            if np.linalg.norm(X.translation - X_kin.translation) <= st.pool_radius_m
+                            and np.degrees(np.linalg.norm(pin.log3(X.rotation.T @ X_kin.rotation))) <= st.pool_radius_deg]
+            if len(self.samples) >= st.pool_frames:
+                return X_kin * median_pose([D for _, D in self.samples])
+
+    def _scan_head(self) -> None:
+        """One circle of the head about the streamed posture's aim, the tool's reference held."""
+        st, tool = self.tool.settings, self.tool
+        aim = tool.posture
+        knots = []
+        for angle in np.linspace(0.0, 2.0 * np.pi, 9)[1:]:
+            q = aim.copy()
+            q[self.head] += np.radians(st.head_scan_deg) * np.array([np.sin(angle), 1.0 - np.cos(angle)]) / 2.0
+            knots.append(q)
+        tool.move_along([tool.reference] * len(knots), st.head_scan_s, postures=knots)
+
+
+def true_configuration(model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]) -> np.ndarray:
+    """The robot's configuration from encoders that read q + offset (``scene_with_joint_offsets``)."""
+    q = q_encoders.copy()
+    for joint, offset in joint_offsets.items():
+        q[model.joints[model.getJointId(joint)].idx_q] -= offset
+    return q
 
 
 # ---- planning ----------------------------------------------------------------------------------
@@ -374,8 +419,9 @@ def aim_head(model: pin.Model, q: np.ndarray, camera_frame: str, target_W: np.nd
 
 def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                log: Callable[[str], None] = print, controller_url: str | None = None,
-               settings: DeburrSettings | None = None) -> dict[str, Any]:
-    """Runs one deburr trial and writes its report folder; returns the report dictionary."""
+               settings: DeburrSettings | None = None, view: bool = False) -> dict[str, Any]:
+    """Runs one deburr trial and writes its report folder; returns the report dictionary.
+    ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette import robots
     from marionette.models.semantics import load_semantics, pregrasp_distance
 
@@ -396,7 +442,10 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     centre_P = np.mean([X.translation for X in holes.values()], axis=0)
     X_WP_true = X_WP_nom * draw_displacement(rng, st.max_displacement_m, st.max_rotation_deg, centre_P)
     T_tool = draw_tool_offset(rng, st)
+    joint_offsets = {j: float(np.radians(d) * rng.choice([-1.0, 1.0])) for j, d in sorted(st.joint_offsets_deg.items())}
     scene = perturbed_scene(X_WP_true, T_tool, out_dir / "scene.xml")
+    if joint_offsets:
+        scene = scene_with_joint_offsets(scene, joint_offsets, scene)
     X_link_tool_true = T_tool * X_link_tool
     tool_tip_shift = np.linalg.norm((X_link_tool_true.translation - X_link_tool.translation))
     log(f"deburr: part's hole pattern displaced {np.linalg.norm(X_WP_true * centre_P - X_WP_nom * centre_P) * 1e3:.1f} mm / "
@@ -409,7 +458,8 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                               "part_nominal": pose_to_vector(X_WP_nom).tolist(),
                               "part_true": pose_to_vector(X_WP_true).tolist(),
                               "tool_offset": pose_to_vector(T_tool).tolist(),
-                              "tool_tip_offset_m": float(tool_tip_shift)}
+                              "tool_tip_offset_m": float(tool_tip_shift),
+                              "joint_offsets_deg": {j: float(np.degrees(v)) for j, v in joint_offsets.items()}}
     timings: dict[str, float] = {}
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
@@ -424,6 +474,10 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                                  "--robot", "tiago", "--objects", str(PART_YAML), "--quad-decimate", "1"])
         vision = Vision(client, st)
         client.wait_ready(60.0, processes=group)
+        if view:
+            from marionette.viewer.node import start_viewer
+
+            report["viewer_url"] = start_viewer(group, "tiago", SCENE, log)   # its objects: the nominal scene's
         timings["start_s"] = time.perf_counter() - t0
         tool = ToolTask(client, st, "tiago", TOOL_LINK, TOOL_LINK, X_link_tool, scene, name="deburr",
                         stream_posture=True)
@@ -459,7 +513,6 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         correction = pin.SE3.Identity()      # world-frame map: planned tool pose -> reference
         layout = tour["layout"]
         for plan in plans:
-            seen_tool.reset()
             # the head looks at the hole all along (both tool and part tags in view at the hole)
             gaze = (X_WP_cam * holes[plan.name]).translation
 
@@ -480,11 +533,12 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             tool.move(correction * tool.tool_of(q_grasp) * back_off, st.move_duration_s, q=q_grasp)
             X_meas, k_hole, ok_hole = tool.servo(hole_target, seen_tool.measure)
             state = client.state
-            X_tool_true = tool.frame_of(tool.configuration(state)) * X_link_tool_true
+            X_tool_true = tool.frame_of(true_configuration(model, tool.configuration(state), joint_offsets)) * X_link_tool_true
             dist, angle, standoff = axis_offset(X_tool_true, X_WP_true * holes[plan.name])
             ok = dist <= st.position_tolerance_m and angle <= st.angle_tolerance_deg
             # what the plan alone (nominal tool, camera part) would have missed the hole by
-            d_open, a_open, _ = axis_offset(tool.frame_of(q_grasp) * X_link_tool_true * back_off,
+            d_open, a_open, _ = axis_offset(tool.frame_of(true_configuration(model, q_grasp, joint_offsets))
+                                            * X_link_tool_true * back_off,
                                             X_WP_true * holes[plan.name])
             rows.append({"hole": plan.name, "utime": int(state.utime), "axis_distance_m": dist,
                          "axis_angle_deg": angle, "standoff_m": standoff, "within_tolerance": ok,

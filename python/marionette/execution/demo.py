@@ -200,7 +200,8 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
     if scenario.runner is not None:
         if perturbation is not None and perturbation.any:
             raise DemoError(f"{scenario.name} has its own perturbations (no --perturb)")
-        return scenario.runner(scenario, seed, out_dir, speed=speed, log=log, controller_url=controller_url)
+        return scenario.runner(scenario, seed, out_dir, speed=speed, log=log, controller_url=controller_url,
+                               view=view)
     out_dir.mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

@@ -102,9 +102,6 @@ def run(args: argparse.Namespace) -> int:
     if args.speed < 0:
         print("marionette demo: --speed must be >= 0", file=sys.stderr)
         return 2
-    if args.view and scenario.runner is not None:
-        print(f"marionette demo: --view does not cover {scenario.name} yet (its own process flow); "
-              f"`marionette view --robot talos` beside it shows the run", file=sys.stderr)
     seed0 = scenario.seed if args.seed is None else args.seed
     root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
     print(f"demo {scenario.name}: {scenario.description}")
@@ -121,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
             report = run_demo(scenario, seed if args.plan_seed is None else args.plan_seed, out,
                               speed=args.speed, controller_url=args.controller_url,
                               log=lambda m: print(m, flush=True), perturbation=perturbation,
-                              **({"view": True} if args.view and scenario.runner is None else {}),
+                              view=args.view,
                               **({} if args.gripper_admittance is None or scenario.runner is not None
                                  else {"gripper_admittance": args.gripper_admittance}))
         except DemoError as e:

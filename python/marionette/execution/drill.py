@@ -243,8 +243,9 @@ class HoleSensor:
 
 def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
               log: Callable[[str], None] = print, controller_url: str | None = None,
-              settings: DrillSettings | None = None) -> dict[str, Any]:
-    """Runs one drill trial and writes its report folder; returns the report dictionary."""
+              settings: DrillSettings | None = None, view: bool = False) -> dict[str, Any]:
+    """Runs one drill trial and writes its report folder; returns the report dictionary.
+    ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette.models.semantics import load_semantics
 
     st = settings or DrillSettings()
@@ -296,6 +297,10 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
 
         client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, on_poses)
         client.wait_ready(60.0, processes=group)
+        if view:
+            from marionette.viewer.node import start_viewer
+
+            report["viewer_url"] = start_viewer(group, "ur10", SCENE, log)   # its objects: the nominal scene's
         timings["start_s"] = time.perf_counter() - t0
 
         # §6.3 detection: the scene camera measures the part (tags 20-23).

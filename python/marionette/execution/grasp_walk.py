@@ -80,7 +80,7 @@ def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
 
 def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                    log: Callable[[str], None] = print, controller_url: str | None = None,
-                   settings: GraspWalkSettings | None = None) -> dict[str, Any]:
+                   settings: GraspWalkSettings | None = None, view: bool = False) -> dict[str, Any]:
     """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import talos
 
@@ -90,7 +90,7 @@ def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     model = talos().model                       # with the grasp-point frames of the planner
     url = controller_url or private_lcm_url()
     report = scenario_report(scenario, seed, speed, url, desc.mjcf, settings)
-    with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url) as run:
+    with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url, view) as run:
         client, rec, mid = run.client, run.rec, run.mid
         ball0 = np.array([mid[0] + settings.ball[0], mid[1] + settings.ball[1], settings.ball[2]])
         ball1 = ball0 + np.array([*settings.shift, 0.0])

@@ -98,7 +98,7 @@ def _ordered(corners: np.ndarray) -> np.ndarray:
 
 def run_step_over(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                   log: Callable[[str], None] = print, controller_url: str | None = None,
-                  settings: StepOverSettings | None = None) -> dict[str, Any]:
+                  settings: StepOverSettings | None = None, view: bool = False) -> dict[str, Any]:
     """Runs one step-over trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import talos
 
@@ -108,7 +108,7 @@ def run_step_over(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     url = controller_url or private_lcm_url()
     report = scenario_report(scenario, seed, speed, url, SCENE, settings)
     bar_real = np.array(settings.bar, dtype=float)
-    with walking_run(model, SCENE, out_dir, url, report, speed, controller_url) as run:
+    with walking_run(model, SCENE, out_dir, url, report, speed, controller_url, view) as run:
         mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])
         bar_seen = bar_real + np.array(settings.perceived_offset)

@@ -242,13 +242,14 @@ class WalkingRun:
 
 @contextlib.contextmanager
 def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: dict[str, Any],
-                speed: float = 1.0, controller_url: str | None = None) -> Iterator[WalkingRun]:
+                speed: float = 1.0, controller_url: str | None = None, view: bool = False) -> Iterator[WalkingRun]:
     """Starts lcm-logger (``run.lcmlog``) and, unless ``controller_url`` names a running one,
     marionette-controller on ``scene`` at ``speed``; sends the walking stack
     (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says standing.
     On a normal exit: the controller's summary in ``report["controller"]``, every process still
     alive, then the processes stopped, ``report["timings"]`` (with ``total_wall_s``) and
-    :attr:`WalkingRun.footsteps_log` read from ``logs/footsteps.log``."""
+    :attr:`WalkingRun.footsteps_log` read from ``logs/footsteps.log``. ``view``: the browser 3D
+    view of the run (robot, objects, footsteps) in ``report["viewer_url"]``."""
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
@@ -259,6 +260,10 @@ def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: 
                                        "--camera-rate", "0", "--status-rate", "100"])
         rec = WalkRecorder(client, model)
         client.wait_ready(60.0, processes=group)
+        if view:
+            from marionette.viewer.node import start_viewer
+
+            report["viewer_url"] = start_viewer(group, "talos", scene, print)
         client.send_spec(walking_spec(1))
         client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
                     "the walking controller")

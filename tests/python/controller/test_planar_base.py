@@ -10,10 +10,9 @@ import numpy as np
 import pinocchio as pin
 
 from marionette import robots
-from marionette.control.client import configuration_from_state
+from marionette.control.client import configuration_from_state, pose_to_vector
 from marionette.control.introspection import GraphClient
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.control.client import pose_to_vector
 
 FRAME = "arm_7_link"
 

@@ -1,26 +1,24 @@
 """`marionette demo deburr --speed 2` end to end (issue 10, thesis 000 §5.3.3): TIAGo, the part
-displaced and the tool off its nominal pose in the hand, the head camera measured by
-`marionette perceive`, every hole planned as a handle, ordered by the TSP solver and reached under
-visual servoing. The verdict is re-derived from the run's files alone with independent code: the
-true part pose and the true tool mounting parsed from the scene.xml the controller loaded (against
-the nominal scene), the holes from models/objects/part.yaml, the tool from the ROBOT_STATE
-recorded in the LCM log at each hole's time."""
+displaced, the tool off its nominal pose in the hand and encoder offsets in the arm (the
+controller's model off the robot), the head camera measured by `marionette perceive`, every hole
+planned as a handle, ordered by the TSP solver and reached under visual servoing. The verdict is
+re-derived from the run's files alone with independent code: the true part pose, the true tool
+mounting and the encoder offsets (joint refs) parsed from the scene.xml the controller loaded
+(against the nominal scene), the holes from models/objects/part.yaml, the tool from the
+ROBOT_STATE recorded in the LCM log at each hole's time."""
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
 
-import lcm
 import numpy as np
 import pinocchio as pin
 import yaml
 
 import marionette
-from marionette import channels, lcmt_robot_state, robots
+from marionette import robots
 from marionette.control.client import configuration_from_state
+from tests_support import robot_states_at, run_demo
 
 
 def _se3(xyz, xyzw) -> pin.SE3:
@@ -36,14 +34,9 @@ def _mjcf_body(text: str, name: str) -> pin.SE3:
                    np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3))
 
 
-def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir):
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "deburr", "--seed", "0",
-                           "--speed", "2", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    (out,) = [p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("deburr-")]
-    report = json.loads((out / "report.json").read_text())
-    assert report["success"] and (out / "report.md").exists() and (out / "hole_errors.png").exists()
+def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir, lcm_env):
+    out, report = run_demo("deburr", tmp_path, lcm_env, speed=2, timeout_s=900, args=("--seed", "0"),
+                           files=("report.md", "hole_errors.png", "run.lcmlog"))
 
     scene = (out / "scene.xml").read_text()
     nominal = (marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml").read_text()
@@ -55,6 +48,8 @@ def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir):
     gripper = next(g for g in yaml.safe_load((marionette.MODELS_DIR / "tiago" / "grippers.yaml").read_text())
                    ["grippers"] if g["name"] == "tiago/deburring_tool")
     X_link_tool = _se3(gripper["pose"]["xyz"], gripper["pose"]["xyzw"])
+    # the encoders read q + ref (MJCF joint ref): the true joint angle is the reading minus it
+    refs = {m.group(1): float(m.group(2)) for m in re.finditer(r'<joint name="([^"]+)"[^>]*? ref="([^"]+)"', scene)}
     # The perturbations matter: the plan on the nominal part, or with the nominal tool, misses.
     assert min(np.linalg.norm((X_WP * H).translation - (X_WP_nom * H).translation) for H in holes.values()) > 0.01
     assert np.linalg.norm((T_tool * X_link_tool).translation - X_link_tool.translation) > 0.003
@@ -62,19 +57,16 @@ def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir):
     model, _ = robots.load_pinocchio("tiago", with_collision=False)
     data = model.createData()
     link = model.getFrameId(gripper["link"])
-    wanted = {h["utime"] for h in report["holes"]}
-    states = {}
-    for event in lcm.EventLog(str(out / "run.lcmlog"), "r"):
-        if event.channel == channels.ROBOT_STATE:
-            msg = lcmt_robot_state.decode(event.data)
-            if msg.utime in wanted:
-                states[msg.utime] = msg
-    assert set(states) == wanted
+    states = robot_states_at(out / "run.lcmlog", {h["utime"] for h in report["holes"]})
     assert sorted(h["hole"] for h in report["holes"]) == sorted(holes)      # every hole, once
     assert [h["hole"] for h in report["holes"]] == report["tour"]["order"]
     assert report["tour"]["tsp_cost"] <= report["tour"]["listed_order_cost"]
+    assert len(refs) == 2 and all(np.radians(3) < abs(r) for r in refs.values()), refs
     for row in report["holes"]:
-        pin.framesForwardKinematics(model, data, configuration_from_state(model, states[row["utime"]]))
+        q = configuration_from_state(model, states[row["utime"]])
+        for joint, ref in refs.items():
+            q[model.joints[model.getJointId(joint)].idx_q] -= ref
+        pin.framesForwardKinematics(model, data, q)
         X_tool = data.oMf[link] * T_tool * X_link_tool
         X_hole = X_WP * holes[row["hole"]]
         a = X_tool.rotation[:, 0]

@@ -1,4 +1,4 @@
-"""`marionette demo drill --speed 2` end to end (issue 10, thesis 000 §6.3): MuJoCo controller on
+"""`marionette demo drill --speed 2 --view` end to end (issue 10, thesis 000 §6.3): MuJoCo controller on
 the ur10_drill scene with the part displaced, the scene camera measured by `marionette perceive`,
 alignment on R1/R2, interpolation of the other holes. The verdict is re-derived from the run's
 files alone with independent code: the true part pose parsed from the scene.xml the controller
@@ -8,20 +8,17 @@ demo's tip frame)."""
 
 from __future__ import annotations
 
-import json
 import re
-import subprocess
-import sys
 
-import lcm
 import numpy as np
 import pytest
 import pinocchio as pin
 import yaml
 
 import marionette
-from marionette import channels, lcmt_robot_state, robots
+from marionette import robots
 from marionette.control.client import configuration_from_state
+from tests_support import robot_states_at, run_demo
 
 
 def _se3(xyz, xyzw) -> pin.SE3:
@@ -29,14 +26,10 @@ def _se3(xyz, xyzw) -> pin.SE3:
     return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(xyz, dtype=float))
 
 
-def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir):
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "drill", "--seed", "3",
-                           "--speed", "2", "--out", str(tmp_path)],
-                          capture_output=True, text=True, timeout=240)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    (out,) = [p for p in tmp_path.iterdir() if p.is_dir() and p.name.startswith("drill-")]
-    report = json.loads((out / "report.json").read_text())
-    assert report["success"] and (out / "report.md").exists() and (out / "hole_errors.png").exists()
+def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_env):
+    out, report = run_demo("drill", tmp_path, lcm_env, speed=2, timeout_s=240, args=("--seed", "3", "--view"),
+                           files=("report.md", "hole_errors.png", "run.lcmlog", "logs/viewer.log"))
+    assert report["viewer_url"].startswith("http://")     # --view: the browser view was served
 
     # True part pose: the mocap body of the scene the controller ran.
     body = re.search(r'<body name="part" pos="([^"]+)" quat="([^"]+)" mocap="true">',
@@ -59,14 +52,7 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir):
     model, _ = robots.load_pinocchio("ur10", with_collision=False)
     data = model.createData()
     link = model.getFrameId(gripper["link"])
-    states = {}
-    wanted = {h["utime"] for h in report["holes"]}
-    for event in lcm.EventLog(str(out / "run.lcmlog"), "r"):
-        if event.channel == channels.ROBOT_STATE:
-            msg = lcmt_robot_state.decode(event.data)
-            if msg.utime in wanted:
-                states[msg.utime] = msg
-    assert set(states) == wanted
+    states = robot_states_at(out / "run.lcmlog", {h["utime"] for h in report["holes"]})
     standoff = report["settings"]["standoff_m"]
     assert {h["hole"] for h in report["holes"]} == set(holes)     # every hole visited
     for row in report["holes"]:
