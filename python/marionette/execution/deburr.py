@@ -319,29 +319,35 @@ def plan_deburring(X_WP: pin.SE3, q_robot: dict[str, float], settings: DeburrSet
     for hole in holes:
         edge = edges[f"{TOOL} > {hole} | f"]
         best = None
+        rejected = {"no projection": 0, "in collision": 0, f"no tool tag within {settings.max_tag_view_deg:.0f} deg "
+                    "of the camera's line of sight": 0}
+        reasons = list(rejected)
         for k in range(settings.target_attempts):
             q = q0.copy()
             q[arm] += rng.normal(scale=0.5, size=len(arm))
             q = np.clip(q, problem.lower, problem.upper)
             if not edge.generate_target(q0, q):
+                rejected[reasons[0]] += 1
                 continue
             pre, grasp = (c.copy() for c in edge.last_waypoint_configs[1:])
             # at the grasp the bit's tip is on the hole: that contact is the grasp (HPP: no
             # collision check between bodies whose relative pose a grasp fixes), not a collision
             if not (checker.is_valid(pre) and checker.is_valid(grasp, checker.grasp_contact_pairs({TOOL: hole}))):
+                rejected[reasons[1]] += 1
                 continue
             if min(tag_view_angle(pre), tag_view_angle(grasp)) > settings.max_tag_view_deg:
-                continue   # the camera would see the tool's tags edge-on, or not at all
+                rejected[reasons[2]] += 1   # the camera would see the tool's tags edge-on, or not at all
+                continue
             d = float(np.linalg.norm(pre[arm] - q0[arm]))
             if best is None or d < best[0]:
                 best = (d, pre, grasp)
         if best is None:
-            unreachable.append(hole)
+            unreachable.append(f"{hole} ({', '.join(f'{n} {r}' for r, n in rejected.items() if n)})")
         else:
             targets[hole] = (best[1], best[2])
     if unreachable:
-        raise DemoError(f"no collision-free grasp configuration for {', '.join(unreachable)} in "
-                        f"{settings.target_attempts} projections: out of TIAGo's reach from its base")
+        raise DemoError(f"no pre-grasp/grasp configuration in {settings.target_attempts} projections for "
+                        + "; ".join(unreachable))
     names = list(targets)
     nodes = [q0] + [targets[n][0] for n in names]
     costs = np.array([[float(np.max(np.abs(a[arm] - b[arm]))) for b in nodes] for a in nodes])
