@@ -209,10 +209,18 @@ class ToolTask:
             knots += [pin.integrate(self.model, a, d * (i / n)) for i in range(1, n + 1)]
         self.move_along([C * self.frame_of(q) for q in knots], duration_s, postures=knots)
 
+    # The stream starts this far after the controller's latest time, and is sent this far ahead.
+    # A loaded machine (a demo, a trial beside it and a build on 2 cores) descheduled this process
+    # for 0.3 s between reading the time and the first chunk: with 30 ms of lead the chunk was
+    # already past, the newest sample 0.33 s old, and the controller's watchdog held the robot.
+    START_LEAD_S = 0.5
+    LOOKAHEAD_S = 2.0
+
     def _stream(self, streams: dict, duration_s: float) -> None:
         st = self.settings
-        start = self.client.utime() + 30_000
-        streamer = ReferenceStreamer(self.client.send_reference, self.CONTROLLER_ID, streams, start)
+        start = self.client.utime() + int(self.START_LEAD_S * 1e6)
+        streamer = ReferenceStreamer(self.client.send_reference, self.CONTROLLER_ID, streams, start,
+                                     lookahead_s=self.LOOKAHEAD_S)
         while not streamer.done:
             streamer.pump(self.client.utime())
             time.sleep(0.005)
