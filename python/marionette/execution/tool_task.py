@@ -27,7 +27,7 @@ from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.demo import DemoError
 from marionette.execution.references import minimum_jerk
-from marionette.execution.streamer import ReferenceStreamer
+from marionette.execution.streamer import MAX_LOOKAHEAD_S, ReferenceStreamer
 
 
 # ---- geometry --------------------------------------------------------------------------------
@@ -209,12 +209,13 @@ class ToolTask:
             knots += [pin.integrate(self.model, a, d * (i / n)) for i in range(1, n + 1)]
         self.move_along([C * self.frame_of(q) for q in knots], duration_s, postures=knots)
 
-    # The stream starts this far after the controller's latest time, and is sent this far ahead.
-    # A loaded machine (a demo, a trial beside it and a build on 2 cores) descheduled this process
-    # for 0.3 s between reading the time and the first chunk: with 30 ms of lead the chunk was
-    # already past, the newest sample 0.33 s old, and the controller's watchdog held the robot.
+    # The stream starts this far after the controller's latest time, and is sent this far ahead
+    # (the most the controller keeps). A loaded machine (a demo, a trial beside it and a build on
+    # 2 cores) stopped this process for 0.3 s between reading the time and the first chunk (with
+    # 30 ms of lead the chunk arrived already past), and once for 2 s between two chunks (with 1 s
+    # of look-ahead the stream ran dry): both times the controller's watchdog held the robot.
     START_LEAD_S = 0.5
-    LOOKAHEAD_S = 2.0
+    LOOKAHEAD_S = MAX_LOOKAHEAD_S
 
     def _stream(self, streams: dict, duration_s: float) -> None:
         st = self.settings
