@@ -117,7 +117,7 @@ INSTANTIATE_TEST_SUITE_P(
         // TALOS looking down at the table: torso pitched 0.2 rad, head 0.78 rad.
         TagView{"talos_plank", "head_rgbd", {{"torso_2_joint", 0.2}, {"head_1_joint", 0.78}},
                 {4, 5, 10, 11}},
-        TagView{"tiago_deburr", "head_rgbd", {{"head_2_joint", -0.2}}, {20, 21, 22, 23}},
+        TagView{"tiago_deburr", "head_rgbd", {{"head_2_joint", -0.43}}, {20, 21, 22, 23}},  // aim_head's tilt
         TagView{"ur10_drill", "scene_rgbd", {}, {20, 21, 22, 23}},
         TagView{"talos_walk", "head_rgbd", {{"head_1_joint", 0.35}}, {60}}),
     [](const auto& info) { return info.param.scene; });
