@@ -56,7 +56,8 @@ from marionette import channels, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
 from marionette.execution.demo import DemoError
 from marionette.execution.monitor import pose_from_message
-from marionette.execution.perturbations import (mjcf_pose_attributes, place_mocap_body, scene_with_joint_offsets,
+from marionette.execution.perturbations import (draw_joint_offsets, mjcf_pose, mjcf_pose_attributes,
+                                                place_mocap_body, scene_with_joint_offsets, true_configuration,
                                                 write_scene)
 from marionette.execution.tool_task import (ToolTask, axis_angle_deg, axis_offset, draw_displacement,
                                             tool_target)
@@ -124,14 +125,6 @@ def draw_tool_offset(rng: np.random.Generator, settings: DeburrSettings) -> pin.
     return draw_displacement(rng, settings.tool_offset_m, settings.tool_offset_deg, np.zeros(3))
 
 
-def _mjcf_pose(attributes: str) -> pin.SE3:
-    pos = re.search(r'pos="([^"]+)"', attributes)
-    quat = re.search(r'quat="([^"]+)"', attributes)
-    w, x, y, z = (float(v) for v in quat.group(1).split()) if quat else (1.0, 0.0, 0.0, 0.0)
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                   np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3))
-
-
 def perturbed_scene(X_WP: pin.SE3, tool_offset: pin.SE3, out: Path) -> Path:
     """Writes the tiago_deburr MJCF with the part's mocap body at ``X_WP`` and the drill body moved
     by ``tool_offset`` in its parent (asset paths absolute)."""
@@ -142,7 +135,7 @@ def perturbed_scene(X_WP: pin.SE3, tool_offset: pin.SE3, out: Path) -> Path:
     m = re.search(rf'<body name="{TOOL_LINK}"([^>]*)>', text)
     if m is None:
         raise DemoError(f"{SCENE}: no body {TOOL_LINK}")
-    X_true = _mjcf_pose(m.group(1)) * tool_offset
+    X_true = mjcf_pose(m.group(1)) * tool_offset
     text = text.replace(m.group(0), f'<body name="{TOOL_LINK}" {mjcf_pose_attributes(X_true)}>', 1)
     return write_scene(text, SCENE, out)
 
@@ -242,14 +235,6 @@ class ToolEstimate:
             q[self.head] += np.radians(st.head_scan_deg) * np.array([np.sin(angle), 1.0 - np.cos(angle)]) / 2.0
             knots.append(q)
         tool.move_along([tool.reference] * len(knots), st.head_scan_s, postures=knots)
-
-
-def true_configuration(model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]) -> np.ndarray:
-    """The robot's configuration from encoders that read q + offset (``scene_with_joint_offsets``)."""
-    q = q_encoders.copy()
-    for joint, offset in joint_offsets.items():
-        q[model.joints[model.getJointId(joint)].idx_q] -= offset
-    return q
 
 
 # ---- planning ----------------------------------------------------------------------------------
@@ -429,6 +414,7 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     """Runs one deburr trial and writes its report folder; returns the report dictionary.
     ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette import robots
+    from marionette.models.scenes import scene_object_pose
     from marionette.models.semantics import load_semantics, pregrasp_distance
 
     st = settings or DeburrSettings()
@@ -440,15 +426,11 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     holes = {name: h.pose.se3() for name, h in handles.items()}
     gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
     X_link_tool = gripper.pose.se3()
-    import yaml
-    nominal = next(o["pose"] for o in yaml.safe_load(SCENE.with_suffix(".yaml").read_text())["objects"]
-                   if o["name"] == "part")
-    X_WP_nom = pin.SE3(pin.Quaternion(nominal["xyzw"][3], *nominal["xyzw"][:3]).normalized().matrix(),
-                       np.array(nominal["xyz"], dtype=float))
+    X_WP_nom = scene_object_pose(SCENE, "part")
     centre_P = np.mean([X.translation for X in holes.values()], axis=0)
     X_WP_true = X_WP_nom * draw_displacement(rng, st.max_displacement_m, st.max_rotation_deg, centre_P)
     T_tool = draw_tool_offset(rng, st)
-    joint_offsets = {j: float(np.radians(d) * rng.choice([-1.0, 1.0])) for j, d in sorted(st.joint_offsets_deg.items())}
+    joint_offsets = draw_joint_offsets(rng, st.joint_offsets_deg)
     scene = perturbed_scene(X_WP_true, T_tool, out_dir / "scene.xml")
     if joint_offsets:
         scene = scene_with_joint_offsets(scene, joint_offsets, scene)

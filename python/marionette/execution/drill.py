@@ -246,6 +246,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
               settings: DrillSettings | None = None, view: bool = False) -> dict[str, Any]:
     """Runs one drill trial and writes its report folder; returns the report dictionary.
     ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
+    from marionette.models.scenes import scene_object_pose
     from marionette.models.semantics import load_semantics
 
     st = settings or DrillSettings()
@@ -259,11 +260,7 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     for r in REFERENCES:
         if r not in holes:
             raise DemoError(f"{PART_YAML}: no reference hole {r}")
-    import yaml
-    scene_yaml = yaml.safe_load(SCENE.with_suffix(".yaml").read_text())
-    nominal = next(o["pose"] for o in scene_yaml["objects"] if o["name"] == "part")
-    X_WP_nom = pin.SE3(pin.Quaternion(nominal["xyzw"][3], *nominal["xyzw"][:3]).normalized().matrix(),
-                       np.array(nominal["xyz"], dtype=float))
+    X_WP_nom = scene_object_pose(SCENE, "part")
     centre_P = np.mean([X.translation for X in holes.values()], axis=0)
     D = draw_displacement(seed, st, centre_P)
     X_WP_true = X_WP_nom * D

@@ -97,11 +97,16 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
     w = rng.normal(size=3)
     v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(np.linalg.norm(v), 1e-12)
     w *= math.radians(settings.slip_deg) * rng.uniform(0.5, 1.0) / max(np.linalg.norm(w), 1e-12)
-    offsets = {j: math.radians(m) * float(rng.choice([-1.0, 1.0]))
-               for j, m in sorted(settings.joint_offsets_deg.items()) if m}
+    offsets = draw_joint_offsets(rng, settings.joint_offsets_deg)
     return Perturbation(seed, (r * math.cos(a), r * math.sin(a), yaw), tuple(map(float, [*v, *w])),
                         settings.slip_step, offsets, settings.camera_noise_m,
                         math.radians(settings.camera_noise_deg))
+
+
+def draw_joint_offsets(rng: np.random.Generator, offsets_deg: dict[str, float]) -> dict[str, float]:
+    """Joint -> encoder offset [rad]: each nonzero magnitude of ``offsets_deg`` [deg] with a sign
+    drawn from ``rng`` (joints in name order)."""
+    return {j: math.radians(m) * float(rng.choice([-1.0, 1.0])) for j, m in sorted(offsets_deg.items()) if m}
 
 
 def displaced(X_WO: pin.SE3, displacement: tuple[float, float, float]) -> pin.SE3:
@@ -122,6 +127,16 @@ def mjcf_pose_attributes(X: pin.SE3) -> str:
     q = pin.Quaternion(X.rotation)
     return (f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
             f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"')
+
+
+def mjcf_pose(attributes: str) -> pin.SE3:
+    """The pose in the ``pos``/``quat`` attributes of an MJCF element (identity for the missing
+    ones): the inverse of :func:`mjcf_pose_attributes`."""
+    pos = re.search(r'pos="([^"]+)"', attributes)
+    quat = re.search(r'quat="([^"]+)"', attributes)
+    w, x, y, z = (float(v) for v in quat.group(1).split()) if quat else (1.0, 0.0, 0.0, 0.0)
+    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
+                   np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3))
 
 
 def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
@@ -174,3 +189,11 @@ def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) 
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
     return write_scene(text, scene, out)
+
+
+def true_configuration(model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]) -> np.ndarray:
+    """The robot's configuration from encoders that read q + offset (:func:`scene_with_joint_offsets`)."""
+    q = q_encoders.copy()
+    for joint, offset in joint_offsets.items():
+        q[model.joints[model.getJointId(joint)].idx_q] -= offset
+    return q

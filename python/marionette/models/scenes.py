@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import yaml
@@ -120,6 +121,17 @@ def scene_mjcf(scene: Scene, q_reference: np.ndarray) -> str:
                     active="false")
         root.insert(list(root).index(root.find("worldbody")) + 1, eq)
     return indent_and_serialize(root)
+
+
+def scene_object_pose(scene_mjcf: Path, name: str):
+    """X_WO (pin.SE3) of object instance ``name`` as the scene's YAML (written by
+    :func:`scene_yaml` beside the MJCF ``scene_mjcf``) places it; ValueError when it has none."""
+    path = Path(scene_mjcf).with_suffix(".yaml")
+    objects = {o["name"]: o for o in (yaml.safe_load(path.read_text()) or {}).get("objects", [])}
+    if name not in objects:
+        raise ValueError(f"{path}: no object {name!r} (objects: {sorted(objects)})")
+    pose = objects[name]["pose"]
+    return Placement(tuple(pose["xyz"]), tuple(pose["xyzw"])).se3()
 
 
 def scene_yaml(scene: Scene) -> str:
