@@ -140,16 +140,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"\n{scenario.name}: {ok}/{len(rows)} trials succeeded ({100.0 * ok / len(rows):.0f} %)")
         print("| seed | success | error mm | error ° | failure reason |\n|---|---|---|---|---|")
         for seed, success, reason, _, c in rows:
-            mm = f"{c['object_position_error_m'] * 1e3:.1f}" if c else "-"
-            deg = f"{c['object_angle_error_deg']:.2f}" if c else "-"
+            placed = c is not None and "object_position_error_m" in c   # runner demos: no object goal
+            mm = f"{c['object_position_error_m'] * 1e3:.1f}" if placed else "-"
+            deg = f"{c['object_angle_error_deg']:.2f}" if placed else "-"
             print(f"| {seed} | {success} | {mm} | {deg} | {reason} |")
         summary = root / f"{scenario.name}-trials-{time.strftime('%Y%m%d-%H%M%S')}.json"
         summary.write_text(json.dumps({
             "scenario": scenario.name, "perturb": args.perturb, "speed": args.speed,
             "succeeded": ok, "trials": len(rows),
             "rows": [{"seed": seed, "success": success, "failure_reason": reason, "report": str(o),
-                      "object_position_error_m": c and c["object_position_error_m"],
-                      "object_angle_error_deg": c and c["object_angle_error_deg"]}
+                      "object_position_error_m": c and c.get("object_position_error_m"),
+                      "object_angle_error_deg": c and c.get("object_angle_error_deg")}
                      for seed, success, reason, o, c in rows]}, indent=1))
         print(f"trials: {summary}")
     return 0 if all(r[1] for r in rows) else 1

@@ -30,12 +30,13 @@ from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
-from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
+from marionette.execution.walking_scenario import (MIN_REPLAN_HZ, MovingObjectPublisher,
+                                                   WalkRecorder, draw_floor_move,
                                                    finish_footsteps_axes, object_poses_message,
-                                                   plot_footsteps, replan_solve_ms,
-                                                   scenario_report, sole_poses, step_counts,
-                                                   walk_while_object_moves, walking_run,
-                                                   write_report_files)
+                                                   plot_footsteps, replan_rate_row, replan_rates,
+                                                   replan_solve_ms, scenario_report, sole_poses,
+                                                   step_counts, walk_while_object_moves,
+                                                   walking_run, write_report_files)
 from marionette.lcm_bus import private_lcm_url
 
 
@@ -57,6 +58,14 @@ class GraspWalkSettings:
     reach: bool = True                          # then reach the ball with the hand (bonus)
     reach_duration_s: float = 3.0               # [s] minimum-jerk hand motion
     reach_tolerance: float = 0.03               # [m] grasp point to ball after the reach
+
+    @classmethod
+    def drawn(cls, seed: int, max_distance: float = 0.3) -> GraspWalkSettings:
+        """A trial's settings (``--seed``): the ball moved during the walk by a seeded floor move
+        of 0.1-0.3 m in any direction (:func:`draw_floor_move`, issue #10: "moved by up to 0.3 m
+        while walking")."""
+        dx, dy = draw_floor_move(seed, max_distance)
+        return cls(shift=(float(dx), float(dy)))
 
 
 def ball_message(utime: int, p_W: np.ndarray) -> lcmt_object_poses:
@@ -84,7 +93,7 @@ def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import talos
 
-    settings = settings or GraspWalkSettings()
+    settings = settings or GraspWalkSettings.drawn(seed)
     out_dir.mkdir(parents=True, exist_ok=True)
     desc = robots.robot("talos")
     model = talos().model                       # with the grasp-point frames of the planner
@@ -226,11 +235,15 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, 
     margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot("talos").mjcf))
     replans = [p for u, p in rec.plans[1:]]
     after_move = [p for u, p in rec.plans if u >= utime_move]
+    solve_ms = replan_solve_ms(footsteps_log)
+    rates = replan_rates(rec, solve_ms, utime_move, settings.shift_duration_s)
     c: dict[str, Any] = {
         **step_counts(rec, walked),
         "footstep_recomputations": len(replans),
         "recomputations_after_move": len(after_move),
-        "replan_solve_ms": replan_solve_ms(footsteps_log),
+        "replan_solve_ms": solve_ms,
+        "replan_rate_hz": rates,
+        "replan_fast_enough": bool(rates["capacity_hz"] is not None and rates["capacity_hz"] >= MIN_REPLAN_HZ),
         "final_stance_error_m": stance_err,
         "final_stance_yaw_error_deg": yaw_err,
         "final_stance_ok": bool(stance_err <= settings.stance_tolerance
@@ -253,7 +266,7 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, 
         "executed_final_soles": {s: executed[s].tolist() for s in FEET},
     }
     ok = (c["final_stance_ok"] and c["ball_within_reach"] and c["no_fall"] and c["zmp_inside"]
-          and c["steps_in_order"] and c["recomputations_after_move"] > 0)
+          and c["steps_in_order"] and c["recomputations_after_move"] > 0 and c["replan_fast_enough"])
     return {"success": bool(ok), "criteria": c}
 
 
@@ -303,7 +316,8 @@ def _markdown(r: dict[str, Any]) -> str:
              f"| {c['zmp_inside']} |",
              f"| steps in order | {c['steps_executed']} executed | - | {c['steps_in_order']} |",
              f"| replans after the ball moved | {c['recomputations_after_move']} | > 0 | "
-             f"{c['recomputations_after_move'] > 0} |", "",
+             f"{c['recomputations_after_move'] > 0} |",
+             replan_rate_row(c, "ball"), "",
              "## Bonus: reaching the ball", "", _reach_line(r.get("reach"), s), "",
              "## Footstep recomputations (Dang 2012 §6.3: 97 in 14 s)", "",
              f"{c['footstep_plans']} plans: the first ({c['steps_planned_first']} steps, "

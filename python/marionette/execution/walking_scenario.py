@@ -41,6 +41,7 @@ from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking
 from marionette.processes import ProcessError, ProcessGroup
 
 PUBLISH_PERIOD_S = 0.05     # OBJECT_POSES at 20 Hz, the footstep process's input
+MIN_REPLAN_HZ = 20.0        # issue #10: footstep replanning at 20 Hz or more (median replan < 50 ms)
 SETTLE_S = 1.5              # [s] of controller time standing before a walk counts as done
 
 
@@ -204,6 +205,36 @@ def replan_solve_ms(footsteps_log: list[str]) -> dict[str, float | None]:
             "first_plan": solve_ms[0] if solve_ms else None}
 
 
+def replan_rates(rec: WalkRecorder, solve_ms: dict[str, float | None], utime_move: int | None,
+                 move_duration_s: float) -> dict[str, float | None]:
+    """Footstep replanning rates (issue #10: "footstep replanning >= 20 Hz"): ``capacity_hz``,
+    1 / the median replan time (the rate the process sustains, whatever the input rate);
+    ``slowest_hz``, 1 / the slowest replan (step-over's fallback to a fresh sequence when the bar
+    moves beyond the strides' reach takes up to ~0.5 s); ``during_move_hz``, the plans received
+    while the object moved per second of controller time (the process replans on every pose
+    update, 20 Hz of wall time: at ``--speed 0`` controller time runs faster than the wall clock
+    and the figure is lower)."""
+    during = None
+    if utime_move is not None and move_duration_s > 0:
+        end = utime_move + move_duration_s * 1e6
+        during = sum(utime_move <= u <= end for u, _ in rec.plans) / move_duration_s
+    median, slowest = solve_ms.get("median"), solve_ms.get("max")
+    return {"capacity_hz": None if not median else 1e3 / median,
+            "slowest_hz": None if not slowest else 1e3 / slowest, "during_move_hz": during}
+
+
+def replan_rate_row(c: dict[str, Any], moved: str) -> str:
+    """The report.md criteria row of :func:`replan_rates`."""
+    r = c["replan_rate_hz"]
+
+    def hz(v):
+        return "-" if v is None else f"{v:.0f} Hz"
+
+    return (f"| footstep replanning: 1 / median replan (1 / slowest; plans per controller second "
+            f"while the {moved} moved) | {hz(r['capacity_hz'])} ({hz(r['slowest_hz'])}; "
+            f"{hz(r['during_move_hz'])}) | >= {MIN_REPLAN_HZ:.0f} Hz | {c['replan_fast_enough']} |")
+
+
 def step_counts(rec: WalkRecorder, statuses: list[Any]) -> dict[str, Any]:
     """The steps of a walk: planned by the first plan, executed (the highest step index the
     ``statuses`` show, + 1), executed in order (indices never go back), and the plans received."""
@@ -212,6 +243,18 @@ def step_counts(rec: WalkRecorder, statuses: list[Any]) -> dict[str, Any]:
             "steps_executed": int(max(indices) + 1) if indices else 0,
             "steps_in_order": bool(indices == sorted(indices)),
             "footstep_plans": len(rec.plans)}
+
+
+def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 0.1) -> np.ndarray:
+    """A seeded move of an object on the floor (issue #10: "moved by up to 0.3 m while
+    walking"): direction uniform, distance uniform in [``min_distance``, ``max_distance``] [m];
+    returns (dx, dy). Every trial moves the object by a distance that matters to the planner."""
+    if not 0.0 <= min_distance <= max_distance:
+        raise ValueError(f"need 0 <= min_distance <= max_distance, got {min_distance}, {max_distance}")
+    rng = np.random.default_rng(seed)
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    distance = rng.uniform(min_distance, max_distance)
+    return distance * np.array([np.cos(angle), np.sin(angle)])
 
 
 def scenario_report(scenario, seed: int, speed: float, url: str, scene: Path, settings) -> dict[str, Any]:

@@ -8,8 +8,13 @@ Algorithm 1 adding steps if the goal is no longer reached.
 Online deformation (§5.3, Algorithm 3): the footprint landing just before the bar and the one
 landing just after it ("the two subsequent steps that cross the bar") are kept fixed relative to
 the bar: when the bar moves to X_WB', their targets become X_WB' · X_BF (a rigid motion; the
-thesis's x ← x0 + y − y0 is its translation-only form) and the plan is re-optimised with the
-steps already taken frozen.
+thesis's x ← x0 + y − y0 is its translation-only form), except along the bar's own axis (a bar
+sliding along itself would drag them sideways), and the plan is re-optimised with the steps
+already taken frozen. A bar moved away farther than the free steps before it can stretch
+leaves the crossing footprints short of their targets: the free steps are then planned again as
+an initial sequence from the stance the taken steps leave (:meth:`StepOverPlanner._fresh_sequence`;
+when §5.2.1's removal leaves too few steps before the bar, for the bar a little farther, deformed
+back onto it by Algorithm 3).
 
 Priorities: step limits (bounds) > non-overlap > obstacles (bar + others) > crossing footprints
 > goal stance > step preference.
@@ -51,6 +56,17 @@ class StepOverOptions:
     # 0.1 mm is well inside the bar's 3 cm buffer; the iteration cap bounds a replan's time.
     replan_constraint_tolerance: float = 1e-4    # [m]
     replan_max_iterations: int = 60
+    # A bar moved away by more than the free steps before it can stretch leaves the crossing
+    # footprints short of their targets (the optimizer twists the feet to gain reach): the free
+    # steps are then planned again as an initial sequence (§5.2.1) from the steps taken.
+    crossing_tolerance: float = 0.01             # [m] crossing footprint to its target
+    fresh_shifts: tuple[float, ...] = (0.0, 0.06, 0.12)   # [m] (see _fresh_sequence)
+    # Algorithm 3 deforms the plan for small moves; once the bar has moved this far across
+    # itself since the crossing was planned, the free steps are planned afresh instead (a plan
+    # made for a bar 10-20 cm farther keeps its step count and ends in short shuffling steps,
+    # measured: falls at the goal).
+    fresh_after_move: float = 0.05               # [m]
+    fresh_max_iterations: int = 15               # per solve with the bar
 
 
 class StepOverPlanner:
@@ -75,6 +91,7 @@ class StepOverPlanner:
         self.frozen_steps = 0
         self.crossing: tuple[int, int] | None = None        # footprint indices (before, after)
         self._crossing_in_bar: tuple[np.ndarray, np.ndarray] | None = None
+        self._crossing_bar_center = np.zeros(2)             # the bar when they were recorded
         self.last_report: SolveReport | None = None
 
     # -- geometry ------------------------------------------------------------------------
@@ -99,7 +116,13 @@ class StepOverPlanner:
 
     # -- planning ------------------------------------------------------------------------
     def plan(self) -> SolveReport:
-        """Initial sequence over the bar (§5.2.1)."""
+        """Initial sequence over the bar (§5.2.1), see :meth:`_fresh_sequence`."""
+        self.frozen_steps = 0
+        return self._fresh_sequence()
+
+    def _initial_sequence(self, bar_iterations: int | None = None) -> SolveReport:
+        """§5.2.1 from the stance: to the goal ignoring the bar, the footprints on the bar
+        removed, re-optimised with the bar (at most ``bar_iterations`` per solve)."""
         self.frozen_steps = 0
         self.crossing = None
         self._crossing_in_bar = None
@@ -119,10 +142,14 @@ class StepOverPlanner:
                 keep[extra] = False
         self.config = self._chain_through(fp[keep])
         # 3. Re-optimise with the bar, the crossing step allowed to be long.
+        settings = (self.settings if bar_iterations is None
+                    else dataclasses.replace(self.settings, max_iterations=bar_iterations))
         self._set_crossing_limits()
-        report = self._solve(with_bar=True)
+        report = self._solve(with_bar=True, settings=settings)
+        if bar_iterations is not None and not report.converged:
+            return report                     # stalled: the caller tries another way
         self._set_crossing_limits()
-        report = self._solve(with_bar=True)
+        report = self._solve(with_bar=True, settings=settings)
         self._record_crossing()
         return report
 
@@ -133,9 +160,104 @@ class StepOverPlanner:
         if executed_steps is not None:
             self.frozen_steps = executed_steps
         self.bar = bar
-        return self._solve(with_bar=True, crossing_targets=True, settings=dataclasses.replace(
-            self.settings, constraint_tolerance=self.options.replan_constraint_tolerance,
-            max_iterations=self.options.replan_max_iterations))
+        held = (self.config, self.crossing, self._crossing_in_bar, self._crossing_bar_center,
+                dict(self.limits.overrides))
+        moved = abs(float(self.bar.normal() @ (self.bar.center - self._crossing_bar_center)))
+        if moved > self.options.fresh_after_move and self.crossing[0] > self.frozen_steps:
+            try:
+                return self._fresh_sequence()
+            except PlanningFailed:
+                pass                          # Algorithm 3 below
+        report = self._deform()
+        if self._crossing_short():
+            try:
+                report = self._fresh_sequence()
+            except PlanningFailed:
+                # Keep the previous plan (the caller sees a report that did not converge).
+                (self.config, self.crossing, self._crossing_in_bar, self._crossing_bar_center,
+                 self.limits.overrides) = held
+        return report
+
+    def _deform(self) -> SolveReport:
+        """Algorithm 3's solve on the current bar. A short first pass tells a bar beyond the
+        strides' reach (its crossing stays short) before the full iteration budget is spent."""
+        settings = dataclasses.replace(self.settings,
+                                       constraint_tolerance=self.options.replan_constraint_tolerance,
+                                       max_iterations=self.options.replan_max_iterations)
+        first = min(self.options.fresh_max_iterations, settings.max_iterations)
+        report = self._solve(with_bar=True, crossing_targets=True,
+                             settings=dataclasses.replace(settings, max_iterations=first))
+        if not report.converged and not self._crossing_short():
+            report = self._solve(with_bar=True, crossing_targets=True, settings=dataclasses.replace(
+                settings, max_iterations=settings.max_iterations - first))
+        return report
+
+    def _fresh_sequence(self) -> SolveReport:
+        """The free steps planned again as an initial sequence (§5.2.1) from the stance the
+        steps already taken leave (P_(f-1), P_f), spliced after them; the new crossing is the one
+        Algorithm 3 then keeps on the bar. The removal of §5.2.1 can leave too few steps before
+        a bar just out of the strides' reach (the solve then stalls): the sequence is then
+        planned for the bar ``fresh_shifts`` farther and deformed back onto it by Algorithm 3."""
+        f = self.frozen_steps
+        fp = self.augmented.footprints(self.config.steps)                # rows: P_-1..P_k
+        mover = self.augmented.side_of(f + 1)
+        feet = {mover: fp[f], self.augmented.side_of(f): fp[f + 1]}      # P_(f-1), P_f
+        stance = Stance(feet["left"], feet["right"], self.augmented.stance.floor_z)
+        start = 0.5 * (stance.left[:2] + stance.right[:2])
+        away = self.bar.normal() * (np.sign(self.bar.normal() @ (self.bar.center - start)) or 1.0)
+        for shift in self.options.fresh_shifts:
+            fresh = StepOverPlanner(stance, self.goal.target,
+                                    self.bar.moved_to(self.bar.center + shift * away, self.bar.yaw),
+                                    self.foot, self.obstacles, first_side=mover,
+                                    limits=dataclasses.replace(self.limits, overrides={}),
+                                    options=self.options, settings=self.settings, timing=self.timing)
+            try:
+                report = fresh._initial_sequence(self.options.fresh_max_iterations)
+            except PlanningFailed:
+                continue
+            if not report.converged or fresh.crossing is None:
+                continue
+            if shift:
+                fresh.bar = self.bar
+                report = fresh._deform()
+                if not report.converged or fresh._crossing_short():
+                    continue
+            self.config = AugmentedConfiguration(np.vstack([self.config.steps[:f], fresh.config.steps]),
+                                                 None)
+            self.crossing = (fresh.crossing[0] + f, fresh.crossing[1] + f)
+            self._crossing_in_bar = fresh._crossing_in_bar
+            self._crossing_bar_center = fresh._crossing_bar_center
+            self.limits.overrides = {i + f: b for i, b in fresh.limits.overrides.items()}
+            return report
+        raise PlanningFailed(f"no sequence over the bar from the stance after step {f} "
+                             f"(bar shifted by {list(self.options.fresh_shifts)} m)")
+
+    def crossing_errors(self) -> dict[int, np.ndarray]:
+        """Footprint index -> (target − footprint) in x, y [m] of the crossing footprints still
+        free (Algorithm 3's targets on the current bar)."""
+        if self.crossing is None or self._crossing_in_bar is None:
+            return {}
+        fp = self.augmented.footprints(self.config.steps)
+        return {i: target[:2] - fp[i + 1][:2] for i, target in self._crossing_targets().items()
+                if i > self.frozen_steps}
+
+    def _crossing_targets(self) -> dict[int, np.ndarray]:
+        """Algorithm 3's targets of the crossing footprints on the current bar: fixed relative
+        to it across it and in yaw, not along its axis — a bar sliding along its own axis
+        leaves them where they were along it (fixed to it, they would be dragged sideways,
+        measured: sideways steps and falls)."""
+        axis = np.array([np.cos(self.bar.yaw), np.sin(self.bar.yaw)])
+        slide = float(axis @ (self.bar.center - self._crossing_bar_center))
+        return {i: planar_compose(self.bar.pose(), rel - np.array([slide, 0.0, 0.0]))
+                for i, rel in zip(self.crossing, self._crossing_in_bar)}
+
+    def _crossing_short(self) -> bool:
+        """A free crossing footprint lies more than ``crossing_tolerance`` short of its target,
+        towards the bar's far side: the steps before it cannot stretch that far."""
+        start = 0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2])
+        away = self.bar.normal() * (np.sign(self.bar.normal() @ (self.bar.center - start)) or 1.0)
+        return any(np.linalg.norm(e) > self.options.crossing_tolerance and e @ away > 0.0
+                   for e in self.crossing_errors().values())
 
     def set_goal(self, goal) -> None:
         self.goal.set_target(goal)
@@ -164,6 +286,7 @@ class StepOverPlanner:
         fp = self.augmented.footprints(self.config.steps)
         bar_pose = self.bar.pose()
         self._crossing_in_bar = tuple(planar_relative(bar_pose, fp[i + 1]) for i in self.crossing)
+        self._crossing_bar_center = self.bar.center.copy()
 
     def _levels(self, with_bar: bool, crossing_targets: bool):
         first = self.frozen_steps + 1
@@ -172,11 +295,9 @@ class StepOverPlanner:
         if obstacles:
             levels.append(ObstacleAvoidance(obstacles, first_step=first))
         if crossing_targets and self.crossing is not None:
-            bar_pose = self.bar.pose()
-            for index, relative in zip(self.crossing, self._crossing_in_bar):
+            for index, target in self._crossing_targets().items():
                 if index > self.frozen_steps:        # a landed footprint cannot be moved
-                    levels.append(FootprintPoseTask(index, planar_compose(bar_pose, relative),
-                                                    weights=(1.0, 1.0, 1.0),
+                    levels.append(FootprintPoseTask(index, target, weights=(1.0, 1.0, 1.0),
                                                     name=f"crossing_{index}"))
         levels.append(self.goal)
         levels.append(StepPreferenceTask(self.options.nominal_width, first))

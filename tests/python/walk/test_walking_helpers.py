@@ -83,3 +83,41 @@ def test_minimum_jerk_derivatives_match_finite_differences():
     assert np.allclose(derivatives[[0, -1]], 0.0)
     fd = (values[2:] - values[:-2]) / 2e-3
     assert np.max(np.abs(fd - derivatives[1:-1])) < 1e-6
+
+
+def test_seeded_floor_moves_cover_every_direction_within_their_distances():
+    """Issue #10's "moved by up to 0.3 m": each trial's move is 0.1-0.3 m in any direction,
+    the same for the same seed, and over many seeds every quadrant and both ends of the range
+    are drawn."""
+    from marionette.execution.walking_scenario import draw_floor_move
+
+    moves = np.array([draw_floor_move(seed) for seed in range(400)])
+    distance = np.linalg.norm(moves, axis=1)
+    assert np.all((distance >= 0.1) & (distance <= 0.3))
+    assert distance.min() < 0.11 and distance.max() > 0.29
+    quadrants = {(bool(x > 0), bool(y > 0)) for x, y in moves}
+    assert len(quadrants) == 4
+    assert np.array_equal(draw_floor_move(7), draw_floor_move(7))
+    with pytest.raises(ValueError, match="min_distance"):
+        draw_floor_move(0, max_distance=0.1, min_distance=0.2)
+
+
+def test_bar_height_under_a_sole_is_the_cylinder_or_an_end_block():
+    """The step-over verdict's bar height under a horizontal sole, against the closed form of a
+    cylinder of radius R lying on the floor: 2R over the axis, R + sqrt(R² − u²) at u from it, 0
+    beyond R; the 7 cm end blocks beyond the cylinder's ends."""
+    from marionette.execution.step_over import cylinder_height_under
+
+    R, length, block = 0.025, 1.34, 0.07
+    bar = (1.0, 0.0, np.pi / 2)                      # axis along y
+
+    def sole(x0, x1, y0=-0.05, y1=0.05):
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+
+    assert cylinder_height_under(sole(0.9, 1.1), bar, R, length, block) == pytest.approx(2 * R)
+    for u in (0.0, 0.01, 0.02, 0.0249):
+        expected = R + np.sqrt(R * R - u * u)
+        assert cylinder_height_under(sole(1.0 + u, 1.2), bar, R, length, block) == pytest.approx(expected)
+        assert cylinder_height_under(sole(0.8, 1.0 - u), bar, R, length, block) == pytest.approx(expected)
+    assert cylinder_height_under(sole(1.03, 1.2), bar, R, length, block) == 0.0
+    assert cylinder_height_under(sole(0.9, 1.1, 0.62, 0.66), bar, R, length, block) == pytest.approx(block)
