@@ -30,13 +30,13 @@ from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
-from marionette.execution.walking_scenario import (MIN_REPLAN_HZ, MovingObjectPublisher,
-                                                   WalkRecorder, draw_floor_move,
-                                                   finish_footsteps_axes, object_poses_message,
-                                                   plot_footsteps, replan_rate_row, replan_rates,
-                                                   replan_solve_ms, scenario_report, sole_poses,
-                                                   step_counts, walk_while_object_moves,
-                                                   walking_run, write_report_files)
+from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
+                                                   draw_floor_move, finish_footsteps_axes,
+                                                   object_poses_message, plot_footsteps,
+                                                   replan_criteria, replan_rate_row,
+                                                   scenario_report, sole_poses, step_counts,
+                                                   walk_while_object_moves, walking_run,
+                                                   write_report_files)
 from marionette.lcm_bus import private_lcm_url
 
 
@@ -235,15 +235,11 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, 
     margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot("talos").mjcf))
     replans = [p for u, p in rec.plans[1:]]
     after_move = [p for u, p in rec.plans if u >= utime_move]
-    solve_ms = replan_solve_ms(footsteps_log)
-    rates = replan_rates(rec, solve_ms, utime_move, settings.shift_duration_s)
     c: dict[str, Any] = {
         **step_counts(rec, walked),
         "footstep_recomputations": len(replans),
         "recomputations_after_move": len(after_move),
-        "replan_solve_ms": solve_ms,
-        "replan_rate_hz": rates,
-        "replan_fast_enough": bool(rates["capacity_hz"] is not None and rates["capacity_hz"] >= MIN_REPLAN_HZ),
+        **replan_criteria(rec, footsteps_log, utime_move, settings.shift_duration_s),
         "final_stance_error_m": stance_err,
         "final_stance_yaw_error_deg": yaw_err,
         "final_stance_ok": bool(stance_err <= settings.stance_tolerance

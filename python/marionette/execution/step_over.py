@@ -32,13 +32,13 @@ import pinocchio as pin
 import marionette
 from marionette import lcmt_object_poses, robots
 from marionette.execution.walking import FEET, sole_corners, sole_half_size
-from marionette.execution.walking_scenario import (MIN_REPLAN_HZ, MovingObjectPublisher,
-                                                   WalkRecorder, draw_floor_move,
-                                                   finish_footsteps_axes, object_poses_message,
-                                                   plot_footsteps, replan_rate_row, replan_rates,
-                                                   replan_solve_ms, scenario_report, sole_poses,
-                                                   step_counts, walk_while_object_moves,
-                                                   walking_run, write_report_files)
+from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
+                                                   draw_floor_move, finish_footsteps_axes,
+                                                   object_poses_message, plot_footsteps,
+                                                   replan_criteria, replan_rate_row,
+                                                   scenario_report, sole_poses, step_counts,
+                                                   walk_while_object_moves, walking_run,
+                                                   write_report_files)
 from marionette.lcm_bus import private_lcm_url
 
 SCENE = marionette.MODELS_DIR / "scenes" / "talos_walk.xml"
@@ -191,14 +191,10 @@ def step_over_criteria(settings: StepOverSettings, model: pin.Model, rec: WalkRe
     base_drop = float(max(q_start[2] - q[2] for q in rec.q))
     after_move = [p for u, p in rec.plans if utime_move is not None and u >= utime_move]
     planned = rec.merged.final_stance(start)
-    solve_ms = replan_solve_ms(footsteps_log)
-    rates = replan_rates(rec, solve_ms, utime_move, settings.correction_s)
     c: dict[str, Any] = {
         **step_counts(rec, rec.statuses),
         "recomputations_after_move": len(after_move),
-        "replan_solve_ms": solve_ms,
-        "replan_rate_hz": rates,
-        "replan_fast_enough": bool(rates["capacity_hz"] is not None and rates["capacity_hz"] >= MIN_REPLAN_HZ),
+        **replan_criteria(rec, footsteps_log, utime_move, settings.correction_s),
         "samples": len(rec.q),
         "loaded_sole_samples_over_bar": loaded_over,
         "sole_samples_inside_bar": inside,

@@ -12,7 +12,7 @@ replans (the ball carried by hand, the bar pushed).
 * :func:`walk_while_object_moves` — footstep process start, first plan, the move at a given step,
   the wait for the robot standing at the end of the last plan;
 * measures and report pieces both verdicts use (:func:`sole_poses`, :func:`landings`,
-  :func:`step_counts`, :func:`replan_solve_ms`, :func:`write_report_files`, :func:`plot_footsteps`,
+  :func:`step_counts`, :func:`replan_criteria`, :func:`write_report_files`, :func:`plot_footsteps`,
   :func:`finish_footsteps_axes`).
 
 The scenario modules keep what differs: the object, the footstep process's arguments, the
@@ -221,6 +221,18 @@ def replan_rates(rec: WalkRecorder, solve_ms: dict[str, float | None], utime_mov
     median, slowest = solve_ms.get("median"), solve_ms.get("max")
     return {"capacity_hz": None if not median else 1e3 / median,
             "slowest_hz": None if not slowest else 1e3 / slowest, "during_move_hz": during}
+
+
+def replan_criteria(rec: WalkRecorder, footsteps_log: list[str], utime_move: int | None,
+                    move_duration_s: float) -> dict[str, Any]:
+    """The replanning entries of a walking demo's criteria: solve times
+    (:func:`replan_solve_ms`), rates (:func:`replan_rates`) and ``replan_fast_enough`` (1 / the
+    median replan at least :data:`MIN_REPLAN_HZ`)."""
+    solve_ms = replan_solve_ms(footsteps_log)
+    rates = replan_rates(rec, solve_ms, utime_move, move_duration_s)
+    return {"replan_solve_ms": solve_ms, "replan_rate_hz": rates,
+            "replan_fast_enough": bool(rates["capacity_hz"] is not None
+                                       and rates["capacity_hz"] >= MIN_REPLAN_HZ)}
 
 
 def replan_rate_row(c: dict[str, Any], moved: str) -> str:

@@ -203,8 +203,7 @@ class StepOverPlanner:
         mover = self.augmented.side_of(f + 1)
         feet = {mover: fp[f], self.augmented.side_of(f): fp[f + 1]}      # P_(f-1), P_f
         stance = Stance(feet["left"], feet["right"], self.augmented.stance.floor_z)
-        start = 0.5 * (stance.left[:2] + stance.right[:2])
-        away = self.bar.normal() * (np.sign(self.bar.normal() @ (self.bar.center - start)) or 1.0)
+        away = self._away_from(0.5 * (stance.left[:2] + stance.right[:2]))
         for shift in self.options.fresh_shifts:
             fresh = StepOverPlanner(stance, self.goal.target,
                                     self.bar.moved_to(self.bar.center + shift * away, self.bar.yaw),
@@ -251,11 +250,15 @@ class StepOverPlanner:
         return {i: planar_compose(self.bar.pose(), rel - np.array([slide, 0.0, 0.0]))
                 for i, rel in zip(self.crossing, self._crossing_in_bar)}
 
+    def _away_from(self, start: np.ndarray) -> np.ndarray:
+        """The bar's floor normal pointing from ``start`` (x, y) towards its far side."""
+        n = self.bar.normal()
+        return n * (np.sign(n @ (self.bar.center - start)) or 1.0)
+
     def _crossing_short(self) -> bool:
         """A free crossing footprint lies more than ``crossing_tolerance`` short of its target,
         towards the bar's far side: the steps before it cannot stretch that far."""
-        start = 0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2])
-        away = self.bar.normal() * (np.sign(self.bar.normal() @ (self.bar.center - start)) or 1.0)
+        away = self._away_from(0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2]))
         return any(np.linalg.norm(e) > self.options.crossing_tolerance and e @ away > 0.0
                    for e in self.crossing_errors().values())
 
