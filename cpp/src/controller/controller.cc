@@ -137,7 +137,7 @@ void Controller::Impl::Reject(const std::string& channel, const std::string& cat
   ++rejections[channel + ": " + category];
   ++num_rejected;
   last_rejection = channel + ": " + detail;
-  if (options.verbose) std::cerr << "[controller] rejected " << last_rejection << "\n";
+  if (options.verbose) runtime::LogLine("[controller] rejected ", last_rejection);
 }
 
 // ---- the loop ----------------------------------------------------------------------------------
@@ -431,15 +431,15 @@ int Controller::Run() {
   // thread runs at SCHED_IDLE.
   if (c.options.realtime) {
     const runtime::RealtimeStatus rt = runtime::RequestRealtime(kLoopPriority);
-    std::cerr << "[controller] loop thread " << rt.message << "\n";
+    runtime::LogLine("[controller] loop thread ", rt.message);
   } else {
-    std::cerr << "[controller] real-time scheduling not requested (--realtime): normal priority\n";
+    runtime::LogLine("[controller] real-time scheduling not requested (--realtime): normal priority");
   }
-  std::cerr << "[controller] " << c.robot.name << " on " << c.options.backend << " backend, "
-            << c.model->nv << " dofs, graph of " << c.graph->entities().size() << " entities; "
-            << (c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
-                                         : std::string("running until stopped"))
-            << " at speed " << c.options.speed << "\n";
+  runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ", c.model->nv,
+                   " dofs, graph of ", c.graph->entities().size(), " entities; ",
+                   c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
+                                            : std::string("running until stopped"),
+                   " at speed ", c.options.speed);
 
   runtime::LoopClock clock(kDt, c.options.speed);
   graph::Tick t{0, 0.0, kDt};
@@ -456,8 +456,8 @@ int Controller::Run() {
   lcm_thread.join();
   publisher.join();
   if (camera.joinable()) camera.join();
-  std::cerr << "[controller] stopped after " << t.index << " ticks (" << t.time << " s), "
-            << clock.deadline_misses() << " deadline misses\n";
+  runtime::LogLine("[controller] stopped after ", t.index, " ticks (", t.time, " s), ", clock.deadline_misses(),
+                   " deadline misses");
   return 0;
 }
 

@@ -16,7 +16,6 @@
 #include <cstdlib>
 #include <cstring>
 #include <deque>
-#include <iostream>
 #include <map>
 #include <sstream>
 #include <mutex>
@@ -47,6 +46,7 @@
 #include "marionette/lcmt_robot_state.hpp"
 #include "marionette/lcmt_sim_command.hpp"
 #include "marionette/lcmt_task_reference.hpp"
+#include "marionette/runtime/log_line.h"
 #include "marionette/runtime/loop_clock.h"
 #include "marionette/runtime/spsc_queue.h"
 #include "marionette/runtime/timing_stats.h"

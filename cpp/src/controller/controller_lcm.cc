@@ -34,7 +34,7 @@ class GraphReadLease {
 
 void Controller::Impl::LcmThread() {
   if (options.realtime) {
-    std::cerr << "[controller] LCM thread " << runtime::RequestThreadPriority(kIoPriority).message << "\n";
+    runtime::LogLine("[controller] LCM thread ", runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
     const bool idle = lcm.handleTimeout(2) == 0;
@@ -142,9 +142,9 @@ void Controller::Impl::ArmHoldController() {
   armed_hold = hold_controller.get();
   hold_state.store(kHoldArmed, std::memory_order_release);
   if (options.verbose) {
-    std::cerr << "[controller] hold controller '" << hold_controller->name << "' armed for controller "
-              << active_owned_id << " in " << std::chrono::duration<double, std::milli>(Clock::now() - start).count()
-              << " ms\n";
+    runtime::LogLine("[controller] hold controller '", hold_controller->name, "' armed for controller ",
+                     active_owned_id, " in ",
+                     std::chrono::duration<double, std::milli>(Clock::now() - start).count(), " ms");
   }
 }
 
@@ -169,7 +169,7 @@ void Controller::Impl::CollectHoldController() {
     pending_switch_result = result;
     pending_switch_tick = hold_engaged_tick;
   }
-  if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  if (options.verbose) runtime::LogLine("[controller] ", result);
   last_decision_utime = hold_engaged_tick * 1000;
   hold_state.store(kHoldEmpty, std::memory_order_release);
 }
@@ -201,7 +201,7 @@ void Controller::Impl::CollectSwitchDecision() {
     pending_switch_result = result;
     pending_switch_tick = decided_tick;
   }
-  if (options.verbose) std::cerr << "[controller] " << result << "\n";
+  if (options.verbose) runtime::LogLine("[controller] ", result);
   last_decision_utime = decided_tick * 1000;
   posted = nullptr;
   switch_state.store(static_cast<int>(SwitchState::kNone), std::memory_order_release);
@@ -284,7 +284,7 @@ void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::stri
   while (expected != static_cast<int>(Command::kEstop) &&
          !command_request.compare_exchange_weak(expected, static_cast<int>(it->second))) {
   }
-  if (options.verbose) std::cerr << "[controller] command " << msg.command << " from " << msg.source << "\n";
+  if (options.verbose) runtime::LogLine("[controller] command ", msg.command, " from ", msg.source);
 }
 
 void Controller::Impl::OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {

@@ -8,7 +8,7 @@ namespace marionette::controller {
 
 void Controller::Impl::PublisherThread() {
   if (options.realtime) {
-    std::cerr << "[controller] publisher thread " << runtime::RequestThreadPriority(kIoPriority).message << "\n";
+    runtime::LogLine("[controller] publisher thread ", runtime::RequestThreadPriority(kIoPriority).message);
   }
   runtime::TimingWindow period(10000), compute(10000), lateness(10000);
   const auto state_period = std::chrono::duration<double>(1.0 / std::max(1.0, options.state_rate));
@@ -67,7 +67,7 @@ void Controller::Impl::PublisherThread() {
       }
       std::fclose(f);
     } else {
-      std::cerr << "[controller] cannot write the timing log " << options.timing_log << "\n";
+      runtime::LogLine("[controller] cannot write the timing log ", options.timing_log);
     }
   }
 }
@@ -253,7 +253,7 @@ void Controller::Impl::CameraThread() {
   // CPU, so a frame can be late but a tick never waits for one.
   sched_param idle{};
   if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0) {
-    std::cerr << "[controller] camera thread: SCHED_IDLE refused, rendering at normal priority\n";
+    runtime::LogLine("[controller] camera thread: SCHED_IDLE refused, rendering at normal priority");
   }
   const mjModel& m = scene->model();
   mjData* d = mj_makeData(&m);
@@ -261,7 +261,7 @@ void Controller::Impl::CameraThread() {
   try {
     renderer = std::make_unique<sim::RgbdRenderer>(&m, robot.camera, options.camera_width, options.camera_height);
   } catch (const std::exception& e) {
-    std::cerr << "[controller] camera disabled: " << e.what() << "\n";
+    runtime::LogLine("[controller] camera disabled: ", e.what());
     mj_deleteData(d);
     return;
   }

@@ -67,11 +67,12 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
     # priority on 2 cores the loop shares the CPU with this test's receiver of 1000 samples/s, and
     # the comparison measures that, not what tracing costs the loop.
     with run_controller(*UR10, "--realtime") as c, GraphClient(lcm_url) as dg:
-        realtime = "loop thread real-time: SCHED_FIFO priority 80 granted" in c.process.log_tail(50)
         c.send_spec(arm(1))
         c.wait(lambda c: c.status.active_controller_id == 1, 20, "controller 1")
         c.wait_time(2.0)
-        before = c.status
+        quiet_start = c.status
+        c.wait_time(3.0)
+        before = c.status  # the same 3 s without a trace: what this machine misses anyway
         samples = list(dg.trace(["command.configuration", "c1_solver.velocity"], rate=1000, duration=3.0))
         c.wait_time(0.5)
         during = c.status  # windows of 10 s: mostly ticks with the trace on
@@ -82,9 +83,15 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
         q = np.array([s.values["command.configuration"] for s in samples])
         v = np.array([s.values["c1_solver.velocity"] for s in samples])
         np.testing.assert_allclose(q[1:], q[:-1] + 1e-3 * v[:-1], atol=1e-12)
-        # Tracing costs the loop a few copies: its timing is unchanged (noisy machines: loose).
+        # Tracing costs the loop a few copies: its timing is unchanged (noisy machines: loose). The
+        # grant is read from the log now, seconds after start-up, not as the process may still print it.
+        realtime = "loop thread real-time: SCHED_FIFO priority 80 granted" in c.process.log_tail(50)
         if not realtime:
             pytest.skip("SCHED_FIFO refused (needs root or CAP_SYS_NICE): the timing comparison needs it; "
                         "samples checked")
+        # A virtual machine's vCPU is itself preempted by its host: SCHED_FIFO in the guest cannot
+        # stop that, so misses are compared with those of the quiet window just before, not with 0.
+        quiet_misses = before.deadline_misses - quiet_start.deadline_misses
+        traced_misses = during.deadline_misses - before.deadline_misses
         assert during.compute.p99_us <= 2.0 * before.compute.p99_us + 100.0
-        assert during.deadline_misses - before.deadline_misses <= 0.01 * 3000 + 20
+        assert traced_misses <= 2 * quiet_misses + 0.01 * 3000 + 20, (quiet_misses, traced_misses)
