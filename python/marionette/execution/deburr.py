@@ -22,7 +22,7 @@ step 1 is optional there):
 * **Steps 4-7: execute.** One controller: an SE3 task on the tool (rotation about its axis
   masked, as the holes' handles mask it), the posture below it following the planned
   configurations (:meth:`ToolTask.follow`: the frame reference on the path's forward
-  kinematics). At each pre-grasp the tool's tags (ids 30-31 on the drill, 3 cm) and the part's
+  kinematics). At each pre-grasp the tool's tags (ids 30-37 on the drill, 3 cm, two rings of four) and the part's
   are seen in the same frames: the tool's pose *relative to the part* (the camera's own pose
   cancels out), pooled over the hole's frames (:class:`ToolEstimate`), is servoed onto the hole's
   pre-grasp (:meth:`ToolTask.servo`), then the tool approaches the hole along its axis to
@@ -284,8 +284,8 @@ def plan_deburring(X_WP: pin.SE3, q_robot: dict[str, float], settings: DeburrSet
     data = model.createData()
     camera = model.getFrameId(f"tiago/{robots.robot('tiago').camera_frame}")
     link = model.getFrameId(f"tiago/{TOOL_LINK}")
-    # (tag centre, outward normal) in the tool link: the tags sit on its +-x sides
-    tags = [(np.array(t.pose.xyz), np.array([np.sign(t.pose.xyz[0]), 0.0, 0.0]))
+    # (tag centre, outward normal = the tag frame's z) in the tool link
+    tags = [(t.pose.se3().translation, t.pose.se3().rotation[:, 2])
             for t in robots.semantics("tiago").tags if t.link == TOOL_LINK]
 
     def tag_view_angle(q: np.ndarray) -> float:

@@ -393,9 +393,10 @@ class Bar(ObjectSpec):
 class Drill(ObjectSpec):
     """The drill with a deburring bit (Nicolin 2022, §5.3.3): housing and bit along z, origin at
     the back of the housing. The bit tip is a gripper, ``drill/tip`` (HPP models a tool as an
-    object carrying a gripper, fig. 5.9); ``drill/grip`` is the handle a hand takes. Tags 30, 31
-    on plates on both sides. With ``grip`` False the same tool is a spindle mounted on a wrist
-    (robot_models uses it for TIAGo and UR10)."""
+    object carrying a gripper, fig. 5.9); ``drill/grip`` is the handle a hand takes. Tags from 30
+    on plates around the housing: ``tag_faces`` faces (2: its +-x sides, 4: +-x and +-y) at each
+    height of ``tag_heights`` (fractions of the housing length). With ``grip`` False the same tool
+    is a spindle mounted on a wrist (robot_models uses it for TIAGo and UR10)."""
 
     name: str = "drill"
     sim: SimKind = "free"
@@ -409,6 +410,17 @@ class Drill(ObjectSpec):
     grip: bool = True
     mass_kg: float = 1.2
     tag_size: float = 0.03
+    tag_faces: int = 2
+    tag_heights: tuple[float, ...] = (0.5,)
+
+    def __post_init__(self) -> None:
+        if self.tag_faces not in (2, 4):
+            raise ValueError(f"drill: tag_faces is 2 (+-x) or 4 (+-x, +-y), got {self.tag_faces}")
+        plate = self.tag_size * 1.25 + 0.01
+        z = sorted(h * self.housing_length for h in self.tag_heights)
+        if any(b - a < plate for a, b in zip(z, z[1:])) or z[0] < plate / 2 or z[-1] > self.housing_length - plate / 2:
+            raise ValueError(f"drill: tag heights {self.tag_heights} put {plate * 100:.2f} cm plates over "
+                             f"each other or past the {self.housing_length * 100:.0f} cm housing")
 
     def tip_z(self) -> float:
         return self.housing_length + self.chuck_length + self.bit_length
@@ -425,10 +437,12 @@ class Drill(ObjectSpec):
                   collision=with_bit_collision, name="bit"),
         ]
         plate = self.tag_size * 1.25 + 0.01
-        for sx in (-1, 1):
-            shapes.append(Shape("box", (0.004, plate, plate),
-                                homogeneous(p=[sx * (self.housing_radius + 0.002), 0, L / 2]),
-                                rgba=(0.95, 0.95, 0.95, 1), name=f"tag_plate_{'p' if sx > 0 else 'm'}"))
+        for i, (n, z) in enumerate(self._tag_faces()):
+            axis = int(np.argmax(np.abs(n)))
+            size = [plate, plate, plate]
+            size[axis] = 0.004
+            shapes.append(Shape("box", tuple(size), homogeneous(p=n * (self.housing_radius + 0.002) + [0, 0, z]),
+                                rgba=(0.95, 0.95, 0.95, 1), name=f"tag_plate_{i}"))
         if self.grip:
             shapes.append(Shape("box", (0.03, 0.045, 0.12), self._grip_placement(),
                                 rgba=(0.1, 0.1, 0.1, 1), name="grip"))
@@ -446,12 +460,17 @@ class Drill(ObjectSpec):
         X = X_link_drill @ frame(ez, ey, [0, 0, self.tip_z()])
         return Gripper(name, link, Placement.from_matrix(X), clearance=0.05)
 
+    def _tag_faces(self) -> list[tuple[np.ndarray, float]]:
+        """(outward normal, height) of each tag plate, in tag id order."""
+        ex, ey, _ = np.eye(3)
+        normals = [ex, -ex] if self.tag_faces == 2 else [ex, ey, -ex, -ey]
+        return [(n, h * self.housing_length) for h in self.tag_heights for n in normals]
+
     def tags(self, link: str, X_link_drill: np.ndarray) -> list[Tag]:
-        ex, _, ez = np.eye(3)
+        ez = np.eye(3)[2]
         out = []
-        for i, sx in enumerate((1, -1)):
-            X_face = tag_frame([sx * (self.housing_radius + 0.004), 0, self.housing_length / 2],
-                               sx * ex, ez).matrix()
+        for i, (n, z) in enumerate(self._tag_faces()):
+            X_face = tag_frame(n * (self.housing_radius + 0.004) + [0, 0, z], n, ez).matrix()
             out.append(Tag(30 + i, TAG_FAMILY, self.tag_size, link,
                            Placement.from_matrix(X_link_drill @ X_face)))
         return out

@@ -108,10 +108,41 @@ def test_tags_lie_on_a_face_and_face_out(name):
         assert _signed_distance(obj.collision_model, placements, X.translation - 0.002 * z) < 0
 
 
+def test_tiago_drill_tags_lie_on_the_tool_and_one_faces_every_side():
+    """TIAGo's drill is servoed on its own tags (deburr): each lies on the tool's surface and
+    faces out, and wherever the camera stands around the tool axis, tags of both rings face it
+    within 45 deg (a ring of four, 8 cm apart along the housing)."""
+    model, collision = robots.load_pinocchio("tiago", with_collision=True)
+    data, gdata = model.createData(), pin.GeometryData(collision)
+    pin.updateGeometryPlacements(model, data, collision, gdata, pin.neutral(model))
+    drill = [i for i, g in enumerate(collision.geometryObjects) if model.frames[g.parentFrame].name == "drill_link"]
+    assert drill, "no collision geometry on drill_link"
+    tool = pin.GeometryModel()
+    for i in drill:
+        tool.addGeometryObject(collision.geometryObjects[i])
+    placements = [gdata.oMg[i] for i in drill]
+    X_WL = _link_placement(model, "drill_link")
+    tags = [t for t in robots.semantics("tiago").tags if t.link == "drill_link"]
+    assert len(tags) == 8
+    for t in tags:
+        X = X_WL * t.pose.se3()
+        z = X.rotation[:, 2]
+        assert 0.0 <= _signed_distance(tool, placements, X.translation) < 2e-4, f"tag {t.id}"
+        assert _signed_distance(tool, placements, X.translation + 0.01 * z) > 0.009, f"tag {t.id}"
+        assert _signed_distance(tool, placements, X.translation - 0.002 * z) < 0, f"tag {t.id}"
+    normals = np.array([t.pose.se3().rotation[:, 2] for t in tags])    # in the tool frame
+    heights = np.array([t.pose.xyz[2] for t in tags])
+    assert np.allclose(normals[:, 2], 0.0) and np.ptp(heights) >= 0.08
+    for azimuth in np.radians(np.arange(0.0, 360.0, 5.0)):
+        view = np.array([np.cos(azimuth), np.sin(azimuth), 0.0])
+        facing = np.degrees(np.arccos(np.clip(normals @ view, -1, 1))) <= 45.0 + 1e-9
+        assert {h for h, f in zip(heights, facing) if f} == set(heights), np.degrees(azimuth)
+
+
 def test_tag_ids_are_unique_across_all_models():
     ids = [t.id for o in OBJECTS for t in robots.load_object(o).semantics.tags]
     ids += [t.id for n in robots.robot_names() for t in robots.semantics(n).tags
-            if n != "tiago"]  # TIAGo's mounted drill reuses the drill's tags 30, 31
+            if n != "tiago"]  # TIAGo's mounted drill reuses the drill's tag ids from 30
     assert len(ids) == len(set(ids)), sorted(ids)
 
 
