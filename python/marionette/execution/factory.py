@@ -169,6 +169,20 @@ def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
 # are servoed on the object pose the camera measures (thesis 000 §5.3.1: PBVS between
 # pre-placement and placement; the reference is corrected by execution.visual_servo).
 VISUAL_WAYPOINTS: dict[str, str] = {"preplace": "pbvs", "intersec": "pbvs"}
+# ... and of a gripper approaching a handle of an object nobody holds: the approach to the
+# pre-grasp and the grasp (§5.3.1: "the grabbing of the plank").
+VISUAL_APPROACH_WAYPOINTS: dict[str, str] = {"pregrasp": "pbvs", "intersec": "pbvs"}
+
+
+def approached_handle(step: Step, gripper: str) -> str | None:
+    """The handle ``gripper`` moves to in ``step`` when the step approaches a grasp (leads to its
+    pre-grasp or to the grasp itself, the gripper holding nothing yet), None otherwise."""
+    if gripper in step.grasps or gripper in step.grasps_from:
+        return None
+    to = step.to_state.rsplit("_", 1)[-1]
+    if to not in VISUAL_APPROACH_WAYPOINTS:
+        return None
+    return step.grasps_to.get(gripper) or step.parent_grasps_to.get(gripper)
 
 
 def visual_task_kind(step: Step) -> str | None:
@@ -179,6 +193,11 @@ def visual_task_kind(step: Step) -> str | None:
     if to == "preplace" and frm == "intersec":
         return None
     return VISUAL_WAYPOINTS.get(to)
+
+
+def step_holders(step: Step, ctx: FactoryContext) -> dict[str, str]:
+    """Object -> a gripper that holds it all along ``step``."""
+    return {ctx.handle_objects.get(h, h): g for g, h in step.grasps.items()}
 
 
 def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
@@ -197,6 +216,10 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
             tasks.append(TaskSpec(name, visual_task_kind(step), priority,
                                   frame=frame, gain=GAINS["grasp"], streamed=True))
             holder_of[obj] = gripper
+        elif (ctx.visual_servoing and obj not in holder_of and obj not in step_holders(step, ctx)
+              and approached_handle(step, gripper) is not None):
+            kind = VISUAL_APPROACH_WAYPOINTS[step.to_state.rsplit("_", 1)[-1]]
+            tasks.append(TaskSpec(name, kind, priority, frame=frame, gain=GAINS["grasp"], streamed=True))
         elif obj in holder_of:
             other = ctx.gripper_frames[holder_of[obj]]
             tasks.append(TaskSpec(name, "relative_se3", priority, frame=frame, frame_b=other,

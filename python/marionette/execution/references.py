@@ -107,6 +107,23 @@ def sample_step(step: Step, robot_map: PlanRobotMap, dt: float = 1e-3,
     return StepTrajectory(dt, T, t, q, q_plan)
 
 
+def dwell(traj: StepTrajectory, seconds: float) -> None:
+    """Holds the step's last sample ``seconds`` longer (references at rest): the robot waits at
+    the waypoint, e.g. while vision corrects the pre-grasp before the grasp (§5.3.1: "when the
+    robot reaches the waypoint, the visual servoing task is activated ... then the reference
+    trajectory computed by the motion planner is resumed")."""
+    n = int(round(seconds / traj.dt))
+    if n <= 0:
+        return
+    traj.t = np.concatenate([traj.t, traj.t[-1] + traj.dt * np.arange(1, n + 1)])
+    traj.duration = float(traj.t[-1])
+    traj.q = np.vstack([traj.q, np.repeat(traj.q[-1:], n, axis=0)])
+    traj.q_plan = np.vstack([traj.q_plan, np.repeat(traj.q_plan[-1:], n, axis=0)])
+    for name, (values, derivatives) in traj.references.items():
+        traj.references[name] = (np.vstack([values, np.repeat(values[-1:], n, axis=0)]),
+                                 np.vstack([derivatives, np.zeros((n, derivatives.shape[1]))]))
+
+
 def _central(values: np.ndarray, dt: float) -> np.ndarray:
     d = np.zeros_like(values)
     if len(values) > 2:

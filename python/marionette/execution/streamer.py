@@ -103,11 +103,9 @@ class ReferenceStreamer:
         c = self.corrections.get(task)
         if c is None:
             return values[k0:k1], derivatives[k0:k1]
-        from marionette.execution.visual_servo import right_multiply
-
         if not c.blend_out:
-            return right_multiply(values[k0:k1], derivatives[k0:k1], c.C)
-        rows = [right_multiply(values[k:k + 1], derivatives[k:k + 1], c.at_sample(k, self.dt_us))
+            return c.apply(values[k0:k1], derivatives[k0:k1], c.C)
+        rows = [c.apply(values[k:k + 1], derivatives[k:k + 1], c.at_sample(k, self.dt_us))
                 for k in range(k0, k1)]
         return np.vstack([r[0] for r in rows]), np.vstack([r[1] for r in rows])
 

@@ -21,9 +21,23 @@ most ``max_speed`` / ``max_angular_speed`` (the reference never jumps). Only mea
 the controller's own reference enter C*: the camera's pose error through the head cancels to
 first order the way eq. 5.3 cancels it (both O_m and, through the camera, the hand).
 
+PBVS on the approach to a grasp (§5.3.1, "the grabbing of the plank"): a gripper moving to the
+pre-grasp and then the handle of an object nobody holds. Its planned reference P(t) ends at P_e
+(the planned pre-grasp or grasp), planned relative to the object O_p. A measurement O_m moves the
+goal with the object: the gripper should end at O_m O_p^-1 P_e, i.e. the correction, expressed in
+the end frame, is
+
+    C* = P_e^-1 O_m O_p(t_i)^-1 P_e                                          (approach)
+
+and the whole approach is streamed as R(t) = L P(t), L = P_e C P_e^-1: moved rigidly with the
+object in the world (left), so that the last centimetres still run along the measured handle's
+axis (a right correction would turn them by C's rotation). C integrates as above.
+
 §5.2.3, after the servoed steps: the last correction is kept ("the planned reference shifted
 using the last information available") while the gripper releases the object, then blended out
-with a C2 ramp over the next step of that gripper, so no controller switch sees a jump.
+with a C2 ramp over the next step of that gripper, so no controller switch sees a jump. After a
+servoed grasp the correction is kept likewise through the step that lifts the object off its
+placement (the gripper still holds it there) and blended out in the next.
 
 Gaze: the posture references of every step turn the head (its two joints, nothing else) so
 that the camera's optical axis points at the planned position of the object, ramped in over the
@@ -42,6 +56,7 @@ import pinocchio as pin
 
 from marionette import channels, lcmt_object_poses
 from marionette.control.spec import ControllerSpec
+from marionette.execution.factory import approached_handle
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import StepTrajectory
 from marionette.perception.pbvs import activation, interpolate
@@ -78,6 +93,12 @@ def correction_fixed_point(X_GO_plan: pin.SE3, X_WO_measured: pin.SE3, X_WR: pin
     return X_GO_plan * X_WO_measured.inverse() * X_WR
 
 
+def approach_fixed_point(X_WE_plan: pin.SE3, X_WO_measured: pin.SE3, X_WO_plan: pin.SE3) -> pin.SE3:
+    """C* = P_e^-1 O_m O_p^-1 P_e: the correction, in the planned end frame P_e of an approach,
+    that moves its goal with the object from where the plan put it (O_p) to where it is seen."""
+    return X_WE_plan.inverse() * X_WO_measured * X_WO_plan.inverse() * X_WE_plan
+
+
 def step_toward(C: pin.SE3, C_target: pin.SE3, alpha: float, max_dp: float, max_dtheta: float) -> pin.SE3:
     """C exp(s log(C^-1 C*)) with s = alpha, shortened so that the translation moves at most
     ``max_dp`` and the rotation at most ``max_dtheta``."""
@@ -106,6 +127,22 @@ def right_multiply(values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> t
     return out_v, out_d
 
 
+def left_multiply(values: np.ndarray, derivatives: np.ndarray, L: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+    """Pose rows X -> L X (L in the world frame) and their world twists: the origin moves at
+    R_L v, the rotation at R_L ω."""
+    out_v = values.copy()
+    out_d = derivatives.copy()
+    R_L = L.rotation
+    for k, row in enumerate(values):
+        X = L * pin.SE3(pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3])
+        q = pin.Quaternion(X.rotation)
+        out_v[k] = [*X.translation, q.w, q.x, q.y, q.z]
+        if derivatives.shape[1] == 6:
+            out_d[k, :3] = R_L @ derivatives[k, :3]
+            out_d[k, 3:] = R_L @ derivatives[k, 3:]
+    return out_v, out_d
+
+
 @dataclass
 class TaskCorrection:
     """The correction of one streamed gripper task during one step (used by the streamer)."""
@@ -120,12 +157,19 @@ class TaskCorrection:
     history: list[tuple[int, pin.SE3]] = field(default_factory=list)   # (from utime, C)
     version: int = 0
     frame: str = ""
+    anchor: pin.SE3 | None = None       # set: applied as L = anchor C anchor^-1 on the left
 
     def at_sample(self, k: int, dt_us: int) -> pin.SE3:
         if not self.blend_out:
             return self.C
         a = activation(k * dt_us / max(self.duration_us, 1))
         return interpolate(self.C_start, pin.SE3.Identity(), a)
+
+    def apply(self, values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+        """Pose rows and twists corrected by ``C`` (a value of this correction)."""
+        if self.anchor is None:
+            return right_multiply(values, derivatives, C)
+        return left_multiply(values, derivatives, self.anchor * C * self.anchor.inverse())
 
     def active_at(self, utime: int) -> pin.SE3:
         C = self.C_start
@@ -153,8 +197,10 @@ class VisualServo:
         self._rng = np.random.default_rng(self.options.seed)
         self._lock = threading.Lock()
         self._pending: list[tuple[int, str, pin.SE3, float]] = []
-        self._carried: dict[str, pin.SE3] = {}      # gripper frame -> last correction
-        self._current: list[tuple[TaskCorrection, Step, str, pin.SE3]] = []
+        # gripper frame -> (last correction, its anchor: None for a held object's right correction)
+        self._carried: dict[str, tuple[pin.SE3, pin.SE3 | None]] = {}
+        # (correction, step, object, planned gripper -> object at the step's end, approach)
+        self._current: list[tuple[TaskCorrection, Step, str, pin.SE3, bool]] = []
         self.measurements_used = 0
         self.measurements_rejected = 0
         self.trace: list[dict[str, Any]] = []        # per used measurement, for the report
@@ -171,7 +217,7 @@ class VisualServo:
         posture: the planned configuration no longer agrees with the corrected gripper pose, and
         the posture (the lowest level, a regularisation) cannot converge onto it."""
         corrected = any(t.kind == "pbvs" or (t.frame in self._carried and not
-                                              self._carried[t.frame].isIdentity()) for t in spec.tasks)
+                                              self._carried[t.frame][0].isIdentity()) for t in spec.tasks)
         if not corrected:
             return thresholds
         return {n: v for n, v in thresholds.items()
@@ -198,35 +244,56 @@ class VisualServo:
         for task in spec.tasks:
             if task.kind not in ("se3", "pbvs") or not task.streamed or task.frame in ("left_sole_link", "right_sole_link"):
                 continue
-            C0 = self._carried.get(task.frame)
-            if task.kind != "pbvs" and C0 is None:
+            carried = self._carried.get(task.frame)
+            if task.kind != "pbvs" and carried is None:
                 continue
             holds = {g.split("/")[-1]: h for g, h in step.grasps.items()}
             gripper = next((g for g in step.active_grippers if task.name == g.split("/")[-1]), None)
+            approach = None if gripper is None or task.name in holds else approached_handle(step, gripper)
+            C0, carried_anchor = carried if carried is not None else (pin.SE3.Identity(), None)
+            if task.kind != "pbvs":
+                anchor = carried_anchor                        # kept or blended out as it was
+            elif approach is not None:
+                anchor = self._planned_end(traj, task.frame)   # L = P_e C P_e^-1 (module doc)
+                if carried_anchor is not None:
+                    # the approach goes on (pre-grasp -> grasp): the same L, re-anchored
+                    C0 = anchor.inverse() * carried_anchor * C0 * carried_anchor.inverse() * anchor
+            else:
+                anchor = None                                  # a held object: right correction
+                if carried_anchor is not None:
+                    # a grasp's left correction L still on: the same reference at the start, P0 C = L P0
+                    P0 = self._planned_pose(traj, task.frame, 0)
+                    C0 = P0.inverse() * carried_anchor * C0 * carried_anchor.inverse() * P0
             releasing = any(g.split("/")[-1] == task.name for g in step.released)
-            C0 = C0 or pin.SE3.Identity()
-            blend = task.kind != "pbvs" and not releasing
+            at_contact = step.from_state.endswith("_intersec")   # releasing, or lifting what it just took
+            blend = task.kind != "pbvs" and not releasing and not at_contact
             c = TaskCorrection(task.name, task.kind == "pbvs", C0, blend, int(traj.duration * 1e6),
-                               start_utime, C0, [(start_utime, C0)], frame=task.frame)
+                               start_utime, C0, [(start_utime, C0)], frame=task.frame, anchor=anchor)
             corrections.append(c)
-            if task.kind == "pbvs" and gripper is not None and task.name in holds:
-                obj = holds[task.name].split("/")[0]
+            if task.kind == "pbvs" and gripper is not None and (task.name in holds or approach is not None):
+                obj = (holds[task.name] if task.name in holds else approach).split("/")[0]
                 X_GO = self._planned_grasp(traj, task.frame, obj)
-                self._current.append((c, step, obj, X_GO))
-            self._carried[task.frame] = pin.SE3.Identity() if blend else C0
+                self._current.append((c, step, obj, X_GO, approach is not None))
+            self._carried[task.frame] = (pin.SE3.Identity(), None) if blend else (C0, anchor)
         return corrections
 
     def end_step(self, corrections: list[TaskCorrection]) -> None:
         for c in corrections:
             if c.servoed:
-                self._carried[c.frame] = c.C
+                self._carried[c.frame] = (c.C, c.anchor)
 
-    def _planned_grasp(self, traj: StepTrajectory, frame: str, obj: str) -> pin.SE3:
+    def _planned_end(self, traj: StepTrajectory, frame: str) -> pin.SE3:
+        """P_e: the planned pose of ``frame`` at the step's end (world)."""
+        return self._planned_pose(traj, frame, -1)
+
+    def _planned_pose(self, traj: StepTrajectory, frame: str, k: int) -> pin.SE3:
         model = self.robot_map.model
         data = model.createData()
-        pin.framesForwardKinematics(model, data, traj.q[-1])
-        X_WG = data.oMf[model.getFrameId(frame)]
-        return X_WG.actInv(self.robot_map.object_pose(traj.q_plan[-1], obj))
+        pin.framesForwardKinematics(model, data, traj.q[k])
+        return pin.SE3(data.oMf[model.getFrameId(frame)])
+
+    def _planned_grasp(self, traj: StepTrajectory, frame: str, obj: str) -> pin.SE3:
+        return self._planned_end(traj, frame).actInv(self.robot_map.object_pose(traj.q_plan[-1], obj))
 
     def update(self, planned: dict[str, tuple[np.ndarray, np.ndarray]], dt_us: int, now_utime: int) -> bool:
         """Folds the measurements received since the last call into the servoed corrections;
@@ -235,8 +302,9 @@ class VisualServo:
             pending, self._pending = self._pending, []
         changed = False
         o = self.options
-        for c, step, obj, X_GO in self._current:
+        for c, step, obj, X_GO, approach in self._current:
             values = planned[c.task][0]
+            traj = self.trajectories[step.index] if approach else None
             for utime, name, X_WO, reproj in pending:
                 if name != obj:
                     continue
@@ -249,8 +317,11 @@ class VisualServo:
                 k = int(np.clip((utime - c.start_utime) // dt_us, 0, len(values) - 1))
                 row = values[k]
                 P = pin.SE3(pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3])
-                X_WR = P * c.active_at(utime)
-                C_star = correction_fixed_point(X_GO, X_WO, X_WR)
+                if approach:
+                    X_WO_plan = self.robot_map.object_pose(traj.q_plan[min(k, len(traj.q_plan) - 1)], obj)
+                    C_star = approach_fixed_point(c.anchor, X_WO, X_WO_plan)
+                else:
+                    C_star = correction_fixed_point(X_GO, X_WO, P * c.active_at(utime))
                 if np.linalg.norm(C_star.translation) > o.max_correction:
                     self.measurements_rejected += 1
                     continue
@@ -261,10 +332,12 @@ class VisualServo:
                 c.version += 1
                 changed = True
                 self.measurements_used += 1
-                err = (X_GO.inverse() * P.inverse() * X_WO)   # measured object vs its plan
-                self.trace.append({"utime": utime, "step": step.index,
-                                   "object_error_m": float(np.linalg.norm(
-                                       X_WO.translation - (P * X_GO).translation)),
+                # measured object vs its plan: where the planned gripper would hold it, or where
+                # the plan put it (an approach)
+                X_plan = X_WO_plan if approach else P * X_GO
+                err = X_plan.inverse() * X_WO
+                self.trace.append({"utime": utime, "step": step.index, "approach": approach,
+                                   "object_error_m": float(np.linalg.norm(X_WO.translation - X_plan.translation)),
                                    "object_error_deg": math.degrees(float(np.linalg.norm(pin.log3(err.rotation)))),
                                    "correction_m": float(np.linalg.norm(c.C.translation)),
                                    "correction_deg": math.degrees(float(np.linalg.norm(pin.log3(c.C.rotation))))})

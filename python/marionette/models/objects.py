@@ -111,7 +111,7 @@ class Plank(ObjectSpec):
 
     Dimensions, handle and tag layout of Agimus' ``plank_of_wood1`` (LAAS gerard_bauzil
     package): a 203 x 116 x 43 mm board standing on one end face; tags 10, 11 on the +z face and
-    12, 13 on the -z face. Handles pinch the 43 mm thickness (fingers on the tag faces),
+    12, 13 on the -z face; 14, 15 on the +x end face and 16, 17 on the -x one (added here). Handles pinch the 43 mm thickness (fingers on the tag faces),
     approaching across the width (y): H1, H2 on the top half (x > 0), from -y and from +y
     (rotated 180 deg about the plank axis); H3, H4 the same on the bottom half, so a gripper
     can still take the plank once it stands upside down.
@@ -125,6 +125,8 @@ class Plank(ObjectSpec):
     handle_offset: float = 0.06  # [m] handles at x = +/- this
     tag_size: float = 0.06
     tag_x: float = 0.0626  # [m] tag centres at x = +/- this
+    end_tag_size: float = 0.032  # [m] on the 43 mm end faces (printed 40 mm)
+    end_tag_y: float = 0.029     # [m] their centres at y = +/- this
 
     def shapes(self) -> list[Shape]:
         return [Shape("box", self.size, rgba=WOOD)]
@@ -146,6 +148,12 @@ class Plank(ObjectSpec):
             Tag(12, TAG_FAMILY, self.tag_size, LINK, tag_frame([self.tag_x, 0, -c], -ez, ex)),
             Tag(13, TAG_FAMILY, self.tag_size, LINK, tag_frame([-self.tag_x, 0, -c], -ez, ex)),
         ]
+        # Two more on each end face, which faces up while the plank stands on the table: the
+        # head, looking down at it, sees the large faces' tags at a grazing angle.
+        for i, sx in enumerate((1, -1)):
+            for j, sy in enumerate((1, -1)):
+                tags.append(Tag(14 + 2 * i + j, TAG_FAMILY, self.end_tag_size, LINK,
+                                tag_frame([sx * a, sy * self.end_tag_y, 0], sx * ex, ez)))
         contacts = [
             box_face("plank/front_surface", [0, 0, 0], self.size, 0, +1),
             box_face("plank/rear_surface", [0, 0, 0], self.size, 0, -1),

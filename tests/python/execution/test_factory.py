@@ -126,6 +126,27 @@ def test_time_law_keeps_joints_under_the_limit_and_rests_at_both_ends(ur10_box):
         assert np.linalg.norm(p.robot_map.robot_q(a.q[-1]) - p.robot_map.robot_q(b.q[0])) < 1e-3
 
 
+def test_a_dwell_holds_the_last_sample_at_rest(ur10_box):
+    """A servoed pre-grasp waits (references.dwell): every reference keeps its last value for the
+    dwell, with zero derivatives, and the step's duration and time axis grow by it."""
+    from marionette.execution.references import dwell
+
+    p = ur10_box
+    step, spec = p.steps[1], p.specs[1]
+    traj = sample_step(step, p.robot_map, max_joint_velocity=1.0)
+    compute_references(traj, spec, p.model)
+    before = {n: (v.copy(), d.copy()) for n, (v, d) in traj.references.items()}
+    n0, T0 = traj.num_samples, traj.duration
+    dwell(traj, 0.25)
+    assert traj.num_samples == n0 + 250 and traj.duration == pytest.approx(T0 + 0.25)
+    np.testing.assert_allclose(np.diff(traj.t), traj.dt)
+    assert len(traj.q) == len(traj.q_plan) == traj.num_samples
+    for name, (values, derivatives) in traj.references.items():
+        np.testing.assert_array_equal(values[:n0], before[name][0])
+        np.testing.assert_array_equal(values[n0:], np.repeat(before[name][0][-1:], 250, axis=0))
+        np.testing.assert_array_equal(derivatives[n0:], 0.0)
+
+
 def test_se3_feedforward_is_the_derivative_of_the_pose(ur10_box):
     """(v, ω) in world axes against a finite difference of the streamed poses."""
     p = ur10_box

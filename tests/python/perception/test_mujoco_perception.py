@@ -160,7 +160,10 @@ def test_talos_head_camera_in_the_plank_scene(rig):
                                  for n in ("plank", "table")])
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes(bodies)))
     detections = detector.detect(gray, K, depth=depth)
-    assert sorted(d.tag_id for d in detections) == [4, 5, 10, 11]
+    # 14, 15: the plank's end face on top. Since they were added, tag 11, on the front face next
+    # to that edge, is no longer found from here nor along the demo's approach (14, 15 are, along
+    # the approach: test_visual_servo.py).
+    assert sorted(d.tag_id for d in detections) == [4, 5, 10, 14, 15]
     for d in detections:
         dp, dr = errors(truth(scene, X_WC, f"tag/{d.tag_id}"), d.X_CT)
         assert dp < 5e-3 and dr < 1.0, (d.tag_id, dp, dr)

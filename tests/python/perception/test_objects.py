@@ -56,7 +56,7 @@ X_CB = pin.SE3(pin.rpy.rpyToMatrix(np.radians(180 - 40), 0.0, np.radians(20)),
 
 def test_yaml_tags_give_corners_in_the_body_frame(plank):
     assert plank.name == "plank" and plank.link == "base_link"
-    assert sorted(t.tag_id for t in plank.tags) == [10, 11, 12, 13]
+    assert sorted(t.tag_id for t in plank.tags) == [10, 11, 12, 13, 14, 15, 16, 17]
     corners = plank.corners_B(11)
     # Tag 11 sits on the +z face at x = +0.0626: its corners are 6 cm apart, 0.1 mm proud.
     assert np.allclose(corners[:, 2], 0.0216)
