@@ -22,7 +22,7 @@ step 1 is optional there):
 * **Steps 4-7: execute.** One controller: an SE3 task on the tool (rotation about its axis
   masked, as the holes' handles mask it), the posture below it following the planned
   configurations (:meth:`ToolTask.follow`: the frame reference on the path's forward
-  kinematics). At each pre-grasp the tool's tags (ids 30-37 on the drill, 3 cm, two rings of four) and the part's
+  kinematics). At each pre-grasp the tool's tags (ids 30-37 on the drill, 4 cm, two rings of four) and the part's
   are seen in the same frames: the tool's pose *relative to the part* (the camera's own pose
   cancels out), pooled over the hole's frames (:class:`ToolEstimate`), is servoed onto the hole's
   pre-grasp (:meth:`ToolTask.servo`), then the tool approaches the hole along its axis to
