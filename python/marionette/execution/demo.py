@@ -64,7 +64,7 @@ class Scenario:
     camera_rate: float = 5.0            # [Hz of controller time] head camera frames with vision
     servo_slowdown: float = 3.0         # servoed steps run this much slower: more frames to servo on
     quad_decimate: float = 2.0          # perceive's AprilTag decimation (1: small or oblique tags too)
-    pregrasp_dwell_s: float = 2.0       # a servoed approach waits this long at its pre-grasp
+    servo_dwell_s: float = 2.0          # a servoed step waits this long at its pre-grasp / pre-placement
     # gripper_admittance tasks on the grippers with a joint (issue 7: close on the handle, hold
     # 5 N, release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
     gripper_admittance: bool = False
@@ -99,10 +99,9 @@ SCENARIOS: dict[str, Scenario] = {
         runner=_grasp_walk),
 }
 # `marionette demo` without a scenario (`make demo`): the one that meets its criteria reliably.
-# plank-flip with vision in the loop met 1 cm / 5° in 2/3 unperturbed trials and 3/4 with the
-# plank slipping in the hand (the release drags it 6-9 mm), 1/4 under issue #10's perturbations
-# (the open-loop hand-over breaks with a displaced plank or the arm's encoder offsets), and it
-# needs ~2 min of rendering and perception: not the default yet (execution/README.md).
+# plank-flip with vision in the loop meets 1 cm / 5° in 6/10 trials under issue #10's
+# perturbations (the hand-over is not servoed: with the left shoulder's encoder offset at +7° it
+# fails), short of the issue's 95 %: not the default yet (execution/README.md).
 DEFAULT_SCENARIO = "ur10-box"
 
 
@@ -305,9 +304,10 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
                                        o.max_joint_velocity / scenario.servo_slowdown,
                                        o.min_step_duration * scenario.servo_slowdown)
                     compute_references(traj, spec, model)
-                    if step.to_state.endswith("_pregrasp"):
-                        # the correction converges at the pre-grasp before the grasp (3 cm/s)
-                        dwell(traj, scenario.pregrasp_dwell_s)
+                    if step.to_state.endswith(("_pregrasp", "_preplace")):
+                        # the correction (3 cm/s, 0.3 rad/s) converges at the waypoint, before
+                        # the gripper goes into contact
+                        dwell(traj, scenario.servo_dwell_s)
                     supervisor.trajectories[step.index] = traj
             add_gaze(supervisor.trajectories, steps[first:], robot_map, scenario.object_name,
                      robots.robot(robot).camera_frame)
