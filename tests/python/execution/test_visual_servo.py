@@ -162,6 +162,27 @@ def test_integrator_converges_through_camera_noise_within_its_speed_limit():
     assert servo.measurements_used == 30
 
 
+def test_a_grasp_correction_is_streamed_on_the_left_and_blends_out_to_the_plan():
+    """After a servoed grasp, the next step of that gripper streams L P(t) from the correction
+    where it was (no jump at the switch) and ends on the plan P (blend_out), L = P_e C P_e^-1."""
+    rng = np.random.default_rng(5)
+    n = 400
+    P = [pin.SE3(np.eye(3), np.array([0.5 + 0.001 * k, 0.0, 1.0])) for k in range(n)]
+    anchor, C = _random_pose(rng), _random_pose(rng, 0.04, 0.1)
+    c = TaskCorrection("right_gripper", False, C, True, (n - 1) * 1000, 0, C, [(0, C)],
+                       frame="f", anchor=anchor)
+    refs = {"right_gripper": (_rows(P), np.zeros((n, 6)))}
+    sent = []
+    s = ReferenceStreamer(sent.append, 3, refs, start_utime=0, chunk_samples=200, lookahead_s=1.0,
+                          corrections=[c])
+    for now in range(0, 1_000_000, 10_000):
+        s.pump(now)
+    rows = np.vstack([m.value for m in sent])
+    L = anchor * C * anchor.inverse()
+    assert np.allclose(_pose(rows[0]).homogeneous, (L * P[0]).homogeneous, atol=1e-9)
+    assert np.allclose(_pose(rows[-1]).homogeneous, P[-1].homogeneous, atol=1e-9)
+
+
 def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
     n = 1500
     P = [pin.SE3(np.eye(3), np.array([0.001 * k, 0.0, 1.0])) for k in range(n)]
