@@ -160,9 +160,9 @@ def test_talos_head_camera_in_the_plank_scene(rig):
                                  for n in ("plank", "table")])
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes(bodies)))
     detections = detector.detect(gray, K, depth=depth)
-    # 14, 15: the plank's end face on top. Since they were added, tag 11, on the front face next
-    # to that edge, is no longer found from here nor along the demo's approach (14, 15 are, along
-    # the approach: test_visual_servo.py).
+    # 14, 15: the plank's end face on top. Tag 11, on the shaded front face just under them, is
+    # no longer found, from here nor along the demo's approach (mjcf_tag_render_test.cc says
+    # why); 14, 15 measure the plank on the approach (test_visual_servo.py).
     assert sorted(d.tag_id for d in detections) == [4, 5, 10, 14, 15]
     for d in detections:
         dp, dr = errors(truth(scene, X_WC, f"tag/{d.tag_id}"), d.X_CT)
