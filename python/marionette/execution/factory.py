@@ -170,8 +170,10 @@ def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
 # pre-placement and placement; the reference is corrected by execution.visual_servo).
 VISUAL_WAYPOINTS: dict[str, str] = {"preplace": "pbvs", "intersec": "pbvs"}
 # ... and of a gripper approaching a handle of an object nobody holds: the approach to the
-# pre-grasp and the grasp (§5.3.1: "the grabbing of the plank").
-VISUAL_APPROACH_WAYPOINTS: dict[str, str] = {"pregrasp": "pbvs", "intersec": "pbvs"}
+# pre-grasp (§5.3.1: "the grabbing of the plank"). The last centimetres to the grasp follow the
+# plan shifted by the correction reached there ("then the reference trajectory computed by the
+# motion planner is resumed, shifted"): servoed, they chased the plank the fingers pushed.
+VISUAL_APPROACH_WAYPOINTS: dict[str, str] = {"pregrasp": "pbvs"}
 
 
 def approached_handle(step: Step, gripper: str) -> str | None:
@@ -179,8 +181,7 @@ def approached_handle(step: Step, gripper: str) -> str | None:
     pre-grasp or to the grasp itself, the gripper holding nothing yet), None otherwise."""
     if gripper in step.grasps or gripper in step.grasps_from:
         return None
-    to = step.to_state.rsplit("_", 1)[-1]
-    if to not in VISUAL_APPROACH_WAYPOINTS:
+    if step.to_state.rsplit("_", 1)[-1] not in ("pregrasp", "intersec"):
         return None
     return step.grasps_to.get(gripper) or step.parent_grasps_to.get(gripper)
 
@@ -217,7 +218,8 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
                                   frame=frame, gain=GAINS["grasp"], streamed=True))
             holder_of[obj] = gripper
         elif (ctx.visual_servoing and obj not in holder_of and obj not in step_holders(step, ctx)
-              and approached_handle(step, gripper) is not None):
+              and approached_handle(step, gripper) is not None
+              and step.to_state.rsplit("_", 1)[-1] in VISUAL_APPROACH_WAYPOINTS):
             kind = VISUAL_APPROACH_WAYPOINTS[step.to_state.rsplit("_", 1)[-1]]
             tasks.append(TaskSpec(name, kind, priority, frame=frame, gain=GAINS["grasp"], streamed=True))
         elif obj in holder_of:
