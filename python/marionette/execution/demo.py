@@ -99,9 +99,9 @@ SCENARIOS: dict[str, Scenario] = {
         runner=_grasp_walk),
 }
 # `marionette demo` without a scenario (`make demo`): the one that meets its criteria reliably.
-# plank-flip with vision in the loop meets 1 cm / 5° in 6/10 trials under issue #10's
-# perturbations (the hand-over is not servoed: with the left shoulder's encoder offset at +7° it
-# fails), short of the issue's 95 %: not the default yet (execution/README.md).
+# plank-flip with vision in the loop meets 1 cm / 5° in 7/10 trials under issue #10's
+# perturbations (the hand-over is not servoed: the left arm's encoder offsets break it), short of
+# the issue's 95 %: not the default yet (execution/README.md).
 DEFAULT_SCENARIO = "ur10-box"
 
 
