@@ -186,6 +186,14 @@ def approached_handle(step: Step, gripper: str) -> str | None:
     return step.grasps_to.get(gripper) or step.parent_grasps_to.get(gripper)
 
 
+def visual_approach_kind(step: Step, gripper: str) -> str | None:
+    """The task kind of ``gripper`` approaching a handle in ``step`` when vision corrects it
+    (:data:`VISUAL_APPROACH_WAYPOINTS`), None otherwise."""
+    if approached_handle(step, gripper) is None:
+        return None
+    return VISUAL_APPROACH_WAYPOINTS.get(step.to_state.rsplit("_", 1)[-1])
+
+
 def visual_task_kind(step: Step) -> str | None:
     """The task kind of a gripper holding its object in ``step`` when vision corrects it
     (:data:`VISUAL_WAYPOINTS`), None otherwise. Lifting the object off its placement
@@ -218,10 +226,9 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
                                   frame=frame, gain=GAINS["grasp"], streamed=True))
             holder_of[obj] = gripper
         elif (ctx.visual_servoing and obj not in holder_of and obj not in step_holders(step, ctx)
-              and approached_handle(step, gripper) is not None
-              and step.to_state.rsplit("_", 1)[-1] in VISUAL_APPROACH_WAYPOINTS):
-            kind = VISUAL_APPROACH_WAYPOINTS[step.to_state.rsplit("_", 1)[-1]]
-            tasks.append(TaskSpec(name, kind, priority, frame=frame, gain=GAINS["grasp"], streamed=True))
+              and visual_approach_kind(step, gripper) is not None):
+            tasks.append(TaskSpec(name, visual_approach_kind(step, gripper), priority, frame=frame,
+                                  gain=GAINS["grasp"], streamed=True))
         elif obj in holder_of:
             other = ctx.gripper_frames[holder_of[obj]]
             tasks.append(TaskSpec(name, "relative_se3", priority, frame=frame, frame_b=other,
