@@ -162,7 +162,12 @@ class DecisionMachine:
             if tag in st.last_switch_result and not st.last_switch_result.startswith("accepted"):
                 return [self._status_decision("switch_refused", "failed", st.last_switch_result, st, ins)]
             if tag in st.last_rejection:
-                return [self._status_decision("spec_rejected", "failed", st.last_rejection, st, ins)]
+                # A refused switch is also counted as a rejection ("CONTROLLER_SPEC: refused
+                # controller ... command jump"), which can reach a status before the switch result
+                # does (that one waits for the deciding tick): it is still a refused switch.
+                refused = "refused controller" in st.last_rejection
+                return [self._status_decision("switch_refused" if refused else "spec_rejected", "failed",
+                                              st.last_rejection, st, ins)]
             return []
         if s not in ("running", "waiting_end_check"):
             return []

@@ -78,6 +78,11 @@ def test_refused_switch_and_rejected_spec_fail_the_step():
     assert ds[-1].event == "switch_refused" and ds[-1].to_status == "failed"
     ds = run_step(DecisionMachine(), [(STATUS, status(10_000, active=3, rejection=f"bad frame (id {CID})"))])
     assert ds[-1].event == "spec_rejected"
+    # The controller counts a refused switch as a rejection too, and a status can carry that
+    # before the switch result (seen in a fresh-clone CI run): still a refused switch.
+    refusal = f"CONTROLLER_SPEC: refused controller 'step0' (id {CID}): command jump 3.2 rad/s > 0.1"
+    ds = run_step(DecisionMachine(), [(STATUS, status(10_000, active=3, rejection=refusal))])
+    assert ds[-1].event == "switch_refused" and ds[-1].to_status == "failed"
 
 
 def test_force_event_applies_at_the_last_status_tick_and_watchdog_fails():
