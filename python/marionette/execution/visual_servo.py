@@ -25,7 +25,7 @@ PBVS on the approach to a grasp (§5.3.1, "the grabbing of the plank"): a grippe
 pre-grasp of a handle of an object nobody holds; from there to the grasp the plan is resumed,
 shifted by the correction reached (servoed, the last centimetres chased the plank the fingers
 pushed: unperturbed trials grasped it 1 cm / 5° off). Its planned reference P(t) ends at P_e
-(the planned pre-grasp or grasp), planned relative to the object O_p. A measurement O_m moves the
+(the planned pre-grasp), planned relative to the object O_p. A measurement O_m moves the
 goal with the object: the gripper should end at O_m O_p^-1 P_e, i.e. the correction, expressed in
 the end frame, is
 
@@ -261,7 +261,7 @@ class VisualServo:
             elif approach is not None:
                 anchor = self._planned_end(traj, task.frame)   # L = P_e C P_e^-1 (module doc)
                 if carried_anchor is not None:
-                    # the approach goes on (pre-grasp -> grasp): the same L, re-anchored
+                    # an anchored correction still on: the same L, re-anchored at this end
                     C0 = anchor.inverse() * carried_anchor * C0 * carried_anchor.inverse() * anchor
             else:
                 anchor = None                                  # a held object: right correction

@@ -111,7 +111,8 @@ class Plank(ObjectSpec):
 
     Dimensions, handle and tag layout of Agimus' ``plank_of_wood1`` (LAAS gerard_bauzil
     package): a 203 x 116 x 43 mm board standing on one end face; tags 10, 11 on the +z face and
-    12, 13 on the -z face; 14, 15 on the +x end face and 16, 17 on the -x one (added here). Handles pinch the 43 mm thickness (fingers on the tag faces),
+    12, 13 on the -z face; 14, 15 on the +x end face and 16, 17 on the -x one (added here).
+    Handles pinch the 43 mm thickness (fingers on the tag faces),
     approaching across the width (y): H1, H2 on the top half (x > 0), from -y and from +y
     (rotated 180 deg about the plank axis); H3, H4 the same on the bottom half, so a gripper
     can still take the plank once it stands upside down.
