@@ -417,7 +417,9 @@ int Controller::Run() {
   Impl& c = *impl_;
   // Subscribed before anything is published: whoever sees our first status can talk to us.
   c.lcm.subscribe(channels::kControllerSpec, &Impl::OnSpec, &c);
-  c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c);
+  // LCM queues 30 messages per subscription by default and drops the rest silently: a streamer's
+  // 4 s look-ahead of 20 chunks per task overflowed it when the LCM thread was starved of CPU.
+  c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)->setQueueCapacity(kReferenceQueueMessages);
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
   c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);

@@ -61,6 +61,8 @@ namespace marionette::controller {
 using Clock = std::chrono::steady_clock;
 inline constexpr double kDt = 1e-3;      // the control period [s]
 inline constexpr int kMaxTasks = 64;     // task error norms reported per controller
+inline constexpr int kReferenceQueueMessages = 512;  // TASK_REFERENCE messages LCM may queue
+                                                    // (LCM's default, 30, drops a 4 s look-ahead burst)
 // --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (inputs,
 // introspection samples, state): above any normal process, below the loop.
 inline constexpr int kLoopPriority = 80;

@@ -240,6 +240,7 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
   chunk.dt_us = msg.dt_us;
   chunk.num_samples = msg.num_samples;
   chunk.last = msg.last_chunk;
+  chunk.sequence = msg.sequence;
   chunk.source_hash = Fnv1a(rbuf->data, rbuf->data_size);
   chunk.values.reserve(static_cast<size_t>(msg.num_samples) * s.value_size());
   chunk.derivatives.assign(static_cast<size_t>(msg.num_samples) * s.derivative_size(), 0.0);

@@ -52,8 +52,15 @@ std::string ReferenceStream::ValidateChunk(const ReferenceChunk& c) const {
            std::to_string(max_chunk_samples_);
   }
   if (c.dt_us <= 0) return "non-positive dt_us " + std::to_string(c.dt_us);
-  if (dt_us_ != 0 && c.dt_us != dt_us_) {
-    return "dt_us " + std::to_string(c.dt_us) + " differs from the stream's " + std::to_string(dt_us_);
+  if (pushed_dt_us_ != 0 && c.dt_us != pushed_dt_us_) {
+    return "dt_us " + std::to_string(c.dt_us) + " differs from the stream's " + std::to_string(pushed_dt_us_);
+  }
+  if (c.sequence < 0) return "negative sequence " + std::to_string(c.sequence);
+  if (c.sequence > 0 && c.sequence != pushed_sequence_ + 1) {
+    return "chunk " + std::to_string(c.sequence) + " of a reference whose chunk " +
+           std::to_string(c.sequence - 1) + " never came (" +
+           (pushed_sequence_ < 0 ? std::string("none taken") : "last taken " + std::to_string(pushed_sequence_)) +
+           "); the stream holds its last sample";
   }
   if (c.values.size() != static_cast<size_t>(c.num_samples) * value_size_) {
     return "values have " + std::to_string(c.values.size()) + " entries, expected " +
@@ -90,9 +97,13 @@ void ReferenceStream::SetInitial(const Eigen::VectorXd& initial) {
 }
 
 bool ReferenceStream::Push(const ReferenceChunk& chunk) {
-  if (queue_.Push(chunk)) return true;
-  dropped_.fetch_add(1);
-  return false;
+  if (!queue_.Push(chunk)) {
+    dropped_.fetch_add(1);
+    return false;
+  }
+  pushed_dt_us_ = chunk.dt_us;
+  pushed_sequence_ = chunk.sequence;
+  return true;
 }
 
 void ReferenceStream::Poll(const graph::Tick&) {

@@ -228,9 +228,12 @@ def reference_chunk(
     derivatives: np.ndarray | None = None,
     dt_us: int = 1000,
     last: bool = False,
+    sequence: int = 0,
 ) -> lcmt_task_reference:
     """An ``lcmt_task_reference`` of ``values`` (N x k) sampled every ``dt_us`` from
-    ``start_utime`` (controller time), with optional feed-forward ``derivatives`` (N x m)."""
+    ``start_utime`` (controller time), with optional feed-forward ``derivatives`` (N x m).
+    ``sequence`` 0 starts a reference (or stands alone); n > 0 says the chunk follows chunk n - 1
+    of the same reference, so that the controller refuses it when that one was lost."""
     values = np.atleast_2d(np.asarray(values, dtype=float))
     msg = lcmt_task_reference()
     msg.utime = int(start_utime)
@@ -249,4 +252,5 @@ def reference_chunk(
         msg.derivative_size = derivatives.shape[1]
         msg.derivative = derivatives.tolist()
     msg.last_chunk = bool(last)
+    msg.sequence = int(sequence)
     return msg

@@ -6,7 +6,9 @@ Chunks of ``chunk_samples`` samples are sent while their start time is less than
 ``lookahead_s`` ahead of the controller's latest time; the controller keeps up to 5 s of samples
 per stream (ReferenceStream's capacity), so the look-ahead must stay well under that. The last
 chunk of each task carries ``last_chunk`` ("end of reference", §3.2.5.2): the stream then holds
-its final value and the watchdog ignores it.
+its final value and the watchdog ignores it. The chunks of each task are numbered (``sequence``):
+the controller refuses a chunk whose predecessor it never took, so a chunk lost on the way holds
+the robot instead of letting it jump ahead along its plan.
 
 Visual servoing (:mod:`.visual_servo`): with ``corrections`` the pose rows of those tasks are
 right-multiplied by their current correction when sent, and when a correction changes the
@@ -62,6 +64,13 @@ class ReferenceStreamer:
         self.servo = servo
         self._sent_versions: dict[str, int] = {}
         self._last_refresh_us = -(1 << 62)
+        self._sequence = dict.fromkeys(references, 0)   # the next chunk's number, per task
+
+    def _send(self, task: str, k0: int, values: np.ndarray, derivatives: np.ndarray, last: bool) -> None:
+        """Sends ``values`` as the task's next chunk, from sample ``k0``."""
+        self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
+                                  values, derivatives, self.dt_us, last, self._sequence[task]))
+        self._sequence[task] += 1
 
     @property
     def end_utime(self) -> int:
@@ -88,9 +97,7 @@ class ReferenceStreamer:
             k1 = min(k0 + self.chunk_samples, self.num_samples)
             last = k1 >= self.num_samples
             for task, (values, derivatives) in self.references.items():
-                v, d = self._corrected(task, k0, k1)
-                self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
-                                          v, d, self.dt_us, last))
+                self._send(task, k0, *self._corrected(task, k0, k1), last)
             self.next_sample = k1
             self.chunks_sent += 1
             sent += 1
@@ -126,19 +133,17 @@ class ReferenceStreamer:
             k0 = int(k_from)
             while k0 < self.next_sample:
                 k1 = min(k0 + 1000, self.next_sample)
-                v, d = self._corrected(task, k0, k1)
-                self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
-                                          v, d, self.dt_us, k1 >= self.num_samples))
+                self._send(task, k0, *self._corrected(task, k0, k1), k1 >= self.num_samples)
                 k0 = k1
             self._sent_versions[task] = self.corrections[task].version
 
     def stop_early(self, now_utime: int, lead_us: int = 20_000) -> None:
         """Ends every reference at the sample due ``lead_us`` from now (a force event: the goal
-        is reached before the plan says, §3.2.5.2): one last chunk holding that sample."""
-        k = int(np.clip((now_utime + lead_us - self.start_utime) // self.dt_us, 0, self.num_samples - 1))
+        is reached before the plan says, §3.2.5.2): one last chunk holding that sample, never
+        past what was already sent (a sample after a gap would start the stream afresh there)."""
+        k = int(np.clip((now_utime + lead_us - self.start_utime) // self.dt_us, 0,
+                        max(min(self.next_sample, self.num_samples) - 1, 0)))
         for task, (values, derivatives) in self.references.items():
-            self.send(reference_chunk(self.controller_id, task, self.start_utime + k * self.dt_us,
-                                      values[k:k + 1], np.zeros_like(derivatives[k:k + 1]),
-                                      self.dt_us, last=True))
+            self._send(task, k, values[k:k + 1], np.zeros_like(derivatives[k:k + 1]), True)
         self.next_sample = self.num_samples
         self.stopped_at = k

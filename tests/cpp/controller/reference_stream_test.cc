@@ -74,6 +74,46 @@ TEST(ReferenceStreamTest, ALaterChunkReplacesTheFutureAndMayEndTheReference) {
   EXPECT_TRUE(s.ended_output().Eval(t));
 }
 
+// A plank-flip trial (seed 105) lost the last chunks of a 4 s burst in LCM's receive queue; the
+// next chunk, 1 s further on, then became the stream's only samples and the robot jumped 4 s
+// ahead along its plan. A numbered chunk whose predecessor never came is refused: the stream
+// holds its last sample and grows stale, so the watchdog holds the robot instead.
+TEST(ReferenceStreamTest, AChunkAfterALostOneIsRefusedAndTheStreamHoldsItsLastSample) {
+  ReferenceStream s("s", ReferenceStream::Kind::kVector, Eigen::VectorXd::Zero(1), 1);
+  graph::GraphBuilder b;
+  b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
+  auto g = b.Build();
+  const auto numbered = [](ReferenceChunk c, int sequence) {
+    c.sequence = sequence;
+    return c;
+  };
+  const ReferenceChunk first = numbered(Ramp(0, 200, 0.0, 1.0), 0);              // samples 0 .. 199
+  const ReferenceChunk second = numbered(Ramp(200000, 200, 200.0, 1.0), 1);      // 200 .. 399
+  const ReferenceChunk after_a_loss = numbered(Ramp(600000, 200, 600.0, 1.0), 3);  // chunk 2 lost
+  EXPECT_NE(s.ValidateChunk(second).find("chunk 1 of a reference whose chunk 0 never came (none taken)"),
+            std::string::npos) << "a reference cannot start with its second chunk";
+  ASSERT_EQ(s.ValidateChunk(first), "");
+  ASSERT_TRUE(s.Push(first));
+  ASSERT_EQ(s.ValidateChunk(second), "");
+  ASSERT_TRUE(s.Push(second));
+  const std::string problem = s.ValidateChunk(after_a_loss);
+  EXPECT_NE(problem.find("chunk 3 of a reference whose chunk 2 never came (last taken 1)"), std::string::npos)
+      << problem;
+  // The lost chunk itself, a chunk standing alone (a servo's, or a new reference after a pause,
+  // however far on) and a negative number.
+  EXPECT_EQ(s.ValidateChunk(numbered(Ramp(400000, 200, 400.0, 1.0), 2)), "");
+  EXPECT_EQ(s.ValidateChunk(numbered(Ramp(3000000, 10, 0.0, 0.0), 0)), "");
+  EXPECT_NE(s.ValidateChunk(numbered(Ramp(400000, 10, 0.0, 0.0), -1)).find("negative sequence"), std::string::npos);
+  // What a refused chunk leaves: the stream ends at sample 399, held and aging past it.
+  graph::Tick t = At(300000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 300.0, 1e-12);
+  t = At(650000);
+  g->Evaluate(t);
+  EXPECT_NEAR(s.value_output().Eval(t)[0], 399.0, 1e-12) << "no jump to the chunk after the loss";
+  EXPECT_NEAR(s.age_output().Eval(t), 0.251, 1e-9);
+}
+
 TEST(ReferenceStreamTest, Se3StreamsSlerpAndCheckQuaternions) {
   ReferenceStream s("s", ReferenceStream::Kind::kSe3, (Eigen::VectorXd(7) << 0, 0, 0, 1, 0, 0, 0).finished(), 6);
   graph::GraphBuilder b;

@@ -111,10 +111,12 @@ TEST(LcmTypesTest, TaskReferenceTwoDimensionalArraysRoundTrip) {
     in.derivative[i][5] = -0.5 * i;
   }
   in.last_chunk = true;
+  in.sequence = 7;
   const lcmt_task_reference out = RoundTrip(in);
   EXPECT_EQ(out.value, in.value);
   EXPECT_EQ(out.derivative, in.derivative);
   EXPECT_TRUE(out.last_chunk);
+  EXPECT_EQ(out.sequence, 7);
 }
 
 TEST(LcmTypesTest, CameraImageRoundTripsWithPixels) {

@@ -103,6 +103,51 @@ def test_watchdog_holds_when_references_stop_and_estop_latches(run_controller):
         c.wait(lambda c: c.status.active_controller_id == 3 and c.status.mode == "running", 10, "controller 3")
 
 
+def test_a_burst_of_chunks_is_taken_whole_and_a_chunk_after_a_lost_one_refused(run_controller):
+    """A supervisor streams 4 s ahead: its first burst is tens of chunks per task at once. LCM
+    queues 30 messages per subscription by default and silently drops the rest when the
+    controller's LCM thread is late; the next chunk then left a gap, and the stream jumped over it
+    (a plank-flip trial jumped 4 s along its plan). The whole burst must be taken, and a chunk
+    whose predecessor never came refused with the robot held, never moved ahead. (LCM's drops
+    need the LCM thread starved of CPU, as in that trial: on an idle machine the burst alone
+    rarely overflows even the default queue; the refusal after a loss is what this test pins
+    down.)"""
+    with run_controller(*UR10, "--state-rate", "1000") as c:
+        spec = ControllerSpec(1, "streamed", [TaskSpec("tool", "se3", 0, frame="tool0", streamed=True),
+                                              TaskSpec("wrist", "se3", 1, frame="wrist_1_link", streamed=True),
+                                              TaskSpec("posture", "posture", 2, streamed=True)],
+                              reference_timeout=0.05)
+        c.send_spec(spec)
+        c.wait(lambda c: c.status.active_controller_id == 1 and c.status.mode == "running", 20, "controller 1")
+        model, _ = robots.load_pinocchio("ur10", with_collision=False)
+        data = model.createData()
+        q = configuration_from_state(model, c.state)
+        pin.framesForwardKinematics(model, data, q)
+        holds = {"tool": pose_to_vector(data.oMf[model.getFrameId("tool0")]),
+                 "wrist": pose_to_vector(data.oMf[model.getFrameId("wrist_1_link")]), "posture": q}
+        # 2.4 s in chunks of 40 samples: 60 chunks per task (under a stream's 64-chunk queue),
+        # 180 messages at once.
+        per_chunk, chunks = 40, 60
+        t0 = c.utime() + 200_000
+        for k in range(chunks):
+            for task, hold in holds.items():
+                c.send_reference(reference_chunk(1, task, t0 + 1000 * per_chunk * k,
+                                                 np.tile(hold, (per_chunk, 1)), sequence=k))
+        end = t0 + 1000 * per_chunk * chunks             # one past the last sample sent
+        # Chunk 60 (1 s) lost, then chunk 61: played, it would keep the robot going until end + 2 s.
+        c.send_reference(reference_chunk(1, "tool", end + 1_000_000, np.tile(holds["tool"], (1000, 1)),
+                                         sequence=chunks + 1))
+        c.wait(lambda c: c.status.utime > end - 200_000, 20, "the end of the burst")
+        assert c.status.mode == "running", f"a chunk of the burst was lost: {c.status.mode_reason}"
+        assert c.status.num_rejected == 1, list(zip(c.status.rejection_reason, c.status.rejection_count))
+        assert "chunk 61 of a reference whose chunk 60 never came" in c.status.last_rejection, \
+            c.status.last_rejection
+        # The refused chunk is not played: the stream runs dry at its end and the watchdog holds.
+        c.wait(lambda c: c.status.mode == "holding", 10, "the watchdog")
+        assert "watchdog" in c.status.mode_reason, c.status.mode_reason
+        assert c.status.utime < end + 500_000, "the watchdog did not fire at the end of the burst"
+
+
 def _garbage(rng: random.Random, valid: bytes, channel: str, kind: int) -> bytes:
     """A message that must be refused: random bytes, a truncated or extended valid message,
     or a valid message with its fingerprint flipped."""

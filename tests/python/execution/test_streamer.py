@@ -36,6 +36,8 @@ def test_chunks_are_contiguous_bounded_ahead_and_end_once():
         np.testing.assert_array_equal(np.vstack([m.derivative for m in chunks]), derivatives)
         assert [m.last_chunk for m in chunks] == [False] * (len(chunks) - 1) + [True]
         assert all(m.controller_id == 7 for m in chunks)
+        # Numbered from 0 per task: the controller refuses a chunk whose predecessor was lost.
+        assert [m.sequence for m in chunks] == list(range(len(chunks)))
     assert s.end_utime == 10_000 + (n - 1) * dt
 
 
@@ -56,9 +58,21 @@ def test_early_stop_ends_every_reference_at_the_current_sample():
     assert {m.task_name for m in last} == {"posture", "com"}
     for m in last:
         assert m.num_samples == 1 and m.utime == 320_000
+        assert m.sequence == 4, "the stop follows the 4 chunks sent (2 s of 500 samples)"
     assert s.done and s.end_utime == 320_000
     post = next(m for m in last if m.task_name == "posture")
     assert post.value[0] == [320.0, -320.0] and post.derivative[0] == [0.0, 0.0]
+
+
+def test_an_early_stop_past_what_was_sent_holds_the_last_sample_sent():
+    """A stop due after the samples sent (the streamer fell behind the clock) holds the last one
+    sent: a lone sample beyond a gap would start the controller's stream afresh there."""
+    sent = []
+    s = ReferenceStreamer(sent.append, 1, _references(5000), 0, chunk_samples=500, lookahead_s=1.0)
+    s.pump(0)                                               # samples 0 .. 999
+    s.stop_early(now_utime=2_500_000)
+    assert {m.utime for m in sent if m.last_chunk} == {999_000}
+    assert s.end_utime == 999_000
 
 
 @pytest.mark.parametrize("kwargs, message", [

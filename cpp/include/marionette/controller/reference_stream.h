@@ -9,6 +9,10 @@
 /// replaces every sample from its start on (a replanned future wins). Before the first sample
 /// the stream holds its initial value; after the last one it holds the last sample and its
 /// `age` grows — the controller's watchdog holds the robot when the age exceeds its timeout.
+/// A chunk numbered n > 0 follows chunk n - 1 of its reference (lcmt_task_reference.sequence);
+/// when that one was never taken (lost on the way, or refused) ValidateChunk refuses it too:
+/// playing it would jump the robot ahead along its plan, holding the last sample lets the
+/// watchdog hold it instead.
 /// @entity  inputs: none (fed by Push from the LCM thread)
 ///          outputs: value (value_size), derivative (derivative_size),
 ///                   age (double, s past the last sample, 0 inside), ended (bool),
@@ -33,6 +37,7 @@ struct ReferenceChunk {
   std::vector<double> values;       // num_samples x value_size
   std::vector<double> derivatives;  // num_samples x derivative_size (zeros when not given)
   bool last = false;                // the reference ends with this chunk
+  int sequence = 0;                 // 0 starts a reference; n > 0 follows chunk n - 1
   int64_t source_hash = 0;          // names the message it came from (controller journal)
 };
 
@@ -58,7 +63,8 @@ class ReferenceStream final : public graph::Entity {
   /// LCM thread: a chunk with sizes matching this stream (checked by the caller, see
   /// ValidateChunk). Returns false when the queue is full (the chunk is dropped and counted).
   bool Push(const ReferenceChunk& chunk);
-  /// Why `chunk` cannot feed this stream ("" when it can): sizes, NaN, time step, unit quaternion.
+  /// LCM thread: why `chunk` cannot feed this stream ("" when it can): sizes, NaN, time step,
+  /// unit quaternion, or a sequence number that does not follow the last chunk pushed.
   std::string ValidateChunk(const ReferenceChunk& chunk) const;
   int64_t dropped_chunks() const { return dropped_.load(); }
   /// Loop thread: the source_hash of the chunks the last poll took in (up to 64 per tick).
@@ -91,6 +97,9 @@ class ReferenceStream final : public graph::Entity {
   runtime::SpscQueue<ReferenceChunk> queue_;
   ReferenceChunk popped_;                 // preallocated pop target
   std::atomic<int64_t> dropped_{0};
+  // The last chunk pushed (LCM thread only): its time step and sequence number.
+  int64_t pushed_dt_us_ = 0;              // 0 until the first push
+  int pushed_sequence_ = -1;              // -1 until the first push
   // Sample buffer: ring of `capacity_` samples, sample k (absolute) in slot k % capacity_,
   // valid for k in [begin_, end_). Written only by Poll (loop thread).
   std::vector<double> values_;            // capacity x value_size
