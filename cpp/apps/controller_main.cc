@@ -24,6 +24,8 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --robot NAME          talos | tiago | ur10                      (default talos)
   --backend NAME        mujoco | kinematic                        (default mujoco)
   --scene FILE          MJCF scene (mujoco backend; default: the robot alone)
+  --encoder-offsets J=X,...  encoder calibration (mujoco backend): joint J's encoder reads X
+                        [rad or m] above its true position (e.g. from marionette calibrate)
   --lcm-url URL         LCM URL (default $MARIONETTE_LCM_URL, else LCM's default)
   --realtime            ask for SCHED_FIFO and mlockall (says in the log what was refused)
   --duration S          stop after S seconds of controller time (default: until SIGINT)

@@ -34,6 +34,7 @@ Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) 
     const std::string scene_path = options.scene.empty() ? robot.mjcf : options.scene;
     try {
       scene = std::make_unique<sim::MujocoScene>(scene_path, *model);
+      scene->SetEncoderOffsets(options.encoder_offsets);
     } catch (const std::exception& e) {
       throw std::runtime_error(e.what());
     }
@@ -465,6 +466,27 @@ int Controller::Run() {
 
 // ---- command line -----------------------------------------------------------------------------
 
+namespace {
+
+// "name=value,name=value" (--encoder-offsets) -> pairs; throws std::invalid_argument naming `flag`.
+std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& flag, const std::string& text) {
+  std::vector<std::pair<std::string, double>> out;
+  std::istringstream in(text);
+  for (std::string item; std::getline(in, item, ',');) {
+    const size_t eq = item.find('=');
+    char* end = nullptr;
+    const double x = eq == std::string::npos ? 0.0 : std::strtod(item.c_str() + eq + 1, &end);
+    if (eq == std::string::npos || eq == 0 || end == item.c_str() + eq + 1 || *end != '\0' || !std::isfinite(x)) {
+      throw std::invalid_argument(flag + ": '" + item + "' is not joint=value (value a finite number)");
+    }
+    out.emplace_back(item.substr(0, eq), x);
+  }
+  if (out.empty()) throw std::invalid_argument(flag + " needs joint=value[,joint=value...]");
+  return out;
+}
+
+}  // namespace
+
 ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe_robot) {
   ControllerOptions o;
   if (const char* url = std::getenv("MARIONETTE_LCM_URL")) o.lcm_url = url;
@@ -491,6 +513,7 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
     else if (a == "--robot") o.robot = value(i);
     else if (a == "--backend") o.backend = value(i);
     else if (a == "--scene") o.scene = value(i);
+    else if (a == "--encoder-offsets") o.encoder_offsets = ParseJointValues(a, value(i));
     else if (a == "--models") o.models_dir = value(i);
     else if (a == "--lcm-url") o.lcm_url = value(i);
     else if (a == "--realtime") o.realtime = true;
@@ -513,6 +536,10 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
     else throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
   }
   if (o.state_rate <= 0.0 || o.state_rate > 1000.0) throw std::invalid_argument("--state-rate must be in (0, 1000]");
+  if (!o.encoder_offsets.empty() && o.backend != "mujoco") {
+    throw std::invalid_argument("--encoder-offsets calibrates the mujoco backend's encoders; the " + o.backend +
+                                " backend has none");
+  }
   return o;
 }
 

@@ -59,7 +59,7 @@ MujocoScene::MujocoScene(const std::string& mjcf_path, const pinocchio::Model& r
     const int id = JointId(model_, name);
     if (id < 0) throw SimError("scene '" + mjcf_path + "' has no joint '" + name + "'");
     JointMap map{model_->jnt_qposadr[id], model_->jnt_dofadr[id], robot.joints[j].idx_q(),
-                 robot.joints[j].idx_v(), -1};
+                 robot.joints[j].idx_v(), -1, name};
     for (int a = 0; a < model_->nu; ++a) {
       if (model_->actuator_trntype[a] == mjTRN_JOINT && model_->actuator_trnid[2 * a] == id) {
         map.actuator = a;
@@ -108,7 +108,7 @@ void MujocoScene::ReadRobotState(Eigen::Ref<Eigen::VectorXd> q,
     v.head<3>() << c * vx + s * vy, -s * vx + c * vy, qvel[planar_dof_[2]];
   }
   for (const JointMap& j : joints_) {
-    q[j.idx_q] = qpos[j.qpos_adr];
+    q[j.idx_q] = qpos[j.qpos_adr] - j.encoder_offset;
     v[j.idx_v] = qvel[j.dof_adr];
   }
 }
@@ -142,7 +142,7 @@ void MujocoScene::WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorX
     qvel[planar_dof_[2]] = v[2];
   }
   for (const JointMap& j : joints_) {
-    qpos[j.qpos_adr] = q[j.idx_q];
+    qpos[j.qpos_adr] = q[j.idx_q] + j.encoder_offset;
     qvel[j.dof_adr] = v[j.idx_v];
   }
   // Joints tied to another by an <equality><joint> (URDF mimics: the UR10 gripper's right
@@ -174,8 +174,20 @@ void MujocoScene::WriteServoTargets(const Eigen::VectorXd& q_des, const Eigen::V
     if (j.actuator < 0) continue;
     const double kp = model_->actuator_gainprm[j.actuator * mjNGAIN];
     const double kv = -model_->actuator_biasprm[j.actuator * mjNBIAS + 2];
-    data_->ctrl[j.actuator] = q_des[j.idx_q] + (kp > 0.0 ? kv / kp : 0.0) * v_des[j.idx_v];
+    data_->ctrl[j.actuator] = q_des[j.idx_q] + j.encoder_offset + (kp > 0.0 ? kv / kp : 0.0) * v_des[j.idx_v];
   }
+}
+
+void MujocoScene::SetEncoderOffsets(const std::vector<std::pair<std::string, double>>& offsets) {
+  std::vector<double> by_joint(joints_.size(), 0.0);
+  for (const auto& [name, offset] : offsets) {
+    size_t k = 0;
+    while (k < joints_.size() && joints_[k].name != name) ++k;
+    if (k == joints_.size()) throw SimError("encoder offset for '" + name + "': the robot has no such 1-dof joint");
+    if (!std::isfinite(offset)) throw SimError("encoder offset for '" + name + "' is not finite");
+    by_joint[k] = offset;
+  }
+  for (size_t k = 0; k < joints_.size(); ++k) joints_[k].encoder_offset = by_joint[k];
 }
 
 void MujocoScene::Step1() { mj_step1(model_, data_); }

@@ -11,6 +11,7 @@
 #include <pinocchio/parsers/srdf.hpp>
 #include <pinocchio/parsers/urdf.hpp>
 
+#include <cmath>
 #include <random>
 
 #include "marionette/graph/graph.h"
@@ -66,6 +67,46 @@ TEST(MujocoSceneTest, StateRoundTripsAndVelocityConventionsMatchMujoco) {
     const pin::SE3 X = scene.BodyPose("arm_left_7_link");
     EXPECT_TRUE(X.isApprox(data.oMf[model.getFrameId("arm_left_7_link")], 1e-9));
   }
+}
+
+TEST(MujocoSceneTest, EncoderOffsetsGiveTheControllerTheTrueJointPositions) {
+  const pin::Model model = LoadTalos();
+  MujocoScene scene(kModels + "/talos/talos.xml", model);
+  const std::string joint = "arm_left_1_joint";
+  const double delta = 0.12;  // [rad] the encoder reads 7 deg above the truth
+  const int jnt = mj_name2id(&scene.model(), mjOBJ_JOINT, joint.c_str());
+  const int adr = scene.model().jnt_qposadr[jnt];
+  // MuJoCo turns a hinge by qpos - qpos0: this is <joint ref="0.12">, the offset scenes'
+  // encoder error (marionette.execution.perturbations.scene_with_joint_offsets).
+  const_cast<mjModel&>(scene.model()).qpos0[adr] = delta;
+  const Eigen::VectorXd q = StandingConfiguration(model);
+  const int iq = model.joints[model.getJointId(joint)].idx_q();
+  pin::Data data(model);
+  const auto arm_pose_error = [&](const Eigen::VectorXd& q_model) {
+    pin::framesForwardKinematics(model, data, q_model);
+    return (scene.BodyPose("arm_left_7_link").translation() -
+            data.oMf[model.getFrameId("arm_left_7_link")].translation()).norm();
+  };
+  Eigen::VectorXd q_read(model.nq), v_read(model.nv);
+
+  scene.SetEncoderOffsets({{joint, delta}});
+  scene.WriteRobotState(q, Eigen::VectorXd::Zero(model.nv));
+  EXPECT_NEAR(scene.data().qpos[adr], q[iq] + delta, 1e-12);  // what the encoder reads
+  scene.ReadRobotState(q_read, v_read);
+  EXPECT_TRUE(q_read.isApprox(q, 1e-12));
+  EXPECT_LT(arm_pose_error(q_read), 1e-9);  // the controller's model sees the true arm
+  scene.WriteServoTargets(q, Eigen::VectorXd::Zero(model.nv));
+  const int act = mj_name2id(&scene.model(), mjOBJ_ACTUATOR, joint.c_str());
+  ASSERT_GE(act, 0);
+  EXPECT_NEAR(scene.data().ctrl[act], q[iq] + delta, 1e-12);
+
+  scene.SetEncoderOffsets({});  // uncalibrated: the model puts the wrist centimetres off
+  scene.ReadRobotState(q_read, v_read);
+  EXPECT_NEAR(q_read[iq], q[iq] + delta, 1e-12);
+  EXPECT_GT(arm_pose_error(q_read), 0.02);
+
+  EXPECT_THROW(scene.SetEncoderOffsets({{"no_such_joint", 0.1}}), SimError);
+  EXPECT_THROW(scene.SetEncoderOffsets({{joint, std::nan("")}}), SimError);
 }
 
 TEST(MujocoDeviceTest, TalosStandsOnItsSolesUnderTheServos) {

@@ -25,6 +25,8 @@
 #include <atomic>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 namespace marionette::controller {
 
@@ -32,6 +34,8 @@ struct ControllerOptions {
   std::string robot = "talos";
   std::string backend = "mujoco";  ///< "mujoco" | "kinematic"
   std::string scene;               ///< MJCF (mujoco backend); default: the robot alone
+  /// Encoder calibration (mujoco backend): joint -> offset its encoder reads above the truth.
+  std::vector<std::pair<std::string, double>> encoder_offsets;
   std::string models_dir;          ///< models/ of the repository
   std::string lcm_url;             ///< "" = $MARIONETTE_LCM_URL, else LCM's default
   bool realtime = false;           ///< ask for SCHED_FIFO + mlockall

@@ -21,6 +21,7 @@
 #include <pinocchio/spatial/se3.hpp>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace marionette::sim {
@@ -61,6 +62,11 @@ class MujocoScene {
   void ReadJointEfforts(Eigen::Ref<Eigen::VectorXd> effort_v) const;
   /// Sets the position servos to track q_des (nq) and v_des (nv).
   void WriteServoTargets(const Eigen::VectorXd& q_des, const Eigen::VectorXd& v_des);
+  /// Encoder calibration (thesis 000 ch. 4): joint `name` reads its MuJoCo position minus
+  /// `offset` [rad or m], and every position written to it (state, servo target) gets `offset`
+  /// added, so that an encoder known to read q + offset gives the controller q. Replaces the
+  /// previous offsets; throws SimError on a joint the robot does not map or a non-finite offset.
+  void SetEncoderOffsets(const std::vector<std::pair<std::string, double>>& offsets);
 
   /// Advances the physics by one control period: mj_step1 then mj_step2 over the substeps.
   /// Call WriteServoTargets between Step1 and Step2 (MuJoCo's split step).
@@ -97,6 +103,8 @@ class MujocoScene {
     int idx_q;      // Pinocchio
     int idx_v;      // Pinocchio
     int actuator;   // MuJoCo actuator id or -1
+    std::string name;
+    double encoder_offset = 0.0;  // subtracted on read, added on write (SetEncoderOffsets)
   };
   enum class Base { kFixed, kFreeFlyer, kPlanar };
 
