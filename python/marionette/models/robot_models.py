@@ -23,8 +23,8 @@ import numpy as np
 
 from marionette.robots import RobotDescription, example_robot_data_dir, robot
 
-from .objects import Drill
-from .semantics import ContactSurface, Gripper, Placement, Semantics
+from .objects import TAG_FAMILY, Drill, tag_frame
+from .semantics import ContactSurface, Gripper, Placement, Semantics, Tag
 from .urdf import Urdf, parse_urdf
 from .urdf_builder import Shape, UrdfBuilder
 from .xml_util import fmt_vec, homogeneous, indent_and_serialize, rot_y, sub
@@ -253,6 +253,27 @@ def _add_parallel_gripper(b: UrdfBuilder, parent: str, X_PG: np.ndarray) -> None
                   homogeneous(p=[0, -y, 0]), mimic="finger_joint", axis=(0, 1, 0))
 
 
+# TALOS' wrist tags (thesis 000 fig. 5.2: the head camera sees tags on the hands): a ring of six
+# 32 mm tags around arm_<side>_7_link between the wrist centre and the force sensor, faces 5.2 cm
+# from the axis, so that two face any viewer around the forearm. They locate the hand for the
+# encoder-offset calibration (ch. 4.2, marionette.perception.arm_calibration).
+TALOS_WRIST_TAGS = {"left": 52, "right": 44}   # first id of each ring
+TALOS_WRIST_RING = {"count": 6, "radius": 0.052, "z": -0.04, "size": 0.032}
+
+
+def talos_wrist_tags(side: str) -> list[Tag]:
+    """The ring of ``side``'s wrist: tag k's normal at 60 k deg about the link's z, its image's
+    up along +z (towards the elbow)."""
+    ring, link = TALOS_WRIST_RING, f"arm_{side}_7_link"
+    out = []
+    for k in range(ring["count"]):
+        phi = 2 * np.pi * k / ring["count"]
+        n = np.array([np.cos(phi), np.sin(phi), 0.0])
+        out.append(Tag(TALOS_WRIST_TAGS[side] + k, TAG_FAMILY, ring["size"], link,
+                       tag_frame(n * ring["radius"] + [0, 0, ring["z"]], n, [0, 0, 1])))
+    return out
+
+
 # --- grippers, contact surfaces ----------------------------------------------------------------
 
 
@@ -275,7 +296,8 @@ def robot_semantics(name: str) -> Semantics:
             # Counter-clockwise seen from below: outward normal -z.
             pts = np.array([[-lx, -ly, 0], [-lx, ly, 0], [lx, ly, 0], [lx, -ly, 0]])
             contacts.append(ContactSurface(f"talos/{side}_sole", f"{side}_sole_link", pts))
-        return Semantics("talos", grippers=grippers, contacts=contacts)
+        tags = talos_wrist_tags("left") + talos_wrist_tags("right")
+        return Semantics("talos", grippers=grippers, contacts=contacts, tags=tags)
     if name == "tiago":
         tip = TIAGO_DRILL.tip_gripper("tiago/deburring_tool", "drill_link", np.eye(4))
         return Semantics("tiago", grippers=[tip], tags=TIAGO_DRILL.tags("drill_link", np.eye(4)))
