@@ -7,5 +7,6 @@
 * :mod:`.synthetic` — exact pinhole renderings with ground truth, for tests and benchmarks;
 * :mod:`.node` — ``marionette perceive``: camera frames in, detections and object poses out (LCM);
 * :mod:`.pbvs` — position-based visual-servoing references (eq. 5.1-5.3);
-* :mod:`.calibration` — hand-eye (Tsai-Lenz) and joint-offset calibration (ch. 4.2).
+* :mod:`.calibration` — hand-eye (Tsai-Lenz) and joint-offset calibration (ch. 4.2);
+* :mod:`.arm_calibration` — an arm's encoder offsets from its wrist tags seen by the head camera.
 """

@@ -239,3 +239,94 @@ def calibrate_joint_offsets(problem: JointOffsetProblem, Q: np.ndarray, measured
     return JointOffsetResult(
         offsets=x[:k], p_EM=x[k:k + 3], p_BA=x[k + 3:], rms_residual=float(np.sqrt(cost / len(r))),
         offsets_std=np.sqrt(np.diag(covariance)[:k]), iterations=iterations)
+
+
+# ---- joint offsets from marker poses ---------------------------------------------------------
+#
+# §4.2 with a camera instead of MoCap: a tag body on the end link E gives its full pose in the
+# camera, and the camera's pose in the base link B comes from joints the calibration does not
+# touch (TALOS' head above the arms), so each view i measures M_i = X_BE directly and the
+# marker's placement in E is known (the model's tags). The residual is the pose error
+#
+#     r_i(delta) = W log6( M_i^-1 X_BE(q_i + S delta) ),   W = diag(1, 1, 1, w, w, w)
+#
+# with w [m/rad] weighing rotation against translation, and every joint of the chain, the last
+# included, is observable from rotations. dr/ddelta = W Jlog6 J_E(q_i + S delta)[:, S] (J_E the
+# frame Jacobian of E in its own frame; B does not depend on the calibrated joints).
+
+
+@dataclass(frozen=True)
+class PoseOffsetResult:
+    offsets: np.ndarray  # (k,) [rad] true angle = encoder reading + offset
+    offsets_std: np.ndarray  # (k,) [rad] 1-sigma from the residual and J^T J
+    position_residuals: np.ndarray  # (N,) [m] per view at the solution
+    rotation_residuals: np.ndarray  # (N,) [rad] per view at the solution
+    outliers: tuple[int, ...] = ()  # views left out of the final solve
+
+
+def pose_residuals_and_jacobian(problem: JointOffsetProblem, Q: np.ndarray, measured: Sequence[pin.SE3],
+                                offsets: np.ndarray, rotation_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked r (6N,) and dr/doffsets (6N, k) of the pose residuals above."""
+    model, data = problem.model, problem.model.createData()
+    base, end = model.getFrameId(problem.base_frame), model.getFrameId(problem.marker_frame)
+    iq, iv = problem.idx_q, problem.idx_v
+    w = np.array([1.0, 1.0, 1.0, rotation_weight, rotation_weight, rotation_weight])
+    r = np.empty(6 * len(Q))
+    J = np.empty((6 * len(Q), len(iq)))
+    for i, (q_enc, M) in enumerate(zip(Q, measured)):
+        q = np.array(q_enc, dtype=float)
+        q[iq] += offsets
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        E = M.inverse() * data.oMf[base].inverse() * data.oMf[end]
+        J_E = pin.getFrameJacobian(model, data, end, pin.ReferenceFrame.LOCAL)
+        r[6 * i:6 * i + 6] = w * pin.log6(E).vector
+        J[6 * i:6 * i + 6] = w[:, None] * (pin.Jlog6(E) @ J_E[:, iv])
+    return r, J
+
+
+def calibrate_joint_offsets_from_poses(problem: JointOffsetProblem, Q: np.ndarray, measured: Sequence[pin.SE3],
+                                       rotation_weight: float = 0.1, outlier_scale: float = 0.005) -> PoseOffsetResult:
+    """Offsets of ``problem.joints`` from encoder readings Q (N, nq) and measured poses X_BE
+    (``problem.marker_frame`` in ``problem.base_frame``), all views projected at once: a robust
+    (Huber, ``outlier_scale`` [m] of weighted residual) trust-region least squares, then the
+    views whose residual exceeds 3 times the median and 2 ``outlier_scale`` (a wrong pose: the
+    other tag-pose hypothesis, a false detection) are dropped and the rest solved again.
+    Raises :class:`CalibrationError` on inconsistent input or offsets the views cannot observe."""
+    from scipy.optimize import least_squares
+
+    Q = np.atleast_2d(np.asarray(Q, dtype=float))
+    if Q.shape[1] != problem.model.nq or len(measured) != len(Q):
+        raise CalibrationError(f"need Q (N, {problem.model.nq}) and N measured poses, got {Q.shape} and "
+                               f"{len(measured)}")
+    if not np.all(np.isfinite(Q)) or not all(np.all(np.isfinite(M.homogeneous)) for M in measured):
+        raise CalibrationError("configurations and measured poses must be finite")
+    k = len(problem.joints)
+    if 6 * len(Q) < k:
+        raise CalibrationError(f"{len(Q)} views give {6 * len(Q)} equations for {k} offsets")
+
+    def solve(views: np.ndarray, x0: np.ndarray, loss: str) -> np.ndarray:
+        Qv, Mv = Q[views], [measured[i] for i in views]
+        return least_squares(lambda x: pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)[0], x0,
+                             jac=lambda x: pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)[1],
+                             loss=loss, f_scale=outlier_scale).x
+
+    everything = np.arange(len(Q))
+    x = solve(everything, np.zeros(k), "huber")
+    per_view = np.linalg.norm(pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight)[0]
+                              .reshape(-1, 6), axis=1)
+    inliers = everything[per_view <= max(3.0 * np.median(per_view), 2.0 * outlier_scale)]
+    if len(inliers) < len(Q):
+        x = solve(inliers, x, "linear")
+    r, J = pose_residuals_and_jacobian(problem, Q[inliers], [measured[i] for i in inliers], x, rotation_weight)
+    _, singular, Vt = np.linalg.svd(J, full_matrices=False)
+    if singular[-1] < 1e-6 * singular[0]:
+        mixed = [problem.joints[i] for i in np.flatnonzero(np.abs(Vt[-1]) > 0.1)]
+        raise CalibrationError(f"offsets not observable from these views: {', '.join(mixed)} change together "
+                               "without changing any measured pose; vary every calibrated joint")
+    sigma2 = (r @ r) / max(1, len(r) - k)
+    r6 = pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight)[0].reshape(-1, 6)
+    return PoseOffsetResult(offsets=x, offsets_std=np.sqrt(np.diag(sigma2 * np.linalg.inv(J.T @ J))),
+                            position_residuals=np.linalg.norm(r6[:, :3], axis=1),
+                            rotation_residuals=np.linalg.norm(r6[:, 3:], axis=1) / rotation_weight,
+                            outliers=tuple(int(i) for i in np.setdiff1d(everything, inliers)))

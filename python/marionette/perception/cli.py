@@ -69,6 +69,13 @@ def register(subparsers) -> None:
                     help='JSON {"robot": "talos", "base_frame": ..., "marker_frame": ..., '
                          '"joints": [...], "configurations": [[q...]], "positions": [[x,y,z]...]}')
     jo.set_defaults(func=_calibrate_joint_offsets)
+    ae = sub.add_parser("arm-encoders", help="TALOS' arm encoder offsets from its wrist tags seen by the head "
+                                             "camera in a MuJoCo scene (ch. 4.2)")
+    ae.add_argument("--scene", type=Path, required=True, help="MJCF scene with the robot (and its encoders)")
+    ae.add_argument("--side", choices=("left", "right"), action="append",
+                    help="arm to calibrate (repeatable; default both)")
+    ae.add_argument("--seed", type=int, default=0, help="seed of the view sampling and image noise")
+    ae.set_defaults(func=_calibrate_arm_encoders)
 
 
 def _perceive(args: argparse.Namespace) -> int:
@@ -149,6 +156,24 @@ def _calibrate_hand_eye(args: argparse.Namespace) -> int:
     print(json.dumps({"X_EC": result.X_EC.homogeneous.tolist(),
                       "rms_position_m": result.rms_position,
                       "rms_rotation_deg": float(np.degrees(result.rms_rotation))}, indent=2))
+    return 0
+
+
+def _calibrate_arm_encoders(args: argparse.Namespace) -> int:
+    from marionette.perception.arm_calibration import calibrate_arm
+    from marionette.perception.calibration import CalibrationError
+
+    if not args.scene.is_file():
+        raise SystemExit(f"calibrate: no scene file {args.scene}")
+    try:
+        arms = [calibrate_arm(args.scene, side, seed=args.seed, log=lambda line: print(line, file=sys.stderr))
+                for side in args.side or ("left", "right")]
+    except CalibrationError as exc:
+        raise SystemExit(f"calibrate: {exc}")
+    offsets = {j: v for arm in arms for j, v in arm.encoder_offsets().items()}
+    print(json.dumps({"arms": [arm.summary() for arm in arms],
+                      "controller_option": "--encoder-offsets " + ",".join(f"{j}={v:.9f}" for j, v in offsets.items())},
+                     indent=2))
     return 0
 
 

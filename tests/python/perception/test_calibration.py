@@ -239,3 +239,73 @@ def test_recovers_offsets_from_a_wrist_tag_seen_by_the_head_camera(talos):
     error_deg = np.degrees(np.abs(result.offsets - true[:6]))
     assert error_deg.max() < 0.1, dict(zip(ARM, error_deg.round(3)))
     assert np.linalg.norm(result.p_BA) < 1e-3  # measured in the camera frame itself
+
+
+# ---- joint offsets from marker poses (the wrist ring seen by the head camera) -----------------
+
+LEFT_ARM = tuple(f"arm_left_{i}_joint" for i in range(1, 8))
+
+
+def wrist_poses(model, Q, correction, frame="arm_left_7_link"):
+    """X_BE (torso_2_link <- frame) of arms whose true angles are the readings + correction."""
+    data = model.createData()
+    iq = [model.joints[model.getJointId(j)].idx_q for j in LEFT_ARM]
+    out = []
+    for q in Q:
+        q = q.copy()
+        q[iq] += correction
+        pin.framesForwardKinematics(model, data, q)
+        out.append(data.oMf[model.getFrameId("torso_2_link")].inverse() * data.oMf[model.getFrameId(frame)])
+    return out
+
+
+def left_arm_configurations(model, n, rng):
+    q0 = robots.reference_configuration("talos", model)
+    Q = np.tile(q0, (n, 1))
+    for name in LEFT_ARM:
+        j = model.joints[model.getJointId(name)].idx_q
+        lo, hi = model.lowerPositionLimit[j], model.upperPositionLimit[j]
+        Q[:, j] = rng.uniform(lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo), n)
+    return Q
+
+
+def test_pose_residual_jacobian_matches_finite_differences(talos):
+    from marionette.perception.calibration import pose_residuals_and_jacobian
+
+    rng = np.random.default_rng(3)
+    problem = JointOffsetProblem(talos, "torso_2_link", "arm_left_7_link", LEFT_ARM)
+    Q = left_arm_configurations(talos, 3, rng)
+    measured = [X * pin.exp6(rng.normal(0, 0.05, 6)) for X in wrist_poses(talos, Q, np.zeros(7))]
+    x = rng.normal(0, 0.05, 7)
+    r, J = pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight=0.1)
+    J_fd = np.empty_like(J)
+    for c in range(7):
+        dx = np.zeros(7)
+        dx[c] = 1e-6
+        J_fd[:, c] = (pose_residuals_and_jacobian(problem, Q, measured, x + dx, 0.1)[0]
+                      - pose_residuals_and_jacobian(problem, Q, measured, x - dx, 0.1)[0]) / 2e-6
+    np.testing.assert_allclose(J, J_fd, atol=1e-7)
+
+
+def test_every_arm_joint_from_wrist_poses_with_camera_noise(talos):
+    """With the marker's full pose, joint 7 is observable too (contrast with positions only)."""
+    from marionette.perception.calibration import calibrate_joint_offsets_from_poses
+
+    rng = np.random.default_rng(4)
+    true = rng.normal(0.0, math.radians(0.2), 7)
+    true[0], true[6] = math.radians(-7.0), math.radians(-4.0)
+    Q = left_arm_configurations(talos, 10, rng)
+    # the ring's pose from the head camera: ~1 mm and ~0.3 deg per view
+    measured = [X * pin.exp6(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, math.radians(0.3), 3)])
+                for X in wrist_poses(talos, Q, true)]
+    measured[3] = measured[3] * pin.exp6(np.r_[0.03, 0.0, 0.0, 0.0, 0.3, 0.0])   # one wrong pose
+    problem = JointOffsetProblem(talos, "torso_2_link", "arm_left_7_link", LEFT_ARM)
+    result = calibrate_joint_offsets_from_poses(problem, Q, measured)
+    error_deg = np.degrees(np.abs(result.offsets - true))
+    assert error_deg.max() < 0.25, dict(zip(LEFT_ARM, error_deg.round(3)))
+    assert result.outliers == (3,)   # the wrong pose is left out, the rest fit
+    assert np.median(result.position_residuals) < 3e-3
+    with pytest.raises(CalibrationError, match="not observable"):
+        calibrate_joint_offsets_from_poses(problem, np.tile(Q[0], (3, 1)), [measured[0]] * 3)
+    with pytest.raises(CalibrationError, match="finite"):
+        calibrate_joint_offsets_from_poses(problem, Q[:2] * np.nan, measured[:2])
