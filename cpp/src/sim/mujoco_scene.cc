@@ -195,6 +195,7 @@ void MujocoScene::Step1() { mj_step1(model_, data_); }
 void MujocoScene::Step2(int substeps) {
   mj_step2(model_, data_);
   for (int i = 1; i < substeps; ++i) mj_step(model_, data_);
+  if (!releases_.empty()) EndClearReleases();
 }
 
 int MujocoScene::BodyId(const std::string& body) const {
@@ -278,7 +279,55 @@ void MujocoScene::SetWeld(int weld_id, bool active) {
     for (int k = 0; k < 3; ++k) eq[3 + k] = X_12.translation()[k];
     eq[6] = quat.w(), eq[7] = quat.x(), eq[8] = quat.y(), eq[9] = quat.z();
   }
+  for (size_t k = 0; k < releases_.size(); ++k) {
+    if (releases_[k].weld == weld_id) EndRelease(k--);
+  }
+  if (!active && model_->eq_active[weld_id] != 0) {
+    Release r{weld_id, {}, {}, {}, {}};
+    for (int g = 0; g < model_->ngeom; ++g) {
+      if (SubtreeOf(model_->geom_bodyid[g], model_->eq_obj1id[weld_id])) {
+        r.hand_geoms.push_back(g);
+        r.contype.push_back(model_->geom_contype[g]);
+        r.conaffinity.push_back(model_->geom_conaffinity[g]);
+        model_->geom_contype[g] = 0;
+        model_->geom_conaffinity[g] = 0;
+      } else if (model_->geom_bodyid[g] == model_->eq_obj2id[weld_id]) {
+        r.object_geoms.push_back(g);
+      }
+    }
+    releases_.push_back(std::move(r));
+  }
   model_->eq_active[weld_id] = active ? 1 : 0;
+}
+
+bool MujocoScene::SubtreeOf(int body, int root) const {
+  for (; body > 0; body = model_->body_parentid[body]) {
+    if (body == root) return true;
+  }
+  return root == 0;
+}
+
+void MujocoScene::EndRelease(size_t k) {
+  const Release& r = releases_[k];
+  for (size_t i = 0; i < r.hand_geoms.size(); ++i) {
+    model_->geom_contype[r.hand_geoms[i]] = r.contype[i];
+    model_->geom_conaffinity[r.hand_geoms[i]] = r.conaffinity[i];
+  }
+  releases_.erase(releases_.begin() + static_cast<std::ptrdiff_t>(k));
+}
+
+void MujocoScene::EndClearReleases() {
+  constexpr double kMargin = 0.005;  // [m] beyond touching bounding spheres
+  for (size_t k = 0; k < releases_.size(); ++k) {
+    bool clear = true;
+    for (int h : releases_[k].hand_geoms) {
+      for (int o : releases_[k].object_geoms) {
+        const Eigen::Map<const Eigen::Vector3d> ph(data_->geom_xpos + 3 * h), po(data_->geom_xpos + 3 * o);
+        if ((ph - po).norm() < model_->geom_rbound[h] + model_->geom_rbound[o] + kMargin) clear = false;
+      }
+    }
+    if (clear) EndRelease(k--);
+  }
 }
 
 }  // namespace marionette::sim

@@ -109,6 +109,42 @@ TEST(MujocoSceneTest, EncoderOffsetsGiveTheControllerTheTrueJointPositions) {
   EXPECT_THROW(scene.SetEncoderOffsets({{joint, std::nan("")}}), SimError);
 }
 
+TEST(MujocoSceneTest, AReleasedHandStopsCollidingUntilItIsClearOfTheObject) {
+  const pin::Model model = LoadTalos();
+  MujocoScene scene(kModels + "/scenes/talos_plank.xml", model);
+  const mjModel& m = scene.model();
+  const int weld = scene.WeldId("grasp/talos/left_gripper/plank");
+  const int hand = mj_name2id(&m, mjOBJ_BODY, "gripper_left_base_link");
+  int finger = -1;  // a colliding geom of the hand's subtree
+  for (int g = 0; g < m.ngeom && finger < 0; ++g) {
+    for (int b = m.geom_bodyid[g]; b > 0; b = m.body_parentid[b]) {
+      if (b == hand && m.geom_contype[g] != 0) finger = g;
+    }
+  }
+  ASSERT_GE(finger, 0);
+  const int contype = m.geom_contype[finger], conaffinity = m.geom_conaffinity[finger];
+  const auto step = [&] {
+    scene.Step1();
+    scene.Step2(1);
+  };
+  scene.SetWeld(weld, true);
+  EXPECT_EQ(scene.opening_hands(), 0);
+  scene.SetWeld(weld, false);  // released: the hand opens
+  EXPECT_EQ(scene.opening_hands(), 1);
+  EXPECT_EQ(m.geom_contype[finger], 0);
+  EXPECT_EQ(m.geom_conaffinity[finger], 0);
+  scene.SetFreeBodyPose("plank", scene.BodyPose("gripper_left_base_link"));  // still in the jaw
+  step();
+  EXPECT_EQ(scene.opening_hands(), 1);
+  scene.SetFreeBodyPose("plank", pin::SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(3.0, 0.0, 1.0)));
+  step();  // clear of the plank: the hand collides again
+  EXPECT_EQ(scene.opening_hands(), 0);
+  EXPECT_EQ(m.geom_contype[finger], contype);
+  EXPECT_EQ(m.geom_conaffinity[finger], conaffinity);
+  scene.SetWeld(weld, false);  // releasing a released weld opens nothing
+  EXPECT_EQ(scene.opening_hands(), 0);
+}
+
 TEST(MujocoDeviceTest, TalosStandsOnItsSolesUnderTheServos) {
   const pin::Model model = LoadTalos();
   MujocoScene scene(kModels + "/talos/talos.xml", model);
