@@ -8,8 +8,11 @@ Scenarios: ``plank-flip`` (TALOS turns the plank upside down, thesis 000 §3.4) 
 the planned references (the thesis's chapter-3 setting); plank-flip closes the loop on vision
 (§5.3.1): the controller renders the head camera, ``marionette perceive`` publishes the plank's
 pose, the head looks at the plank and the carry to the placement is servoed on the measured pose
-(:mod:`.visual_servo`). ``perturbation`` (:mod:`.perturbations`, ``--perturb issue10``) adds the
-seeded perturbations of issue #10; without it the objects start where the problem file says.
+(:mod:`.visual_servo`). Before the controller starts, the head camera calibrates the encoder
+offsets of both arms from their wrist tags (thesis 000 ch. 4.2, :mod:`..perception.arm_calibration`)
+and the controller runs with them (``--encoder-offsets``). ``perturbation`` (:mod:`.perturbations`,
+``--perturb issue10``) adds the seeded perturbations of issue #10; without it the objects start
+where the problem file says.
 """
 
 from __future__ import annotations
@@ -69,6 +72,9 @@ class Scenario:
     # 5 N, release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
     gripper_admittance: bool = False
     grip_tolerance: float = 1.0         # [N]
+    # Arms whose encoder offsets the head camera calibrates before execution (thesis 000 ch. 4.2,
+    # :mod:`marionette.perception.arm_calibration`); the controller then corrects its encoders.
+    calibrate_arms: tuple[str, ...] = ()
 
 
 def _grasp_walk(*args: Any, **kwargs: Any) -> dict[str, Any]:
@@ -86,7 +92,7 @@ SCENARIOS: dict[str, Scenario] = {
                     "camera (§5.3.1)",
         # On the table the plank's tags face the head 60-70° off their normal: found at
         # decimation 1 only (1-2 mm / 0.2° along the approach, test_visual_servo.py).
-        vision=True, quad_decimate=1.0),
+        vision=True, quad_decimate=1.0, calibrate_arms=("left", "right")),
     "ur10-box": Scenario(
         "ur10-box", "ur10_box", marionette.MODELS_DIR / "scenes" / "ur10_box.xml", 0, "box", 1.0,
         description="UR10 picks the box with its two-finger gripper, holds it with 5 N (gripper "
@@ -99,10 +105,9 @@ SCENARIOS: dict[str, Scenario] = {
         runner=_grasp_walk),
 }
 # `marionette demo` without a scenario (`make demo`): the one that meets its criteria reliably.
-# plank-flip with vision in the loop meets 1 cm / 5° in 7/10 trials under issue #10's
-# perturbations (the hand-over is not servoed: the left arm's encoder offsets break it), short of
-# the issue's 95 %: not the default yet (execution/README.md).
-DEFAULT_SCENARIO = "ur10-box"
+# The embedded default (issue #10): plank-flip, the thesis's experiment, with its arms calibrated by
+# the head camera and vision in the loop (execution/README.md for the trial tables).
+DEFAULT_SCENARIO = "plank-flip"
 
 
 class DemoError(RuntimeError):
@@ -189,6 +194,29 @@ def _pose_error(X: pin.SE3, X_goal: pin.SE3) -> tuple[float, float]:
         np.degrees(np.linalg.norm(pin.log3(err.rotation))))
 
 
+def calibrate_encoders(scene: Path, robot: str, sides: tuple[str, ...], perturbation: Perturbation | None,
+                       log: Callable[[str], None]) -> dict[str, Any]:
+    """The encoder offsets of ``sides``' arms from the head camera (thesis 000 ch. 4.2) in the
+    robot's ``scene``; with the offsets the perturbation put in, the error left per joint."""
+    from marionette.perception.arm_calibration import calibrate_arm
+
+    truth = perturbation.joint_offsets if perturbation is not None else {}
+    out: dict[str, Any] = {"arms": [], "encoder_offsets": {}}
+    for side in sides:
+        arm = calibrate_arm(scene, side, robot, log=log)
+        offsets = arm.encoder_offsets()
+        summary = arm.summary()
+        summary["error_deg"] = {j: float(np.degrees(v - truth.get(j, 0.0))) for j, v in offsets.items()}
+        out["arms"].append(summary)
+        out["encoder_offsets"].update(offsets)
+        worst = max(summary["error_deg"].items(), key=lambda kv: abs(kv[1]))
+        log(f"calibration: {side} arm from {arm.views_used} views, residual "
+            f"{summary['residual_position_mm']:.1f} mm / {summary['residual_rotation_deg']:.2f}°; offsets "
+            + ", ".join(f"{j.split('_')[2]}:{np.degrees(v):+.2f}°" for j, v in offsets.items())
+            + f" (worst error {worst[1]:+.2f}° at {worst[0]})")
+    return out
+
+
 def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
              cache_dir: Path | None = None, log: Callable[[str], None] = print,
              controller_url: str | None = None, perturbation: Perturbation | None = None,
@@ -247,11 +275,19 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
             if controller_url is not None:
                 raise DemoError("joint offsets need the demo's own controller (no --controller-url)")
             scene = scene_with_joint_offsets(scene, perturbation.joint_offsets, out_dir / "scene.xml")
+        encoder_offsets: dict[str, float] = {}
+        if scenario.calibrate_arms and controller_url is None:
+            t_cal = time.perf_counter()
+            report["calibration"] = calibrate_encoders(scene, robot, scenario.calibrate_arms, perturbation, log)
+            encoder_offsets = report["calibration"]["encoder_offsets"]
+            timings["calibration_s"] = time.perf_counter() - t_cal
         if controller_url is None:
             group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
                                        "--robot", robot, "--scene", scene, "--speed", str(speed),
                                        "--camera-rate", str(scenario.camera_rate if scenario.vision else 0),
-                                       "--status-rate", "100"])
+                                       "--status-rate", "100"]
+                        + (["--encoder-offsets", ",".join(f"{j}={v:.9f}" for j, v in encoder_offsets.items())]
+                           if encoder_offsets else []))
         if scenario.vision:
             group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                      "--robot", robot, "--stats-period", "30",

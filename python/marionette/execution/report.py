@@ -82,6 +82,18 @@ def _markdown(r: dict[str, Any]) -> str:
                   f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
                   + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
                   + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°", ""]
+    if "calibration" in r:   # the arms' encoder offsets from the head camera, before execution
+        lines += ["## Encoder calibration (thesis 000 ch. 4.2)", "",
+                  "Wrist rings seen by the head camera; the controller runs with the offsets found. Error = "
+                  "found − the perturbation's offset.", "",
+                  "| arm | views used | residual | offsets found | worst error |", "|---|---|---|---|---|"]
+        for a in r["calibration"]["arms"]:
+            worst = max(a["error_deg"].items(), key=lambda kv: abs(kv[1]))
+            lines.append(f"| {a['side']} | {a['views_used']}/{a['views_planned']} | {a['residual_position_mm']:.2f} mm / "
+                         f"{a['residual_rotation_deg']:.2f}° | "
+                         + ", ".join(f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items())
+                         + f" | {worst[1]:+.3f}° ({worst[0]}) |")
+        lines += [""]
     if "vision" in r:
         v = r["vision"]
         lines += ["## Vision in the loop (thesis 000 §5.3.1)", "",

@@ -56,8 +56,9 @@ def register(subparsers) -> None:
     p.set_defaults(func=_perceive)
 
     c = subparsers.add_parser(
-        "calibrate", help="hand-eye or joint-offset calibration from recorded measurements",
-        description="Reads measurements from a JSON file and prints the calibration as JSON.")
+        "calibrate", help="hand-eye, joint-offset or arm-encoder calibration",
+        description="Prints the calibration as JSON: from recorded measurements (hand-eye, joint-offsets) "
+                    "or from the head camera in a MuJoCo scene (arm-encoders).")
     sub = c.add_subparsers(dest="calibration", required=True, metavar="KIND")
     he = sub.add_parser("hand-eye", help="camera mount from (robot pose, target pose) pairs")
     he.add_argument("measurements", type=Path,
