@@ -21,6 +21,9 @@ MujocoScene::MujocoScene(const std::string& mjcf_path, const pinocchio::Model& r
   model_ = mj_loadXML(mjcf_path.c_str(), nullptr, error, sizeof(error));
   if (model_ == nullptr) throw SimError("MuJoCo cannot load '" + mjcf_path + "': " + error);
   data_ = mj_makeData(model_);
+  own_contype_.assign(model_->geom_contype, model_->geom_contype + model_->ngeom);
+  own_conaffinity_.assign(model_->geom_conaffinity, model_->geom_conaffinity + model_->ngeom);
+  open_count_.assign(model_->ngeom, 0);
   nq_ = robot.nq;
   nv_ = robot.nv;
 
@@ -279,16 +282,13 @@ void MujocoScene::SetWeld(int weld_id, bool active) {
     for (int k = 0; k < 3; ++k) eq[3 + k] = X_12.translation()[k];
     eq[6] = quat.w(), eq[7] = quat.x(), eq[8] = quat.y(), eq[9] = quat.z();
   }
-  for (size_t k = 0; k < releases_.size(); ++k) {
-    if (releases_[k].weld == weld_id) EndRelease(k--);
-  }
+  EndReleases([&](const Release& r) { return r.weld == weld_id; });  // taken again, or released twice
   if (!active && model_->eq_active[weld_id] != 0) {
-    Release r{weld_id, {}, {}, {}, {}};
+    Release r{weld_id, {}, {}};
     for (int g = 0; g < model_->ngeom; ++g) {
       if (SubtreeOf(model_->geom_bodyid[g], model_->eq_obj1id[weld_id])) {
         r.hand_geoms.push_back(g);
-        r.contype.push_back(model_->geom_contype[g]);
-        r.conaffinity.push_back(model_->geom_conaffinity[g]);
+        ++open_count_[g];
         model_->geom_contype[g] = 0;
         model_->geom_conaffinity[g] = 0;
       } else if (model_->geom_bodyid[g] == model_->eq_obj2id[weld_id]) {
@@ -307,27 +307,36 @@ bool MujocoScene::SubtreeOf(int body, int root) const {
   return root == 0;
 }
 
-void MujocoScene::EndRelease(size_t k) {
-  const Release& r = releases_[k];
-  for (size_t i = 0; i < r.hand_geoms.size(); ++i) {
-    model_->geom_contype[r.hand_geoms[i]] = r.contype[i];
-    model_->geom_conaffinity[r.hand_geoms[i]] = r.conaffinity[i];
+void MujocoScene::EndReleases(const std::function<bool(const Release&)>& ended) {
+  size_t kept = 0;  // compacted in place: no allocation on the loop's tick
+  for (size_t k = 0; k < releases_.size(); ++k) {
+    Release& r = releases_[k];
+    if (!ended(r)) {
+      if (kept != k) releases_[kept] = std::move(r);
+      ++kept;
+      continue;
+    }
+    for (int g : r.hand_geoms) {  // collides again unless another release holds it open
+      if (--open_count_[g] > 0) continue;
+      model_->geom_contype[g] = own_contype_[g];
+      model_->geom_conaffinity[g] = own_conaffinity_[g];
+    }
   }
-  releases_.erase(releases_.begin() + static_cast<std::ptrdiff_t>(k));
+  releases_.resize(kept);
 }
 
 void MujocoScene::EndClearReleases() {
   constexpr double kMargin = 0.005;  // [m] beyond touching bounding spheres
-  for (size_t k = 0; k < releases_.size(); ++k) {
-    bool clear = true;
-    for (int h : releases_[k].hand_geoms) {
-      for (int o : releases_[k].object_geoms) {
+  const auto clear = [&](const Release& r) {
+    for (int h : r.hand_geoms) {
+      for (int o : r.object_geoms) {
         const Eigen::Map<const Eigen::Vector3d> ph(data_->geom_xpos + 3 * h), po(data_->geom_xpos + 3 * o);
-        if ((ph - po).norm() < model_->geom_rbound[h] + model_->geom_rbound[o] + kMargin) clear = false;
+        if ((ph - po).norm() < model_->geom_rbound[h] + model_->geom_rbound[o] + kMargin) return false;
       }
     }
-    if (clear) EndRelease(k--);
-  }
+    return true;
+  };
+  EndReleases(clear);
 }
 
 }  // namespace marionette::sim

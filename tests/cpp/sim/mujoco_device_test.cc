@@ -136,6 +136,12 @@ TEST(MujocoSceneTest, AReleasedHandStopsCollidingUntilItIsClearOfTheObject) {
   scene.SetFreeBodyPose("plank", scene.BodyPose("gripper_left_base_link"));  // still in the jaw
   step();
   EXPECT_EQ(scene.opening_hands(), 1);
+  scene.SetWeld(weld, true);  // taken again before clear: the hand is closed and collides
+  EXPECT_EQ(scene.opening_hands(), 0);
+  EXPECT_EQ(m.geom_contype[finger], contype);
+  scene.SetWeld(weld, false);
+  EXPECT_EQ(scene.opening_hands(), 1);
+  EXPECT_EQ(m.geom_contype[finger], 0);
   scene.SetFreeBodyPose("plank", pin::SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(3.0, 0.0, 1.0)));
   step();  // clear of the plank: the hand collides again
   EXPECT_EQ(scene.opening_hands(), 0);

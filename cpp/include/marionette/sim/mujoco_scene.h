@@ -16,6 +16,7 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Core>
+#include <functional>
 #include <memory>
 #include <pinocchio/multibody/model.hpp>
 #include <pinocchio/spatial/se3.hpp>
@@ -118,10 +119,9 @@ class MujocoScene {
   struct Release {  // a released weld whose hand is not clear yet (SetWeld)
     int weld;
     std::vector<int> hand_geoms, object_geoms;
-    std::vector<int> contype, conaffinity;  // the hand geoms' own, restored when clear
   };
   bool SubtreeOf(int body, int root) const;
-  void EndRelease(size_t k);
+  void EndReleases(const std::function<bool(const Release&)>& ended);  // ends those `ended` says
   void EndClearReleases();
 
   mjModel* model_ = nullptr;
@@ -134,6 +134,8 @@ class MujocoScene {
   std::vector<JointMap> joints_;
   std::vector<std::string> actuated_names_;
   std::vector<Release> releases_;
+  // Per geom: the model's own collision masks, and how many releases hold it open (mask 0).
+  std::vector<int> own_contype_, own_conaffinity_, open_count_;
 };
 
 }  // namespace marionette::sim
