@@ -41,6 +41,7 @@ from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from
 from marionette.execution.references import compute_references, dwell, sample_step
 from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
 from marionette.lcm_bus import private_lcm_url
+from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
 from marionette.planning.path import Plan, load_plan
 from marionette.processes import ProcessGroup
 
@@ -198,7 +199,6 @@ def calibrate_encoders(scene: Path, robot: str, sides: tuple[str, ...], perturba
                        log: Callable[[str], None]) -> dict[str, Any]:
     """The encoder offsets of ``sides``' arms from the head camera (thesis 000 ch. 4.2) in the
     robot's ``scene``; with the offsets the perturbation put in, the error left per joint."""
-    from marionette.perception.arm_calibration import calibrate_arm
 
     truth = perturbation.joint_offsets if perturbation is not None else {}
     out: dict[str, Any] = {"arms": [], "encoder_offsets": {}}
@@ -286,8 +286,7 @@ def run_demo(scenario: Scenario, seed: int, out_dir: Path, speed: float = 1.0,
                                        "--robot", robot, "--scene", scene, "--speed", str(speed),
                                        "--camera-rate", str(scenario.camera_rate if scenario.vision else 0),
                                        "--status-rate", "100"]
-                        + (["--encoder-offsets", ",".join(f"{j}={v:.9f}" for j, v in encoder_offsets.items())]
-                           if encoder_offsets else []))
+                        + (["--encoder-offsets", encoder_offsets_argument(encoder_offsets)] if encoder_offsets else []))
         if scenario.vision:
             group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                      "--robot", robot, "--stats-period", "30",

@@ -34,6 +34,8 @@ import pinocchio as pin
 from marionette import robots
 from marionette.perception.calibration import (CalibrationError, JointOffsetProblem, PoseOffsetResult,
                                                calibrate_joint_offsets_from_poses, pose_residuals_and_jacobian)
+from marionette.perception.camera import CameraIntrinsics
+from marionette.perception.objects import TaggedBody, tagged_bodies_from_semantics
 
 # The arm's joints, the link it hangs from, the tagged link (TALOS).
 BASE_FRAME = "torso_2_link"
@@ -62,49 +64,42 @@ def _box(side: str) -> list[tuple[float, float]]:
     return box
 
 
-@dataclass(frozen=True)
-class CameraModel:
-    """Pinhole of the head camera (pixels) and its optical frame in the model."""
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    frame: str
+def wrist_ring(robot: str, side: str) -> TaggedBody:
+    """The tags on ``side``'s wrist as the robot's model declares them (grippers.yaml)."""
+    link = tagged_link(side)
+    for body in tagged_bodies_from_semantics(robots.semantics(robot)):
+        if body.link == link:
+            return body
+    raise CalibrationError(f"{robot} declares no tags on {link}")
 
 
-def ring_visibility(model: pin.Model, data: pin.Data, q: np.ndarray, side: str, camera: CameraModel,
-                    tags: list, margin_px: float = 60.0) -> int:
+def ring_visibility(model: pin.Model, data: pin.Data, q: np.ndarray, ring: TaggedBody, intrinsics: CameraIntrinsics,
+                    camera_frame: str, margin_px: float = 60.0) -> int:
     """How many of the ring's tags face the camera (within 55° of its line of sight) with their
     centre inside the image by ``margin_px``, 0.3–0.75 m away (nominal kinematics at ``q``)."""
     pin.framesForwardKinematics(model, data, q)
-    X_CW = data.oMf[model.getFrameId(camera.frame)].inverse()
-    X_WE = data.oMf[model.getFrameId(tagged_link(side))]
+    X_CE = data.oMf[model.getFrameId(camera_frame)].actInv(data.oMf[model.getFrameId(ring.link)])
     facing = 0
-    for tag in tags:
-        X_CT = X_CW * X_WE * tag.pose.se3()
+    for tag in ring.tags:
+        X_CT = X_CE * tag.X_BT
         p = X_CT.translation
         if not 0.3 < p[2] < 0.75:
             continue
-        u, v = camera.fx * p[0] / p[2] + camera.cx, camera.fy * p[1] / p[2] + camera.cy
-        if not (margin_px < u < camera.width - margin_px and margin_px < v < camera.height - margin_px):
+        u, v = intrinsics.project(p)[0]
+        if not (margin_px < u < intrinsics.width - margin_px and margin_px < v < intrinsics.height - margin_px):
             continue
         if -X_CT.rotation[:, 2] @ (p / np.linalg.norm(p)) > np.cos(np.radians(55.0)):
             facing += 1
     return facing
 
 
-def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, side: str, camera: CameraModel,
-               count: int = 10, candidates: int = 6000, seed: int = 0) -> list[np.ndarray]:
+def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, side: str, ring: TaggedBody,
+               intrinsics: CameraIntrinsics, camera_frame: str, count: int = 10, candidates: int = 6000,
+               seed: int = 0) -> list[np.ndarray]:
     """``count`` configurations (nq,) of the standing robot ``q_stand`` with ``side``'s arm and
-    the head moved so that the camera sees the wrist ring (module doc, step 1). Raises
+    the head moved so that the camera sees the wrist ``ring`` (module doc, step 1). Raises
     :class:`CalibrationError` when fewer than ``count`` candidates qualify."""
-    from marionette.models.robot_models import talos_wrist_tags
-
     rng = np.random.default_rng(seed)
-    tags = talos_wrist_tags(side)
     data, gdata = model.createData(), pin.GeometryData(geom)
     iq = [model.joints[model.getJointId(j)].idx_q for j in arm_joints(side)]
     ih = [model.joints[model.getJointId(j)].idx_q for j in ("head_1_joint", "head_2_joint")]
@@ -115,7 +110,7 @@ def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, s
         q[iq] = lo + rng.random(len(iq)) * (hi - lo)
         pitch, yaw = _HEAD_POSTURES[rng.integers(len(_HEAD_POSTURES))]
         q[ih] = (pitch, yaw if side == "left" else -yaw)
-        if ring_visibility(model, data, q, side, camera, tags) < 2:
+        if ring_visibility(model, data, q, ring, intrinsics, camera_frame) < 2:
             continue
         if pin.computeCollisions(model, data, geom, gdata, q, True):
             continue
@@ -149,36 +144,27 @@ class WristView:
     reprojection_px: float
 
 
-def measure_views(scene_path: Path, robot: str, side: str, views: list[np.ndarray],
+def measure_views(scene, renderer, model: pin.Model, robot: str, ring: TaggedBody, views: list[np.ndarray],
                   quad_decimate: float = 1.0, max_reprojection_px: float = 1.0, image_noise: float = 2.0,
                   seed: int = 0) -> list[WristView]:
-    """The robot holds each view in the MuJoCo scene ``scene_path`` (its encoders, offsets
-    included, read the view's joint values) and the head camera's rendered image, with Gaussian
-    sensor noise of ``image_noise`` grey levels, locates the ring (module doc, step 2). A view
-    whose ring is unseen, seen through one tag only, or fitted worse than
+    """The robot holds each view in the MuJoCo ``scene`` (an ``MjScene``: its encoders, offsets
+    included, read the view's joint values) and the head camera's image (``renderer``), with
+    Gaussian sensor noise of ``image_noise`` grey levels, locates the ``ring`` (module doc, step
+    2). A view whose ring is unseen, seen through one tag only, or fitted worse than
     ``max_reprojection_px`` gets ``X_BE`` None."""
-    from marionette._core import sim
-    from marionette.models.robot_models import talos_wrist_tags
-    from marionette.models.semantics import Semantics
-    from marionette.perception.camera import CameraIntrinsics
     from marionette.perception.detector import AprilTagDetector, DetectorConfig
-    from marionette.perception.objects import estimate_body_pose, tag_sizes, tagged_bodies_from_semantics
+    from marionette.perception.objects import estimate_body_pose, tag_sizes
 
-    model, _ = robots.load_pinocchio(robot, with_collision=False)
     data = model.createData()
-    (ring,) = tagged_bodies_from_semantics(Semantics(robot, tags=talos_wrist_tags(side)))
-    desc = robots.robot(robot)
-    scene = sim.MjScene(str(scene_path))
-    scene.reset_keyframe("reference")
-    renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
-    k = renderer.intrinsics
-    K = CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+    camera_frame = robots.robot(robot).camera_frame
+    K = _intrinsics(renderer)
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate))
     rng = np.random.default_rng(seed)
     out = []
     for q in views:
+        robot_qpos = robots.pinocchio_to_mujoco(robot, q)
         qpos = scene.qpos.copy()
-        qpos[:len(robots.pinocchio_to_mujoco(robot, q))] = robots.pinocchio_to_mujoco(robot, q)
+        qpos[:len(robot_qpos)] = robot_qpos
         scene.qpos = qpos
         scene.forward()
         rgb, depth = renderer.render(scene)
@@ -189,9 +175,14 @@ def measure_views(scene_path: Path, robot: str, side: str, views: list[np.ndarra
             out.append(WristView(q, None, pose.tag_ids if pose else (), pose.reprojection_rms if pose else np.nan))
             continue
         pin.framesForwardKinematics(model, data, q)
-        X_BC = data.oMf[model.getFrameId(BASE_FRAME)].inverse() * data.oMf[model.getFrameId(desc.camera_frame)]
+        X_BC = data.oMf[model.getFrameId(BASE_FRAME)].actInv(data.oMf[model.getFrameId(camera_frame)])
         out.append(WristView(q, X_BC * pose.X_CB, pose.tag_ids, pose.reprojection_rms))
     return out
+
+
+def _intrinsics(renderer) -> CameraIntrinsics:
+    k = renderer.intrinsics
+    return CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
 
 
 @dataclass(frozen=True)
@@ -216,22 +207,28 @@ class ArmCalibration:
                 "residual_rotation_deg": float(np.degrees(np.median(r.rotation_residuals)))}
 
 
+def encoder_offsets_argument(offsets: dict[str, float]) -> str:
+    """The value of the controller's ``--encoder-offsets``: ``joint=offset,...`` [rad]."""
+    return ",".join(f"{joint}={offset:.9f}" for joint, offset in offsets.items())
+
+
 def calibrate_arm(scene_path: Path, side: str, robot: str = "talos", count: int = 12, seed: int = 0,
                   log: Callable[[str], None] = print) -> ArmCalibration:
     """Plans ``count`` views, measures them in ``scene_path`` and solves the seven offsets of
     ``side``'s arm. Raises :class:`CalibrationError` when fewer than 4 views see the ring."""
-    model, geom = robots.load_pinocchio(robot, with_collision=True)
-    desc = robots.robot(robot)
     from marionette._core import sim
 
+    model, geom = robots.load_pinocchio(robot, with_collision=True)
+    desc = robots.robot(robot)
+    ring = wrist_ring(robot, side)
     scene = sim.MjScene(str(scene_path))
     scene.reset_keyframe("reference")
-    nq_mj = len(robots.pinocchio_to_mujoco(robot, pin.neutral(model)))
-    q_stand = robots.mujoco_to_pinocchio(robot, scene.qpos[:nq_mj])
-    k = sim.RgbdRenderer(scene, desc.camera, 640, 480).intrinsics
-    camera = CameraModel(k.width, k.height, k.fx, k.fy, k.cx, k.cy, desc.camera_frame)
-    views = plan_views(model, geom, q_stand, side, camera, count=count, seed=seed)
-    measured = [v for v in measure_views(scene_path, robot, side, views, seed=seed) if v.X_BE is not None]
+    renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
+    q_stand = robots.mujoco_to_pinocchio(robot, scene.qpos[:len(robots.pinocchio_to_mujoco(robot, pin.neutral(model)))])
+    views = plan_views(model, geom, q_stand, side, ring, _intrinsics(renderer), desc.camera_frame, count=count,
+                       seed=seed)
+    measured = [v for v in measure_views(scene, renderer, model, robot, ring, views, seed=seed)
+                if v.X_BE is not None]
     log(f"calibration: {side} arm, {len(measured)}/{len(views)} views saw the wrist ring")
     if len(measured) < 4:
         raise CalibrationError(f"only {len(measured)} of {len(views)} views saw the {side} wrist ring (4 needed)")

@@ -307,9 +307,15 @@ def calibrate_joint_offsets_from_poses(problem: JointOffsetProblem, Q: np.ndarra
 
     def solve(views: np.ndarray, x0: np.ndarray, loss: str) -> np.ndarray:
         Qv, Mv = Q[views], [measured[i] for i in views]
-        return least_squares(lambda x: pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)[0], x0,
-                             jac=lambda x: pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)[1],
-                             loss=loss, f_scale=outlier_scale).x
+        last: dict = {}   # residuals and Jacobian come from one kinematics pass: evaluated once per x
+
+        def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            if last.get("x") is None or not np.array_equal(last["x"], x):
+                last["x"], last["rJ"] = x.copy(), pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)
+            return last["rJ"]
+
+        return least_squares(lambda x: evaluate(x)[0], x0, jac=lambda x: evaluate(x)[1], loss=loss,
+                             f_scale=outlier_scale).x
 
     everything = np.arange(len(Q))
     x = solve(everything, np.zeros(k), "huber")

@@ -161,7 +161,7 @@ def _calibrate_hand_eye(args: argparse.Namespace) -> int:
 
 
 def _calibrate_arm_encoders(args: argparse.Namespace) -> int:
-    from marionette.perception.arm_calibration import calibrate_arm
+    from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
     from marionette.perception.calibration import CalibrationError
 
     if not args.scene.is_file():
@@ -173,7 +173,7 @@ def _calibrate_arm_encoders(args: argparse.Namespace) -> int:
         raise SystemExit(f"calibrate: {exc}")
     offsets = {j: v for arm in arms for j, v in arm.encoder_offsets().items()}
     print(json.dumps({"arms": [arm.summary() for arm in arms],
-                      "controller_option": "--encoder-offsets " + ",".join(f"{j}={v:.9f}" for j, v in offsets.items())},
+                      "controller_option": "--encoder-offsets " + encoder_offsets_argument(offsets)},
                      indent=2))
     return 0
 
