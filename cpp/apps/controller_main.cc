@@ -34,6 +34,8 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --status-rate HZ      CONTROLLER_STATUS rate (default 10)
   --camera-rate HZ      CAMERA_HEAD rate, 0 = off (default 30)
   --camera-size WxH     camera image size (default 640x480)
+  --camera-noise GREY   Gaussian sensor noise on the images [grey levels, 1 sigma] (default 0)
+  --depth-noise M       Gaussian noise on the depth pixels with a return [m, 1 sigma] (default 0)
   --velocity-scale F    fraction of the URDF velocity limits allowed (default 1)
   --timing-log FILE     write every tick's period, compute time and lateness (CSV) at exit
   --no-profiling        do not time every entity (CONTROLLER_TIMING, budgets) each tick

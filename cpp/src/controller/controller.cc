@@ -528,7 +528,9 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
           o.camera_height < 16) {
         throw std::invalid_argument("--camera-size: '" + v + "' is not WIDTHxHEIGHT");
       }
-    } else if (a == "--velocity-scale") o.velocity_scale = number(i);
+    } else if (a == "--camera-noise") o.camera_noise = number(i);
+    else if (a == "--depth-noise") o.depth_noise = number(i);
+    else if (a == "--velocity-scale") o.velocity_scale = number(i);
     else if (a == "--timing-log") o.timing_log = value(i);
     else if (a == "--no-profiling") o.profiling = false;
     else if (a == "--overrun-hold-ticks") o.overrun_hold_ticks = static_cast<int64_t>(number(i));

@@ -1,6 +1,7 @@
 // marionette-controller's publisher and camera threads: state, command, status, ground truth
 // and RGB-D frames, from lock-free snapshots of the loop.
 #include "controller_impl.h"
+#include "marionette/sim/camera_noise.h"
 
 namespace marionette::controller {
 
@@ -266,6 +267,11 @@ void Controller::Impl::CameraThread() {
     return;
   }
   sim::RgbdFrame frame;
+  sim::CameraNoise noise({options.camera_noise, options.depth_noise, /*seed=*/0});
+  if (noise.enabled()) {
+    runtime::LogLine("[controller] camera: sensor noise ", options.camera_noise, " grey levels, depth ",
+                     options.depth_noise * 1e3, " mm (1 sigma)");
+  }
   lcmt_camera_image msg{};
   const sim::PinholeIntrinsics& K = renderer->intrinsics();
   msg.camera_name = "head";
@@ -288,6 +294,7 @@ void Controller::Impl::CameraThread() {
     mj_kinematics(&m, d);
     mj_camlight(&m, d);
     renderer->Render(*d, &frame);
+    if (noise.enabled()) noise.Apply(&frame);
     msg.utime = static_cast<int64_t>(r[0]);
     msg.rgb = frame.rgb;
     for (int i = 0; i < msg.num_depth; ++i) {

@@ -9,7 +9,9 @@ step 1 is optional there):
   about the centre of its hole pattern, and the tool sits off its nominal pose in the hand
   (<= 5 mm / 3 deg: "the grasping action itself has a bad repeatability, which means that the
   pose of the drill relative to the hand is not accurately known"). Both are written into the
-  scene file the controller loads; the controller's model keeps the nominal ones.
+  scene file the controller loads; the controller's model keeps the nominal ones. The head
+  camera's frames carry sensor noise (``camera_noise_grey``, ``depth_noise_m``: the controller's
+  ``--camera-noise``, ``--depth-noise``).
 * **Step 2-3: locate the part, plan.** The head camera (rendered by marionette-controller) and
   ``marionette perceive`` give the part's pose from its tags 20-23. The planning problem
   (``planning/problems/tiago_deburr.yaml``) puts the part there: every hole is a *handle*, the
@@ -115,6 +117,8 @@ class DeburrSettings:
     tsp_time_limit_s: float = 1.0
     max_holes: int = 0                     # 0: every hole of the part; else the first N of the tour
     camera_rate_hz: float = 5.0
+    camera_noise_grey: float = 2.0         # head camera's sensor noise (1 sigma): on the image ...
+    depth_noise_m: float = 0.003           # ... and on the depth (a structured-light sensor at ~1 m)
 
 
 # ---- perturbations and the scene file ---------------------------------------------------------
@@ -457,7 +461,8 @@ def run_deburr(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                                    "--channel=^CAMERA_.*", "--invert-channels"])
         group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
                                    "--robot", "tiago", "--scene", scene, "--speed", str(speed),
-                                   "--camera-rate", str(st.camera_rate_hz), "--status-rate", "50"])
+                                   "--camera-rate", str(st.camera_rate_hz), "--status-rate", "50",
+                                   "--camera-noise", str(st.camera_noise_grey), "--depth-noise", str(st.depth_noise_m)])
         group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
                                  "--robot", "tiago", "--objects", str(PART_YAML), "--quad-decimate", "1"])
         vision = Vision(client, st)
@@ -606,7 +611,9 @@ def _write_report(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -
              f"{np.round(r['part_nominal'], 4).tolist()}, x y z qw qx qy qz); tool off in the hand by "
              f"{np.round(r['tool_offset'], 4).tolist()} (tip {r['tool_tip_offset_m'] * 1e3:.1f} mm)",
              f"- head camera (tags 20-23, {r['camera']['frames']} frames): part "
-             f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off",
+             f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off; "
+             f"sensor noise {r['settings']['camera_noise_grey']:g} grey levels, depth "
+             f"{r['settings']['depth_noise_m'] * 1e3:g} mm (1 sigma)",
              f"- order: {r['tour']['solver']}, cost {r['tour']['tsp_cost']:.2f} vs {r['tour']['listed_order_cost']:.2f} "
              f"in the listed order ({r['tour']['cost']}); planning {r['tour']['planning_s']:.1f} s",
              "- timings [s wall]: " + ", ".join(f"{k} {v:.1f}" for k, v in r["timings"].items()), "",

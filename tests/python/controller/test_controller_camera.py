@@ -4,6 +4,7 @@ from the MuJoCo camera, and depth that matches the floor plane seen from the cam
 from __future__ import annotations
 
 import math
+import subprocess
 
 import numpy as np
 
@@ -38,3 +39,39 @@ def test_camera_frames_rate_intrinsics_and_depth(run_controller):
             errors.append(depth[v, u] - expected)
     errors = np.abs(errors)
     assert errors.max() < 0.01, f"depth off by up to {errors.max():.4f} m"
+
+
+def _two_frames(run_controller, *args: str) -> tuple[np.ndarray, np.ndarray]:
+    """Two consecutive head-camera frames (RGB, float) of TIAGo standing in the deburr scene."""
+    scene = str(robots.MODELS_DIR / "scenes" / "tiago_deburr.xml")
+    with run_controller("--robot", "tiago", "--scene", scene, "--camera-rate", "15", *args, camera=True) as c:
+        c.wait(lambda c: c.num_images >= 30, 60, "30 camera frames (the robot settled)")
+        first, n = c.image, c.num_images
+        c.wait(lambda c: c.num_images >= n + 1, 30, "one more camera frame")
+        second = c.image
+    return tuple(np.frombuffer(bytes(i.rgb), dtype=np.uint8).reshape(480, 640, 3).astype(float)
+                 for i in (first, second))
+
+
+def test_camera_noise_has_the_requested_sigma(run_controller):
+    """--camera-noise 3: TIAGo holds still (without noise two frames are identical, checked first),
+    so two noisy frames differ by the noise alone, whose per-frame sigma is std(a - b) / sqrt(2)."""
+    a, b = _two_frames(run_controller)
+    assert (a == b).all(), "the still scene renders differently from one frame to the next"
+    a, b = _two_frames(run_controller, "--camera-noise", "3")
+    inside = ((a > 15) & (a < 240) & (b > 15) & (b < 240)).all(axis=2)   # no channel clamped
+    assert inside.mean() > 0.5
+    d = (a - b)[inside]                                                    # (n x 3)
+    # Luminance noise: one draw per pixel on R, G and B alike.
+    assert (d[:, 0] == d[:, 1]).mean() > 0.999 and (d[:, 0] == d[:, 2]).mean() > 0.999
+    sigma = d[:, 0].std() / math.sqrt(2.0)
+    # sqrt(9 + 1/12) = 3.01: the rounding to integers adds 1/12 to the variance.
+    assert 2.9 < sigma < 3.13, f"measured noise sigma {sigma:.3f} grey levels for 3"
+
+
+def test_negative_camera_noise_is_refused(build_dir):
+    binary = build_dir / "marionette-controller"
+    for flag in ("--camera-noise", "--depth-noise"):
+        out = subprocess.run([binary, "--robot", "talos", "--duration", "0.01", "--lcm-url", "memq://",
+                              flag, "-1"], capture_output=True, text=True, timeout=60)
+        assert out.returncode != 0 and flag in out.stderr, (flag, out.returncode, out.stderr)

@@ -46,6 +46,8 @@ struct ControllerOptions {
   double camera_rate = 30.0;       ///< [Hz], 0 = no camera
   int camera_width = 640;
   int camera_height = 480;
+  double camera_noise = 0.0;       ///< [grey levels] sensor noise on every camera frame (sim::CameraNoise)
+  double depth_noise = 0.0;        ///< [m] on every camera depth pixel that has a return
   double velocity_scale = 1.0;     ///< fraction of the URDF velocity limits the safety allows
   std::string timing_log;          ///< write every tick's timing here (CSV) at exit, "" = no
   bool profiling = true;           ///< per-entity compute time (CONTROLLER_TIMING, budgets)
