@@ -294,7 +294,7 @@ void Controller::Impl::CameraThread() {
     mj_kinematics(&m, d);
     mj_camlight(&m, d);
     renderer->Render(*d, &frame);
-    if (noise.enabled()) noise.Apply(&frame);
+    noise.Apply(&frame);  // nothing when both sigmas are 0
     msg.utime = static_cast<int64_t>(r[0]);
     msg.rgb = frame.rgb;
     for (int i = 0; i < msg.num_depth; ++i) {

@@ -20,14 +20,14 @@ struct CameraNoiseSettings {
 /// I.i.d. zero-mean Gaussian noise per pixel, drawn from a 65536-entry inverse-CDF table indexed by
 /// a 64-bit xorshift generator (four draws per step); the tails are cut at 4.17 sigma (the table's
 /// last quantile). Colours are rounded and clamped to [0, 255]. A 640 x 480 RGB-D frame takes ~4 ms
-/// in the camera thread (the table, ~0.1 s, is built once). No allocation after construction.
+/// in the camera thread (the table, ~0.1 s, is built once, only when a sigma is > 0). No allocation
+/// after construction.
 class CameraNoise {
  public:
   /// Throws std::invalid_argument when a sigma is negative or not finite.
   explicit CameraNoise(const CameraNoiseSettings& settings);
 
   bool enabled() const { return settings_.grey_sigma > 0.0 || settings_.depth_sigma_m > 0.0; }
-  const CameraNoiseSettings& settings() const { return settings_; }
 
   /// Adds the noise to `frame` in place: rgb (height*width*3), depth (height*width) [m]; either
   /// may be empty.
