@@ -54,10 +54,13 @@ def _two_frames(run_controller, *args: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_camera_noise_has_the_requested_sigma(run_controller):
-    """--camera-noise 3: TIAGo holds still (without noise two frames are identical, checked first),
-    so two noisy frames differ by the noise alone, whose per-frame sigma is std(a - b) / sqrt(2)."""
+    """--camera-noise 3: TIAGo holds still (without noise two frames differ in < 0.1 % of their
+    values, by one grey level at most: checked first), so two noisy frames differ by the noise
+    alone, whose per-frame sigma is std(a - b) / sqrt(2)."""
     a, b = _two_frames(run_controller)
-    assert (a == b).all(), "the still scene renders differently from one frame to the next"
+    # The robot's residual sway changes ~40 of the 921600 values by one grey level in some runs.
+    changed, worst = (a != b).mean(), np.abs(a - b).max()
+    assert changed < 1e-3 and worst <= 1.0, f"the still scene changes: {changed:.2%} of the values, by up to {worst:g}"
     a, b = _two_frames(run_controller, "--camera-noise", "3")
     inside = ((a > 15) & (a < 240) & (b > 15) & (b < 240)).all(axis=2)   # no channel clamped
     assert inside.mean() > 0.5
