@@ -35,7 +35,9 @@ class Relay final : public Entity {
   OutputSignal<Eigen::VectorXd>* out1_{};
 
  private:
-  void CalcOut0(const Tick& t, Eigen::VectorXd* out) const { *out = gain_->Eval(t) * in0_->Eval(t); }
+  void CalcOut0(const Tick& t, Eigen::VectorXd* out) const {
+    *out = gain_->Eval(t) * in0_->Eval(t);
+  }
   void CalcOut1(const Tick& t, Eigen::VectorXd* out) const { *out = in0_->Eval(t) + in1_->Eval(t); }
 };
 
@@ -44,7 +46,8 @@ class Relay final : public Entity {
 std::unique_ptr<Graph> MakeControllerSizedGraph(std::vector<Relay*>* relays) {
   GraphBuilder b;
   auto& x = b.Add<VectorIntegrator>("x", Eigen::VectorXd::Ones(kSize));
-  for (int i = 0; i < kEntities; ++i) relays->push_back(&b.Add<Relay>("relay" + std::to_string(i), kSize));
+  for (int i = 0; i < kEntities; ++i)
+    relays->push_back(&b.Add<Relay>("relay" + std::to_string(i), kSize));
   auto& r = *relays;
   b.Connect(x.state_output(), *r[0]->in0_);
   b.Connect(x.state_output(), *r[0]->in1_);
@@ -66,7 +69,8 @@ void BM_TickControllerSizedGraph(benchmark::State& state) {
   Tick t;
   for (int i = 0; i < 100; ++i, ++t) graph->Evaluate(t);
   int64_t computed_before = 0;
-  for (Relay* r : relays) computed_before += r->out0_->num_evaluations() + r->out1_->num_evaluations();
+  for (Relay* r : relays)
+    computed_before += r->out0_->num_evaluations() + r->out1_->num_evaluations();
   for (auto _ : state) {
     graph->Evaluate(t);
     ++t;

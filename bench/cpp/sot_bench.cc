@@ -53,8 +53,8 @@ std::string Json(const char* name, const Quantiles& q) {
 // Runs `ticks` instrumented ticks after a warm-up; returns the JSON of one scenario.
 std::string Run(const char* scenario, const sot::testing::TalosStackOptions& options, int ticks) {
   sot::testing::TalosStack s = sot::testing::BuildTalosStack(options);
-  std::vector<sot::Task*> tasks{s.left_foot, s.right_foot, s.com, s.right_hand, s.left_hand,
-                                s.posture};
+  std::vector<sot::Task*> tasks{s.left_foot,  s.right_foot, s.com,
+                                s.right_hand, s.left_hand,  s.posture};
   if (s.limits) tasks.push_back(s.limits);
   Tick tick;
   marionette::graph::RunTicks(*s.graph, &tick, 500);  // warm-up (start-up blend, caches)
@@ -91,8 +91,10 @@ std::string Run(const char* scenario, const sot::testing::TalosStackOptions& opt
   const Eigen::Vector3d target = s.right_hand_feature->reference_input().Eval(tick).translation();
   const sot::Kinematics& k = s.robot->kinematics_output().Eval(tick);
   const double hand_error =
-      (k.placement(sot::MakeFrameRef(*s.model, sot::testing::kRightGripper, "bench")).translation() -
-       target).norm();
+      (k.placement(sot::MakeFrameRef(*s.model, sot::testing::kRightGripper, "bench"))
+           .translation() -
+       target)
+          .norm();
   char figures[300];
   std::snprintf(figures, sizeof figures,
                 "\"reach\": [%.17g, %.17g, %.17g], \"joint_limits\": %s, "

@@ -30,8 +30,9 @@ struct WalkGraph {
     graph::GraphBuilder b;
     FootstepManagerOptions options;
     options.start_delay = 0.0;
-    steps = &b.Add<FootstepManager>("steps", FootPlacement(0, 0.085, 0, 0), FootPlacement(0, -0.085, 0, 0),
-                                    Eigen::Vector2d::Zero(), options);
+    steps =
+        &b.Add<FootstepManager>("steps", FootPlacement(0, 0.085, 0, 0),
+                                FootPlacement(0, -0.085, 0, 0), Eigen::Vector2d::Zero(), options);
     PreviewControlParams params;
     params.com_height = 0.87;
     pg = &b.Add<PatternGenerator>("pg", params, Eigen::Vector3d(0, 0, 0.87));

@@ -56,9 +56,9 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using Vector = Eigen::VectorXd;
 
-constexpr double kDt = 1e-3;            // the 1 kHz tick of marionette-bench-sot
-constexpr double kLimitGain = 500.0;    // marionette JointLimitsOptions::position_gain
-constexpr double kNoLimit = 1e10;       // "no limit" in URDF parsers and in TSID
+constexpr double kDt = 1e-3;          // the 1 kHz tick of marionette-bench-sot
+constexpr double kLimitGain = 500.0;  // marionette JointLimitsOptions::position_gain
+constexpr double kNoLimit = 1e10;     // "no limit" in URDF parsers and in TSID
 constexpr const char* kRightGripper = "gripper_right_base_link";
 constexpr const char* kLeftGripper = "gripper_left_base_link";
 constexpr const char* kLeftTarget = "bench_left_gripper_target";
@@ -104,16 +104,27 @@ Args Parse(int argc, char** argv) {
     auto need = [&](int n) {
       if (i + n >= argc) Fail(k + " needs " + std::to_string(n) + " value(s)");
     };
-    if (k == "--urdf") { need(1); a.urdf = argv[++i]; }
-    else if (k == "--srdf") { need(1); a.srdf = argv[++i]; }
-    else if (k == "--scenario") { need(1); a.scenario = argv[++i]; }
-    else if (k == "--ticks") { need(1); a.ticks = std::atoi(argv[++i]); }
-    else if (k == "--posture-weight") { need(1); a.posture_weight = std::atof(argv[++i]); }
-    else if (k == "--reach") {
+    if (k == "--urdf") {
+      need(1);
+      a.urdf = argv[++i];
+    } else if (k == "--srdf") {
+      need(1);
+      a.srdf = argv[++i];
+    } else if (k == "--scenario") {
+      need(1);
+      a.scenario = argv[++i];
+    } else if (k == "--ticks") {
+      need(1);
+      a.ticks = std::atoi(argv[++i]);
+    } else if (k == "--posture-weight") {
+      need(1);
+      a.posture_weight = std::atof(argv[++i]);
+    } else if (k == "--reach") {
       need(3);
       for (int j = 0; j < 3; ++j) a.reach[j] = std::atof(argv[++i]);
     } else {
-      Fail("unknown argument '" + k + "' (expected --urdf --srdf --ticks --reach --scenario --posture-weight)");
+      Fail("unknown argument '" + k +
+           "' (expected --urdf --srdf --ticks --reach --scenario --posture-weight)");
     }
   }
   if (a.urdf.empty() || a.srdf.empty()) Fail("--urdf and --srdf are required");
@@ -140,8 +151,8 @@ int main(int argc, char** argv) {
     const auto r = model.getFrameId(kRightGripper), l = model.getFrameId(kLeftGripper);
     const pinocchio::SE3 X_RL = d.oMf[r].actInv(d.oMf[l]);
     const auto& fr = model.frames[r];
-    model.addFrame(pinocchio::Frame(kLeftTarget, fr.parentJoint, r, fr.placement * X_RL,
-                                    pinocchio::OP_FRAME));
+    model.addFrame(
+        pinocchio::Frame(kLeftTarget, fr.parentJoint, r, fr.placement * X_RL, pinocchio::OP_FRAME));
   }
 
   tsid::robots::RobotWrapper robot(model, tsid::robots::RobotWrapper::FIXED_BASE_SYSTEM);
@@ -159,7 +170,8 @@ int main(int argc, char** argv) {
   for (pinocchio::JointIndex j = 1; j < model.joints.size(); ++j) {
     if (model.nvs[j] != 1 || model.nqs[j] != 1) continue;
     const int iq = model.idx_qs[j], iv = model.idx_vs[j];
-    if (model.lowerPositionLimit[iq] <= -kNoLimit || model.upperPositionLimit[iq] >= kNoLimit) continue;
+    if (model.lowerPositionLimit[iq] <= -kNoLimit || model.upperPositionLimit[iq] >= kNoLimit)
+      continue;
     limited_q.push_back(iq);
     limited_v.push_back(iv);
     v_max[iv] = std::abs(model.upperVelocityLimit[iv]);
@@ -219,8 +231,9 @@ int main(int argc, char** argv) {
   ik.addMotionTask(left_hand, 1.0, 1);
   ik.addMotionTask(posture, args.posture_weight, 1);
 
-  std::unique_ptr<tsid::solvers::SolverHQPBase> solver(tsid::solvers::SolverHQPFactory::createNewSolver(
-      tsid::solvers::SOLVER_HQP_EIQUADPROG_FAST, "eiquadprog-fast"));
+  std::unique_ptr<tsid::solvers::SolverHQPBase> solver(
+      tsid::solvers::SolverHQPFactory::createNewSolver(tsid::solvers::SOLVER_HQP_EIQUADPROG_FAST,
+                                                       "eiquadprog-fast"));
   solver->resize(ik.nVar(), ik.nEq(), ik.nIn());
 
   Vector q = q0, v(nv);
@@ -271,13 +284,13 @@ int main(int argc, char** argv) {
   ik.computeProblemData(time, q, zero_v);
   const double hand_error = (pose(kRightGripper).translation() - hand_target.translation()).norm();
 
-  std::printf("{\"%s\": {\"ticks\": %d, \"qp\": \"eiquadprog-fast\", \"variables\": %d, "
-              "\"equalities\": %d, \"inequalities\": %d, \"posture_weight\": %g, \"qp_failures\": %d, "
-              "\"final_hand_position_error\": %.6g, \"max_foot_error\": %.6g, %s, %s, %s, %s, %s}}\n",
-              args.scenario.c_str(), args.ticks, ik.nVar(), ik.nEq(), ik.nIn(), args.posture_weight, failures,
-              hand_error, max_foot_error, Json("kinematics", Summarize(t_kin)).c_str(),
-              Json("bounds", Summarize(t_bounds)).c_str(),
-              Json("problem_data", Summarize(t_data)).c_str(),
-              Json("solve", Summarize(t_solve)).c_str(), Json("tick", Summarize(t_tick)).c_str());
+  std::printf(
+      "{\"%s\": {\"ticks\": %d, \"qp\": \"eiquadprog-fast\", \"variables\": %d, "
+      "\"equalities\": %d, \"inequalities\": %d, \"posture_weight\": %g, \"qp_failures\": %d, "
+      "\"final_hand_position_error\": %.6g, \"max_foot_error\": %.6g, %s, %s, %s, %s, %s}}\n",
+      args.scenario.c_str(), args.ticks, ik.nVar(), ik.nEq(), ik.nIn(), args.posture_weight,
+      failures, hand_error, max_foot_error, Json("kinematics", Summarize(t_kin)).c_str(),
+      Json("bounds", Summarize(t_bounds)).c_str(), Json("problem_data", Summarize(t_data)).c_str(),
+      Json("solve", Summarize(t_solve)).c_str(), Json("tick", Summarize(t_tick)).c_str());
   return 0;
 }

@@ -63,27 +63,38 @@ int Replay(int argc, char** argv) {
       if (i + 1 >= argc) throw std::invalid_argument(a + " needs a value");
       return argv[++i];
     };
-    if (a == "--replay") o.log = value();
-    else if (a == "--scene") o.scene = value();
-    else if (a == "--models") o.models_dir = value();
-    else if (a == "--json") json = value();
-    else if (a == "--tolerance") o.tolerance = std::stod(value());
-    else if (a == "-v" || a == "--verbose") o.verbose = true;
-    else throw std::invalid_argument("unknown replay argument '" + a + "' (see --help)");
+    if (a == "--replay")
+      o.log = value();
+    else if (a == "--scene")
+      o.scene = value();
+    else if (a == "--models")
+      o.models_dir = value();
+    else if (a == "--json")
+      json = value();
+    else if (a == "--tolerance")
+      o.tolerance = std::stod(value());
+    else if (a == "-v" || a == "--verbose")
+      o.verbose = true;
+    else
+      throw std::invalid_argument("unknown replay argument '" + a + "' (see --help)");
   }
   const mc::ReplayResult r = mc::ReplayLog(o);
-  std::cout << "replayed " << r.ticks << " ticks of '" << r.config << "': " << r.inputs << " inputs, "
-            << r.commands_compared << " recorded commands compared, max difference " << r.max_difference << "\n";
+  std::cout << "replayed " << r.ticks << " ticks of '" << r.config << "': " << r.inputs
+            << " inputs, " << r.commands_compared << " recorded commands compared, max difference "
+            << r.max_difference << "\n";
   if (r.first_divergence_tick >= 0) {
-    std::cout << "first divergence at tick " << r.first_divergence_tick << ": " << r.first_divergence << "\n";
+    std::cout << "first divergence at tick " << r.first_divergence_tick << ": "
+              << r.first_divergence << "\n";
   }
   if (r.journal_mismatches > 0) {
-    std::cout << r.journal_mismatches << " ticks consumed other inputs than recorded; first: " << r.first_journal_mismatch
+    std::cout << r.journal_mismatches
+              << " ticks consumed other inputs than recorded; first: " << r.first_journal_mismatch
               << "\n";
   }
   for (const std::string& p : r.problems) std::cout << "problem: " << p << "\n";
   if (r.commands_compared == 0) std::cout << "problem: the log holds no ROBOT_COMMAND to compare\n";
-  std::cout << (r.ok() ? "replay matches the recording" : "replay does NOT match the recording") << "\n";
+  std::cout << (r.ok() ? "replay matches the recording" : "replay does NOT match the recording")
+            << "\n";
   if (!json.empty()) std::ofstream(json) << r.ToJson() << "\n";
   return r.ok() ? 0 : 1;
 }

@@ -63,12 +63,18 @@ void RegisterGraph(py::module_& parent) {
   py::register_exception<dg::GraphError>(m, "GraphError", PyExc_ValueError);
 
   py::class_<dg::Tick>(m, "Tick")
-      .def(py::init([](int64_t index, double time, double dt) { return dg::Tick{index, time, dt}; }),
+      .def(py::init([](int64_t index, double time, double dt) {
+             return dg::Tick{index, time, dt};
+           }),
            py::arg("index") = 0, py::arg("time") = 0.0, py::arg("dt") = 1e-3)
       .def_readwrite("index", &dg::Tick::index)
       .def_readwrite("time", &dg::Tick::time)
       .def_readwrite("dt", &dg::Tick::dt)
-      .def("advance", [](dg::Tick& t) { ++t; return t; })
+      .def("advance",
+           [](dg::Tick& t) {
+             ++t;
+             return t;
+           })
       .def("__repr__", [](const dg::Tick& t) {
         return "Tick(index=" + std::to_string(t.index) + ", time=" + std::to_string(t.time) + ")";
       });
@@ -78,9 +84,9 @@ void RegisterGraph(py::module_& parent) {
       .def_property_readonly("full_name", &dg::SignalBase::full_name)
       .def_property_readonly("kind", [](const dg::SignalBase& s) { return dg::ToString(s.kind()); })
       .def_property_readonly("type_name", &dg::SignalBase::type_name)
-      .def_property_readonly("shape", [](const dg::SignalBase& s) {
-        return py::make_tuple(s.shape().rows, s.shape().cols);
-      })
+      .def_property_readonly(
+          "shape",
+          [](const dg::SignalBase& s) { return py::make_tuple(s.shape().rows, s.shape().cols); })
       .def_property_readonly("value", &SignalValue, "current value (no evaluation)")
       .def("pull", &dg::SignalBase::Pull, py::arg("tick"), "evaluate at tick (cached per tick)")
       .def_property_readonly("entity", [](const dg::SignalBase& s) { return s.owner().name(); })
@@ -89,10 +95,11 @@ void RegisterGraph(py::module_& parent) {
       });
 
   py::class_<dg::InputSignalBase, dg::SignalBase>(m, "InputSignal")
-      .def_property_readonly("source", [](const dg::InputSignalBase& in) -> py::object {
-        if (in.source() == nullptr) return py::none();
-        return py::str(in.source()->full_name());
-      })
+      .def_property_readonly("source",
+                             [](const dg::InputSignalBase& in) -> py::object {
+                               if (in.source() == nullptr) return py::none();
+                               return py::str(in.source()->full_name());
+                             })
       .def_property_readonly("is_plugged", &dg::InputSignalBase::is_plugged)
       .def_property_readonly("is_set", &dg::InputSignalBase::is_set)
       .def_property_readonly("settable", &dg::InputSignalBase::settable)
@@ -102,23 +109,32 @@ void RegisterGraph(py::module_& parent) {
       .def_property_readonly("name", &dg::Entity::name)
       .def_property_readonly("type_name", &dg::Entity::type_name)
       .def("signal", &dg::Entity::signal, py::return_value_policy::reference_internal)
-      .def("input", [](const dg::Entity& e, std::string_view name) -> dg::InputSignalBase& {
+      .def(
+          "input",
+          [](const dg::Entity& e, std::string_view name) -> dg::InputSignalBase& {
             dg::SignalBase& s = e.signal(name);
             if (!s.is_input()) throw dg::GraphError(s.full_name() + " is not an input");
             return static_cast<dg::InputSignalBase&>(s);
-          }, py::return_value_policy::reference_internal)
-      .def("output", [](const dg::Entity& e, std::string_view name) -> dg::SignalBase& {
+          },
+          py::return_value_policy::reference_internal)
+      .def(
+          "output",
+          [](const dg::Entity& e, std::string_view name) -> dg::SignalBase& {
             dg::SignalBase& s = e.signal(name);
             if (s.is_input()) throw dg::GraphError(s.full_name() + " is not an output");
             return s;
-          }, py::return_value_policy::reference_internal)
-      .def_property_readonly("inputs", &dg::Entity::inputs, py::return_value_policy::reference_internal)
-      .def_property_readonly("outputs", &dg::Entity::outputs, py::return_value_policy::reference_internal)
+          },
+          py::return_value_policy::reference_internal)
+      .def_property_readonly("inputs", &dg::Entity::inputs,
+                             py::return_value_policy::reference_internal)
+      .def_property_readonly("outputs", &dg::Entity::outputs,
+                             py::return_value_policy::reference_internal)
       .def("__repr__", [](const dg::Entity& e) {
         return "<" + std::string(e.type_name()) + " '" + e.name() + "'>";
       });
 
-  py::class_<dg::VectorConstant, dg::Entity, std::shared_ptr<dg::VectorConstant>>(m, "VectorConstant")
+  py::class_<dg::VectorConstant, dg::Entity, std::shared_ptr<dg::VectorConstant>>(m,
+                                                                                  "VectorConstant")
       .def(py::init<std::string, const Eigen::VectorXd&>(), py::arg("name"), py::arg("value"));
   py::class_<dg::VectorSum, dg::Entity, std::shared_ptr<dg::VectorSum>>(m, "VectorSum")
       .def(py::init<std::string, int, int>(), py::arg("name"), py::arg("n"), py::arg("num_inputs"));
@@ -131,35 +147,43 @@ void RegisterGraph(py::module_& parent) {
       m, "VectorIntegrator")
       .def(py::init<std::string, const Eigen::VectorXd&>(), py::arg("name"), py::arg("initial"));
   py::class_<dg::Tracer, dg::Entity, std::shared_ptr<dg::Tracer>>(m, "Tracer")
-      .def(py::init([](std::string name, int capacity, const std::vector<dg::SignalBase*>& signals) {
-             return std::make_shared<dg::Tracer>(std::move(name), capacity, ToSignals(signals));
-           }),
-           py::arg("name"), py::arg("capacity"), py::arg("signals"))
+      .def(
+          py::init([](std::string name, int capacity, const std::vector<dg::SignalBase*>& signals) {
+            return std::make_shared<dg::Tracer>(std::move(name), capacity, ToSignals(signals));
+          }),
+          py::arg("name"), py::arg("capacity"), py::arg("signals"))
       .def_property_readonly("column_names", &dg::Tracer::column_names)
       .def_property_readonly("size", &dg::Tracer::size)
-      .def("rows", [](const dg::Tracer& t) {
-        py::array_t<double> a({t.size(), t.num_columns()});
-        for (int i = 0; i < t.size(); ++i) {
-          const std::vector<double> row = t.Row(i);
-          std::copy(row.begin(), row.end(), a.mutable_data(i, 0));
-        }
-        return a;
-      }, "recorded rows, oldest first: tick, time, values...")
+      .def(
+          "rows",
+          [](const dg::Tracer& t) {
+            py::array_t<double> a({t.size(), t.num_columns()});
+            for (int i = 0; i < t.size(); ++i) {
+              const std::vector<double> row = t.Row(i);
+              std::copy(row.begin(), row.end(), a.mutable_data(i, 0));
+            }
+            return a;
+          },
+          "recorded rows, oldest first: tick, time, values...")
       .def("write_csv", &dg::Tracer::WriteCsv, py::arg("path"));
 
   py::class_<dg::Graph>(m, "Graph")
       .def("evaluate", &dg::Graph::Evaluate, py::arg("tick"))
-      .def("run", [](dg::Graph& g, dg::Tick& t, int64_t n) { dg::RunTicks(g, &t, n); },
-           py::arg("tick"), py::arg("n"), "evaluate n ticks from tick (advanced in place)",
-           py::call_guard<py::gil_scoped_release>())
+      .def(
+          "run", [](dg::Graph& g, dg::Tick& t, int64_t n) { dg::RunTicks(g, &t, n); },
+          py::arg("tick"), py::arg("n"), "evaluate n ticks from tick (advanced in place)",
+          py::call_guard<py::gil_scoped_release>())
       .def_property_readonly("entities", &dg::Graph::entities)
-      .def("entity", [](const dg::Graph& g, std::string_view name) {
+      .def(
+          "entity",
+          [](const dg::Graph& g, std::string_view name) {
             for (const auto& e : g.entities()) {
               if (e->name() == name) return e;
             }
             g.entity(name);  // throws with the list of entities
             return std::shared_ptr<dg::Entity>();
-          }, py::arg("name"))
+          },
+          py::arg("name"))
       .def("signal", &dg::Graph::signal, py::return_value_policy::reference_internal)
       .def_property_readonly("num_signals", &dg::Graph::num_signals)
       .def_property_readonly("version", &dg::Graph::version)
@@ -169,26 +193,35 @@ void RegisterGraph(py::module_& parent) {
 
   py::class_<dg::GraphBuilder>(m, "GraphBuilder")
       .def(py::init<>())
-      .def("add", [](dg::GraphBuilder& b, std::shared_ptr<dg::Entity> e) {
-        b.AddShared(e);
-        return e;
-      }, py::arg("entity"))
-      .def("connect", py::overload_cast<dg::SignalBase&, dg::SignalBase&>(&dg::GraphBuilder::Connect),
+      .def(
+          "add",
+          [](dg::GraphBuilder& b, std::shared_ptr<dg::Entity> e) {
+            b.AddShared(e);
+            return e;
+          },
+          py::arg("entity"))
+      .def("connect",
+           py::overload_cast<dg::SignalBase&, dg::SignalBase&>(&dg::GraphBuilder::Connect),
            py::arg("source"), py::arg("destination"))
-      .def("connect", py::overload_cast<std::string_view, std::string_view>(&dg::GraphBuilder::Connect),
+      .def("connect",
+           py::overload_cast<std::string_view, std::string_view>(&dg::GraphBuilder::Connect),
            py::arg("source"), py::arg("destination"))
       .def("build", &dg::GraphBuilder::Build);
 
   py::class_<dg::GraphEdit>(m, "GraphEdit")
       .def(py::init<const dg::Graph&>(), py::arg("graph"))
-      .def("add", [](dg::GraphEdit& ed, std::shared_ptr<dg::Entity> e) {
-        ed.AddShared(e);
-        return e;
-      }, py::arg("entity"))
+      .def(
+          "add",
+          [](dg::GraphEdit& ed, std::shared_ptr<dg::Entity> e) {
+            ed.AddShared(e);
+            return e;
+          },
+          py::arg("entity"))
       .def("remove", &dg::GraphEdit::Remove, py::arg("name"))
       .def("connect", py::overload_cast<dg::SignalBase&, dg::SignalBase&>(&dg::GraphEdit::Connect),
            py::arg("source"), py::arg("destination"))
-      .def("connect", py::overload_cast<std::string_view, std::string_view>(&dg::GraphEdit::Connect),
+      .def("connect",
+           py::overload_cast<std::string_view, std::string_view>(&dg::GraphEdit::Connect),
            py::arg("source"), py::arg("destination"))
       .def("prepare", &dg::GraphEdit::Prepare)
       .def_property_readonly("prepared", &dg::GraphEdit::prepared);

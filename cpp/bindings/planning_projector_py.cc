@@ -19,7 +19,8 @@ namespace marionette::bindings {
 namespace {
 
 pinocchio::SE3 Pose(const Eigen::Matrix4d& M) {
-  return pinocchio::SE3(Eigen::Matrix3d(M.topLeftCorner<3, 3>()), Eigen::Vector3d(M.topRightCorner<3, 1>()));
+  return pinocchio::SE3(Eigen::Matrix3d(M.topLeftCorner<3, 3>()),
+                        Eigen::Vector3d(M.topRightCorner<3, 1>()));
 }
 
 std::vector<pinocchio::SE3> Poses(const std::vector<Eigen::Matrix4d>& Ms) {
@@ -43,7 +44,8 @@ planning::LineSearchSpec::Kind LineSearchKind(const std::string& k) {
   if (k == "fixed_sequence") return K::kFixedSequence;
   if (k == "error_norm") return K::kErrorNorm;
   if (k == "constant") return K::kConstant;
-  throw std::invalid_argument("line search kind '" + k + "' is not supported (fixed_sequence error_norm constant)");
+  throw std::invalid_argument("line search kind '" + k +
+                              "' is not supported (fixed_sequence error_norm constant)");
 }
 
 }  // namespace
@@ -51,12 +53,13 @@ planning::LineSearchSpec::Kind LineSearchKind(const std::string& k) {
 void RegisterPlanningProjector(py::module_& m) {
   using namespace marionette::planning;
 
-  py::class_<ImplicitSpec>(m, "ImplicitSpec",
-                           "One implicit constraint: kind relative (joint1, M1, joint2, M2, mask) | placement | "
-                           "complement (placement index) | locked (idx_q, idx_v, nq); level (0 = highest)")
-      .def(py::init([](const std::string& kind, int level, int joint1, const Eigen::Matrix4d& M1, int joint2,
-                       const Eigen::Matrix4d& M2, const std::vector<bool>& mask, int placement, int idx_q,
-                       int idx_v, int nq) {
+  py::class_<ImplicitSpec>(
+      m, "ImplicitSpec",
+      "One implicit constraint: kind relative (joint1, M1, joint2, M2, mask) | placement | "
+      "complement (placement index) | locked (idx_q, idx_v, nq); level (0 = highest)")
+      .def(py::init([](const std::string& kind, int level, int joint1, const Eigen::Matrix4d& M1,
+                       int joint2, const Eigen::Matrix4d& M2, const std::vector<bool>& mask,
+                       int placement, int idx_q, int idx_v, int nq) {
              ImplicitSpec s;
              s.kind = ImplicitKind(kind);
              s.level = level;
@@ -64,7 +67,8 @@ void RegisterPlanningProjector(py::module_& m) {
              s.M1 = Pose(M1);
              s.joint2 = joint2;
              s.M2 = Pose(M2);
-             if (mask.size() != 6) throw std::invalid_argument("a mask has 6 entries (x y z rx ry rz)");
+             if (mask.size() != 6)
+               throw std::invalid_argument("a mask has 6 entries (x y z rx ry rz)");
              for (int i = 0; i < 6; ++i) s.mask[i] = mask[i];
              s.placement = placement;
              s.idx_q = idx_q;
@@ -74,24 +78,32 @@ void RegisterPlanningProjector(py::module_& m) {
            }),
            py::arg("kind"), py::arg("level") = 0, py::arg("joint1") = 0,
            py::arg("M1") = Eigen::Matrix4d::Identity().eval(), py::arg("joint2") = 0,
-           py::arg("M2") = Eigen::Matrix4d::Identity().eval(), py::arg("mask") = std::vector<bool>(6, true),
-           py::arg("placement") = -1, py::arg("idx_q") = 0, py::arg("idx_v") = 0, py::arg("nq") = 0);
+           py::arg("M2") = Eigen::Matrix4d::Identity().eval(),
+           py::arg("mask") = std::vector<bool>(6, true), py::arg("placement") = -1,
+           py::arg("idx_q") = 0, py::arg("idx_v") = 0, py::arg("nq") = 0);
 
-  py::class_<PlacementSpec>(m, "PlacementSpec",
-                            "Object surface on environment surface: per pair joint_e, M_env, joint_o, M_obj (4x4, "
-                            "z into the object), polygon (k x 2); margin; select (pair chosen per projection)")
-      .def(py::init([](std::vector<int> joint_e, const std::vector<Eigen::Matrix4d>& M_env, std::vector<int> joint_o,
-                       const std::vector<Eigen::Matrix4d>& M_obj, std::vector<Eigen::MatrixX2d> polygons,
-                       double margin, bool select) {
-             return PlacementSpec{std::move(joint_e), std::move(joint_o), Poses(M_env), Poses(M_obj),
-                                  std::move(polygons), margin, select};
+  py::class_<PlacementSpec>(
+      m, "PlacementSpec",
+      "Object surface on environment surface: per pair joint_e, M_env, joint_o, M_obj (4x4, "
+      "z into the object), polygon (k x 2); margin; select (pair chosen per projection)")
+      .def(py::init([](std::vector<int> joint_e, const std::vector<Eigen::Matrix4d>& M_env,
+                       std::vector<int> joint_o, const std::vector<Eigen::Matrix4d>& M_obj,
+                       std::vector<Eigen::MatrixX2d> polygons, double margin, bool select) {
+             return PlacementSpec{std::move(joint_e),
+                                  std::move(joint_o),
+                                  Poses(M_env),
+                                  Poses(M_obj),
+                                  std::move(polygons),
+                                  margin,
+                                  select};
            }),
-           py::arg("joint_e"), py::arg("M_env"), py::arg("joint_o"), py::arg("M_obj"), py::arg("polygons"),
-           py::arg("margin"), py::arg("select"));
+           py::arg("joint_e"), py::arg("M_env"), py::arg("joint_o"), py::arg("M_obj"),
+           py::arg("polygons"), py::arg("margin"), py::arg("select"));
 
-  py::class_<Projector>(m, "Projector",
-                        "Newton-Raphson projection onto implicit constraints with explicit substitution "
-                        "(twin of marionette.planning.projector.Projector.project)")
+  py::class_<Projector>(
+      m, "Projector",
+      "Newton-Raphson projection onto implicit constraints with explicit substitution "
+      "(twin of marionette.planning.projector.Projector.project)")
       .def(py::init([](const std::vector<JointSpec>& joints, std::vector<ImplicitSpec> implicit,
                        std::vector<PlacementSpec> placements, std::vector<int> locked_idx_q,
                        std::vector<int> locked_nq, std::vector<int> relative_idx_q,
@@ -100,8 +112,9 @@ void RegisterPlanningProjector(py::module_& m) {
                        std::vector<int> static_joints, std::vector<int> free_idx,
                        std::vector<int> bounded_idx_q, Eigen::VectorXd lower, Eigen::VectorXd upper,
                        std::vector<int> sat_k, std::vector<int> sat_q, Eigen::VectorXd sat_lo,
-                       Eigen::VectorXd sat_hi, const std::string& line_search, double alpha0, double alpha_max,
-                       double K, double alpha_min, double max_step, double damping) {
+                       Eigen::VectorXd sat_hi, const std::string& line_search, double alpha0,
+                       double alpha_max, double K, double alpha_min, double max_step,
+                       double damping) {
              ProjectorSpec s;
              s.implicit = std::move(implicit);
              s.placements = std::move(placements);
@@ -121,31 +134,36 @@ void RegisterPlanningProjector(py::module_& m) {
              s.sat_q = std::move(sat_q);
              s.sat_lo = std::move(sat_lo);
              s.sat_hi = std::move(sat_hi);
-             s.line_search = {LineSearchKind(line_search), alpha0, alpha_max, K, alpha_min, max_step};
+             s.line_search = {
+                 LineSearchKind(line_search), alpha0, alpha_max, K, alpha_min, max_step};
              s.damping = damping;
              return std::make_unique<Projector>(BuildKinematicModel(joints), std::move(s));
            }),
            py::arg("joints"), py::arg("implicit"), py::arg("placements"), py::arg("locked_idx_q"),
-           py::arg("locked_nq"), py::arg("relative_idx_q"), py::arg("relative_parent"), py::arg("relative_output"),
-           py::arg("relative_M_PO"), py::arg("patchable"), py::arg("static_joints"), py::arg("free_idx"),
-           py::arg("bounded_idx_q"), py::arg("lower"), py::arg("upper"), py::arg("sat_k"), py::arg("sat_q"),
-           py::arg("sat_lo"), py::arg("sat_hi"), py::arg("line_search"), py::arg("alpha0"), py::arg("alpha_max"),
-           py::arg("K"), py::arg("alpha_min"), py::arg("max_step"), py::arg("damping"))
+           py::arg("locked_nq"), py::arg("relative_idx_q"), py::arg("relative_parent"),
+           py::arg("relative_output"), py::arg("relative_M_PO"), py::arg("patchable"),
+           py::arg("static_joints"), py::arg("free_idx"), py::arg("bounded_idx_q"),
+           py::arg("lower"), py::arg("upper"), py::arg("sat_k"), py::arg("sat_q"),
+           py::arg("sat_lo"), py::arg("sat_hi"), py::arg("line_search"), py::arg("alpha0"),
+           py::arg("alpha_max"), py::arg("K"), py::arg("alpha_min"), py::arg("max_step"),
+           py::arg("damping"))
       .def(
           "project",
-          [](Projector& p, Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs, std::vector<int> pairs,
-             double error_threshold, int max_iterations) {
+          [](Projector& p, Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs,
+             std::vector<int> pairs, double error_threshold, int max_iterations) {
             const ProjectionOutcome r = p.Project(q, rhs, &pairs, error_threshold, max_iterations);
             return py::make_tuple(static_cast<int>(r.status), r.iterations, r.error_norm, pairs);
           },
           py::arg("q").noconvert(), py::arg("rhs"), py::arg("pairs"), py::arg("error_threshold"),
           py::arg("max_iterations"),
-          "Project q (float64 contiguous nq array, modified in place): (status code, iterations, |e|, surface "
-          "pairs); status 0 success, 1 iteration limit, 2 not decreasing, 3 local minimum, 4 not finite")
+          "Project q (float64 contiguous nq array, modified in place): (status code, iterations, "
+          "|e|, surface "
+          "pairs); status 0 success, 1 iteration limit, 2 not decreasing, 3 local minimum, 4 not "
+          "finite")
       .def(
           "is_satisfied",
-          [](Projector& p, const Eigen::VectorXd& q, const Eigen::VectorXd& rhs, std::vector<int> pairs,
-             double threshold) {
+          [](Projector& p, const Eigen::VectorXd& q, const Eigen::VectorXd& rhs,
+             std::vector<int> pairs, double threshold) {
             const bool ok = p.IsSatisfied(q, rhs, &pairs, threshold);
             return py::make_tuple(ok, pairs);
           },
@@ -156,7 +174,8 @@ void RegisterPlanningProjector(py::module_& m) {
           [](Projector& p, Eigen::VectorXd q, const Eigen::VectorXd& rhs, std::vector<int> pairs) {
             return p.Error(q, rhs, &pairs);
           },
-          py::arg("q"), py::arg("rhs"), py::arg("pairs"), "Stacked implicit errors at q (no substitution)")
+          py::arg("q"), py::arg("rhs"), py::arg("pairs"),
+          "Stacked implicit errors at q (no substitution)")
       .def(
           "jacobian",
           [](Projector& p, Eigen::VectorXd q, const Eigen::VectorXd& rhs, std::vector<int> pairs) {

@@ -19,7 +19,8 @@ void RegisterPlanningProjector(py::module_& m);  // planning_projector_py.cc
 namespace {
 
 pinocchio::SE3 SE3From(const Eigen::Matrix4d& M) {
-  return pinocchio::SE3(Eigen::Matrix3d(M.topLeftCorner<3, 3>()), Eigen::Vector3d(M.topRightCorner<3, 1>()));
+  return pinocchio::SE3(Eigen::Matrix3d(M.topLeftCorner<3, 3>()),
+                        Eigen::Vector3d(M.topRightCorner<3, 1>()));
 }
 
 using BoolArray = Eigen::Array<bool, Eigen::Dynamic, 1>;
@@ -28,22 +29,26 @@ using BoolArray = Eigen::Array<bool, Eigen::Dynamic, 1>;
 
 void RegisterPlanning(py::module_& parent) {
   using namespace marionette::planning;
-  py::module_ m = parent.def_submodule("planning", "Certified continuous collision checking of paths");
+  py::module_ m =
+      parent.def_submodule("planning", "Certified continuous collision checking of paths");
   // std::invalid_argument -> ValueError (pybind11's default translation).
 
-  py::class_<JointSpec>(m, "JointSpec", "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4)")
+  py::class_<JointSpec>(m, "JointSpec",
+                        "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4)")
       .def(py::init([](std::string name, int parent, std::string kind, Eigen::Vector3d axis,
                        Eigen::Matrix4d placement) {
              return JointSpec{std::move(name), parent, std::move(kind), axis, SE3From(placement)};
            }),
-           py::arg("name"), py::arg("parent"), py::arg("kind"), py::arg("axis"), py::arg("placement"));
+           py::arg("name"), py::arg("parent"), py::arg("kind"), py::arg("axis"),
+           py::arg("placement"));
 
-  py::class_<GeometrySpec>(m, "GeometrySpec",
-                           "One collision geometry: kind convex (points, triangles) | box (half_side) | "
-                           "sphere (radius) | cylinder, capsule (radius, half_length)")
-      .def(py::init([](std::string name, int parent_joint, Eigen::Matrix4d placement, std::string kind,
-                       Eigen::MatrixX3d points, Eigen::MatrixX3i triangles, Eigen::Vector3d half_side,
-                       double radius, double half_length) {
+  py::class_<GeometrySpec>(
+      m, "GeometrySpec",
+      "One collision geometry: kind convex (points, triangles) | box (half_side) | "
+      "sphere (radius) | cylinder, capsule (radius, half_length)")
+      .def(py::init([](std::string name, int parent_joint, Eigen::Matrix4d placement,
+                       std::string kind, Eigen::MatrixX3d points, Eigen::MatrixX3i triangles,
+                       Eigen::Vector3d half_side, double radius, double half_length) {
              GeometrySpec g;
              g.name = std::move(name);
              g.parent_joint = parent_joint;
@@ -61,13 +66,17 @@ void RegisterPlanning(py::module_& parent) {
            py::arg("half_side") = Eigen::Vector3d::Zero(), py::arg("radius") = 0.0,
            py::arg("half_length") = 0.0);
 
-  py::class_<Substitution>(m, "Substitution",
-                           "Explicit constraints of a path: locked joint values, attached free-flyers")
+  py::class_<Substitution>(
+      m, "Substitution",
+      "Explicit constraints of a path: locked joint values, attached free-flyers")
       .def(py::init([](std::vector<int> locked_idx_q, std::vector<Eigen::VectorXd> locked_value,
                        std::vector<int> attached_idx_q, std::vector<int> attached_parent,
                        const std::vector<Eigen::Matrix4d>& attached_M_PO) {
-             Substitution s{std::move(locked_idx_q), std::move(locked_value), std::move(attached_idx_q),
-                            std::move(attached_parent), {}};
+             Substitution s{std::move(locked_idx_q),
+                            std::move(locked_value),
+                            std::move(attached_idx_q),
+                            std::move(attached_parent),
+                            {}};
              for (const auto& M : attached_M_PO) s.attached_M_PO.push_back(SE3From(M));
              return s;
            }),
@@ -86,13 +95,14 @@ void RegisterPlanning(py::module_& parent) {
 
   py::class_<PathValidator>(m, "PathValidator",
                             "Certified continuous collision checking of constrained polylines")
-      .def(py::init([](const std::vector<JointSpec>& joints, const std::vector<GeometrySpec>& geometries,
-                       const std::vector<std::pair<int, int>>& pairs, double contact, int max_queries) {
-             pinocchio::Model model = BuildKinematicModel(joints);
-             pinocchio::GeometryModel gm = BuildGeometryModel(model, geometries, pairs);
-             return std::make_unique<PathValidator>(std::move(model), std::move(gm), contact,
-                                                    max_queries);
-           }),
+      .def(py::init(
+               [](const std::vector<JointSpec>& joints, const std::vector<GeometrySpec>& geometries,
+                  const std::vector<std::pair<int, int>>& pairs, double contact, int max_queries) {
+                 pinocchio::Model model = BuildKinematicModel(joints);
+                 pinocchio::GeometryModel gm = BuildGeometryModel(model, geometries, pairs);
+                 return std::make_unique<PathValidator>(std::move(model), std::move(gm), contact,
+                                                        max_queries);
+               }),
            py::arg("joints"), py::arg("geometries"), py::arg("pairs"), py::arg("contact"),
            py::arg("max_queries"))
       .def(
@@ -102,7 +112,8 @@ void RegisterPlanning(py::module_& parent) {
             const ValidationResult r = v.Validate(Polyline{points, cum}, sub, motion, probes);
             return py::make_tuple(r.valid, r.s_valid, r.queries, r.grazing);
           },
-          py::arg("points"), py::arg("cum"), py::arg("substitution"), py::arg("motion"), py::arg("probes"),
+          py::arg("points"), py::arg("cum"), py::arg("substitution"), py::arg("motion"),
+          py::arg("probes"),
           "(valid, s_valid, pair queries, refused as grazing) of the path points (k x nq) at arc "
           "lengths cum (k)")
       .def(
@@ -118,7 +129,8 @@ void RegisterPlanning(py::module_& parent) {
           py::arg("points"), py::arg("cum"), py::arg("substitution"), py::arg("s"))
       .def(
           "pair_speeds",
-          [](PathValidator& v, const Eigen::VectorXd& qa, const Eigen::VectorXd& qb, const PairMotion& motion) {
+          [](PathValidator& v, const Eigen::VectorXd& qa, const Eigen::VectorXd& qb,
+             const PairMotion& motion) {
             if (qa.size() != v.model().nq || qb.size() != v.model().nq)
               throw std::invalid_argument("qa and qb must have nq entries");
             if (motion.rigid.size() != v.num_pairs() || motion.skip.size() != v.num_pairs() ||

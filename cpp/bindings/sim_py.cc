@@ -39,8 +39,8 @@ class MjScene {
   Eigen::VectorXd qpos() const { return Eigen::Map<Eigen::VectorXd>(data_->qpos, model_->nq); }
   void set_qpos(const Eigen::VectorXd& q) {
     if (q.size() != model_->nq) {
-      throw std::invalid_argument("qpos has size " + std::to_string(q.size()) + ", the model nq = " +
-                                  std::to_string(model_->nq));
+      throw std::invalid_argument("qpos has size " + std::to_string(q.size()) +
+                                  ", the model nq = " + std::to_string(model_->nq));
     }
     Eigen::Map<Eigen::VectorXd>(data_->qpos, model_->nq) = q;
   }
@@ -56,10 +56,12 @@ class MjScene {
   Eigen::Matrix4d Pose(int type, const std::string& name) const {
     const int id = mj_name2id(model_, type, name.c_str());
     if (id < 0) throw std::invalid_argument("no such " + TypeName(type) + " in the scene: " + name);
-    const double* pos = type == mjOBJ_BODY ? data_->xpos : type == mjOBJ_SITE ? data_->site_xpos
-                                                                                : data_->geom_xpos;
-    const double* mat = type == mjOBJ_BODY ? data_->xmat : type == mjOBJ_SITE ? data_->site_xmat
-                                                                                : data_->geom_xmat;
+    const double* pos = type == mjOBJ_BODY   ? data_->xpos
+                        : type == mjOBJ_SITE ? data_->site_xpos
+                                             : data_->geom_xpos;
+    const double* mat = type == mjOBJ_BODY   ? data_->xmat
+                        : type == mjOBJ_SITE ? data_->site_xmat
+                                             : data_->geom_xmat;
     Eigen::Matrix4d X = Eigen::Matrix4d::Identity();
     for (int r = 0; r < 3; ++r) {
       X(r, 3) = pos[3 * id + r];
@@ -89,12 +91,15 @@ void RegisterSim(py::module_& parent) {
       .def("forward", &MjScene::forward, "mj_forward: update kinematics after setting qpos")
       .def("reset_keyframe", &MjScene::reset_keyframe, py::arg("name"),
            "mj_resetDataKeyframe then mj_forward")
-      .def("body_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_BODY, n); },
-           py::arg("name"), "X_WB as a 4 x 4 matrix")
-      .def("site_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_SITE, n); },
-           py::arg("name"), "X_WS as a 4 x 4 matrix")
-      .def("geom_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_GEOM, n); },
-           py::arg("name"), "X_WG as a 4 x 4 matrix");
+      .def(
+          "body_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_BODY, n); },
+          py::arg("name"), "X_WB as a 4 x 4 matrix")
+      .def(
+          "site_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_SITE, n); },
+          py::arg("name"), "X_WS as a 4 x 4 matrix")
+      .def(
+          "geom_pose", [](const MjScene& s, const std::string& n) { return s.Pose(mjOBJ_GEOM, n); },
+          py::arg("name"), "X_WG as a 4 x 4 matrix");
 
   py::class_<sim::PinholeIntrinsics>(m, "PinholeIntrinsics")
       .def_readonly("width", &sim::PinholeIntrinsics::width)
@@ -125,9 +130,12 @@ void RegisterSim(py::module_& parent) {
           },
           py::arg("scene"), "-> (rgb (h, w, 3) uint8, depth (h, w) float32 [m], 0 = no hit)")
       .def_property_readonly("intrinsics", &sim::RgbdRenderer::intrinsics)
-      .def("camera_pose",
-           [](const sim::RgbdRenderer& r, const MjScene& s) { return r.CameraPose(s.data()).matrix(); },
-           py::arg("scene"), "X_WC of the optical frame (x right, y down, z forward), 4 x 4")
+      .def(
+          "camera_pose",
+          [](const sim::RgbdRenderer& r, const MjScene& s) {
+            return r.CameraPose(s.data()).matrix();
+          },
+          py::arg("scene"), "X_WC of the optical frame (x right, y down, z forward), 4 x 4")
       .def_property_readonly("znear", &sim::RgbdRenderer::znear)
       .def_property_readonly("zfar", &sim::RgbdRenderer::zfar);
 }

@@ -31,7 +31,8 @@ sot::TaskTerms TermsFromDict(const py::dict& d) {
 void RegisterSot(py::module_& m) {
   m.def(
       "solve_hierarchy",
-      [](const std::vector<std::vector<py::dict>>& levels, double damping, double qp_regularization) {
+      [](const std::vector<std::vector<py::dict>>& levels, double damping,
+         double qp_regularization) {
         if (levels.empty() || levels[0].empty()) throw py::value_error("no level");
         std::vector<sot::TaskTerms> terms;
         std::vector<std::vector<sot::TaskShape>> shapes;
@@ -40,7 +41,8 @@ void RegisterSot(py::module_& m) {
           for (const py::dict& task : level) {
             terms.push_back(TermsFromDict(task));
             const sot::TaskTerms& t = terms.back();
-            shapes.back().push_back({static_cast<int>(t.lower.size()), t.inequality, t.unit_columns});
+            shapes.back().push_back(
+                {static_cast<int>(t.lower.size()), t.inequality, t.unit_columns});
           }
         }
         sot::HierarchyOptions options;
@@ -62,7 +64,8 @@ void RegisterSot(py::module_& m) {
         return py::make_tuple(v, report);
       },
       py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 1e-10,
-      "Solve a strict hierarchy: levels is a list (highest priority first) of lists of tasks, each a "
+      "Solve a strict hierarchy: levels is a list (highest priority first) of lists of tasks, each "
+      "a "
       "dict with jacobian, lower, upper (equality when absent), inequality, unit_columns. Returns "
       "(v, report). Defaults are the exact cascade (no damping, tiny QP regularisation).");
 }

@@ -27,7 +27,8 @@ Eigen::Isometry3d ToIsometry(const Eigen::Matrix4d& M, const char* what) {
   const Eigen::Matrix3d R = M.topLeftCorner<3, 3>();
   if ((M.row(3) - Eigen::RowVector4d(0, 0, 0, 1)).norm() > 1e-9 ||
       (R.transpose() * R - Eigen::Matrix3d::Identity()).norm() > 1e-6 || R.determinant() < 0.0) {
-    throw mp::PerceptionError(std::string(what) + " is not a rigid transform (4 x 4, R orthonormal)");
+    throw mp::PerceptionError(std::string(what) +
+                              " is not a rigid transform (4 x 4, R orthonormal)");
   }
   Eigen::Isometry3d X = Eigen::Isometry3d::Identity();
   X.matrix() = M;
@@ -55,8 +56,8 @@ std::vector<Eigen::Vector2d> Points2(const RowMatrixXd& p, const char* what) {
 }
 
 template <typename T>
-void CheckImage(const py::array_t<T, py::array::c_style | py::array::forcecast>& image, const mp::CameraIntrinsics& k,
-                const char* what) {
+void CheckImage(const py::array_t<T, py::array::c_style | py::array::forcecast>& image,
+                const mp::CameraIntrinsics& k, const char* what) {
   if (image.ndim() != 2 || image.shape(0) != k.height || image.shape(1) != k.width) {
     std::string shape = "(";
     for (py::ssize_t i = 0; i < image.ndim(); ++i) {
@@ -97,13 +98,14 @@ PYBIND11_MODULE(_visp, m) {
 
   py::class_<mp::TagDetection>(m, "TagDetection")
       .def_readonly("id", &mp::TagDetection::id)
-      .def_property_readonly("corners",
-                             [](const mp::TagDetection& d) {
-                               Eigen::Matrix<double, 4, 2, Eigen::RowMajor> c;
-                               for (int i = 0; i < 4; ++i) c.row(i) = d.corners[i].transpose();
-                               return c;
-                             },
-                             "(4, 2) pixel corners (u, v) in tag_corners() order")
+      .def_property_readonly(
+          "corners",
+          [](const mp::TagDetection& d) {
+            Eigen::Matrix<double, 4, 2, Eigen::RowMajor> c;
+            for (int i = 0; i < 4; ++i) c.row(i) = d.corners[i].transpose();
+            return c;
+          },
+          "(4, 2) pixel corners (u, v) in tag_corners() order")
       .def_readonly("tag_size", &mp::TagDetection::tag_size)
       .def_readonly("has_pose", &mp::TagDetection::has_pose)
       .def_readonly("has_second", &mp::TagDetection::has_second)
@@ -122,7 +124,8 @@ PYBIND11_MODULE(_visp, m) {
            py::arg("decode_sharpening") = 0.25)
       .def(
           "detect",
-          [](mp::AprilTagDetector& d, const py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast>& gray,
+          [](mp::AprilTagDetector& d,
+             const py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast>& gray,
              const mp::CameraIntrinsics& k, const std::map<int, double>& tag_sizes,
              double default_size) {
             CheckImage(gray, k, "gray image");
@@ -134,14 +137,15 @@ PYBIND11_MODULE(_visp, m) {
           py::arg("default_size") = 0.0,
           "gray (height, width) uint8 -> [TagDetection]; poses for ids with a known size [m]");
 
-  m.def("tag_corners",
-        [](double size) {
-          const auto c = mp::TagCorners(size);
-          Eigen::Matrix<double, 4, 3, Eigen::RowMajor> out;
-          for (int i = 0; i < 4; ++i) out.row(i) = c[i].transpose();
-          return out;
-        },
-        py::arg("tag_size"), "(4, 3) corners of the black square in the tag frame [m]");
+  m.def(
+      "tag_corners",
+      [](double size) {
+        const auto c = mp::TagCorners(size);
+        Eigen::Matrix<double, 4, 3, Eigen::RowMajor> out;
+        for (int i = 0; i < 4; ++i) out.row(i) = c[i].transpose();
+        return out;
+      },
+      py::arg("tag_size"), "(4, 3) corners of the black square in the tag frame [m]");
 
   py::class_<mp::PoseEstimate>(m, "PoseEstimate")
       .def_readonly("ok", &mp::PoseEstimate::ok)
@@ -151,72 +155,77 @@ PYBIND11_MODULE(_visp, m) {
       .def_readonly("num_points", &mp::PoseEstimate::num_points)
       .def_readonly("confidence", &mp::PoseEstimate::confidence);
 
-  m.def("reprojection_error",
-        [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const mp::CameraIntrinsics& k,
-           const Eigen::Matrix4d& X_CO) {
-          return mp::ReprojectionError(Points3(p_O, "p_O"), Points2(uv, "uv"), k,
-                                       ToIsometry(X_CO, "X_CO"));
-        },
-        py::arg("p_O"), py::arg("uv"), py::arg("intrinsics"), py::arg("X_CO"),
-        "sum of squared pixel distances [px^2] (inf if a point is behind the camera)");
-  m.def("refine_pose",
-        [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const mp::CameraIntrinsics& k,
-           const Eigen::Matrix4d& X_CO_initial) {
-          return mp::RefinePose(Points3(p_O, "p_O"), Points2(uv, "uv"), k,
-                                ToIsometry(X_CO_initial, "X_CO_initial"));
-        },
-        py::arg("p_O"), py::arg("uv"), py::arg("intrinsics"), py::arg("X_CO_initial"),
-        "Gauss-Newton (ViSP VVS) on the reprojection error from an initial pose");
-  m.def("pose_from_rgbd",
-        [](const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
-           const mp::CameraIntrinsics& k, const RowMatrixXd& corners, const RowMatrixXd& p_O) {
-          CheckImage(depth, k, "depth");
-          return mp::PoseFromRgbd(depth.data(), k, Points2(corners, "corners"), Points3(p_O, "p_O"));
-        },
-        py::arg("depth"), py::arg("intrinsics"), py::arg("corners"), py::arg("p_O"),
-        "planar pose from a depth map [m] and the corners of one planar set (ViSP)");
+  m.def(
+      "reprojection_error",
+      [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const mp::CameraIntrinsics& k,
+         const Eigen::Matrix4d& X_CO) {
+        return mp::ReprojectionError(Points3(p_O, "p_O"), Points2(uv, "uv"), k,
+                                     ToIsometry(X_CO, "X_CO"));
+      },
+      py::arg("p_O"), py::arg("uv"), py::arg("intrinsics"), py::arg("X_CO"),
+      "sum of squared pixel distances [px^2] (inf if a point is behind the camera)");
+  m.def(
+      "refine_pose",
+      [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const mp::CameraIntrinsics& k,
+         const Eigen::Matrix4d& X_CO_initial) {
+        return mp::RefinePose(Points3(p_O, "p_O"), Points2(uv, "uv"), k,
+                              ToIsometry(X_CO_initial, "X_CO_initial"));
+      },
+      py::arg("p_O"), py::arg("uv"), py::arg("intrinsics"), py::arg("X_CO_initial"),
+      "Gauss-Newton (ViSP VVS) on the reprojection error from an initial pose");
+  m.def(
+      "pose_from_rgbd",
+      [](const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
+         const mp::CameraIntrinsics& k, const RowMatrixXd& corners, const RowMatrixXd& p_O) {
+        CheckImage(depth, k, "depth");
+        return mp::PoseFromRgbd(depth.data(), k, Points2(corners, "corners"), Points3(p_O, "p_O"));
+      },
+      py::arg("depth"), py::arg("intrinsics"), py::arg("corners"), py::arg("p_O"),
+      "planar pose from a depth map [m] and the corners of one planar set (ViSP)");
 
-  m.def("refine_pose_rgbd",
-        [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const std::vector<py::tuple>& planes,
-           const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
-           const mp::CameraIntrinsics& k, const Eigen::Matrix4d& X_CO_initial,
-           double sigma_pixel, double sigma_depth, double polygon_scale) {
-          CheckImage(depth, k, "depth");
-          std::vector<mp::DepthPlane> native;
-          for (const py::tuple& t : planes) {
-            if (t.size() != 3) {
-              throw mp::PerceptionError("a plane is (polygon (m, 2), normal_O (3,), offset_O)");
-            }
-            native.push_back({Points2(t[0].cast<RowMatrixXd>(), "plane polygon"),
-                              t[1].cast<Eigen::Vector3d>(), t[2].cast<double>()});
+  m.def(
+      "refine_pose_rgbd",
+      [](const RowMatrixXd& p_O, const RowMatrixXd& uv, const std::vector<py::tuple>& planes,
+         const py::array_t<float, py::array::c_style | py::array::forcecast>& depth,
+         const mp::CameraIntrinsics& k, const Eigen::Matrix4d& X_CO_initial, double sigma_pixel,
+         double sigma_depth, double polygon_scale) {
+        CheckImage(depth, k, "depth");
+        std::vector<mp::DepthPlane> native;
+        for (const py::tuple& t : planes) {
+          if (t.size() != 3) {
+            throw mp::PerceptionError("a plane is (polygon (m, 2), normal_O (3,), offset_O)");
           }
-          mp::RgbdRefineOptions options;
-          options.sigma_pixel = sigma_pixel;
-          options.sigma_depth = sigma_depth;
-          options.polygon_scale = polygon_scale;
-          const auto p = Points3(p_O, "p_O");
-          const auto q = Points2(uv, "uv");
-          const Eigen::Isometry3d X0 = ToIsometry(X_CO_initial, "X_CO_initial");
-          py::gil_scoped_release release;
-          return mp::RefinePoseRgbd(p, q, native, depth.data(), k, X0, options);
-        },
-        py::arg("p_O"), py::arg("uv"), py::arg("planes"), py::arg("depth"), py::arg("intrinsics"),
-        py::arg("X_CO_initial"), py::arg("sigma_pixel") = 0.3, py::arg("sigma_depth") = 0.003,
-        py::arg("polygon_scale") = 0.8,
-        "depth-fused Gauss-Newton: corners + point-to-plane distances of depth pixels");
+          native.push_back({Points2(t[0].cast<RowMatrixXd>(), "plane polygon"),
+                            t[1].cast<Eigen::Vector3d>(), t[2].cast<double>()});
+        }
+        mp::RgbdRefineOptions options;
+        options.sigma_pixel = sigma_pixel;
+        options.sigma_depth = sigma_depth;
+        options.polygon_scale = polygon_scale;
+        const auto p = Points3(p_O, "p_O");
+        const auto q = Points2(uv, "uv");
+        const Eigen::Isometry3d X0 = ToIsometry(X_CO_initial, "X_CO_initial");
+        py::gil_scoped_release release;
+        return mp::RefinePoseRgbd(p, q, native, depth.data(), k, X0, options);
+      },
+      py::arg("p_O"), py::arg("uv"), py::arg("planes"), py::arg("depth"), py::arg("intrinsics"),
+      py::arg("X_CO_initial"), py::arg("sigma_pixel") = 0.3, py::arg("sigma_depth") = 0.003,
+      py::arg("polygon_scale") = 0.8,
+      "depth-fused Gauss-Newton: corners + point-to-plane distances of depth pixels");
 
   py::class_<mp::HandEyeResult>(m, "HandEyeResult")
       .def_property_readonly("X_EC", [](const mp::HandEyeResult& r) { return r.X_EC.matrix(); })
       .def_property_readonly("X_RT", [](const mp::HandEyeResult& r) { return r.X_RT.matrix(); })
       .def_readonly("rms_position", &mp::HandEyeResult::rms_position)
       .def_readonly("rms_rotation", &mp::HandEyeResult::rms_rotation);
-  m.def("calibrate_hand_eye",
-        [](const std::vector<Eigen::Matrix4d>& X_RE, const std::vector<Eigen::Matrix4d>& X_CT) {
-          std::vector<Eigen::Isometry3d> a, b;
-          for (const auto& M : X_RE) a.push_back(ToIsometry(M, "X_RE"));
-          for (const auto& M : X_CT) b.push_back(ToIsometry(M, "X_CT"));
-          return mp::CalibrateHandEye(a, b);
-        },
-        py::arg("X_RE"), py::arg("X_CT"),
-        "eye-in-hand calibration: X_EC from pairs (base <- effector, camera <- target)");
+  m.def(
+      "calibrate_hand_eye",
+      [](const std::vector<Eigen::Matrix4d>& X_RE, const std::vector<Eigen::Matrix4d>& X_CT) {
+        std::vector<Eigen::Isometry3d> a, b;
+        for (const auto& M : X_RE) a.push_back(ToIsometry(M, "X_RE"));
+        for (const auto& M : X_CT) b.push_back(ToIsometry(M, "X_CT"));
+        return mp::CalibrateHandEye(a, b);
+      },
+      py::arg("X_RE"), py::arg("X_CT"),
+      "eye-in-hand calibration: X_EC from pairs (base <- effector, camera <- target)");
 }

@@ -20,7 +20,8 @@ Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) 
   }
   Eigen::VectorXd q0 = model->referenceConfigurations.at(robot.reference);
   for (const GripperInfo& g : robot.grippers) {  // just inside the limit, as marionette.robots
-    if (model->existJointName(g.joint)) q0[model->joints[model->getJointId(g.joint)].idx_q()] = g.open_position;
+    if (model->existJointName(g.joint))
+      q0[model->joints[model->getJointId(g.joint)].idx_q()] = g.open_position;
   }
   for (pinocchio::JointIndex j = 1; j < model->joints.size(); ++j) {
     if (model->joints[j].nq() == 1 && model->joints[j].nv() == 1) {
@@ -49,7 +50,8 @@ Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) 
     } else {
       Eigen::VectorXd qs(model->nq), vs(model->nv);
       scene->ReadRobotState(qs, vs);
-      if (robot.base != "fixed") q0.head(robot.base == "free_flyer" ? 7 : 4) = qs.head(robot.base == "free_flyer" ? 7 : 4);
+      if (robot.base != "fixed")
+        q0.head(robot.base == "free_flyer" ? 7 : 4) = qs.head(robot.base == "free_flyer" ? 7 : 4);
       scene->WriteRobotState(q0, Eigen::VectorXd::Zero(model->nv));
     }
     const mjModel& m = scene->model();
@@ -73,7 +75,8 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   robot_model = &b.Add<sot::RobotModel>("robot", model);
   safety = &b.Add<SafetyFilter>("safety", *model, kDt, options.velocity_scale);
   // What the safety filter gets while no controller runs: zero, and nobody may change that.
-  auto& idle = b.Add<graph::VectorConstant>("idle", Eigen::VectorXd::Zero(model->nv), /*settable=*/false);
+  auto& idle =
+      b.Add<graph::VectorConstant>("idle", Eigen::VectorXd::Zero(model->nv), /*settable=*/false);
   b.Connect(idle.out_output(), safety->velocity_input());
   b.Connect(safety->velocity_output(), command->command_input());
   if (scene) {
@@ -106,10 +109,11 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
     soles.push_back(body);
   }
   factory = std::make_unique<ControllerFactory>(
-      model, ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
-                               &command->velocity_output(),
-                               device ? &device->effort_output() : nullptr,   // gripper admittance
-                               device ? &device->q_output() : nullptr},
+      model,
+      ControllerSockets{&robot_model->kinematics_output(), &safety->velocity_input(),
+                        &command->velocity_output(),
+                        device ? &device->effort_output() : nullptr,  // gripper admittance
+                        device ? &device->q_output() : nullptr},
       /*default_gain=*/2.0, HeldBaseVelocities(robot));
 
   Snapshot model_snapshot;
@@ -173,7 +177,8 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   }
   if (active != nullptr && active->walk_steps != nullptr) {
     const walk::FootstepManager& steps = *active->walk_steps;
-    for (int i = 0; i < steps.drained_count(); ++i) Journal(t.index, kFootstepPlanChannel, steps.drained_hash(i));
+    for (int i = 0; i < steps.drained_count(); ++i)
+      Journal(t.index, kFootstepPlanChannel, steps.drained_hash(i));
   }
   if (safety->non_finite_output().Eval(t)) {
     ++loop_state.non_finite_ticks;
@@ -197,7 +202,8 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
     if (replay_budget_hold >= 0 && mode == ControlMode::kRun) {
       const bool engage = (replay_budget_hold & kBudgetHoldEngaged) != 0;
       const bool engaged = engage && EngageHoldController(t) == Engage::kEngaged;
-      Journal(t.index, kBudgetHoldChannel, replay_budget_hold & ~(engage && !engaged ? kBudgetHoldEngaged : 0));
+      Journal(t.index, kBudgetHoldChannel,
+              replay_budget_hold & ~(engage && !engaged ? kBudgetHoldEngaged : 0));
       if (!engaged) mode = ControlMode::kHold;
       loop_state.reason = Reason::kBudget;
       loop_state.reason_index = static_cast<int>(replay_budget_hold & (kBudgetHoldEngaged - 1));
@@ -220,7 +226,8 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
       const Engage engage = EngageHoldController(t);
       if (engage == Engage::kRetry && overruns < 2 * overrun_hold_ticks) return;
       const bool engaged = engage == Engage::kEngaged;
-      Journal(t.index, kBudgetHoldChannel, static_cast<int64_t>(i) + (engaged ? kBudgetHoldEngaged : 0));
+      Journal(t.index, kBudgetHoldChannel,
+              static_cast<int64_t>(i) + (engaged ? kBudgetHoldEngaged : 0));
       if (!engaged) mode = ControlMode::kHold;
       loop_state.reason = Reason::kBudget;
       loop_state.reason_index = static_cast<int>(i);
@@ -233,10 +240,12 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
 Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t) {
   if (hold_state.load(std::memory_order_acquire) != kHoldArmed) return Engage::kUnavailable;
   int free = 0;
-  if (!graph_lease.compare_exchange_strong(free, 2, std::memory_order_acquire)) return Engage::kRetry;
+  if (!graph_lease.compare_exchange_strong(free, 2, std::memory_order_acquire))
+    return Engage::kRetry;
   BuiltController* hold = armed_hold;
   hold->HoldCurrent(robot_model->kinematics_output().Eval(t));
-  if (!graph->Apply(hold->edit.get())) {  // built against another version: the LCM thread rebuilds it
+  if (!graph->Apply(
+          hold->edit.get())) {  // built against another version: the LCM thread rebuilds it
     hold_state.store(kHoldStale, std::memory_order_release);
     graph_lease.store(0, std::memory_order_release);
     return Engage::kUnavailable;
@@ -270,15 +279,18 @@ void Controller::Impl::CopyTimings(const graph::Tick& t) {
 }
 
 void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
-  // Full: the publisher is behind; the entry is lost and counted (a replay says it cannot be exact).
-  if (!journal.Push(JournalEntry{tick, channel, hash})) journal_lost.fetch_add(1, std::memory_order_relaxed);
+  // Full: the publisher is behind; the entry is lost and counted (a replay says it cannot be
+  // exact).
+  if (!journal.Push(JournalEntry{tick, channel, hash}))
+    journal_lost.fetch_add(1, std::memory_order_relaxed);
 }
 
 std::string Controller::Impl::MotionConfig() const {
   char scale[32];
   std::snprintf(scale, sizeof(scale), "%.17g", options.velocity_scale);
   return "--robot " + options.robot + " --backend " + options.backend +
-         (options.scene.empty() ? std::string() : " --scene " + options.scene) + " --velocity-scale " + scale;
+         (options.scene.empty() ? std::string() : " --scene " + options.scene) +
+         " --velocity-scale " + scale;
 }
 
 void Controller::Impl::ApplyCommand(const graph::Tick& t) {
@@ -323,7 +335,8 @@ void Controller::Impl::Watchdog(const graph::Tick& t) {
 }
 
 void Controller::Impl::DecideSwitch(const graph::Tick& t) {
-  if (switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted)) return;
+  if (switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted))
+    return;
   BuiltController* next = posted;
   Journal(t.index, 0, posted_hash);
   Journal(t.index, kBuildTickChannel, posted_build_tick);
@@ -334,7 +347,8 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   const Eigen::VectorXd& v_next = next->unblended_velocity->Eval(t);
   const Eigen::VectorXd& v_now = safety->velocity_output().Eval(t);
   double jump = 0.0;
-  for (Eigen::Index i = 0; i < v_next.size(); ++i) jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
+  for (Eigen::Index i = 0; i < v_next.size(); ++i)
+    jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
   if (!std::isfinite(jump)) jump = std::numeric_limits<double>::infinity();
   if (mode == ControlMode::kEstop || !(jump <= next->max_switch_velocity_jump) ||
       !graph->Apply(next->edit.get())) {
@@ -361,7 +375,8 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   s.tick = t.index;
   s.utime = TickUs(t);
   // The hold controller runs (the safety filter passes its command) but the robot is holding.
-  const bool hold_controller_running = mode == ControlMode::kRun && active != nullptr && active->id == kHoldControllerId;
+  const bool hold_controller_running =
+      mode == ControlMode::kRun && active != nullptr && active->id == kHoldControllerId;
   s.mode = static_cast<int>(hold_controller_running ? ControlMode::kHold : mode);
   s.q = q_kinematics->value();
   s.q_kinematics = q_kinematics->value();
@@ -372,7 +387,8 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
     s.q = device->q_output().value();
     s.effort = device->effort_output().value();
     for (size_t i = 0; i < s.wrenches.size() / 6; ++i) {
-      for (int k = 0; k < 6; ++k) s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
+      for (int k = 0; k < 6; ++k)
+        s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
     }
     for (size_t i = 0; i < free_object_ids.size(); ++i) {
       const int b = free_object_ids[i];
@@ -420,7 +436,8 @@ int Controller::Run() {
   c.lcm.subscribe(channels::kControllerSpec, &Impl::OnSpec, &c);
   // LCM queues 30 messages per subscription by default and drops the rest silently: a streamer's
   // 4 s look-ahead of 20 chunks per task overflowed it when the LCM thread was starved of CPU.
-  c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)->setQueueCapacity(kReferenceQueueMessages);
+  c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)
+      ->setQueueCapacity(kReferenceQueueMessages);
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
   c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
@@ -436,10 +453,11 @@ int Controller::Run() {
     const runtime::RealtimeStatus rt = runtime::RequestRealtime(kLoopPriority);
     runtime::LogLine("[controller] loop thread ", rt.message);
   } else {
-    runtime::LogLine("[controller] real-time scheduling not requested (--realtime): normal priority");
+    runtime::LogLine(
+        "[controller] real-time scheduling not requested (--realtime): normal priority");
   }
-  runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ", c.model->nv,
-                   " dofs, graph of ", c.graph->entities().size(), " entities; ",
+  runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ",
+                   c.model->nv, " dofs, graph of ", c.graph->entities().size(), " entities; ",
                    c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
                                             : std::string("running until stopped"),
                    " at speed ", c.options.speed);
@@ -459,8 +477,8 @@ int Controller::Run() {
   lcm_thread.join();
   publisher.join();
   if (camera.joinable()) camera.join();
-  runtime::LogLine("[controller] stopped after ", t.index, " ticks (", t.time, " s), ", clock.deadline_misses(),
-                   " deadline misses");
+  runtime::LogLine("[controller] stopped after ", t.index, " ticks (", t.time, " s), ",
+                   clock.deadline_misses(), " deadline misses");
   return 0;
 }
 
@@ -469,15 +487,18 @@ int Controller::Run() {
 namespace {
 
 // "name=value,name=value" (--encoder-offsets) -> pairs; throws std::invalid_argument naming `flag`.
-std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& flag, const std::string& text) {
+std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& flag,
+                                                             const std::string& text) {
   std::vector<std::pair<std::string, double>> out;
   std::istringstream in(text);
   for (std::string item; std::getline(in, item, ',');) {
     const size_t eq = item.find('=');
     char* end = nullptr;
     const double x = eq == std::string::npos ? 0.0 : std::strtod(item.c_str() + eq + 1, &end);
-    if (eq == std::string::npos || eq == 0 || end == item.c_str() + eq + 1 || *end != '\0' || !std::isfinite(x)) {
-      throw std::invalid_argument(flag + ": '" + item + "' is not joint=value (value a finite number)");
+    if (eq == std::string::npos || eq == 0 || end == item.c_str() + eq + 1 || *end != '\0' ||
+        !std::isfinite(x)) {
+      throw std::invalid_argument(flag + ": '" + item +
+                                  "' is not joint=value (value a finite number)");
     }
     out.emplace_back(item.substr(0, eq), x);
   }
@@ -508,39 +529,62 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
   };
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
-    if (a == "-h" || a == "--help") *help = true;
-    else if (a == "--describe-robot") *describe_robot = true;
-    else if (a == "--robot") o.robot = value(i);
-    else if (a == "--backend") o.backend = value(i);
-    else if (a == "--scene") o.scene = value(i);
-    else if (a == "--encoder-offsets") o.encoder_offsets = ParseJointValues(a, value(i));
-    else if (a == "--models") o.models_dir = value(i);
-    else if (a == "--lcm-url") o.lcm_url = value(i);
-    else if (a == "--realtime") o.realtime = true;
-    else if (a == "--duration") o.duration = number(i);
-    else if (a == "--speed") o.speed = number(i);
-    else if (a == "--state-rate") o.state_rate = number(i);
-    else if (a == "--status-rate") o.status_rate = number(i);
-    else if (a == "--camera-rate") o.camera_rate = number(i);
+    if (a == "-h" || a == "--help")
+      *help = true;
+    else if (a == "--describe-robot")
+      *describe_robot = true;
+    else if (a == "--robot")
+      o.robot = value(i);
+    else if (a == "--backend")
+      o.backend = value(i);
+    else if (a == "--scene")
+      o.scene = value(i);
+    else if (a == "--encoder-offsets")
+      o.encoder_offsets = ParseJointValues(a, value(i));
+    else if (a == "--models")
+      o.models_dir = value(i);
+    else if (a == "--lcm-url")
+      o.lcm_url = value(i);
+    else if (a == "--realtime")
+      o.realtime = true;
+    else if (a == "--duration")
+      o.duration = number(i);
+    else if (a == "--speed")
+      o.speed = number(i);
+    else if (a == "--state-rate")
+      o.state_rate = number(i);
+    else if (a == "--status-rate")
+      o.status_rate = number(i);
+    else if (a == "--camera-rate")
+      o.camera_rate = number(i);
     else if (a == "--camera-size") {
       const std::string v = value(i);
-      if (std::sscanf(v.c_str(), "%dx%d", &o.camera_width, &o.camera_height) != 2 || o.camera_width < 16 ||
-          o.camera_height < 16) {
+      if (std::sscanf(v.c_str(), "%dx%d", &o.camera_width, &o.camera_height) != 2 ||
+          o.camera_width < 16 || o.camera_height < 16) {
         throw std::invalid_argument("--camera-size: '" + v + "' is not WIDTHxHEIGHT");
       }
-    } else if (a == "--camera-noise") o.camera_noise = number(i);
-    else if (a == "--depth-noise") o.depth_noise = number(i);
-    else if (a == "--velocity-scale") o.velocity_scale = number(i);
-    else if (a == "--timing-log") o.timing_log = value(i);
-    else if (a == "--no-profiling") o.profiling = false;
-    else if (a == "--overrun-hold-ticks") o.overrun_hold_ticks = static_cast<int64_t>(number(i));
-    else if (a == "-v" || a == "--verbose") o.verbose = true;
-    else throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
+    } else if (a == "--camera-noise")
+      o.camera_noise = number(i);
+    else if (a == "--depth-noise")
+      o.depth_noise = number(i);
+    else if (a == "--velocity-scale")
+      o.velocity_scale = number(i);
+    else if (a == "--timing-log")
+      o.timing_log = value(i);
+    else if (a == "--no-profiling")
+      o.profiling = false;
+    else if (a == "--overrun-hold-ticks")
+      o.overrun_hold_ticks = static_cast<int64_t>(number(i));
+    else if (a == "-v" || a == "--verbose")
+      o.verbose = true;
+    else
+      throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
   }
-  if (o.state_rate <= 0.0 || o.state_rate > 1000.0) throw std::invalid_argument("--state-rate must be in (0, 1000]");
+  if (o.state_rate <= 0.0 || o.state_rate > 1000.0)
+    throw std::invalid_argument("--state-rate must be in (0, 1000]");
   if (!o.encoder_offsets.empty() && o.backend != "mujoco") {
-    throw std::invalid_argument("--encoder-offsets calibrates the mujoco backend's encoders; the " + o.backend +
-                                " backend has none");
+    throw std::invalid_argument("--encoder-offsets calibrates the mujoco backend's encoders; the " +
+                                o.backend + " backend has none");
   }
   return o;
 }

@@ -38,7 +38,9 @@ pinocchio::SE3 VectorToPose(const Eigen::VectorXd& v) {
 
 // lcmt_task_spec.mask as a feature mask over n components; all false means all (LCM's default).
 // Task kinds whose reference is a pose (xyz + quaternion, 7 values; velocity 6).
-bool IsPoseKind(const std::string& kind) { return kind == "se3" || kind == "pbvs" || kind == "relative_se3"; }
+bool IsPoseKind(const std::string& kind) {
+  return kind == "se3" || kind == "pbvs" || kind == "relative_se3";
+}
 
 sot::Mask MaskOf(const lcmt_task_spec& spec, int n) {
   sot::Mask mask(spec.mask, spec.mask + n);
@@ -50,28 +52,34 @@ sot::Mask MaskOf(const lcmt_task_spec& spec, int n) {
 // "walk:<role>" (controller_factory.h), starting standing at the configuration of `now`.
 constexpr char kWalkPrefix[] = "walk:";
 
-void AddWalking(const lcmt_controller_spec& spec, const std::string& where, const std::string& prefix,
-                const sot::Kinematics& now, graph::GraphEdit& edit, const BuiltController* continue_walk,
-                BuiltController* built) {
+void AddWalking(const lcmt_controller_spec& spec, const std::string& where,
+                const std::string& prefix, const sot::Kinematics& now, graph::GraphEdit& edit,
+                const BuiltController* continue_walk, BuiltController* built) {
   std::map<std::string, const lcmt_task_spec*> roles;  // left_foot, right_foot, com
   for (const lcmt_task_spec& t : spec.tasks) {
     if (t.reference_channel.rfind(kWalkPrefix, 0) != 0) continue;
     const std::string who = where + ", task '" + t.name + "'";
     const std::string role = t.reference_channel.substr(std::strlen(kWalkPrefix));
     if (role != "left_foot" && role != "right_foot" && role != "com") {
-      Fail(who, "unknown walk reference '" + t.reference_channel + "' (walk:left_foot, walk:right_foot, walk:com)");
+      Fail(who, "unknown walk reference '" + t.reference_channel +
+                    "' (walk:left_foot, walk:right_foot, walk:com)");
     }
     const std::string kind = role == "com" ? "com" : "se3";
-    if (t.kind != kind) Fail(who, "a '" + t.reference_channel + "' reference needs a " + kind + " task");
-    if (t.num_reference != 0) Fail(who, "a walk reference comes from the pattern generator: give no fixed reference");
+    if (t.kind != kind)
+      Fail(who, "a '" + t.reference_channel + "' reference needs a " + kind + " task");
+    if (t.num_reference != 0)
+      Fail(who, "a walk reference comes from the pattern generator: give no fixed reference");
     if (!roles.emplace(role, &t).second) Fail(who, "two tasks take '" + t.reference_channel + "'");
   }
   if (roles.empty()) return;
   if (roles.count("left_foot") == 0 || roles.count("right_foot") == 0) {
-    Fail(where, "walking needs a walk:left_foot and a walk:right_foot se3 task (the soles it starts from)");
+    Fail(
+        where,
+        "walking needs a walk:left_foot and a walk:right_foot se3 task (the soles it starts from)");
   }
   if (continue_walk != nullptr) {  // adopt the running walk as it is
-    if (continue_walk->walk_steps == nullptr) Fail(where, "the controller to continue does not walk");
+    if (continue_walk->walk_steps == nullptr)
+      Fail(where, "the controller to continue does not walk");
     built->walk_steps = continue_walk->walk_steps;
     built->walk_pattern = continue_walk->walk_pattern;
     built->entity_names.push_back(built->walk_steps->name());
@@ -86,7 +94,8 @@ void AddWalking(const lcmt_controller_spec& spec, const std::string& where, cons
     const walk::FootPlacement r = walk::PoseToPlacement(now.placement(right));
     const Eigen::Vector3d com = now.com();
     walk::FootstepManagerOptions options;  // dt = 1 ms, the controller's period; 1.6 s preview
-    auto& steps = edit.Add<walk::FootstepManager>(prefix + "walk_steps", l, r, com.head<2>(), options);
+    auto& steps =
+        edit.Add<walk::FootstepManager>(prefix + "walk_steps", l, r, com.head<2>(), options);
     walk::PreviewControlParams params;
     params.dt = options.dt;
     params.preview_time = options.preview_samples * options.dt;
@@ -100,7 +109,8 @@ void AddWalking(const lcmt_controller_spec& spec, const std::string& where, cons
     // At the swap: standing where the robot is, the CoM at rest where it is.
     built->holds.push_back([left, right, s = &steps, p = &pattern](const sot::Kinematics& k) {
       const Eigen::Vector3d c = k.com();
-      s->Reset(walk::PoseToPlacement(k.placement(left)), walk::PoseToPlacement(k.placement(right)), c.head<2>());
+      s->Reset(walk::PoseToPlacement(k.placement(left)), walk::PoseToPlacement(k.placement(right)),
+               c.head<2>());
       p->Reset(c);
     });
   } catch (const std::invalid_argument& e) {  // sot::SotError, bad preview parameters
@@ -110,8 +120,9 @@ void AddWalking(const lcmt_controller_spec& spec, const std::string& where, cons
   }
 }
 
-void ConnectWalkReference(const std::string& channel, const BuiltController& built, graph::GraphEdit& edit,
-                          graph::SignalBase& reference, graph::SignalBase& reference_velocity) {
+void ConnectWalkReference(const std::string& channel, const BuiltController& built,
+                          graph::GraphEdit& edit, graph::SignalBase& reference,
+                          graph::SignalBase& reference_velocity) {
   const std::string role = channel.substr(std::strlen(kWalkPrefix));
   if (role == "com") {
     edit.Connect(built.walk_pattern->com_output(), reference);
@@ -129,7 +140,9 @@ void ConnectWalkReference(const std::string& channel, const BuiltController& bui
 
 ControllerFactory::ControllerFactory(sot::ModelPtr model, ControllerSockets sockets,
                                      double default_gain, std::vector<int> held_velocities)
-    : model_(std::move(model)), sockets_(sockets), default_gain_(default_gain),
+    : model_(std::move(model)),
+      sockets_(sockets),
+      default_gain_(default_gain),
       held_velocities_(std::move(held_velocities)) {}
 
 std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) const {
@@ -137,15 +150,17 @@ std::pair<int, int> ControllerFactory::ReferenceSizes(const std::string& kind) c
   if (kind == "position" || kind == "com" || kind == "gaze") return {3, 3};
   if (kind == "posture") return {model_->nq, model_->nv};
   if (kind == kGripperAdmittanceKind) return {1, 1};  // the position-control target
-  throw std::invalid_argument("unknown task kind '" + kind +
-                              "' (se3, pbvs, relative_se3, position, com, posture, gaze, gripper_admittance)");
+  throw std::invalid_argument(
+      "unknown task kind '" + kind +
+      "' (se3, pbvs, relative_se3, position, com, posture, gaze, gripper_admittance)");
 }
 
 std::unique_ptr<BuiltController> ControllerFactory::Build(
     const lcmt_controller_spec& spec, const graph::Graph& graph,
     const std::vector<std::string>& previous_entities, const Eigen::VectorXd& q,
     const BuiltController* continue_walk) const {
-  const std::string where = "controller '" + spec.name + "' (id " + std::to_string(spec.controller_id) + ")";
+  const std::string where =
+      "controller '" + spec.name + "' (id " + std::to_string(spec.controller_id) + ")";
   if (spec.num_tasks != static_cast<int>(spec.tasks.size()) || spec.num_tasks < 1) {
     Fail(where, "needs at least one task (num_tasks " + std::to_string(spec.num_tasks) + ")");
   }
@@ -180,8 +195,10 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
   int first_level = 100;
   for (const lcmt_task_spec& t : spec.tasks) first_level = std::min(first_level, t.priority);
   for (const lcmt_task_spec& t : spec.tasks) {
-    const bool streamed = !t.reference_channel.empty() && t.reference_channel.rfind(kWalkPrefix, 0) != 0;
-    if (t.priority == first_level && !streamed && (t.kind == "se3" || t.kind == "position" || t.kind == "com")) {
+    const bool streamed =
+        !t.reference_channel.empty() && t.reference_channel.rfind(kWalkPrefix, 0) != 0;
+    if (t.priority == first_level && !streamed &&
+        (t.kind == "se3" || t.kind == "position" || t.kind == "com")) {
       built->balance_tasks.push_back(t);
     }
   }
@@ -225,7 +242,8 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     // with its gripper joint) is a vector.
     const bool se3 = IsPoseKind(t.kind);
     if (se3 && t.num_reference == 7) {
-      const double n = Eigen::Vector4d(t.reference[3], t.reference[4], t.reference[5], t.reference[6]).norm();
+      const double n =
+          Eigen::Vector4d(t.reference[3], t.reference[4], t.reference[5], t.reference[6]).norm();
       if (std::abs(n - 1.0) > 1e-3) Fail(who, "reference quaternion has norm " + std::to_string(n));
     }
     const double gain = t.gain > 0.0 ? t.gain : default_gain_;
@@ -235,8 +253,8 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     if (t.kind == kGripperAdmittanceKind) {  // its own reference and state machine
       const GripperAdmittanceSpec ga = ParseGripperAdmittance(t, gain, who);
       try {
-        auto& f = add(edit.Add<sot::FeatureGripperAdmittance>(fname, model_, ga.joint, ga.position_target,
-                                                             ga.release, ga.options));
+        auto& f = add(edit.Add<sot::FeatureGripperAdmittance>(
+            fname, model_, ga.joint, ga.position_target, ga.release, ga.options));
         edit.Connect(*sockets_.kinematics, f.kinematics_input());
         if (sockets_.effort) {
           edit.Connect(*sockets_.effort, f.effort_input());
@@ -265,36 +283,47 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
       if (t.kind == "se3" || t.kind == "pbvs") {
         auto& f = add(edit.Add<sot::FeatureSE3>(fname, model_, t.frame, MaskOf(t, 6)));
         const sot::FrameRef frame = f.frame();
-        current = [frame](const sot::Kinematics& k, Eigen::VectorXd* v) { WritePose(k.placement(frame), v); };
-        feature = &f, reference = &f.reference_input(), reference_velocity = &f.reference_velocity_input();
+        current = [frame](const sot::Kinematics& k, Eigen::VectorXd* v) {
+          WritePose(k.placement(frame), v);
+        };
+        feature = &f, reference = &f.reference_input(),
+        reference_velocity = &f.reference_velocity_input();
       } else if (t.kind == "relative_se3") {
-        auto& f = add(edit.Add<sot::FeatureRelativeSE3>(fname, model_, t.frame, t.frame_b, MaskOf(t, 6)));
+        auto& f =
+            add(edit.Add<sot::FeatureRelativeSE3>(fname, model_, t.frame, t.frame_b, MaskOf(t, 6)));
         const sot::FrameRef a = sot::MakeFrameRef(*model_, t.frame, who);
         const sot::FrameRef b = sot::MakeFrameRef(*model_, t.frame_b, who);
         current = [a, b](const sot::Kinematics& k, Eigen::VectorXd* v) {
           WritePose(k.placement(b).actInv(k.placement(a)), v);
         };
-        feature = &f, reference = &f.reference_input(), reference_velocity = &f.reference_velocity_input();
+        feature = &f, reference = &f.reference_input(),
+        reference_velocity = &f.reference_velocity_input();
       } else if (t.kind == "position") {
         auto& f = add(edit.Add<sot::FeaturePosition>(fname, model_, t.frame, MaskOf(t, 3)));
         const sot::FrameRef frame = sot::MakeFrameRef(*model_, t.frame, who);
-        current = [frame](const sot::Kinematics& k, Eigen::VectorXd* v) { *v = k.placement(frame).translation(); };
-        feature = &f, reference = &f.reference_input(), reference_velocity = &f.reference_velocity_input();
+        current = [frame](const sot::Kinematics& k, Eigen::VectorXd* v) {
+          *v = k.placement(frame).translation();
+        };
+        feature = &f, reference = &f.reference_input(),
+        reference_velocity = &f.reference_velocity_input();
       } else if (t.kind == "com") {
         auto& f = add(edit.Add<sot::FeatureCom>(fname, model_, MaskOf(t, 3)));
         current = [](const sot::Kinematics& k, Eigen::VectorXd* v) { *v = k.com(); };
-        feature = &f, reference = &f.reference_input(), reference_velocity = &f.reference_velocity_input();
+        feature = &f, reference = &f.reference_input(),
+        reference_velocity = &f.reference_velocity_input();
       } else if (t.kind == "posture") {
         auto& f = add(edit.Add<sot::FeaturePosture>(fname, model_, t.joint_name));
         current = [](const sot::Kinematics& k, Eigen::VectorXd* v) { *v = k.q(); };
-        feature = &f, reference = &f.reference_input(), reference_velocity = &f.reference_velocity_input();
+        feature = &f, reference = &f.reference_input(),
+        reference_velocity = &f.reference_velocity_input();
       } else {  // gaze: the point 1 m ahead of the camera is where it looks now
         auto& f = add(edit.Add<sot::FeatureGaze>(fname, model_, t.frame, MaskOf(t, 2)));
         const sot::FrameRef camera = sot::MakeFrameRef(*model_, t.frame, who);
         current = [camera](const sot::Kinematics& k, Eigen::VectorXd* v) {
           *v = k.placement(camera).act(Eigen::Vector3d(0.0, 0.0, 1.0));
         };
-        feature = &f, reference = &f.target_input(), reference_velocity = &f.target_velocity_input();
+        feature = &f, reference = &f.target_input(),
+        reference_velocity = &f.target_velocity_input();
       }
       edit.Connect(*sockets_.kinematics, feature->kinematics_input());
 
@@ -360,15 +389,17 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
                                                            sot::LimitedJoints(*model_)));
   edit.Connect(*sockets_.kinematics, limits_feature.kinematics_input());
   auto& limits = add(edit.Add<sot::Task>(
-      prefix + "joint_limits", limits_feature, sot::Gain::Constant(sot::JointLimitsOptions{}.position_gain),
+      prefix + "joint_limits", limits_feature,
+      sot::Gain::Constant(sot::JointLimitsOptions{}.position_gain),
       sot::JointLimitBounds(*model_, limits_feature, sot::JointLimitsOptions{})));
   sot::Solver::Levels levels = {{&limits}};
   if (!held_velocities_.empty()) {
-    auto& held_feature = add(edit.Add<sot::FeatureHeldVelocities>(prefix + "held_velocities_feature",
-                                                                   model_, held_velocities_));
+    auto& held_feature = add(edit.Add<sot::FeatureHeldVelocities>(
+        prefix + "held_velocities_feature", model_, held_velocities_));
     edit.Connect(*sockets_.kinematics, held_feature.kinematics_input());
-    levels[0].push_back(&add(edit.Add<sot::Task>(prefix + "held_velocities", held_feature, sot::Gain::Constant(1.0),
-                                                 sot::HeldVelocityBounds(held_feature))));
+    levels[0].push_back(
+        &add(edit.Add<sot::Task>(prefix + "held_velocities", held_feature, sot::Gain::Constant(1.0),
+                                 sot::HeldVelocityBounds(held_feature))));
   }
   for (auto& [priority, tasks] : by_priority) levels.push_back(tasks);
 

@@ -3,8 +3,6 @@
 // controller.cc (start-up, the loop), controller_lcm.cc (the LCM thread: inputs, controller
 // swaps, introspection) and controller_publish.cc (publisher and camera threads).
 
-#include "marionette/controller/controller.h"
-#include <lcm/lcm-cpp.hpp>
 #include <mujoco/mujoco.h>
 #include <pthread.h>
 #include <sched.h>
@@ -16,12 +14,14 @@
 #include <cstdlib>
 #include <cstring>
 #include <deque>
+#include <lcm/lcm-cpp.hpp>
 #include <map>
-#include <sstream>
 #include <mutex>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/parsers/srdf.hpp>
+#include <sstream>
 #include <thread>
+#include "marionette/controller/controller.h"
 #include "marionette/controller/controller_factory.h"
 #include "marionette/controller/graph_service.h"
 #include "marionette/controller/hold_controller.h"
@@ -34,17 +34,17 @@
 #include "marionette/lcm/channels.h"
 #include "marionette/lcmt_camera_image.hpp"
 #include "marionette/lcmt_command.hpp"
-#include "marionette/lcmt_controller_spec.hpp"
 #include "marionette/lcmt_controller_journal.hpp"
+#include "marionette/lcmt_controller_spec.hpp"
 #include "marionette/lcmt_controller_status.hpp"
 #include "marionette/lcmt_dg_reply.hpp"
 #include "marionette/lcmt_dg_request.hpp"
 #include "marionette/lcmt_entity_timings.hpp"
-#include "marionette/lcmt_supervisor_event.hpp"
 #include "marionette/lcmt_object_poses.hpp"
 #include "marionette/lcmt_robot_command.hpp"
 #include "marionette/lcmt_robot_state.hpp"
 #include "marionette/lcmt_sim_command.hpp"
+#include "marionette/lcmt_supervisor_event.hpp"
 #include "marionette/lcmt_task_reference.hpp"
 #include "marionette/runtime/log_line.h"
 #include "marionette/runtime/loop_clock.h"
@@ -59,25 +59,28 @@
 namespace marionette::controller {
 
 using Clock = std::chrono::steady_clock;
-inline constexpr double kDt = 1e-3;      // the control period [s]
-inline constexpr int kMaxTasks = 64;     // task error norms reported per controller
-inline constexpr int kReferenceQueueMessages = 512;  // TASK_REFERENCE messages LCM may queue
-                                                    // (LCM's default, 30, drops a 4 s look-ahead burst)
+inline constexpr double kDt = 1e-3;   // the control period [s]
+inline constexpr int kMaxTasks = 64;  // task error norms reported per controller
+inline constexpr int kReferenceQueueMessages =
+    512;  // TASK_REFERENCE messages LCM may queue
+          // (LCM's default, 30, drops a 4 s look-ahead burst)
 // --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (inputs,
 // introspection samples, state): above any normal process, below the loop.
 inline constexpr int kLoopPriority = 80;
 inline constexpr int kIoPriority = 40;
 
-inline int64_t TickUs(const graph::Tick& t) { return static_cast<int64_t>(std::llround(t.time * 1e6)); }
+inline int64_t TickUs(const graph::Tick& t) {
+  return static_cast<int64_t>(std::llround(t.time * 1e6));
+}
 
 // Why the controller is in its current mode (formatted by the publisher, not the loop).
 enum class Reason : int {
-  kStartup,          // holding until a controller is accepted
+  kStartup,  // holding until a controller is accepted
   kControllerAccepted,
-  kCommand,          // COMMAND hold / resume / estop / reset_estop
-  kWatchdog,         // a streamed reference went stale
-  kNonFinite,        // the solver produced NaN/Inf
-  kBudget,           // an entity overran its time budget too many ticks in a row
+  kCommand,    // COMMAND hold / resume / estop / reset_estop
+  kWatchdog,   // a streamed reference went stale
+  kNonFinite,  // the solver produced NaN/Inf
+  kBudget,     // an entity overran its time budget too many ticks in a row
 };
 
 enum class Command : int { kNone = 0, kHold, kResume, kEstop, kResetEstop, kStop };
@@ -88,22 +91,23 @@ struct Snapshot {
   int64_t utime = 0;
   int mode = static_cast<int>(ControlMode::kHold);
   Reason reason = Reason::kStartup;
-  int reason_index = -1;       // stream / task index for the watchdog
-  double reason_value = 0.0;   // e.g. the stale age [s]
+  int reason_index = -1;      // stream / task index for the watchdog
+  double reason_value = 0.0;  // e.g. the stale age [s]
   int64_t active_id = -1;
   int num_tasks = 0;
   std::array<double, kMaxTasks> task_error{};
   Eigen::VectorXd q, v, q_command, v_command, effort;  // sized at start-up
-  Eigen::VectorXd q_kinematics;  // what the features see: measured base, commanded joints
-  std::vector<double> wrenches;                        // 6 per contact body
-  std::vector<double> object_poses;                    // 7 per free object (x y z qw qx qy qz)
+  Eigen::VectorXd q_kinematics;      // what the features see: measured base, commanded joints
+  std::vector<double> wrenches;      // 6 per contact body
+  std::vector<double> object_poses;  // 7 per free object (x y z qw qx qy qz)
   int64_t switches = 0, refused_switches = 0, non_finite_ticks = 0, clamped_ticks = 0;
   int64_t deadline_misses = 0;
   double realtime_factor = 0.0;
   // Walking (active controller with a pattern generator, controller_walk.cc): WALK_STATUS.
   bool walking = false;
   int64_t walk_plan_id = 0;
-  int walk_step_index = -1, walk_phase = 0, walk_num_queued = 0;  // queued: steps left, in progress included
+  int walk_step_index = -1, walk_phase = 0,
+      walk_num_queued = 0;  // queued: steps left, in progress included
   double walk_phase_progress = 0.0;
   std::array<double, 3> walk_com{};
   std::array<double, 2> walk_zmp_reference{}, walk_zmp_measured{};
@@ -147,10 +151,10 @@ inline constexpr char kBudgetHoldEntry[] = "CONTROLLER_BUDGET_HOLD";
 /// -1: the initial configuration), journaled with the spec's swap — a walking controller's
 /// pattern generator takes its CoM height from it, so a replay builds against the same one.
 inline constexpr char kBuildTickEntry[] = "CONTROLLER_BUILD_TICK";
-inline constexpr const char* kJournalChannels[] = {channels::kControllerSpec, channels::kTaskReference,
-                                                   channels::kCommand,        channels::kSimCommand,
-                                                   channels::kDgRequest,      kBudgetHoldEntry,
-                                                   channels::kFootstepPlan,   kBuildTickEntry};
+inline constexpr const char* kJournalChannels[] = {
+    channels::kControllerSpec, channels::kTaskReference, channels::kCommand,
+    channels::kSimCommand,     channels::kDgRequest,     kBudgetHoldEntry,
+    channels::kFootstepPlan,   kBuildTickEntry};
 inline constexpr int kBudgetHoldChannel = 5;
 /// A budget-hold entry's hash is the overrunning entity's index, plus this flag when the hold
 /// controller was engaged (else the loop held with zero velocity).
@@ -162,7 +166,6 @@ inline std::string ToLower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
   return s;
 }
-
 
 struct Controller::Impl {
   ControllerOptions options;
@@ -181,10 +184,11 @@ struct Controller::Impl {
   SafetyFilter* safety = nullptr;
   graph::OutputSignal<Eigen::VectorXd>* q_kinematics = nullptr;  // what features see
 
-  std::vector<std::string> joint_names;     // 1-dof joints, Pinocchio order
-  std::vector<int> joint_q, joint_v;        // their indices
-  std::vector<sot::FrameRef> contact_frames;  // robot.contact_bodies as Pinocchio frames (walking ZMP)
-  std::vector<std::string> free_objects;    // scene bodies with a free joint (not the robot)
+  std::vector<std::string> joint_names;  // 1-dof joints, Pinocchio order
+  std::vector<int> joint_q, joint_v;     // their indices
+  std::vector<sot::FrameRef>
+      contact_frames;                     // robot.contact_bodies as Pinocchio frames (walking ZMP)
+  std::vector<std::string> free_objects;  // scene bodies with a free joint (not the robot)
   std::vector<int> free_object_ids;
 
   // Loop-owned.
@@ -192,17 +196,17 @@ struct Controller::Impl {
   BuiltController* active = nullptr;
   std::vector<ReferenceStream*> active_streams;  // reserved: no allocation when swapping
   ControlMode mode = ControlMode::kHold;
-  Snapshot loop_state;                          // written by the loop, copied to the buffer
+  Snapshot loop_state;  // written by the loop, copied to the buffer
 
   // Loop <-> LCM thread.
   std::atomic<int> switch_state{static_cast<int>(SwitchState::kNone)};
-  BuiltController* posted = nullptr;            // valid while switch_state == kPosted
-  double refused_jump = 0.0;                    // written before kRefused
-  int64_t decided_tick = -1;                    // written before kApplied / kRefused
+  BuiltController* posted = nullptr;  // valid while switch_state == kPosted
+  double refused_jump = 0.0;          // written before kRefused
+  int64_t decided_tick = -1;          // written before kApplied / kRefused
   std::atomic<int> command_request{static_cast<int>(Command::kNone)};
-  std::atomic<int64_t> command_hash{0};           // of the message behind command_request
-  int64_t posted_hash = 0;                        // of the spec behind `posted`
-  int64_t posted_build_tick = -1;                 // the tick of the configuration it was built against
+  std::atomic<int64_t> command_hash{0};  // of the message behind command_request
+  int64_t posted_hash = 0;               // of the spec behind `posted`
+  int64_t posted_build_tick = -1;        // the tick of the configuration it was built against
   struct SimRequest {
     enum Kind { kMove, kAttach, kDetach } kind = kMove;
     int id = -1;  // body (move) or weld equality (attach, detach)
@@ -229,10 +233,10 @@ struct Controller::Impl {
     std::string client;
     std::vector<std::string> names;
   };
-  std::deque<lcmt_dg_request> waiting_dg;        // served when no swap is pending
-  std::deque<int64_t> dg_hashes;                 // the hash of each waiting request
+  std::deque<lcmt_dg_request> waiting_dg;  // served when no swap is pending
+  std::deque<int64_t> dg_hashes;           // the hash of each waiting request
   int64_t current_dg_hash = 0;
-  lcmt_entity_timings last_timing{};             // the last CONTROLLER_TIMING published
+  lcmt_entity_timings last_timing{};  // the last CONTROLLER_TIMING published
   std::vector<PendingGet> gets;
   struct Trace {
     int64_t request_id = -1;
@@ -242,11 +246,11 @@ struct Controller::Impl {
     int64_t next_tick = 0;
   } trace;
   int64_t watch_id = -1;
-  std::vector<std::string> watch_names;          // the current watch's signals, in order
+  std::vector<std::string> watch_names;  // the current watch's signals, in order
   std::unique_ptr<runtime::TripleBuffer<TimingTable>> timing_tables;  // loop -> LCM thread
   int64_t timing_window_ticks = 1000;
-  std::vector<const graph::Entity*> overran;     // loop scratch (reserved)
-  int64_t overrun_hold_ticks = 100;              // consecutive overruns before holding
+  std::vector<const graph::Entity*> overran;  // loop scratch (reserved)
+  int64_t overrun_hold_ticks = 100;           // consecutive overruns before holding
   runtime::SpscQueue<std::pair<int64_t, int>> overrun_events{256};  // (tick, entity index)
 
   // The hold controller (hold_controller.h): built and armed by the LCM thread against the
@@ -267,15 +271,14 @@ struct Controller::Impl {
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};
   std::atomic<int64_t> journal_lost{0};
-  bool replaying = false;                        // offline replay: budgets come from the journal
-  int64_t replay_budget_hold = -1;               // replay: entity index to hold for at this tick
-
+  bool replaying = false;           // offline replay: budgets come from the journal
+  int64_t replay_budget_hold = -1;  // replay: entity index to hold for at this tick
 
   // Shared between non-real-time threads.
-  std::mutex shared_mutex;    // the publisher's latest snapshot, for the LCM thread
-  Eigen::VectorXd shared_q;   // kinematics configuration (nq): measured base, commanded joints
+  std::mutex shared_mutex;   // the publisher's latest snapshot, for the LCM thread
+  Eigen::VectorXd shared_q;  // kinematics configuration (nq): measured base, commanded joints
   int64_t shared_utime = 0;
-  int64_t shared_tick = -1;   // the tick of shared_q (-1: the initial configuration)
+  int64_t shared_tick = -1;  // the tick of shared_q (-1: the initial configuration)
   std::mutex stats_mutex;
   std::map<std::string, int64_t> rejections;  // "CHANNEL: category" -> count
   int64_t num_rejected = 0;
@@ -313,7 +316,8 @@ struct Controller::Impl {
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
-  void OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std::string& channel);  // controller_walk.cc
+  void OnFootstepPlan(const lcm::ReceiveBuffer* rbuf,
+                      const std::string& channel);  // controller_walk.cc
   void PostNextSpec();
   void ArmHoldController();
   void CollectHoldController();
@@ -340,8 +344,8 @@ struct Controller::Impl {
   void PublisherThread();
   void PublishState(const Snapshot& s);
   void PublishWalkStatus(const Snapshot& s);  // controller_walk.cc
-  void PublishStatus(const Snapshot& s, runtime::TimingWindow& period, runtime::TimingWindow& compute,
-                     runtime::TimingWindow& lateness);
+  void PublishStatus(const Snapshot& s, runtime::TimingWindow& period,
+                     runtime::TimingWindow& compute, runtime::TimingWindow& lateness);
   void CameraThread();
 };
 

@@ -18,7 +18,8 @@ bool Decode(const lcm::ReceiveBuffer* rbuf, Msg* msg) {
 class GraphReadLease {
  public:
   explicit GraphReadLease(std::atomic<int>& lease) : lease_(lease) {
-    for (int free = 0; !lease_.compare_exchange_weak(free, 1, std::memory_order_acquire); free = 0) {
+    for (int free = 0; !lease_.compare_exchange_weak(free, 1, std::memory_order_acquire);
+         free = 0) {
       std::this_thread::yield();
     }
   }
@@ -34,7 +35,8 @@ class GraphReadLease {
 
 void Controller::Impl::LcmThread() {
   if (options.realtime) {
-    runtime::LogLine("[controller] LCM thread ", runtime::RequestThreadPriority(kIoPriority).message);
+    runtime::LogLine("[controller] LCM thread ",
+                     runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
     const bool idle = lcm.handleTimeout(2) == 0;
@@ -60,7 +62,8 @@ void Controller::Impl::OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string&
     return;
   }
   if (waiting_specs.size() >= 8) {
-    Reject(channels::kControllerSpec, "queue full", "controller '" + spec.name + "' dropped: 8 specs waiting");
+    Reject(channels::kControllerSpec, "queue full",
+           "controller '" + spec.name + "' dropped: 8 specs waiting");
     return;
   }
   waiting_specs.emplace_back(std::move(spec), Fnv1a(rbuf->data, rbuf->data_size));
@@ -74,7 +77,8 @@ void Controller::Impl::PostNextSpec() {
   // The armed hold controller replaces the running controller: disarm it (a new one is built
   // for the new controller once its swap is decided).
   int armed = kHoldArmed;
-  if (hold_state.compare_exchange_strong(armed, kHoldEmpty, std::memory_order_acq_rel)) hold_controller.reset();
+  if (hold_state.compare_exchange_strong(armed, kHoldEmpty, std::memory_order_acq_rel))
+    hold_controller.reset();
   CollectHoldController();  // engaged just now: the new controller replaces the hold controller
   const lcmt_controller_spec spec = std::move(waiting_specs.front().first);
   const int64_t spec_hash = waiting_specs.front().second;
@@ -118,7 +122,8 @@ void Controller::Impl::PostNextSpec() {
 void Controller::Impl::ArmHoldController() {
   if (hold_state.load(std::memory_order_acquire) != kHoldEmpty || !waiting_specs.empty() ||
       switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kNone) ||
-      active_owned_id < 0 || active_owned_id == kHoldControllerId || active_owned_id == hold_unbuildable_for) {
+      active_owned_id < 0 || active_owned_id == kHoldControllerId ||
+      active_owned_id == hold_unbuildable_for) {
     return;
   }
   Eigen::VectorXd q;
@@ -128,7 +133,8 @@ void Controller::Impl::ArmHoldController() {
   }
   const auto start = Clock::now();
   try {
-    hold_controller = BuildHoldController(*factory, *graph, *controllers.at(active_owned_id), q, model, soles);
+    hold_controller =
+        BuildHoldController(*factory, *graph, *controllers.at(active_owned_id), q, model, soles);
   } catch (const std::exception& e) {  // reported once per controller; overruns then hold still
     hold_unbuildable_for = active_owned_id;
     Reject(channels::kControllerSpec, "hold controller", e.what());
@@ -142,9 +148,10 @@ void Controller::Impl::ArmHoldController() {
   armed_hold = hold_controller.get();
   hold_state.store(kHoldArmed, std::memory_order_release);
   if (options.verbose) {
-    runtime::LogLine("[controller] hold controller '", hold_controller->name, "' armed for controller ",
-                     active_owned_id, " in ",
-                     std::chrono::duration<double, std::milli>(Clock::now() - start).count(), " ms");
+    runtime::LogLine("[controller] hold controller '", hold_controller->name,
+                     "' armed for controller ", active_owned_id, " in ",
+                     std::chrono::duration<double, std::milli>(Clock::now() - start).count(),
+                     " ms");
   }
 }
 
@@ -189,10 +196,11 @@ void Controller::Impl::CollectSwitchDecision() {
   } else {
     char jump[64];
     std::snprintf(jump, sizeof(jump), "%.4g", refused_jump);
-    result = refused_jump < 0.0
-                 ? "refused controller '" + posted->name + "' (id " + std::to_string(id) + "): estop is latched"
-                 : "refused controller '" + posted->name + "' (id " + std::to_string(id) +
-                       "): command jump " + jump + " rad/s > " + std::to_string(posted->max_switch_velocity_jump);
+    result = refused_jump < 0.0 ? "refused controller '" + posted->name + "' (id " +
+                                      std::to_string(id) + "): estop is latched"
+                                : "refused controller '" + posted->name + "' (id " +
+                                      std::to_string(id) + "): command jump " + jump + " rad/s > " +
+                                      std::to_string(posted->max_switch_velocity_jump);
     Reject(channels::kControllerSpec, "discontinuous switch", result);
     controllers.erase(id);
   }
@@ -215,14 +223,16 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
   }
   auto it = controllers.find(msg.controller_id);
   if (it == controllers.end()) {
-    Reject(channels::kTaskReference, "unknown controller",
-           "task '" + msg.task_name + "': no controller with id " + std::to_string(msg.controller_id));
+    Reject(
+        channels::kTaskReference, "unknown controller",
+        "task '" + msg.task_name + "': no controller with id " + std::to_string(msg.controller_id));
     return;
   }
   auto stream = it->second->streams.find(msg.task_name);
   if (stream == it->second->streams.end()) {
     Reject(channels::kTaskReference, "unknown task",
-           "controller " + std::to_string(msg.controller_id) + " has no streamed task '" + msg.task_name + "'");
+           "controller " + std::to_string(msg.controller_id) + " has no streamed task '" +
+               msg.task_name + "'");
     return;
   }
   ReferenceStream& s = *stream->second;
@@ -232,7 +242,8 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
       static_cast<int>(msg.derivative.size()) != msg.num_samples) {
     Reject(channels::kTaskReference, "wrong size",
            "task '" + msg.task_name + "': " + std::to_string(msg.num_samples) + " samples of " +
-               std::to_string(msg.value_size) + " values, the stream takes " + std::to_string(s.value_size()));
+               std::to_string(msg.value_size) + " values, the stream takes " +
+               std::to_string(s.value_size()));
     return;
   }
   ReferenceChunk chunk;
@@ -247,7 +258,8 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
   for (int i = 0; i < msg.num_samples; ++i) {
     if (static_cast<int>(msg.value[i].size()) != s.value_size() ||
         static_cast<int>(msg.derivative[i].size()) != msg.derivative_size) {
-      Reject(channels::kTaskReference, "wrong size", "task '" + msg.task_name + "': ragged sample " + std::to_string(i));
+      Reject(channels::kTaskReference, "wrong size",
+             "task '" + msg.task_name + "': ragged sample " + std::to_string(i));
       return;
     }
     chunk.values.insert(chunk.values.end(), msg.value[i].begin(), msg.value[i].end());
@@ -261,7 +273,8 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
     Reject(channels::kTaskReference, "invalid samples", "task '" + msg.task_name + "': " + problem);
     return;
   }
-  if (!s.Push(chunk)) Reject(channels::kTaskReference, "queue full", "task '" + msg.task_name + "': chunk dropped");
+  if (!s.Push(chunk))
+    Reject(channels::kTaskReference, "queue full", "task '" + msg.task_name + "': chunk dropped");
 }
 
 void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
@@ -270,9 +283,12 @@ void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::stri
     Reject(channels::kCommand, "undecodable", "not a valid lcmt_command");
     return;
   }
-  static const std::map<std::string, Command> kCommands = {
-      {"hold", Command::kHold},   {"resume", Command::kResume}, {"start", Command::kResume},
-      {"estop", Command::kEstop}, {"reset_estop", Command::kResetEstop}, {"stop", Command::kStop}};
+  static const std::map<std::string, Command> kCommands = {{"hold", Command::kHold},
+                                                           {"resume", Command::kResume},
+                                                           {"start", Command::kResume},
+                                                           {"estop", Command::kEstop},
+                                                           {"reset_estop", Command::kResetEstop},
+                                                           {"stop", Command::kStop}};
   const auto it = kCommands.find(ToLower(msg.command));
   if (it == kCommands.end()) {
     Reject(channels::kCommand, "unknown command",
@@ -309,31 +325,37 @@ void Controller::Impl::OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::s
       Reject(channels::kSimCommand, "unknown weld", e.what());
       return;
     }
-    if (!sim_requests.Push(r)) Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not changed");
+    if (!sim_requests.Push(r))
+      Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not changed");
     return;
   }
   if (msg.command != "set_object_pose") {
-    Reject(channels::kSimCommand, "unknown command", "'" + msg.command + "' (set_object_pose, attach, detach)");
+    Reject(channels::kSimCommand, "unknown command",
+           "'" + msg.command + "' (set_object_pose, attach, detach)");
     return;
   }
   const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
   if (it == free_objects.end()) {
     std::string known;
     for (const std::string& n : free_objects) known += (known.empty() ? "" : ", ") + n;
-    Reject(channels::kSimCommand, "unknown object", "'" + msg.object_name + "' (free objects: " + known + ")");
+    Reject(channels::kSimCommand, "unknown object",
+           "'" + msg.object_name + "' (free objects: " + known + ")");
     return;
   }
   const Eigen::Map<const Eigen::Vector3d> p(msg.position);
   const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
   if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
-    Reject(channels::kSimCommand, "invalid pose", "'" + msg.object_name + "': non-finite or non-unit quaternion");
+    Reject(channels::kSimCommand, "invalid pose",
+           "'" + msg.object_name + "': non-finite or non-unit quaternion");
     return;
   }
   SimRequest r;
   r.hash = hash;
   r.id = free_object_ids[it - free_objects.begin()];
-  r.pose = pinocchio::SE3(Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
-  if (!sim_requests.Push(r)) Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not moved");
+  r.pose = pinocchio::SE3(
+      Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
+  if (!sim_requests.Push(r))
+    Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not moved");
 }
 
 // ---- per-entity timing and budgets ----------------------------------------------------------
@@ -379,7 +401,8 @@ void Controller::Impl::PublishTiming() {
 }
 
 std::string Controller::Impl::TimingText() {
-  if (last_timing.num_entities == 0) return "no timing yet (profiling off, or less than one window)\n";
+  if (last_timing.num_entities == 0)
+    return "no timing yet (profiling off, or less than one window)\n";
   std::ostringstream os;
   os.setf(std::ios::fixed);
   os.precision(1);
@@ -387,10 +410,10 @@ std::string Controller::Impl::TimingText() {
   os << "  p50      p99      max   budget  overruns  entity\n";
   for (int i = 0; i < last_timing.num_entities; ++i) {
     char line[256];
-    std::snprintf(line, sizeof(line), "%7.1f  %7.1f  %7.1f  %7.1f  %8lld  %s (%s)\n", last_timing.p50_us[i],
-                  last_timing.p99_us[i], last_timing.max_us[i], last_timing.budget_us[i],
-                  static_cast<long long>(last_timing.overruns[i]), last_timing.entity[i].c_str(),
-                  last_timing.type_name[i].c_str());
+    std::snprintf(line, sizeof(line), "%7.1f  %7.1f  %7.1f  %7.1f  %8lld  %s (%s)\n",
+                  last_timing.p50_us[i], last_timing.p99_us[i], last_timing.max_us[i],
+                  last_timing.budget_us[i], static_cast<long long>(last_timing.overruns[i]),
+                  last_timing.entity[i].c_str(), last_timing.type_name[i].c_str());
     os << line;
   }
   return os.str();
@@ -405,7 +428,8 @@ void Controller::Impl::OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::st
     return;
   }
   if (waiting_dg.size() >= 64) {
-    Reject(channels::kDgRequest, "queue full", "request " + std::to_string(request.request_id) + " dropped");
+    Reject(channels::kDgRequest, "queue full",
+           "request " + std::to_string(request.request_id) + " dropped");
     return;
   }
   dg_hashes.push_back(Fnv1a(rbuf->data, rbuf->data_size));
@@ -464,7 +488,8 @@ void Controller::Impl::ServeDgRequest(const lcmt_dg_request& request) {
       return;
     }
     e->set_time_budget_us(request.value[0]);
-    ReplyDg(request, true, "", "budget of " + e->name() + ": " + std::to_string(request.value[0]) + " us");
+    ReplyDg(request, true, "",
+            "budget of " + e->name() + ": " + std::to_string(request.value[0]) + " us");
   } else if (command == "get" || command == "trace") {
     std::vector<std::string> names;
     for (const std::string& n : request.signal) {
@@ -491,8 +516,8 @@ void Controller::Impl::ServeDgRequest(const lcmt_dg_request& request) {
       }
       trace = Trace{request.request_id, request.client, names,
                     std::max<int64_t>(1, std::llround(1.0 / (request.rate * kDt))), 0};
-      ReplyDg(request, true, "", "tracing " + std::to_string(names.size()) + " signals on " +
-                                     channels::kDgTrace);
+      ReplyDg(request, true, "",
+              "tracing " + std::to_string(names.size()) + " signals on " + channels::kDgTrace);
     }
     UpdateWatch();
   } else if (command == "untrace") {
@@ -516,8 +541,9 @@ void Controller::Impl::ServeDgRequest(const lcmt_dg_request& request) {
       ReplyDg(request, false, problem);
     }
   } else {
-    ReplyDg(request, false, "unknown command '" + command +
-                                "' (ls, get, set, trace, untrace, graph, timing, budget)");
+    ReplyDg(
+        request, false,
+        "unknown command '" + command + "' (ls, get, set, trace, untrace, graph, timing, budget)");
   }
 }
 

@@ -9,11 +9,13 @@ namespace marionette::controller {
 
 void Controller::Impl::PublisherThread() {
   if (options.realtime) {
-    runtime::LogLine("[controller] publisher thread ", runtime::RequestThreadPriority(kIoPriority).message);
+    runtime::LogLine("[controller] publisher thread ",
+                     runtime::RequestThreadPriority(kIoPriority).message);
   }
   runtime::TimingWindow period(10000), compute(10000), lateness(10000);
   const auto state_period = std::chrono::duration<double>(1.0 / std::max(1.0, options.state_rate));
-  const auto status_period = std::chrono::duration<double>(1.0 / std::max(0.1, options.status_rate));
+  const auto status_period =
+      std::chrono::duration<double>(1.0 / std::max(0.1, options.status_rate));
   auto next_state = Clock::now(), next_status = Clock::now();
   runtime::TickTiming timing;
   int64_t last_tick = -1;
@@ -155,7 +157,8 @@ void Controller::Impl::PublishState(const Snapshot& s) {
 }
 
 void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& period,
-                                     runtime::TimingWindow& compute, runtime::TimingWindow& lateness) {
+                                     runtime::TimingWindow& compute,
+                                     runtime::TimingWindow& lateness) {
   lcmt_controller_status st{};
   st.utime = s.utime;
   st.tick = s.tick;
@@ -172,7 +175,8 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
       st.mode_reason = "controller accepted";
       break;
     case Reason::kCommand: {
-      static const char* kCommandNames[] = {"none", "hold", "resume", "estop", "reset_estop", "stop"};
+      static const char* kCommandNames[] = {"none",  "hold",        "resume",
+                                            "estop", "reset_estop", "stop"};
       st.mode_reason = std::string("command ") + kCommandNames[std::clamp(s.reason_index, 0, 5)];
       break;
     }
@@ -183,8 +187,9 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
         task = names->second.streams[s.reason_index];
       }
       char buffer[200];
-      std::snprintf(buffer, sizeof(buffer), "watchdog: reference of a streamed task (%s) stale for %.0f ms",
-                    task.c_str(), 1e3 * s.reason_value);
+      std::snprintf(buffer, sizeof(buffer),
+                    "watchdog: reference of a streamed task (%s) stale for %.0f ms", task.c_str(),
+                    1e3 * s.reason_value);
       st.mode_reason = buffer;
       break;
     }
@@ -254,13 +259,15 @@ void Controller::Impl::CameraThread() {
   // CPU, so a frame can be late but a tick never waits for one.
   sched_param idle{};
   if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0) {
-    runtime::LogLine("[controller] camera thread: SCHED_IDLE refused, rendering at normal priority");
+    runtime::LogLine(
+        "[controller] camera thread: SCHED_IDLE refused, rendering at normal priority");
   }
   const mjModel& m = scene->model();
   mjData* d = mj_makeData(&m);
   std::unique_ptr<sim::RgbdRenderer> renderer;
   try {
-    renderer = std::make_unique<sim::RgbdRenderer>(&m, robot.camera, options.camera_width, options.camera_height);
+    renderer = std::make_unique<sim::RgbdRenderer>(&m, robot.camera, options.camera_width,
+                                                   options.camera_height);
   } catch (const std::exception& e) {
     runtime::LogLine("[controller] camera disabled: ", e.what());
     mj_deleteData(d);
@@ -269,8 +276,8 @@ void Controller::Impl::CameraThread() {
   sim::RgbdFrame frame;
   sim::CameraNoise noise({options.camera_noise, options.depth_noise, /*seed=*/0});
   if (noise.enabled()) {
-    runtime::LogLine("[controller] camera: sensor noise ", options.camera_noise, " grey levels, depth ",
-                     options.depth_noise * 1e3, " mm (1 sigma)");
+    runtime::LogLine("[controller] camera: sensor noise ", options.camera_noise,
+                     " grey levels, depth ", options.depth_noise * 1e3, " mm (1 sigma)");
   }
   lcmt_camera_image msg{};
   const sim::PinholeIntrinsics& K = renderer->intrinsics();

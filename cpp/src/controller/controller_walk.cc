@@ -19,10 +19,13 @@ void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std:
   walk::FootstepManager* steps = it == controllers.end() ? nullptr : it->second->walk_steps;
   if (steps == nullptr) {
     Reject(channels::kFootstepPlan, "no walking controller",
-           which + ": the active controller has no walk: tasks (walk:left_foot, walk:right_foot, walk:com)");
+           which +
+               ": the active controller has no walk: tasks (walk:left_foot, walk:right_foot, "
+               "walk:com)");
     return;
   }
-  if (msg.num_steps != static_cast<int>(msg.steps.size()) || msg.num_steps > walk::FootstepPlan::kMaxSteps) {
+  if (msg.num_steps != static_cast<int>(msg.steps.size()) ||
+      msg.num_steps > walk::FootstepPlan::kMaxSteps) {
     Reject(channels::kFootstepPlan, "wrong size",
            which + ": " + std::to_string(msg.num_steps) + " steps (at most " +
                std::to_string(walk::FootstepPlan::kMaxSteps) + ", arrays must match num_steps)");
@@ -39,8 +42,8 @@ void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std:
     walk::Footstep& s = plan->steps[k];
     if (m.num_via != static_cast<int>(m.via.size()) || m.num_via > walk::SwingFoot::kMaxVia) {
       Reject(channels::kFootstepPlan, "wrong size",
-             which + ", step " + std::to_string(k) + ": " + std::to_string(m.num_via) + " via points (at most " +
-                 std::to_string(walk::SwingFoot::kMaxVia) + ")");
+             which + ", step " + std::to_string(k) + ": " + std::to_string(m.num_via) +
+                 " via points (at most " + std::to_string(walk::SwingFoot::kMaxVia) + ")");
       return;
     }
     s.index = m.index;
@@ -60,7 +63,8 @@ void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std:
   // Posted even to a hold controller's stopped walk, which refuses it at its next tick: the
   // plan is then journaled as consumed at the same tick live and in a replay.
   if (active_owned_id == kHoldControllerId) {
-    Reject(channels::kFootstepPlan, "holding", which + ": the hold controller ends the walk after the current step");
+    Reject(channels::kFootstepPlan, "holding",
+           which + ": the hold controller ends the walk after the current step");
   }
   if (!steps->Post(*plan)) Reject(channels::kFootstepPlan, "queue full", which + " dropped");
 }
@@ -85,7 +89,8 @@ void Controller::Impl::FillWalkStatus(const graph::Tick& t, Snapshot* s) {
   if (device == nullptr) return;
   const sot::Kinematics& k = robot_model->kinematics_output().Eval(t);
   std::array<walk::SoleWrench, 4> wrenches;
-  const int n = std::min<int>(static_cast<int>(contact_frames.size()), static_cast<int>(wrenches.size()));
+  const int n =
+      std::min<int>(static_cast<int>(contact_frames.size()), static_cast<int>(wrenches.size()));
   double ground = std::numeric_limits<double>::infinity();
   for (int i = 0; i < n; ++i) {
     const Eigen::VectorXd& w = device->wrench_output(i).value();
@@ -109,8 +114,10 @@ void Controller::Impl::PublishWalkStatus(const Snapshot& s) {
   msg.phase = walk::ToString(static_cast<walk::WalkPhase>(s.walk_phase));
   msg.phase_progress = s.walk_phase_progress;
   for (int k = 0; k < 3; ++k) msg.com[k] = s.walk_com[k];
-  for (int k = 0; k < 2; ++k) msg.zmp_reference[k] = s.walk_zmp_reference[k], msg.zmp_measured[k] = s.walk_zmp_measured[k];
-  for (int k = 0; k < 4; ++k) msg.left_foot[k] = s.walk_left[k], msg.right_foot[k] = s.walk_right[k];
+  for (int k = 0; k < 2; ++k)
+    msg.zmp_reference[k] = s.walk_zmp_reference[k], msg.zmp_measured[k] = s.walk_zmp_measured[k];
+  for (int k = 0; k < 4; ++k)
+    msg.left_foot[k] = s.walk_left[k], msg.right_foot[k] = s.walk_right[k];
   lcm.publish(channels::kWalkStatus, &msg);
 }
 

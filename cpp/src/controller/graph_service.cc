@@ -60,8 +60,8 @@ int64_t GraphService::SetWatch(std::vector<graph::SignalBase*> signals) {
     watch->total_size += s->shape().size();
   }
   if (watch->total_size > kMaxWatchedValues) {
-    throw std::invalid_argument("watching " + std::to_string(watch->total_size) + " values, at most " +
-                                std::to_string(kMaxWatchedValues));
+    throw std::invalid_argument("watching " + std::to_string(watch->total_size) +
+                                " values, at most " + std::to_string(kMaxWatchedValues));
   }
   watch->signals = std::move(signals);
   Watch* raw = watch.get();
@@ -83,8 +83,9 @@ std::string GraphService::QueueSet(graph::SignalBase& signal, const std::vector<
   if (!signal.is_input()) return signal.full_name() + " is an output: only inputs can be set";
   auto& input = static_cast<graph::InputSignalBase&>(signal);
   if (!input.settable()) {
-    return signal.full_name() + " is not settable (only inputs declared settable, e.g. gains, can be "
-                                "changed while running)";
+    return signal.full_name() +
+           " is not settable (only inputs declared settable, e.g. gains, can be "
+           "changed while running)";
   }
   if (input.is_plugged()) {
     return signal.full_name() + " is plugged to " + input.source()->full_name() +
@@ -95,7 +96,8 @@ std::string GraphService::QueueSet(graph::SignalBase& signal, const std::vector<
     return signal.full_name() + " takes " + std::to_string(size) + " values, " +
            std::to_string(values.size()) + " given";
   }
-  if (size > kMaxSetSize) return signal.full_name() + " is too large to set (" + std::to_string(size) + ")";
+  if (size > kMaxSetSize)
+    return signal.full_name() + " is too large to set (" + std::to_string(size) + ")";
   for (double v : values) {
     if (!std::isfinite(v)) return "non-finite value for " + signal.full_name();
   }

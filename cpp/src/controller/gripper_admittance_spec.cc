@@ -6,8 +6,11 @@
 
 namespace marionette::controller {
 
-GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& t, double gain, const std::string& who) {
-  const auto fail = [&who](const std::string& what) { throw std::invalid_argument(who + ": " + what); };
+GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& t, double gain,
+                                             const std::string& who) {
+  const auto fail = [&who](const std::string& what) {
+    throw std::invalid_argument(who + ": " + what);
+  };
   GripperAdmittanceSpec out;
   if (t.num_joints != 1 || t.joint_name.size() != 1 || t.joint_name[0].empty()) {
     fail("a gripper_admittance task names exactly one joint (the gripper's) in joint_name");
@@ -26,12 +29,16 @@ GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& t, double gai
   if (t.gain_slope > 0.0) fail("a gripper_admittance task needs a constant gain (gain_slope 0)");
   sot::GripperAdmittanceOptions& o = out.options;
   o.task_gain = gain;
-  const std::map<std::string, double*> fields = {
-      {"force_target", &o.force_target},         {"force_threshold", &o.force_threshold},
-      {"release_force", &o.release_force},       {"admittance_gain", &o.admittance_gain},
-      {"lever_arm", &o.lever_arm},               {"torque_per_effort", &o.torque_per_effort},
-      {"cutoff_frequency", &o.cutoff_frequency}, {"speed", &o.speed}, {"acceleration", &o.acceleration},
-      {"closing_direction", &o.closing_direction}};
+  const std::map<std::string, double*> fields = {{"force_target", &o.force_target},
+                                                 {"force_threshold", &o.force_threshold},
+                                                 {"release_force", &o.release_force},
+                                                 {"admittance_gain", &o.admittance_gain},
+                                                 {"lever_arm", &o.lever_arm},
+                                                 {"torque_per_effort", &o.torque_per_effort},
+                                                 {"cutoff_frequency", &o.cutoff_frequency},
+                                                 {"speed", &o.speed},
+                                                 {"acceleration", &o.acceleration},
+                                                 {"closing_direction", &o.closing_direction}};
   for (int i = 0; i < t.num_parameters; ++i) {
     const std::string& name = t.parameter_name[i];
     const double value = t.parameter_value[i];

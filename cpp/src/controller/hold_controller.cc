@@ -9,8 +9,8 @@
 namespace marionette::controller {
 namespace {
 
-lcmt_task_spec Task(const std::string& name, const std::string& kind, int priority, const std::string& frame,
-                    double gain) {
+lcmt_task_spec Task(const std::string& name, const std::string& kind, int priority,
+                    const std::string& frame, double gain) {
   lcmt_task_spec t{};
   t.name = name;
   t.kind = kind;
@@ -27,8 +27,8 @@ lcmt_controller_spec HoldControllerSpec(const std::vector<std::string>& soles,
   lcmt_controller_spec spec{};
   spec.controller_id = kHoldControllerId;
   spec.name = !balance_tasks.empty() ? "hold (stop walking + posture)"
-              : soles.empty()     ? "hold (posture)"
-                                  : "hold (balance + posture)";
+              : soles.empty()        ? "hold (posture)"
+                                     : "hold (balance + posture)";
   // Engaged by the loop, not through the start check: the solver's switch blend (eq. 2.34)
   // keeps the command continuous.
   spec.max_switch_velocity_jump = std::numeric_limits<double>::max();
@@ -53,15 +53,15 @@ lcmt_controller_spec HoldControllerSpec(const std::vector<std::string>& soles,
   return spec;
 }
 
-std::unique_ptr<BuiltController> BuildHoldController(const ControllerFactory& factory, const graph::Graph& graph,
-                                                     const BuiltController& running, const Eigen::VectorXd& q,
-                                                     const sot::ModelPtr& model,
-                                                     const std::vector<std::string>& soles) {
+std::unique_ptr<BuiltController> BuildHoldController(
+    const ControllerFactory& factory, const graph::Graph& graph, const BuiltController& running,
+    const Eigen::VectorXd& q, const sot::ModelPtr& model, const std::vector<std::string>& soles) {
   if (running.walk_steps != nullptr) {
     // The walk's entities stay in the graph (the hold adopts them); the rest goes.
     std::vector<std::string> replaced;
     for (const std::string& name : running.entity_names) {
-      if (name != running.walk_steps->name() && name != running.walk_pattern->name()) replaced.push_back(name);
+      if (name != running.walk_steps->name() && name != running.walk_pattern->name())
+        replaced.push_back(name);
     }
     const lcmt_controller_spec spec = HoldControllerSpec(soles, running.balance_tasks);
     std::unique_ptr<BuiltController> built = factory.Build(spec, graph, replaced, q, &running);
@@ -77,14 +77,17 @@ std::unique_ptr<BuiltController> BuildHoldController(const ControllerFactory& fa
   // its horizontal part over the support.
   const std::string com_feature = "c" + std::to_string(spec.controller_id) + "_hold_com_feature";
   auto* com = dynamic_cast<sot::FeatureCom*>(built->edit->FindEntity(com_feature));
-  if (com == nullptr) throw std::logic_error("hold controller: the factory built no '" + com_feature + "'");
+  if (com == nullptr)
+    throw std::logic_error("hold controller: the factory built no '" + com_feature + "'");
   std::vector<sot::FrameRef> frames;
-  for (const std::string& sole : soles) frames.push_back(sot::MakeFrameRef(*model, sole, "hold controller"));
+  for (const std::string& sole : soles)
+    frames.push_back(sot::MakeFrameRef(*model, sole, "hold controller"));
   auto* reference = &com->reference_input();
   auto scratch = std::make_shared<Eigen::VectorXd>(Eigen::VectorXd::Zero(3));
   built->holds.push_back([frames, reference, scratch](const sot::Kinematics& k) {
     double lowest = std::numeric_limits<double>::infinity();
-    for (const sot::FrameRef& f : frames) lowest = std::min(lowest, k.placement(f).translation().z());
+    for (const sot::FrameRef& f : frames)
+      lowest = std::min(lowest, k.placement(f).translation().z());
     Eigen::Vector2d centre = Eigen::Vector2d::Zero();
     int on_ground = 0;
     for (const sot::FrameRef& f : frames) {

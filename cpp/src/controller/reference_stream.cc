@@ -22,12 +22,15 @@ ReferenceStream::ReferenceStream(std::string name, Kind kind, const Eigen::Vecto
       initial_(initial),
       queue_(queue_capacity) {
   if (se3_ && value_size_ != 7) {
-    throw graph::GraphError("reference stream '" + this->name() + "': an SE3 stream holds 7 values "
-                            "(x y z qw qx qy qz), got " + std::to_string(value_size_));
+    throw graph::GraphError("reference stream '" + this->name() +
+                            "': an SE3 stream holds 7 values "
+                            "(x y z qw qx qy qz), got " +
+                            std::to_string(value_size_));
   }
   if (capacity_ < 2 || max_chunk_samples_ < 1 || max_chunk_samples_ > capacity_) {
-    throw graph::GraphError("reference stream '" + this->name() +
-                            "': needs 1 <= max_chunk_samples <= capacity_samples and capacity >= 2");
+    throw graph::GraphError(
+        "reference stream '" + this->name() +
+        "': needs 1 <= max_chunk_samples <= capacity_samples and capacity >= 2");
   }
   popped_.values.reserve(static_cast<size_t>(max_chunk_samples_) * value_size_);
   popped_.derivatives.reserve(static_cast<size_t>(max_chunk_samples_) * derivative_size_);
@@ -35,8 +38,8 @@ ReferenceStream::ReferenceStream(std::string name, Kind kind, const Eigen::Vecto
   derivatives_.assign(static_cast<size_t>(capacity_) * derivative_size_, 0.0);
   DeclarePoll("receive", &ReferenceStream::Poll);
   value_ = &DeclareOutput<Eigen::VectorXd>("value", initial_, &ReferenceStream::CalcValue, {});
-  derivative_ = &DeclareOutput<Eigen::VectorXd>("derivative", Eigen::VectorXd::Zero(derivative_size_),
-                                                &ReferenceStream::CalcDerivative, {});
+  derivative_ = &DeclareOutput<Eigen::VectorXd>(
+      "derivative", Eigen::VectorXd::Zero(derivative_size_), &ReferenceStream::CalcDerivative, {});
   age_ = &DeclareOutput<double>("age", 0.0, &ReferenceStream::CalcAge, {});
   ended_ = &DeclareOutput<bool>("ended", false, &ReferenceStream::CalcEnded, {});
   if (se3_) {
@@ -53,13 +56,15 @@ std::string ReferenceStream::ValidateChunk(const ReferenceChunk& c) const {
   }
   if (c.dt_us <= 0) return "non-positive dt_us " + std::to_string(c.dt_us);
   if (pushed_dt_us_ != 0 && c.dt_us != pushed_dt_us_) {
-    return "dt_us " + std::to_string(c.dt_us) + " differs from the stream's " + std::to_string(pushed_dt_us_);
+    return "dt_us " + std::to_string(c.dt_us) + " differs from the stream's " +
+           std::to_string(pushed_dt_us_);
   }
   if (c.sequence < 0) return "negative sequence " + std::to_string(c.sequence);
   if (c.sequence > 0 && c.sequence != pushed_sequence_ + 1) {
     return "chunk " + std::to_string(c.sequence) + " of a reference whose chunk " +
            std::to_string(c.sequence - 1) + " never came (" +
-           (pushed_sequence_ < 0 ? std::string("none taken") : "last taken " + std::to_string(pushed_sequence_)) +
+           (pushed_sequence_ < 0 ? std::string("none taken")
+                                 : "last taken " + std::to_string(pushed_sequence_)) +
            "); the stream holds its last sample";
   }
   if (c.values.size() != static_cast<size_t>(c.num_samples) * value_size_) {
@@ -91,7 +96,8 @@ std::string ReferenceStream::ValidateChunk(const ReferenceChunk& c) const {
 void ReferenceStream::SetInitial(const Eigen::VectorXd& initial) {
   if (initial.size() != value_size_) {
     throw graph::GraphError("reference stream '" + name() + "': initial value of size " +
-                            std::to_string(initial.size()) + ", expected " + std::to_string(value_size_));
+                            std::to_string(initial.size()) + ", expected " +
+                            std::to_string(value_size_));
   }
   initial_ = initial;
 }
@@ -167,8 +173,8 @@ void ReferenceStream::CalcValue(const graph::Tick& t, Eigen::VectorXd* out) cons
     *out = va;
     return;
   }
-  const Eigen::Map<const Eigen::VectorXd> vb(&values_[static_cast<size_t>((k + 1) % capacity_) * value_size_],
-                                            value_size_);
+  const Eigen::Map<const Eigen::VectorXd> vb(
+      &values_[static_cast<size_t>((k + 1) % capacity_) * value_size_], value_size_);
   *out = (1.0 - f) * va + f * vb;
   if (se3_) {  // rotation part by slerp, stored as (w, x, y, z)
     const Eigen::Quaterniond qa(a[3], a[4], a[5], a[6]), qb(vb[3], vb[4], vb[5], vb[6]);

@@ -23,9 +23,9 @@ struct RecordedCommand {
 struct RecordedRun {
   std::string config;
   int64_t num_lost = 0;
-  std::vector<JournalEntry> entries;                  // in consumption order
-  std::map<int64_t, std::string> messages;            // payload hash -> bytes
-  std::map<int64_t, RecordedCommand> commands;        // tick -> ROBOT_COMMAND
+  std::vector<JournalEntry> entries;            // in consumption order
+  std::map<int64_t, std::string> messages;      // payload hash -> bytes
+  std::map<int64_t, RecordedCommand> commands;  // tick -> ROBOT_COMMAND
 };
 
 int JournalChannelIndex(const std::string& channel) {
@@ -69,9 +69,12 @@ RecordedRun ReadLog(const std::string& path, std::vector<std::string>* problems)
                            std::string(static_cast<const char*>(event->data), event->datalen));
     }
   }
-  if (undecodable > 0) problems->push_back(std::to_string(undecodable) + " undecodable journal/command messages skipped");
+  if (undecodable > 0)
+    problems->push_back(std::to_string(undecodable) +
+                        " undecodable journal/command messages skipped");
   if (run.config.empty()) {
-    throw std::runtime_error("'" + path + "' holds no CONTROLLER_JOURNAL: was the controller's journal recorded?");
+    throw std::runtime_error(
+        "'" + path + "' holds no CONTROLLER_JOURNAL: was the controller's journal recorded?");
   }
   // Consumption order is tick order; entries of one tick keep their recorded order.
   std::stable_sort(run.entries.begin(), run.entries.end(),
@@ -113,18 +116,23 @@ std::string Escape(const std::string& s) {
 }  // namespace
 
 bool ReplayResult::ok() const {
-  return problems.empty() && journal_mismatches == 0 && first_divergence_tick < 0 && commands_compared > 0;
+  return problems.empty() && journal_mismatches == 0 && first_divergence_tick < 0 &&
+         commands_compared > 0;
 }
 
 std::string ReplayResult::ToJson() const {
   std::ostringstream o;
   o.precision(17);
-  o << "{\"ok\": " << (ok() ? "true" : "false") << ", \"config\": \"" << Escape(config) << "\", \"ticks\": " << ticks
-    << ", \"inputs\": " << inputs << ", \"commands_compared\": " << commands_compared
-    << ", \"max_difference\": " << max_difference << ", \"first_divergence_tick\": " << first_divergence_tick
-    << ", \"first_divergence\": \"" << Escape(first_divergence) << "\", \"journal_mismatches\": " << journal_mismatches
-    << ", \"first_journal_mismatch\": \"" << Escape(first_journal_mismatch) << "\", \"problems\": [";
-  for (size_t i = 0; i < problems.size(); ++i) o << (i ? ", " : "") << "\"" << Escape(problems[i]) << "\"";
+  o << "{\"ok\": " << (ok() ? "true" : "false") << ", \"config\": \"" << Escape(config)
+    << "\", \"ticks\": " << ticks << ", \"inputs\": " << inputs
+    << ", \"commands_compared\": " << commands_compared
+    << ", \"max_difference\": " << max_difference
+    << ", \"first_divergence_tick\": " << first_divergence_tick << ", \"first_divergence\": \""
+    << Escape(first_divergence) << "\", \"journal_mismatches\": " << journal_mismatches
+    << ", \"first_journal_mismatch\": \"" << Escape(first_journal_mismatch)
+    << "\", \"problems\": [";
+  for (size_t i = 0; i < problems.size(); ++i)
+    o << (i ? ", " : "") << "\"" << Escape(problems[i]) << "\"";
   o << "]}";
   return o.str();
 }
@@ -134,13 +142,15 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
   const RecordedRun run = ReadLog(options.log, &result.problems);
   result.config = run.config;
   if (run.num_lost > 0) {
-    result.problems.push_back(std::to_string(run.num_lost) +
-                              " journal entries were lost during the run (queue full): the replay cannot be exact");
+    result.problems.push_back(
+        std::to_string(run.num_lost) +
+        " journal entries were lost during the run (queue full): the replay cannot be exact");
   }
   Controller::Impl c(OptionsFromConfig(run.config, options));
   c.replaying = true;
   std::map<std::string, int> joint_index;
-  for (size_t i = 0; i < c.joint_names.size(); ++i) joint_index[c.joint_names[i]] = static_cast<int>(i);
+  for (size_t i = 0; i < c.joint_names.size(); ++i)
+    joint_index[c.joint_names[i]] = static_cast<int>(i);
 
   int64_t last_tick = run.commands.empty() ? -1 : run.commands.rbegin()->first;
   if (!run.entries.empty()) last_tick = std::max(last_tick, run.entries.back().tick);
@@ -165,12 +175,14 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
       } else if (e.hash < t.index && t.index - e.hash <= kHistoryTicks) {
         c.shared_q = history[e.hash % kHistoryTicks];
       } else {
-        result.problems.push_back("the spec swapped at tick " + std::to_string(t.index) + " was built at tick " +
-                                  std::to_string(e.hash) + ", beyond the replay's history");
+        result.problems.push_back("the spec swapped at tick " + std::to_string(t.index) +
+                                  " was built at tick " + std::to_string(e.hash) +
+                                  ", beyond the replay's history");
       }
       c.shared_tick = e.hash;
     }
-    for (; next_entry < run.entries.size() && run.entries[next_entry].tick == t.index; ++next_entry) {
+    for (; next_entry < run.entries.size() && run.entries[next_entry].tick == t.index;
+         ++next_entry) {
       const JournalEntry& e = run.entries[next_entry];
       expected.emplace_back(e.channel, e.hash);
       ++result.inputs;
@@ -181,8 +193,9 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
       if (e.channel == kBuildTickChannel) continue;  // applied above, before the spec is built
       const auto message = run.messages.find(e.hash);
       if (message == run.messages.end()) {
-        result.problems.push_back(std::string("the ") + kJournalChannels[e.channel] + " message consumed at tick " +
-                                  std::to_string(t.index) + " is not in the log");
+        result.problems.push_back(std::string("the ") + kJournalChannels[e.channel] +
+                                  " message consumed at tick " + std::to_string(t.index) +
+                                  " is not in the log");
         continue;
       }
       lcm::ReceiveBuffer rbuf{const_cast<char*>(message->second.data()),
@@ -224,9 +237,9 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
     std::sort(replayed.begin(), replayed.end());
     if (expected != replayed) {
       if (result.journal_mismatches++ == 0) {
-        result.first_journal_mismatch = "tick " + std::to_string(t.index) + ": recorded " +
-                                        std::to_string(expected.size()) + " inputs consumed, replay " +
-                                        std::to_string(replayed.size());
+        result.first_journal_mismatch =
+            "tick " + std::to_string(t.index) + ": recorded " + std::to_string(expected.size()) +
+            " inputs consumed, replay " + std::to_string(replayed.size());
       }
     }
     // Same command?
@@ -237,7 +250,8 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
     for (size_t i = 0; i < r.names.size() && i < r.position.size() && i < r.velocity.size(); ++i) {
       const auto j = joint_index.find(r.names[i]);
       if (j == joint_index.end()) {
-        result.problems.push_back("ROBOT_COMMAND names joint '" + r.names[i] + "' that " + c.robot.name + " lacks");
+        result.problems.push_back("ROBOT_COMMAND names joint '" + r.names[i] + "' that " +
+                                  c.robot.name + " lacks");
         break;
       }
       const double q = c.loop_state.q_command[c.joint_q[j->second]];
@@ -250,7 +264,8 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
           result.first_divergence_tick = t.index;
           std::ostringstream s;
           s.precision(17);
-          s << "ROBOT_COMMAND " << what << "[" << r.names[i] << "]: recorded " << rec << ", replayed " << rep;
+          s << "ROBOT_COMMAND " << what << "[" << r.names[i] << "]: recorded " << rec
+            << ", replayed " << rep;
           result.first_divergence = s.str();
         }
       }
@@ -258,7 +273,8 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
   }
   result.ticks = t.index;
   if (next_entry < run.entries.size()) {
-    result.problems.push_back(std::to_string(run.entries.size() - next_entry) + " journal entries were not replayed");
+    result.problems.push_back(std::to_string(run.entries.size() - next_entry) +
+                              " journal entries were not replayed");
   }
   return result;
 }

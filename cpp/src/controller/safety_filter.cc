@@ -22,9 +22,9 @@ SafetyFilter::SafetyFilter(std::string name, const pinocchio::Model& model, doub
   velocity_in_ = &DeclareInput<Eigen::VectorXd>("velocity", Eigen::VectorXd::Zero(model.nv));
   q_ = &DeclareInput<Eigen::VectorXd>("q", Eigen::VectorXd::Zero(model.nq));
   mode_ = &DeclareParameter<int>("mode", static_cast<int>(ControlMode::kHold), /*settable=*/false);
-  velocity_out_ = &DeclareOutput<Eigen::VectorXd>("command", Eigen::VectorXd::Zero(model.nv),
-                                                  &SafetyFilter::CalcVelocity,
-                                                  {velocity_in_, q_, mode_});
+  velocity_out_ =
+      &DeclareOutput<Eigen::VectorXd>("command", Eigen::VectorXd::Zero(model.nv),
+                                      &SafetyFilter::CalcVelocity, {velocity_in_, q_, mode_});
   num_clamped_ = &DeclareOutput<int>("num_clamped", 0, &SafetyFilter::CalcNumClamped,
                                      {velocity_in_, velocity_out_, mode_});
   non_finite_ = &DeclareOutput<bool>("non_finite", false, &SafetyFilter::CalcNonFinite,
@@ -62,7 +62,8 @@ void SafetyFilter::CalcNumClamped(const graph::Tick& t, int* out) const {
 }
 
 void SafetyFilter::CalcNonFinite(const graph::Tick& t, bool* out) const {
-  *out = mode_->Eval(t) == static_cast<int>(ControlMode::kRun) && !velocity_in_->Eval(t).allFinite();
+  *out =
+      mode_->Eval(t) == static_cast<int>(ControlMode::kRun) && !velocity_in_->Eval(t).allFinite();
 }
 
 }  // namespace marionette::controller

@@ -8,9 +8,7 @@ VectorConstant::VectorConstant(std::string name, const Eigen::VectorXd& value, b
   out_ = &DeclareOutput<Eigen::VectorXd>("out", value, &VectorConstant::CalcOut, {value_});
 }
 
-void VectorConstant::CalcOut(const Tick& t, Eigen::VectorXd* out) const {
-  *out = value_->Eval(t);
-}
+void VectorConstant::CalcOut(const Tick& t, Eigen::VectorXd* out) const { *out = value_->Eval(t); }
 
 VectorSum::VectorSum(std::string name, int n, int num_inputs) : Entity(std::move(name)) {
   if (n < 0 || num_inputs < 1) {
@@ -18,8 +16,8 @@ VectorSum::VectorSum(std::string name, int n, int num_inputs) : Entity(std::move
   }
   std::vector<const SignalBase*> prerequisites;
   for (int i = 0; i < num_inputs; ++i) {
-    ins_.push_back(&DeclareInput<Eigen::VectorXd>("in" + std::to_string(i),
-                                                  Eigen::VectorXd::Zero(n)));
+    ins_.push_back(
+        &DeclareInput<Eigen::VectorXd>("in" + std::to_string(i), Eigen::VectorXd::Zero(n)));
     prerequisites.push_back(ins_.back());
   }
   out_ = &DeclareOutput<Eigen::VectorXd>("out", Eigen::VectorXd::Zero(n), &VectorSum::CalcOut,

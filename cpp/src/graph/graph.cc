@@ -12,9 +12,9 @@ struct Graph::Topology {
   std::vector<std::shared_ptr<Entity>> entities;
   std::unordered_map<std::string, Entity*> by_name;
   bool profiling = false;
-  std::vector<const PollHook*> polls;      // run first, every tick
-  std::vector<StateSlot*> states;          // committed after every tick
-  std::vector<const UpdateHook*> hooks;    // run every tick
+  std::vector<const PollHook*> polls;    // run first, every tick
+  std::vector<StateSlot*> states;        // committed after every tick
+  std::vector<const UpdateHook*> hooks;  // run every tick
   int num_signals = 0;
 };
 
@@ -142,7 +142,8 @@ const SignalBase* CurrentSource(const InputSignalBase& in) { return in.source();
 std::pair<std::string_view, std::string_view> SplitFullName(std::string_view full_name) {
   const size_t dot = full_name.find('.');
   if (dot == std::string_view::npos || dot == 0 || dot + 1 == full_name.size()) {
-    throw GraphError("'" + std::string(full_name) + "' is not a signal name of the form "
+    throw GraphError("'" + std::string(full_name) +
+                     "' is not a signal name of the form "
                      "'entity.signal'");
   }
   return {full_name.substr(0, dot), full_name.substr(dot + 1)};
@@ -177,7 +178,9 @@ Graph::Graph(std::unique_ptr<Topology> topology) : topology_(std::move(topology)
 Graph::~Graph() = default;
 
 namespace {
-EntityTiming* TimingOf(bool profiling, Entity* e) { return profiling ? &e->mutable_timing() : nullptr; }
+EntityTiming* TimingOf(bool profiling, Entity* e) {
+  return profiling ? &e->mutable_timing() : nullptr;
+}
 
 void AttachTimings(const std::vector<std::shared_ptr<Entity>>& entities, bool on) {
   for (const auto& e : entities) {
@@ -233,9 +236,7 @@ int Graph::LastOverruns(std::vector<const Entity*>* out) const {
   return static_cast<int>(out->size());
 }
 
-const std::vector<std::shared_ptr<Entity>>& Graph::entities() const {
-  return topology_->entities;
-}
+const std::vector<std::shared_ptr<Entity>>& Graph::entities() const { return topology_->entities; }
 
 Entity* Graph::FindEntity(std::string_view name) const {
   auto it = topology_->by_name.find(std::string(name));
@@ -283,14 +284,14 @@ std::string Graph::ToDot() const {
         outs += (outs.empty() ? "" : "|") + port + suffix;
       }
     }
-    os << "  \"" << e->name() << "\" [label=\"{{" << ins << "}|" << DotEscape(e->name())
-       << "\\n" << e->type_name() << "|{" << outs << "}}\"];\n";
+    os << "  \"" << e->name() << "\" [label=\"{{" << ins << "}|" << DotEscape(e->name()) << "\\n"
+       << e->type_name() << "|{" << outs << "}}\"];\n";
   }
   for (const auto& e : topology_->entities) {
     for (InputSignalBase* in : e->inputs()) {
       if (const SignalBase* src = in->source()) {
-        os << "  \"" << src->owner().name() << "\":\"" << src->name() << "\":e -> \""
-           << e->name() << "\":\"" << in->name() << "\":w;\n";
+        os << "  \"" << src->owner().name() << "\":\"" << src->name() << "\":e -> \"" << e->name()
+           << "\":\"" << in->name() << "\":w;\n";
       }
     }
   }
@@ -365,7 +366,9 @@ std::unique_ptr<Graph> GraphBuilder::Build() {
 // ---- GraphEdit ----------------------------------------------------------------------------------
 
 GraphEdit::GraphEdit(const Graph& graph)
-    : base_version_(graph.version()), base_profiling_(graph.profiling()), entities_(graph.entities()) {}
+    : base_version_(graph.version()),
+      base_profiling_(graph.profiling()),
+      entities_(graph.entities()) {}
 
 GraphEdit::~GraphEdit() = default;
 

@@ -101,7 +101,8 @@ std::vector<TagDetection> AprilTagDetector::Detect(const std::uint8_t* gray, int
     const std::vector<Eigen::Vector2d> uv(d.corners.begin(), d.corners.end());
 
     // Both hypotheses as local minima of the same pixel residual: ViSP refines the first by
-    // virtual visual servoing; the second comes from AprilTag's orthogonal iteration, refine it too.
+    // virtual visual servoing; the second comes from AprilTag's orthogonal iteration, refine it
+    // too.
     PoseHypothesis h1{FromVisp(cMo1), 0.0};
     h1.reprojection_error = ReprojectionError(p_T, uv, intrinsics, h1.X_CT);
     d.has_pose = std::isfinite(h1.reprojection_error);

@@ -33,9 +33,11 @@ pinocchio::JointIndex AddJoint(pinocchio::Model* model, const JointSpec& j) {
   if (k == "PY") return model->addJoint(parent, pinocchio::JointModelPY(), j.placement, j.name);
   if (k == "PZ") return model->addJoint(parent, pinocchio::JointModelPZ(), j.placement, j.name);
   if (k == "RevoluteUnaligned")
-    return model->addJoint(parent, pinocchio::JointModelRevoluteUnaligned(j.axis), j.placement, j.name);
+    return model->addJoint(parent, pinocchio::JointModelRevoluteUnaligned(j.axis), j.placement,
+                           j.name);
   if (k == "PrismaticUnaligned")
-    return model->addJoint(parent, pinocchio::JointModelPrismaticUnaligned(j.axis), j.placement, j.name);
+    return model->addJoint(parent, pinocchio::JointModelPrismaticUnaligned(j.axis), j.placement,
+                           j.name);
   if (k == "FreeFlyer")
     return model->addJoint(parent, pinocchio::JointModelFreeFlyer(), j.placement, j.name);
   throw std::invalid_argument("joint " + j.name + ": kind '" + k +
@@ -46,15 +48,18 @@ pinocchio::JointIndex AddJoint(pinocchio::Model* model, const JointSpec& j) {
 std::shared_ptr<coal::CollisionGeometry> MakeShape(const GeometrySpec& g) {
   if (g.kind == "convex") {
     if (g.points.rows() < 4 || g.triangles.rows() < 4)
-      throw std::invalid_argument("geometry " + g.name + ": a convex hull needs >= 4 points and "
+      throw std::invalid_argument("geometry " + g.name +
+                                  ": a convex hull needs >= 4 points and "
                                   ">= 4 triangles");
     auto pts = std::make_shared<std::vector<coal::Vec3s>>();
-    for (Eigen::Index i = 0; i < g.points.rows(); ++i) pts->emplace_back(g.points.row(i).transpose());
+    for (Eigen::Index i = 0; i < g.points.rows(); ++i)
+      pts->emplace_back(g.points.row(i).transpose());
     auto tris = std::make_shared<std::vector<coal::Triangle>>();
     for (Eigen::Index i = 0; i < g.triangles.rows(); ++i) {
       for (int c = 0; c < 3; ++c)
         if (g.triangles(i, c) < 0 || g.triangles(i, c) >= g.points.rows())
-          throw std::invalid_argument("geometry " + g.name + ": triangle vertex index out of range");
+          throw std::invalid_argument("geometry " + g.name +
+                                      ": triangle vertex index out of range");
       tris->emplace_back(g.triangles(i, 0), g.triangles(i, 1), g.triangles(i, 2));
     }
     return std::make_shared<coal::Convex<coal::Triangle>>(
@@ -279,8 +284,12 @@ void PathValidator::PairSpeeds(const Eigen::VectorXd& qa, const Eigen::VectorXd&
   for (int j = 1; j < model_.njoints; ++j) {
     const int iv = model_.idx_vs[j];
     switch (kinds_[j]) {
-      case Kind::kRevolute: ang_[j] = std::abs(dv_[iv]); break;
-      case Kind::kPrismatic: lin_[j] = std::abs(dv_[iv]); break;
+      case Kind::kRevolute:
+        ang_[j] = std::abs(dv_[iv]);
+        break;
+      case Kind::kPrismatic:
+        lin_[j] = std::abs(dv_[iv]);
+        break;
       case Kind::kFreeFlyer:
         lin_[j] = dv_.segment<3>(iv).norm();
         ang_[j] = dv_.segment<3>(iv + 3).norm();

@@ -34,7 +34,8 @@ void WritePose(const pinocchio::SE3& X, Eigen::Ref<Eigen::VectorXd> q, int idx_q
 
 pinocchio::SE3 ReadPose(const Eigen::Ref<const Eigen::VectorXd>& v, int idx) {
   const Eigen::Quaterniond quat(v[idx + 6], v[idx + 3], v[idx + 4], v[idx + 5]);
-  return pinocchio::SE3(quat.toRotationMatrix(), v.segment<3>(idx));  // not normalised, as pinocchio.XYZQUATToSE3
+  return pinocchio::SE3(quat.toRotationMatrix(),
+                        v.segment<3>(idx));  // not normalised, as pinocchio.XYZQUATToSE3
 }
 
 // Python's float modulo (result has the divisor's sign): the complement's angle wrap.
@@ -108,7 +109,8 @@ Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
     int rows = 0;
     switch (s.kind) {
       case ImplicitSpec::Kind::kRelative:
-        Require(joint_ok(s.joint1) && joint_ok(s.joint2), "relative transformation joint out of the model");
+        Require(joint_ok(s.joint1) && joint_ok(s.joint2),
+                "relative transformation joint out of the model");
         Require(s.mask.any(), "a mask selects at least one row");
         rows = static_cast<int>(s.mask.count());
         break;
@@ -154,7 +156,8 @@ Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
     if (s.kind == ImplicitSpec::Kind::kLocked) offset += s.nq;
   }
   rhs_size_ = offset;
-  Require(spec_.locked_nq.size() == spec_.locked_idx_q.size(), "locked_nq and locked_idx_q differ in size");
+  Require(spec_.locked_nq.size() == spec_.locked_idx_q.size(),
+          "locked_nq and locked_idx_q differ in size");
   const size_t nrel = spec_.relative_idx_q.size();
   Require(spec_.relative_parent.size() == nrel && spec_.relative_output.size() == nrel &&
               spec_.relative_M_PO.size() == nrel,
@@ -176,7 +179,8 @@ Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
     }
   }
   for (int k : spec_.free_idx) Require(k >= 0 && k < nv, "free index out of the velocity space");
-  for (int k : spec_.bounded_idx_q) Require(k >= 0 && k < nq, "bounded index out of the configuration");
+  for (int k : spec_.bounded_idx_q)
+    Require(k >= 0 && k < nq, "bounded index out of the configuration");
   Require(spec_.lower.size() == static_cast<Eigen::Index>(spec_.bounded_idx_q.size()) &&
               spec_.upper.size() == spec_.lower.size(),
           "lower / upper must have one entry per bounded index");
@@ -199,7 +203,8 @@ Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
   jac_.assign(nj, Matrix6x::Zero(6, nv));
   jac_valid_.assign(nj, 0);
   for (int j = 1; j < nj; ++j)
-    if (is_root_ff_[j] && !is_static_[j]) jac_[j].middleCols<6>(model_.joints[j].idx_v()).setIdentity();
+    if (is_root_ff_[j] && !is_static_[j])
+      jac_[j].middleCols<6>(model_.joints[j].idx_v()).setIdentity();
   all_free_ = static_cast<int>(spec_.free_idx.size()) == nv;
   dv_ = Eigen::VectorXd::Zero(nv);
   rhs_ = Eigen::VectorXd::Zero(rhs_size_);
@@ -231,7 +236,8 @@ void Projector::ApplyExplicit(Eigen::Ref<Eigen::VectorXd> q) {
   if (!spec_.relative_idx_q.empty()) {
     pinocchio::forwardKinematics(model_, data_, q);
     for (size_t i = 0; i < spec_.relative_idx_q.size(); ++i)
-      WritePose(data_.oMi[spec_.relative_parent[i]] * spec_.relative_M_PO[i], q, spec_.relative_idx_q[i]);
+      WritePose(data_.oMi[spec_.relative_parent[i]] * spec_.relative_M_PO[i], q,
+                spec_.relative_idx_q[i]);
   }
 }
 
@@ -256,16 +262,17 @@ void Projector::UpdateAndSubstitute(Eigen::Ref<Eigen::VectorXd> q) {
 const Matrix6x& Projector::JointJacobian(int joint) {
   // LOCAL joint Jacobian; 0 for the universe and static joints, the constant [0 I6 0] of a
   // free-flyer under the universe (valid even after its pose was patched).
-  if (joint == 0 || is_static_[joint] || is_root_ff_[joint] || jac_valid_[joint]) return jac_[joint];
+  if (joint == 0 || is_static_[joint] || is_root_ff_[joint] || jac_valid_[joint])
+    return jac_[joint];
   jac_[joint].setZero();
-  pinocchio::getJointJacobian(model_, data_, static_cast<pinocchio::JointIndex>(joint), pinocchio::LOCAL,
-                              jac_[joint]);
+  pinocchio::getJointJacobian(model_, data_, static_cast<pinocchio::JointIndex>(joint),
+                              pinocchio::LOCAL, jac_[joint]);
   jac_valid_[joint] = 1;
   return jac_[joint];
 }
 
-void Projector::RelativePose(int joint1, const pinocchio::SE3& M1, int joint2, const pinocchio::SE3& M2,
-                             Relative* out) const {
+void Projector::RelativePose(int joint1, const pinocchio::SE3& M1, int joint2,
+                             const pinocchio::SE3& M2, Relative* out) const {
   // M = (oMi1 M1)^-1 X2, X2 = oMi2 M2; value [p, log3 R] (constraints.RelativeTransformation).
   out->oMi1 = data_.oMi[joint1];
   out->X2 = data_.oMi[joint2] * M2;
@@ -274,8 +281,8 @@ void Projector::RelativePose(int joint1, const pinocchio::SE3& M1, int joint2, c
   out->v6.tail<3>() = pinocchio::log3(out->M.rotation());
 }
 
-void Projector::RelativeJacobian(int joint1, int joint2, const pinocchio::SE3& M2, const Relative& rel,
-                                 Matrix6x* J) {
+void Projector::RelativeJacobian(int joint1, int joint2, const pinocchio::SE3& M2,
+                                 const Relative& rel, Matrix6x* J) {
   // Body twist of M in F2: nu = Ad(M2^-1) J_2 - Ad(X2^-1 oMi1) J_1; dp = R nu_lin,
   // d log3(R) = Jlog3(R) nu_ang.
   const int nv = model_.nv;
@@ -317,7 +324,8 @@ void Projector::SelectPairs() {
     double best_cost = std::numeric_limits<double>::infinity();
     for (size_t i = 0; i < p.joint_e.size(); ++i) {
       RelativePose(p.joint_e[i], p.M_env[i], p.joint_o[i], p.M_obj[i], &rel);
-      const double cost = std::abs(rel.M.translation()[2] - p.margin) + 0.3 * rel.v6.segment<2>(3).norm();
+      const double cost =
+          std::abs(rel.M.translation()[2] - p.margin) + 0.3 * rel.v6.segment<2>(3).norm();
       if (cost < best_cost) {
         best = static_cast<int>(i);
         best_cost = cost;
@@ -531,12 +539,14 @@ void Projector::Descent(const Eigen::Ref<const Eigen::VectorXd>& q, Eigen::Vecto
 }
 
 ProjectionOutcome Projector::Project(Eigen::Ref<Eigen::VectorXd> q, const Eigen::VectorXd& rhs,
-                                     std::vector<int>* pairs, double error_threshold, int max_iterations) {
+                                     std::vector<int>* pairs, double error_threshold,
+                                     int max_iterations) {
   if (q.size() != model_.nq)
-    throw std::invalid_argument("C++ projector: q has " + std::to_string(q.size()) + " entries, expected " +
-                                std::to_string(model_.nq));
+    throw std::invalid_argument("C++ projector: q has " + std::to_string(q.size()) +
+                                " entries, expected " + std::to_string(model_.nq));
   if (!(error_threshold > 0) || max_iterations < 1)
-    throw std::invalid_argument("C++ projector: error_threshold must be > 0 and max_iterations >= 1");
+    throw std::invalid_argument(
+        "C++ projector: error_threshold must be > 0 and max_iterations >= 1");
   SetRhs(rhs, *pairs);
   ProjectionOutcome out;
   if (spec_.implicit.empty()) {
@@ -606,7 +616,8 @@ ProjectionOutcome Projector::Project(Eigen::Ref<Eigen::VectorXd> q, const Eigen:
     ++it;
     not_decreasing = new_norm2 >= norm2 ? not_decreasing + 1 : 0;
     norm2 = new_norm2;
-    if (not_decreasing >= 3 && norm2 > eps2) return {ProjectionStatus::kNotDecreasing, it, std::sqrt(norm2)};
+    if (not_decreasing >= 3 && norm2 > eps2)
+      return {ProjectionStatus::kNotDecreasing, it, std::sqrt(norm2)};
   }
   return {ProjectionStatus::kSuccess, it, std::sqrt(norm2)};
 }
@@ -614,8 +625,8 @@ ProjectionOutcome Projector::Project(Eigen::Ref<Eigen::VectorXd> q, const Eigen:
 bool Projector::IsSatisfied(const Eigen::Ref<const Eigen::VectorXd>& q, const Eigen::VectorXd& rhs,
                             std::vector<int>* pairs, double threshold) {
   if (q.size() != model_.nq)
-    throw std::invalid_argument("C++ projector: q has " + std::to_string(q.size()) + " entries, expected " +
-                                std::to_string(model_.nq));
+    throw std::invalid_argument("C++ projector: q has " + std::to_string(q.size()) +
+                                " entries, expected " + std::to_string(model_.nq));
   SetRhs(rhs, *pairs);
   double err = 0.0;
   for (size_t i = 0; i < spec_.locked_idx_q.size(); ++i) {

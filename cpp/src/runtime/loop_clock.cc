@@ -74,8 +74,9 @@ RealtimeStatus RequestRealtime(int priority) {
   const int lock_error = mlockall(MCL_CURRENT | MCL_FUTURE) == 0 ? 0 : errno;
   status.locked = lock_error == 0;
   status.message = std::string("real-time: SCHED_FIFO priority ") + std::to_string(priority) +
-                   (status.fifo ? " granted" : std::string(" REFUSED (") + std::strerror(fifo_error) +
-                                                   "; needs root or CAP_SYS_NICE / rtprio limit)") +
+                   (status.fifo ? " granted"
+                                : std::string(" REFUSED (") + std::strerror(fifo_error) +
+                                      "; needs root or CAP_SYS_NICE / rtprio limit)") +
                    ", mlockall " +
                    (status.locked ? "granted"
                                   : std::string("REFUSED (") + std::strerror(lock_error) +
@@ -89,8 +90,9 @@ RealtimeStatus RequestThreadPriority(int priority) {
   param.sched_priority = priority;
   const int error = pthread_setschedparam(pthread_self(), SCHED_FIFO, &param);
   status.fifo = error == 0;
-  status.message = std::string("SCHED_FIFO priority ") + std::to_string(priority) +
-                   (status.fifo ? " granted" : std::string(" REFUSED (") + std::strerror(error) + ")");
+  status.message =
+      std::string("SCHED_FIFO priority ") + std::to_string(priority) +
+      (status.fifo ? " granted" : std::string(" REFUSED (") + std::strerror(error) + ")");
   return status;
 }
 

@@ -32,8 +32,8 @@ std::uint64_t SplitMix64(std::uint64_t x) {
 
 void CheckSigma(const char* what, double sigma) {
   if (!std::isfinite(sigma) || sigma < 0.0) {
-    throw std::invalid_argument(std::string("camera noise: ") + what + " must be finite and >= 0, got " +
-                                std::to_string(sigma));
+    throw std::invalid_argument(std::string("camera noise: ") + what +
+                                " must be finite and >= 0, got " + std::to_string(sigma));
   }
 }
 

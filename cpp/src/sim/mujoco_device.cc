@@ -23,7 +23,8 @@ MujocoDevice::MujocoDevice(std::string name, MujocoScene* scene,
   v_ = &DeclareSource<Eigen::VectorXd>("v", v0);
   effort_ = &DeclareSource<Eigen::VectorXd>("effort", Eigen::VectorXd::Zero(nv));
   for (const std::string& body : contact_bodies_) {
-    wrenches_.push_back(&DeclareSource<Eigen::VectorXd>("wrench_" + body, Eigen::VectorXd::Zero(6)));
+    wrenches_.push_back(
+        &DeclareSource<Eigen::VectorXd>("wrench_" + body, Eigen::VectorXd::Zero(6)));
   }
 }
 

@@ -61,8 +61,12 @@ MujocoScene::MujocoScene(const std::string& mjcf_path, const pinocchio::Model& r
     }
     const int id = JointId(model_, name);
     if (id < 0) throw SimError("scene '" + mjcf_path + "' has no joint '" + name + "'");
-    JointMap map{model_->jnt_qposadr[id], model_->jnt_dofadr[id], robot.joints[j].idx_q(),
-                 robot.joints[j].idx_v(), -1, name};
+    JointMap map{model_->jnt_qposadr[id],
+                 model_->jnt_dofadr[id],
+                 robot.joints[j].idx_q(),
+                 robot.joints[j].idx_v(),
+                 -1,
+                 name};
     for (int a = 0; a < model_->nu; ++a) {
       if (model_->actuator_trntype[a] == mjTRN_JOINT && model_->actuator_trnid[2 * a] == id) {
         map.actuator = a;
@@ -149,7 +153,8 @@ void MujocoScene::WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorX
     qvel[j.dof_adr] = v[j.idx_v];
   }
   // Joints tied to another by an <equality><joint> (URDF mimics: the UR10 gripper's right
-  // finger, absent from the controller's model) follow it: q1 - q1_0 = Σ_k a_k (q2 - q2_0)^k, q̇1 = dq1/dq2 q̇2.
+  // finger, absent from the controller's model) follow it: q1 - q1_0 = Σ_k a_k (q2 - q2_0)^k, q̇1 =
+  // dq1/dq2 q̇2.
   for (int e = 0; e < model_->neq; ++e) {
     if (model_->eq_type[e] != mjEQ_JOINT || model_->eq_obj2id[e] < 0) continue;
     const int j1 = model_->eq_obj1id[e], j2 = model_->eq_obj2id[e];
@@ -177,7 +182,8 @@ void MujocoScene::WriteServoTargets(const Eigen::VectorXd& q_des, const Eigen::V
     if (j.actuator < 0) continue;
     const double kp = model_->actuator_gainprm[j.actuator * mjNGAIN];
     const double kv = -model_->actuator_biasprm[j.actuator * mjNBIAS + 2];
-    data_->ctrl[j.actuator] = q_des[j.idx_q] + j.encoder_offset + (kp > 0.0 ? kv / kp : 0.0) * v_des[j.idx_v];
+    data_->ctrl[j.actuator] =
+        q_des[j.idx_q] + j.encoder_offset + (kp > 0.0 ? kv / kp : 0.0) * v_des[j.idx_v];
   }
 }
 
@@ -186,7 +192,8 @@ void MujocoScene::SetEncoderOffsets(const std::vector<std::pair<std::string, dou
   for (const auto& [name, offset] : offsets) {
     size_t k = 0;
     while (k < joints_.size() && joints_[k].name != name) ++k;
-    if (k == joints_.size()) throw SimError("encoder offset for '" + name + "': the robot has no such 1-dof joint");
+    if (k == joints_.size())
+      throw SimError("encoder offset for '" + name + "': the robot has no such 1-dof joint");
     if (!std::isfinite(offset)) throw SimError("encoder offset for '" + name + "' is not finite");
     by_joint[k] = offset;
   }
@@ -262,7 +269,8 @@ int MujocoScene::WeldId(const std::string& name) const {
     const char* n = mj_id2name(model_, mjOBJ_EQUALITY, i);
     known += (known.empty() ? "" : ", ") + std::string(n ? n : "?");
   }
-  throw SimError("no weld '" + name + "' in the scene (welds: " + (known.empty() ? "none" : known) + ")");
+  throw SimError("no weld '" + name + "' in the scene (welds: " + (known.empty() ? "none" : known) +
+                 ")");
 }
 
 void MujocoScene::SetWeld(int weld_id, bool active) {
@@ -276,13 +284,15 @@ void MujocoScene::SetWeld(int weld_id, bool active) {
       return pinocchio::SE3(QuatToMatrix(data_->xquat + 4 * body),
                             Eigen::Map<const Eigen::Vector3d>(data_->xpos + 3 * body));
     };
-    const pinocchio::SE3 X_12 = pose(model_->eq_obj1id[weld_id]).actInv(pose(model_->eq_obj2id[weld_id]));
+    const pinocchio::SE3 X_12 =
+        pose(model_->eq_obj1id[weld_id]).actInv(pose(model_->eq_obj2id[weld_id]));
     const Eigen::Quaterniond quat(X_12.rotation());
     double* eq = model_->eq_data + mjNEQDATA * weld_id;
     for (int k = 0; k < 3; ++k) eq[3 + k] = X_12.translation()[k];
     eq[6] = quat.w(), eq[7] = quat.x(), eq[8] = quat.y(), eq[9] = quat.z();
   }
-  EndReleases([&](const Release& r) { return r.weld == weld_id; });  // taken again, or released twice
+  EndReleases(
+      [&](const Release& r) { return r.weld == weld_id; });  // taken again, or released twice
   if (!active && model_->eq_active[weld_id] != 0) {
     Release r{weld_id, {}, {}};
     for (int g = 0; g < model_->ngeom; ++g) {
@@ -330,8 +340,10 @@ void MujocoScene::EndClearReleases() {
   const auto clear = [&](const Release& r) {
     for (int h : r.hand_geoms) {
       for (int o : r.object_geoms) {
-        const Eigen::Map<const Eigen::Vector3d> ph(data_->geom_xpos + 3 * h), po(data_->geom_xpos + 3 * o);
-        if ((ph - po).norm() < model_->geom_rbound[h] + model_->geom_rbound[o] + kMargin) return false;
+        const Eigen::Map<const Eigen::Vector3d> ph(data_->geom_xpos + 3 * h),
+            po(data_->geom_xpos + 3 * o);
+        if ((ph - po).norm() < model_->geom_rbound[h] + model_->geom_rbound[o] + kMargin)
+          return false;
       }
     }
     return true;

@@ -88,8 +88,8 @@ RgbdRenderer::RgbdRenderer(const mjModel* model, const std::string& camera_name,
     for (int i = 0; i < model->ncam; ++i) {
       names += (i ? ", " : "") + std::string(model->names + model->name_camadr[i]);
     }
-    throw RendererError("RgbdRenderer: no camera '" + camera_name + "' in the model (cameras: " +
-                        (names.empty() ? "none" : names) + ")");
+    throw RendererError("RgbdRenderer: no camera '" + camera_name +
+                        "' in the model (cameras: " + (names.empty() ? "none" : names) + ")");
   }
   const double fovy = model->cam_fovy[camera_id_] * M_PI / 180.0;
   intrinsics_.width = width;
@@ -114,15 +114,24 @@ RgbdRenderer::RgbdRenderer(const mjModel* model, const std::string& camera_name,
 
   std::lock_guard<std::mutex> lock(ContextCreationMutex());
   egl_->display = OpenDisplay();
-  const EGLint config_attributes[] = {EGL_RED_SIZE,        8,
-                                      EGL_GREEN_SIZE,      8,
-                                      EGL_BLUE_SIZE,       8,
-                                      EGL_ALPHA_SIZE,      8,
-                                      EGL_DEPTH_SIZE,      24,
-                                      EGL_STENCIL_SIZE,    8,
-                                      EGL_COLOR_BUFFER_TYPE, EGL_RGB_BUFFER,
-                                      EGL_SURFACE_TYPE,    EGL_PBUFFER_BIT,
-                                      EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT,
+  const EGLint config_attributes[] = {EGL_RED_SIZE,
+                                      8,
+                                      EGL_GREEN_SIZE,
+                                      8,
+                                      EGL_BLUE_SIZE,
+                                      8,
+                                      EGL_ALPHA_SIZE,
+                                      8,
+                                      EGL_DEPTH_SIZE,
+                                      24,
+                                      EGL_STENCIL_SIZE,
+                                      8,
+                                      EGL_COLOR_BUFFER_TYPE,
+                                      EGL_RGB_BUFFER,
+                                      EGL_SURFACE_TYPE,
+                                      EGL_PBUFFER_BIT,
+                                      EGL_RENDERABLE_TYPE,
+                                      EGL_OPENGL_BIT,
                                       EGL_NONE};
   EGLConfig config;
   EGLint num_configs = 0;

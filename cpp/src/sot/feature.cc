@@ -21,7 +21,8 @@ void Feature::DeclareTermsOutput(std::vector<const graph::SignalBase*> prerequis
   const int k = dimension();
   FeatureTerms model(k, nv());
   full_ = FeatureTerms(full_dimension_, nv());
-  for (size_t i = 0; i < full_unit_columns_.size(); ++i) full_.jacobian(i, full_unit_columns_[i]) = 1.0;
+  for (size_t i = 0; i < full_unit_columns_.size(); ++i)
+    full_.jacobian(i, full_unit_columns_[i]) = 1.0;
   for (size_t i = 0; i < unit_columns_.size(); ++i) model.jacobian(i, unit_columns_[i]) = 1.0;
   terms_ = &DeclareOutput<FeatureTerms>("terms", model, &Feature::CalcTerms, prerequisites);
   error_ = &DeclareOutput<Eigen::VectorXd>("error", Eigen::VectorXd::Zero(k), &Feature::CalcError,

@@ -5,8 +5,8 @@ namespace marionette::sot {
 FeatureCom::FeatureCom(std::string name, ModelPtr model, const Mask& mask)
     : Feature(std::move(name), std::move(model), 3, mask) {
   reference_ = &DeclareParameter<Eigen::VectorXd>("reference", Eigen::VectorXd::Zero(3));
-  reference_velocity_ = &DeclareParameter<Eigen::VectorXd>("reference_velocity",
-                                                          Eigen::VectorXd::Zero(3));
+  reference_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("reference_velocity", Eigen::VectorXd::Zero(3));
   DeclareTermsOutput({reference_, reference_velocity_});
 }
 

@@ -15,7 +15,8 @@ FeatureGaze::FeatureGaze(std::string name, ModelPtr model, const std::string& ca
   J_C_ = Matrix6Xd::Zero(6, model_->nv);
   target_ = &DeclareInput<Eigen::VectorXd>("target", Eigen::VectorXd::Zero(3), /*settable=*/true);
   desired_ = &DeclareParameter<Eigen::VectorXd>("desired", Eigen::VectorXd::Zero(2));
-  target_velocity_ = &DeclareParameter<Eigen::VectorXd>("target_velocity", Eigen::VectorXd::Zero(3));
+  target_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("target_velocity", Eigen::VectorXd::Zero(3));
   DeclareTermsOutput({target_, desired_, target_velocity_});
 }
 

@@ -13,14 +13,16 @@ constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3, kRampRate = 4;
 
 bool IsAdmittance(double phase) {
   const int p = static_cast<int>(phase);
-  return p == static_cast<int>(GripperPhase::kHolding) || p == static_cast<int>(GripperPhase::kReleasing);
+  return p == static_cast<int>(GripperPhase::kHolding) ||
+         p == static_cast<int>(GripperPhase::kReleasing);
 }
 
 }  // namespace
 
 void GripperAdmittanceOptions::Check(const std::string& who) const {
   const auto positive = [&](double x, const char* what) {
-    if (!(x > 0.0) || !std::isfinite(x)) throw SotError(who + ": " + what + " must be > 0, got " + std::to_string(x));
+    if (!(x > 0.0) || !std::isfinite(x))
+      throw SotError(who + ": " + what + " must be > 0, got " + std::to_string(x));
   };
   positive(force_target, "force_target");
   positive(force_threshold, "force_threshold");
@@ -36,7 +38,8 @@ void GripperAdmittanceOptions::Check(const std::string& who) const {
     throw SotError(who + ": torque_per_effort must be finite and non-zero");
   }
   if (closing_direction != 1.0 && closing_direction != -1.0) {
-    throw SotError(who + ": closing_direction must be +1 or -1, got " + std::to_string(closing_direction));
+    throw SotError(who + ": closing_direction must be +1 or -1, got " +
+                   std::to_string(closing_direction));
   }
   // The switch must happen before the target is reached, and the release must end below it
   // (§3.2.4.3: "a selected threshold, slightly below the desired gripping force").
@@ -60,7 +63,8 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   }
   const pinocchio::JointIndex j = model_->getJointId(joint);
   if (model_->nvs[j] != 1 || model_->nqs[j] != 1) {
-    throw SotError(who() + ": joint '" + joint + "' is not a 1-DoF bounded joint (a gripper joint)");
+    throw SotError(who() + ": joint '" + joint +
+                   "' is not a 1-DoF bounded joint (a gripper joint)");
   }
   if (!std::isfinite(position_target)) throw SotError(who() + ": position_target is not finite");
   iq_ = model_->idx_qs[j];
@@ -69,20 +73,25 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   SetUnitJacobian({iv_});
 
   effort_ = &DeclareInput<Eigen::VectorXd>("effort", Eigen::VectorXd::Zero(model_->nv));
-  q_measured_ = &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
+  q_measured_ =
+      &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
   Eigen::VectorXd initial(5);
-  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0, 0.0, 0.0, 0.0;
+  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0,
+      0.0, 0.0, 0.0;
   force_ = &DeclareOutput<double>("force", 0.0, &FeatureGripperAdmittance::CalcForce, {effort_});
-  machine_ = &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
-                                            {kinematics_, force_, position_target_, release_});
-  force_filtered_ = &DeclareOutput<double>("force_filtered", 0.0, &FeatureGripperAdmittance::CalcForceFiltered,
-                                           {machine_, force_});
-  phase_ = &DeclareOutput<double>("phase", initial[kPhase], &FeatureGripperAdmittance::CalcPhase, {machine_});
-  measured_position_ = &DeclareOutput<double>("measured_position", 0.0,
-                                              &FeatureGripperAdmittance::CalcMeasuredPosition, {q_measured_});
-  DeclareTermsOutput({effort_, position_target_, machine_, force_, force_filtered_, phase_, measured_position_});
+  machine_ =
+      &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
+                                     {kinematics_, force_, position_target_, release_});
+  force_filtered_ = &DeclareOutput<double>(
+      "force_filtered", 0.0, &FeatureGripperAdmittance::CalcForceFiltered, {machine_, force_});
+  phase_ = &DeclareOutput<double>("phase", initial[kPhase], &FeatureGripperAdmittance::CalcPhase,
+                                  {machine_});
+  measured_position_ = &DeclareOutput<double>(
+      "measured_position", 0.0, &FeatureGripperAdmittance::CalcMeasuredPosition, {q_measured_});
+  DeclareTermsOutput(
+      {effort_, position_target_, machine_, force_, force_filtered_, phase_, measured_position_});
 }
 
 double FeatureGripperAdmittance::RampRate(double r, double rate, double target) const {
@@ -90,14 +99,16 @@ double FeatureGripperAdmittance::RampRate(double r, double rate, double target) 
   // from the current rate within ±acceleration·dt (no velocity step: the controller's start
   // check refuses a command that jumps).
   const double e = target - r, a = options_.acceleration, dt = options_.dt;
-  double stop = std::abs(e) <= a * dt * dt ? e / dt : std::copysign(std::sqrt(2.0 * a * std::abs(e)), e);
+  double stop =
+      std::abs(e) <= a * dt * dt ? e / dt : std::copysign(std::sqrt(2.0 * a * std::abs(e)), e);
   stop = std::clamp(stop, -options_.speed, options_.speed);
   return std::clamp(stop, rate - a * dt, rate + a * dt);
 }
 
 void FeatureGripperAdmittance::CalcForce(const graph::Tick& t, double* out) const {
   // eq. 3.11–3.13: f = s · k_τ k_gear · I / d.
-  *out = options_.closing_direction * options_.torque_per_effort * effort_->Eval(t)[iv_] / options_.lever_arm;
+  *out = options_.closing_direction * options_.torque_per_effort * effort_->Eval(t)[iv_] /
+         options_.lever_arm;
 }
 
 double FeatureGripperAdmittance::FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const {
@@ -131,10 +142,12 @@ void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematic
                                 : 0.0;
     // λ e = s K_a (y − f*)  →  the task's v = −λ e = s K_a (f* − y).
     const double y = force_filtered_->Eval(t);
-    full->error[0] = options_.closing_direction * options_.admittance_gain * (y - f_target) / options_.task_gain;
+    full->error[0] =
+        options_.closing_direction * options_.admittance_gain * (y - f_target) / options_.task_gain;
     full->drift[0] = 0.0;
   } else {
-    const double r = x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is, at rest
+    const double r =
+        x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is, at rest
     full->error[0] = q - r;
     full->drift[0] = -RampRate(r, x[kRampRate], position_target_->Eval(t));
   }
@@ -154,7 +167,8 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   if (IsAdmittance(phase)) {
     // Where the command goes this tick (v = −λ e of ComputeFull), so a switch back to position
     // control starts its ramp on the joint and at its speed: no jump in the error or the command.
-    const double f_target = phase == static_cast<int>(GripperPhase::kHolding) ? options_.force_target : 0.0;
+    const double f_target =
+        phase == static_cast<int>(GripperPhase::kHolding) ? options_.force_target : 0.0;
     rate = options_.closing_direction * options_.admittance_gain * (f_target - y);
     r = q + options_.dt * rate;
   } else {
@@ -164,7 +178,8 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   switch (static_cast<GripperPhase>(phase)) {
     case GripperPhase::kClosing:
       if (release) {
-        phase = static_cast<int>(y_next < options_.release_force ? GripperPhase::kOpening : GripperPhase::kReleasing);
+        phase = static_cast<int>(y_next < options_.release_force ? GripperPhase::kOpening
+                                                                 : GripperPhase::kReleasing);
       } else if (y_next > options_.force_threshold) {
         phase = static_cast<int>(GripperPhase::kHolding);
       }

@@ -8,8 +8,8 @@ FeaturePosition::FeaturePosition(std::string name, ModelPtr model, const std::st
   frame_ = MakeFrameRef(*model_, frame, who());
   J_F_ = Matrix6Xd::Zero(6, model_->nv);
   reference_ = &DeclareParameter<Eigen::VectorXd>("reference", Eigen::VectorXd::Zero(3));
-  reference_velocity_ = &DeclareParameter<Eigen::VectorXd>("reference_velocity",
-                                                          Eigen::VectorXd::Zero(3));
+  reference_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("reference_velocity", Eigen::VectorXd::Zero(3));
   DeclareTermsOutput({reference_, reference_velocity_});
 }
 

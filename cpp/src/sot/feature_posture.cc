@@ -39,9 +39,10 @@ FeaturePosture::Joints FeaturePosture::Resolve(const ModelPtr& model,
 
 FeaturePosture::FeaturePosture(std::string name, ModelPtr model,
                                const std::vector<std::string>& joints)
-    : Feature(name, model,
-              static_cast<int>(Resolve(model, joints, "FeaturePosture '" + name + "'").names.size()),
-              {}),
+    : Feature(
+          name, model,
+          static_cast<int>(Resolve(model, joints, "FeaturePosture '" + name + "'").names.size()),
+          {}),
       joints_(Resolve(model_, joints, who())) {
   joint_names_ = joints_.names;
   q_indices_.clear();
@@ -52,8 +53,8 @@ FeaturePosture::FeaturePosture(std::string name, ModelPtr model,
   v_indices_ = joints_.v;
   SetUnitJacobian(joints_.v);
   reference_ = &DeclareParameter<Eigen::VectorXd>("reference", pinocchio::neutral(*model_));
-  reference_velocity_ = &DeclareParameter<Eigen::VectorXd>("reference_velocity",
-                                                          Eigen::VectorXd::Zero(model_->nv));
+  reference_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("reference_velocity", Eigen::VectorXd::Zero(model_->nv));
   DeclareTermsOutput({reference_, reference_velocity_});
 }
 

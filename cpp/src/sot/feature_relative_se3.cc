@@ -19,8 +19,8 @@ FeatureRelativeSE3::FeatureRelativeSE3(std::string name, ModelPtr model, const s
   J_A_ = Matrix6Xd::Zero(6, model_->nv);
   J_B_ = Matrix6Xd::Zero(6, model_->nv);
   reference_ = &DeclareParameter<pinocchio::SE3>("reference", pinocchio::SE3::Identity());
-  reference_velocity_ = &DeclareParameter<Eigen::VectorXd>("reference_velocity",
-                                                          Eigen::VectorXd::Zero(6));
+  reference_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("reference_velocity", Eigen::VectorXd::Zero(6));
   DeclareTermsOutput({reference_, reference_velocity_});
 }
 

@@ -2,8 +2,8 @@
 
 namespace marionette::sot {
 
-Eigen::Matrix<double, 6, 1> BodyTwistFromParentAxes(const Eigen::Matrix3d& R_PD,
-                                                    const Eigen::Ref<const Eigen::VectorXd>& twist_P) {
+Eigen::Matrix<double, 6, 1> BodyTwistFromParentAxes(
+    const Eigen::Matrix3d& R_PD, const Eigen::Ref<const Eigen::VectorXd>& twist_P) {
   Eigen::Matrix<double, 6, 1> nu;
   nu.head<3>().noalias() = R_PD.transpose() * twist_P.head<3>();
   nu.tail<3>().noalias() = R_PD.transpose() * twist_P.tail<3>();
@@ -15,8 +15,8 @@ FeatureSE3::FeatureSE3(std::string name, ModelPtr model, const std::string& fram
   frame_ = MakeFrameRef(*model_, frame, who());
   J_F_ = Matrix6Xd::Zero(6, model_->nv);
   reference_ = &DeclareParameter<pinocchio::SE3>("reference", pinocchio::SE3::Identity());
-  reference_velocity_ = &DeclareParameter<Eigen::VectorXd>("reference_velocity",
-                                                          Eigen::VectorXd::Zero(6));
+  reference_velocity_ =
+      &DeclareParameter<Eigen::VectorXd>("reference_velocity", Eigen::VectorXd::Zero(6));
   DeclareTermsOutput({reference_, reference_velocity_});
 }
 

@@ -5,13 +5,11 @@
 #include <algorithm>
 #include <cmath>
 
-
 #include <eiquadprog/eiquadprog-fast.hpp>
 
 namespace marionette::sot {
 
-namespace {
-}  // namespace
+namespace {}  // namespace
 
 Hierarchy::Hierarchy(int nv, std::vector<std::vector<TaskShape>> levels, HierarchyOptions options)
     : nv_(nv), levels_(std::move(levels)), options_(options) {
@@ -24,7 +22,8 @@ Hierarchy::Hierarchy(int nv, std::vector<std::vector<TaskShape>> levels, Hierarc
   for (size_t l = 0; l < levels_.size(); ++l) {
     int eq = 0, in = 0;
     for (const TaskShape& t : levels_[l]) {
-      if (t.rows < 1) throw SotError("Hierarchy: a task of level " + std::to_string(l) + " has no row");
+      if (t.rows < 1)
+        throw SotError("Hierarchy: a task of level " + std::to_string(l) + " has no row");
       if (!t.unit_columns.empty()) {
         if (static_cast<int>(t.unit_columns.size()) != t.rows) {
           throw SotError("Hierarchy: unit_columns size differs from the task's rows");
@@ -46,7 +45,8 @@ Hierarchy::Hierarchy(int nv, std::vector<std::vector<TaskShape>> levels, Hierarc
 struct HierarchyWorkspace::Impl {
   explicit Impl(const Hierarchy& h) {
     const int n = h.nv(), me = std::max(1, h.max_equality_rows()),
-              mi = std::max(1, h.max_inequality_rows()), mc = std::max(1, h.total_inequality_rows());
+              mi = std::max(1, h.max_inequality_rows()),
+              mc = std::max(1, h.total_inequality_rows());
     Z.resize(n, n);
     x.resize(n);
     x_old.resize(n);
@@ -265,16 +265,16 @@ int PivotedQr(Eigen::Ref<Eigen::MatrixXd> mt, std::vector<int>& perm, Eigen::Vec
 // reflectors touch the s first coordinates only, i.e. columns [0, s) of P = [e_order[0] ...]:
 // they are accumulated on the s x s identity (B1) and scattered into the rows order[0..s) —
 // O(s² ρ_1) instead of O(n r ρ_1) (TALOS: the feet touch 18 of 38 coordinates).
-void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk, const Eigen::Ref<const Eigen::MatrixXd>& mt,
-                 int rho, int rho1, int s) {
+void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
+                 const Eigen::Ref<const Eigen::MatrixXd>& mt, int rho, int rho1, int s) {
   const int r = static_cast<int>(Z_blk.cols());
   int j = 0;
   if (rho1 > 0) {
     auto B = w.B1.topLeftCorner(s, s);
     B.setIdentity();
     for (; j < rho1; ++j) {
-      B.rightCols(s - j).applyHouseholderOnTheRight(mt.col(j).segment(j + 1, s - j - 1), w.hcoeffs[j],
-                                                    w.work.data());
+      B.rightCols(s - j).applyHouseholderOnTheRight(mt.col(j).segment(j + 1, s - j - 1),
+                                                    w.hcoeffs[j], w.work.data());
     }
     for (int k = 0; k < s; ++k) Z_blk.row(w.order[k]).head(s) = B.row(k);
   }
@@ -368,8 +368,10 @@ bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, doub
   H.triangularView<Eigen::Lower>() = G.triangularView<Eigen::Lower>();
   Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H);  // in place: no allocation
   if (llt.info() != Eigen::Success) return false;
-  const double smallest = H.diagonal().cwiseAbs().minCoeff(), largest = H.diagonal().cwiseAbs().maxCoeff();
-  const double floor = options.damping > 0.0 ? options.damping_threshold : 1e-4 * std::sqrt(row_scale);
+  const double smallest = H.diagonal().cwiseAbs().minCoeff(),
+               largest = H.diagonal().cwiseAbs().maxCoeff();
+  const double floor =
+      options.damping > 0.0 ? options.damping_threshold : 1e-4 * std::sqrt(row_scale);
   if (!(smallest >= floor && largest <= 100.0 * smallest)) return false;
   for (int i = 0; i < r; ++i) {
     for (int j = i + 1; j < r; ++j) G(i, j) = G(j, i);  // the QP fallback reads all of it
@@ -394,7 +396,8 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
     R1.leftCols(rho).triangularView<Eigen::Upper>().transpose().solveInPlace(w.y.head(rho));
     return;
   }
-  const double largest = w.Mt(0, 0) * w.Mt(0, 0), smallest = w.Mt(rho - 1, rho - 1) * w.Mt(rho - 1, rho - 1);
+  const double largest = w.Mt(0, 0) * w.Mt(0, 0),
+               smallest = w.Mt(rho - 1, rho - 1) * w.Mt(rho - 1, rho - 1);
   if (largest + mu * mu <= 1e4 * (smallest + mu * mu)) {
     auto U = w.R1.topLeftCorner(rho, m);  // scratch (TryActiveSet rebuilds its own)
     U = R1.triangularView<Eigen::Upper>();
@@ -426,8 +429,7 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
       B.bottomRightCorner(mb - j, rho - j - 1)
           .applyHouseholderOnTheLeft(B.col(j).tail(mb - j - 1), tau, w.work.data());
     }
-    w.d.segment(j, mb - j).applyHouseholderOnTheLeft(B.col(j).tail(mb - j - 1), tau,
-                                                     w.work.data());
+    w.d.segment(j, mb - j).applyHouseholderOnTheLeft(B.col(j).tail(mb - j - 1), tau, w.work.data());
   }
   w.y.head(rho) = w.d.head(rho);
   B.topLeftCorner(rho, rho).triangularView<Eigen::Upper>().solveInPlace(w.y.head(rho));
@@ -439,9 +441,8 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
 // active-set method (Goldfarb–Idnani, TSID's QP): exact, and robust on the degenerate vertices
 // met here (many velocity bounds active at the current point), where a proximal method (proxsuite)
 // stalled or reported feasible problems infeasible. Returns false on failure.
-bool SolveLevelQp(Impl& w, Impl::LevelQp& q, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk,
-                  int m, int rho, int mi, double mu, double regularization,
-                  HierarchyReport* report) {
+bool SolveLevelQp(Impl& w, Impl::LevelQp& q, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int m,
+                  int rho, int mi, double mu, double regularization, HierarchyReport* report) {
   const int r = static_cast<int>(Z_blk.cols()), n = static_cast<int>(Z_blk.rows());
   const int slack0 = n;  // slack variables follow the (padded) ũ
   q.H.setZero();
@@ -601,7 +602,8 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
   auto row_value = [&](int i, const Eigen::VectorXd& x) {
     return w.g_col[i] >= 0 ? x[w.g_col[i]] : w.G.row(i).dot(x);
   };
-  // Solves the equality QP of W into w.ut (r) and w.lambda (k); false if S is not positive definite.
+  // Solves the equality QP of W into w.ut (r) and w.lambda (k); false if S is not positive
+  // definite.
   auto solve_working_set = [&]() {
     const int k = static_cast<int>(w.W_rows.size());
     w.ut.head(r) = -w.hig.head(r);
@@ -657,7 +659,8 @@ bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z
   };
   auto accept = [&]() {
     w.active[level].clear();
-    for (size_t i = 0; i < w.W_rows.size(); ++i) w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
+    for (size_t i = 0; i < w.W_rows.size(); ++i)
+      w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
     return true;
   };
   // 1. The warm guess.
@@ -749,8 +752,8 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
                     const Eigen::VectorXd* target_offsets) {
   const int n = hierarchy.nv();
   if (static_cast<int>(tasks.size()) != hierarchy.num_tasks()) {
-    throw SotError("SolveHierarchy: " + std::to_string(tasks.size()) + " tasks given, the hierarchy has " +
-                   std::to_string(hierarchy.num_tasks()));
+    throw SotError("SolveHierarchy: " + std::to_string(tasks.size()) +
+                   " tasks given, the hierarchy has " + std::to_string(hierarchy.num_tasks()));
   }
   {
     int k = 0;
@@ -780,9 +783,9 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   w.Z.setIdentity();
   w.x.setZero();
   w.num_carried = 0;
-  int off = 0;         // Z's first free column
-  int k = 0;           // task index
-  int row = 0;         // first row of task k among all tasks' rows
+  int off = 0;  // Z's first free column
+  int k = 0;    // task index
+  int row = 0;  // first row of task k among all tasks' rows
   const int num_levels = hierarchy.num_levels();
   // Last level holding equality rows: no basis rotation is needed after it.
   int last_rotation_level = -1;
@@ -921,7 +924,8 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.
     }
-    if (rho > 0 && !rotated && !w.gram && l < last_rotation_level) {  // (Gram: ρ = r, no null space)
+    if (rho > 0 && !rotated && !w.gram &&
+        l < last_rotation_level) {  // (Gram: ρ = r, no null space)
       RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
     }
     // Carry the level's inequality rows, shifted by their optimal slack s = Cv - clip(Cv).

@@ -40,12 +40,13 @@ TaskBounds JointLimitBounds(const pinocchio::Model& model, const FeaturePosture&
     b.error_lower[i] = model.lowerPositionLimit[iq] + options.margin - q0[iq];
     b.error_upper[i] = model.upperPositionLimit[iq] - options.margin - q0[iq];
     if (b.error_lower[i] > b.error_upper[i]) {
-      throw SotError(who + ": joint '" + feature.joint_names()[i] + "' range is narrower than 2 margins");
+      throw SotError(who + ": joint '" + feature.joint_names()[i] +
+                     "' range is narrower than 2 margins");
     }
     // URDF velocity limits are symmetric; Pinocchio 4 stores +max in both lower and upper.
     const double limit = std::abs(model.upperVelocityLimit[iv]);
-    const double v_max = limit < kNoLimit ? options.velocity_scale * limit
-                                          : std::numeric_limits<double>::infinity();
+    const double v_max =
+        limit < kNoLimit ? options.velocity_scale * limit : std::numeric_limits<double>::infinity();
     b.rate_lower[i] = -v_max;
     b.rate_upper[i] = v_max;
   }
@@ -53,7 +54,8 @@ TaskBounds JointLimitBounds(const pinocchio::Model& model, const FeaturePosture&
 }
 
 Task& AddJointLimits(graph::GraphBuilder& builder, const std::string& name, ModelPtr model,
-                     graph::OutputSignal<Kinematics>& kinematics, const JointLimitsOptions& options) {
+                     graph::OutputSignal<Kinematics>& kinematics,
+                     const JointLimitsOptions& options) {
   auto& feature = builder.Add<FeaturePosture>(name + "_feature", model, LimitedJoints(*model));
   builder.Connect(kinematics, feature.kinematics_input());
   return builder.Add<Task>(name, feature, Gain::Constant(options.position_gain),
@@ -77,7 +79,8 @@ FeatureHeldVelocities::FeatureHeldVelocities(std::string name, ModelPtr model,
   DeclareTermsOutput({});
 }
 
-void FeatureHeldVelocities::ComputeFull(const graph::Tick&, const Kinematics&, FeatureTerms* full) const {
+void FeatureHeldVelocities::ComputeFull(const graph::Tick&, const Kinematics&,
+                                        FeatureTerms* full) const {
   full->error.setZero();
   full->drift.setZero();
 }

@@ -6,14 +6,16 @@
 
 namespace marionette::sot {
 
-void CheckConfiguration(const pinocchio::Model& model, const Eigen::VectorXd& q, const std::string& who) {
+void CheckConfiguration(const pinocchio::Model& model, const Eigen::VectorXd& q,
+                        const std::string& who) {
   if (q.size() != model.nq) {
     throw SotError(who + ": configuration of size " + std::to_string(q.size()) + ", model '" +
                    model.name + "' has nq = " + std::to_string(model.nq));
   }
   if (!q.allFinite()) throw SotError(who + ": configuration is not finite");
   if (!pinocchio::isNormalized(model, q, 1e-6)) {
-    throw SotError(who + ": configuration has a non-unit quaternion or complex number "
+    throw SotError(who +
+                   ": configuration has a non-unit quaternion or complex number "
                    "(normalize the base orientation)");
   }
 }
@@ -24,8 +26,8 @@ KinematicDevice::KinematicDevice(std::string name, ModelPtr model, const Eigen::
   CheckConfiguration(*model_, q0, "KinematicDevice '" + this->name() + "'");
   step_ = Eigen::VectorXd::Zero(model_->nv);
   command_ = &DeclareInput<Eigen::VectorXd>("command", Eigen::VectorXd::Zero(model_->nv));
-  configuration_ = &DeclareState<Eigen::VectorXd>("configuration", q0,
-                                                  &KinematicDevice::UpdateConfiguration, {command_});
+  configuration_ = &DeclareState<Eigen::VectorXd>(
+      "configuration", q0, &KinematicDevice::UpdateConfiguration, {command_});
   velocity_ = &DeclareState<Eigen::VectorXd>("velocity", Eigen::VectorXd::Zero(model_->nv),
                                              &KinematicDevice::UpdateVelocity, {command_});
 }

@@ -18,7 +18,8 @@ Hierarchy MakeHierarchy(int nv, const Solver::Levels& levels, const HierarchyOpt
     shapes.emplace_back();
     for (const Task* task : levels[l]) {
       if (task == nullptr) throw SotError(who + ": null task at level " + std::to_string(l));
-      if (!seen.insert(task).second) throw SotError(who + ": task '" + task->name() + "' appears twice");
+      if (!seen.insert(task).second)
+        throw SotError(who + ": task '" + task->name() + "' appears twice");
       if (task->nv() != nv) {
         throw SotError(who + ": task '" + task->name() + "' has nv " + std::to_string(task->nv()) +
                        ", the solver " + std::to_string(nv));
@@ -66,28 +67,30 @@ Solver::Solver(std::string name, int nv, Levels levels, SolverOptions options)
   initial_velocity_ = &DeclareParameter<Eigen::VectorXd>("initial_velocity", zero);
   // States (x_t during tick t). The previous command and the offsets are written from this
   // tick's outputs, declared below. activity NaN = no tick yet: the first tick is a switch.
-  previous_ = &DeclareState<Eigen::VectorXd>("previous_velocity", zero, &Solver::UpdatePrevious, {});
+  previous_ =
+      &DeclareState<Eigen::VectorXd>("previous_velocity", zero, &Solver::UpdatePrevious, {});
   target_offset_state_ = &DeclareState<Eigen::VectorXd>("target_offset_state", zero_rows,
                                                         &Solver::UpdateTargetOffsets, {});
-  joint_offset_state_ = &DeclareState<Eigen::VectorXd>("joint_offset_state", zero,
-                                                       &Solver::UpdateJointOffset, {});
+  joint_offset_state_ =
+      &DeclareState<Eigen::VectorXd>("joint_offset_state", zero, &Solver::UpdateJointOffset, {});
   activity_ = &DeclareState<Eigen::VectorXd>(
       "activity", Eigen::VectorXd::Constant(task_inputs_.size(), std::nan("")),
       &Solver::UpdateActivity, task_signals);
   std::vector<const graph::SignalBase*> switching_prerequisites = task_signals;
   switching_prerequisites.push_back(activity_);
-  switching_ = &DeclareOutput<bool>("switching", false, &Solver::CalcSwitching, switching_prerequisites);
+  switching_ =
+      &DeclareOutput<bool>("switching", false, &Solver::CalcSwitching, switching_prerequisites);
   std::vector<const graph::SignalBase*> offset_prerequisites = task_signals;
-  offset_prerequisites.insert(offset_prerequisites.end(),
-                              {switching_, initial_velocity_, previous_, activity_, target_offset_state_});
-  target_offsets_ = &DeclareOutput<Eigen::VectorXd>("target_offsets", zero_rows,
-                                                    &Solver::CalcTargetOffsets, offset_prerequisites);
+  offset_prerequisites.insert(offset_prerequisites.end(), {switching_, initial_velocity_, previous_,
+                                                           activity_, target_offset_state_});
+  target_offsets_ = &DeclareOutput<Eigen::VectorXd>(
+      "target_offsets", zero_rows, &Solver::CalcTargetOffsets, offset_prerequisites);
   std::vector<const graph::SignalBase*> stack_prerequisites = task_signals;
   stack_prerequisites.push_back(target_offsets_);
-  stack_velocity_ = &DeclareOutput<Eigen::VectorXd>("stack_velocity", zero,
-                                                    &Solver::CalcStackVelocity, stack_prerequisites);
-  unblended_velocity_ = &DeclareOutput<Eigen::VectorXd>("unblended_velocity", zero,
-                                                        &Solver::CalcUnblendedVelocity, task_signals);
+  stack_velocity_ = &DeclareOutput<Eigen::VectorXd>(
+      "stack_velocity", zero, &Solver::CalcStackVelocity, stack_prerequisites);
+  unblended_velocity_ = &DeclareOutput<Eigen::VectorXd>(
+      "unblended_velocity", zero, &Solver::CalcUnblendedVelocity, task_signals);
   joint_offset_ = &DeclareOutput<Eigen::VectorXd>(
       "joint_offset", zero, &Solver::CalcJointOffset,
       {switching_, stack_velocity_, initial_velocity_, previous_, activity_, joint_offset_state_});
@@ -174,7 +177,8 @@ void Solver::ClampToHardBoxes(const graph::Tick& t, Eigen::VectorXd* v) const {
   }
 }
 
-void Solver::UpdatePrevious(const graph::Tick& t, const Eigen::VectorXd&, Eigen::VectorXd* next) const {
+void Solver::UpdatePrevious(const graph::Tick& t, const Eigen::VectorXd&,
+                            Eigen::VectorXd* next) const {
   *next = velocity_->Eval(t);
 }
 
@@ -184,12 +188,14 @@ void Solver::UpdateTargetOffsets(const graph::Tick& t, const Eigen::VectorXd&,
   if (options_.switch_time_constant > 0.0) *next *= Decay(t);
 }
 
-void Solver::UpdateJointOffset(const graph::Tick& t, const Eigen::VectorXd&, Eigen::VectorXd* next) const {
+void Solver::UpdateJointOffset(const graph::Tick& t, const Eigen::VectorXd&,
+                               Eigen::VectorXd* next) const {
   *next = joint_offset_->Eval(t);
   if (options_.switch_time_constant > 0.0) *next *= Decay(t);
 }
 
-void Solver::UpdateActivity(const graph::Tick& t, const Eigen::VectorXd&, Eigen::VectorXd* next) const {
+void Solver::UpdateActivity(const graph::Tick& t, const Eigen::VectorXd&,
+                            Eigen::VectorXd* next) const {
   for (size_t i = 0; i < task_inputs_.size(); ++i) {
     (*next)[i] = task_inputs_[i]->Eval(t).active ? 1.0 : 0.0;
   }

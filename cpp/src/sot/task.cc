@@ -68,7 +68,8 @@ void Task::Declare(Feature& feature, Gain gain) {
   std::vector<const graph::SignalBase*> prerequisites{feature_terms_, gain_, gain_at_infinity_,
                                                       gain_slope_, active_};
   if (inequality_) {
-    prerequisites.insert(prerequisites.end(), {error_lower_, error_upper_, rate_lower_, rate_upper_});
+    prerequisites.insert(prerequisites.end(),
+                         {error_lower_, error_upper_, rate_lower_, rate_upper_});
   }
   gain_value_ = &DeclareOutput<double>("gain_value", gain.at_zero, &Task::CalcGainValue,
                                        {feature_terms_, gain_, gain_at_infinity_, gain_slope_});
@@ -77,10 +78,12 @@ void Task::Declare(Feature& feature, Gain gain) {
   model.inequality = inequality_;
   model.unit_columns = feature.unit_columns();
   // A constant (unit-row) Jacobian is written once here, not copied every tick.
-  for (size_t i = 0; i < model.unit_columns.size(); ++i) model.jacobian(i, model.unit_columns[i]) = 1.0;
+  for (size_t i = 0; i < model.unit_columns.size(); ++i)
+    model.jacobian(i, model.unit_columns[i]) = 1.0;
   terms_ = &DeclareOutput<TaskTerms>("terms", model, &Task::CalcTerms, prerequisites);
   std::vector<const graph::SignalBase*> norm_prerequisites{feature_terms_};
-  if (inequality_) norm_prerequisites.insert(norm_prerequisites.end(), {error_lower_, error_upper_});
+  if (inequality_)
+    norm_prerequisites.insert(norm_prerequisites.end(), {error_lower_, error_upper_});
   error_norm_ = &DeclareOutput<double>("error_norm", 0.0, &Task::CalcErrorNorm, norm_prerequisites);
 }
 

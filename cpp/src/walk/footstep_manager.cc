@@ -17,27 +17,36 @@ Eigen::Vector2d Middle(const FootPlacement& a, const FootPlacement& b) {
 
 const char* ToString(WalkPhase phase) {
   switch (phase) {
-    case WalkPhase::kStanding: return "standing";
-    case WalkPhase::kDoubleSupport: return "double_support";
-    case WalkPhase::kLeftSwing: return "left_swing";
-    case WalkPhase::kRightSwing: return "right_swing";
+    case WalkPhase::kStanding:
+      return "standing";
+    case WalkPhase::kDoubleSupport:
+      return "double_support";
+    case WalkPhase::kLeftSwing:
+      return "left_swing";
+    case WalkPhase::kRightSwing:
+      return "right_swing";
   }
   return "unknown";
 }
 
 void FootstepManagerOptions::Check() const {
-  if (!(dt > 0.0 && dt <= 0.1)) throw std::invalid_argument("FootstepManagerOptions: dt must be in (0, 0.1] s");
+  if (!(dt > 0.0 && dt <= 0.1))
+    throw std::invalid_argument("FootstepManagerOptions: dt must be in (0, 0.1] s");
   if (preview_samples < 1 || preview_samples > 100000) {
     throw std::invalid_argument("FootstepManagerOptions: preview_samples must be in [1, 100000]");
   }
   if (!(final_double_support > 0.0 && final_double_support <= 10.0)) {
-    throw std::invalid_argument("FootstepManagerOptions: final_double_support must be in (0, 10] s");
+    throw std::invalid_argument(
+        "FootstepManagerOptions: final_double_support must be in (0, 10] s");
   }
   if (!(min_first_double_support >= 0.0 && min_first_double_support <= 10.0)) {
-    throw std::invalid_argument("FootstepManagerOptions: min_first_double_support must be in [0, 10] s");
+    throw std::invalid_argument(
+        "FootstepManagerOptions: min_first_double_support must be in [0, 10] s");
   }
-  if (!(start_delay < 60.0)) throw std::invalid_argument("FootstepManagerOptions: start_delay must be < 60 s");
-  if (mailbox_capacity < 1) throw std::invalid_argument("FootstepManagerOptions: mailbox_capacity must be >= 1");
+  if (!(start_delay < 60.0))
+    throw std::invalid_argument("FootstepManagerOptions: start_delay must be < 60 s");
+  if (mailbox_capacity < 1)
+    throw std::invalid_argument("FootstepManagerOptions: mailbox_capacity must be >= 1");
 }
 
 FootstepManager::FootstepManager(std::string name, const FootPlacement& left,
@@ -47,19 +56,26 @@ FootstepManager::FootstepManager(std::string name, const FootPlacement& left,
       options_((options.Check(), options)),
       mailbox_(options.mailbox_capacity, FootstepPlan{}) {
   if (!left.allFinite() || !right.allFinite() || !rest_zmp.allFinite()) {
-    throw std::invalid_argument("FootstepManager '" + this->name() + "': non-finite initial feet or ZMP");
+    throw std::invalid_argument("FootstepManager '" + this->name() +
+                                "': non-finite initial feet or ZMP");
   }
   const Eigen::VectorXd zero6 = Eigen::VectorXd::Zero(6);
-  left_foot_ = &DeclareOutput<pinocchio::SE3>("left_foot", PlacementToPose(left), &FootstepManager::CalcLeftFoot, {});
-  right_foot_ = &DeclareOutput<pinocchio::SE3>("right_foot", PlacementToPose(right), &FootstepManager::CalcRightFoot, {});
-  left_velocity_ = &DeclareOutput<Eigen::VectorXd>("left_foot_velocity", zero6, &FootstepManager::CalcLeftVelocity, {});
-  right_velocity_ = &DeclareOutput<Eigen::VectorXd>("right_foot_velocity", zero6, &FootstepManager::CalcRightVelocity, {});
-  zmp_window_ = &DeclareOutput<Eigen::MatrixXd>("zmp_window", Eigen::MatrixXd::Zero(2, options_.preview_samples + 1),
-                                                &FootstepManager::CalcZmpWindow, {});
+  left_foot_ = &DeclareOutput<pinocchio::SE3>("left_foot", PlacementToPose(left),
+                                              &FootstepManager::CalcLeftFoot, {});
+  right_foot_ = &DeclareOutput<pinocchio::SE3>("right_foot", PlacementToPose(right),
+                                               &FootstepManager::CalcRightFoot, {});
+  left_velocity_ = &DeclareOutput<Eigen::VectorXd>("left_foot_velocity", zero6,
+                                                   &FootstepManager::CalcLeftVelocity, {});
+  right_velocity_ = &DeclareOutput<Eigen::VectorXd>("right_foot_velocity", zero6,
+                                                    &FootstepManager::CalcRightVelocity, {});
+  zmp_window_ = &DeclareOutput<Eigen::MatrixXd>(
+      "zmp_window", Eigen::MatrixXd::Zero(2, options_.preview_samples + 1),
+      &FootstepManager::CalcZmpWindow, {});
   zmp_reference_ = &DeclareOutput<Eigen::VectorXd>("zmp_reference", Eigen::VectorXd::Zero(2),
                                                    &FootstepManager::CalcZmpReference, {});
   phase_ = &DeclareOutput<int>("phase", 0, &FootstepManager::CalcPhase, {});
-  phase_progress_ = &DeclareOutput<double>("phase_progress", 0.0, &FootstepManager::CalcPhaseProgress, {});
+  phase_progress_ =
+      &DeclareOutput<double>("phase_progress", 0.0, &FootstepManager::CalcPhaseProgress, {});
   step_index_ = &DeclareOutput<int>("step_index", -1, &FootstepManager::CalcStepIndex, {});
   support_ = &DeclareOutput<int>("support", 3, &FootstepManager::CalcSupport, {});
   plan_id_ = &DeclareOutput<int>("plan_id", 0, &FootstepManager::CalcPlanId, {});
@@ -100,7 +116,8 @@ void FootstepManager::Poll(const graph::Tick& t) {
   bool changed = false;
   drained_count_ = 0;
   while (const FootstepPlan* plan = mailbox_.Front()) {
-    if (drained_count_ < static_cast<int>(drained_hashes_.size())) drained_hashes_[drained_count_++] = plan->source_hash;
+    if (drained_count_ < static_cast<int>(drained_hashes_.size()))
+      drained_hashes_[drained_count_++] = plan->source_hash;
     ApplyPlan(*plan);
     mailbox_.PopFront();
     changed = true;
@@ -155,7 +172,8 @@ void FootstepManager::Advance(double time) {
       if (queue_size_ == 0) mode_ = Mode::kStopping;
       continue;
     }
-    if (mode_ == Mode::kStopping && time >= phase_start_ + options_.final_double_support - kTimeEpsilon) {
+    if (mode_ == Mode::kStopping &&
+        time >= phase_start_ + options_.final_double_support - kTimeEpsilon) {
       mode_ = Mode::kStanding;
       rest_zmp_ = Middle(feet_[kLeft], feet_[kRight]);
       continue;
@@ -164,7 +182,8 @@ void FootstepManager::Advance(double time) {
       mode_ = Mode::kWalking;
       phase_start_ = time + options_.StartDelay();
       previous_zmp_ = rest_zmp_;
-      queue_[0].double_support = std::max(queue_[0].double_support, options_.min_first_double_support);
+      queue_[0].double_support =
+          std::max(queue_[0].double_support, options_.min_first_double_support);
       continue;
     }
     return;
@@ -173,7 +192,8 @@ void FootstepManager::Advance(double time) {
 
 void FootstepManager::RebuildSegments() {
   num_segments_ = 0;
-  const auto add = [this](double t0, double t1, const Eigen::Vector2d& p0, const Eigen::Vector2d& p1) {
+  const auto add = [this](double t0, double t1, const Eigen::Vector2d& p0,
+                          const Eigen::Vector2d& p1) {
     if (num_segments_ < kMaxSegments) segments_[num_segments_++] = ZmpSegment{t0, t1, p0, p1};
   };
   std::array<FootPlacement, 2> feet = feet_;
@@ -235,7 +255,8 @@ bool FootstepManager::Swinging(double time, int* side, FootSample* sample) const
   if (time < ss_start) return false;
   const Footstep& s = queue_[0];
   *side = s.is_left ? kLeft : kRight;
-  const SwingFoot swing(feet_[*side], s.placement, s.single_support, s.step_height, s.via.data(), s.num_via);
+  const SwingFoot swing(feet_[*side], s.placement, s.single_support, s.step_height, s.via.data(),
+                        s.num_via);
   *sample = swing.Sample(time - ss_start);
   return true;
 }
@@ -263,7 +284,8 @@ void FootstepManager::CalcFootVelocity(const graph::Tick& t, int side, Eigen::Ve
 void FootstepManager::CalcZmpWindow(const graph::Tick& t, Eigen::MatrixXd* out) const {
   int hint = 0;
   const double dt = options_.dt;
-  for (Eigen::Index j = 0; j < out->cols(); ++j) out->col(j) = ZmpAt(t.time + static_cast<double>(j) * dt, &hint);
+  for (Eigen::Index j = 0; j < out->cols(); ++j)
+    out->col(j) = ZmpAt(t.time + static_cast<double>(j) * dt, &hint);
 }
 
 void FootstepManager::CalcZmpReference(const graph::Tick& t, Eigen::VectorXd* out) const {
@@ -307,6 +329,8 @@ void FootstepManager::CalcSupport(const graph::Tick& t, int* out) const {
   *out = Swinging(t.time, &swinging, &sample) ? (swinging == kLeft ? 2 : 1) : 3;
 }
 
-void FootstepManager::CalcPlanId(const graph::Tick&, int* out) const { *out = static_cast<int>(current_plan_id_); }
+void FootstepManager::CalcPlanId(const graph::Tick&, int* out) const {
+  *out = static_cast<int>(current_plan_id_);
+}
 
 }  // namespace marionette::walk

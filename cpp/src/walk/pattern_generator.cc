@@ -16,22 +16,28 @@ Eigen::VectorXd RestCart(const Eigen::Vector3d& com) {
 
 PatternGenerator::PatternGenerator(std::string name, const PreviewControlParams& params,
                                    const Eigen::Vector3d& com)
-    : PatternGenerator(std::move(name), std::make_shared<const PreviewGains>(ComputePreviewGains(params)), com) {}
+    : PatternGenerator(std::move(name),
+                       std::make_shared<const PreviewGains>(ComputePreviewGains(params)), com) {}
 
 PatternGenerator::PatternGenerator(std::string name, std::shared_ptr<const PreviewGains> gains,
                                    const Eigen::Vector3d& com)
     : Entity(std::move(name)), gains_(std::move(gains)), com_z_(com[2]) {
   if (!gains_) throw std::invalid_argument("PatternGenerator '" + this->name() + "': null gains");
-  if (!com.allFinite()) throw std::invalid_argument("PatternGenerator '" + this->name() + "': non-finite CoM");
+  if (!com.allFinite())
+    throw std::invalid_argument("PatternGenerator '" + this->name() + "': non-finite CoM");
   const int N = preview_samples();
   zmp_window_ = &DeclareInput<Eigen::MatrixXd>("zmp_window", Eigen::MatrixXd::Zero(2, N + 1));
-  cart_ = &DeclareState<Eigen::VectorXd>("cart", RestCart(com), &PatternGenerator::UpdateCart, {zmp_window_});
-  com_ = &DeclareOutput<Eigen::VectorXd>("com", Eigen::VectorXd(com), &PatternGenerator::CalcCom, {cart_});
+  cart_ = &DeclareState<Eigen::VectorXd>("cart", RestCart(com), &PatternGenerator::UpdateCart,
+                                         {zmp_window_});
+  com_ = &DeclareOutput<Eigen::VectorXd>("com", Eigen::VectorXd(com), &PatternGenerator::CalcCom,
+                                         {cart_});
   com_velocity_ = &DeclareOutput<Eigen::VectorXd>("com_velocity", Eigen::VectorXd::Zero(3),
                                                   &PatternGenerator::CalcComVelocity, {cart_});
-  com_acceleration_ = &DeclareOutput<Eigen::VectorXd>("com_acceleration", Eigen::VectorXd::Zero(3),
-                                                      &PatternGenerator::CalcComAcceleration, {cart_});
-  zmp_ = &DeclareOutput<Eigen::VectorXd>("zmp", Eigen::VectorXd(com.head<2>()), &PatternGenerator::CalcZmp, {cart_});
+  com_acceleration_ =
+      &DeclareOutput<Eigen::VectorXd>("com_acceleration", Eigen::VectorXd::Zero(3),
+                                      &PatternGenerator::CalcComAcceleration, {cart_});
+  zmp_ = &DeclareOutput<Eigen::VectorXd>("zmp", Eigen::VectorXd(com.head<2>()),
+                                         &PatternGenerator::CalcZmp, {cart_});
 }
 
 void PatternGenerator::Reset(const Eigen::Vector3d& com) {

@@ -15,7 +15,8 @@ void Require(bool ok, const std::string& what) {
 }  // namespace
 
 void PreviewControlParams::Check() const {
-  Require(std::isfinite(dt) && dt > 0.0 && dt <= 0.1, "dt must be in (0, 0.1] s, got " + std::to_string(dt));
+  Require(std::isfinite(dt) && dt > 0.0 && dt <= 0.1,
+          "dt must be in (0, 0.1] s, got " + std::to_string(dt));
   Require(std::isfinite(com_height) && com_height > 0.05 && com_height < 10.0,
           "com_height must be in (0.05, 10) m, got " + std::to_string(com_height));
   Require(std::isfinite(gravity) && gravity > 0.0, "gravity must be > 0");
@@ -58,7 +59,8 @@ AugmentedSystem MakeAugmentedSystem(const PreviewControlParams& p) {
 double RiccatiResidual(const AugmentedSystem& s, const Eigen::Matrix4d& P) {
   const double denominator = s.R + s.B.dot(P * s.B);
   const Eigen::RowVector4d BtPA = s.B.transpose() * P * s.A;
-  const Eigen::Matrix4d rhs = s.A.transpose() * P * s.A - BtPA.transpose() * BtPA / denominator + s.Q;
+  const Eigen::Matrix4d rhs =
+      s.A.transpose() * P * s.A - BtPA.transpose() * BtPA / denominator + s.Q;
   return (P - rhs).cwiseAbs().maxCoeff();
 }
 

@@ -6,7 +6,8 @@
 
 namespace marionette::walk {
 
-bool MeasuredZmp(const SoleWrench* w, int count, double ground_z, Eigen::Vector2d* zmp, double min_force) {
+bool MeasuredZmp(const SoleWrench* w, int count, double ground_z, Eigen::Vector2d* zmp,
+                 double min_force) {
   double fz = 0.0, mx = 0.0, my = 0.0;
   for (int i = 0; i < count; ++i) {
     if (w[i].force[2] < min_force) continue;
@@ -28,7 +29,8 @@ double Cross(const Eigen::Vector2d& o, const Eigen::Vector2d& a, const Eigen::Ve
 
 }  // namespace
 
-SupportPolygon MakeSupportPolygon(const FootPlacement* placements, int count, const SoleShape& sole) {
+SupportPolygon MakeSupportPolygon(const FootPlacement* placements, int count,
+                                  const SoleShape& sole) {
   std::array<Eigen::Vector2d, 8> points;
   int n = 0;
   for (int i = 0; i < std::min(count, 2); ++i) {
@@ -39,9 +41,10 @@ SupportPolygon MakeSupportPolygon(const FootPlacement* placements, int count, co
     }
   }
   // Andrew's monotone chain.
-  std::sort(points.begin(), points.begin() + n, [](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
-    return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
-  });
+  std::sort(points.begin(), points.begin() + n,
+            [](const Eigen::Vector2d& a, const Eigen::Vector2d& b) {
+              return a.x() < b.x() || (a.x() == b.x() && a.y() < b.y());
+            });
   std::array<Eigen::Vector2d, 16> hull;
   int k = 0;
   for (int i = 0; i < n; ++i) {

@@ -55,9 +55,11 @@ double InverseBlend(double sigma) {
 SwingFoot::SwingFoot(const FootPlacement& from, const FootPlacement& to, double duration,
                      double height, const Eigen::Vector3d* via, int num_via)
     : from_(from), duration_(duration), height_(height) {
-  if (!from.allFinite() || !to.allFinite()) throw std::invalid_argument("SwingFoot: non-finite placement");
+  if (!from.allFinite() || !to.allFinite())
+    throw std::invalid_argument("SwingFoot: non-finite placement");
   if (!(duration > 0.0) || !std::isfinite(duration)) {
-    throw std::invalid_argument("SwingFoot: duration must be > 0 s, got " + std::to_string(duration));
+    throw std::invalid_argument("SwingFoot: duration must be > 0 s, got " +
+                                std::to_string(duration));
   }
   if (!(height >= 0.0) || !std::isfinite(height)) {
     throw std::invalid_argument("SwingFoot: height must be >= 0 m, got " + std::to_string(height));
@@ -73,7 +75,9 @@ SwingFoot::SwingFoot(const FootPlacement& from, const FootPlacement& to, double 
     // Where the sole origin crosses the via point horizontally: fraction σ_v of the straight
     // xy path, reached at s_v = σ⁻¹(σ_v); the height there is z_line(σ_v) + h b(s_v) ≥ z_via.
     const double length2 = d.squaredNorm();
-    const double sigma = length2 > 1e-12 ? std::clamp((via[i].head<2>() - from.head<2>()).dot(d) / length2, 0.0, 1.0) : 0.5;
+    const double sigma =
+        length2 > 1e-12 ? std::clamp((via[i].head<2>() - from.head<2>()).dot(d) / length2, 0.0, 1.0)
+                        : 0.5;
     const double s = InverseBlend(sigma);
     const double lift = LiftProfile(s).value;
     const double line = from[2] + delta_[2] * sigma;

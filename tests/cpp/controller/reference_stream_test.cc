@@ -12,7 +12,8 @@
 namespace marionette::controller {
 namespace {
 
-ReferenceChunk Ramp(int64_t start_us, int n, double v0, double slope_per_sample, bool last = false) {
+ReferenceChunk Ramp(int64_t start_us, int n, double v0, double slope_per_sample,
+                    bool last = false) {
   ReferenceChunk c;
   c.start_us = start_us;
   c.dt_us = 1000;
@@ -63,7 +64,7 @@ TEST(ReferenceStreamTest, ALaterChunkReplacesTheFutureAndMayEndTheReference) {
   graph::GraphBuilder b;
   b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
   auto g = b.Build();
-  s.Push(Ramp(0, 1000, 0.0, 1.0));           // 0 .. 999 over 1 s
+  s.Push(Ramp(0, 1000, 0.0, 1.0));            // 0 .. 999 over 1 s
   s.Push(Ramp(500000, 10, -5.0, 0.0, true));  // from 0.5 s: -5 for 10 ms, the end
   graph::Tick t = At(400000);
   g->Evaluate(t);
@@ -87,23 +88,27 @@ TEST(ReferenceStreamTest, AChunkAfterALostOneIsRefusedAndTheStreamHoldsItsLastSa
     c.sequence = sequence;
     return c;
   };
-  const ReferenceChunk first = numbered(Ramp(0, 200, 0.0, 1.0), 0);              // samples 0 .. 199
-  const ReferenceChunk second = numbered(Ramp(200000, 200, 200.0, 1.0), 1);      // 200 .. 399
+  const ReferenceChunk first = numbered(Ramp(0, 200, 0.0, 1.0), 0);          // samples 0 .. 199
+  const ReferenceChunk second = numbered(Ramp(200000, 200, 200.0, 1.0), 1);  // 200 .. 399
   const ReferenceChunk after_a_loss = numbered(Ramp(600000, 200, 600.0, 1.0), 3);  // chunk 2 lost
-  EXPECT_NE(s.ValidateChunk(second).find("chunk 1 of a reference whose chunk 0 never came (none taken)"),
-            std::string::npos) << "a reference cannot start with its second chunk";
+  EXPECT_NE(
+      s.ValidateChunk(second).find("chunk 1 of a reference whose chunk 0 never came (none taken)"),
+      std::string::npos)
+      << "a reference cannot start with its second chunk";
   ASSERT_EQ(s.ValidateChunk(first), "");
   ASSERT_TRUE(s.Push(first));
   ASSERT_EQ(s.ValidateChunk(second), "");
   ASSERT_TRUE(s.Push(second));
   const std::string problem = s.ValidateChunk(after_a_loss);
-  EXPECT_NE(problem.find("chunk 3 of a reference whose chunk 2 never came (last taken 1)"), std::string::npos)
+  EXPECT_NE(problem.find("chunk 3 of a reference whose chunk 2 never came (last taken 1)"),
+            std::string::npos)
       << problem;
   // The lost chunk itself, a chunk standing alone (a servo's, or a new reference after a pause,
   // however far on) and a negative number.
   EXPECT_EQ(s.ValidateChunk(numbered(Ramp(400000, 200, 400.0, 1.0), 2)), "");
   EXPECT_EQ(s.ValidateChunk(numbered(Ramp(3000000, 10, 0.0, 0.0), 0)), "");
-  EXPECT_NE(s.ValidateChunk(numbered(Ramp(400000, 10, 0.0, 0.0), -1)).find("negative sequence"), std::string::npos);
+  EXPECT_NE(s.ValidateChunk(numbered(Ramp(400000, 10, 0.0, 0.0), -1)).find("negative sequence"),
+            std::string::npos);
   // What a refused chunk leaves: the stream ends at sample 399, held and aging past it.
   graph::Tick t = At(300000);
   g->Evaluate(t);
@@ -115,7 +120,8 @@ TEST(ReferenceStreamTest, AChunkAfterALostOneIsRefusedAndTheStreamHoldsItsLastSa
 }
 
 TEST(ReferenceStreamTest, Se3StreamsSlerpAndCheckQuaternions) {
-  ReferenceStream s("s", ReferenceStream::Kind::kSe3, (Eigen::VectorXd(7) << 0, 0, 0, 1, 0, 0, 0).finished(), 6);
+  ReferenceStream s("s", ReferenceStream::Kind::kSe3,
+                    (Eigen::VectorXd(7) << 0, 0, 0, 1, 0, 0, 0).finished(), 6);
   graph::GraphBuilder b;
   b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
   auto g = b.Build();

@@ -44,7 +44,8 @@ TEST(GraphBuilderTest, RefusesDanglingInputs) {
   GraphBuilder b;
   b.Add<Square>("square", 2);
   b.Add<VectorSum>("sum", 2, 2);
-  ExpectGraphError([&] { b.Build(); }, {"square.x", "sum.in0", "sum.in1", "neither plugged nor set"});
+  ExpectGraphError([&] { b.Build(); },
+                   {"square.x", "sum.in0", "sum.in1", "neither plugged nor set"});
 }
 
 TEST(GraphBuilderTest, RefusesAlgebraicCycles) {

@@ -24,7 +24,8 @@ class Spin final : public Entity {
 
  private:
   void CalcOut(const Tick& t, Eigen::VectorXd* out) const {
-    const auto until = std::chrono::steady_clock::now() + std::chrono::duration<double, std::micro>(spin_us_);
+    const auto until =
+        std::chrono::steady_clock::now() + std::chrono::duration<double, std::micro>(spin_us_);
     while (std::chrono::steady_clock::now() < until) {
     }
     *out = in_->Eval(t);

@@ -82,11 +82,12 @@ TEST(ReprojectionErrorTest, IsZeroAtTheTruthAndSumsSquaredPixels) {
 TEST(RefinePoseTest, ConvergesToTheTruthFromAPerturbedStartOnSeveralTags) {
   const Eigen::Isometry3d X_CO = Pose({2.6, 0.3, -0.4}, {-0.05, 0.04, 0.9});
   std::vector<Eigen::Vector3d> p_O;
-  for (const Eigen::Vector3d& offset : {Eigen::Vector3d(-0.1, 0, 0), Eigen::Vector3d(0.1, 0, 0.02)}) {
+  for (const Eigen::Vector3d& offset :
+       {Eigen::Vector3d(-0.1, 0, 0), Eigen::Vector3d(0.1, 0, 0.02)}) {
     for (const auto& c : Corners(0.05)) p_O.push_back(c + offset);
   }
-  const PoseEstimate e =
-      RefinePose(p_O, Project(p_O, X_CO), kCamera, Pose({0.05, -0.05, 0.05}, {0.01, 0, 0.05}) * X_CO);
+  const PoseEstimate e = RefinePose(p_O, Project(p_O, X_CO), kCamera,
+                                    Pose({0.05, -0.05, 0.05}, {0.01, 0, 0.05}) * X_CO);
   ASSERT_TRUE(e.ok);
   EXPECT_LT((e.X_CO.translation() - X_CO.translation()).norm(), 1e-7);
   EXPECT_LT(AngleBetween(e.X_CO, X_CO), 1e-7);
@@ -95,15 +96,15 @@ TEST(RefinePoseTest, ConvergesToTheTruthFromAPerturbedStartOnSeveralTags) {
 
 TEST(RefinePoseTest, RejectsTooFewOrMismatchedPoints) {
   const auto p = Corners(0.1);
-  EXPECT_THROW(RefinePose({p[0], p[1], p[2]}, {{1, 1}, {2, 2}, {3, 3}}, kCamera,
-                          Pose({0, 0, 0}, {0, 0, 1})),
-               PerceptionError);
+  EXPECT_THROW(
+      RefinePose({p[0], p[1], p[2]}, {{1, 1}, {2, 2}, {3, 3}}, kCamera, Pose({0, 0, 0}, {0, 0, 1})),
+      PerceptionError);
   EXPECT_THROW(RefinePose(p, {{1, 1}}, kCamera, Pose({0, 0, 0}, {0, 0, 1})), PerceptionError);
   CameraIntrinsics bad = kCamera;
   bad.fx = std::nan("");
-  EXPECT_THROW(RefinePose(p, Project(p, Pose({M_PI, 0, 0}, {0, 0, 1})), bad,
-                          Pose({0, 0, 0}, {0, 0, 1})),
-               PerceptionError);
+  EXPECT_THROW(
+      RefinePose(p, Project(p, Pose({M_PI, 0, 0}, {0, 0, 1})), bad, Pose({0, 0, 0}, {0, 0, 1})),
+      PerceptionError);
 }
 
 TEST(PoseFromRgbdTest, ExactPlaneGivesTheTruth) {
@@ -131,8 +132,8 @@ TEST(RefinePoseRgbdTest, DepthPullsTheMirrorHypothesisBackToTheTruth) {
   EXPECT_GT(AngleBetween(image_only.X_CO, X_CT), 0.2);  // a second local minimum
   EXPECT_LT(image_only.reprojection_error, 0.05);       // that fits the corners within noise
   const std::vector<float> depth = PlaneDepth(X_CT);
-  const PoseEstimate fused = RefinePoseRgbd(p, uv, {{uv, Eigen::Vector3d::UnitZ(), 0.0}},
-                                            depth.data(), kCamera, mirror);
+  const PoseEstimate fused =
+      RefinePoseRgbd(p, uv, {{uv, Eigen::Vector3d::UnitZ(), 0.0}}, depth.data(), kCamera, mirror);
   ASSERT_TRUE(fused.ok);
   EXPECT_LT(AngleBetween(fused.X_CO, X_CT), 1e-4);
   EXPECT_LT((fused.X_CO.translation() - X_CT.translation()).norm(), 1e-5);

@@ -35,7 +35,7 @@ TEST(CameraNoise, GreyNoiseHasTheRequestedSigmaAndIsTheSameOnEveryChannel) {
     if (i > 0) lag += e * (f.rgb[3 * (i - 1)] - 128.0);
   }
   const double mean = sum / kPixels, var = sum2 / kPixels - mean * mean;
-  EXPECT_NEAR(mean, 0.0, 0.02);                 // 5 standard errors of the mean (2 / sqrt(307200))
+  EXPECT_NEAR(mean, 0.0, 0.02);  // 5 standard errors of the mean (2 / sqrt(307200))
   // Rounding to integers adds 1/12 to the variance (Sheppard): sqrt(4 + 1/12) = 2.021.
   EXPECT_NEAR(std::sqrt(var), std::sqrt(4.0 + 1.0 / 12.0), 0.03);
   EXPECT_NEAR(lag / kPixels / var, 0.0, 0.01);  // neighbouring pixels independent
@@ -101,7 +101,8 @@ TEST(CameraNoise, ZeroSettingsLeaveTheFrameUntouchedAndSeedsReproduce) {
 
 TEST(CameraNoise, RefusesNegativeOrNonFiniteSigmas) {
   EXPECT_THROW(CameraNoise({-1.0, 0.0, 0}), std::invalid_argument);
-  EXPECT_THROW(CameraNoise({0.0, std::numeric_limits<double>::quiet_NaN(), 0}), std::invalid_argument);
+  EXPECT_THROW(CameraNoise({0.0, std::numeric_limits<double>::quiet_NaN(), 0}),
+               std::invalid_argument);
   try {
     CameraNoise({std::numeric_limits<double>::infinity(), 0.0, 0});
     FAIL() << "an infinite sigma was accepted";

@@ -9,6 +9,7 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Geometry>
+#include <cstdio>
 #include <fstream>
 #include <iterator>
 #include <map>
@@ -17,7 +18,6 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
 #include <pinocchio/parsers/urdf.hpp>
-#include <cstdio>
 #include <regex>
 #include <string>
 
@@ -58,8 +58,9 @@ std::string FullUrdf(const std::string& urdf, const std::map<std::string, Mimic>
     const std::string from = "<joint name=\"" + name + "\" type=\"fixed\">";
     const size_t at = out.find(from);
     if (at != std::string::npos) {
-      out.replace(at, from.size(), "<joint name=\"" + name + "\" type=\"prismatic\">" +
-                                       "<limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/>");
+      out.replace(at, from.size(),
+                  "<joint name=\"" + name + "\" type=\"prismatic\">" +
+                      "<limit lower=\"-1\" upper=\"1\" effort=\"1\" velocity=\"1\"/>");
     }
   }
   return out;
@@ -114,13 +115,15 @@ TEST(GripperMimicTest, FingersFollowTheDrivenJointAsTheUrdfMimicSays) {
       const pin::SE3 X_BF_pin = X_WB_pin.actInv(data.oMf[full.getFrameId(link)]);
       const Eigen::Isometry3d X_BF_mj = X_WB_mj.inverse() * MujocoBodyPose(m, d, link);
       // 0.1 mm / 1 mrad: the equality is a soft constraint (solref 5 ms), not exact.
-      EXPECT_LT((X_BF_mj.translation() - X_BF_pin.translation()).norm(), 1e-4) << link << " at " << target;
+      EXPECT_LT((X_BF_mj.translation() - X_BF_pin.translation()).norm(), 1e-4)
+          << link << " at " << target;
       const Eigen::AngleAxisd dR(X_BF_mj.linear().transpose() * X_BF_pin.rotation());
       EXPECT_LT(std::abs(dR.angle()), 1e-3) << link << " at " << target;
     }
     // The fingers close symmetrically: the gap shrinks by twice the driven travel.
     const double gap = (MujocoBodyPose(m, d, "finger_left_link").translation() -
-                        MujocoBodyPose(m, d, "finger_right_link").translation()).norm();
+                        MujocoBodyPose(m, d, "finger_right_link").translation())
+                           .norm();
     largest_motion = std::max(largest_motion, 0.17 - gap);
     EXPECT_NEAR(gap, 0.17 - 2 * q_driven, 2e-4) << "at " << target;
   }
@@ -146,7 +149,8 @@ double ContactForce(const mjModel* m, const mjData* d, int body, int other) {
 
 TEST(GripperMimicTest, EachFingerSqueezesAFreeBoxWithHalfTheMotorForce) {
   char error[1000] = "";
-  mjModel* m = mj_loadXML((kModels + "/scenes/ur10_box.xml").c_str(), nullptr, error, sizeof(error));
+  mjModel* m =
+      mj_loadXML((kModels + "/scenes/ur10_box.xml").c_str(), nullptr, error, sizeof(error));
   ASSERT_NE(m, nullptr) << error;
   mjData* d = mj_makeData(m);
   mj_resetDataKeyframe(m, d, mj_name2id(m, mjOBJ_KEY, "reference"));
@@ -156,7 +160,8 @@ TEST(GripperMimicTest, EachFingerSqueezesAFreeBoxWithHalfTheMotorForce) {
   // beyond the grasp frame along the approach (x of the gripper frame), faces along y.
   const int site = mj_name2id(m, mjOBJ_SITE, "ur10/gripper");
   const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> R(d->site_xmat + 9 * site);
-  const Eigen::Vector3d p = Eigen::Map<const Eigen::Vector3d>(d->site_xpos + 3 * site) + 0.035 * R.col(0);
+  const Eigen::Vector3d p =
+      Eigen::Map<const Eigen::Vector3d>(d->site_xpos + 3 * site) + 0.035 * R.col(0);
   // Box frame: z = -x_gripper (the handle's x points down into the box), x = y_gripper.
   Eigen::Matrix3d R_box;
   R_box.col(0) = R.col(1);

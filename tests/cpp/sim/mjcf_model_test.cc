@@ -129,8 +129,8 @@ int CountMimics(const mjModel* m) {
 // MuJoCo qpos (robot first in the model) from Pinocchio q: free joint quaternion w x y z,
 // planar base as x, y, yaw; 1-dof joints by name (mimic joints keep their qpos, 0: where
 // Pinocchio's fixed joints put their links).
-void PinocchioToMujoco(const mjModel* m, const pin::Model& model, const Eigen::VectorXd& q, Base base,
-                       mjtNum* qpos) {
+void PinocchioToMujoco(const mjModel* m, const pin::Model& model, const Eigen::VectorXd& q,
+                       Base base, mjtNum* qpos) {
   if (base == Base::kFreeFlyer) {
     for (int i = 0; i < 3; ++i) qpos[i] = q[i];
     qpos[3] = q[6];
@@ -149,7 +149,8 @@ void PinocchioToMujoco(const mjModel* m, const pin::Model& model, const Eigen::V
   }
 }
 
-Eigen::VectorXd MujocoToPinocchio(const mjModel* m, const pin::Model& model, const mjtNum* qpos, Base base) {
+Eigen::VectorXd MujocoToPinocchio(const mjModel* m, const pin::Model& model, const mjtNum* qpos,
+                                  Base base) {
   Eigen::VectorXd q(model.nq);
   if (base == Base::kFreeFlyer) {
     for (int i = 0; i < 3; ++i) q[i] = qpos[i];
@@ -239,7 +240,8 @@ TEST_P(RobotMjcfTest, JointNamesAndOrderMatchPinocchio) {
   EXPECT_EQ(joints, expected);
   const int base_nq = GetParam().base == Base::kPlanar ? -1 : 0;  // planar: 4 (Pinocchio) vs 3
   const int mimics = CountMimics(m_.get());
-  EXPECT_EQ(mimics, GetParam().name == "ur10" ? 1 : 0) << "the UR10 gripper's right finger (TALOS' stay fixed)";
+  EXPECT_EQ(mimics, GetParam().name == "ur10" ? 1 : 0)
+      << "the UR10 gripper's right finger (TALOS' stay fixed)";
   EXPECT_EQ(m_->nq, model_.nq + base_nq + mimics);
   EXPECT_EQ(m_->nv, model_.nv + mimics);
 }
@@ -281,7 +283,8 @@ TEST_P(RobotMjcfTest, MassAndCentreOfMassMatchPinocchio) {
     const Eigen::Vector3d com_mj(d_->subtree_com[3 * b], d_->subtree_com[3 * b + 1],
                                  d_->subtree_com[3 * b + 2]);
     EXPECT_LT((com_mj - com_pin).norm(), 1e-9)
-        << "trial " << trial << ": MuJoCo " << com_mj.transpose() << ", Pinocchio " << com_pin.transpose();
+        << "trial " << trial << ": MuJoCo " << com_mj.transpose() << ", Pinocchio "
+        << com_pin.transpose();
   }
 }
 
@@ -325,8 +328,8 @@ TEST_P(RobotMjcfTest, ReferenceKeyframeIsWithinLimitsAndServosHoldIt) {
   }
 }
 
-// The URDF's mimic joints (the UR10 gripper's right finger): joint1 = offset + multiplier * joint2 in the
-// keyframe, read back from the URDF text itself (<mimic joint multiplier offset>).
+// The URDF's mimic joints (the UR10 gripper's right finger): joint1 = offset + multiplier * joint2
+// in the keyframe, read back from the URDF text itself (<mimic joint multiplier offset>).
 TEST_P(RobotMjcfTest, MimicJointsFollowTheUrdfMimicInTheKeyframe) {
   std::ifstream in(kModels + "/" + GetParam().name + "/" + GetParam().name + ".urdf");
   const std::string urdf((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
@@ -349,7 +352,8 @@ TEST_P(RobotMjcfTest, MimicJointsFollowTheUrdfMimicInTheKeyframe) {
     EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 0], offset) << j1;
     EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 1], multiplier) << j1;
     EXPECT_NEAR(qpos[m_->jnt_qposadr[m_->eq_obj1id[e]]],
-                offset + multiplier * qpos[m_->jnt_qposadr[m_->eq_obj2id[e]]], 1e-12) << j1;
+                offset + multiplier * qpos[m_->jnt_qposadr[m_->eq_obj2id[e]]], 1e-12)
+        << j1;
     ++seen;
   }
   EXPECT_EQ(seen, CountMimics(m_.get()));
@@ -376,7 +380,8 @@ TEST(CameraTest, HeadCamerasLookAlongTheOpticalAxis) {
     ASSERT_GE(body, 0);
     const Eigen::Matrix3d R_cam =
         Eigen::Map<const Eigen::Matrix<mjtNum, 3, 3, Eigen::RowMajor>>(d->cam_xmat + 9 * cam);
-    const Eigen::Matrix3d expected = BodyRotation(d.get(), body) * Eigen::Vector3d(1, -1, -1).asDiagonal();
+    const Eigen::Matrix3d expected =
+        BodyRotation(d.get(), body) * Eigen::Vector3d(1, -1, -1).asDiagonal();
     EXPECT_LT((R_cam - expected).norm(), 1e-9) << robot.name;
     const double fovy = m->cam_fovy[cam];
     EXPECT_GE(fovy, 45.0);
@@ -472,9 +477,10 @@ TEST_P(SceneTest, LoadsAndPlacesTheRobotAsPinocchio) {
   if (c.robot.base == Base::kFixed) {
     const int root = mj_name2id(m.get(), mjOBJ_BODY, model.frames[1].name.c_str());
     ASSERT_GE(root, 0);
-    X_WB = pin::SE3(BodyRotation(d.get(), root),
-                    Eigen::Vector3d(d->xpos[3 * root], d->xpos[3 * root + 1], d->xpos[3 * root + 2])) *
-           data.oMf[1].inverse();
+    X_WB =
+        pin::SE3(BodyRotation(d.get(), root),
+                 Eigen::Vector3d(d->xpos[3 * root], d->xpos[3 * root + 1], d->xpos[3 * root + 2])) *
+        data.oMf[1].inverse();
   }
   // Bodies moved by mimic joints (MuJoCo only) are left out: Pinocchio keeps them where the URDF
   // fixes them (MimicJointsFollowTheUrdfMimicInTheKeyframe checks those).
@@ -497,8 +503,10 @@ TEST_P(SceneTest, FreeObjectsRestOnTheirSupports) {
   std::vector<std::pair<int, Eigen::Vector3d>> free_bodies;
   for (int j = 0; j < m->njnt; ++j) {
     const int b = m->jnt_bodyid[j];
-    if (m->jnt_type[j] == mjJNT_FREE && std::string(mj_id2name(m.get(), mjOBJ_JOINT, j)) != "root_joint") {
-      free_bodies.emplace_back(b, Eigen::Vector3d(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]));
+    if (m->jnt_type[j] == mjJNT_FREE &&
+        std::string(mj_id2name(m.get(), mjOBJ_JOINT, j)) != "root_joint") {
+      free_bodies.emplace_back(
+          b, Eigen::Vector3d(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]));
     }
   }
   for (int i = 0; i < 500; ++i) mj_step(m.get(), d.get());
@@ -508,12 +516,13 @@ TEST_P(SceneTest, FreeObjectsRestOnTheirSupports) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Scenes, SceneTest,
-    ::testing::Values(SceneCase{"talos_plank", kRobots[0]}, SceneCase{"talos_walk", kRobots[0]},
-                      SceneCase{"tiago_deburr", kRobots[1]}, SceneCase{"ur10_drill", kRobots[2]},
-                      SceneCase{"ur10_box", kRobots[2]}),
-    [](const auto& info) { return info.param.scene; });
+INSTANTIATE_TEST_SUITE_P(Scenes, SceneTest,
+                         ::testing::Values(SceneCase{"talos_plank", kRobots[0]},
+                                           SceneCase{"talos_walk", kRobots[0]},
+                                           SceneCase{"tiago_deburr", kRobots[1]},
+                                           SceneCase{"ur10_drill", kRobots[2]},
+                                           SceneCase{"ur10_box", kRobots[2]}),
+                         [](const auto& info) { return info.param.scene; });
 
 TEST(ObjectTest, EveryObjectFileLoads) {
   for (const char* object : {"plank", "table", "part", "ball", "pedestal", "bar", "drill", "box"}) {

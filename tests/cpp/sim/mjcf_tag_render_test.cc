@@ -39,7 +39,8 @@ double TagSize(const mjModel* m, int g) {
   double extent[3] = {0, 0, 0};
   for (int v = 0; v < m->mesh_vertnum[mesh]; ++v) {
     for (int a = 0; a < 3; ++a) {
-      extent[a] = std::max(extent[a], std::abs(double{m->mesh_vert[3 * (m->mesh_vertadr[mesh] + v) + a]}));
+      extent[a] =
+          std::max(extent[a], std::abs(double{m->mesh_vert[3 * (m->mesh_vertadr[mesh] + v) + a]}));
     }
   }
   std::sort(extent, extent + 3);
@@ -95,7 +96,8 @@ TEST_P(TagRenderTest, DetectedCornersMatchTheModelTagFrames) {
                                  d->site_xpos[3 * site + 2]);
       const double corners[4][2] = {{-h, -h}, {h, -h}, {h, h}, {-h, h}};
       for (int c = 0; c < 4; ++c) {
-        const Eigen::Vector3d p_C = X_CW * (p_WT + R_WT * Eigen::Vector3d(corners[c][0], corners[c][1], 0));
+        const Eigen::Vector3d p_C =
+            X_CW * (p_WT + R_WT * Eigen::Vector3d(corners[c][0], corners[c][1], 0));
         const double u = k.fx * p_C.x() / p_C.z() + k.cx, v = k.fy * p_C.y() / p_C.z() + k.cy;
         EXPECT_LT(std::hypot(u - det->p[c][0], v - det->p[c][1]), 1.5)
             << "tag " << det->id << " corner " << c;
@@ -118,9 +120,14 @@ INSTANTIATE_TEST_SUITE_P(
         // plank's shaded front face just under the lit end-face tags 14, 15, is not found since
         // those were added (its white border renders mid-grey in the shade, next to their white:
         // the likely cause is AprilTag's local threshold; smaller end tags did not bring it back).
-        TagView{"talos_plank", "head_rgbd", {{"torso_2_joint", 0.2}, {"head_1_joint", 0.78}},
+        TagView{"talos_plank",
+                "head_rgbd",
+                {{"torso_2_joint", 0.2}, {"head_1_joint", 0.78}},
                 {4, 5, 10, 14, 15}},
-        TagView{"tiago_deburr", "head_rgbd", {{"head_2_joint", -0.43}}, {20, 21, 22, 23}},  // aim_head's tilt
+        TagView{"tiago_deburr",
+                "head_rgbd",
+                {{"head_2_joint", -0.43}},
+                {20, 21, 22, 23}},  // aim_head's tilt
         TagView{"ur10_drill", "scene_rgbd", {}, {20, 21, 22, 23}},
         TagView{"talos_walk", "head_rgbd", {{"head_1_joint", 0.35}}, {60}}),
     [](const auto& info) { return info.param.scene; });

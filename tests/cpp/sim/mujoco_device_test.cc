@@ -58,7 +58,8 @@ TEST(MujocoSceneTest, StateRoundTripsAndVelocityConventionsMatchMujoco) {
     // body frame, not its inertial frame), in that frame, angular first, equals Pinocchio's
     // free-flyer velocity (linear first, base frame).
     mjtNum vel[6];
-    mj_objectVelocity(&scene.model(), &scene.data(), mjOBJ_XBODY, scene.BodyId("base_link"), vel, 1);
+    mj_objectVelocity(&scene.model(), &scene.data(), mjOBJ_XBODY, scene.BodyId("base_link"), vel,
+                      1);
     EXPECT_NEAR((Eigen::Map<Eigen::Vector3d>(vel + 3) - v.head<3>()).norm(), 0.0, 1e-9);
     EXPECT_NEAR((Eigen::Map<Eigen::Vector3d>(vel) - v.segment<3>(3)).norm(), 0.0, 1e-9);
     // And a link pose against Pinocchio's forward kinematics.
@@ -85,7 +86,8 @@ TEST(MujocoSceneTest, EncoderOffsetsGiveTheControllerTheTrueJointPositions) {
   const auto arm_pose_error = [&](const Eigen::VectorXd& q_model) {
     pin::framesForwardKinematics(model, data, q_model);
     return (scene.BodyPose("arm_left_7_link").translation() -
-            data.oMf[model.getFrameId("arm_left_7_link")].translation()).norm();
+            data.oMf[model.getFrameId("arm_left_7_link")].translation())
+        .norm();
   };
   Eigen::VectorXd q_read(model.nq), v_read(model.nv);
 
@@ -142,7 +144,8 @@ TEST(MujocoSceneTest, AReleasedHandStopsCollidingUntilItIsClearOfTheObject) {
   scene.SetWeld(weld, false);
   EXPECT_EQ(scene.opening_hands(), 1);
   EXPECT_EQ(m.geom_contype[finger], 0);
-  scene.SetFreeBodyPose("plank", pin::SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(3.0, 0.0, 1.0)));
+  scene.SetFreeBodyPose("plank",
+                        pin::SE3(Eigen::Matrix3d::Identity(), Eigen::Vector3d(3.0, 0.0, 1.0)));
   step();  // clear of the plank: the hand collides again
   EXPECT_EQ(scene.opening_hands(), 0);
   EXPECT_EQ(m.geom_contype[finger], contype);
@@ -158,9 +161,8 @@ TEST(MujocoDeviceTest, TalosStandsOnItsSolesUnderTheServos) {
   scene.WriteRobotState(q0, Eigen::VectorXd::Zero(model.nv));
 
   graph::GraphBuilder b;
-  auto& device = b.Add<MujocoDevice>("device", &scene,
-                                     std::vector<std::string>{"left_sole_link", "right_sole_link"},
-                                     1e-3);
+  auto& device = b.Add<MujocoDevice>(
+      "device", &scene, std::vector<std::string>{"left_sole_link", "right_sole_link"}, 1e-3);
   device.q_command_input().SetValue(q0);  // hold half-sitting
   auto graph = b.Build();
 

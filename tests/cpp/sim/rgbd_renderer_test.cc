@@ -62,7 +62,8 @@ TEST_F(RgbdRendererTest, CameraPoseIsTheOpticalFrame) {
   const Eigen::Isometry3d X_WC = renderer.CameraPose(*data_);
   EXPECT_TRUE(X_WC.translation().isApprox(Eigen::Vector3d(0, 0, 1), 1e-12));
   // Looking down: z_C = -z_W; x_C = x_W (right), y_C = -y_W (down in the image).
-  EXPECT_TRUE(X_WC.linear().isApprox(Eigen::Vector3d(1, -1, -1).asDiagonal().toDenseMatrix(), 1e-12));
+  EXPECT_TRUE(
+      X_WC.linear().isApprox(Eigen::Vector3d(1, -1, -1).asDiagonal().toDenseMatrix(), 1e-12));
 }
 
 TEST_F(RgbdRendererTest, RendersTheSameFrameFromAnotherThread) {

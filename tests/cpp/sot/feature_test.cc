@@ -23,10 +23,12 @@ namespace marionette::sot {
 namespace {
 
 ModelPtr Ur10() {
-  return LoadModel(ExampleRobotDataDir() + "/ur_description/urdf/ur10_robot.urdf", BaseJoint::kFixed);
+  return LoadModel(ExampleRobotDataDir() + "/ur_description/urdf/ur10_robot.urdf",
+                   BaseJoint::kFixed);
 }
 ModelPtr Tiago() {
-  return LoadModel(ExampleRobotDataDir() + "/tiago_description/robots/tiago.urdf", BaseJoint::kPlanar);
+  return LoadModel(ExampleRobotDataDir() + "/tiago_description/robots/tiago.urdf",
+                   BaseJoint::kPlanar);
 }
 
 // A configuration near `center` (or the neutral one), away from singular zero angles.
@@ -71,14 +73,17 @@ Eigen::MatrixXd FiniteDifferenceJacobian(Feature& f, const Eigen::VectorXd& q, d
   return J;
 }
 
-void ExpectJacobianMatchesFiniteDifferences(Feature& f, const Eigen::VectorXd& q, double tol = 1e-6) {
+void ExpectJacobianMatchesFiniteDifferences(Feature& f, const Eigen::VectorXd& q,
+                                            double tol = 1e-6) {
   Probe probe(f);
   const Eigen::MatrixXd J = probe.At(q).jacobian;
   const Eigen::MatrixXd J_fd = FiniteDifferenceJacobian(f, q);
   ASSERT_EQ(J.rows(), f.dimension());
   EXPECT_GT(J.norm(), 1e-3) << f.name() << ": a zero Jacobian proves nothing";
   EXPECT_LT((J - J_fd).cwiseAbs().maxCoeff(), tol * std::max(1.0, J.cwiseAbs().maxCoeff()))
-      << f.name() << "\nJ =\n" << J << "\nJ_fd =\n" << J_fd;
+      << f.name() << "\nJ =\n"
+      << J << "\nJ_fd =\n"
+      << J_fd;
 }
 
 pinocchio::SE3 SomePose(unsigned seed) {
@@ -119,7 +124,8 @@ TEST_F(FeatureTest, Se3ErrorIsLogOfReferenceToFramePose) {
   k.Compute(q);
   const pinocchio::SE3 X_WF = k.placement(MakeFrameRef(*talos_, "gripper_right_base_link", "test"));
   // Reference = frame pose moved by a known local displacement: e = -that displacement.
-  const Eigen::Matrix<double, 6, 1> xi = (Eigen::Matrix<double, 6, 1>() << 0.1, -0.2, 0.05, 0.2, 0.1, -0.3).finished();
+  const Eigen::Matrix<double, 6, 1> xi =
+      (Eigen::Matrix<double, 6, 1>() << 0.1, -0.2, 0.05, 0.2, 0.1, -0.3).finished();
   f.reference_input().SetValue(X_WF * pinocchio::exp6(pinocchio::Motion(xi)));
   EXPECT_LT((probe.At(q).error + xi).norm(), 1e-12);
   f.reference_input().SetValue(X_WF);
@@ -166,8 +172,8 @@ TEST_F(FeatureTest, RelativeSe3JacobianMatchesFiniteDifferences) {
   FeatureRelativeSE3 f("handover", talos_, "gripper_left_base_link", "gripper_right_base_link");
   f.reference_input().SetValue(SomePose(6));
   ExpectJacobianMatchesFiniteDifferences(f, HalfSitting());
-  ExpectJacobianMatchesFiniteDifferences(f, pinocchio::integrate(*talos_, HalfSitting(),
-      Eigen::VectorXd::Constant(talos_->nv, 0.1)));
+  ExpectJacobianMatchesFiniteDifferences(
+      f, pinocchio::integrate(*talos_, HalfSitting(), Eigen::VectorXd::Constant(talos_->nv, 0.1)));
 }
 
 TEST_F(FeatureTest, RelativeSe3IgnoresJointsMovingBothFrames) {
@@ -201,14 +207,18 @@ TEST_F(FeatureTest, PositionAndComJacobiansMatchFiniteDifferences) {
   FeaturePosition p("tip", talos_, "gripper_left_base_link");
   p.reference_input().SetValue(Eigen::Vector3d(0.3, 0.2, 1.0));
   FeatureCom com("com", talos_, {true, true, false});
-  const Eigen::VectorXd q = pinocchio::integrate(*talos_, HalfSitting(), Eigen::VectorXd::Constant(talos_->nv, -0.05));
+  const Eigen::VectorXd q =
+      pinocchio::integrate(*talos_, HalfSitting(), Eigen::VectorXd::Constant(talos_->nv, -0.05));
   ExpectJacobianMatchesFiniteDifferences(p, q);
   ExpectJacobianMatchesFiniteDifferences(com, q);
   Probe probe(p);
   Kinematics k(talos_);
   k.Compute(q);
-  EXPECT_LT((probe.At(q).error - (k.placement(MakeFrameRef(*talos_, "gripper_left_base_link", "t")).translation() -
-                                   Eigen::Vector3d(0.3, 0.2, 1.0))).norm(), 1e-14);
+  EXPECT_LT((probe.At(q).error -
+             (k.placement(MakeFrameRef(*talos_, "gripper_left_base_link", "t")).translation() -
+              Eigen::Vector3d(0.3, 0.2, 1.0)))
+                .norm(),
+            1e-14);
 }
 
 TEST_F(FeatureTest, PostureErrorIsJointDifferenceAndJacobianSelectsJoints) {
@@ -255,9 +265,9 @@ TEST_F(FeatureTest, PbvsErrorUsesOnlyMeasuredPosesAndItsJacobianMatches) {
   // error (eq. 5.3) is the gripper-to-handle error whatever X_err is.
   FeaturePbvs f("pbvs", talos_, "gripper_right_base_link");
   Probe probe(f);
-  const pinocchio::SE3 X_err = SomePose(8);                    // estimated-camera <- world
-  const pinocchio::SE3 X_WO = SomePose(9);                     // object (handle) in world
-  const pinocchio::SE3 X_OG = SomePose(10);                    // desired grasp in object frame
+  const pinocchio::SE3 X_err = SomePose(8);  // estimated-camera <- world
+  const pinocchio::SE3 X_WO = SomePose(9);   // object (handle) in world
+  const pinocchio::SE3 X_OG = SomePose(10);  // desired grasp in object frame
   f.grasp_input().SetValue(X_OG);
   f.measured_object_input().SetValue(X_err * X_WO);
   const auto gripper = MakeFrameRef(*talos_, "gripper_right_base_link", "t");
@@ -323,7 +333,9 @@ TEST_F(FeatureTest, ConstructorsRejectBadArgumentsWithPreciseMessages) {
     FeatureSE3 f("hand", talos_, "gripper_rigth_base_link");
     FAIL() << "no exception";
   } catch (const SotError& e) {
-    EXPECT_NE(std::string(e.what()).find("unknown frame 'gripper_rigth_base_link'"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("unknown frame 'gripper_rigth_base_link'"),
+              std::string::npos)
+        << e.what();
     EXPECT_NE(std::string(e.what()).find("FeatureSE3 'hand'"), std::string::npos) << e.what();
   }
   EXPECT_THROW(FeatureSE3("m", talos_, "left_sole_link", {true, false}), SotError);

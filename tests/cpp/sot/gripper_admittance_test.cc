@@ -31,15 +31,16 @@ constexpr double kFrictionLoss = 0.1;  // gripper joint frictionloss in the scen
 ModelPtr BenchModel() {
   auto model = std::make_shared<pin::Model>();
   model->name = "gripper_bench";
-  const pin::JointIndex j = model->addJoint(0, pin::JointModelRZ(), pin::SE3::Identity(), "gripper_right_joint",
-                                            Eigen::VectorXd::Constant(1, 1.0), Eigen::VectorXd::Constant(1, 1.0),
-                                            Eigen::VectorXd::Constant(1, -1.0471975512),
-                                            Eigen::VectorXd::Constant(1, 0.0));
+  const pin::JointIndex j = model->addJoint(
+      0, pin::JointModelRZ(), pin::SE3::Identity(), "gripper_right_joint",
+      Eigen::VectorXd::Constant(1, 1.0), Eigen::VectorXd::Constant(1, 1.0),
+      Eigen::VectorXd::Constant(1, -1.0471975512), Eigen::VectorXd::Constant(1, 0.0));
   model->appendBodyToJoint(j, pin::Inertia::FromSphere(0.169, 0.01), pin::SE3::Identity());
   return model;
 }
 
-// Sum of the normal contact forces on geom `geom` [N] (mj_contactForce, contact frame: normal first).
+// Sum of the normal contact forces on geom `geom` [N] (mj_contactForce, contact frame: normal
+// first).
 double NormalForceOn(const mjModel& m, mjData& d, int geom) {
   double sum = 0.0;
   for (int c = 0; c < d.ncon; ++c) {
@@ -75,7 +76,8 @@ struct Bench {
     auto& command = b.Add<KinematicDevice>("command", model, q0);
     auto& robot = b.Add<RobotModel>("robot", model);
     device = &b.Add<sim::MujocoDevice>("device", scene.get(), std::vector<std::string>{}, 1e-3);
-    feature = &b.Add<FeatureGripperAdmittance>("gripper", model, "gripper_right_joint", kClosed, false, options);
+    feature = &b.Add<FeatureGripperAdmittance>("gripper", model, "gripper_right_joint", kClosed,
+                                               false, options);
     auto& task = b.Add<Task>("gripper_task", *feature, Gain::Constant(options.task_gain));
     auto& solver = b.Add<Solver>("sot", 1, Solver::Levels{{&task}});
     velocity = &solver.velocity_output();
@@ -111,7 +113,8 @@ TEST(GripperAdmittanceTest, FilterIsTheExactDiscretisationOfTheFirstOrderLowPass
   GripperAdmittanceOptions options;
   graph::GraphBuilder b;
   auto& robot = b.Add<RobotModel>("robot", model);
-  auto& f = b.Add<FeatureGripperAdmittance>("gripper", model, "gripper_right_joint", kClosed, false, options);
+  auto& f = b.Add<FeatureGripperAdmittance>("gripper", model, "gripper_right_joint", kClosed, false,
+                                            options);
   robot.configuration_input().SetValue(Eigen::VectorXd::Constant(1, kOpen));
   b.Connect(robot.kinematics_output(), f.kinematics_input());
   f.effort_input().SetValue(Eigen::VectorXd::Zero(1));
@@ -127,7 +130,8 @@ TEST(GripperAdmittanceTest, FilterIsTheExactDiscretisationOfTheFirstOrderLowPass
   for (int k = 0; k < 400; ++k, ++t) {
     g->Evaluate(t);
     EXPECT_NEAR(f.force_output().Eval(t), 3.0, 1e-12);
-    const double expected = 3.0 * (1.0 - std::exp(-2.0 * M_PI * options.cutoff_frequency * (k + 1) * 1e-3));
+    const double expected =
+        3.0 * (1.0 - std::exp(-2.0 * M_PI * options.cutoff_frequency * (k + 1) * 1e-3));
     ASSERT_NEAR(f.force_filtered_output().Eval(t), expected, 1e-12) << "sample " << k;
     EXPECT_EQ(f.phase_output().Eval(t), 0.0) << "3 N stays under the 4 N threshold";
   }
@@ -144,8 +148,10 @@ TEST(GripperAdmittanceTest, ClosesOnTheBlockAndHoldsFiveNewtons) {
     const double phase = bench.Phase(), y = bench.Filtered();
     const double contact = bench.ContactForce();
     peak_contact = std::max(peak_contact, contact);
-    if (std::abs(contact - 5.0) > 0.25) settled_tick = -1;
-    else if (settled_tick < 0) settled_tick = now.index;
+    if (std::abs(contact - 5.0) > 0.25)
+      settled_tick = -1;
+    else if (settled_tick < 0)
+      settled_tick = now.index;
     if (phase != previous_phase && switch_tick < 0) {
       switch_tick = now.index;
       y_at_switch = y;
@@ -172,9 +178,11 @@ TEST(GripperAdmittanceTest, ClosesOnTheBlockAndHoldsFiveNewtons) {
   RecordProperty("contact_force_N", std::to_string(contact));
   RecordProperty("estimate_N", std::to_string(estimate));
   RecordProperty("switch_s", std::to_string(switch_tick * 1e-3));
-  std::printf("contact %.3f N, estimate %.3f N, switch at %.3f s (y %.3f N), q %.4f rad, peak contact "
-              "%.2f N, within 5 +- 0.25 N from %.3f s\n", contact, estimate, switch_tick * 1e-3, y_at_switch,
-              bench.JointPosition(), peak_contact, settled_tick * 1e-3);
+  std::printf(
+      "contact %.3f N, estimate %.3f N, switch at %.3f s (y %.3f N), q %.4f rad, peak contact "
+      "%.2f N, within 5 +- 0.25 N from %.3f s\n",
+      contact, estimate, switch_tick * 1e-3, y_at_switch, bench.JointPosition(), peak_contact,
+      settled_tick * 1e-3);
 }
 
 TEST(GripperAdmittanceTest, WithoutObjectClosesToTheLimitAndReportsNoContact) {
@@ -202,7 +210,9 @@ TEST(GripperAdmittanceTest, WithoutObjectClosesToTheLimitAndReportsNoContact) {
   EXPECT_LE(max_dv, 1.05 * bench.feature->options().acceleration * 1e-3);
   EXPECT_EQ(bench.ContactForce(), 0.0);
   EXPECT_LT(max_y, bench.feature->options().force_threshold);
-  std::printf("free closing: largest force estimate %.3f N (damping and friction at the ramp speed)\n", max_y);
+  std::printf(
+      "free closing: largest force estimate %.3f N (damping and friction at the ramp speed)\n",
+      max_y);
 }
 
 TEST(GripperAdmittanceTest, ReleaseGoesThroughAdmittanceThenOpens) {
@@ -240,7 +250,8 @@ TEST(GripperAdmittanceTest, RejectsBadOptionsWithTheirNames) {
   }
   o = {};
   o.closing_direction = 0.5;
-  EXPECT_THROW(FeatureGripperAdmittance("g", model, "gripper_right_joint", kClosed, false, o), SotError);
+  EXPECT_THROW(FeatureGripperAdmittance("g", model, "gripper_right_joint", kClosed, false, o),
+               SotError);
   EXPECT_THROW(FeatureGripperAdmittance("g", model, "no_such_joint", kClosed, false, {}), SotError);
 }
 

@@ -157,19 +157,22 @@ TEST_P(HierarchyActiveSetTest, ShortcutMatchesTheQpOnRandomBoxProblems) {
     const double difference = (on.v - off.v).cwiseAbs().maxCoeff();
     worst = std::max(worst, difference);
     EXPECT_LT(difference, 1e-9) << "trial " << trial << " (" << binding << " bounds cut)\n"
-                                << on.v.transpose() << "\n" << off.v.transpose();
+                                << on.v.transpose() << "\n"
+                                << off.v.transpose();
     // Count the problems where a bound is active at the optimum.
     bound_active += ((on.v - box.upper).cwiseAbs().minCoeff() < 1e-9 ||
                      (on.v - box.lower).cwiseAbs().minCoeff() < 1e-9);
     ++problems;
     shortcut_problems += on.num_active_set > 0;
   }
-  std::printf("%d problems compared, %d with a bound active at the optimum, %d solved by the "
-              "shortcut, largest |v_shortcut - v_qp| = %.3g; %d more where eiquadprog left the box\n",
-              problems, bound_active, shortcut_problems, worst, qp_off_bounds);
+  std::printf(
+      "%d problems compared, %d with a bound active at the optimum, %d solved by the "
+      "shortcut, largest |v_shortcut - v_qp| = %.3g; %d more where eiquadprog left the box\n",
+      problems, bound_active, shortcut_problems, worst, qp_off_bounds);
   EXPECT_LE(qp_off_bounds, 3);
-  EXPECT_GT(bound_active, problems * 9 / 10);       // the cases asked for: bounds bind
-  EXPECT_GT(shortcut_problems, problems * 9 / 10);  // and the shortcut, not the fallback, solved them
+  EXPECT_GT(bound_active, problems * 9 / 10);  // the cases asked for: bounds bind
+  EXPECT_GT(shortcut_problems,
+            problems * 9 / 10);  // and the shortcut, not the fallback, solved them
 }
 
 INSTANTIATE_TEST_SUITE_P(DampedAndExact, HierarchyActiveSetTest, ::testing::Values(false, true),

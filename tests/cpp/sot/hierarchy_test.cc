@@ -37,7 +37,9 @@ TaskTerms Inequality(const Eigen::MatrixXd& J, const Eigen::VectorXd& lo, const 
   return t;
 }
 
-TaskShape ShapeOf(const TaskTerms& t) { return {static_cast<int>(t.lower.size()), t.inequality, t.unit_columns}; }
+TaskShape ShapeOf(const TaskTerms& t) {
+  return {static_cast<int>(t.lower.size()), t.inequality, t.unit_columns};
+}
 
 // Solves levels of tasks (one task per level) and returns v.
 Eigen::VectorXd Solve(const std::vector<TaskTerms>& levels, HierarchyOptions options = Exact(),

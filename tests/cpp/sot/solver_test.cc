@@ -97,8 +97,10 @@ TEST(SolverTest, RemovingAndInsertingATaskKeepsTheCommandContinuous) {
     EXPECT_GT(raw_jump, 0.02) << what;
     EXPECT_LT(j.at_switch, 1e-9) << what;
     EXPECT_LT(j.after, 1e-3 / 0.05 * raw_jump * 1.05 + 2e-3) << what;
-    std::printf("%s: unsmoothed jump %.4f rad/s; smoothed: change at switch %.2e, max change per "
-                "tick after %.2e\n", what, raw_jump, j.at_switch, j.after);
+    std::printf(
+        "%s: unsmoothed jump %.4f rad/s; smoothed: change at switch %.2e, max change per "
+        "tick after %.2e\n",
+        what, raw_jump, j.at_switch, j.after);
   }
 }
 
@@ -119,9 +121,9 @@ TEST(SolverTest, SwappingTheSolverWithAGraphEditKeepsTheCommandContinuous) {
   target.translation() += Eigen::Vector3d(0.1, 0.05, 0.1);
   feature.reference_input().SetValue(target);
   auto& reach = edit.Add<Task>("left_reach", feature, Gain::Constant(3.0));
-  auto& solver = edit.Add<Solver>("sot2", s.model->nv,
-                                  Solver::Levels{{s.limits}, {s.left_foot, s.right_foot, s.com},
-                                                 {&reach}, {s.posture}});
+  auto& solver = edit.Add<Solver>(
+      "sot2", s.model->nv,
+      Solver::Levels{{s.limits}, {s.left_foot, s.right_foot, s.com}, {&reach}, {s.posture}});
   edit.Connect(s.device->velocity_output(), solver.initial_velocity_input());
   edit.Connect(solver.velocity_output(), s.device->command_input());
   edit.Remove("sot");
@@ -166,7 +168,8 @@ TEST(SolverTest, JointBoundsHoldWhileReachingOutOfRange) {
     if (tick.time >= 1.0) {  // the start-up blend (T = 0.05 s) has vanished (e^-20)
       for (Task* task : {s.left_foot, s.right_foot, s.com}) {
         const TaskTerms& terms = task->terms_output().value();
-        worst_level1 = std::max(worst_level1, (terms.jacobian * v - terms.lower).cwiseAbs().maxCoeff());
+        worst_level1 =
+            std::max(worst_level1, (terms.jacobian * v - terms.lower).cwiseAbs().maxCoeff());
       }
       const double change = (v - last).cwiseAbs().maxCoeff();
       worst_change = std::max(worst_change, change);
@@ -185,9 +188,10 @@ TEST(SolverTest, JointBoundsHoldWhileReachingOutOfRange) {
   // braking at a position limit with λ dt = 0.5 sees its bound halve each tick, so a few large
   // single-tick changes are expected.
   EXPECT_LE(large_changes, 10);
-  std::printf("QP ticks %d / 2000, worst position excess %.2e, velocity excess %.2e, level-1 "
-              "velocity error %.2e, largest change per tick %.3f rad/s, %d ticks change > 0.5 rad/s\n",
-              qp_ticks, worst_position, worst_velocity, worst_level1, worst_change, large_changes);
+  std::printf(
+      "QP ticks %d / 2000, worst position excess %.2e, velocity excess %.2e, level-1 "
+      "velocity error %.2e, largest change per tick %.3f rad/s, %d ticks change > 0.5 rad/s\n",
+      qp_ticks, worst_position, worst_velocity, worst_level1, worst_change, large_changes);
 }
 
 TEST(SolverTest, RejectsBadStacks) {

@@ -66,11 +66,17 @@ TEST(FootstepManagerTest, WalksThePlanPhaseByPhase) {
   ASSERT_TRUE(rig.manager->Post(Forward(3, 0.2)));
   // Plan applied at t = 0.1: step 0 = 0.5 s double support (the first one is lengthened),
   // 0.8 s right swing; steps 1, 2 = 0.2 + 0.8 s; final 0.6 s double support.
-  struct Expect { double time; WalkPhase phase; int index; int support; };
-  for (const Expect& e : {Expect{0.3, WalkPhase::kDoubleSupport, 0, 3}, Expect{0.7, WalkPhase::kRightSwing, 0, 1},
-                          Expect{1.45, WalkPhase::kDoubleSupport, 1, 3}, Expect{1.7, WalkPhase::kLeftSwing, 1, 2},
-                          Expect{2.7, WalkPhase::kRightSwing, 2, 1}, Expect{3.5, WalkPhase::kDoubleSupport, -1, 3},
-                          Expect{4.1, WalkPhase::kStanding, -1, 3}}) {
+  struct Expect {
+    double time;
+    WalkPhase phase;
+    int index;
+    int support;
+  };
+  for (const Expect& e :
+       {Expect{0.3, WalkPhase::kDoubleSupport, 0, 3}, Expect{0.7, WalkPhase::kRightSwing, 0, 1},
+        Expect{1.45, WalkPhase::kDoubleSupport, 1, 3}, Expect{1.7, WalkPhase::kLeftSwing, 1, 2},
+        Expect{2.7, WalkPhase::kRightSwing, 2, 1}, Expect{3.5, WalkPhase::kDoubleSupport, -1, 3},
+        Expect{4.1, WalkPhase::kStanding, -1, 3}}) {
     rig.Run(e.time);
     rig.Eval();
     EXPECT_EQ(rig.manager->phase_output().value(), static_cast<int>(e.phase)) << e.time;
@@ -78,9 +84,16 @@ TEST(FootstepManagerTest, WalksThePlanPhaseByPhase) {
     EXPECT_EQ(rig.manager->support_output().value(), e.support) << e.time;
   }
   // The feet landed where planned; the ZMP reference rests between them.
-  EXPECT_LT((PoseToPlacement(rig.manager->left_foot_output().value()) - FootPlacement(0.4, 0.085, 0, 0)).norm(), 1e-12);
-  EXPECT_LT((PoseToPlacement(rig.manager->right_foot_output().value()) - FootPlacement(0.6, -0.085, 0, 0)).norm(), 1e-12);
-  EXPECT_LT((rig.manager->zmp_reference_output().value() - Eigen::Vector2d(0.5, 0.0)).norm(), 1e-12);
+  EXPECT_LT(
+      (PoseToPlacement(rig.manager->left_foot_output().value()) - FootPlacement(0.4, 0.085, 0, 0))
+          .norm(),
+      1e-12);
+  EXPECT_LT(
+      (PoseToPlacement(rig.manager->right_foot_output().value()) - FootPlacement(0.6, -0.085, 0, 0))
+          .norm(),
+      1e-12);
+  EXPECT_LT((rig.manager->zmp_reference_output().value() - Eigen::Vector2d(0.5, 0.0)).norm(),
+            1e-12);
   EXPECT_EQ(rig.manager->completed_steps(), 3);
 }
 
@@ -149,9 +162,16 @@ TEST(FootstepManagerTest, StopAfterCurrentStepLandsItStandsAndRefusesPlans) {
   EXPECT_EQ(rig.manager->completed_steps(), 2);
   EXPECT_EQ(rig.manager->refused_plans(), 1);
   // Step 1 landed where planned, the right foot stayed at step 0's place, the ZMP between them.
-  EXPECT_LT((PoseToPlacement(rig.manager->left_foot_output().value()) - FootPlacement(0.4, 0.085, 0, 0)).norm(), 1e-12);
-  EXPECT_LT((PoseToPlacement(rig.manager->right_foot_output().value()) - FootPlacement(0.2, -0.085, 0, 0)).norm(), 1e-12);
-  EXPECT_LT((rig.manager->zmp_reference_output().value() - Eigen::Vector2d(0.3, 0.0)).norm(), 1e-12);
+  EXPECT_LT(
+      (PoseToPlacement(rig.manager->left_foot_output().value()) - FootPlacement(0.4, 0.085, 0, 0))
+          .norm(),
+      1e-12);
+  EXPECT_LT(
+      (PoseToPlacement(rig.manager->right_foot_output().value()) - FootPlacement(0.2, -0.085, 0, 0))
+          .norm(),
+      1e-12);
+  EXPECT_LT((rig.manager->zmp_reference_output().value() - Eigen::Vector2d(0.3, 0.0)).norm(),
+            1e-12);
 }
 
 TEST(FootstepManagerTest, ValidationNamesTheBadStep) {
@@ -173,7 +193,8 @@ TEST(FootstepManagerTest, ValidationNamesTheBadStep) {
 TEST(PatternGeneratorTest, CartTableZmpOfTheComFollowsTheReference) {
   graph::GraphBuilder b;
   FootstepManagerOptions options;
-  auto& manager = b.Add<FootstepManager>("steps", kLeft, kRight, Eigen::Vector2d(0.0, 0.0), options);
+  auto& manager =
+      b.Add<FootstepManager>("steps", kLeft, kRight, Eigen::Vector2d(0.0, 0.0), options);
   PreviewControlParams params;
   params.com_height = 0.87;
   auto& pg = b.Add<PatternGenerator>("pg", params, Eigen::Vector3d(0.0, 0.0, 0.87));
@@ -213,7 +234,8 @@ TEST(PatternGeneratorTest, CartTableZmpOfTheComFollowsTheReference) {
   EXPECT_LT(max_error, 0.01);
   EXPECT_GT(max_lateral, 0.02);   // the CoM does swing towards the support feet...
   EXPECT_LT(max_lateral, 0.085);  // ...without reaching them (a dynamic walk, fig. 2.16)
-  EXPECT_LT((com.back() - Eigen::Vector2d(1.5, 0.0)).norm(), 1e-3) << "at rest between the final feet";
+  EXPECT_LT((com.back() - Eigen::Vector2d(1.5, 0.0)).norm(), 1e-3)
+      << "at rest between the final feet";
 }
 
 }  // namespace

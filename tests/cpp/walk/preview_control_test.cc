@@ -23,8 +23,9 @@ PreviewControlParams Kajita(double preview_time = 1.6) {
 }
 
 // The ZMP reference of fig. 2.14: standing 2 s (longer than the preview: the walk enters the
-// window from its far end, as the footstep manager's start delay arranges), then steps of 0.8 s (0.2 s of transfer) of
-// 0.3 m forward alternating ±0.1 m sideways, then standing again. Returns (x, y) at time t.
+// window from its far end, as the footstep manager's start delay arranges), then steps of 0.8 s
+// (0.2 s of transfer) of 0.3 m forward alternating ±0.1 m sideways, then standing again. Returns
+// (x, y) at time t.
 Eigen::Vector2d WalkReference(double t) {
   const double start = 2.0, period = 0.8, transfer = 0.2;
   const int steps = 6;
@@ -50,7 +51,8 @@ TEST(PreviewControlTest, DoublingSolvesTheRiccatiEquationLikePlainIteration) {
   Eigen::Matrix4d P = s.Q;
   for (int i = 0; i < 200000; ++i) {
     const Eigen::RowVector4d BtPA = s.B.transpose() * P * s.A;
-    const Eigen::Matrix4d next = s.Q + s.A.transpose() * P * s.A - BtPA.transpose() * BtPA / (s.R + s.B.dot(P * s.B));
+    const Eigen::Matrix4d next =
+        s.Q + s.A.transpose() * P * s.A - BtPA.transpose() * BtPA / (s.R + s.B.dot(P * s.B));
     const double change = (next - P).cwiseAbs().maxCoeff();
     P = next;
     if (change < 1e-14 * P.cwiseAbs().maxCoeff()) break;
@@ -119,13 +121,14 @@ TEST(PreviewControlTest, PreviewLawIsTheBatchOptimum) {
   }
   rhs[H] = sqrt_r * u_previous;
   const Eigen::VectorXd u = M.colPivHouseholderQr().solve(rhs);
-  EXPECT_NEAR(u[0], u_law, 1e-4 * std::max(1.0, std::abs(u_law))) << "law " << u_law << ", batch " << u[0];
+  EXPECT_NEAR(u[0], u_law, 1e-4 * std::max(1.0, std::abs(u_law)))
+      << "law " << u_law << ", batch " << u[0];
   EXPECT_GT(std::abs(u_law - u_previous), 1e-3);  // the comparison is not between two zeros
 }
 
 struct Tracking {
-  double max_error = 0.0;      // max |p − p_ref| during the walk [m]
-  double final_error = 0.0;    // |c − p_ref| at the end [m]
+  double max_error = 0.0;    // max |p − p_ref| during the walk [m]
+  double final_error = 0.0;  // |c − p_ref| at the end [m]
 };
 
 Tracking Track(const PreviewControlParams& params) {
@@ -167,7 +170,8 @@ TEST(PreviewControlTest, OneMillisecondGainsTrackLikeKajitasFiveMilliseconds) {
   fast.dt = 1e-3;
   fast.r = 0.0;  // R scaled with T² (see PreviewControlParams::r)
   const Tracking at_1ms = Track(fast), at_5ms = Track(Kajita(1.6));
-  std::printf("max ZMP error: %.2f mm at 1 ms, %.2f mm at 5 ms\n", 1e3 * at_1ms.max_error, 1e3 * at_5ms.max_error);
+  std::printf("max ZMP error: %.2f mm at 1 ms, %.2f mm at 5 ms\n", 1e3 * at_1ms.max_error,
+              1e3 * at_5ms.max_error);
   EXPECT_LT(at_1ms.max_error, 0.01);
   EXPECT_NEAR(at_1ms.max_error, at_5ms.max_error, 0.5 * at_5ms.max_error);
 }

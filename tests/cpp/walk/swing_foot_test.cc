@@ -28,11 +28,13 @@ TEST(SwingFootTest, StartsAndLandsFlatWithZeroVelocityAndAcceleration) {
 }
 
 TEST(SwingFootTest, VelocityAndAccelerationAreTheDerivativesOfThePose) {
-  const SwingFoot swing(FootPlacement(0.0, 0.1, 0.0, 3.0), FootPlacement(0.2, 0.0, 0.0, -3.0), 0.7, 0.06);
+  const SwingFoot swing(FootPlacement(0.0, 0.1, 0.0, 3.0), FootPlacement(0.2, 0.0, 0.0, -3.0), 0.7,
+                        0.06);
   const double h = 1e-5;
   for (double t = 0.05; t < 0.7; t += 0.1) {
     const FootSample a = swing.Sample(t - h), b = swing.Sample(t), c = swing.Sample(t + h);
-    const FootPlacement pa = PoseToPlacement(a.pose), pb = PoseToPlacement(b.pose), pc = PoseToPlacement(c.pose);
+    const FootPlacement pa = PoseToPlacement(a.pose), pb = PoseToPlacement(b.pose),
+                        pc = PoseToPlacement(c.pose);
     Eigen::Vector4d rate = (pc - pa) / (2 * h);
     rate[3] = WrapAngle(pc[3] - pa[3]) / (2 * h);  // through ±π: the short way (Δyaw = 0.28 rad)
     Eigen::Vector4d accel = (pc - 2 * pb + pa) / (h * h);

@@ -26,7 +26,7 @@
 namespace marionette::walk::testing {
 
 struct WalkRigOptions {
-  std::string scene;             // MJCF with a keyframe (the robot standing)
+  std::string scene;  // MJCF with a keyframe (the robot standing)
   // The CoM gain is low on purpose: the CoM feature sees the measured base, so its feedback closes
   // a loop through the compliant servos; at 10/s and above the body's sway is under-damped and
   // the measured ZMP rides the sole edges (at 40/s TALOS falls), at 3-5/s it walks with margin.
@@ -74,7 +74,8 @@ struct WalkRig {
     return 2;
   }
   FootPlacement SolePlacement(int side) const {
-    return PoseToPlacement(scene->BodyPose(side == FootstepManager::kLeft ? "left_sole_link" : "right_sole_link"));
+    return PoseToPlacement(
+        scene->BodyPose(side == FootstepManager::kLeft ? "left_sole_link" : "right_sole_link"));
   }
 };
 
@@ -98,8 +99,8 @@ inline WalkRig BuildWalkRig(const WalkRigOptions& o) {
   const Eigen::Vector3d com0 = k0.com();
 
   graph::GraphBuilder b;
-  r.device = &b.Add<sim::MujocoDevice>("device", r.scene.get(),
-                                       std::vector<std::string>{"left_sole_link", "right_sole_link"}, 1e-3);
+  r.device = &b.Add<sim::MujocoDevice>(
+      "device", r.scene.get(), std::vector<std::string>{"left_sole_link", "right_sole_link"}, 1e-3);
   r.command = &b.Add<sot::KinematicDevice>("command", r.model, r.q0);
   auto& measured = b.Add<controller::MeasuredBase>("measured_base", r.model->nq, 7);
   b.Connect(r.command->configuration_output(), measured.q_command_input());
@@ -142,7 +143,8 @@ inline WalkRig BuildWalkRig(const WalkRigOptions& o) {
   auto& wt = b.Add<sot::Task>("waist", waist, sot::Gain::Constant(o.foot_gain));
   auto& pt = b.Add<sot::Task>("posture", posture, sot::Gain::Constant(o.posture_gain));
   auto& limits = sot::AddJointLimits(b, "limits", r.model, kin);
-  r.solver = &b.Add<sot::Solver>("sot", r.model->nv, sot::Solver::Levels{{&limits}, {&lt, &rt, &ct, &wt}, {&pt}});
+  r.solver = &b.Add<sot::Solver>("sot", r.model->nv,
+                                 sot::Solver::Levels{{&limits}, {&lt, &rt, &ct, &wt}, {&pt}});
   b.Connect(r.solver->velocity_output(), r.command->command_input());
   b.Connect(r.solver->velocity_output(), r.device->v_command_input());
   r.graph = b.Build();

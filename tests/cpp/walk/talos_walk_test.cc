@@ -25,8 +25,8 @@ struct WalkRecord {
   double worst_landing_yaw = 0.0;  // [rad]
   int zmp_samples = 0;
   int outside_samples = 0;
-  int edge_samples = 0;            // margin < 2 mm: the sole is rolling on an edge
-  std::vector<double> margins;     // every sample's margin [m]
+  int edge_samples = 0;         // margin < 2 mm: the sole is rolling on an edge
+  std::vector<double> margins;  // every sample's margin [m]
   double MarginQuantile(double q) const {
     std::vector<double> m = margins;
     std::sort(m.begin(), m.end());
@@ -50,7 +50,10 @@ WalkRecord Walk(testing::WalkRig& rig, const FootstepPlan& plan, double settle =
   // MARIONETTE_WALK_TRACE=file.csv: every 10th tick, for plots and diagnosis.
   const char* trace_path = std::getenv("MARIONETTE_WALK_TRACE");
   FILE* trace = trace_path ? std::fopen(trace_path, "w") : nullptr;
-  if (trace) std::fprintf(trace, "t,phase,base_x,base_y,base_z,base_qx,base_qy,com_x,com_y,com_ref_x,com_ref_y,zmp_ref_x,zmp_ref_y,zmp_x,zmp_y,fz_left,fz_right\n");
+  if (trace)
+    std::fprintf(trace,
+                 "t,phase,base_x,base_y,base_z,base_qx,base_qy,com_x,com_y,com_ref_x,com_ref_y,zmp_"
+                 "ref_x,zmp_ref_y,zmp_x,zmp_y,fz_left,fz_right\n");
   while (rig.tick.time < timeout) {
     rig.Step();
     const Eigen::VectorXd& q = rig.device->q_output().value();
@@ -62,9 +65,12 @@ WalkRecord Walk(testing::WalkRig& rig, const FootstepPlan& plan, double settle =
       const Eigen::Vector3d com = rig.robot->kinematics_output().value().com();
       const Eigen::VectorXd& com_ref = rig.pg->com_output().value();
       const Eigen::VectorXd& zmp_ref = rig.steps->zmp_reference_output().value();
-      std::fprintf(trace, "%.3f,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.1f,%.1f\n",
-                   rig.tick.time, rig.steps->phase_output().value(), q[0], q[1], q[2], q[3], q[4], com[0], com[1],
-                   com_ref[0], com_ref[1], zmp_ref[0], zmp_ref[1], zmp[0], zmp[1], w[0].force.z(), w[1].force.z());
+      std::fprintf(
+          trace,
+          "%.3f,%d,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.4f,%.1f,%.1f\n",
+          rig.tick.time, rig.steps->phase_output().value(), q[0], q[1], q[2], q[3], q[4], com[0],
+          com[1], com_ref[0], com_ref[1], zmp_ref[0], zmp_ref[1], zmp[0], zmp[1], w[0].force.z(),
+          w[1].force.z());
     }
     rec.min_base_height = std::min(rec.min_base_height, q[2]);
     rec.max_base_height = std::max(rec.max_base_height, q[2]);
@@ -75,13 +81,17 @@ WalkRecord Walk(testing::WalkRig& rig, const FootstepPlan& plan, double settle =
       if (replan != nullptr && completed == replan_after) {
         rig.steps->Post(*replan);
         executed.num_steps = replan->first_step_index + replan->num_steps;
-        for (int k = 0; k < replan->num_steps; ++k) executed.steps[replan->first_step_index + k] = replan->steps[k];
+        for (int k = 0; k < replan->num_steps; ++k)
+          executed.steps[replan->first_step_index + k] = replan->steps[k];
       }
       const int k = static_cast<int>(completed - 1);
       const Footstep& s = executed.steps[k];
-      const FootPlacement landed = rig.SolePlacement(s.is_left ? FootstepManager::kLeft : FootstepManager::kRight);
-      rec.worst_landing = std::max(rec.worst_landing, (landed.head<2>() - s.placement.head<2>()).norm());
-      rec.worst_landing_yaw = std::max(rec.worst_landing_yaw, std::abs(WrapAngle(landed[3] - s.placement[3])));
+      const FootPlacement landed =
+          rig.SolePlacement(s.is_left ? FootstepManager::kLeft : FootstepManager::kRight);
+      rec.worst_landing =
+          std::max(rec.worst_landing, (landed.head<2>() - s.placement.head<2>()).norm());
+      rec.worst_landing_yaw =
+          std::max(rec.worst_landing_yaw, std::abs(WrapAngle(landed[3] - s.placement[3])));
     }
     // Measured ZMP against the polygon of the soles that carry load (ground truth poses).
     SoleWrench w[2];
@@ -110,7 +120,8 @@ WalkRecord Walk(testing::WalkRig& rig, const FootstepPlan& plan, double settle =
   return rec;
 }
 
-FootstepPlan StraightPlan(const FootPlacement& left, const FootPlacement& right, int count, double length) {
+FootstepPlan StraightPlan(const FootPlacement& left, const FootPlacement& right, int count,
+                          double length) {
   FootstepPlan plan;
   plan.plan_id = 1;
   plan.num_steps = count;
@@ -119,7 +130,8 @@ FootstepPlan StraightPlan(const FootPlacement& left, const FootPlacement& right,
     s.index = k;
     s.is_left = k % 2 == 1;  // right foot first
     const FootPlacement& start = s.is_left ? left : right;
-    const double advance = std::min(length * (k + 1), length * (count - 1));  // last step closes the stance
+    const double advance =
+        std::min(length * (k + 1), length * (count - 1));  // last step closes the stance
     s.placement = start + FootPlacement(advance, 0.0, 0.0, 0.0);
     s.single_support = 0.8;
     s.double_support = 0.2;
@@ -142,7 +154,8 @@ FootstepPlan TurnPlan(const FootPlacement& left, const FootPlacement& right, int
     s.is_left = k % 2 == 0;  // turning left: the left foot leads
     const int pairs = std::min(k / 2 + 1, count / 2);
     const double yaw = left[3] + dyaw * pairs;
-    const Eigen::Vector2d forward(std::cos(yaw), std::sin(yaw)), lateral(-std::sin(yaw), std::cos(yaw));
+    const Eigen::Vector2d forward(std::cos(yaw), std::sin(yaw)),
+        lateral(-std::sin(yaw), std::cos(yaw));
     const Eigen::Vector2d c = centre + advance * pairs * forward;
     const Eigen::Vector2d p = c + (s.is_left ? half_width : -half_width) * lateral;
     s.placement << p.x(), p.y(), left[2], yaw;
@@ -154,12 +167,13 @@ FootstepPlan TurnPlan(const FootPlacement& left, const FootPlacement& right, int
 }
 
 void Report(const char* name, const WalkRecord& r) {
-  std::printf("%s: base height %.3f..%.3f m, worst landing %.1f mm / %.2f deg, measured ZMP margin "
-              "min %.1f mm, 1%% quantile %.1f mm, median %.1f mm (%d of %d samples within 2 mm of an edge, "
-              "%d outside)\n",
-              name, r.min_base_height, r.max_base_height, 1e3 * r.worst_landing,
-              r.worst_landing_yaw * 180.0 / M_PI, 1e3 * r.min_zmp_margin, 1e3 * r.MarginQuantile(0.01),
-              1e3 * r.MarginQuantile(0.5), r.edge_samples, r.zmp_samples, r.outside_samples);
+  std::printf(
+      "%s: base height %.3f..%.3f m, worst landing %.1f mm / %.2f deg, measured ZMP margin "
+      "min %.1f mm, 1%% quantile %.1f mm, median %.1f mm (%d of %d samples within 2 mm of an edge, "
+      "%d outside)\n",
+      name, r.min_base_height, r.max_base_height, 1e3 * r.worst_landing,
+      r.worst_landing_yaw * 180.0 / M_PI, 1e3 * r.min_zmp_margin, 1e3 * r.MarginQuantile(0.01),
+      1e3 * r.MarginQuantile(0.5), r.edge_samples, r.zmp_samples, r.outside_samples);
 }
 
 TEST(TalosWalkTest, TenStepsForwardAndStops) {
@@ -183,7 +197,8 @@ TEST(TalosWalkTest, TenStepsForwardAndStops) {
 TEST(TalosWalkTest, TurnsByNinetyDegrees) {
   testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
   const double base0 = rig.q0[2];
-  const FootstepPlan plan = TurnPlan(rig.SolePlacement(0), rig.SolePlacement(1), 10, M_PI / 10.0, 0.05);
+  const FootstepPlan plan =
+      TurnPlan(rig.SolePlacement(0), rig.SolePlacement(1), 10, M_PI / 10.0, 0.05);
   const WalkRecord r = Walk(rig, plan);
   Report("turn by 90 deg in 10 steps", r);
   EXPECT_EQ(rig.steps->completed_steps(), 10);
@@ -206,7 +221,8 @@ TEST(TalosWalkTest, WalkingTickAllocatesNothing) {
   while (rig.steps->phase_output().value() != static_cast<int>(WalkPhase::kRightSwing)) rig.Step();
   for (int i = 0; i < 200; ++i) rig.Step();
   plan.plan_id = 2;
-  plan.first_step_index = 1;  // a replan of the steps not started, consumed inside the counted ticks
+  plan.first_step_index =
+      1;  // a replan of the steps not started, consumed inside the counted ticks
   plan.num_steps = 5;
   for (int k = 0; k < 5; ++k) plan.steps[k] = plan.steps[k + 1];
   marionette::testing::ScopedAllocationCounter counter;

@@ -36,21 +36,22 @@ struct ControllerOptions {
   std::string scene;               ///< MJCF (mujoco backend); default: the robot alone
   /// Encoder calibration (mujoco backend): joint -> offset its encoder reads above the truth.
   std::vector<std::pair<std::string, double>> encoder_offsets;
-  std::string models_dir;          ///< models/ of the repository
-  std::string lcm_url;             ///< "" = $MARIONETTE_LCM_URL, else LCM's default
-  bool realtime = false;           ///< ask for SCHED_FIFO + mlockall
-  double duration = 0.0;           ///< [s] of controller time; 0 = until SIGINT/SIGTERM
-  double speed = 1.0;              ///< wall-clock pacing: 1 = real time, 0 = as fast as possible
-  double state_rate = 100.0;       ///< [Hz] ROBOT_STATE / ROBOT_COMMAND / SIM_OBJECT_POSES
-  double status_rate = 10.0;       ///< [Hz] CONTROLLER_STATUS
-  double camera_rate = 30.0;       ///< [Hz], 0 = no camera
+  std::string models_dir;     ///< models/ of the repository
+  std::string lcm_url;        ///< "" = $MARIONETTE_LCM_URL, else LCM's default
+  bool realtime = false;      ///< ask for SCHED_FIFO + mlockall
+  double duration = 0.0;      ///< [s] of controller time; 0 = until SIGINT/SIGTERM
+  double speed = 1.0;         ///< wall-clock pacing: 1 = real time, 0 = as fast as possible
+  double state_rate = 100.0;  ///< [Hz] ROBOT_STATE / ROBOT_COMMAND / SIM_OBJECT_POSES
+  double status_rate = 10.0;  ///< [Hz] CONTROLLER_STATUS
+  double camera_rate = 30.0;  ///< [Hz], 0 = no camera
   int camera_width = 640;
   int camera_height = 480;
-  double camera_noise = 0.0;       ///< [grey levels] sensor noise on every camera frame (sim::CameraNoise)
-  double depth_noise = 0.0;        ///< [m] on every camera depth pixel that has a return
-  double velocity_scale = 1.0;     ///< fraction of the URDF velocity limits the safety allows
-  std::string timing_log;          ///< write every tick's timing here (CSV) at exit, "" = no
-  bool profiling = true;           ///< per-entity compute time (CONTROLLER_TIMING, budgets)
+  double camera_noise =
+      0.0;  ///< [grey levels] sensor noise on every camera frame (sim::CameraNoise)
+  double depth_noise = 0.0;          ///< [m] on every camera depth pixel that has a return
+  double velocity_scale = 1.0;       ///< fraction of the URDF velocity limits the safety allows
+  std::string timing_log;            ///< write every tick's timing here (CSV) at exit, "" = no
+  bool profiling = true;             ///< per-entity compute time (CONTROLLER_TIMING, budgets)
   int64_t overrun_hold_ticks = 100;  ///< hold after this many consecutive over-budget ticks
   bool verbose = false;
 };

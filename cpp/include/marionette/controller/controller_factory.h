@@ -49,12 +49,13 @@ struct BuiltController {
   double max_switch_velocity_jump = 0.0;  ///< [rad/s] refuse the swap above this ‖Δv‖∞
   double reference_timeout = 0.0;         ///< [s] watchdog on the streamed references
   std::unique_ptr<graph::GraphEdit> edit;
-  graph::OutputSignal<Eigen::VectorXd>* velocity = nullptr;        ///< the solver's command
-  graph::OutputSignal<Eigen::VectorXd>* unblended_velocity = nullptr;  ///< its solution without the switch blend
+  graph::OutputSignal<Eigen::VectorXd>* velocity = nullptr;  ///< the solver's command
+  graph::OutputSignal<Eigen::VectorXd>* unblended_velocity =
+      nullptr;  ///< its solution without the switch blend
   std::vector<std::string> task_names;
-  std::vector<graph::OutputSignal<double>*> task_errors;           ///< ‖e‖ per task, same order
-  std::map<std::string, ReferenceStream*> streams;                 ///< by task name
-  std::vector<std::string> entity_names;  ///< removed by the next controller's edit
+  std::vector<graph::OutputSignal<double>*> task_errors;  ///< ‖e‖ per task, same order
+  std::map<std::string, ReferenceStream*> streams;        ///< by task name
+  std::vector<std::string> entity_names;                  ///< removed by the next controller's edit
   /// Walking entities, when a task takes a "walk:" reference (nullptr otherwise).
   walk::FootstepManager* walk_steps = nullptr;
   walk::PatternGenerator* walk_pattern = nullptr;
@@ -73,8 +74,8 @@ struct BuiltController {
 
 /// The persistent entities a controller plugs into.
 struct ControllerSockets {
-  graph::OutputSignal<sot::Kinematics>* kinematics = nullptr;  ///< RobotModel.kinematics
-  graph::InputSignal<Eigen::VectorXd>* command = nullptr;      ///< SafetyFilter.velocity
+  graph::OutputSignal<sot::Kinematics>* kinematics = nullptr;        ///< RobotModel.kinematics
+  graph::InputSignal<Eigen::VectorXd>* command = nullptr;            ///< SafetyFilter.velocity
   graph::OutputSignal<Eigen::VectorXd>* applied_velocity = nullptr;  ///< last applied command
   /// Measured actuator efforts (nv) and configuration (nq) for gripper_admittance tasks
   /// (MujocoDevice.effort / .q); nullptr without a simulated or real device (kinematic backend:
@@ -98,7 +99,8 @@ class ControllerFactory {
   /// `previous_entities`), the spec's "walk:" tasks take their references from its footstep
   /// manager and pattern generator, which the new controller adopts as they are (the walk goes
   /// on), instead of new ones starting standing.
-  std::unique_ptr<BuiltController> Build(const lcmt_controller_spec& spec, const graph::Graph& graph,
+  std::unique_ptr<BuiltController> Build(const lcmt_controller_spec& spec,
+                                         const graph::Graph& graph,
                                          const std::vector<std::string>& previous_entities,
                                          const Eigen::VectorXd& q,
                                          const BuiltController* continue_walk = nullptr) const;

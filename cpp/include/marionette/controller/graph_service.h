@@ -83,10 +83,10 @@ class GraphService {
   void CollectGarbage();
 
  private:
-  std::atomic<Watch*> posted_{nullptr};        // LCM -> loop
-  std::atomic<bool> invalidated_{false};       // loop -> LCM: a swap dropped the watch
-  Watch* active_ = nullptr;                    // loop-owned
-  runtime::SpscQueue<Watch*> retired_{64};     // loop -> LCM
+  std::atomic<Watch*> posted_{nullptr};              // LCM -> loop
+  std::atomic<bool> invalidated_{false};             // loop -> LCM: a swap dropped the watch
+  Watch* active_ = nullptr;                          // loop-owned
+  runtime::SpscQueue<Watch*> retired_{64};           // loop -> LCM
   std::map<int64_t, std::unique_ptr<Watch>> owned_;  // LCM-owned storage of every live watch
   int64_t next_id_ = 1;
   runtime::SpscQueue<WatchSample> samples_;

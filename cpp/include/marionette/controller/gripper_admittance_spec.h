@@ -31,6 +31,7 @@ struct GripperAdmittanceSpec {
 /// Reads and checks a gripper_admittance task spec; `gain` is the task's λ (already defaulted).
 /// Throws std::invalid_argument naming `who` and the field (unknown parameter, missing joint or
 /// reference, a stream or an adaptive gain, out-of-range values).
-GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& task, double gain, const std::string& who);
+GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& task, double gain,
+                                             const std::string& who);
 
 }  // namespace marionette::controller

@@ -45,9 +45,8 @@ lcmt_controller_spec HoldControllerSpec(const std::vector<std::string>& soles,
 /// (`q`: a recent configuration, as ControllerFactory::Build) and adds what it does at the swap:
 /// stop the walk after the step in progress, or move the CoM over the support. Throws like
 /// ControllerFactory::Build (e.g. a sole frame the model lacks).
-std::unique_ptr<BuiltController> BuildHoldController(const ControllerFactory& factory, const graph::Graph& graph,
-                                                     const BuiltController& running, const Eigen::VectorXd& q,
-                                                     const sot::ModelPtr& model,
-                                                     const std::vector<std::string>& soles);
+std::unique_ptr<BuiltController> BuildHoldController(
+    const ControllerFactory& factory, const graph::Graph& graph, const BuiltController& running,
+    const Eigen::VectorXd& q, const sot::ModelPtr& model, const std::vector<std::string>& soles);
 
 }  // namespace marionette::controller

@@ -95,19 +95,19 @@ class ReferenceStream final : public graph::Entity {
   int max_chunk_samples_;
   Eigen::VectorXd initial_;
   runtime::SpscQueue<ReferenceChunk> queue_;
-  ReferenceChunk popped_;                 // preallocated pop target
+  ReferenceChunk popped_;  // preallocated pop target
   std::atomic<int64_t> dropped_{0};
   // The last chunk pushed (LCM thread only): its time step and sequence number.
-  int64_t pushed_dt_us_ = 0;              // 0 until the first push
-  int pushed_sequence_ = -1;              // -1 until the first push
+  int64_t pushed_dt_us_ = 0;  // 0 until the first push
+  int pushed_sequence_ = -1;  // -1 until the first push
   // Sample buffer: ring of `capacity_` samples, sample k (absolute) in slot k % capacity_,
   // valid for k in [begin_, end_). Written only by Poll (loop thread).
-  std::vector<double> values_;            // capacity x value_size
-  std::vector<double> derivatives_;       // capacity x derivative_size
-  int64_t origin_us_ = 0;                 // time of sample k = origin + k dt
-  int64_t dt_us_ = 0;                     // 0 until the first chunk
+  std::vector<double> values_;       // capacity x value_size
+  std::vector<double> derivatives_;  // capacity x derivative_size
+  int64_t origin_us_ = 0;            // time of sample k = origin + k dt
+  int64_t dt_us_ = 0;                // 0 until the first chunk
   int64_t begin_ = 0, end_ = 0;
-  bool ends_ = false;                     // the sample end_ - 1 is the last one
+  bool ends_ = false;  // the sample end_ - 1 is the last one
   std::array<int64_t, 64> drained_hashes_{};
   int drained_count_ = 0;
 

@@ -18,19 +18,19 @@
 namespace marionette::controller {
 
 struct ReplayOptions {
-  std::string log;         ///< the LCM log of the live run
-  std::string models_dir;  ///< models/ of the repository
-  std::string scene;       ///< overrides the journaled scene path ("" = the journal's)
-  double tolerance = 1e-9; ///< largest accepted |recorded - replayed| command difference
+  std::string log;          ///< the LCM log of the live run
+  std::string models_dir;   ///< models/ of the repository
+  std::string scene;        ///< overrides the journaled scene path ("" = the journal's)
+  double tolerance = 1e-9;  ///< largest accepted |recorded - replayed| command difference
   bool verbose = false;
 };
 
 struct ReplayResult {
-  std::string config;              ///< the journaled controller options
-  int64_t ticks = 0;               ///< ticks replayed
-  int64_t inputs = 0;              ///< journaled inputs handed to the loop
-  int64_t commands_compared = 0;   ///< recorded ROBOT_COMMAND messages compared
-  double max_difference = 0.0;     ///< over every compared joint position and velocity
+  std::string config;                  ///< the journaled controller options
+  int64_t ticks = 0;                   ///< ticks replayed
+  int64_t inputs = 0;                  ///< journaled inputs handed to the loop
+  int64_t commands_compared = 0;       ///< recorded ROBOT_COMMAND messages compared
+  double max_difference = 0.0;         ///< over every compared joint position and velocity
   int64_t first_divergence_tick = -1;  ///< first tick over tolerance (-1: none)
   std::string first_divergence;    ///< "ROBOT_COMMAND joint_position[arm_left_2_joint]: 0.1 vs 0.2"
   int64_t journal_mismatches = 0;  ///< inputs consumed at another tick than recorded

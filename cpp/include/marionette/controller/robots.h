@@ -19,11 +19,11 @@ struct GripperInfo {
 
 struct RobotInfo {
   std::string name;
-  std::string urdf;          ///< absolute path
-  std::string srdf;          ///< absolute path
-  std::string mjcf;          ///< the robot alone (the default scene)
-  std::string base;          ///< "free_flyer" | "planar" | "fixed"
-  std::string reference;     ///< SRDF group_state of the initial posture
+  std::string urdf;                         ///< absolute path
+  std::string srdf;                         ///< absolute path
+  std::string mjcf;                         ///< the robot alone (the default scene)
+  std::string base;                         ///< "free_flyer" | "planar" | "fixed"
+  std::string reference;                    ///< SRDF group_state of the initial posture
   std::vector<std::string> contact_bodies;  ///< wrenches measured on these (soles)
   /// Gripper finger bodies whose contact wrenches (MuJoCo contact forces) are measured and
   /// published after the soles' in ROBOT_STATE: the grip force an admittance task holds, seen

@@ -6,7 +6,8 @@
 ///   - each 1-dof joint velocity clamped to its velocity limit and so that q + v dt stays within
 ///     the position limits (a joint outside its limits may only move back inside).
 /// @entity  inputs: velocity (nv), q (nq), mode (int parameter: 0 run, 1 hold, 2 estop)
-///          outputs: command (nv, the filtered velocity), num_clamped (int, joints clamped this tick),
+///          outputs: command (nv, the filtered velocity), num_clamped (int, joints clamped this
+///          tick),
 ///                   non_finite (bool, the input was rejected this tick)
 
 #include <Eigen/Core>

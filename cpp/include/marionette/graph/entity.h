@@ -99,8 +99,7 @@ class Entity {
   InputSignal<T>& DeclareParameter(std::string name, T default_value, bool settable = true);
   /// An output computed by `calc` from `prerequisites` (signals of this entity).
   template <typename T, typename E>
-  OutputSignal<T>& DeclareOutput(std::string name, T model,
-                                 void (E::*calc)(const Tick&, T*) const,
+  OutputSignal<T>& DeclareOutput(std::string name, T model, void (E::*calc)(const Tick&, T*) const,
                                  std::vector<const SignalBase*> prerequisites);
   /// An output written by this entity between ticks (e.g. a device's sensors).
   template <typename T>
@@ -258,7 +257,8 @@ void Entity::DeclareUpdate(std::string name, void (E::*update)(const Tick&) cons
 template <typename E>
 void Entity::DeclarePoll(std::string name, void (E::*poll)(const Tick&)) {
   E* self = static_cast<E*>(this);
-  poll_hooks_.push_back(PollHook{this, std::move(name), [self, poll](const Tick& t) { (self->*poll)(t); }});
+  poll_hooks_.push_back(
+      PollHook{this, std::move(name), [self, poll](const Tick& t) { (self->*poll)(t); }});
 }
 
 }  // namespace marionette::graph

@@ -32,9 +32,9 @@ struct DurationHistogram {
 
 /// What the graph measures of one entity.
 struct EntityTiming {
-  double tick_ns = 0.0;         ///< self time accumulated in the current tick
-  double budget_ns = 0.0;       ///< 0 = no budget
-  int64_t overruns = 0;         ///< ticks over budget since profiling started
+  double tick_ns = 0.0;    ///< self time accumulated in the current tick
+  double budget_ns = 0.0;  ///< 0 = no budget
+  int64_t overruns = 0;    ///< ticks over budget since profiling started
   int64_t consecutive_overruns = 0;
   bool last_tick_over = false;  ///< the last evaluated tick exceeded the budget
   DurationHistogram window;     ///< ticks since the last ResetWindow

@@ -18,14 +18,17 @@ class Tracer final : public Entity {
   const char* type_name() const override { return "Tracer"; }
 
   int capacity() const { return capacity_; }
-  int size() const { return size_; }  ///< recorded rows, <= capacity
+  int size() const { return size_; }              ///< recorded rows, <= capacity
   int num_columns() const { return row_width_; }  ///< tick, time, then the traced values
   std::vector<std::string> column_names() const;
   /// Row i (0 = oldest kept) as tick, time, values...
   std::vector<double> Row(int i) const;
   /// Writes all rows, oldest first, as CSV with a header line.
   void WriteCsv(const std::string& path) const;
-  void Clear() { size_ = 0; head_ = 0; }
+  void Clear() {
+    size_ = 0;
+    head_ = 0;
+  }
 
  private:
   void Record(const Tick& t) const;

@@ -50,8 +50,8 @@ struct TagSizes {
 
 /// AprilTag 3 parameters (see apriltag.h); defaults favour accuracy at 640 x 480.
 struct AprilTagDetectorOptions {
-  float quad_decimate = 1.0f;   // > 1 detects quads on a subsampled image (faster, less range)
-  float quad_sigma = 0.0f;      // Gaussian blur before quad detection [px]
+  float quad_decimate = 1.0f;  // > 1 detects quads on a subsampled image (faster, less range)
+  float quad_sigma = 0.0f;     // Gaussian blur before quad detection [px]
   int num_threads = 1;
   bool refine_edges = true;
   double decode_sharpening = 0.25;

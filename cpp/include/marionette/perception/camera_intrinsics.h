@@ -17,12 +17,12 @@ class PerceptionError : public std::invalid_argument {
 /// p_C = (x, y, z) of the optical frame (x right, y down, z forward) projects to
 /// u = fx x / z + cx, v = fy y / z + cy (u: column, v: row, top-left pixel at (0, 0)).
 struct CameraIntrinsics {
-  int width = 0;     // [px]
-  int height = 0;    // [px]
-  double fx = 0.0;   // [px]
-  double fy = 0.0;   // [px]
-  double cx = 0.0;   // [px]
-  double cy = 0.0;   // [px]
+  int width = 0;    // [px]
+  int height = 0;   // [px]
+  double fx = 0.0;  // [px]
+  double fy = 0.0;  // [px]
+  double cx = 0.0;  // [px]
+  double cy = 0.0;  // [px]
 
   /// Throws PerceptionError unless sizes are positive and fx, fy > 0, cx, cy finite.
   void Validate() const;

@@ -61,7 +61,8 @@ struct RgbdRefineOptions {
 };
 
 /// Depth-fused pose: Gauss-Newton on SE(3) (left increments X <- exp(d) X, d = (v, w) in C) of
-///   sum_i |pi(X p_O,i) - uv_i|^2 / sigma_pixel^2 + sum_j huber(n_C . (q_j - t) - offset_O)^2 / sigma_depth^2
+///   sum_i |pi(X p_O,i) - uv_i|^2 / sigma_pixel^2 + sum_j huber(n_C . (q_j - t) - offset_O)^2 /
+///   sigma_depth^2
 /// with q_j = z_j (x_j, y_j, 1) the depth pixels of each plane and n_C = R normal_O, whose
 /// derivatives are -n_C^T (v) and (n_C x q_j)^T (w). A small far tag's tilt, which its corners
 /// barely constrain (thesis fig. 5.1), is then fixed by thousands of depth points while the

@@ -73,9 +73,9 @@ struct Polyline {
 
 struct ValidationResult {
   bool valid = false;
-  double s_valid = 0.0;     // the path is collision-free on [0, s_valid] (arc length)
-  int64_t queries = 0;      // pair queries made (statistics)
-  bool grazing = false;     // refused after max_queries on one segment (bodies grazing)
+  double s_valid = 0.0;  // the path is collision-free on [0, s_valid] (arc length)
+  int64_t queries = 0;   // pair queries made (statistics)
+  bool grazing = false;  // refused after max_queries on one segment (bodies grazing)
 };
 
 /// Builds a Pinocchio model (kinematics only: no inertias) from joint specs.
@@ -101,8 +101,8 @@ class PathValidator {
 
   /// Progressive certified validation (probes = false) or all-or-nothing (probes = true: the
   /// configurations at 1/2, 1/4, 3/4 of the length are checked first, s_valid = 0 on failure).
-  ValidationResult Validate(const Polyline& path, const Substitution& sub,
-                            const PairMotion& motion, bool probes);
+  ValidationResult Validate(const Polyline& path, const Substitution& sub, const PairMotion& motion,
+                            bool probes);
 
   /// Configuration at arc length s (nq), exactly as marionette.planning.path.ConstrainedPath.eval.
   void Eval(const Polyline& path, const Substitution& sub, double s, Eigen::VectorXd* q);
@@ -134,7 +134,7 @@ class PathValidator {
   pinocchio::GeometryData geom_data_;
   double contact_;
   int max_queries_;
-  std::vector<Kind> kinds_;      // per joint (index 0 unused)
+  std::vector<Kind> kinds_;  // per joint (index 0 unused)
   Eigen::VectorXd q_, qa_, qb_, ea_, eb_, dv_, ang_, lin_, u_, horizon_, budget_;
 };
 

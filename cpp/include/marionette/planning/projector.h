@@ -16,7 +16,13 @@
 namespace marionette::planning {
 
 /// Why a projection stopped; values match marionette.planning.projector.ProjectionStatus.
-enum class ProjectionStatus { kSuccess = 0, kMaxIterations, kNotDecreasing, kLocalMinimum, kNotFinite };
+enum class ProjectionStatus {
+  kSuccess = 0,
+  kMaxIterations,
+  kNotDecreasing,
+  kLocalMinimum,
+  kNotFinite
+};
 
 struct ProjectionOutcome {
   ProjectionStatus status = ProjectionStatus::kSuccess;
@@ -25,8 +31,8 @@ struct ProjectionOutcome {
 };
 
 /// An object surface on an environment surface (Python constraints.Placement): the candidate
-/// pairs, each a relative transformation F_E (joint_e, M_env) -> F_O (joint_o, M_obj flipped, z into
-/// the object), and the convex polygon of the environment surface (k x 2, counter-clockwise).
+/// pairs, each a relative transformation F_E (joint_e, M_env) -> F_O (joint_o, M_obj flipped, z
+/// into the object), and the convex polygon of the environment surface (k x 2, counter-clockwise).
 struct PlacementSpec {
   std::vector<int> joint_e, joint_o;
   std::vector<pinocchio::SE3> M_env, M_obj;
@@ -59,7 +65,7 @@ struct LineSearchSpec {
 
 /// Everything Projector._compile decides, in Pinocchio's index spaces.
 struct ProjectorSpec {
-  std::vector<ImplicitSpec> implicit;        // in level order (level 0 first)
+  std::vector<ImplicitSpec> implicit;  // in level order (level 0 first)
   std::vector<PlacementSpec> placements;
   std::vector<int> locked_idx_q, locked_nq;  // explicit locked joints, substituted first
   std::vector<int> relative_idx_q, relative_parent, relative_output;
@@ -131,12 +137,12 @@ class Projector {
   pinocchio::Data data_;
   ProjectorSpec spec_;
   int rhs_size_ = 0, size_ = 0;
-  std::vector<int> level_begin_;           // constraint index range of each level
+  std::vector<int> level_begin_;  // constraint index range of each level
   std::vector<int> level_rows_;
-  std::vector<int> rhs_offset_;            // per implicit constraint
-  std::vector<int> locked_value_offset_;   // per explicit locked joint
-  std::vector<int> implicit_value_offset_; // per implicit constraint (kLocked only)
-  std::vector<int> sizes_;                 // rows of each implicit constraint
+  std::vector<int> rhs_offset_;             // per implicit constraint
+  std::vector<int> locked_value_offset_;    // per explicit locked joint
+  std::vector<int> implicit_value_offset_;  // per implicit constraint (kLocked only)
+  std::vector<int> sizes_;                  // rows of each implicit constraint
   Eigen::VectorXd rhs_;
   std::vector<int> pair_;
   std::vector<char> is_static_, is_root_ff_;

@@ -44,7 +44,9 @@ class SpscQueue {
     if (tail == head_.load(std::memory_order_acquire)) return nullptr;
     return &buffer_[tail];
   }
-  void PopFront() { tail_.store(Next(tail_.load(std::memory_order_relaxed)), std::memory_order_release); }
+  void PopFront() {
+    tail_.store(Next(tail_.load(std::memory_order_relaxed)), std::memory_order_release);
+  }
 
   /// Consumer side. False when empty.
   bool Pop(T* item) {

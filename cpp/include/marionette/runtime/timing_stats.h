@@ -23,7 +23,10 @@ class TimingWindow {
   size_t size() const { return size_; }
   /// Nearest-rank percentiles (p50 = value at rank ceil(0.5 n)) of the samples in the window.
   TimingSummary Summarise() const;
-  void Clear() { size_ = 0; next_ = 0; }
+  void Clear() {
+    size_ = 0;
+    next_ = 0;
+  }
 
  private:
   std::vector<double> samples_;

@@ -46,9 +46,9 @@ class TripleBuffer {
   static constexpr uint8_t kFresh = 0x4;
   static constexpr uint8_t kIndexMask = 0x3;
   T slots_[3];
-  uint8_t write_ = 0;                 // owned by the writer
-  std::atomic<uint8_t> middle_{1};    // shared: index | kFresh
-  uint8_t read_ = 2;                  // owned by the reader
+  uint8_t write_ = 0;               // owned by the writer
+  std::atomic<uint8_t> middle_{1};  // shared: index | kFresh
+  uint8_t read_ = 2;                // owned by the reader
 };
 
 }  // namespace marionette::runtime

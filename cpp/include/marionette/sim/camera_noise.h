@@ -11,8 +11,9 @@
 namespace marionette::sim {
 
 struct CameraNoiseSettings {
-  double grey_sigma = 0.0;     ///< [grey levels] luminance noise: the same draw on R, G and B of a pixel,
-                               ///< so the grey image a tag detector reads gets exactly this sigma
+  double grey_sigma =
+      0.0;  ///< [grey levels] luminance noise: the same draw on R, G and B of a pixel,
+            ///< so the grey image a tag detector reads gets exactly this sigma
   double depth_sigma_m = 0.0;  ///< [m] on every pixel that has a depth (0 = no return stays 0)
   std::uint64_t seed = 0;
 };

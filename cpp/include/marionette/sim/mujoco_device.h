@@ -54,7 +54,7 @@ class MujocoDevice final : public graph::Entity {
   graph::OutputSignal<Eigen::VectorXd>* v_{};
   graph::OutputSignal<Eigen::VectorXd>* effort_{};
   std::vector<graph::OutputSignal<Eigen::VectorXd>*> wrenches_;
-  Eigen::VectorXd last_effort_;                 // (nv) after the last physics step
+  Eigen::VectorXd last_effort_;  // (nv) after the last physics step
   std::vector<Eigen::Matrix<double, 6, 1>> last_wrenches_;
 };
 

@@ -3,10 +3,12 @@
 /// Pinocchio configuration layout and MuJoCo's qpos/qvel/actuators.
 ///
 /// Conventions (models/README.md): the robot's joints carry the Pinocchio joint names; the base is
-///   free_flyer: freejoint `root_joint`   Pinocchio q: x y z qx qy qz qw, v: (v, w) in the base frame
-///                                        MuJoCo qpos: x y z qw qx qy qz, qvel: v in world, w in base
-///   planar:     slides root_x, root_y and hinge root_yaw   Pinocchio q: x y cos sin, v in the base frame
-///   fixed:      nothing.
+///   free_flyer: freejoint `root_joint`   Pinocchio q: x y z qx qy qz qw, v: (v, w) in the base
+///   frame
+///                                        MuJoCo qpos: x y z qw qx qy qz, qvel: v in world, w in
+///                                        base
+///   planar:     slides root_x, root_y and hinge root_yaw   Pinocchio q: x y cos sin, v in the base
+///   frame fixed:      nothing.
 /// Actuators are named like the joint they drive; position servos are MuJoCo `general` actuators
 /// with gain kp and bias (0, -kp, -kv), so ctrl = q_des + (kv / kp) v_des tracks (q_des, v_des).
 ///
@@ -107,11 +109,11 @@ class MujocoScene {
 
  private:
   struct JointMap {
-    int qpos_adr;   // MuJoCo
-    int dof_adr;    // MuJoCo
-    int idx_q;      // Pinocchio
-    int idx_v;      // Pinocchio
-    int actuator;   // MuJoCo actuator id or -1
+    int qpos_adr;  // MuJoCo
+    int dof_adr;   // MuJoCo
+    int idx_q;     // Pinocchio
+    int idx_v;     // Pinocchio
+    int actuator;  // MuJoCo actuator id or -1
     std::string name;
     double encoder_offset = 0.0;  // subtracted on read, added on write (SetEncoderOffsets)
   };
@@ -127,8 +129,8 @@ class MujocoScene {
   mjModel* model_ = nullptr;
   mjData* data_ = nullptr;
   Base base_ = Base::kFixed;
-  int base_qpos_ = -1, base_dof_ = -1;      // free flyer
-  int planar_qpos_[3] = {-1, -1, -1};       // x, y, yaw
+  int base_qpos_ = -1, base_dof_ = -1;  // free flyer
+  int planar_qpos_[3] = {-1, -1, -1};   // x, y, yaw
   int planar_dof_[3] = {-1, -1, -1};
   int nq_ = 0, nv_ = 0;
   std::vector<JointMap> joints_;

@@ -18,7 +18,8 @@
 ///   `release` true moves 0/1 to 2 (or straight to 3 when y < release_force); false moves 3 to 0.
 /// As a feature (1 row, J = unit row of the joint, ė = J v + ∂e/∂t):
 ///   position phases   e = q − r (r the ramp),       ∂e/∂t = −ṙ      (the task gives v = ṙ − λe)
-///   admittance phases e = s K_a (y − f*) / λ,       ∂e/∂t = 0       (the task gives v = s K_a (f* − y))
+///   admittance phases e = s K_a (y − f*) / λ,       ∂e/∂t = 0       (the task gives v = s K_a (f*
+///   − y))
 /// so λ (the task's constant gain, `task_gain`) must be the Task's gain. ‖e‖ → 0 when the ramp
 /// reaches the target or the force reaches its target.
 /// @entity  inputs: kinematics (q: the commanded joint), effort (nv, actuator force/torque per
@@ -36,15 +37,17 @@
 namespace marionette::sot {
 
 struct GripperAdmittanceOptions {
-  double force_target = 5.0;        ///< f* [N] held in phase 1
-  double force_threshold = 4.0;     ///< [N] closing → holding when y exceeds it (below f*)
-  double release_force = 0.5;       ///< [N] releasing → opening when y drops below it
-  double admittance_gain = 0.02;    ///< K_a [rad/(s N)] (with a 500 N/rad grip: ζ ≈ 0.9 with the filter)
-  double lever_arm = 0.1;           ///< d_axis-gripper [m], eq. 3.13
-  double torque_per_effort = 1.0;   ///< k_τ k_gear [N m per unit of effort], eq. 3.11–3.12
-  double cutoff_frequency = 5.0;    ///< f_c [Hz] of the force low-pass
-  double speed = 0.1;               ///< [rad/s] position ramp speed ("slowly", §3.2.4.3: the friction and damping it costs read as force)
-  double acceleration = 1.0;        ///< [rad/s²] of the ramp (starts and stops without a velocity step)
+  double force_target = 5.0;     ///< f* [N] held in phase 1
+  double force_threshold = 4.0;  ///< [N] closing → holding when y exceeds it (below f*)
+  double release_force = 0.5;    ///< [N] releasing → opening when y drops below it
+  double admittance_gain =
+      0.02;                ///< K_a [rad/(s N)] (with a 500 N/rad grip: ζ ≈ 0.9 with the filter)
+  double lever_arm = 0.1;  ///< d_axis-gripper [m], eq. 3.13
+  double torque_per_effort = 1.0;  ///< k_τ k_gear [N m per unit of effort], eq. 3.11–3.12
+  double cutoff_frequency = 5.0;   ///< f_c [Hz] of the force low-pass
+  double speed = 0.1;  ///< [rad/s] position ramp speed ("slowly", §3.2.4.3: the friction and
+                       ///< damping it costs read as force)
+  double acceleration = 1.0;  ///< [rad/s²] of the ramp (starts and stops without a velocity step)
   double closing_direction = -1.0;  ///< s: sign of q̇ when closing (TALOS: −1, closed < open)
   double task_gain = 2.0;           ///< λ [1/s] of the Task that reads this feature
   double dt = 1e-3;                 ///< control period [s]

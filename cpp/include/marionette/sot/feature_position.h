@@ -10,7 +10,8 @@ namespace marionette::sot {
 
 class FeaturePosition final : public Feature {
  public:
-  FeaturePosition(std::string name, ModelPtr model, const std::string& frame, const Mask& mask = {});
+  FeaturePosition(std::string name, ModelPtr model, const std::string& frame,
+                  const Mask& mask = {});
   const char* type_name() const override { return "FeaturePosition"; }
   graph::InputSignal<Eigen::VectorXd>& reference_input() { return *reference_; }
   graph::InputSignal<Eigen::VectorXd>& reference_velocity_input() { return *reference_velocity_; }

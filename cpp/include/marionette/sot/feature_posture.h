@@ -29,7 +29,7 @@ class FeaturePosture final : public Feature {
 
   struct Joints {
     std::vector<std::string> names;
-    std::vector<int> q, v;  // first configuration index and tangent index of each joint
+    std::vector<int> q, v;         // first configuration index and tangent index of each joint
     std::vector<bool> continuous;  // nq = 2 (cos, sin) joints
   };
   static Joints Resolve(const ModelPtr& model, const std::vector<std::string>& joints,

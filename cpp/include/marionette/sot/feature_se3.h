@@ -33,7 +33,7 @@ class FeatureSE3 final : public Feature {
 
 /// ν_D, the body twist of frame D (in D), from its twist in the axes of its parent frame P
 /// (linear velocity of D's origin, angular velocity), given R_PD.
-Eigen::Matrix<double, 6, 1> BodyTwistFromParentAxes(const Eigen::Matrix3d& R_PD,
-                                                    const Eigen::Ref<const Eigen::VectorXd>& twist_P);
+Eigen::Matrix<double, 6, 1> BodyTwistFromParentAxes(
+    const Eigen::Matrix3d& R_PD, const Eigen::Ref<const Eigen::VectorXd>& twist_P);
 
 }  // namespace marionette::sot

@@ -112,14 +112,15 @@ class Hierarchy {
 struct HierarchyReport {
   std::vector<int> ranks;       ///< DoF used by each level's equality rows
   std::vector<bool> qp_levels;  ///< true where the level was solved as a QP (either way)
-  std::vector<bool> active_set_levels;  ///< true where that QP was solved by the active-set shortcut
+  std::vector<bool>
+      active_set_levels;          ///< true where that QP was solved by the active-set shortcut
   std::vector<bool> gram_levels;  ///< true where the level was solved on its Gram matrix (no QR)
-  std::vector<double> dampings; ///< μ used at each level (0 = undamped)
-  int num_qp = 0;               ///< QP levels in the last solve (eiquadprog or the shortcut)
-  int num_active_set = 0;       ///< of which solved by the active-set shortcut
-  int qp_failures = 0;          ///< QPs that did not converge (their level kept the unconstrained step)
-  int remaining_dof = 0;        ///< r after the last level
-  int last_qp_status = -1;      ///< eiquadprog status of the last QP (0 = optimal)
+  std::vector<double> dampings;   ///< μ used at each level (0 = undamped)
+  int num_qp = 0;                 ///< QP levels in the last solve (eiquadprog or the shortcut)
+  int num_active_set = 0;         ///< of which solved by the active-set shortcut
+  int qp_failures = 0;      ///< QPs that did not converge (their level kept the unconstrained step)
+  int remaining_dof = 0;    ///< r after the last level
+  int last_qp_status = -1;  ///< eiquadprog status of the last QP (0 = optimal)
   int last_qp_iterations = 0;
 };
 

@@ -48,7 +48,8 @@ class FeatureHeldVelocities final : public Feature {
   const char* type_name() const override { return "FeatureHeldVelocities"; }
 
  protected:
-  void ComputeFull(const graph::Tick& t, const Kinematics& kinematics, FeatureTerms* full) const override;
+  void ComputeFull(const graph::Tick& t, const Kinematics& kinematics,
+                   FeatureTerms* full) const override;
 };
 
 /// Rates bounded to [0, 0], error unbounded: the bounds that make FeatureHeldVelocities a hold.

@@ -23,7 +23,8 @@ class KinematicDevice final : public graph::Entity {
   graph::OutputSignal<Eigen::VectorXd>& velocity_output() { return *velocity_; }
 
  private:
-  void UpdateConfiguration(const graph::Tick& t, const Eigen::VectorXd& q, Eigen::VectorXd* next) const;
+  void UpdateConfiguration(const graph::Tick& t, const Eigen::VectorXd& q,
+                           Eigen::VectorXd* next) const;
   void UpdateVelocity(const graph::Tick& t, const Eigen::VectorXd& v, Eigen::VectorXd* next) const;
 
   ModelPtr model_;
@@ -35,6 +36,7 @@ class KinematicDevice final : public graph::Entity {
 
 /// Throws SotError (naming `who`) unless q is a valid configuration of `model`: size nq, finite,
 /// unit quaternions / unit complex numbers where the joints have them.
-void CheckConfiguration(const pinocchio::Model& model, const Eigen::VectorXd& q, const std::string& who);
+void CheckConfiguration(const pinocchio::Model& model, const Eigen::VectorXd& q,
+                        const std::string& who);
 
 }  // namespace marionette::sot

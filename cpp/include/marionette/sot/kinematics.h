@@ -97,8 +97,7 @@ class Kinematics {
 /// J_F (6 x nv), the Jacobian of frame F expressed in F (Pinocchio LOCAL: body twist (v_F, w_F)
 /// = J_F v). Writes only the columns in f.columns: the others must already be zero (allocate J
 /// zeroed once; they never change).
-void LocalFrameJacobian(const Kinematics& kinematics, const FrameRef& f,
-                        Eigen::Ref<Matrix6Xd> J_F);
+void LocalFrameJacobian(const Kinematics& kinematics, const FrameRef& f, Eigen::Ref<Matrix6Xd> J_F);
 
 /// Selected components of a feature: mask[i] keeps component i. Empty = keep all.
 using Mask = std::vector<bool>;

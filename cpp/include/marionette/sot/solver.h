@@ -72,8 +72,10 @@ class Solver final : public graph::Entity {
   // Box bounds of level-0 inequality tasks (joint limits) enforced on v by clamping.
   void ClampToHardBoxes(const graph::Tick& t, Eigen::VectorXd* v) const;
   void UpdatePrevious(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
-  void UpdateTargetOffsets(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
-  void UpdateJointOffset(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
+  void UpdateTargetOffsets(const graph::Tick& t, const Eigen::VectorXd& x,
+                           Eigen::VectorXd* next) const;
+  void UpdateJointOffset(const graph::Tick& t, const Eigen::VectorXd& x,
+                         Eigen::VectorXd* next) const;
   void UpdateActivity(const graph::Tick& t, const Eigen::VectorXd& x, Eigen::VectorXd* next) const;
   // v(τ⁻): the previous command, or initial_velocity at the first tick.
   const Eigen::VectorXd& VelocityBefore(const graph::Tick& t) const;

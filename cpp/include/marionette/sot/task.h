@@ -1,7 +1,8 @@
 #pragma once
 /// Task: a feature plus its desired error dynamics (Nicolin 2022 eq. 3.1–3.4, Dang 2012 eq. 2.20):
 ///   equality task     ė* = -λ(‖e‖) e        →   J v = -λ e - ∂e/∂t            (k rows)
-///   inequality task   e_lo <= e <= e_hi     →   λ (e_lo - e) - ∂e/∂t  <=  J v  <=  λ (e_hi - e) - ∂e/∂t,
+///   inequality task   e_lo <= e <= e_hi     →   λ (e_lo - e) - ∂e/∂t  <=  J v  <=  λ (e_hi - e) -
+///   ∂e/∂t,
 ///                     optionally also  ė_lo <= J v + ∂e/∂t <= ė_hi  (velocity bounds)
 /// The -∂e/∂t term is the feed-forward of a moving reference. λ is constant or adaptive
 /// (sot-core GainAdaptive). A task is active or not (`active` parameter): the Solver skips

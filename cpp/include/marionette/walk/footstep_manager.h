@@ -42,9 +42,10 @@ enum class WalkPhase : int { kStanding = 0, kDoubleSupport = 1, kLeftSwing = 2, 
 const char* ToString(WalkPhase phase);
 
 struct FootstepManagerOptions {
-  double dt = 1e-3;                     ///< [s] tick period, the spacing of zmp_window samples
-  int preview_samples = 1600;           ///< N (1.6 s at 1 kHz, Dang fig. 2.14)
-  double final_double_support = 1.0;    ///< [s] ZMP back to the middle of the feet after the last step
+  double dt = 1e-3;            ///< [s] tick period, the spacing of zmp_window samples
+  int preview_samples = 1600;  ///< N (1.6 s at 1 kHz, Dang fig. 2.14)
+  double final_double_support =
+      1.0;  ///< [s] ZMP back to the middle of the feet after the last step
   double min_first_double_support = 0.6;  ///< [s] at least this before the first step from standing
   /// [s] a walk from standing starts this long after its plan arrives, the ZMP reference held
   /// meanwhile, so that the pattern generator sees the first move enter at the far end of its
@@ -52,8 +53,8 @@ struct FootstepManagerOptions {
   /// with a jerk spike; < 0 = the preview time (N dt).
   double start_delay = -1.0;
   double StartDelay() const { return start_delay < 0.0 ? preview_samples * dt : start_delay; }
-  int mailbox_capacity = 4;             ///< plans in flight between Post and the next tick
-  void Check() const;                   ///< throws std::invalid_argument
+  int mailbox_capacity = 4;  ///< plans in flight between Post and the next tick
+  void Check() const;        ///< throws std::invalid_argument
 };
 
 class FootstepManager final : public graph::Entity {
@@ -70,7 +71,8 @@ class FootstepManager final : public graph::Entity {
   bool Post(const FootstepPlan& plan);
   /// Loop thread, between ticks: standing on these feet, ZMP reference at `rest_zmp`, queue
   /// emptied (plans in the mailbox stay). No allocation.
-  void Reset(const FootPlacement& left, const FootPlacement& right, const Eigen::Vector2d& rest_zmp);
+  void Reset(const FootPlacement& left, const FootPlacement& right,
+             const Eigen::Vector2d& rest_zmp);
   /// Loop thread, between ticks: the walk ends with the step in progress (it is never changed)
   /// — queued steps after it are dropped, the final double support then brings the ZMP to the
   /// middle of the feet — and every later plan is refused (counted) until Reset. No allocation.
@@ -129,8 +131,12 @@ class FootstepManager final : public graph::Entity {
   void CalcLeftFoot(const graph::Tick& t, pinocchio::SE3* out) const { CalcFoot(t, kLeft, out); }
   void CalcRightFoot(const graph::Tick& t, pinocchio::SE3* out) const { CalcFoot(t, kRight, out); }
   void CalcFootVelocity(const graph::Tick& t, int side, Eigen::VectorXd* out) const;
-  void CalcLeftVelocity(const graph::Tick& t, Eigen::VectorXd* out) const { CalcFootVelocity(t, kLeft, out); }
-  void CalcRightVelocity(const graph::Tick& t, Eigen::VectorXd* out) const { CalcFootVelocity(t, kRight, out); }
+  void CalcLeftVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
+    CalcFootVelocity(t, kLeft, out);
+  }
+  void CalcRightVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
+    CalcFootVelocity(t, kRight, out);
+  }
   void CalcZmpWindow(const graph::Tick& t, Eigen::MatrixXd* out) const;
   void CalcZmpReference(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcPhase(const graph::Tick& t, int* out) const;
@@ -149,12 +155,12 @@ class FootstepManager final : public graph::Entity {
   Mode mode_ = Mode::kStanding;
   std::array<Footstep, FootstepPlan::kMaxSteps> queue_{};
   int queue_size_ = 0;
-  std::array<FootPlacement, 2> feet_;       // planted sole placements (left, right)
-  double phase_start_ = 0.0;                // walking: the front step's double-support start;
-                                            // stopping: the final double-support start
+  std::array<FootPlacement, 2> feet_;  // planted sole placements (left, right)
+  double phase_start_ = 0.0;           // walking: the front step's double-support start;
+                                       // stopping: the final double-support start
   Eigen::Vector2d previous_zmp_ = Eigen::Vector2d::Zero();  // ZMP where the current phase started
   Eigen::Vector2d rest_zmp_ = Eigen::Vector2d::Zero();
-  bool stopped_ = false;                    // StopAfterCurrentStep: no plan taken until Reset
+  bool stopped_ = false;  // StopAfterCurrentStep: no plan taken until Reset
   int64_t current_plan_id_ = 0;
   int64_t applied_plans_ = 0, refused_plans_ = 0, completed_steps_ = 0;
   std::array<ZmpSegment, kMaxSegments> segments_{};

@@ -24,9 +24,11 @@ class PatternGenerator final : public graph::Entity {
  public:
   /// Gains for `params` (computed here: call off the loop), starting at rest at `com` (world;
   /// its height is held; params.com_height is the height above the ground the gains assume).
-  PatternGenerator(std::string name, const PreviewControlParams& params, const Eigen::Vector3d& com);
+  PatternGenerator(std::string name, const PreviewControlParams& params,
+                   const Eigen::Vector3d& com);
   /// Same with gains already computed (shared between controllers with the same parameters).
-  PatternGenerator(std::string name, std::shared_ptr<const PreviewGains> gains, const Eigen::Vector3d& com);
+  PatternGenerator(std::string name, std::shared_ptr<const PreviewGains> gains,
+                   const Eigen::Vector3d& com);
   const char* type_name() const override { return "PatternGenerator"; }
 
   /// Loop thread, between ticks: at rest at `com` (zero velocity and acceleration, error sums

@@ -20,11 +20,11 @@ namespace marionette::walk {
 
 /// Parameters of the preview controller. Lengths in metres, times in seconds.
 struct PreviewControlParams {
-  double dt = 1e-3;            ///< T, the sampling period [s] (the controller tick)
-  double com_height = 0.814;   ///< z_c, CoM height above the ground [m]
-  double gravity = 9.81;       ///< g [m/s²]
-  double preview_time = 1.6;   ///< N_L T [s] (Dang fig. 2.14: 1.6 s tracks, 0.8 s does not)
-  double qe = 1.0;             ///< Qe, weight of the ZMP error
+  double dt = 1e-3;           ///< T, the sampling period [s] (the controller tick)
+  double com_height = 0.814;  ///< z_c, CoM height above the ground [m]
+  double gravity = 9.81;      ///< g [m/s²]
+  double preview_time = 1.6;  ///< N_L T [s] (Dang fig. 2.14: 1.6 s tracks, 0.8 s does not)
+  double qe = 1.0;            ///< Qe, weight of the ZMP error
   /// R, weight of the jerk increment; <= 0 selects Kajita's R = 1e-6 at T = 5 ms scaled to T so
   /// that the continuous-time trade-off is the same: Δu ≈ u̇ T, hence R T² is kept constant.
   double r = 0.0;
@@ -42,11 +42,11 @@ struct PreviewGains {
   Eigen::Matrix3d A;
   Eigen::Vector3d B;
   Eigen::RowVector3d C;
-  double Gi = 0.0;             ///< integral gain
-  Eigen::RowVector3d Gx;       ///< state gain
-  Eigen::VectorXd Gp;          ///< (N_L) preview gains, Gp[j-1] = G_p(j)
-  Eigen::Matrix4d P;           ///< solution of the augmented DARE
-  int doubling_iterations = 0; ///< how many doubling steps the DARE took
+  double Gi = 0.0;              ///< integral gain
+  Eigen::RowVector3d Gx;        ///< state gain
+  Eigen::VectorXd Gp;           ///< (N_L) preview gains, Gp[j-1] = G_p(j)
+  Eigen::Matrix4d P;            ///< solution of the augmented DARE
+  int doubling_iterations = 0;  ///< how many doubling steps the DARE took
 };
 
 /// Solves the augmented DARE and builds the gains (eq. 2.56). Costs O(N_L) after the DARE; call

@@ -38,7 +38,8 @@ struct SupportPolygon {
 };
 
 /// The convex hull of the soles at `placements` (1 or 2 of them). No allocation.
-SupportPolygon MakeSupportPolygon(const FootPlacement* placements, int count, const SoleShape& sole = {});
+SupportPolygon MakeSupportPolygon(const FootPlacement* placements, int count,
+                                  const SoleShape& sole = {});
 
 /// Signed distance from `p` to the polygon's boundary: > 0 inside (the margin), < 0 outside.
 double SignedMargin(const SupportPolygon& polygon, const Eigen::Vector2d& p);
