@@ -16,16 +16,21 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
 
-import marionette  # noqa: E402
-from marionette.models import generate  # noqa: E402
+import marionette
+from marionette.models import generate
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=marionette.MODELS_DIR,
-                        help="output directory (default: models/)")
-    parser.add_argument("--link-meshes", action="store_true",
-                        help="only create the models/<robot>/meshes links")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=marionette.MODELS_DIR,
+        help="output directory (default: models/)",
+    )
+    parser.add_argument(
+        "--link-meshes", action="store_true", help="only create the models/<robot>/meshes links"
+    )
     args = parser.parse_args(argv)
     if args.link_meshes:
         for link in generate.link_meshes(args.out):

@@ -37,7 +37,7 @@ def run_json(cmd: list[str], what: str) -> dict:
         sys.exit(f"[sot bench] {what} failed (exit {proc.returncode}):\n{proc.stderr[-2000:]}")
     lines = [line for line in proc.stdout.splitlines() if line.strip()]
     try:
-        text = proc.stdout[proc.stdout.index("{"):]
+        text = proc.stdout[proc.stdout.index("{") :]
         result = json.loads(text)
     except (ValueError, json.JSONDecodeError):
         sys.exit(f"[sot bench] {what} printed no JSON:\n{(lines or [''])[-1][:500]}")
@@ -59,8 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tsid", required=True, help="marionette-bench-sot-tsid executable")
     p.add_argument("--pink-python", required=True, help="python of the venv with pink + daqp")
     p.add_argument("--ticks", type=int, default=20000)
-    p.add_argument("--posture-weight", type=float, default=1e-5,
-                   help="peers' posture weight relative to the grippers (two-level QPs)")
+    p.add_argument(
+        "--posture-weight",
+        type=float,
+        default=1e-5,
+        help="peers' posture weight relative to the grippers (two-level QPs)",
+    )
     p.add_argument("--out", default="reports/bench/sot.json")
     args = p.parse_args(argv)
     if args.ticks < 10000:
@@ -71,38 +75,66 @@ def main(argv: list[str] | None = None) -> int:
 
     ours = run_json([args.ours, "--ticks", str(args.ticks)], "marionette (C++)")
     model = ours.pop("model")
-    common = ["--urdf", model["urdf"], "--srdf", model["srdf"], "--ticks", str(args.ticks),
-              "--posture-weight", repr(args.posture_weight)]
+    common = [
+        "--urdf",
+        model["urdf"],
+        "--srdf",
+        model["srdf"],
+        "--ticks",
+        str(args.ticks),
+        "--posture-weight",
+        repr(args.posture_weight),
+    ]
     peers: dict[str, dict] = {"tsid": {}, "pink": {}}
     for scenario in PEER_SCENARIOS:
         reach = [repr(x) for x in ours[scenario]["reach"]]
         scen = ["--scenario", scenario, "--reach", *reach]
-        peers["tsid"][scenario] = run_json([args.tsid, *common, *scen],
-                                           f"TSID (C++) {scenario}")[scenario]
+        peers["tsid"][scenario] = run_json([args.tsid, *common, *scen], f"TSID (C++) {scenario}")[
+            scenario
+        ]
         peers["pink"][scenario] = run_json(
             [args.pink_python, str(HERE / "pink_bench.py"), *common, *scen],
-            f"pink (Python) {scenario}")[scenario]
+            f"pink (Python) {scenario}",
+        )[scenario]
 
     ratios: dict[str, dict] = {}
     print(f"\nsot: TALOS talos_reduced (nv 38), {args.ticks} ticks at 1 kHz after 500 warm-up; µs")
     for scenario in ("nominal", "equality_only", "bounds_binding"):
         o = ours[scenario]
-        print(f"\n  {scenario}  (reach {o['reach']}, joint limits {o['joint_limits']}, "
-              f"QP ticks {o['qp_ticks']})")
+        print(
+            f"\n  {scenario}  (reach {o['reach']}, joint limits {o['joint_limits']}, "
+            f"QP ticks {o['qp_ticks']})"
+        )
         print(f"  {'':34s}{'median':>9s}{'p99':>10s}   hand err [m]  max foot err")
         row = "  {:34s}{:9.1f}{:10.1f}   {:12.2e}  {:12.2e}"
-        print(row.format("marionette solve path (kin+tasks+solve)", o["solve_path"]["median"],
-                         o["solve_path"]["p99"], o["final_hand_position_error"], o["max_foot_error"]))
+        print(
+            row.format(
+                "marionette solve path (kin+tasks+solve)",
+                o["solve_path"]["median"],
+                o["solve_path"]["p99"],
+                o["final_hand_position_error"],
+                o["max_foot_error"],
+            )
+        )
         for phase in ("kinematics", "tasks", "solve", "tick_uninstrumented"):
             print(f"  {'  ' + phase:34s}{o[phase]['median']:9.1f}{o[phase]['p99']:10.1f}")
         if scenario not in PEER_SCENARIOS:
             continue
         ratios[scenario] = {}
-        for name, label, parts in (("tsid", "TSID 1.10 C++ (data+QP)", ("kinematics", "problem_data", "solve")),
-                                   ("pink", "pink 4.4 + daqp (Python)", ("kinematics", "solve"))):
+        for name, label, parts in (
+            ("tsid", "TSID 1.10 C++ (data+QP)", ("kinematics", "problem_data", "solve")),
+            ("pink", "pink 4.4 + daqp (Python)", ("kinematics", "solve")),
+        ):
             r = peers[name][scenario]
-            print(row.format(label, r["tick"]["median"], r["tick"]["p99"],
-                             r["final_hand_position_error"], r["max_foot_error"]))
+            print(
+                row.format(
+                    label,
+                    r["tick"]["median"],
+                    r["tick"]["p99"],
+                    r["final_hand_position_error"],
+                    r["max_foot_error"],
+                )
+            )
             for phase in parts:
                 print(f"  {'  ' + phase:34s}{r[phase]['median']:9.1f}{r[phase]['p99']:10.1f}")
             ratios[scenario][name] = {
@@ -113,28 +145,38 @@ def main(argv: list[str] | None = None) -> int:
             if r.get("qp_failures"):
                 print(f"  !! {name}: {r['qp_failures']} QP failures")
         rt, rp = ratios[scenario]["tsid"], ratios[scenario]["pink"]
-        print(f"  ratio marionette / TSID: median {fmt_ratio(rt['median'])}, p99 "
-              f"{fmt_ratio(rt['p99'])}, solver alone {fmt_ratio(rt['solve_only_median'])}; "
-              f"/ pink: median {fmt_ratio(rp['median'])}, p99 {fmt_ratio(rp['p99'])}")
+        print(
+            f"  ratio marionette / TSID: median {fmt_ratio(rt['median'])}, p99 "
+            f"{fmt_ratio(rt['p99'])}, solver alone {fmt_ratio(rt['solve_only_median'])}; "
+            f"/ pink: median {fmt_ratio(rp['median'])}, p99 {fmt_ratio(rp['p99'])}"
+        )
 
     n = ours["nominal"]["solve_path"]
     targets = {
-        "median_us": TARGET_MEDIAN_US, "p99_us": TARGET_P99_US, "ratio_tsid": TARGET_RATIO_TSID,
-        "met_median": n["median"] <= TARGET_MEDIAN_US, "met_p99": n["p99"] <= TARGET_P99_US,
+        "median_us": TARGET_MEDIAN_US,
+        "p99_us": TARGET_P99_US,
+        "ratio_tsid": TARGET_RATIO_TSID,
+        "met_median": n["median"] <= TARGET_MEDIAN_US,
+        "met_p99": n["p99"] <= TARGET_P99_US,
         "met_ratio": (ratios["nominal"]["tsid"]["median"] or 1e9) <= TARGET_RATIO_TSID,
     }
-    print(f"\n  issue 4 targets (nominal): median <= {TARGET_MEDIAN_US:g} µs "
-          f"{'met' if targets['met_median'] else 'MISSED'}, p99 <= {TARGET_P99_US:g} µs "
-          f"{'met' if targets['met_p99'] else 'MISSED'}, <= {TARGET_RATIO_TSID:g}x TSID "
-          f"{'met' if targets['met_ratio'] else 'MISSED'}")
+    print(
+        f"\n  issue 4 targets (nominal): median <= {TARGET_MEDIAN_US:g} µs "
+        f"{'met' if targets['met_median'] else 'MISSED'}, p99 <= {TARGET_P99_US:g} µs "
+        f"{'met' if targets['met_p99'] else 'MISSED'}, <= {TARGET_RATIO_TSID:g}x TSID "
+        f"{'met' if targets['met_ratio'] else 'MISSED'}"
+    )
     report = {
         "benchmark": "sot",
         "unit": "us",
         "ticks": args.ticks,
         "model": model,
         "peer_posture_weight": args.posture_weight,
-        "machine": {"cpus": __import__("os").cpu_count(), "platform": platform.platform(),
-                    "load_average": list(__import__("os").getloadavg())},
+        "machine": {
+            "cpus": __import__("os").cpu_count(),
+            "platform": platform.platform(),
+            "load_average": list(__import__("os").getloadavg()),
+        },
         "marionette": ours,
         "tsid": peers["tsid"],
         "pink": peers["pink"],
@@ -142,13 +184,13 @@ def main(argv: list[str] | None = None) -> int:
         "targets": targets,
         "included": {
             "marionette": "RobotModel (forwardKinematics, frame placements, joint Jacobians, CoM "
-                          "+ CoM Jacobian), 7 features + 7 tasks, strict-hierarchy Solver "
-                          "(joint limits level 0, 3 equality levels, smooth-switching blend)",
+            "+ CoM Jacobian), 7 features + 7 tasks, strict-hierarchy Solver "
+            "(joint limits level 0, 3 equality levels, smooth-switching blend)",
             "tsid": "joint-bound box update, computeProblemData (Pinocchio computeAllTerms incl. "
-                    "mass matrix and nonlinear effects, 7 tasks), eiquadprog-fast QP",
+            "mass matrix and nonlinear effects, 7 tasks), eiquadprog-fast QP",
             "pink": "Configuration.update (computeJointJacobians, updateFramePlacements), "
-                    "solve_ik (6 tasks, configuration + velocity limits, qpsolvers + daqp), "
-                    "Python overhead included",
+            "solve_ik (6 tasks, configuration + velocity limits, qpsolvers + daqp), "
+            "Python overhead included",
         },
     }
     out = pathlib.Path(args.out)

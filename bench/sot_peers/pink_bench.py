@@ -66,8 +66,9 @@ def run(args: argparse.Namespace) -> dict:
     right_foot = frame_task("right_sole_link", 10.0, 1.0)
     com = ComTask(cost=1.0, gain=10.0 * DT)
     right_hand = frame_task(RIGHT_GRIPPER, 1.0, 1.0)
-    left_hand = RelativeFrameTask(LEFT_GRIPPER, RIGHT_GRIPPER, position_cost=1.0,
-                                  orientation_cost=1.0, gain=1.0 * DT)
+    left_hand = RelativeFrameTask(
+        LEFT_GRIPPER, RIGHT_GRIPPER, position_cost=1.0, orientation_cost=1.0, gain=1.0 * DT
+    )
     posture = PostureTask(cost=float(np.sqrt(args.posture_weight)), gain=1.0 * DT)
     for task in (left_foot, right_foot, com, left_hand, posture):
         task.set_target_from_configuration(configuration)
@@ -89,8 +90,15 @@ def run(args: argparse.Namespace) -> dict:
         t1 = time.perf_counter()
         try:
             # solve_ik returns the velocity v = Δq / dt; daqp's initial guess is the last Δq.
-            v = pink.solve_ik(configuration, costs, DT, solver="daqp", constraints=constraints,
-                              safety_break=False, initvals=v * DT)
+            v = pink.solve_ik(
+                configuration,
+                costs,
+                DT,
+                solver="daqp",
+                constraints=constraints,
+                safety_break=False,
+                initvals=v * DT,
+            )
         except pink.exceptions.NoSolutionFound:
             failures += 1
             v = np.zeros(model.nv)
@@ -99,9 +107,11 @@ def run(args: argparse.Namespace) -> dict:
             t_update.append(t1 - t0)
             t_solve.append(t2 - t1)
             t_tick.append(t2 - t0)
-            max_foot_error = max(max_foot_error,
-                                 float(np.linalg.norm(left_foot.compute_error(configuration))),
-                                 float(np.linalg.norm(right_foot.compute_error(configuration))))
+            max_foot_error = max(
+                max_foot_error,
+                float(np.linalg.norm(left_foot.compute_error(configuration))),
+                float(np.linalg.norm(right_foot.compute_error(configuration))),
+            )
         q = pin.integrate(model, q, v * DT)
 
     with warnings.catch_warnings():
@@ -112,8 +122,12 @@ def run(args: argparse.Namespace) -> dict:
         for _ in range(args.ticks):
             tick(timed=True)
     configuration.update(q)
-    hand_error = float(np.linalg.norm(
-        configuration.get_transform_frame_to_world(RIGHT_GRIPPER).translation - target.translation))
+    hand_error = float(
+        np.linalg.norm(
+            configuration.get_transform_frame_to_world(RIGHT_GRIPPER).translation
+            - target.translation
+        )
+    )
     return {
         "ticks": args.ticks,
         "qp": "daqp (qpsolvers)",

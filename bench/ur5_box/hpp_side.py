@@ -20,30 +20,74 @@ import numpy as np
 import pinocchio
 from pinocchio import SE3
 from pyhpp.core import Dichotomy, Straight
-from pyhpp.manipulation import (Device, Graph, ManipulationPlanner, Problem, ProgressiveProjector,
-                                urdf)
+from pyhpp.manipulation import (
+    Device,
+    Graph,
+    ManipulationPlanner,
+    Problem,
+    ProgressiveProjector,
+    urdf,
+)
 from pyhpp.manipulation.constraint_graph_factory import ConstraintGraphFactory
 
 HERE = Path(__file__).resolve().parent
 UR5 = "package://example-robot-data/robots/ur_description/"
 Q_INIT = [0.0, -pi / 2, pi / 2, -pi / 2, -pi / 2, 0.0, 0.5, -0.25, 0.0251, 0, 0, 0, 1]
 Q_GOAL = [0.0, -pi / 2, pi / 2, -pi / 2, -pi / 2, 0.0, 0.5, 0.25, 0.0251, 0, 0, 0, 1]
-JOINTS = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint",
-          "wrist_2_joint", "wrist_3_joint"]
+JOINTS = [
+    "shoulder_pan_joint",
+    "shoulder_lift_joint",
+    "elbow_joint",
+    "wrist_1_joint",
+    "wrist_2_joint",
+    "wrist_3_joint",
+]
 
 
 def build():
     robot = Device("ur5-box")
-    urdf.loadModel(robot, 0, "ur5", "anchor", UR5 + "urdf/ur5_gripper.urdf",
-                   UR5 + "srdf/ur5_gripper.srdf", SE3.Identity())
-    urdf.loadModel(robot, 0, "box", "freeflyer", str(HERE / "box.urdf"), str(HERE / "box.srdf"),
-                   SE3.Identity())
-    urdf.loadModel(robot, 0, "table", "anchor", str(HERE / "table.urdf"), str(HERE / "table.srdf"),
-                   SE3.Identity())
+    urdf.loadModel(
+        robot,
+        0,
+        "ur5",
+        "anchor",
+        UR5 + "urdf/ur5_gripper.urdf",
+        UR5 + "srdf/ur5_gripper.srdf",
+        SE3.Identity(),
+    )
+    urdf.loadModel(
+        robot, 0, "box", "freeflyer", str(HERE / "box.urdf"), str(HERE / "box.srdf"), SE3.Identity()
+    )
+    urdf.loadModel(
+        robot,
+        0,
+        "table",
+        "anchor",
+        str(HERE / "table.urdf"),
+        str(HERE / "table.srdf"),
+        SE3.Identity(),
+    )
     for j in JOINTS:
         robot.setJointBounds(f"ur5/{j}", [-3.14159265, 3.14159265])
-    robot.setJointBounds("box/root_joint", [0.2, 0.9, -0.6, 0.6, -0.1, 1.0, -1.0001, 1.0001,
-                                            -1.0001, 1.0001, -1.0001, 1.0001, -1.0001, 1.0001])
+    robot.setJointBounds(
+        "box/root_joint",
+        [
+            0.2,
+            0.9,
+            -0.6,
+            0.6,
+            -0.1,
+            1.0,
+            -1.0001,
+            1.0001,
+            -1.0001,
+            1.0001,
+            -1.0001,
+            1.0001,
+            -1.0001,
+            1.0001,
+        ],
+    )
     problem = Problem(robot)
     graph = Graph("graph", robot, problem)
     graph.maxIterations(40)
@@ -92,8 +136,12 @@ def projection_times(robot, graph, samples: int, rng: np.random.Generator) -> di
             q[:9] = lo + rng.random(9) * (hi - lo)
             u = rng.random(3)
             a, b = np.sqrt(1 - u[0]), np.sqrt(u[0])
-            q[9:] = [a * np.sin(2 * pi * u[1]), a * np.cos(2 * pi * u[1]),
-                     b * np.sin(2 * pi * u[2]), b * np.cos(2 * pi * u[2])]
+            q[9:] = [
+                a * np.sin(2 * pi * u[1]),
+                a * np.cos(2 * pi * u[1]),
+                b * np.sin(2 * pi * u[2]),
+                b * np.cos(2 * pi * u[2]),
+            ]
             t0 = time.perf_counter()
             success, _, _ = graph.applyStateConstraints(state, q)
             times.append(time.perf_counter() - t0)
@@ -114,8 +162,9 @@ def main() -> None:
         ok, dt, nodes = plan(problem, s)
         runs.append({"seed": s, "success": ok, "time_s": dt, "nodes": nodes})
     proj = projection_times(robot, graph, args.projection_samples, np.random.default_rng(0))
-    args.out.write_text(json.dumps({"system": "HPP 9.0.2", "runs": runs, "projections": proj},
-                                   indent=1))
+    args.out.write_text(
+        json.dumps({"system": "HPP 9.0.2", "runs": runs, "projections": proj}, indent=1)
+    )
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ MODELS_DIR = REPO_ROOT / "models"
 
 _compiled = BUILD_DIR / "python" / "marionette"
 if _compiled.is_dir():
-    __path__.append(str(_compiled))  # noqa: F821  (module attribute of a package)
+    __path__.append(str(_compiled))
     # As lcm-gen's own package __init__ does: ``marionette.lcmt_x`` is the class, which the
     # generated code of nested types relies on (``marionette.lcmt_task_spec._get_hash_recursive``).
     import importlib as _importlib

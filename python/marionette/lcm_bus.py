@@ -12,7 +12,8 @@ import random
 import threading
 import time
 from collections import defaultdict
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import lcm
 
@@ -62,7 +63,7 @@ class LcmBus:
         """Handle at most one message, waiting up to ``timeout_s``; True if one was handled."""
         return self.lcm.handle_timeout(int(timeout_s * 1000)) > 0
 
-    def start(self) -> "LcmBus":
+    def start(self) -> LcmBus:
         """Handle messages in a daemon thread until :meth:`stop`."""
         self._running = True
         self._thread = threading.Thread(target=self._loop, name="lcm-bus", daemon=True)
@@ -79,7 +80,7 @@ class LcmBus:
         while self._running:
             self.lcm.handle_timeout(50)
 
-    def __enter__(self) -> "LcmBus":
+    def __enter__(self) -> LcmBus:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -12,9 +12,10 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import marionette
 
@@ -65,7 +66,7 @@ class ProcessGroup:
     def start(self, name: str, argv: Sequence[str], cwd: Path | None = None) -> ManagedProcess:
         """Starts ``argv`` with its output in ``<log_dir>/<name>.log``."""
         log_path = self.log_dir / f"{name}.log"
-        log = open(log_path, "w")  # noqa: SIM115  (closed with the process)
+        log = open(log_path, "w")
         try:
             popen = subprocess.Popen(
                 list(map(str, argv)),
@@ -102,7 +103,7 @@ class ProcessGroup:
         for p in reversed(self.processes):
             _stop(p, timeout_s)
 
-    def __enter__(self) -> "ProcessGroup":
+    def __enter__(self) -> ProcessGroup:
         # SIGTERM (`timeout`, `kill`, a cancelled job) ends Python without unwinding, and the
         # processes, each in its own session, would outlive it: while the group is open it raises
         # SystemExit instead, so that __exit__ stops them.

@@ -31,7 +31,7 @@ from __future__ import annotations
 import subprocess
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Literal
 
@@ -159,11 +159,13 @@ def load_pinocchio(name: str, with_collision: bool = True):
     model = pin.buildModelFromUrdf(urdf, root()) if root else pin.buildModelFromUrdf(urdf)
     model.name = name
     model.referenceConfigurations[desc.reference] = configuration_from_srdf(
-        model, desc.srdf.read_text(), desc.reference, semantics(name))
+        model, desc.srdf.read_text(), desc.reference, semantics(name)
+    )
     if not with_collision:
         return model, None
-    geom = pin.buildGeomFromUrdf(model, urdf, pin.GeometryType.COLLISION,
-                                 package_dirs=package_dirs())
+    geom = pin.buildGeomFromUrdf(
+        model, urdf, pin.GeometryType.COLLISION, package_dirs=package_dirs()
+    )
     geom.addAllCollisionPairs()
     pin.removeCollisionPairs(model, geom, str(desc.srdf))
     return model, geom
@@ -204,14 +206,18 @@ def configuration_from_srdf(model, srdf_text: str, state: str, sem: Semantics) -
         values = [float(a) for a in j.get("value").split()]
         if len(values) != jm.nq:
             raise ValueError(f"{model.name}: {jname} needs {jm.nq} values, SRDF gives {values}")
-        q[jm.idx_q:jm.idx_q + jm.nq] = values
+        q[jm.idx_q : jm.idx_q + jm.nq] = values
         listed.add(jname)
     for g in sem.grippers:
         if g.joint is not None and g.joint not in listed:
             q[model.joints[model.getJointId(g.joint)].idx_q] = g.open_position
     lo, hi = model.lowerPositionLimit, model.upperPositionLimit
-    bad = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq == 1
-           and not lo[model.joints[j].idx_q] <= q[model.joints[j].idx_q] <= hi[model.joints[j].idx_q]]
+    bad = [
+        model.names[j]
+        for j in range(1, model.njoints)
+        if model.joints[j].nq == 1
+        and not lo[model.joints[j].idx_q] <= q[model.joints[j].idx_q] <= hi[model.joints[j].idx_q]
+    ]
     if bad:
         raise ValueError(f"{model.name} {state}: joints outside their limits: {bad}")
     return pin.normalize(model, q)
@@ -248,7 +254,7 @@ def mujoco_layout(bodies: ET.Element, equalities=None) -> tuple[MujocoJoint, ...
     return tuple(MujocoJoint(j.get("name"), ties.get(j.get("name"))) for j in bodies.iter("joint"))
 
 
-@lru_cache(maxsize=None)
+@cache
 def _robot_layout(name: str) -> tuple[MujocoJoint, ...]:
     return mujoco_layout(ET.parse(robot(name).mjcf).getroot())
 
@@ -269,11 +275,15 @@ def pinocchio_to_mujoco(name: str, q: np.ndarray, layout=None) -> np.ndarray:
         head, tail = np.zeros(0), q
     driven = [j.name for j in layout if j.mimic is None]
     if len(driven) != tail.size:
-        raise ValueError(f"{name}: q has {tail.size} joint values after the base, the MJCF "
-                         f"{len(driven)} joints that are not mimics")
+        raise ValueError(
+            f"{name}: q has {tail.size} joint values after the base, the MJCF "
+            f"{len(driven)} joints that are not mimics"
+        )
     value = dict(zip(driven, tail))
-    out = [value[j.name] if j.mimic is None else j.mimic[1] * value[j.mimic[0]] + j.mimic[2]
-           for j in layout]
+    out = [
+        value[j.name] if j.mimic is None else j.mimic[1] * value[j.mimic[0]] + j.mimic[2]
+        for j in layout
+    ]
     return np.concatenate([head, out])
 
 
@@ -292,8 +302,10 @@ def mujoco_to_pinocchio(name: str, qpos: np.ndarray, layout=None) -> np.ndarray:
         head, n_head = np.zeros(0), 0
     tail = qpos[n_head:]
     if tail.size != len(layout):
-        raise ValueError(f"{name}: qpos has {tail.size} joint values after the base, the MJCF "
-                         f"{len(layout)} joints")
+        raise ValueError(
+            f"{name}: qpos has {tail.size} joint values after the base, the MJCF "
+            f"{len(layout)} joints"
+        )
     return np.concatenate([head, [a for a, j in zip(tail, layout) if j.mimic is None]])
 
 
@@ -339,8 +351,9 @@ def load_object(name: str, root: Literal["free_flyer", "fixed"] = "free_flyer") 
     else:
         raise ValueError(f"root must be 'free_flyer' or 'fixed', got {root!r}")
     model.name = name
-    geom = pin.buildGeomFromUrdf(model, urdf, pin.GeometryType.COLLISION,
-                                 package_dirs=package_dirs())
+    geom = pin.buildGeomFromUrdf(
+        model, urdf, pin.GeometryType.COLLISION, package_dirs=package_dirs()
+    )
     return ObjectModel(name, model, geom, load_semantics(OBJECTS_DIR / f"{name}.yaml"))
 
 
@@ -354,6 +367,7 @@ def _cmeel_prefix() -> Path:
     for c in candidates:
         if (c / "share" / "example-robot-data").is_dir():
             return c
-    out = subprocess.run([sys.executable, "-m", "cmeel", "cmake"], capture_output=True,
-                         text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-m", "cmeel", "cmake"], capture_output=True, text=True, check=True
+    )
     return Path(out.stdout.strip())

@@ -50,9 +50,27 @@ def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
     import sys
 
     out = tmp_path_factory.mktemp("ur10_box_run")
-    env = dict(os.environ, MARIONETTE_LCM_URL=lcm_url, MARIONETTE_BUILD_DIR=str(marionette.BUILD_DIR))
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "ur10-box", "--speed", "3", "--view",
-                           "--out", str(out)], capture_output=True, text=True, timeout=300, env=env)
+    env = dict(
+        os.environ, MARIONETTE_LCM_URL=lcm_url, MARIONETTE_BUILD_DIR=str(marionette.BUILD_DIR)
+    )
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            "ur10-box",
+            "--speed",
+            "3",
+            "--view",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (run,) = out.glob("ur10-box-*")
     return run

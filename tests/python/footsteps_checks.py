@@ -9,7 +9,7 @@ from scipy.spatial import ConvexHull
 from marionette.footsteps.augmented_robot import rotation_2d
 from marionette.footsteps.robot_model import FootShape
 
-BALL = np.array([2.0, -0.2, 0.6])     # the grasp benchmark's ball: 2 m ahead, on a 0.6 m stand
+BALL = np.array([2.0, -0.2, 0.6])  # the grasp benchmark's ball: 2 m ahead, on a 0.6 m stand
 
 
 def sole_points(pose: np.ndarray, foot: FootShape, n: int = 30) -> np.ndarray:
@@ -34,8 +34,9 @@ def depth_inside_hull(point: np.ndarray, poses: list[np.ndarray], foot: FootShap
     return float(-np.max(hull.equations[:, :2] @ point + hull.equations[:, 2]))
 
 
-def step_variables_within(steps: np.ndarray, is_left: np.ndarray, limits, tol: float = 1e-6
-                          ) -> bool:
+def step_variables_within(
+    steps: np.ndarray, is_left: np.ndarray, limits, tol: float = 1e-6
+) -> bool:
     lo, hi = limits.bounds(np.asarray(is_left), with_final=True)
     flat = steps.reshape(-1)
     return bool(np.all(flat >= lo - tol) and np.all(flat <= hi + tol))

@@ -32,7 +32,9 @@ def _alive(pid: int) -> bool:
 
 
 def test_sigterm_to_the_parent_stops_the_group(tmp_path):
-    parent = subprocess.Popen([sys.executable, "-c", PARENT, str(tmp_path)], stdout=subprocess.PIPE, text=True)
+    parent = subprocess.Popen(
+        [sys.executable, "-c", PARENT, str(tmp_path)], stdout=subprocess.PIPE, text=True
+    )
     try:
         child = int(parent.stdout.readline())
         assert _alive(child)

@@ -8,11 +8,11 @@ import select
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, Any, Iterator
+from typing import IO, Any
 
 import lcm
-
 from marionette.control.client import ControllerClient
 from marionette.processes import ProcessGroup
 
@@ -33,12 +33,21 @@ def wait_for_line(stream: IO[str], needle: str, timeout_s: float) -> str | None:
 
 
 @contextlib.contextmanager
-def controller_running(build_dir: Path, lcm_url: str, log_dir: Path, *args: str, camera: bool = False,
-                       ready_timeout: float = 60.0) -> Iterator[ControllerClient]:
+def controller_running(
+    build_dir: Path,
+    lcm_url: str,
+    log_dir: Path,
+    *args: str,
+    camera: bool = False,
+    ready_timeout: float = 60.0,
+) -> Iterator[ControllerClient]:
     """Starts marionette-controller with ``args`` and yields a ready ControllerClient; the
     process is stopped afterwards and must exit cleanly."""
     binary = build_dir / "marionette-controller"
-    with ProcessGroup(lcm_url, log_dir) as group, ControllerClient(lcm_url, camera=camera) as client:
+    with (
+        ProcessGroup(lcm_url, log_dir) as group,
+        ControllerClient(lcm_url, camera=camera) as client,
+    ):
         proc = group.start("controller", [binary, "--lcm-url", lcm_url, *args])
         try:
             client.wait_ready(ready_timeout)
@@ -53,14 +62,36 @@ def controller_running(build_dir: Path, lcm_url: str, log_dir: Path, *args: str,
         assert code == 0, f"controller exited with {code}:\n{proc.log_tail()}"
 
 
-def run_demo(name: str, out_dir: Path, env: dict[str, str], speed: float, timeout_s: float,
-             files: tuple[str, ...] = (), args: tuple[str, ...] = ()) -> tuple[Path, dict[str, Any]]:
+def run_demo(
+    name: str,
+    out_dir: Path,
+    env: dict[str, str],
+    speed: float,
+    timeout_s: float,
+    files: tuple[str, ...] = (),
+    args: tuple[str, ...] = (),
+) -> tuple[Path, dict[str, Any]]:
     """Runs ``marionette demo <name> --speed <speed> --out <out_dir> <args>`` and checks what a
     user checks first: exit code 0, a single run folder whose report says success, and ``files``
     of that folder not empty. Returns the run folder and its report.json."""
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", name, "--speed", str(speed),
-                           "--out", str(out_dir), *args], capture_output=True, text=True, timeout=timeout_s,
-                          env=env)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            name,
+            "--speed",
+            str(speed),
+            "--out",
+            str(out_dir),
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        env=env,
+    )
     print(proc.stdout)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (run,) = out_dir.glob(f"{name}-*")
@@ -84,7 +115,12 @@ def robot_states_at(path: Path, utimes: set[int]) -> dict[int, Any]:
     times), by utime; asserts that every one is there."""
     from marionette import channels, lcmt_robot_state
 
-    states = {msg.utime: msg for _, msg in lcm_log_messages(path, {channels.ROBOT_STATE: lcmt_robot_state})
-              if msg.utime in utimes}
-    assert set(states) == set(utimes), f"{len(set(utimes) - set(states))} verdict times not in {path}"
+    states = {
+        msg.utime: msg
+        for _, msg in lcm_log_messages(path, {channels.ROBOT_STATE: lcmt_robot_state})
+        if msg.utime in utimes
+    }
+    assert set(states) == set(utimes), (
+        f"{len(set(utimes) - set(states))} verdict times not in {path}"
+    )
     return states

@@ -34,12 +34,22 @@ def full_stack() -> ControllerSpec:
         TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=10.0),
         TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=10.0),
         TaskSpec("com", "com", 0, gain=10.0),
-        TaskSpec("right_gripper", "se3", 1, frame="gripper_right_base_link", gain=5.0, streamed=True),
-        TaskSpec("left_gripper", "relative_se3", 1, frame="gripper_left_base_link",
-                 frame_b="gripper_right_base_link", gain=5.0),
+        TaskSpec(
+            "right_gripper", "se3", 1, frame="gripper_right_base_link", gain=5.0, streamed=True
+        ),
+        TaskSpec(
+            "left_gripper",
+            "relative_se3",
+            1,
+            frame="gripper_left_base_link",
+            frame_b="gripper_right_base_link",
+            gain=5.0,
+        ),
         TaskSpec("posture", "posture", 2, gain=1.0),
     ]
-    return ControllerSpec(1, "full_stack", tasks, max_switch_velocity_jump=0.1, reference_timeout=0.5)
+    return ControllerSpec(
+        1, "full_stack", tasks, max_switch_velocity_jump=0.1, reference_timeout=0.5
+    )
 
 
 def stream_circle(client: ControllerClient, model, duration_s: float) -> None:
@@ -58,7 +68,9 @@ def stream_circle(client: ControllerClient, model, duration_s: float) -> None:
             rates = 0.05 * w * np.stack([np.zeros_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
             values = [pose_to_vector(pin.SE3(X0.rotation, X0.translation + o)) for o in offsets]
             derivatives = np.hstack([rates, np.zeros((len(t), 3))])
-            client.send_reference(reference_chunk(1, "right_gripper", sent_until, values, derivatives))
+            client.send_reference(
+                reference_chunk(1, "right_gripper", sent_until, values, derivatives)
+            )
             sent_until += 200_000
         time.sleep(0.05)
 
@@ -70,8 +82,21 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     print(f"  {' '.join(map(str, args))}: {duration_s:.0f} s of controller time ...", flush=True)
     with ProcessGroup(url, log_dir / name) as group, ControllerClient(url) as client:
-        proc = group.start("controller", [binary, "--robot", "talos", "--lcm-url", url, "--duration",
-                                          str(duration_s), "--timing-log", timing_log, *args])
+        proc = group.start(
+            "controller",
+            [
+                binary,
+                "--robot",
+                "talos",
+                "--lcm-url",
+                url,
+                "--duration",
+                str(duration_s),
+                "--timing-log",
+                timing_log,
+                *args,
+            ],
+        )
         client.wait_ready(60)
         client.process = proc
         wall_start = time.monotonic()
@@ -84,9 +109,16 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
         mode = client.status.mode
     t = np.loadtxt(timing_log, delimiter=",", skiprows=1)
     period, compute, lateness = t[1:, 0], t[:, 1], t[1:, 2]
-    stats = lambda x: {"p50": float(np.median(x)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+
+    def stats(x):
+        return {
+            "p50": float(np.median(x)),
+            "p99": float(np.percentile(x, 99)),
+            "max": float(x.max()),
+        }
+
     return {
-        "ticks": int(len(t)),
+        "ticks": len(t),
         "compute_us": stats(compute),
         "lateness_us": stats(lateness),
         "period_us": stats(period),
@@ -99,11 +131,19 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--duration", type=float,
-                        default=float(os.environ.get("MARIONETTE_BENCH_DURATION", 600)))
-    parser.add_argument("--out", type=Path, default=marionette.REPO_ROOT / "reports" / "bench" / "controller.json")
-    parser.add_argument("--only", action="append", default=[], metavar="TEXT",
-                        help="run only the cases whose name contains TEXT (repeatable)")
+    parser.add_argument(
+        "--duration", type=float, default=float(os.environ.get("MARIONETTE_BENCH_DURATION", 600))
+    )
+    parser.add_argument(
+        "--out", type=Path, default=marionette.REPO_ROOT / "reports" / "bench" / "controller.json"
+    )
+    parser.add_argument(
+        "--only",
+        action="append",
+        default=[],
+        metavar="TEXT",
+        help="run only the cases whose name contains TEXT (repeatable)",
+    )
     args = parser.parse_args(argv)
     scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
     realtime = ["--realtime"] if os.geteuid() == 0 else []
@@ -119,15 +159,21 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for i, (name, extra) in enumerate(cases.items()):
             results[name] = run(f"case{i}", extra, args.duration, Path(tmp))
-    print(f"\nTALOS full stack, {args.duration:.0f} s each, 1 kHz, this machine (2 cores), load "
-          f"{os.getloadavg()[0]:.1f}; --realtime (SCHED_FIFO + mlockall) {'on' if realtime else 'refused: not root'}")
-    print(f"{'case':24} {'compute p50/p99/max [us]':>28} {'lateness p50/p99/max [us]':>28} "
-          f"{'misses':>7} {'RTF':>6}")
+    print(
+        f"\nTALOS full stack, {args.duration:.0f} s each, 1 kHz, this machine (2 cores), load "
+        f"{os.getloadavg()[0]:.1f}; --realtime (SCHED_FIFO + mlockall) {'on' if realtime else 'refused: not root'}"
+    )
+    print(
+        f"{'case':24} {'compute p50/p99/max [us]':>28} {'lateness p50/p99/max [us]':>28} "
+        f"{'misses':>7} {'RTF':>6}"
+    )
     for name, r in results.items():
         c, l = r["compute_us"], r["lateness_us"]
-        print(f"{name:24} {c['p50']:8.0f} {c['p99']:8.0f} {c['max']:9.0f}   "
-              f"{l['p50']:8.0f} {l['p99']:8.0f} {l['max']:9.0f}   {r['deadline_misses']:6d} "
-              f"{r['realtime_factor']:6.3f}")
+        print(
+            f"{name:24} {c['p50']:8.0f} {c['p99']:8.0f} {c['max']:9.0f}   "
+            f"{l['p50']:8.0f} {l['p99']:8.0f} {l['max']:9.0f}   {r['deadline_misses']:6d} "
+            f"{r['realtime_factor']:6.3f}"
+        )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
     return 0

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -80,14 +81,16 @@ class ControllerClient:
     def close(self) -> None:
         self.bus.stop()
 
-    def __enter__(self) -> "ControllerClient":
+    def __enter__(self) -> ControllerClient:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
     # ---- waiting ---------------------------------------------------------------------------
-    def wait(self, condition: Callable[["ControllerClient"], bool], timeout_s: float, what: str = "") -> None:
+    def wait(
+        self, condition: Callable[[ControllerClient], bool], timeout_s: float, what: str = ""
+    ) -> None:
         """Blocks until ``condition(self)`` holds; raises TimeoutError naming ``what``."""
         deadline = time.monotonic() + timeout_s
         with self._lock:
@@ -106,7 +109,9 @@ class ControllerClient:
                         if status is not None
                         else " (no CONTROLLER_STATUS received)"
                     )
-                    raise TimeoutError(f"timed out after {timeout_s} s waiting for {what or condition}{detail}")
+                    raise TimeoutError(
+                        f"timed out after {timeout_s} s waiting for {what or condition}{detail}"
+                    )
                 self._lock.wait(min(remaining, 0.05))
 
     def wait_ready(self, timeout_s: float = 30.0, processes: Any = None) -> None:
@@ -114,7 +119,9 @@ class ControllerClient:
         :class:`~marionette.processes.ProcessGroup` that started it): on a timeout, a process of it
         that exited is reported first (ProcessError with its log's tail), it usually says why."""
         try:
-            self.wait(lambda c: c.status is not None and c.state is not None, timeout_s, "the controller")
+            self.wait(
+                lambda c: c.status is not None and c.state is not None, timeout_s, "the controller"
+            )
         except TimeoutError:
             if processes is not None:
                 processes.check_alive()
@@ -123,9 +130,11 @@ class ControllerClient:
     def wait_time(self, seconds: float, timeout_s: float | None = None) -> None:
         """Waits until the controller's clock has advanced by ``seconds``."""
         start = self.state.utime
-        self.wait(lambda c: c.state.utime >= start + seconds * 1e6,
-                  timeout_s if timeout_s is not None else 10.0 + 5.0 * seconds,
-                  f"{seconds} s of controller time")
+        self.wait(
+            lambda c: c.state.utime >= start + seconds * 1e6,
+            timeout_s if timeout_s is not None else 10.0 + 5.0 * seconds,
+            f"{seconds} s of controller time",
+        )
 
     # ---- sending ---------------------------------------------------------------------------
     def send_spec(self, spec: ControllerSpec) -> None:
@@ -201,12 +210,16 @@ def configuration_from_state(model, state) -> np.ndarray:
         name = model.names[j]
         if joint.shortname() == "JointModelFreeFlyer":
             w, x, y, z = state.base_quaternion
-            q[joint.idx_q:joint.idx_q + 7] = [*state.base_position, x, y, z, w]
+            q[joint.idx_q : joint.idx_q + 7] = [*state.base_position, x, y, z, w]
         elif joint.shortname() == "JointModelPlanar":
             w, _, _, z = state.base_quaternion
             yaw = 2.0 * np.arctan2(z, w)
-            q[joint.idx_q:joint.idx_q + 4] = [state.base_position[0], state.base_position[1],
-                                              np.cos(yaw), np.sin(yaw)]
+            q[joint.idx_q : joint.idx_q + 4] = [
+                state.base_position[0],
+                state.base_position[1],
+                np.cos(yaw),
+                np.sin(yaw),
+            ]
         elif name in positions:
             q[joint.idx_q] = positions[name]
     return q

@@ -14,8 +14,8 @@ import itertools
 import os
 import threading
 import time
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -39,10 +39,13 @@ def reply_values(reply) -> dict[str, np.ndarray]:
     0-d arrays, vectors as 1-d, matrices and SE3 as 2-d."""
     out, offset = {}, 0
     for name, rows, cols in zip(reply.signal, reply.rows, reply.cols):
-        flat = np.array(reply.value[offset:offset + rows * cols])
+        flat = np.array(reply.value[offset : offset + rows * cols])
         offset += rows * cols
-        out[name] = flat.reshape((rows, cols), order="F") if cols > 1 else (
-            flat if rows > 1 else flat.reshape(()))
+        out[name] = (
+            flat.reshape((rows, cols), order="F")
+            if cols > 1
+            else (flat if rows > 1 else flat.reshape(()))
+        )
     return out
 
 
@@ -58,13 +61,15 @@ class GraphClient:
         self.bus.subscribe(channels.DG_REPLY, lcmt_dg_reply, self._on_reply)
         # LCM drops a subscription's messages beyond its queue (30 by default) while the handling
         # thread is off the CPU: 10 s of a 1 kHz trace may wait here.
-        self.bus.subscribe(channels.DG_TRACE, lcmt_dg_reply, self._on_trace).set_queue_capacity(10_000)
+        self.bus.subscribe(channels.DG_TRACE, lcmt_dg_reply, self._on_trace).set_queue_capacity(
+            10_000
+        )
         self.bus.start()
 
     def close(self) -> None:
         self.bus.stop()
 
-    def __enter__(self) -> "GraphClient":
+    def __enter__(self) -> GraphClient:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -84,8 +89,13 @@ class GraphClient:
             self._trace.append(reply)
             self._cond.notify_all()
 
-    def request(self, command: str, signals: Sequence[str] = (), values: Sequence[float] = (),
-                rate: float = 0.0):
+    def request(
+        self,
+        command: str,
+        signals: Sequence[str] = (),
+        values: Sequence[float] = (),
+        rate: float = 0.0,
+    ):
         """Sends a request and waits for its reply; raises IntrospectionError on refusal."""
         msg = lcmt_dg_request()
         msg.utime = int(time.time() * 1e6)
@@ -105,7 +115,8 @@ class GraphClient:
                 if remaining <= 0:
                     raise IntrospectionError(
                         f"no reply to {command!r} from marionette-controller within {self.timeout_s} s "
-                        f"(is it running on {self.bus.url}?)")
+                        f"(is it running on {self.bus.url}?)"
+                    )
                 self._cond.wait(remaining)
             reply = self._replies.pop(msg.request_id)
         if not reply.ok:

@@ -35,33 +35,66 @@ def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = No
         raise FileNotFoundError(f"no LCM log at {log}")
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "replay.json"
-        argv = [str(controller_binary()), "--replay", str(log), "--tolerance", repr(tolerance), "--json", str(out)]
+        argv = [
+            str(controller_binary()),
+            "--replay",
+            str(log),
+            "--tolerance",
+            repr(tolerance),
+            "--json",
+            str(out),
+        ]
         if scene:
             argv += ["--scene", scene]
         proc = subprocess.run(argv, capture_output=True, text=True)
         if proc.returncode == 2 or not out.exists():
-            raise RuntimeError(f"replay of {log} failed: {proc.stderr.strip() or proc.stdout.strip()}")
+            raise RuntimeError(
+                f"replay of {log} failed: {proc.stderr.strip() or proc.stdout.strip()}"
+            )
         result = json.loads(out.read_text())
     result["output"] = proc.stdout
     return result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("replay", help="re-run a recorded run offline and check it reproduces the recording")
-    p.add_argument("log", type=Path, help="LCM log of the run (lcm-logger, or a demo's report folder's run.lcmlog)")
+    p = sub.add_parser(
+        "replay", help="re-run a recorded run offline and check it reproduces the recording"
+    )
+    p.add_argument(
+        "log",
+        type=Path,
+        help="LCM log of the run (lcm-logger, or a demo's report folder's run.lcmlog)",
+    )
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--controller", action="store_true",
-                      help="replay the C++ controller's graph from its journal")
-    mode.add_argument("--supervisor", action="store_true",
-                      help="re-take the supervisor's decisions from the recorded statuses and events and "
-                           "compare them with the recorded SUPERVISOR_DECISION messages")
-    mode.add_argument("--view", action="store_true",
-                      help="play the log in the browser viewer (its URL is printed) and re-plot the report")
+    mode.add_argument(
+        "--controller",
+        action="store_true",
+        help="replay the C++ controller's graph from its journal",
+    )
+    mode.add_argument(
+        "--supervisor",
+        action="store_true",
+        help="re-take the supervisor's decisions from the recorded statuses and events and "
+        "compare them with the recorded SUPERVISOR_DECISION messages",
+    )
+    mode.add_argument(
+        "--view",
+        action="store_true",
+        help="play the log in the browser viewer (its URL is printed) and re-plot the report",
+    )
     p.add_argument("--speed", type=float, default=1.0, help="--view: playback speed (0 = unpaced)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="--view: folder of the re-plotted report (default: <log folder>/replay)")
-    p.add_argument("--no-hold", action="store_true", help="--view: exit once played instead of serving on")
-    p.add_argument("--tolerance", type=float, default=1e-9, help="largest accepted command difference")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="--view: folder of the re-plotted report (default: <log folder>/replay)",
+    )
+    p.add_argument(
+        "--no-hold", action="store_true", help="--view: exit once played instead of serving on"
+    )
+    p.add_argument(
+        "--tolerance", type=float, default=1e-9, help="largest accepted command difference"
+    )
     p.add_argument("--scene", default=None, help="MJCF scene to use instead of the recorded path")
     p.set_defaults(func=_run)
 
@@ -81,7 +114,11 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _run_supervisor(args: argparse.Namespace) -> int:
-    from marionette.execution.decision_replay import DecisionLogError, format_verdict, replay_supervisor
+    from marionette.execution.decision_replay import (
+        DecisionLogError,
+        format_verdict,
+        replay_supervisor,
+    )
 
     try:
         result = replay_supervisor(args.log)
@@ -100,8 +137,13 @@ def _run_view(args: argparse.Namespace) -> int:
         print("marionette replay: --speed must be >= 0", file=sys.stderr)
         return 2
     try:
-        return serve_replay(args.log, args.speed, args.scene and Path(args.scene),
-                            args.out or Path(args.log).parent / "replay", not args.no_hold)
+        return serve_replay(
+            args.log,
+            args.speed,
+            args.scene and Path(args.scene),
+            args.out or Path(args.log).parent / "replay",
+            not args.no_hold,
+        )
     except (FileNotFoundError, ReplayError, ViewerError) as e:
         print(f"marionette replay: {e}", file=sys.stderr)
         return 2

@@ -26,8 +26,9 @@ manager + ZMP preview control fed by FOOTSTEP_PLAN), see :data:`WALK_REFERENCES`
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -55,14 +56,14 @@ class TaskSpec:
     priority: int
     frame: str = ""
     frame_b: str = ""
-    mask: Sequence[bool] = ()            # empty = every component
-    gain: float = 2.0                    # lambda [1/s] (at zero error when adaptive)
-    gain_max: float = 0.0                # adaptive gain at large error (0 = constant)
-    gain_slope: float = 0.0              # adaptive slope (0 = constant)
-    streamed: bool = False               # follow TASK_REFERENCE chunks named after the task
-    reference: Sequence[float] = ()      # fixed reference (empty = hold the current value)
-    joints: Sequence[str] = ()           # posture joints (empty = all)
-    reference_channel: str = ""          # "walk:left_foot|right_foot|com": from the walk (see module)
+    mask: Sequence[bool] = ()  # empty = every component
+    gain: float = 2.0  # lambda [1/s] (at zero error when adaptive)
+    gain_max: float = 0.0  # adaptive gain at large error (0 = constant)
+    gain_slope: float = 0.0  # adaptive slope (0 = constant)
+    streamed: bool = False  # follow TASK_REFERENCE chunks named after the task
+    reference: Sequence[float] = ()  # fixed reference (empty = hold the current value)
+    joints: Sequence[str] = ()  # posture joints (empty = all)
+    reference_channel: str = ""  # "walk:left_foot|right_foot|com": from the walk (see module)
     parameters: dict[str, float] = field(default_factory=dict)  # kind-specific (gripper_admittance)
 
     def check(self) -> None:
@@ -77,9 +78,10 @@ class TaskSpec:
             raise SpecError(f"{where}: a relative_se3 task needs frame_b")
         if len(self.mask) > 6:
             raise SpecError(f"{where}: a mask has at most 6 entries")
-        if not np.all(np.isfinite([self.gain, self.gain_max, self.gain_slope])) or min(
-            self.gain, self.gain_max, self.gain_slope
-        ) < 0:
+        if (
+            not np.all(np.isfinite([self.gain, self.gain_max, self.gain_slope]))
+            or min(self.gain, self.gain_max, self.gain_slope) < 0
+        ):
             raise SpecError(f"{where}: gains must be finite and >= 0")
         if not np.all(np.isfinite(np.asarray(self.reference, dtype=float))):
             raise SpecError(f"{where}: non-finite reference")
@@ -88,23 +90,38 @@ class TaskSpec:
         if self.kind == "gripper_admittance":
             unknown = sorted(set(self.parameters) - set(GRIPPER_ADMITTANCE_PARAMETERS))
             if unknown:
-                raise SpecError(f"{where}: unknown parameters {unknown} "
-                                f"(one of {', '.join(GRIPPER_ADMITTANCE_PARAMETERS)})")
-            if len(self.joints) != 1 or len(self.reference) != 1 or self.streamed or self.gain_slope:
-                raise SpecError(f"{where}: a gripper_admittance task needs one joint, its position "
-                                "target as a 1-value fixed reference and a constant gain")
+                raise SpecError(
+                    f"{where}: unknown parameters {unknown} "
+                    f"(one of {', '.join(GRIPPER_ADMITTANCE_PARAMETERS)})"
+                )
+            if (
+                len(self.joints) != 1
+                or len(self.reference) != 1
+                or self.streamed
+                or self.gain_slope
+            ):
+                raise SpecError(
+                    f"{where}: a gripper_admittance task needs one joint, its position "
+                    "target as a 1-value fixed reference and a constant gain"
+                )
         if self.reference_channel:
             kind = WALK_REFERENCES.get(self.reference_channel)
             if kind is None:
-                raise SpecError(f"{where}: unknown reference_channel {self.reference_channel!r} "
-                                f"(one of {', '.join(WALK_REFERENCES)}; streamed=True for "
-                                f"{channels.TASK_REFERENCE})")
+                raise SpecError(
+                    f"{where}: unknown reference_channel {self.reference_channel!r} "
+                    f"(one of {', '.join(WALK_REFERENCES)}; streamed=True for "
+                    f"{channels.TASK_REFERENCE})"
+                )
             if self.kind != kind:
-                raise SpecError(f"{where}: a {self.reference_channel!r} reference needs a {kind} "
-                                f"task, not {self.kind}")
+                raise SpecError(
+                    f"{where}: a {self.reference_channel!r} reference needs a {kind} "
+                    f"task, not {self.kind}"
+                )
             if self.streamed or len(self.reference):
-                raise SpecError(f"{where}: a {self.reference_channel!r} task takes its reference "
-                                "from the walk: no streamed or fixed reference")
+                raise SpecError(
+                    f"{where}: a {self.reference_channel!r} task takes its reference "
+                    "from the walk: no streamed or fixed reference"
+                )
 
     def to_lcm(self) -> lcmt_task_spec:
         self.check()
@@ -119,7 +136,9 @@ class TaskSpec:
         msg.gain = float(self.gain)
         msg.gain_max = float(self.gain_max)
         msg.gain_slope = float(self.gain_slope)
-        msg.reference_channel = self.reference_channel or (channels.TASK_REFERENCE if self.streamed else "")
+        msg.reference_channel = self.reference_channel or (
+            channels.TASK_REFERENCE if self.streamed else ""
+        )
         msg.reference = [float(x) for x in self.reference]
         msg.num_reference = len(msg.reference)
         msg.joint_name = list(self.joints)
@@ -152,22 +171,32 @@ class TaskSpec:
         return d
 
     @classmethod
-    def from_lcm(cls, msg: lcmt_task_spec) -> "TaskSpec":
+    def from_lcm(cls, msg: lcmt_task_spec) -> TaskSpec:
         """The inverse of :meth:`to_lcm` (TASK_REFERENCE -> ``streamed``); checked."""
         channel = msg.reference_channel
         streamed = channel == channels.TASK_REFERENCE
         mask = tuple(bool(m) for m in msg.mask)
-        spec = cls(msg.name, msg.kind, int(msg.priority), frame=msg.frame, frame_b=msg.frame_b,
-                   mask=mask if any(mask) else (), gain=msg.gain,
-                   gain_max=msg.gain_max, gain_slope=msg.gain_slope, streamed=streamed,
-                   reference=tuple(msg.reference), joints=tuple(msg.joint_name),
-                   reference_channel="" if streamed else channel,
-                   parameters=dict(zip(msg.parameter_name, msg.parameter_value)))
+        spec = cls(
+            msg.name,
+            msg.kind,
+            int(msg.priority),
+            frame=msg.frame,
+            frame_b=msg.frame_b,
+            mask=mask if any(mask) else (),
+            gain=msg.gain,
+            gain_max=msg.gain_max,
+            gain_slope=msg.gain_slope,
+            streamed=streamed,
+            reference=tuple(msg.reference),
+            joints=tuple(msg.joint_name),
+            reference_channel="" if streamed else channel,
+            parameters=dict(zip(msg.parameter_name, msg.parameter_value)),
+        )
         spec.check()
         return spec
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "TaskSpec":
+    def from_dict(cls, d: dict[str, Any]) -> TaskSpec:
         known = set(cls.__dataclass_fields__)
         unknown = set(d) - known
         if unknown:
@@ -180,8 +209,8 @@ class ControllerSpec:
     controller_id: int
     name: str
     tasks: list[TaskSpec] = field(default_factory=list)
-    max_switch_velocity_jump: float = 0.1   # [rad/s] refuse a swap that jumps more
-    reference_timeout: float = 0.1          # [s] watchdog on streamed references
+    max_switch_velocity_jump: float = 0.1  # [rad/s] refuse a swap that jumps more
+    reference_timeout: float = 0.1  # [s] watchdog on streamed references
 
     def check(self) -> None:
         if not self.tasks:
@@ -214,7 +243,7 @@ class ControllerSpec:
         }
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "ControllerSpec":
+    def from_dict(cls, d: dict[str, Any]) -> ControllerSpec:
         tasks = [TaskSpec.from_dict(t) for t in d.get("tasks", [])]
         rest = {k: v for k, v in d.items() if k != "tasks"}
         return cls(tasks=tasks, **rest)
@@ -248,7 +277,9 @@ def reference_chunk(
     else:
         derivatives = np.atleast_2d(np.asarray(derivatives, dtype=float))
         if derivatives.shape[0] != msg.num_samples:
-            raise SpecError(f"{task_name}: {derivatives.shape[0]} derivatives for {msg.num_samples} values")
+            raise SpecError(
+                f"{task_name}: {derivatives.shape[0]} derivatives for {msg.num_samples} values"
+            )
         msg.derivative_size = derivatives.shape[1]
         msg.derivative = derivatives.tolist()
     msg.last_chunk = bool(last)

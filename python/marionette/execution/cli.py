@@ -11,24 +11,42 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "supervise", help="execute a plan on a running controller (one controller per transition)",
+        "supervise",
+        help="execute a plan on a running controller (one controller per transition)",
         description="Generate the controllers of PLAN (written to --specs), estimate where the plan "
-                    "stands from the robot's state, and run the supervisor FSM against the "
-                    "marionette-controller listening on the LCM URL.")
+        "stands from the robot's state, and run the supervisor FSM against the "
+        "marionette-controller listening on the LCM URL.",
+    )
     p.add_argument("plan", type=Path, help="plan.json written by `marionette plan`")
     p.add_argument("--lcm-url", default=None)
     p.add_argument("--specs", type=Path, default=None, help="where to write the controllers (YAML)")
-    p.add_argument("--step", action="store_true",
-                   help="wait for `marionette fsm inject approve` before each step")
+    p.add_argument(
+        "--step",
+        action="store_true",
+        help="wait for `marionette fsm inject approve` before each step",
+    )
     p.add_argument("--max-joint-velocity", type=float, default=0.5, help="[rad/s] (default 0.5)")
-    p.add_argument("--no-sim-grasp", action="store_true",
-                   help="do not weld grasps in the simulator (kinematic backend, real robot)")
-    p.add_argument("--gripper-admittance", action="store_true",
-                   help="gripper_admittance tasks while a gripper with a joint holds (thesis 000 §3.2.4.3)")
-    p.add_argument("--monitor", action="store_true",
-                   help="execution monitor: left_manifold when OBJECT_POSES leave the step's constraints")
-    p.add_argument("--from-step", type=int, default=None,
-                   help="start at this step (default: from the estimated state)")
+    p.add_argument(
+        "--no-sim-grasp",
+        action="store_true",
+        help="do not weld grasps in the simulator (kinematic backend, real robot)",
+    )
+    p.add_argument(
+        "--gripper-admittance",
+        action="store_true",
+        help="gripper_admittance tasks while a gripper with a joint holds (thesis 000 §3.2.4.3)",
+    )
+    p.add_argument(
+        "--monitor",
+        action="store_true",
+        help="execution monitor: left_manifold when OBJECT_POSES leave the step's constraints",
+    )
+    p.add_argument(
+        "--from-step",
+        type=int,
+        default=None,
+        help="start at this step (default: from the estimated state)",
+    )
     p.set_defaults(func=run_supervise)
 
     f = subparsers.add_parser("fsm", help="supervisor FSM: state, events, inject an event")
@@ -50,8 +68,17 @@ def run_supervise(args: argparse.Namespace) -> int:
 
     from marionette import robots
     from marionette.control.client import ControllerClient, configuration_from_state
-    from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
-    from marionette.execution.factory import build_specs, check_specs, context_from_plan, write_specs
+    from marionette.execution.estimation import (
+        estimate_state,
+        first_step_to_run,
+        measured_configuration,
+    )
+    from marionette.execution.factory import (
+        build_specs,
+        check_specs,
+        context_from_plan,
+        write_specs,
+    )
     from marionette.execution.plan_steps import PlanError, PlanRobotMap, plan_robot, steps_from_plan
     from marionette.execution.supervisor import Supervisor, SupervisorOptions
     from marionette.planning.path import load_plan
@@ -72,8 +99,10 @@ def run_supervise(args: argparse.Namespace) -> int:
     problems = check_specs(steps, specs, ctx, robot_map)
     print(f"{len(steps)} steps -> {specs_path}")
     if problems:
-        print("marionette supervise: the controllers fail their checks:\n  " + "\n  ".join(problems),
-              file=sys.stderr)
+        print(
+            "marionette supervise: the controllers fail their checks:\n  " + "\n  ".join(problems),
+            file=sys.stderr,
+        )
         return 1
     with ControllerClient(args.lcm_url) as client:
         try:
@@ -90,17 +119,28 @@ def run_supervise(args: argparse.Namespace) -> int:
             q0 = np.array(plan.doc["problem"]["q_init"])
             objects = {}
             if client.objects is not None:
-                objects = {n: client.object_pose(n) for n in robot_map.objects
-                           if any(o.object_name == n for o in client.objects.objects)}
-            measured = measured_configuration(q0, robot_map, configuration_from_state(model, client.state),
-                                              objects)
+                objects = {
+                    n: client.object_pose(n)
+                    for n in robot_map.objects
+                    if any(o.object_name == n for o in client.objects.objects)
+                }
+            measured = measured_configuration(
+                q0, robot_map, configuration_from_state(model, client.state), objects
+            )
             estimate = estimate_state(graph, measured)
             first = first_step_to_run(steps, robot_map, estimate)
-            print(f"estimated state {estimate.state!r} (residual {estimate.residual:.2e}): "
-                  f"starting at step {first}")
-        options = SupervisorOptions(max_joint_velocity=args.max_joint_velocity,
-                                    simulated_grasps=not args.no_sim_grasp, step_mode=args.step)
-        supervisor = Supervisor(client, steps, specs, robot_map, options, plan.doc["problem"]["name"])
+            print(
+                f"estimated state {estimate.state!r} (residual {estimate.residual:.2e}): "
+                f"starting at step {first}"
+            )
+        options = SupervisorOptions(
+            max_joint_velocity=args.max_joint_velocity,
+            simulated_grasps=not args.no_sim_grasp,
+            step_mode=args.step,
+        )
+        supervisor = Supervisor(
+            client, steps, specs, robot_map, options, plan.doc["problem"]["name"]
+        )
         if args.monitor:
             from marionette.execution.monitor import ExecutionMonitor, MonitorNode
 
@@ -113,14 +153,16 @@ def run_supervise(args: argparse.Namespace) -> int:
 
 
 def run_fsm(args: argparse.Namespace) -> int:
-    from marionette import channels, lcmt_supervisor_state
+    from marionette import channels, lcmt_supervisor_event, lcmt_supervisor_state
     from marionette.execution.decisions import event_message
     from marionette.lcm_bus import LcmBus, MessageLog
 
     with LcmBus(args.lcm_url) as bus:
         if args.fsm_command == "inject":
-            bus.publish(channels.SUPERVISOR_EVENT,
-                        event_message(int(time.time() * 1e6), args.event, "cli", args.detail, args.value))
+            bus.publish(
+                channels.SUPERVISOR_EVENT,
+                event_message(int(time.time() * 1e6), args.event, "cli", args.detail, args.value),
+            )
             print(f"sent {args.event}")
             return 0
         if args.fsm_command == "state":
@@ -130,15 +172,20 @@ def run_fsm(args: argparse.Namespace) -> int:
                 print(f"no SUPERVISOR_STATE within {args.timeout} s", file=sys.stderr)
                 return 1
             s = states.latest()
-            print(f"{s.plan_name}: step {s.step_index + 1}/{s.num_steps} {s.state!r} "
-                  f"[{s.status}] {s.detail}")
+            print(
+                f"{s.plan_name}: step {s.step_index + 1}/{s.num_steps} {s.state!r} "
+                f"[{s.status}] {s.detail}"
+            )
             return 0
         events = MessageLog(bus, channels.SUPERVISOR_EVENT, lcmt_supervisor_event)
         bus.start()
         shown = 0
         deadline = time.monotonic() + args.timeout
         while time.monotonic() < deadline and (args.count == 0 or shown < args.count):
-            events.wait_for(lambda m: len(m) > shown, max(0.0, deadline - time.monotonic()))
+            seen = shown
+            events.wait_for(
+                lambda m, seen=seen: len(m) > seen, max(0.0, deadline - time.monotonic())
+            )
             for e in events.messages[shown:]:
                 print(f"{e.utime * 1e-6:10.3f}  {e.source:10s} {e.name:20s} {e.detail}")
                 shown += 1

@@ -13,8 +13,12 @@ from pathlib import Path
 from typing import Any
 
 import lcm
-
-from marionette import channels, lcmt_controller_status, lcmt_supervisor_decision, lcmt_supervisor_event
+from marionette import (
+    channels,
+    lcmt_controller_status,
+    lcmt_supervisor_decision,
+    lcmt_supervisor_event,
+)
 from marionette.execution.decisions import EVENT, STATUS, Decision, DecisionReplay, replay_decisions
 from marionette.execution.supervisor import SOURCE
 
@@ -42,20 +46,25 @@ def read_decision_log(log: Path) -> tuple[list[Decision], list[tuple[str, Any]]]
                 inputs.append((STATUS, lcmt_controller_status.decode(ev.data)))
             elif ev.channel == channels.SUPERVISOR_EVENT:
                 msg = lcmt_supervisor_event.decode(ev.data)
-                if msg.source != SOURCE:      # the supervisor does not read its own events
+                if msg.source != SOURCE:  # the supervisor does not read its own events
                     inputs.append((EVENT, msg))
         except ValueError as e:
-            raise DecisionLogError(f"{log}: cannot decode a {ev.channel} message at "
-                                   f"{ev.timestamp} us: {e}") from None
+            raise DecisionLogError(
+                f"{log}: cannot decode a {ev.channel} message at {ev.timestamp} us: {e}"
+            ) from None
     if not recorded:
-        raise DecisionLogError(f"{log} holds no {channels.SUPERVISOR_DECISION} message (a run recorded "
-                               "before the supervisor published its decisions, or no supervisor ran)")
+        raise DecisionLogError(
+            f"{log} holds no {channels.SUPERVISOR_DECISION} message (a run recorded "
+            "before the supervisor published its decisions, or no supervisor ran)"
+        )
     recorded.sort(key=lambda m: m.seq)
     seqs = [m.seq for m in recorded]
     if seqs != list(range(len(seqs))):
         runs = sorted({m.plan_name for m in recorded})
-        raise DecisionLogError(f"{log}: decision numbers are not 0..{len(seqs) - 1} (several supervisor "
-                               f"runs, plans {runs}, or lost messages): cannot replay")
+        raise DecisionLogError(
+            f"{log}: decision numbers are not 0..{len(seqs) - 1} (several supervisor "
+            f"runs, plans {runs}, or lost messages): cannot replay"
+        )
     return [Decision.from_lcm(m) for m in recorded], inputs
 
 
@@ -66,8 +75,10 @@ def replay_supervisor(log: Path) -> DecisionReplay:
 
 
 def format_verdict(log: Path, r: DecisionReplay) -> str:
-    head = (f"supervisor replay of {log}: {r.recorded} decisions recorded, {r.replayed} re-taken from "
-            f"{r.statuses} CONTROLLER_STATUS and {r.events} SUPERVISOR_EVENT messages")
+    head = (
+        f"supervisor replay of {log}: {r.recorded} decisions recorded, {r.replayed} re-taken from "
+        f"{r.statuses} CONTROLLER_STATUS and {r.events} SUPERVISOR_EVENT messages"
+    )
     if r.ok:
         return f"{head}\nIDENTICAL: same decisions at the same ticks from the same inputs\n"
     return f"{head}\nDIVERGED: first divergence: {r.first_divergence}\n"

@@ -19,8 +19,9 @@ Step statuses:  starting -> waiting_start_check -> accepted -> running -> waitin
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
 
 from marionette.control.spec import HOLD_CONTROLLER_ID
 
@@ -28,10 +29,23 @@ STATUS = "CONTROLLER_STATUS"
 EVENT = "SUPERVISOR_EVENT"
 STEP = "STEP"
 TIMER = "TIMER"
-FED_CHANNELS = (STEP, TIMER)   # inputs the supervisor itself produces: recorded, fed back, not decided
+FED_CHANNELS = (
+    STEP,
+    TIMER,
+)  # inputs the supervisor itself produces: recorded, fed back, not decided
 
-FAILURES = ("switch_refused", "spec_rejected", "switch_timeout", "reference_starved", "controller_holding",
-            "controller_estopped", "abort", "left_manifold", "end_check_failed", "approval_timeout")
+FAILURES = (
+    "switch_refused",
+    "spec_rejected",
+    "switch_timeout",
+    "reference_starved",
+    "controller_holding",
+    "controller_estopped",
+    "abort",
+    "left_manifold",
+    "end_check_failed",
+    "approval_timeout",
+)
 
 
 def event_message(utime: int, name: str, source: str, detail: str = "", value: float = 0.0) -> Any:
@@ -70,7 +84,11 @@ class Decision:
 
         msg = lcmt_supervisor_decision()
         msg.utime, msg.seq, msg.plan_name = int(self.utime), int(seq), plan_name
-        msg.step_index, msg.transition, msg.event = int(self.step_index), self.transition, self.event
+        msg.step_index, msg.transition, msg.event = (
+            int(self.step_index),
+            self.transition,
+            self.event,
+        )
         msg.from_status, msg.to_status, msg.detail = self.from_status, self.to_status, self.detail
         msg.input_channel, msg.input_utime = self.input_channel, int(self.input_utime)
         msg.num_inputs = len(self.inputs)
@@ -79,29 +97,38 @@ class Decision:
         return msg
 
     @staticmethod
-    def from_lcm(msg: Any) -> "Decision":
-        return Decision(int(msg.utime), int(msg.step_index), msg.transition, msg.event, msg.from_status,
-                        msg.to_status, msg.detail, msg.input_channel, int(msg.input_utime),
-                        dict(zip(msg.input_name, msg.input_value)))
+    def from_lcm(msg: Any) -> Decision:
+        return Decision(
+            int(msg.utime),
+            int(msg.step_index),
+            msg.transition,
+            msg.event,
+            msg.from_status,
+            msg.to_status,
+            msg.detail,
+            msg.input_channel,
+            int(msg.input_utime),
+            dict(zip(msg.input_name, msg.input_value)),
+        )
 
 
 class DecisionMachine:
     """The supervisor FSM's decision function, one step at a time (see the module doc)."""
 
     def __init__(self) -> None:
-        self.tick = 0                     # [us] utime of the last status fed
+        self.tick = 0  # [us] utime of the last status fed
         self.status = "idle"
         self.step_index = -1
         self.transition = ""
         self.controller_id = 0
         self.thresholds: dict[str, float] = {}
         self.converge_timeout_us = 0
-        self.end_utime = 0                # [us] last reference sample (after a force stop: the held one)
-        self.reference_sent = False       # every chunk streamed
+        self.end_utime = 0  # [us] last reference sample (after a force stop: the held one)
+        self.reference_sent = False  # every chunk streamed
         # A force event cuts the reference once per step, also after everything was streamed: a
         # chunk redefines the controller's stream from its first sample on (reference_stream.cc).
         self.reference_stopped = False
-        self.awaiting = ""                # event name awaited in "awaiting_approval"
+        self.awaiting = ""  # event name awaited in "awaiting_approval"
 
     # ---- inputs -----------------------------------------------------------------------------
     def feed(self, channel: str, msg: Any) -> list[Decision]:
@@ -112,36 +139,70 @@ class DecisionMachine:
             return self.on_event(msg)
         raise ValueError(f"the decision machine reads {STATUS} and {EVENT}, not {channel!r}")
 
-    def begin_step(self, step_index: int, transition: str, controller_id: int,
-                   thresholds: dict[str, float], converge_timeout_us: int, approval: bool = False) -> Decision:
+    def begin_step(
+        self,
+        step_index: int,
+        transition: str,
+        controller_id: int,
+        thresholds: dict[str, float],
+        converge_timeout_us: int,
+        approval: bool = False,
+    ) -> Decision:
         """STEP: a new step, its controller id and end-check thresholds (from the plan)."""
         self.step_index, self.transition = int(step_index), transition
         self.controller_id = int(controller_id)
         self.thresholds = dict(thresholds)
         self.converge_timeout_us = int(converge_timeout_us)
         self.end_utime, self.reference_sent, self.reference_stopped = 0, False, False
-        inputs = {"controller_id": float(controller_id), "converge_timeout_us": float(converge_timeout_us),
-                  "approval": float(approval)}
+        inputs = {
+            "controller_id": float(controller_id),
+            "converge_timeout_us": float(converge_timeout_us),
+            "approval": float(approval),
+        }
         inputs.update({f"threshold:{n}": float(t) for n, t in thresholds.items()})
         if approval:
             self.awaiting = "approve"
-            return self._decide("step_started", "awaiting_approval", f"{step_index} {transition}", STEP,
-                                self.tick, inputs)
-        return self._decide("step_started", "waiting_start_check", f"{step_index} {transition}", STEP,
-                            self.tick, inputs)
+            return self._decide(
+                "step_started",
+                "awaiting_approval",
+                f"{step_index} {transition}",
+                STEP,
+                self.tick,
+                inputs,
+            )
+        return self._decide(
+            "step_started",
+            "waiting_start_check",
+            f"{step_index} {transition}",
+            STEP,
+            self.tick,
+            inputs,
+        )
 
     def start_reference(self, start_utime: int, end_utime: int) -> Decision:
         """STEP: the streamer plays the references from ``start_utime`` to ``end_utime`` [us]."""
         self._expect("accepted")
         self.end_utime = int(end_utime)
-        return self._decide("reference_started", "running", f"controller {self.controller_id}", STEP,
-                            self.tick, {"start_utime": float(start_utime), "end_utime": float(end_utime)})
+        return self._decide(
+            "reference_started",
+            "running",
+            f"controller {self.controller_id}",
+            STEP,
+            self.tick,
+            {"start_utime": float(start_utime), "end_utime": float(end_utime)},
+        )
 
     def reference_end(self, end_utime: int, sent: bool) -> Decision:
         """STEP: the streamer's new last sample (after a force stop) or its last chunk sent."""
         self.end_utime, self.reference_sent = int(end_utime), bool(sent)
-        return self._decide("reference_end", self.status, "", STEP, self.tick,
-                            {"end_utime": float(end_utime), "sent": float(sent)})
+        return self._decide(
+            "reference_end",
+            self.status,
+            "",
+            STEP,
+            self.tick,
+            {"end_utime": float(end_utime), "sent": float(sent)},
+        )
 
     def timeout(self, event: str, detail: str) -> Decision:
         """TIMER: a wall-clock wait ran out (``switch_timeout``, ``approval_timeout``)."""
@@ -158,22 +219,40 @@ class DecisionMachine:
             # Accepted when the loop snapshot shows the new active id (the controller publishes
             # the decision text with the first status of the deciding tick, never before it).
             if st.active_controller_id == cid:
-                return [self._status_decision("switch_accepted", "accepted", f"controller {cid}", st, ins)]
+                return [
+                    self._status_decision(
+                        "switch_accepted", "accepted", f"controller {cid}", st, ins
+                    )
+                ]
             if tag in st.last_switch_result and not st.last_switch_result.startswith("accepted"):
-                return [self._status_decision("switch_refused", "failed", st.last_switch_result, st, ins)]
+                return [
+                    self._status_decision(
+                        "switch_refused", "failed", st.last_switch_result, st, ins
+                    )
+                ]
             if tag in st.last_rejection:
                 # A refused switch is also counted as a rejection ("CONTROLLER_SPEC: refused
                 # controller ... command jump"), which can reach a status before the switch result
                 # does (that one waits for the deciding tick): it is still a refused switch.
                 refused = "refused controller" in st.last_rejection
-                return [self._status_decision("switch_refused" if refused else "spec_rejected", "failed",
-                                              st.last_rejection, st, ins)]
+                return [
+                    self._status_decision(
+                        "switch_refused" if refused else "spec_rejected",
+                        "failed",
+                        st.last_rejection,
+                        st,
+                        ins,
+                    )
+                ]
             return []
         if s not in ("running", "waiting_end_check"):
             return []
         # Holding with this step's controller, or with the controller's own hold controller that
         # replaced it (repeated time-budget overruns): the step failed.
-        if st.mode in ("holding", "estopped") and st.active_controller_id in (cid, HOLD_CONTROLLER_ID):
+        if st.mode in ("holding", "estopped") and st.active_controller_id in (
+            cid,
+            HOLD_CONTROLLER_ID,
+        ):
             event = "reference_starved" if "watchdog" in st.mode_reason else "controller_" + st.mode
             return [self._status_decision(event, "failed", st.mode_reason, st, ins)]
         out = []
@@ -181,20 +260,36 @@ class DecisionMachine:
             if self.tick < self.end_utime:
                 return []
             ins["end_utime"] = float(self.end_utime)
-            out.append(self._status_decision("end_of_reference", "waiting_end_check",
-                                             f"{self.step_index} {self.transition}", st, ins))
-        if self.tick > self.end_utime:   # the end check reads statuses after the last sample
+            out.append(
+                self._status_decision(
+                    "end_of_reference",
+                    "waiting_end_check",
+                    f"{self.step_index} {self.transition}",
+                    st,
+                    ins,
+                )
+            )
+        if self.tick > self.end_utime:  # the end check reads statuses after the last sample
             errors = dict(zip(st.task_name, st.task_error_norm))
             ins = {f"error:{n}": float(errors.get(n, float("inf"))) for n in self.thresholds}
             ins["end_utime"] = float(self.end_utime)
-            above = {n: errors.get(n) for n, thr in self.thresholds.items()
-                     if errors.get(n, float("inf")) > thr}
+            above = {
+                n: errors.get(n)
+                for n, thr in self.thresholds.items()
+                if errors.get(n, float("inf")) > thr
+            }
             if not above:
                 out.append(self._status_decision("end_check_passed", "ended", "", st, ins))
             elif self.tick > self.end_utime + self.converge_timeout_us:
-                out.append(self._status_decision("end_check_failed", "failed",
-                                                 f"step {self.step_index}: errors above threshold {above}",
-                                                 st, ins))
+                out.append(
+                    self._status_decision(
+                        "end_check_failed",
+                        "failed",
+                        f"step {self.step_index}: errors above threshold {above}",
+                        st,
+                        ins,
+                    )
+                )
         return out
 
     def on_event(self, ev: Any) -> list[Decision]:
@@ -202,17 +297,35 @@ class DecisionMachine:
         if self.status == "awaiting_approval":
             if ev.name == self.awaiting:
                 self.awaiting = ""
-                return [self._decide("approved", "waiting_start_check", ev.source, EVENT, ev.utime, ins)]
+                return [
+                    self._decide("approved", "waiting_start_check", ev.source, EVENT, ev.utime, ins)
+                ]
             if ev.name == "abort":
-                return [self._decide("abort", "failed", ev.detail or f"from {ev.source}", EVENT, ev.utime, ins)]
+                return [
+                    self._decide(
+                        "abort", "failed", ev.detail or f"from {ev.source}", EVENT, ev.utime, ins
+                    )
+                ]
             return []
         if self.status not in ("waiting_start_check", "accepted", "running", "waiting_end_check"):
             return []
         if ev.name == "force_threshold" and self.status == "running" and not self.reference_stopped:
             self.reference_stopped = True
-            return [self._decide("reference_stopped", "running", f"force {ev.value:.3g} N", EVENT, ev.utime, ins)]
-        if ev.name in ("abort", "left_manifold") and self.status in ("accepted", "running", "waiting_end_check"):
-            return [self._decide(ev.name, "failed", ev.detail or f"from {ev.source}", EVENT, ev.utime, ins)]
+            return [
+                self._decide(
+                    "reference_stopped", "running", f"force {ev.value:.3g} N", EVENT, ev.utime, ins
+                )
+            ]
+        if ev.name in ("abort", "left_manifold") and self.status in (
+            "accepted",
+            "running",
+            "waiting_end_check",
+        ):
+            return [
+                self._decide(
+                    ev.name, "failed", ev.detail or f"from {ev.source}", EVENT, ev.utime, ins
+                )
+            ]
         return []
 
     # ---- helpers ----------------------------------------------------------------------------
@@ -220,13 +333,32 @@ class DecisionMachine:
         if self.status != status:
             raise RuntimeError(f"decision machine: expected status {status!r}, in {self.status!r}")
 
-    def _status_decision(self, event: str, to: str, detail: str, st: Any, inputs: dict[str, float]) -> Decision:
+    def _status_decision(
+        self, event: str, to: str, detail: str, st: Any, inputs: dict[str, float]
+    ) -> Decision:
         return self._decide(event, to, detail, STATUS, int(st.utime), inputs)
 
-    def _decide(self, event: str, to: str, detail: str, channel: str, input_utime: int,
-                inputs: dict[str, float]) -> Decision:
-        d = Decision(self.tick, self.step_index, self.transition, event, self.status, to, detail, channel,
-                     int(input_utime), inputs)
+    def _decide(
+        self,
+        event: str,
+        to: str,
+        detail: str,
+        channel: str,
+        input_utime: int,
+        inputs: dict[str, float],
+    ) -> Decision:
+        d = Decision(
+            self.tick,
+            self.step_index,
+            self.transition,
+            event,
+            self.status,
+            to,
+            detail,
+            channel,
+            int(input_utime),
+            inputs,
+        )
         self.status = to
         return d
 
@@ -237,11 +369,11 @@ class DecisionReplay:
     """Verdict of :func:`replay_decisions`."""
 
     ok: bool
-    recorded: int                 # decisions in the log
-    replayed: int                 # decisions the offline machine took
-    statuses: int                 # CONTROLLER_STATUS messages fed
-    events: int                   # SUPERVISOR_EVENT messages fed
-    first_divergence: str = ""    # the first diverging tick and decision, "" when identical
+    recorded: int  # decisions in the log
+    replayed: int  # decisions the offline machine took
+    statuses: int  # CONTROLLER_STATUS messages fed
+    events: int  # SUPERVISOR_EVENT messages fed
+    first_divergence: str = ""  # the first diverging tick and decision, "" when identical
     problems: list[str] = field(default_factory=list)
 
 
@@ -276,14 +408,19 @@ def replay_decisions(recorded: list[Decision], inputs: Iterable[tuple[str, Any]]
             result.first_divergence = (
                 f"decision {i} at tick {r.utime} us (step {r.step_index} {r.transition}): recorded "
                 f"{r.event} {r.from_status}->{r.to_status} {r.inputs}, replayed at tick {p.utime}: "
-                f"{p.event} {p.from_status}->{p.to_status} {p.inputs}")
+                f"{p.event} {p.from_status}->{p.to_status} {p.inputs}"
+            )
             return result
     if len(recorded) != len(replayed):
         result.ok = False
-        longer, which = (recorded, "recorded") if len(recorded) > len(replayed) else (replayed, "replayed")
+        longer, which = (
+            (recorded, "recorded") if len(recorded) > len(replayed) else (replayed, "replayed")
+        )
         d = longer[min(len(recorded), len(replayed))]
-        result.first_divergence = (f"decision {min(len(recorded), len(replayed))} at tick {d.utime} us: only "
-                                   f"{which}: {d.event} {d.from_status}->{d.to_status} (step {d.step_index})")
+        result.first_divergence = (
+            f"decision {min(len(recorded), len(replayed))} at tick {d.utime} us: only "
+            f"{which}: {d.event} {d.from_status}->{d.to_status} (step {d.step_index})"
+        )
     return result
 
 
@@ -291,9 +428,15 @@ def _refeed(machine: DecisionMachine, d: Decision) -> Decision:
     """Re-applies a recorded STEP/TIMER input to ``machine``."""
     i = d.inputs
     if d.event == "step_started":
-        thresholds = {n[len("threshold:"):]: v for n, v in i.items() if n.startswith("threshold:")}
-        return machine.begin_step(d.step_index, d.transition, int(i["controller_id"]), thresholds,
-                                  int(i["converge_timeout_us"]), bool(i.get("approval", 0.0)))
+        thresholds = {n[len("threshold:") :]: v for n, v in i.items() if n.startswith("threshold:")}
+        return machine.begin_step(
+            d.step_index,
+            d.transition,
+            int(i["controller_id"]),
+            thresholds,
+            int(i["converge_timeout_us"]),
+            bool(i.get("approval", 0.0)),
+        )
     if d.event == "reference_started":
         return machine.start_reference(int(i["start_utime"]), int(i["end_utime"]))
     if d.event == "reference_end":

@@ -47,9 +47,10 @@ import re
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -69,7 +70,7 @@ SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
 GRIPPERS_YAML = marionette.MODELS_DIR / "ur10" / "grippers.yaml"
 TOOL = "ur10/drill"
-TIP_FRAME = "drill_tip_link"     # URDF frame at the tool's origin; tool x axis = its z axis
+TIP_FRAME = "drill_tip_link"  # URDF frame at the tool's origin; tool x axis = its z axis
 REFERENCES = ("part/R1", "part/R2")
 
 
@@ -77,37 +78,44 @@ REFERENCES = ("part/R1", "part/R2")
 class DrillSettings:
     """Perturbation, sensor model, motion and tolerances of the drill demo."""
 
-    max_displacement_m: float = 0.05       # issue #10: part displaced <= 5 cm ...
-    max_rotation_deg: float = 10.0         # ... and <= 10 deg (about the hole pattern's centre)
-    standoff_m: float = 0.01               # tool origin this far before the hole on its axis
-    move_duration_s: float = 1.0           # minimum-jerk move between holes (at least)
-    max_tool_speed: float = 0.15           # [m/s] mean tool speed of a move
-    max_tool_rate: float = 0.4             # [rad/s] mean tool rotation rate of a move
-    correction_duration_s: float = 0.4     # minimum-jerk correction moves
-    settle_s: float = 0.3                  # controller time before a measurement ...
-    still_velocity: float = 5e-4           # ... then until every joint is below this [rad/s]
-    settle_timeout_s: float = 3.0          # ... or this much more time has passed
-    sensor_noise_m: float = 2e-5           # tool sensor: 0.02 mm (1 sigma per axis)
-    sensor_noise_deg: float = 0.03         # 0.03 deg (1 sigma per axis)
-    sensor_range_m: float = 0.01           # hole seen only within 1 cm of the tool axis
-    sensor_samples: int = 4                # readings averaged per measurement
-    aligned_m: float = 5e-5                # alignment stops below 0.05 mm ...
-    aligned_deg: float = 0.05              # ... and 0.05 deg (sensor or kinematics)
+    max_displacement_m: float = 0.05  # issue #10: part displaced <= 5 cm ...
+    max_rotation_deg: float = 10.0  # ... and <= 10 deg (about the hole pattern's centre)
+    standoff_m: float = 0.01  # tool origin this far before the hole on its axis
+    move_duration_s: float = 1.0  # minimum-jerk move between holes (at least)
+    max_tool_speed: float = 0.15  # [m/s] mean tool speed of a move
+    max_tool_rate: float = 0.4  # [rad/s] mean tool rotation rate of a move
+    correction_duration_s: float = 0.4  # minimum-jerk correction moves
+    settle_s: float = 0.3  # controller time before a measurement ...
+    still_velocity: float = 5e-4  # ... then until every joint is below this [rad/s]
+    settle_timeout_s: float = 3.0  # ... or this much more time has passed
+    sensor_noise_m: float = 2e-5  # tool sensor: 0.02 mm (1 sigma per axis)
+    sensor_noise_deg: float = 0.03  # 0.03 deg (1 sigma per axis)
+    sensor_range_m: float = 0.01  # hole seen only within 1 cm of the tool axis
+    sensor_samples: int = 4  # readings averaged per measurement
+    aligned_m: float = 5e-5  # alignment stops below 0.05 mm ...
+    aligned_deg: float = 0.05  # ... and 0.05 deg (sensor or kinematics)
     max_corrections: int = 10
     max_reference_offset_m: float = 0.015  # reference this far from the target: cannot hold it
-    position_tolerance_m: float = 2e-4     # §6.3: 0.2 mm ...
-    angle_tolerance_deg: float = 0.5       # ... and 0.5 deg
+    position_tolerance_m: float = 2e-4  # §6.3: 0.2 mm ...
+    angle_tolerance_deg: float = 0.5  # ... and 0.5 deg
     camera_size: tuple[int, int] = (640, 480)
-    camera_frames: int = 3                 # scene camera frames to measure the part on
-    camera_noise_grey: float = 2.0         # image noise [grey levels]
-    camera: bool = True                    # False: go to R1/R2 on the nominal model (offline
+    camera_frames: int = 3  # scene camera frames to measure the part on
+    camera_noise_grey: float = 2.0  # image noise [grey levels]
+    camera: bool = True  # False: go to R1/R2 on the nominal model (offline
     #                                        program only): the tool sensor must then fail
 
 
 # ---- geometry --------------------------------------------------------------------------------
 
-def part_pose_from_references(p1_W: np.ndarray, p2_W: np.ndarray, axis_W: np.ndarray,
-                              p1_P: np.ndarray, p2_P: np.ndarray, axis_P: np.ndarray) -> pin.SE3:
+
+def part_pose_from_references(
+    p1_W: np.ndarray,
+    p2_W: np.ndarray,
+    axis_W: np.ndarray,
+    p1_P: np.ndarray,
+    p2_P: np.ndarray,
+    axis_P: np.ndarray,
+) -> pin.SE3:
     """X_WP from two reference holes and the hole axis (§6.3 step 5, interpolation).
 
     Both in the world (measured) and the part (nominal) frame, the orthonormal frame
@@ -115,6 +123,7 @@ def part_pose_from_references(p1_W: np.ndarray, p2_W: np.ndarray, axis_W: np.nda
     gives R_WP = F_W F_P^T; the translation puts the midpoint of R1, R2 where it was measured
     (a least-squares fit of the two points once R is fixed). Exact when the measurements are.
     """
+
     def frame(p1, p2, a):
         a = a / np.linalg.norm(a)
         d = (p2 - p1) - np.dot(p2 - p1, a) * a
@@ -132,11 +141,16 @@ def part_pose_from_references(p1_W: np.ndarray, p2_W: np.ndarray, axis_W: np.nda
 def draw_displacement(seed: int, settings: DrillSettings, centre_P: np.ndarray) -> pin.SE3:
     """The part's seeded displacement (:func:`tool_task.draw_displacement` within the settings'
     bounds, about the centre of its hole pattern)."""
-    return tool_task.draw_displacement(np.random.default_rng(seed), settings.max_displacement_m,
-                                       settings.max_rotation_deg, centre_P)
+    return tool_task.draw_displacement(
+        np.random.default_rng(seed),
+        settings.max_displacement_m,
+        settings.max_rotation_deg,
+        centre_P,
+    )
 
 
 # ---- scene file and camera ------------------------------------------------------------------
+
 
 def displaced_scene(X_WP: pin.SE3, out: Path) -> Path:
     """Writes the ur10_drill MJCF with the part's mocap body at ``X_WP`` (asset paths absolute)."""
@@ -150,8 +164,10 @@ def displaced_scene(X_WP: pin.SE3, out: Path) -> Path:
 def scene_camera() -> tuple[pin.SE3, float]:
     """World pose of the ``scene_rgbd`` optical frame (x right, y down, z forward) and its fovy
     [deg], from the scene's MJCF camera (MuJoCo: looks along -z, y up; xyaxes = its x and y)."""
-    m = re.search(r'<camera name="scene_rgbd"[^>]*pos="([^"]+)"[^>]*xyaxes="([^"]+)"[^>]*fovy="([^"]+)"',
-                  SCENE.read_text())
+    m = re.search(
+        r'<camera name="scene_rgbd"[^>]*pos="([^"]+)"[^>]*xyaxes="([^"]+)"[^>]*fovy="([^"]+)"',
+        SCENE.read_text(),
+    )
     if m is None:
         raise DemoError(f"{SCENE}: no camera scene_rgbd")
     pos = np.array(m.group(1).split(), dtype=float)
@@ -190,19 +206,23 @@ def render_part(X_WP: pin.SE3, settings: DrillSettings, rng: np.random.Generator
     K = CameraIntrinsics.from_fovy(*settings.camera_size, fovy)
     body = load_tagged_bodies([PART_YAML])[0]
     quads = [tag_quad(t.tag_id, t.size, X_WC.actInv(X_WP * t.X_BT)) for t in body.tags]
-    frame = render(K, quads, background=110.0, supersample=2, noise_std=settings.camera_noise_grey, rng=rng)
+    frame = render(
+        K, quads, background=110.0, supersample=2, noise_std=settings.camera_noise_grey, rng=rng
+    )
     return X_WC, K, frame.gray
 
 
 # ---- the run ---------------------------------------------------------------------------------
+
 
 def _tool(client: ControllerClient, settings: DrillSettings) -> ToolTask:
     """The spindle's SE3 task on ``drill_tip_link`` (tool x axis = its z axis)."""
     from marionette.models.semantics import load_semantics
 
     gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
-    return ToolTask(client, settings, "ur10", TIP_FRAME, gripper.link, gripper.pose.se3(),
-                    SCENE, name="drill")
+    return ToolTask(
+        client, settings, "ur10", TIP_FRAME, gripper.link, gripper.pose.se3(), SCENE, name="drill"
+    )
 
 
 class HoleSensor:
@@ -222,8 +242,10 @@ class HoleSensor:
     def _read(self, X_tool_hole: pin.SE3) -> pin.SE3:
         st = self.settings
         n = max(1, st.sensor_samples)
-        noise = np.c_[self.rng.normal(0.0, st.sensor_noise_m, (n, 3)),
-                      self.rng.normal(0.0, np.radians(st.sensor_noise_deg), (n, 3))]
+        noise = np.c_[
+            self.rng.normal(0.0, st.sensor_noise_m, (n, 3)),
+            self.rng.normal(0.0, np.radians(st.sensor_noise_deg), (n, 3)),
+        ]
         self.readings += n
         readings = [X_tool_hole * pin.exp6(v) for v in noise]
         # mean on SE(3) about the first reading (the spread is tiny: one step is exact enough)
@@ -241,9 +263,16 @@ class HoleSensor:
         return self._read(X_W_tool.actInv(X_W_hole)).rotation
 
 
-def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
-              log: Callable[[str], None] = print, controller_url: str | None = None,
-              settings: DrillSettings | None = None, view: bool = False) -> dict[str, Any]:
+def run_drill(
+    scenario,
+    seed: int,
+    out_dir: Path,
+    speed: float = 1.0,
+    log: Callable[[str], None] = print,
+    controller_url: str | None = None,
+    settings: DrillSettings | None = None,
+    view: bool = False,
+) -> dict[str, Any]:
     """Runs one drill trial and writes its report folder; returns the report dictionary.
     ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette.models.scenes import scene_object_pose
@@ -251,8 +280,10 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
 
     st = settings or DrillSettings()
     if controller_url is not None:
-        raise DemoError("drill displaces the part in the scene file it starts the controller with: "
-                        "no --controller-url")
+        raise DemoError(
+            "drill displaces the part in the scene file it starts the controller with: "
+            "no --controller-url"
+        )
     out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     part = load_semantics(PART_YAML)
@@ -265,24 +296,66 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     D = draw_displacement(seed, st, centre_P)
     X_WP_true = X_WP_nom * D
     scene = displaced_scene(X_WP_true, out_dir / "scene.xml")
-    log(f"drill: part displaced {np.linalg.norm(X_WP_true.translation - X_WP_nom.translation) * 1e3:.1f} mm / "
+    log(
+        f"drill: part displaced {np.linalg.norm(X_WP_true.translation - X_WP_nom.translation) * 1e3:.1f} mm / "
         f"{np.degrees(np.linalg.norm(pin.log3(D.rotation))):.2f} deg (hole pattern centre moved "
-        f"{np.linalg.norm((X_WP_true * centre_P) - (X_WP_nom * centre_P)) * 1e3:.1f} mm)")
+        f"{np.linalg.norm((X_WP_true * centre_P) - (X_WP_nom * centre_P)) * 1e3:.1f} mm)"
+    )
     url = private_lcm_url()
-    report: dict[str, Any] = {"scenario": scenario.name, "description": scenario.description, "seed": seed,
-                              "speed": speed, "lcm_url": url, "settings": asdict(st),
-                              "part_nominal": pose_to_vector(X_WP_nom).tolist(),
-                              "part_true": pose_to_vector(X_WP_true).tolist()}
+    report: dict[str, Any] = {
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "seed": seed,
+        "speed": speed,
+        "lcm_url": url,
+        "settings": asdict(st),
+        "part_nominal": pose_to_vector(X_WP_nom).tolist(),
+        "part_true": pose_to_vector(X_WP_true).tolist(),
+    }
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
-        group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                   "--robot", "ur10", "--scene", scene, "--speed", str(speed),
-                                   "--camera-rate", "0", "--status-rate", "50"])
-        group.start("perceive", [sys.executable, "-m", "marionette.cli", "perceive", "--lcm-url", url,
-                                 "--robot", "none", "--camera-pose-source", "message", "--no-depth",
-                                 "--camera-channel", channels.CAMERA_SCENE_RGBD, "--objects", str(PART_YAML)])
+        group.start(
+            "lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
+        )
+        group.start(
+            "controller",
+            [
+                marionette.BUILD_DIR / "marionette-controller",
+                "--lcm-url",
+                url,
+                "--robot",
+                "ur10",
+                "--scene",
+                scene,
+                "--speed",
+                str(speed),
+                "--camera-rate",
+                "0",
+                "--status-rate",
+                "50",
+            ],
+        )
+        group.start(
+            "perceive",
+            [
+                sys.executable,
+                "-m",
+                "marionette.cli",
+                "perceive",
+                "--lcm-url",
+                url,
+                "--robot",
+                "none",
+                "--camera-pose-source",
+                "message",
+                "--no-depth",
+                "--camera-channel",
+                channels.CAMERA_SCENE_RGBD,
+                "--objects",
+                str(PART_YAML),
+            ],
+        )
         poses: list[pin.SE3] = []
         lock = threading.Lock()
 
@@ -297,7 +370,9 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         if view:
             from marionette.viewer.node import start_viewer
 
-            report["viewer_url"] = start_viewer(group, "ur10", SCENE, log)   # its objects: the nominal scene's
+            report["viewer_url"] = start_viewer(
+                group, "ur10", SCENE, log
+            )  # its objects: the nominal scene's
         timings["start_s"] = time.perf_counter() - t0
 
         # §6.3 detection: the scene camera measures the part (tags 20-23).
@@ -309,26 +384,41 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
                     break
             if time.monotonic() > deadline:
                 group.check_alive()
-                raise DemoError("the perception process published no pose of the part in 30 s "
-                                "(tags out of view?)")
-            X_WC, K, gray = render_part(X_WP_true, st, rng)   # a new noise draw per frame
-            client.bus.publish(channels.CAMERA_SCENE_RGBD, camera_message(client.utime(), X_WC, K, gray))
+                raise DemoError(
+                    "the perception process published no pose of the part in 30 s "
+                    "(tags out of view?)"
+                )
+            X_WC, K, gray = render_part(X_WP_true, st, rng)  # a new noise draw per frame
+            client.bus.publish(
+                channels.CAMERA_SCENE_RGBD, camera_message(client.utime(), X_WC, K, gray)
+            )
             time.sleep(0.3)
         with lock:
             X_WP_cam = poses[-1] if st.camera else X_WP_nom
         timings["camera_s"] = time.perf_counter() - t
-        cam_err = (float(np.linalg.norm(X_WP_cam.translation - X_WP_true.translation)),
-                   float(np.degrees(np.linalg.norm(pin.log3(X_WP_cam.rotation.T @ X_WP_true.rotation)))))
-        log(f"drill: {'camera measured' if st.camera else 'no camera: nominal'} part "
-            f"{cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} deg from its true pose")
-        report["camera"] = {"part_measured": pose_to_vector(X_WP_cam).tolist(), "frames": len(poses),
-                            "position_error_m": cam_err[0], "angle_error_deg": cam_err[1]}
+        cam_err = (
+            float(np.linalg.norm(X_WP_cam.translation - X_WP_true.translation)),
+            float(np.degrees(np.linalg.norm(pin.log3(X_WP_cam.rotation.T @ X_WP_true.rotation)))),
+        )
+        log(
+            f"drill: {'camera measured' if st.camera else 'no camera: nominal'} part "
+            f"{cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} deg from its true pose"
+        )
+        report["camera"] = {
+            "part_measured": pose_to_vector(X_WP_cam).tolist(),
+            "frames": len(poses),
+            "position_error_m": cam_err[0],
+            "angle_error_deg": cam_err[1],
+        }
 
         tool = _tool(client, st)
         client.send_spec(tool.spec())
-        tool.move(tool.pose(), 0.05)   # stream the current pose first: the task holds still
-        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                    "the drill controller")
+        tool.move(tool.pose(), 0.05)  # stream the current pose first: the task holds still
+        client.wait(
+            lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
+            30.0,
+            "the drill controller",
+        )
 
         # §6.3 steps 1-4: move to R1 / R2 (camera estimate), align on the tool sensor.
         t = time.perf_counter()
@@ -341,45 +431,68 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             X_cam_target = tool_target(X_WP_cam * holes[name], tool.pose().rotation, st.standoff_m)
             tool.move(X_cam_target, st.move_duration_s)
             # the arm's sag out first (encoders): the sensor needs the hole in its view only
-            X, _, _ = tool.servo(lambda X: X_cam_target)
+            X, _, _ = tool.servo(lambda X, target=X_cam_target: target)
             if tool_error(X, X_cam_target)[0] > 0.5 * st.sensor_range_m:
-                raise DemoError(f"{name}: the arm does not hold the pose before the hole: tool "
-                                f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
-                                f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}")
+                raise DemoError(
+                    f"{name}: the arm does not hold the pose before the hole: tool "
+                    f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
+                    f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}"
+                )
             lost: list[str] = []
 
-            def sensed(X: pin.SE3, X_hole_true=X_hole_true, lost=lost, X_cam_target=X_cam_target) -> pin.SE3:
+            def sensed(
+                X: pin.SE3, X_hole_true=X_hole_true, lost=lost, X_cam_target=X_cam_target
+            ) -> pin.SE3:
                 m = sensor.hole(X, X_hole_true)
                 if m is None:
                     off = X.actInv(X_hole_true).translation
-                    lost.append(f"hole at {off[1] * 1e3:.1f}, {off[2] * 1e3:.1f} mm across the tool axis, "
-                                f"tool {tool_error(X, X_cam_target)[0] * 1e3:.2f} mm from its target")
-                    return X      # nothing measured: stop (judged below)
+                    lost.append(
+                        f"hole at {off[1] * 1e3:.1f}, {off[2] * 1e3:.1f} mm across the tool axis, "
+                        f"tool {tool_error(X, X_cam_target)[0] * 1e3:.2f} mm from its target"
+                    )
+                    return X  # nothing measured: stop (judged below)
                 return tool_target(X * m, X.rotation, st.standoff_m)
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
             if lost:
-                raise DemoError(f"{name}: the tool sensor does not see the hole (more than "
-                                f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): alignment failed")
+                raise DemoError(
+                    f"{name}: the tool sensor does not see the hole (more than "
+                    f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): alignment failed"
+                )
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
-            corrected[name] = pin.SE3(X_aligned.rotation, X_aligned.translation
-                                      + st.standoff_m * X_aligned.rotation[:, 0])
+            corrected[name] = pin.SE3(
+                X_aligned.rotation, X_aligned.translation + st.standoff_m * X_aligned.rotation[:, 0]
+            )
             alignment[name] = k
-            log(f"drill: aligned on {name} after {k} corrections"
-                + ("" if converged[f"align {name}"] else f" (NOT within {st.aligned_m * 1e3:.2f} mm / {st.aligned_deg} deg)"))
+            log(
+                f"drill: aligned on {name} after {k} corrections"
+                + (
+                    ""
+                    if converged[f"align {name}"]
+                    else f" (NOT within {st.aligned_m * 1e3:.2f} mm / {st.aligned_deg} deg)"
+                )
+            )
         timings["alignment_s"] = time.perf_counter() - t
 
         # §6.3 step 5: interpolation.
         p1, p2 = (corrected[r].translation for r in REFERENCES)
         axis_W = sum(corrected[r].rotation[:, 0] for r in REFERENCES)
         h1, h2 = (holes[r] for r in REFERENCES)
-        X_WP_est = part_pose_from_references(p1, p2, axis_W, h1.translation, h2.translation,
-                                             h1.rotation[:, 0] + h2.rotation[:, 0])
-        est_err = (float(np.linalg.norm(X_WP_est.translation - X_WP_true.translation)),
-                   float(np.degrees(np.linalg.norm(pin.log3(X_WP_est.rotation.T @ X_WP_true.rotation)))))
-        log(f"drill: part from R1/R2 {est_err[0] * 1e3:.3f} mm / {est_err[1]:.4f} deg from its true pose")
-        report["interpolation"] = {"part_estimated": pose_to_vector(X_WP_est).tolist(),
-                                   "position_error_m": est_err[0], "angle_error_deg": est_err[1]}
+        X_WP_est = part_pose_from_references(
+            p1, p2, axis_W, h1.translation, h2.translation, h1.rotation[:, 0] + h2.rotation[:, 0]
+        )
+        est_err = (
+            float(np.linalg.norm(X_WP_est.translation - X_WP_true.translation)),
+            float(np.degrees(np.linalg.norm(pin.log3(X_WP_est.rotation.T @ X_WP_true.rotation)))),
+        )
+        log(
+            f"drill: part from R1/R2 {est_err[0] * 1e3:.3f} mm / {est_err[1]:.4f} deg from its true pose"
+        )
+        report["interpolation"] = {
+            "part_estimated": pose_to_vector(X_WP_est).tolist(),
+            "position_error_m": est_err[0],
+            "angle_error_deg": est_err[1],
+        }
 
         # §6.3 step 6: visit every hole; judge each in ground truth.
         t = time.perf_counter()
@@ -403,15 +516,30 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
             X_true_target = tool_target(X_WP_true * holes[name], X_tool.rotation, st.standoff_m)
             dp, da = tool_error(X_tool, X_true_target)
             ok = dp <= st.position_tolerance_m and da <= st.angle_tolerance_deg
-            rows.append({"hole": name, "reference": name in REFERENCES, "utime": int(state.utime),
-                         "converged": converged[name],
-                         # what the offline program (nominal part) and the camera alone would miss by
-                         "nominal_position_error_m": float(np.linalg.norm(
-                             (X_WP_nom * holes[name]).translation - X_hole_true.translation)),
-                         "camera_position_error_m": float(np.linalg.norm(
-                             (X_WP_cam * holes[name]).translation - X_hole_true.translation)),
-                         "tool": pose_to_vector(X_tool).tolist(), "position_error_m": dp,
-                         "angle_error_deg": da, "corrections": k, "within_tolerance": ok})
+            rows.append(
+                {
+                    "hole": name,
+                    "reference": name in REFERENCES,
+                    "utime": int(state.utime),
+                    "converged": converged[name],
+                    # what the offline program (nominal part) and the camera alone would miss by
+                    "nominal_position_error_m": float(
+                        np.linalg.norm(
+                            (X_WP_nom * holes[name]).translation - X_hole_true.translation
+                        )
+                    ),
+                    "camera_position_error_m": float(
+                        np.linalg.norm(
+                            (X_WP_cam * holes[name]).translation - X_hole_true.translation
+                        )
+                    ),
+                    "tool": pose_to_vector(X_tool).tolist(),
+                    "position_error_m": dp,
+                    "angle_error_deg": da,
+                    "corrections": k,
+                    "within_tolerance": ok,
+                }
+            )
             log(f"drill: {name:14s} {dp * 1e3:.3f} mm / {da:.3f} deg {'ok' if ok else 'OUT'}")
         timings["holes_s"] = time.perf_counter() - t
         group.check_alive()
@@ -420,17 +548,27 @@ def run_drill(scenario, seed: int, out_dir: Path, speed: float = 1.0,
     success = all(r["within_tolerance"] for r in rows) and not not_converged
     worst_mm = max(r["position_error_m"] for r in rows) * 1e3
     worst_deg = max(r["angle_error_deg"] for r in rows)
-    report.update(success=success, holes=rows, alignment_corrections=alignment, timings=timings,
-                  sensor_readings=sensor.readings, not_converged=not_converged,
-                  criteria={"all_holes_within_tolerance": all(r["within_tolerance"] for r in rows),
-                            "every_servo_converged": not not_converged, "max_position_error_m": worst_mm * 1e-3,
-                            "max_angle_error_deg": worst_deg,
-                            "object_position_error_m": worst_mm * 1e-3, "object_angle_error_deg": worst_deg},
-                  summary=f"{'SUCCESS' if success else 'FAILURE'} (seed {seed}): "
-                          f"{sum(r['within_tolerance'] for r in rows)}/{len(rows)} holes within "
-                          f"{st.position_tolerance_m * 1e3:.1f} mm / {st.angle_tolerance_deg:.1f} deg, worst "
-                          f"{worst_mm:.3f} mm / {worst_deg:.3f} deg"
-                          + (f"; not converged: {', '.join(not_converged)}" if not_converged else ""))
+    report.update(
+        success=success,
+        holes=rows,
+        alignment_corrections=alignment,
+        timings=timings,
+        sensor_readings=sensor.readings,
+        not_converged=not_converged,
+        criteria={
+            "all_holes_within_tolerance": all(r["within_tolerance"] for r in rows),
+            "every_servo_converged": not not_converged,
+            "max_position_error_m": worst_mm * 1e-3,
+            "max_angle_error_deg": worst_deg,
+            "object_position_error_m": worst_mm * 1e-3,
+            "object_angle_error_deg": worst_deg,
+        },
+        summary=f"{'SUCCESS' if success else 'FAILURE'} (seed {seed}): "
+        f"{sum(r['within_tolerance'] for r in rows)}/{len(rows)} holes within "
+        f"{st.position_tolerance_m * 1e3:.1f} mm / {st.angle_tolerance_deg:.1f} deg, worst "
+        f"{worst_mm:.3f} mm / {worst_deg:.3f} deg"
+        + (f"; not converged: {', '.join(not_converged)}" if not_converged else ""),
+    )
     _write_report(out_dir, report)
     return report
 
@@ -459,22 +597,33 @@ def _write_report(out_dir: Path, r: dict[str, Any]) -> None:
     fig.tight_layout()
     fig.savefig(out_dir / "hole_errors.png", dpi=100)
     plt.close(fig)
-    lines = [f"# demo drill, seed {r['seed']}", "", r["description"], "", f"**{r['summary']}**", "",
-             f"- part displaced to {np.round(r['part_true'], 4).tolist()} (nominal "
-             f"{np.round(r['part_nominal'], 4).tolist()}, x y z qw qx qy qz)",
-             f"- scene camera (tags 20-23, `marionette perceive`, {r['camera']['frames']} frames): part "
-             f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off",
-             f"- part from the aligned R1/R2: {r['interpolation']['position_error_m'] * 1e3:.3f} mm / "
-             f"{r['interpolation']['angle_error_deg']:.4f} deg off",
-             f"- alignment corrections: {r['alignment_corrections']}",
-             f"- timings [s wall]: " + ", ".join(f"{k} {v:.1f}" for k, v in r["timings"].items()), "",
-             "Tool vs the true hole (ground truth), and what the nominal model (offline program) and "
-             "the scene camera alone would have missed the hole by:", "",
-             "| hole | reference | position error mm | axis error deg | corrections | ok | nominal mm | camera mm |",
-             "|---|---|---|---|---|---|---|---|"]
-    lines += [f"| {h['hole']} | {h['reference']} | {h['position_error_m'] * 1e3:.3f} | "
-              f"{h['angle_error_deg']:.3f} | {h['corrections']} | {h['within_tolerance']} | "
-              f"{h['nominal_position_error_m'] * 1e3:.1f} | {h['camera_position_error_m'] * 1e3:.2f} |"
-              for h in r["holes"]]
+    lines = [
+        f"# demo drill, seed {r['seed']}",
+        "",
+        r["description"],
+        "",
+        f"**{r['summary']}**",
+        "",
+        f"- part displaced to {np.round(r['part_true'], 4).tolist()} (nominal "
+        f"{np.round(r['part_nominal'], 4).tolist()}, x y z qw qx qy qz)",
+        f"- scene camera (tags 20-23, `marionette perceive`, {r['camera']['frames']} frames): part "
+        f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off",
+        f"- part from the aligned R1/R2: {r['interpolation']['position_error_m'] * 1e3:.3f} mm / "
+        f"{r['interpolation']['angle_error_deg']:.4f} deg off",
+        f"- alignment corrections: {r['alignment_corrections']}",
+        "- timings [s wall]: " + ", ".join(f"{k} {v:.1f}" for k, v in r["timings"].items()),
+        "",
+        "Tool vs the true hole (ground truth), and what the nominal model (offline program) and "
+        "the scene camera alone would have missed the hole by:",
+        "",
+        "| hole | reference | position error mm | axis error deg | corrections | ok | nominal mm | camera mm |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| {h['hole']} | {h['reference']} | {h['position_error_m'] * 1e3:.3f} | "
+        f"{h['angle_error_deg']:.3f} | {h['corrections']} | {h['within_tolerance']} | "
+        f"{h['nominal_position_error_m'] * 1e3:.1f} | {h['camera_position_error_m'] * 1e3:.2f} |"
+        for h in r["holes"]
+    ]
     lines += ["", "![per-hole errors](hole_errors.png)", ""]
     (out_dir / "report.md").write_text("\n".join(lines))

@@ -17,7 +17,7 @@ import pinocchio as pin
 
 from marionette.execution.plan_steps import PlanRobotMap, Step
 
-OBJECT_TOLERANCE = 0.01   # [m + rad] object poses this close are "the same situation"
+OBJECT_TOLERANCE = 0.01  # [m + rad] object poses this close are "the same situation"
 
 
 @dataclass
@@ -33,8 +33,12 @@ class StateEstimate:
     ranking: list[tuple[str, float | None]]
 
 
-def measured_configuration(q_template: np.ndarray, robot_map: PlanRobotMap, q_robot: np.ndarray,
-                           object_poses: dict[str, pin.SE3]) -> np.ndarray:
+def measured_configuration(
+    q_template: np.ndarray,
+    robot_map: PlanRobotMap,
+    q_robot: np.ndarray,
+    object_poses: dict[str, pin.SE3],
+) -> np.ndarray:
     """A plan configuration (nq_plan) from the robot's measured configuration and the measured
     object poses; objects not measured keep their value in ``q_template``."""
     q = np.array(q_template, dtype=float)
@@ -52,7 +56,9 @@ def estimate_state(graph, q_measured: np.ndarray) -> StateEstimate:
     for state in graph.main_states():
         q = np.array(q_measured, dtype=float)
         if state.project(q).success:
-            results.append((state.name, float(np.linalg.norm(pin.difference(model, q_measured, q))), q))
+            results.append(
+                (state.name, float(np.linalg.norm(pin.difference(model, q_measured, q))), q)
+            )
         else:
             results.append((state.name, None, None))
     ok = sorted((r for r in results if r[1] is not None), key=lambda r: r[1])
@@ -66,7 +72,9 @@ def estimate_state(graph, q_measured: np.ndarray) -> StateEstimate:
 def _object_distance(robot_map: PlanRobotMap, qa: np.ndarray, qb: np.ndarray) -> float:
     d = 0.0
     for name in robot_map.objects:
-        err = pin.log6(robot_map.object_pose(qa, name).actInv(robot_map.object_pose(qb, name))).vector
+        err = pin.log6(
+            robot_map.object_pose(qa, name).actInv(robot_map.object_pose(qb, name))
+        ).vector
         d += float(np.linalg.norm(err))
     return d
 
@@ -81,9 +89,12 @@ def first_step_to_run(steps: list[Step], robot_map: PlanRobotMap, estimate: Stat
     q = estimate.q_projected
     model = robot_map.model
     # States the configuration is in (an intersection, e.g. grasped and placed, is in two).
-    states = {None} | {n for n, r in estimate.ranking if r is not None and r <= estimate.residual + 0.01}
+    states = {None} | {
+        n for n, r in estimate.ranking if r is not None and r <= estimate.residual + 0.01
+    }
     candidates: list[tuple[int, np.ndarray]] = [
-        (s.index, s.q[0]) for s in steps if s.start_state in states]
+        (s.index, s.q[0]) for s in steps if s.start_state in states
+    ]
     if steps and steps[-1].end_state in states:
         candidates.append((len(steps), steps[-1].q[-1]))
     if not candidates:
@@ -91,6 +102,8 @@ def first_step_to_run(steps: list[Step], robot_map: PlanRobotMap, estimate: Stat
     d_obj = [_object_distance(robot_map, q, qs) for _, qs in candidates]
     best = min(d_obj)
     near = [(i, qs) for (i, qs), d in zip(candidates, d_obj) if d <= best + OBJECT_TOLERANCE]
-    d_robot = [float(np.linalg.norm(pin.difference(model, robot_map.robot_q(q), robot_map.robot_q(qs))))
-               for _, qs in near]
+    d_robot = [
+        float(np.linalg.norm(pin.difference(model, robot_map.robot_q(q), robot_map.robot_q(qs))))
+        for _, qs in near
+    ]
     return near[int(np.argmin(d_robot))][0]

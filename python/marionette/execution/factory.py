@@ -28,9 +28,10 @@ configuration, and a chain of steps that does not join up (a dead end of the FSM
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -45,8 +46,13 @@ SPECS_FORMAT = "marionette-controllers/1"
 # End check (§3.2.5.2): ||e|| of each task kind below which a step has converged. A TALOS hand
 # carrying the plank in MuJoCo sags ~1.3 cm under the position servos (measured): 2 cm on poses.
 END_THRESHOLDS: dict[str, float] = {
-    "se3": 0.02, "relative_se3": 0.02, "pbvs": 0.01, "position": 0.02,
-    "com": 0.01, "posture": 0.1, "gaze": 0.05,
+    "se3": 0.02,
+    "relative_se3": 0.02,
+    "pbvs": 0.01,
+    "position": 0.02,
+    "com": 0.01,
+    "posture": 0.1,
+    "gaze": 0.05,
     # ||e|| = K_a |f - f*| / lambda while holding: 0.01 is 1 N with ADMITTANCE's K_a and GAINS' lambda;
     # in position control it is the lag behind the closing ramp [rad].
     "gripper_admittance": 0.01,
@@ -95,19 +101,22 @@ class FactoryContext:
     def local(self, name: str) -> str:
         """'talos/left_sole_link' -> 'left_sole_link' (the controller's model is unprefixed)."""
         prefix = f"{self.robot}/"
-        return name[len(prefix):] if name.startswith(prefix) else name
+        return name[len(prefix) :] if name.startswith(prefix) else name
 
 
-def context_from_plan(doc: dict[str, Any], robot: str, model: pin.Model,
-                      gripper_admittance: bool = False) -> FactoryContext:
+def context_from_plan(
+    doc: dict[str, Any], robot: str, model: pin.Model, gripper_admittance: bool = False
+) -> FactoryContext:
     """The factory's context for a plan; ``gripper_admittance`` adds admittance tasks for the
     plan's grippers that have a joint."""
     semantics = robots.semantics(robot).grippers
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
-    joints = {g.name: GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
-              for g in semantics
-              if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]}
+    joints = {
+        g.name: GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
+        for g in semantics
+        if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]
+    }
     return FactoryContext(
         robot=robot,
         model=model,
@@ -158,8 +167,10 @@ def balance_tasks(ctx: FactoryContext) -> list[TaskSpec]:
             raise SpecError(f"graph constraint {name!r} has no definition in the plan")
         rule = CONSTRAINT_TASKS.get(definition["type"])
         if rule is None:
-            raise SpecError(f"graph constraint {name!r}: no task for constraint type "
-                            f"{definition['type']!r} (add it to CONSTRAINT_TASKS)")
+            raise SpecError(
+                f"graph constraint {name!r}: no task for constraint type "
+                f"{definition['type']!r} (add it to CONSTRAINT_TASKS)"
+            )
         tasks += rule(name, definition, ctx)
     return tasks
 
@@ -215,27 +226,61 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
     tasks: list[TaskSpec] = []
     holder_of: dict[str, str] = {}  # object -> gripper with an absolute task
     for gripper in step.active_grippers:
-        handle = (step.grasps.get(gripper) or step.parent_grasps_to.get(gripper)
-                  or step.parent_grasps_from.get(gripper) or step.grasps_from.get(gripper)
-                  or step.grasps_to.get(gripper))
+        handle = (
+            step.grasps.get(gripper)
+            or step.parent_grasps_to.get(gripper)
+            or step.parent_grasps_from.get(gripper)
+            or step.grasps_from.get(gripper)
+            or step.grasps_to.get(gripper)
+        )
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
         name = _task_name(gripper)
         if ctx.visual_servoing and gripper in step.grasps and visual_task_kind(step) is not None:
-            tasks.append(TaskSpec(name, visual_task_kind(step), priority,
-                                  frame=frame, gain=GAINS["grasp"], streamed=True))
+            tasks.append(
+                TaskSpec(
+                    name,
+                    visual_task_kind(step),
+                    priority,
+                    frame=frame,
+                    gain=GAINS["grasp"],
+                    streamed=True,
+                )
+            )
             holder_of[obj] = gripper
-        elif (ctx.visual_servoing and obj not in holder_of and obj not in step_holders(step, ctx)
-              and visual_approach_kind(step, gripper) is not None):
-            tasks.append(TaskSpec(name, visual_approach_kind(step, gripper), priority, frame=frame,
-                                  gain=GAINS["grasp"], streamed=True))
+        elif (
+            ctx.visual_servoing
+            and obj not in holder_of
+            and obj not in step_holders(step, ctx)
+            and visual_approach_kind(step, gripper) is not None
+        ):
+            tasks.append(
+                TaskSpec(
+                    name,
+                    visual_approach_kind(step, gripper),
+                    priority,
+                    frame=frame,
+                    gain=GAINS["grasp"],
+                    streamed=True,
+                )
+            )
         elif obj in holder_of:
             other = ctx.gripper_frames[holder_of[obj]]
-            tasks.append(TaskSpec(name, "relative_se3", priority, frame=frame, frame_b=other,
-                                  gain=GAINS["grasp"], streamed=True))
+            tasks.append(
+                TaskSpec(
+                    name,
+                    "relative_se3",
+                    priority,
+                    frame=frame,
+                    frame_b=other,
+                    gain=GAINS["grasp"],
+                    streamed=True,
+                )
+            )
         else:
-            tasks.append(TaskSpec(name, "se3", priority, frame=frame, gain=GAINS["grasp"],
-                                  streamed=True))
+            tasks.append(
+                TaskSpec(name, "se3", priority, frame=frame, gain=GAINS["grasp"], streamed=True)
+            )
             holder_of[obj] = gripper
     return tasks
 
@@ -251,12 +296,23 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
         if not release and gripper not in step.grasps:
             continue
         target = g.open_position if release else g.closed_position
-        parameters = dict(ADMITTANCE, **g.parameters,
-                          closing_direction=g.closing_direction,
-                          release=float(release))
-        tasks.append(TaskSpec(f"{_task_name(gripper)}_admittance", "gripper_admittance", priority,
-                              gain=GAINS["gripper"], reference=[target], joints=[g.joint],
-                              parameters=parameters))
+        parameters = dict(
+            ADMITTANCE,
+            **g.parameters,
+            closing_direction=g.closing_direction,
+            release=float(release),
+        )
+        tasks.append(
+            TaskSpec(
+                f"{_task_name(gripper)}_admittance",
+                "gripper_admittance",
+                priority,
+                gain=GAINS["gripper"],
+                reference=[target],
+                joints=[g.joint],
+                parameters=parameters,
+            )
+        )
     return tasks
 
 
@@ -264,23 +320,38 @@ def _posture_task(ctx: FactoryContext, admittance: list[TaskSpec]) -> TaskSpec:
     """The posture over every 1-DoF joint but those an admittance task drives (it would pull the
     gripper back to the planned opening and never converge)."""
     driven = {j for t in admittance for j in t.joints}
-    joints = [] if not driven else [ctx.model.names[j] for j in range(1, ctx.model.njoints)
-                                    if ctx.model.joints[j].nv == 1 and ctx.model.names[j] not in driven]
+    joints = (
+        []
+        if not driven
+        else [
+            ctx.model.names[j]
+            for j in range(1, ctx.model.njoints)
+            if ctx.model.joints[j].nv == 1 and ctx.model.names[j] not in driven
+        ]
+    )
     return TaskSpec("posture", "posture", 0, gain=GAINS["posture"], streamed=True, joints=joints)
 
 
 def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None) -> ControllerSpec:
     """The controller of one step (levels numbered from 0 without gaps)."""
     admittance = gripper_admittance_tasks(step, ctx, 0)
-    levels = [balance_tasks(ctx), grasp_tasks(step, ctx, 0) + admittance, [_posture_task(ctx, admittance)]]
+    levels = [
+        balance_tasks(ctx),
+        grasp_tasks(step, ctx, 0) + admittance,
+        [_posture_task(ctx, admittance)],
+    ]
     tasks: list[TaskSpec] = []
     for priority, level in enumerate(lv for lv in levels if lv):
         for t in level:
             t.priority = priority
             tasks.append(t)
-    spec = ControllerSpec(step.index + 1 if controller_id is None else controller_id,
-                          f"step{step.index} {step.transition}", tasks,
-                          max_switch_velocity_jump=0.1, reference_timeout=0.2)
+    spec = ControllerSpec(
+        step.index + 1 if controller_id is None else controller_id,
+        f"step{step.index} {step.transition}",
+        tasks,
+        max_switch_velocity_jump=0.1,
+        reference_timeout=0.2,
+    )
     spec.check()
     return spec
 
@@ -292,29 +363,37 @@ def build_specs(steps: list[Step], ctx: FactoryContext) -> list[ControllerSpec]:
 # ---- spec file ------------------------------------------------------------------------------
 
 
-def specs_document(steps: list[Step], specs: list[ControllerSpec], plan_name: str) -> dict[str, Any]:
+def specs_document(
+    steps: list[Step], specs: list[ControllerSpec], plan_name: str
+) -> dict[str, Any]:
     return {
         "format": SPECS_FORMAT,
         "plan": plan_name,
         "end_thresholds": END_THRESHOLDS,
-        "steps": [{
-            "index": s.index,
-            "transition": s.transition,
-            "parent_transition": s.parent_transition,
-            "kind": s.kind,
-            "release_at_start": s.released,
-            "grasp_at_end": s.created,
-            "plan_paths": s.path_indices,
-            "controller": spec.to_dict(),
-        } for s, spec in zip(steps, specs)],
+        "steps": [
+            {
+                "index": s.index,
+                "transition": s.transition,
+                "parent_transition": s.parent_transition,
+                "kind": s.kind,
+                "release_at_start": s.released,
+                "grasp_at_end": s.created,
+                "plan_paths": s.path_indices,
+                "controller": spec.to_dict(),
+            }
+            for s, spec in zip(steps, specs)
+        ],
     }
 
 
-def write_specs(path: str | Path, steps: list[Step], specs: list[ControllerSpec], plan_name: str) -> Path:
+def write_specs(
+    path: str | Path, steps: list[Step], specs: list[ControllerSpec], plan_name: str
+) -> Path:
     """The readable, diffable controller file (YAML, one entry per FSM state)."""
     path = Path(path)
-    path.write_text(yaml.safe_dump(specs_document(steps, specs, plan_name), sort_keys=False,
-                                   width=100))
+    path.write_text(
+        yaml.safe_dump(specs_document(steps, specs, plan_name), sort_keys=False, width=100)
+    )
     return path
 
 
@@ -328,18 +407,23 @@ def read_specs(path: str | Path) -> list[ControllerSpec]:
 # ---- checks before execution ----------------------------------------------------------------
 
 
-def task_jacobian(model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray) -> np.ndarray | None:
+def task_jacobian(
+    model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray
+) -> np.ndarray | None:
     """The task's Jacobian (rows x nv) at q (kinematics already computed at q), None for the
     posture task (a regularisation: it never loses rank)."""
     if task.kind in ("se3", "pbvs"):
         J = pin.getFrameJacobian(model, data, model.getFrameId(task.frame), pin.LOCAL)
     elif task.kind == "position":
-        J = pin.getFrameJacobian(model, data, model.getFrameId(task.frame), pin.LOCAL_WORLD_ALIGNED)[:3]
+        J = pin.getFrameJacobian(
+            model, data, model.getFrameId(task.frame), pin.LOCAL_WORLD_ALIGNED
+        )[:3]
     elif task.kind == "relative_se3":
         fa, fb = model.getFrameId(task.frame), model.getFrameId(task.frame_b)
         X_AB = data.oMf[fa].actInv(data.oMf[fb])
-        J = (pin.getFrameJacobian(model, data, fa, pin.LOCAL)
-             - X_AB.toActionMatrix() @ pin.getFrameJacobian(model, data, fb, pin.LOCAL))
+        J = pin.getFrameJacobian(
+            model, data, fa, pin.LOCAL
+        ) - X_AB.toActionMatrix() @ pin.getFrameJacobian(model, data, fb, pin.LOCAL)
     elif task.kind == "com":
         J = pin.jacobianCenterOfMass(model, data, q)
     else:
@@ -349,8 +433,13 @@ def task_jacobian(model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarra
     return J
 
 
-def check_specs(steps: list[Step], specs: list[ControllerSpec], ctx: FactoryContext,
-                robot_map: PlanRobotMap, tol: float = 1e-6) -> list[str]:
+def check_specs(
+    steps: list[Step],
+    specs: list[ControllerSpec],
+    ctx: FactoryContext,
+    robot_map: PlanRobotMap,
+    tol: float = 1e-6,
+) -> list[str]:
     """Problems that would make execution fail, as messages (empty list: good to go)."""
     problems: list[str] = []
     model = ctx.model
@@ -367,7 +456,7 @@ def check_specs(steps: list[Step], specs: list[ControllerSpec], ctx: FactoryCont
         pin.computeJointJacobians(model, data, q)
         pin.framesForwardKinematics(model, data, q)
         pin.centerOfMass(model, data, q)
-        N = np.eye(model.nv)   # null-space basis of the levels above
+        N = np.eye(model.nv)  # null-space basis of the levels above
         for level in sorted({t.priority for t in spec.tasks}):
             Js = [task_jacobian(model, data, t, q) for t in spec.tasks if t.priority == level]
             Js = [J for J in Js if J is not None]
@@ -378,13 +467,19 @@ def check_specs(steps: list[Step], specs: list[ControllerSpec], ctx: FactoryCont
             rank = int(np.sum(s > tol * max(1.0, s[0])))
             if rank < J.shape[0]:
                 names = [t.name for t in spec.tasks if t.priority == level]
-                problems.append(f"{where}: priority {level} ({', '.join(names)}) loses rank at the "
-                                f"step's start configuration: {rank} < {J.shape[0]}")
+                problems.append(
+                    f"{where}: priority {level} ({', '.join(names)}) loses rank at the "
+                    f"step's start configuration: {rank} < {J.shape[0]}"
+                )
             _, _, Vt = np.linalg.svd(J)
             N = N @ Vt[rank:].T if rank < Vt.shape[0] else np.zeros((model.nv, 0))
     for a, b in zip(steps, steps[1:]):
-        gap = np.linalg.norm(pin.difference(model, robot_map.robot_q(a.q[-1]), robot_map.robot_q(b.q[0])))
+        gap = np.linalg.norm(
+            pin.difference(model, robot_map.robot_q(a.q[-1]), robot_map.robot_q(b.q[0]))
+        )
         if gap > 1e-3:  # [rad] a smaller gap is absorbed by the tracking of the first samples
-            problems.append(f"step {a.index} ends {gap:.3g} rad away from where step {b.index} "
-                            "starts: the FSM has no way from one to the other")
+            problems.append(
+                f"step {a.index} ends {gap:.3g} rad away from where step {b.index} "
+                "starts: the FSM has no way from one to the other"
+            )
     return problems

@@ -26,12 +26,13 @@ from marionette.lcm_bus import LcmBus
 SOURCE = "force_monitor"
 # The controller's defaults of eq. 3.11-3.13's constants (GripperAdmittanceOptions,
 # cpp/include/marionette/sot/feature_gripper_admittance.h), which a task's parameters override.
-DEFAULT_LEVER_ARM = 0.1           # d [m]
-DEFAULT_TORQUE_PER_EFFORT = 1.0   # k_τ k_gear
+DEFAULT_LEVER_ARM = 0.1  # d [m]
+DEFAULT_TORQUE_PER_EFFORT = 1.0  # k_τ k_gear
 
 
-def force_estimate(effort: float, closing_direction: float, torque_per_effort: float,
-                   lever_arm: float) -> float:
+def force_estimate(
+    effort: float, closing_direction: float, torque_per_effort: float, lever_arm: float
+) -> float:
     """f = s k τ / d [N] of eq. 3.11-3.13 from a gripper joint's actuator effort τ (> 0 squeezes)."""
     return closing_direction * torque_per_effort * effort / lever_arm
 
@@ -39,20 +40,24 @@ def force_estimate(effort: float, closing_direction: float, torque_per_effort: f
 @dataclass
 class ForceEventDetector:
     joint: str
-    threshold: float                    # [N]
-    closing_direction: float = -1.0     # s (TALOS grippers close towards negative angles)
+    threshold: float  # [N]
+    closing_direction: float = -1.0  # s (TALOS grippers close towards negative angles)
     lever_arm: float = DEFAULT_LEVER_ARM
     torque_per_effort: float = DEFAULT_TORQUE_PER_EFFORT
-    cutoff_frequency: float = 5.0       # [Hz]
+    cutoff_frequency: float = 5.0  # [Hz]
 
     def __post_init__(self) -> None:
         if not self.joint:
             raise ValueError("ForceEventDetector needs a joint name")
         if not (self.threshold > 0 and self.lever_arm > 0 and self.cutoff_frequency > 0):
-            raise ValueError(f"ForceEventDetector: threshold, lever_arm and cutoff_frequency must be > 0 "
-                             f"(got {self.threshold}, {self.lever_arm}, {self.cutoff_frequency})")
+            raise ValueError(
+                f"ForceEventDetector: threshold, lever_arm and cutoff_frequency must be > 0 "
+                f"(got {self.threshold}, {self.lever_arm}, {self.cutoff_frequency})"
+            )
         if self.closing_direction not in (-1.0, 1.0):
-            raise ValueError(f"ForceEventDetector: closing_direction must be +1 or -1, got {self.closing_direction}")
+            raise ValueError(
+                f"ForceEventDetector: closing_direction must be +1 or -1, got {self.closing_direction}"
+            )
         self.filtered: float | None = None
         self._last_utime: int | None = None
         self.fired_utime: int | None = None
@@ -62,9 +67,12 @@ class ForceEventDetector:
         try:
             i = list(state.joint_name).index(self.joint)
         except ValueError:
-            raise KeyError(f"ForceEventDetector: joint {self.joint!r} not in the robot state") from None
-        return force_estimate(state.joint_effort[i], self.closing_direction, self.torque_per_effort,
-                              self.lever_arm)
+            raise KeyError(
+                f"ForceEventDetector: joint {self.joint!r} not in the robot state"
+            ) from None
+        return force_estimate(
+            state.joint_effort[i], self.closing_direction, self.torque_per_effort, self.lever_arm
+        )
 
     def feed(self, state: Any) -> float | None:
         """Updates the filter with one state; returns the filtered force when it first crosses the
@@ -74,7 +82,9 @@ class ForceEventDetector:
         if self.filtered is None or self._last_utime is None or utime <= self._last_utime:
             self.filtered = f if self.filtered is None else self.filtered
         else:
-            alpha = 1.0 - math.exp(-2.0 * math.pi * self.cutoff_frequency * (utime - self._last_utime) * 1e-6)
+            alpha = 1.0 - math.exp(
+                -2.0 * math.pi * self.cutoff_frequency * (utime - self._last_utime) * 1e-6
+            )
             self.filtered += alpha * (f - self.filtered)
         self._last_utime = utime
         if self.fired_utime is None and self.filtered > self.threshold:
@@ -104,5 +114,7 @@ class ForceEventNode:
             return
         self.events.append((int(msg.utime), value))
         detail = f"{self.detector.joint}: {value:.2f} N > {self.detector.threshold:.2f} N"
-        self.bus.publish(channels.SUPERVISOR_EVENT,
-                         event_message(msg.utime, "force_threshold", SOURCE, detail, value))
+        self.bus.publish(
+            channels.SUPERVISOR_EVENT,
+            event_message(msg.utime, "force_threshold", SOURCE, detail, value),
+        )

@@ -18,9 +18,10 @@ measured ZMP stays inside the support polygon of its loaded soles.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -30,13 +31,22 @@ from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
-from marionette.execution.walking_scenario import (MovingObjectPublisher, WalkRecorder,
-                                                   draw_floor_move, finish_footsteps_axes,
-                                                   object_poses_message, plot_footsteps,
-                                                   replan_criteria, replan_rate_row,
-                                                   scenario_report, sole_poses, step_counts,
-                                                   walk_while_object_moves, walking_run,
-                                                   write_report_files)
+from marionette.execution.walking_scenario import (
+    MovingObjectPublisher,
+    WalkRecorder,
+    draw_floor_move,
+    finish_footsteps_axes,
+    object_poses_message,
+    plot_footsteps,
+    replan_criteria,
+    replan_rate_row,
+    scenario_report,
+    sole_poses,
+    step_counts,
+    walk_while_object_moves,
+    walking_run,
+    write_report_files,
+)
 from marionette.lcm_bus import private_lcm_url
 
 
@@ -45,19 +55,19 @@ class GraspWalkSettings:
     """Where the ball starts and how it is moved (relative to the initial stance centre)."""
 
     ball: tuple[float, float, float] = (1.3, -0.10, 0.842)  # [m] ahead, left, height (pedestal top)
-    shift: tuple[float, float] = (0.0, -0.15)   # [m] ball displacement during the walk
-    shift_at_step: int = 1                      # the move starts when this step starts
-    shift_duration_s: float = 1.5               # [s] of controller time: pushed, not teleported
+    shift: tuple[float, float] = (0.0, -0.15)  # [m] ball displacement during the walk
+    shift_at_step: int = 1  # the move starts when this step starts
+    shift_duration_s: float = 1.5  # [s] of controller time: pushed, not teleported
     hand: str = "right"
-    stance_tolerance: float = 0.02              # [m] executed final soles vs the last plan's
+    stance_tolerance: float = 0.02  # [m] executed final soles vs the last plan's
     stance_yaw_tolerance_deg: float = 3.0
-    max_base_drop: float = 0.05                 # [m] fall criterion (base height)
-    zmp_tolerance: float = 0.005                # [m] ZMP outside the soles' polygon allowed by
+    max_base_drop: float = 0.05  # [m] fall criterion (base height)
+    zmp_tolerance: float = 0.005  # [m] ZMP outside the soles' polygon allowed by
     #                                             the sole poses (walk references, mm from the real ones)
-    walk_timeout_s: float = 60.0                # controller time for the whole walk
-    reach: bool = True                          # then reach the ball with the hand (bonus)
-    reach_duration_s: float = 3.0               # [s] minimum-jerk hand motion
-    reach_tolerance: float = 0.03               # [m] grasp point to ball after the reach
+    walk_timeout_s: float = 60.0  # controller time for the whole walk
+    reach: bool = True  # then reach the ball with the hand (bonus)
+    reach_duration_s: float = 3.0  # [s] minimum-jerk hand motion
+    reach_tolerance: float = 0.03  # [m] grasp point to ball after the reach
 
     @classmethod
     def drawn(cls, seed: int, max_distance: float = 0.3) -> GraspWalkSettings:
@@ -82,21 +92,30 @@ def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
     pin.framesForwardKinematics(model, data, q)
     shoulder = f"arm_{hand}_1_link"
     grasp = f"{hand}_grasp_point"
-    d = np.linalg.norm(data.oMf[model.getFrameId(grasp)].translation
-                       - data.oMf[model.getFrameId(shoulder)].translation)
+    d = np.linalg.norm(
+        data.oMf[model.getFrameId(grasp)].translation
+        - data.oMf[model.getFrameId(shoulder)].translation
+    )
     return float(d), shoulder
 
 
-def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
-                   log: Callable[[str], None] = print, controller_url: str | None = None,
-                   settings: GraspWalkSettings | None = None, view: bool = False) -> dict[str, Any]:
+def run_grasp_walk(
+    scenario,
+    seed: int,
+    out_dir: Path,
+    speed: float = 1.0,
+    log: Callable[[str], None] = print,
+    controller_url: str | None = None,
+    settings: GraspWalkSettings | None = None,
+    view: bool = False,
+) -> dict[str, Any]:
     """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import talos
 
     settings = settings or GraspWalkSettings.drawn(seed)
     out_dir.mkdir(parents=True, exist_ok=True)
     desc = robots.robot("talos")
-    model = talos().model                       # with the grasp-point frames of the planner
+    model = talos().model  # with the grasp-point frames of the planner
     url = controller_url or private_lcm_url()
     report = scenario_report(scenario, seed, speed, url, desc.mjcf, settings)
     with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url, view) as run:
@@ -105,16 +124,37 @@ def run_grasp_walk(scenario, seed: int, out_dir: Path, speed: float = 1.0,
         ball1 = ball0 + np.array([*settings.shift, 0.0])
         publisher = MovingObjectPublisher(client, "ball", ball0, ball_message)
         utime_move = walk_while_object_moves(
-            run, publisher, ["--target", "ball", "--hand", settings.hand], ball1, settings.shift_at_step,
-            settings.shift_duration_s, settings.walk_timeout_s,
-            f"grasp-walk: ball at {np.round(ball0, 3).tolist()}, footstep process started", "grasp-walk", log)
+            run,
+            publisher,
+            ["--target", "ball", "--hand", settings.hand],
+            ball1,
+            settings.shift_at_step,
+            settings.shift_duration_s,
+            settings.walk_timeout_s,
+            f"grasp-walk: ball at {np.round(ball0, 3).tolist()}, footstep process started",
+            "grasp-walk",
+            log,
+        )
         report["reach_start_utime"] = client.utime()
         if settings.reach:
             t2 = time.perf_counter()
             report["reach"] = _reach(client, model, ball1, settings, rec.last_status(), log)
             run.timings["reach_wall_s"] = time.perf_counter() - t2
-    report.update(_criteria(settings, model, rec, run.start, run.q_start, run.q_final, ball0, ball1,
-                            run.utime_start, utime_move, run.footsteps_log))
+    report.update(
+        _criteria(
+            settings,
+            model,
+            rec,
+            run.start,
+            run.q_start,
+            run.q_final,
+            ball0,
+            ball1,
+            run.utime_start,
+            utime_move,
+            run.footsteps_log,
+        )
+    )
     report["summary"] = summary(report)
     write_grasp_walk_report(out_dir, report, rec, ball0, ball1, utime_move, model)
     return report
@@ -137,21 +177,52 @@ def reach_spec(controller_id: int, hand: str, walk_status) -> ControllerSpec:
     takes the directions in which the walk's level-1 posture task was still pulling against
     level 0, so the command changes by that posture component, measured 0.11-0.21 rad/s after
     6-8 steps on a robot at rest (refused swaps are retried and reported)."""
-    return ControllerSpec(controller_id, "reach", max_switch_velocity_jump=0.25, tasks=[
-        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0,
-                 reference=_sole_reference(walk_status.left_foot)),
-        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0,
-                 reference=_sole_reference(walk_status.right_foot)),
-        TaskSpec("com", "com", 0, gain=5.0, reference=tuple(float(v) for v in walk_status.com)),
-        TaskSpec("waist", "se3", 0, frame="base_link", mask=(False, False, False, True, True, False),
-                 gain=20.0),
-        TaskSpec("hand", "position", 1, frame=f"gripper_{hand}_base_link", gain=5.0, streamed=True),
-        TaskSpec("posture", "posture", 2, gain=2.0),
-    ])
+    return ControllerSpec(
+        controller_id,
+        "reach",
+        max_switch_velocity_jump=0.25,
+        tasks=[
+            TaskSpec(
+                "left_foot",
+                "se3",
+                0,
+                frame="left_sole_link",
+                gain=20.0,
+                reference=_sole_reference(walk_status.left_foot),
+            ),
+            TaskSpec(
+                "right_foot",
+                "se3",
+                0,
+                frame="right_sole_link",
+                gain=20.0,
+                reference=_sole_reference(walk_status.right_foot),
+            ),
+            TaskSpec("com", "com", 0, gain=5.0, reference=tuple(float(v) for v in walk_status.com)),
+            TaskSpec(
+                "waist",
+                "se3",
+                0,
+                frame="base_link",
+                mask=(False, False, False, True, True, False),
+                gain=20.0,
+            ),
+            TaskSpec(
+                "hand", "position", 1, frame=f"gripper_{hand}_base_link", gain=5.0, streamed=True
+            ),
+            TaskSpec("posture", "posture", 2, gain=2.0),
+        ],
+    )
 
 
-def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, settings: GraspWalkSettings,
-           walk_status, log: Callable[[str], None]) -> dict[str, Any]:
+def _reach(
+    client: ControllerClient,
+    model: pin.Model,
+    ball: np.ndarray,
+    settings: GraspWalkSettings,
+    walk_status,
+    log: Callable[[str], None],
+) -> dict[str, Any]:
     """Bonus: swap to :func:`reach_spec` and bring the grasp point onto the ball. The gripper base
     aims 0.12 m short of the ball along the shoulder-ball line (the grasp point is that far
     along the forearm's axis, footsteps.robot_model.TALOS_GRASP_POINT); the result is measured
@@ -173,8 +244,15 @@ def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, setting
         client.send_spec(reach_spec(cid, hand, walk_status))
         tag = f"(id {cid})"
         try:
-            client.wait(lambda c: c.status.active_controller_id == cid or tag in c.status.last_switch_result
-                        or tag in c.status.last_rejection, 10.0, "the swap to the reach controller")
+            client.wait(
+                lambda c, cid=cid, tag=tag: (
+                    c.status.active_controller_id == cid
+                    or tag in c.status.last_switch_result
+                    or tag in c.status.last_rejection
+                ),
+                10.0,
+                "the swap to the reach controller",
+            )
         except TimeoutError as e:
             return {"done": False, "reason": str(e), "refusals": refusals}
         if client.status.active_controller_id == cid:
@@ -189,8 +267,15 @@ def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, setting
     chunks, lookahead, errors = 0, [], []
     for duration in (settings.reach_duration_s, 1.0, 1.0):
         values, derivatives = minimum_jerk(p_hand, target, duration, 1e-3)
-        streamer = ReferenceStreamer(client.send_reference, cid, {"hand": (values, derivatives)},
-                                     client.utime() + 100_000, 1000, 200, 1.0)
+        streamer = ReferenceStreamer(
+            client.send_reference,
+            cid,
+            {"hand": (values, derivatives)},
+            client.utime() + 100_000,
+            1000,
+            200,
+            1.0,
+        )
         while not (streamer.done and client.utime() >= streamer.end_utime):
             now = client.utime()
             streamer.pump(now)
@@ -206,19 +291,39 @@ def _reach(client: ControllerClient, model: pin.Model, ball: np.ndarray, setting
         p_hand, target = target, ball - (grasp - X_hand.translation)
     error = errors[-1]
     log(f"grasp-walk: reach done, grasp point {error * 1e3:.1f} mm from the ball")
-    return {"done": True, "grasp_point_to_ball_m": error, "ok": bool(error <= settings.reach_tolerance),
-            "errors_per_pass_m": errors, "refused_swaps": refusals, "hand_task_error_m": float(client.task_error("hand")),
-            "chunks": chunks, "min_lookahead_ms": min(lookahead) if lookahead else None}
+    return {
+        "done": True,
+        "grasp_point_to_ball_m": error,
+        "ok": bool(error <= settings.reach_tolerance),
+        "errors_per_pass_m": errors,
+        "refused_swaps": refusals,
+        "hand_task_error_m": float(client.task_error("hand")),
+        "chunks": chunks,
+        "min_lookahead_ms": min(lookahead) if lookahead else None,
+    }
 
 
-def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, start, q_start, q_final,
-              ball0, ball1, utime_start: int, utime_move: int, footsteps_log: list[str]) -> dict[str, Any]:
+def _criteria(
+    settings: GraspWalkSettings,
+    model: pin.Model,
+    rec: WalkRecorder,
+    start,
+    q_start,
+    q_final,
+    ball0,
+    ball1,
+    utime_start: int,
+    utime_move: int,
+    footsteps_log: list[str],
+) -> dict[str, Any]:
     """The success criteria, measured (module docstring)."""
     planned = rec.merged.final_stance(start)
     executed = sole_poses(model, q_final)
     stance_err = max(float(np.linalg.norm(executed[s][:2] - planned[s][:2])) for s in FEET)
-    yaw_err = max(abs(float(np.degrees(np.angle(np.exp(1j * (executed[s][3] - planned[s][3]))))))
-                  for s in FEET)
+    yaw_err = max(
+        abs(float(np.degrees(np.angle(np.exp(1j * (executed[s][3] - planned[s][3]))))))
+        for s in FEET
+    )
     # The ball within reach of the right arm from where the robot stopped.
     reach, shoulder = arm_reach(model, settings.hand)
     data = model.createData()
@@ -242,8 +347,9 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, 
         **replan_criteria(rec, footsteps_log, utime_move, settings.shift_duration_s),
         "final_stance_error_m": stance_err,
         "final_stance_yaw_error_deg": yaw_err,
-        "final_stance_ok": bool(stance_err <= settings.stance_tolerance
-                                and yaw_err <= settings.stance_yaw_tolerance_deg),
+        "final_stance_ok": bool(
+            stance_err <= settings.stance_tolerance and yaw_err <= settings.stance_yaw_tolerance_deg
+        ),
         "ball_to_shoulder_m": ball_dist,
         "arm_reach_m": reach,
         "ball_within_reach": bool(ball_dist <= reach),
@@ -251,38 +357,56 @@ def _criteria(settings: GraspWalkSettings, model: pin.Model, rec: WalkRecorder, 
         "ball_shift_m": list(settings.shift),
         "base_max_drop_m": base_drop,
         "no_fall": bool(base_drop < settings.max_base_drop),
-        "zmp_samples": int(len(margins)),
+        "zmp_samples": len(margins),
         "zmp_statuses": len(walked),
         "zmp_margin_min_m": float(margins[:, 1].min()) if len(margins) else None,
         "zmp_margin_p5_m": float(np.percentile(margins[:, 1], 5)) if len(margins) else None,
         "zmp_margin_median_m": float(np.median(margins[:, 1])) if len(margins) else None,
-        "zmp_inside": bool(len(margins) > 0.8 * len(walked)
-                           and margins[:, 1].min() > -settings.zmp_tolerance),
+        "zmp_inside": bool(
+            len(margins) > 0.8 * len(walked) and margins[:, 1].min() > -settings.zmp_tolerance
+        ),
         "final_stance": {s: planned[s].tolist() for s in FEET},
         "executed_final_soles": {s: executed[s].tolist() for s in FEET},
     }
-    ok = (c["final_stance_ok"] and c["ball_within_reach"] and c["no_fall"] and c["zmp_inside"]
-          and c["steps_in_order"] and c["recomputations_after_move"] > 0 and c["replan_fast_enough"])
+    ok = (
+        c["final_stance_ok"]
+        and c["ball_within_reach"]
+        and c["no_fall"]
+        and c["zmp_inside"]
+        and c["steps_in_order"]
+        and c["recomputations_after_move"] > 0
+        and c["replan_fast_enough"]
+    )
     return {"success": bool(ok), "criteria": c}
 
 
-def write_grasp_walk_report(out_dir: Path, report: dict[str, Any], rec: WalkRecorder, ball0, ball1,
-                            utime_move: int, model: pin.Model) -> None:
+def write_grasp_walk_report(
+    out_dir: Path,
+    report: dict[str, Any],
+    rec: WalkRecorder,
+    ball0,
+    ball1,
+    utime_move: int,
+    model: pin.Model,
+) -> None:
     """report.json, report.md and the plots (footsteps planned vs executed, CoM/ZMP)."""
-    write_report_files(out_dir, report, lambda: _plots(out_dir, rec, ball0, ball1, utime_move, model),
-                       _markdown)
+    write_report_files(
+        out_dir, report, lambda: _plots(out_dir, rec, ball0, ball1, utime_move, model), _markdown
+    )
 
 
 def summary(report: dict[str, Any]) -> str:
     """One line for the terminal."""
     c = report["criteria"]
-    return (f"{'SUCCESS' if report['success'] else 'FAILURE'}: {c['steps_executed']} steps, "
-            f"{c['footstep_recomputations']} footstep recomputations "
-            f"({c['recomputations_after_move']} after the ball moved), final stance "
-            f"{c['final_stance_error_m'] * 1e3:.1f} mm from the plan, ball {c['ball_to_shoulder_m']:.2f} m "
-            f"from the shoulder (reach {c['arm_reach_m']:.2f} m), base drop "
-            f"{c['base_max_drop_m'] * 1e3:.0f} mm, ZMP margin min "
-            f"{_mm(c['zmp_margin_min_m'])} / median {_mm(c['zmp_margin_median_m'])}")
+    return (
+        f"{'SUCCESS' if report['success'] else 'FAILURE'}: {c['steps_executed']} steps, "
+        f"{c['footstep_recomputations']} footstep recomputations "
+        f"({c['recomputations_after_move']} after the ball moved), final stance "
+        f"{c['final_stance_error_m'] * 1e3:.1f} mm from the plan, ball {c['ball_to_shoulder_m']:.2f} m "
+        f"from the shoulder (reach {c['arm_reach_m']:.2f} m), base drop "
+        f"{c['base_max_drop_m'] * 1e3:.0f} mm, ZMP margin min "
+        f"{_mm(c['zmp_margin_min_m'])} / median {_mm(c['zmp_margin_median_m'])}"
+    )
 
 
 def _mm(v) -> str:
@@ -293,42 +417,70 @@ def _markdown(r: dict[str, Any]) -> str:
     c = r["criteria"]
     s = r["settings"]
     ms = c["replan_solve_ms"]
-    lines = [f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}", "",
-             r.get("description", ""), "",
-             f"robot talos, scene `{r['scene']}` (TALOS alone: the ball is the target published on "
-             f"OBJECT_POSES), controller speed {r['speed']} (0 = as fast as possible)", "",
-             summary(r), "",
-             "## Success criteria", "", "| criterion | measured | limit | ok |", "|---|---|---|---|",
-             f"| executed final soles vs last plan | {c['final_stance_error_m'] * 1e3:.1f} mm, "
-             f"{c['final_stance_yaw_error_deg']:.2f}° | {s['stance_tolerance'] * 1e3:.0f} mm, "
-             f"{s['stance_yaw_tolerance_deg']}° | {c['final_stance_ok']} |",
-             f"| ball to right shoulder | {c['ball_to_shoulder_m']:.3f} m | arm reach "
-             f"{c['arm_reach_m']:.3f} m | {c['ball_within_reach']} |",
-             f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | "
-             f"{s['max_base_drop'] * 1e3:.0f} mm | {c['no_fall']} |",
-             f"| measured ZMP in the loaded soles' polygon (min margin; p5, median) | "
-             f"{_mm(c['zmp_margin_min_m'])}; {_mm(c['zmp_margin_p5_m'])}, {_mm(c['zmp_margin_median_m'])} "
-             f"over {c['zmp_samples']}/{c['zmp_statuses']} statuses | > -{s['zmp_tolerance'] * 1e3:.0f} mm "
-             f"| {c['zmp_inside']} |",
-             f"| steps in order | {c['steps_executed']} executed | - | {c['steps_in_order']} |",
-             f"| replans after the ball moved | {c['recomputations_after_move']} | > 0 | "
-             f"{c['recomputations_after_move'] > 0} |",
-             replan_rate_row(c, "ball"), "",
-             "## Bonus: reaching the ball", "", _reach_line(r.get("reach"), s), "",
-             "## Footstep recomputations (Dang 2012 §6.3: 97 in 14 s)", "",
-             f"{c['footstep_plans']} plans: the first ({c['steps_planned_first']} steps, "
-             f"{_num(ms['first_plan'])} ms) and {c['footstep_recomputations']} recomputations "
-             f"(median {_num(ms['median'])} ms, max {_num(ms['max'])} ms, posture frozen). The "
-             f"footstep process replans when the ball moves by more than 2 mm or a step starts. "
-             f"Final stance moved by {np.round(c['final_stance_shift_m'], 3).tolist()} m for a "
-             f"ball moved by {c['ball_shift_m']} m.", "",
-             "## Timings", "", "| phase | s |", "|---|---|"]
+    lines = [
+        f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}",
+        "",
+        r.get("description", ""),
+        "",
+        f"robot talos, scene `{r['scene']}` (TALOS alone: the ball is the target published on "
+        f"OBJECT_POSES), controller speed {r['speed']} (0 = as fast as possible)",
+        "",
+        summary(r),
+        "",
+        "## Success criteria",
+        "",
+        "| criterion | measured | limit | ok |",
+        "|---|---|---|---|",
+        f"| executed final soles vs last plan | {c['final_stance_error_m'] * 1e3:.1f} mm, "
+        f"{c['final_stance_yaw_error_deg']:.2f}° | {s['stance_tolerance'] * 1e3:.0f} mm, "
+        f"{s['stance_yaw_tolerance_deg']}° | {c['final_stance_ok']} |",
+        f"| ball to right shoulder | {c['ball_to_shoulder_m']:.3f} m | arm reach "
+        f"{c['arm_reach_m']:.3f} m | {c['ball_within_reach']} |",
+        f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | "
+        f"{s['max_base_drop'] * 1e3:.0f} mm | {c['no_fall']} |",
+        f"| measured ZMP in the loaded soles' polygon (min margin; p5, median) | "
+        f"{_mm(c['zmp_margin_min_m'])}; {_mm(c['zmp_margin_p5_m'])}, {_mm(c['zmp_margin_median_m'])} "
+        f"over {c['zmp_samples']}/{c['zmp_statuses']} statuses | > -{s['zmp_tolerance'] * 1e3:.0f} mm "
+        f"| {c['zmp_inside']} |",
+        f"| steps in order | {c['steps_executed']} executed | - | {c['steps_in_order']} |",
+        f"| replans after the ball moved | {c['recomputations_after_move']} | > 0 | "
+        f"{c['recomputations_after_move'] > 0} |",
+        replan_rate_row(c, "ball"),
+        "",
+        "## Bonus: reaching the ball",
+        "",
+        _reach_line(r.get("reach"), s),
+        "",
+        "## Footstep recomputations (Dang 2012 §6.3: 97 in 14 s)",
+        "",
+        f"{c['footstep_plans']} plans: the first ({c['steps_planned_first']} steps, "
+        f"{_num(ms['first_plan'])} ms) and {c['footstep_recomputations']} recomputations "
+        f"(median {_num(ms['median'])} ms, max {_num(ms['max'])} ms, posture frozen). The "
+        f"footstep process replans when the ball moves by more than 2 mm or a step starts. "
+        f"Final stance moved by {np.round(c['final_stance_shift_m'], 3).tolist()} m for a "
+        f"ball moved by {c['ball_shift_m']} m.",
+        "",
+        "## Timings",
+        "",
+        "| phase | s |",
+        "|---|---|",
+    ]
     lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
     ctl = r.get("controller", {})
-    lines += ["", "## Controller", "", ", ".join(f"{k}: {v}" for k, v in ctl.items()), "",
-              "## Plots", ""] + [f"![{p}]({p})" for p in r.get("plots", [])]
-    lines += ["", "Files: `run.lcmlog` (every LCM message of the run), `logs/` (process outputs: "
-              "controller, footsteps, lcm-logger)."]
+    lines += [
+        "",
+        "## Controller",
+        "",
+        ", ".join(f"{k}: {v}" for k, v in ctl.items()),
+        "",
+        "## Plots",
+        "",
+    ] + [f"![{p}]({p})" for p in r.get("plots", [])]
+    lines += [
+        "",
+        "Files: `run.lcmlog` (every LCM message of the run), `logs/` (process outputs: "
+        "controller, footsteps, lcm-logger).",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -338,19 +490,23 @@ def _reach_line(reach: dict[str, Any] | None, s: dict[str, Any]) -> str:
     if not reach["done"]:
         return f"not done: {reach['reason']}"
     passes = ", ".join(f"{1e3 * e:.1f}" for e in reach["errors_per_pass_m"])
-    return (f"after the walk, a reach controller (feet and CoM held, hand streamed at level 1) "
-            f"brings the grasp point {reach['grasp_point_to_ball_m'] * 1e3:.1f} mm from the ball "
-            f"(limit {s['reach_tolerance'] * 1e3:.0f} mm, {'ok' if reach['ok'] else 'missed'}; per pass "
-            f"{passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm; "
-            f"{len(reach['refused_swaps'])} refused swaps). Not part of the success verdict; no "
-            f"ball in the scene to close the gripper on.")
+    return (
+        f"after the walk, a reach controller (feet and CoM held, hand streamed at level 1) "
+        f"brings the grasp point {reach['grasp_point_to_ball_m'] * 1e3:.1f} mm from the ball "
+        f"(limit {s['reach_tolerance'] * 1e3:.0f} mm, {'ok' if reach['ok'] else 'missed'}; per pass "
+        f"{passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm; "
+        f"{len(reach['refused_swaps'])} refused swaps). Not part of the success verdict; no "
+        f"ball in the scene to close the gripper on."
+    )
 
 
 def _num(v) -> str:
     return "-" if v is None else f"{v:.0f}"
 
 
-def _plots(out_dir: Path, rec: WalkRecorder, ball0, ball1, utime_move: int, model: pin.Model) -> list[Path]:
+def _plots(
+    out_dir: Path, rec: WalkRecorder, ball0, ball1, utime_move: int, model: pin.Model
+) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")

@@ -23,18 +23,30 @@ import pinocchio as pin
 
 from marionette import channels, lcmt_robot_state
 from marionette.control.client import configuration_from_state
-from marionette.execution.force_event import DEFAULT_LEVER_ARM, DEFAULT_TORQUE_PER_EFFORT, force_estimate
+from marionette.execution.force_event import (
+    DEFAULT_LEVER_ARM,
+    DEFAULT_TORQUE_PER_EFFORT,
+    force_estimate,
+)
 
 # Gripper joint -> (base link, jaw links on +y, jaw links on -y of the base link).
 JAWS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
     # The UR10's parallel gripper: the driven left finger on +y, its mimic on -y.
     "finger_joint": ("gripper_link", ("finger_left_link",), ("finger_right_link",)),
     # TALOS: the "double" jaw (two fingertips) on +y, the "single" one on -y.
-    **{f"gripper_{side}_joint": (
-        f"gripper_{side}_base_link",
-        tuple(f"gripper_{side}_{n}_link" for n in ("motor_double", "inner_double", "fingertip_1", "fingertip_2")),
-        tuple(f"gripper_{side}_{n}_link" for n in ("motor_single", "inner_single", "fingertip_3")))
-       for side in ("left", "right")},
+    **{
+        f"gripper_{side}_joint": (
+            f"gripper_{side}_base_link",
+            tuple(
+                f"gripper_{side}_{n}_link"
+                for n in ("motor_double", "inner_double", "fingertip_1", "fingertip_2")
+            ),
+            tuple(
+                f"gripper_{side}_{n}_link" for n in ("motor_single", "inner_single", "fingertip_3")
+            ),
+        )
+        for side in ("left", "right")
+    },
 }
 
 
@@ -46,26 +58,36 @@ class GripperGeometry:
     base_link: str
     plus_jaw: tuple[str, ...]
     minus_jaw: tuple[str, ...]
-    lever_arm: float          # d [m] of eq. 3.13 (the admittance task's `lever_arm`)
+    lever_arm: float  # d [m] of eq. 3.13 (the admittance task's `lever_arm`)
     closing_direction: float  # s: sign of q̇ when closing
     torque_per_effort: float = DEFAULT_TORQUE_PER_EFFORT
 
     @staticmethod
-    def of(joint: str, parameters: dict[str, float], closing_direction: float) -> "GripperGeometry":
+    def of(joint: str, parameters: dict[str, float], closing_direction: float) -> GripperGeometry:
         """The geometry of the gripper driven by ``joint`` (:data:`JAWS`) with the estimate of an
         admittance task with ``parameters``; KeyError for a joint without known jaws."""
         base, plus, minus = JAWS[joint]
-        return GripperGeometry(joint, base, plus, minus, parameters.get("lever_arm", DEFAULT_LEVER_ARM),
-                               closing_direction,
-                               parameters.get("torque_per_effort", DEFAULT_TORQUE_PER_EFFORT))
+        return GripperGeometry(
+            joint,
+            base,
+            plus,
+            minus,
+            parameters.get("lever_arm", DEFAULT_LEVER_ARM),
+            closing_direction,
+            parameters.get("torque_per_effort", DEFAULT_TORQUE_PER_EFFORT),
+        )
 
 
-def grip_forces(state: Any, model: pin.Model, data: pin.Data, g: GripperGeometry) -> tuple[float, float, float]:
+def grip_forces(
+    state: Any, model: pin.Model, data: pin.Data, g: GripperGeometry
+) -> tuple[float, float, float]:
     """(estimate f̂ [N], contact grip force F [N], push of the +y jaw minus the -y jaw's [N]) of
     gripper ``g`` in one ``lcmt_robot_state``; NaN contact values when the state carries no jaw
     wrenches (kinematic backend)."""
     efforts = dict(zip(state.joint_name, state.joint_effort))
-    estimate = force_estimate(efforts[g.joint], g.closing_direction, g.torque_per_effort, g.lever_arm)
+    estimate = force_estimate(
+        efforts[g.joint], g.closing_direction, g.torque_per_effort, g.lever_arm
+    )
     wrenches = dict(zip(state.contact_frame, state.contact_wrench))
     if not all(b in wrenches for b in g.plus_jaw + g.minus_jaw):
         return estimate, float("nan"), float("nan")
@@ -87,9 +109,9 @@ class GripForceRecorder:
     model: pin.Model
     grippers: dict[str, GripperGeometry]
     every: int = 2
-    t: list[float] = field(default_factory=list)                           # [s] controller time
-    estimate: dict[str, list[float]] = field(default_factory=dict)          # [N]
-    contact: dict[str, list[float]] = field(default_factory=dict)           # [N]
+    t: list[float] = field(default_factory=list)  # [s] controller time
+    estimate: dict[str, list[float]] = field(default_factory=dict)  # [N]
+    contact: dict[str, list[float]] = field(default_factory=dict)  # [N]
     _messages: list[Any] = field(default_factory=list)
     _count: int = 0
 
@@ -98,7 +120,7 @@ class GripForceRecorder:
         for name in self.grippers:
             self.estimate[name], self.contact[name] = [], []
 
-    def subscribe(self, bus: Any) -> "GripForceRecorder":
+    def subscribe(self, bus: Any) -> GripForceRecorder:
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self.on_state)
         return self
 
@@ -107,7 +129,7 @@ class GripForceRecorder:
         if self._count % self.every == 0:
             self._messages.append(msg)
 
-    def compute(self) -> "GripForceRecorder":
+    def compute(self) -> GripForceRecorder:
         """Turns the messages kept so far into the time series (t, estimate, contact)."""
         messages, self._messages = self._messages, []
         for msg in messages:
@@ -118,8 +140,9 @@ class GripForceRecorder:
                 self.contact[n].append(contact)
         return self
 
-    def holding_summary(self, name: str, t_from: float, t_to: float, target: float,
-                        tolerance: float = 1.0) -> dict[str, float]:
+    def holding_summary(
+        self, name: str, t_from: float, t_to: float, target: float, tolerance: float = 1.0
+    ) -> dict[str, float]:
         """Contact and estimate statistics of gripper ``name`` over [t_from, t_to] [s], with the
         fraction of contact samples within ``target`` ± ``tolerance`` [N]."""
         t = np.array(self.t)
@@ -127,26 +150,37 @@ class GripForceRecorder:
         c, e = np.array(self.contact[name])[sel], np.array(self.estimate[name])[sel]
         if not sel.any() or np.isnan(c).all():
             return {"samples": int(sel.sum())}
-        return {"samples": int(sel.sum()), "t_from_s": t_from, "t_to_s": t_to,
-                "contact_mean_n": float(np.nanmean(c)), "contact_median_n": float(np.nanmedian(c)),
-                "contact_min_n": float(np.nanmin(c)), "contact_max_n": float(np.nanmax(c)),
-                "estimate_mean_n": float(np.mean(e)),
-                "contact_within_tolerance": float(np.mean(np.abs(c - target) <= tolerance))}
+        return {
+            "samples": int(sel.sum()),
+            "t_from_s": t_from,
+            "t_to_s": t_to,
+            "contact_mean_n": float(np.nanmean(c)),
+            "contact_median_n": float(np.nanmedian(c)),
+            "contact_min_n": float(np.nanmin(c)),
+            "contact_max_n": float(np.nanmax(c)),
+            "estimate_mean_n": float(np.mean(e)),
+            "contact_within_tolerance": float(np.mean(np.abs(c - target) <= tolerance)),
+        }
 
-    def plot(self, path, target: float, spans: dict[str, list[tuple[float, float]]] | None = None) -> None:
+    def plot(
+        self, path, target: float, spans: dict[str, list[tuple[float, float]]] | None = None
+    ) -> None:
         """Estimate and contact force vs time, one panel per gripper, holding spans shaded."""
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, axes = plt.subplots(len(self.grippers), 1, figsize=(9, 2.8 * len(self.grippers)),
-                                 sharex=True, squeeze=False)
+        fig, axes = plt.subplots(
+            len(self.grippers), 1, figsize=(9, 2.8 * len(self.grippers)), sharex=True, squeeze=False
+        )
         for ax, name in zip(axes[:, 0], self.grippers):
             for a, b in (spans or {}).get(name, []):
                 ax.axvspan(a, b, color="0.9")
             ax.plot(self.t, self.contact[name], label="contact (mj_contactForce on the jaws)")
-            ax.plot(self.t, self.estimate[name], label="estimate (effort, eq. 3.11-3.13)", alpha=0.8)
+            ax.plot(
+                self.t, self.estimate[name], label="estimate (effort, eq. 3.11-3.13)", alpha=0.8
+            )
             ax.axhline(target, color="k", lw=0.6, ls="--")
             ax.set_ylabel(f"{name} [N]")
             ax.set_ylim(-2, max(12.0, 2.5 * target))
@@ -195,8 +229,13 @@ def holding_windows(steps: list, records: list, gripper: str) -> list[tuple[floa
     return out
 
 
-def settled_windows(rec: GripForceRecorder, name: str, windows: list[tuple[float, float]],
-                    threshold: float, settle_s: float = 1.0) -> list[tuple[float, float]]:
+def settled_windows(
+    rec: GripForceRecorder,
+    name: str,
+    windows: list[tuple[float, float]],
+    threshold: float,
+    settle_s: float = 1.0,
+) -> list[tuple[float, float]]:
     """Each holding window from ``settle_s`` after the estimate first reaches ``threshold`` (the
     switch to admittance) to its end; windows where it never does are dropped."""
     t, e = np.array(rec.t), np.array(rec.estimate[name])

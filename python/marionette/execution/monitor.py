@@ -45,9 +45,9 @@ SOURCE = "monitor"
 
 @dataclass
 class MonitorOptions:
-    position_tolerance: float = 0.02    # [m] (the end check's pose tolerance, factory.END_THRESHOLDS)
-    angle_tolerance: float = 0.1        # [rad] ~6 deg
-    consecutive: int = 3                # messages above tolerance in a row
+    position_tolerance: float = 0.02  # [m] (the end check's pose tolerance, factory.END_THRESHOLDS)
+    angle_tolerance: float = 0.1  # [rad] ~6 deg
+    consecutive: int = 3  # messages above tolerance in a row
 
 
 @dataclass
@@ -55,25 +55,29 @@ class Residual:
     """One constraint's residual: which object, which constraint, how far."""
 
     object_name: str
-    constraint: str                     # "grasp <gripper>" or "placement"
-    position: float                     # [m]
-    angle: float                        # [rad]
+    constraint: str  # "grasp <gripper>" or "placement"
+    position: float  # [m]
+    angle: float  # [rad]
 
     def describe(self) -> str:
-        return (f"{self.object_name} left its {self.constraint}: moved {self.position * 1e3:.1f} mm, "
-                f"{np.degrees(self.angle):.1f} deg")
+        return (
+            f"{self.object_name} left its {self.constraint}: moved {self.position * 1e3:.1f} mm, "
+            f"{np.degrees(self.angle):.1f} deg"
+        )
 
 
 @dataclass
 class _Latch:
-    X_ref: pin.SE3                      # X_GO (grasp) or X_WO (placement) when first seen
-    above: int = 0                      # consecutive messages above tolerance
+    X_ref: pin.SE3  # X_GO (grasp) or X_WO (placement) when first seen
+    above: int = 0  # consecutive messages above tolerance
 
 
 def pose_from_message(p: Any) -> pin.SE3:
     """X_WO of an ``lcmt_object_pose`` (world fields)."""
     w, x, y, z = p.quaternion_world
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(p.position_world, dtype=float))
+    return pin.SE3(
+        pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(p.position_world, dtype=float)
+    )
 
 
 def residual_of(X_ref: pin.SE3, X_now: pin.SE3) -> tuple[float, float]:
@@ -96,10 +100,10 @@ class ExecutionMonitor:
         self.data = self.model.createData()
         self.step: Step | None = None
         self.q: np.ndarray | None = None
-        self._grasp_latches: dict[tuple[str, str], _Latch] = {}   # (gripper, object) -> latch
+        self._grasp_latches: dict[tuple[str, str], _Latch] = {}  # (gripper, object) -> latch
         self._placement_latches: dict[str, _Latch] = {}
         self._fired = False
-        self.max_residual: dict[str, tuple[float, float]] = {}     # per object, this run
+        self.max_residual: dict[str, tuple[float, float]] = {}  # per object, this run
 
     def _object(self, handle: str) -> str:
         return self.ctx.handle_objects.get(handle, handle.split("/")[0])
@@ -125,8 +129,16 @@ class ExecutionMonitor:
         step = self.step
         pin.framesForwardKinematics(self.model, self.data, self.q)
         held = {self._object(h): g for g, h in step.grasps.items()}
-        touched = {self._object(h) for d in (step.grasps_from, step.grasps_to, step.parent_grasps_from,
-                                             step.parent_grasps_to) for h in d.values()}
+        touched = {
+            self._object(h)
+            for d in (
+                step.grasps_from,
+                step.grasps_to,
+                step.parent_grasps_from,
+                step.parent_grasps_to,
+            )
+            for h in d.values()
+        }
         released = {self._object(h) for h in step.released.values()}
         worst: Residual | None = None
         for p in msg.objects:
@@ -139,7 +151,7 @@ class ExecutionMonitor:
                 latch = self._grasp_latches.setdefault((gripper, name), _Latch(X))
                 constraint = f"grasp by {gripper}"
             elif name in touched or name in released:
-                continue    # being grasped or let go in this step: no fixed constraint to check
+                continue  # being grasped or let go in this step: no fixed constraint to check
             else:
                 X = X_WO
                 latch = self._placement_latches.setdefault(name, _Latch(X))
@@ -149,7 +161,9 @@ class ExecutionMonitor:
             self.max_residual[name] = (max(best[0], position), max(best[1], angle))
             if position > self.options.position_tolerance or angle > self.options.angle_tolerance:
                 latch.above += 1
-                if latch.above >= self.options.consecutive and (worst is None or position > worst.position):
+                if latch.above >= self.options.consecutive and (
+                    worst is None or position > worst.position
+                ):
                     worst = Residual(name, constraint, position, angle)
             else:
                 latch.above = 0
@@ -196,5 +210,9 @@ class MonitorNode:
         if residual is None:
             return
         self.events.append((int(msg.utime), residual))
-        self.bus.publish(channels.SUPERVISOR_EVENT, event_message(
-            msg.utime, "left_manifold", SOURCE, residual.describe(), residual.position))
+        self.bus.publish(
+            channels.SUPERVISOR_EVENT,
+            event_message(
+                msg.utime, "left_manifold", SOURCE, residual.describe(), residual.position
+            ),
+        )

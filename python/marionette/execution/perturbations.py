@@ -36,28 +36,44 @@ class PerturbationSettings:
     slip_m: float = 0.0
     slip_deg: float = 0.0
     slip_step: int = 10
-    joint_offsets_deg: dict[str, float] = field(default_factory=dict)   # joint -> |offset|
+    joint_offsets_deg: dict[str, float] = field(default_factory=dict)  # joint -> |offset|
     camera_noise_m: float = 0.0
     camera_noise_deg: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("displacement_m", "displacement_deg", "slip_m", "slip_deg",
-                     "camera_noise_m", "camera_noise_deg"):
+        for name in (
+            "displacement_m",
+            "displacement_deg",
+            "slip_m",
+            "slip_deg",
+            "camera_noise_m",
+            "camera_noise_deg",
+        ):
             if getattr(self, name) < 0:
                 raise ValueError(f"perturbation {name} must be >= 0, got {getattr(self, name)}")
 
 
 # Issue #10's set for plank-flip.
-ISSUE_10 = PerturbationSettings(displacement_m=0.05, displacement_deg=10.0, slip_m=0.01, slip_deg=5.0,
-                                joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
-                                camera_noise_m=0.002, camera_noise_deg=0.5)
+ISSUE_10 = PerturbationSettings(
+    displacement_m=0.05,
+    displacement_deg=10.0,
+    slip_m=0.01,
+    slip_deg=5.0,
+    joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
+    camera_noise_m=0.002,
+    camera_noise_deg=0.5,
+)
 # `marionette demo --perturb NAME`: issue #10's set, and its parts.
 PRESETS: dict[str, PerturbationSettings] = {
     "issue10": ISSUE_10,
     # What the placement servo alone is built to close: the object slipping in the hand, noise.
-    "in-hand": PerturbationSettings(slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5),
+    "in-hand": PerturbationSettings(
+        slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5
+    ),
     "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
-    "joint-offsets": PerturbationSettings(joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}),
+    "joint-offsets": PerturbationSettings(
+        joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+    ),
 }
 
 
@@ -76,21 +92,29 @@ class Perturbation:
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["displacement_mm_deg"] = [1e3 * self.displacement[0], 1e3 * self.displacement[1],
-                                    math.degrees(self.displacement[2])]
+        d["displacement_mm_deg"] = [
+            1e3 * self.displacement[0],
+            1e3 * self.displacement[1],
+            math.degrees(self.displacement[2]),
+        ]
         d["joint_offsets_deg"] = {k: math.degrees(v) for k, v in self.joint_offsets.items()}
         return d
 
     @property
     def any(self) -> bool:
-        return bool(any(self.displacement) or any(self.slip) or self.joint_offsets
-                    or self.camera_noise_m or self.camera_noise_rad)
+        return bool(
+            any(self.displacement)
+            or any(self.slip)
+            or self.joint_offsets
+            or self.camera_noise_m
+            or self.camera_noise_rad
+        )
 
 
 def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
     """The perturbation of the trial with ``seed``."""
     rng = np.random.default_rng(seed)
-    r = settings.displacement_m * math.sqrt(rng.uniform())   # uniform in the disc
+    r = settings.displacement_m * math.sqrt(rng.uniform())  # uniform in the disc
     a = rng.uniform(0.0, 2 * math.pi)
     yaw = math.radians(settings.displacement_deg) * rng.uniform(-1.0, 1.0)
     v = rng.normal(size=3)
@@ -98,15 +122,25 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
     v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(np.linalg.norm(v), 1e-12)
     w *= math.radians(settings.slip_deg) * rng.uniform(0.5, 1.0) / max(np.linalg.norm(w), 1e-12)
     offsets = draw_joint_offsets(rng, settings.joint_offsets_deg)
-    return Perturbation(seed, (r * math.cos(a), r * math.sin(a), yaw), tuple(map(float, [*v, *w])),
-                        settings.slip_step, offsets, settings.camera_noise_m,
-                        math.radians(settings.camera_noise_deg))
+    return Perturbation(
+        seed,
+        (r * math.cos(a), r * math.sin(a), yaw),
+        tuple(map(float, [*v, *w])),
+        settings.slip_step,
+        offsets,
+        settings.camera_noise_m,
+        math.radians(settings.camera_noise_deg),
+    )
 
 
 def draw_joint_offsets(rng: np.random.Generator, offsets_deg: dict[str, float]) -> dict[str, float]:
     """Joint -> encoder offset [rad]: each nonzero magnitude of ``offsets_deg`` [deg] with a sign
     drawn from ``rng`` (joints in name order)."""
-    return {j: math.radians(m) * float(rng.choice([-1.0, 1.0])) for j, m in sorted(offsets_deg.items()) if m}
+    return {
+        j: math.radians(m) * float(rng.choice([-1.0, 1.0]))
+        for j, m in sorted(offsets_deg.items())
+        if m
+    }
 
 
 def displaced(X_WO: pin.SE3, displacement: tuple[float, float, float]) -> pin.SE3:
@@ -125,8 +159,10 @@ def slipped(X_WO: pin.SE3, slip: tuple[float, ...]) -> pin.SE3:
 def mjcf_pose_attributes(X: pin.SE3) -> str:
     """``pos="..." quat="..."`` of an MJCF body at ``X`` (MuJoCo's quaternion order w x y z)."""
     q = pin.Quaternion(X.rotation)
-    return (f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
-            f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"')
+    return (
+        f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
+        f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"'
+    )
 
 
 def mjcf_pose(attributes: str) -> pin.SE3:
@@ -135,8 +171,10 @@ def mjcf_pose(attributes: str) -> pin.SE3:
     pos = re.search(r'pos="([^"]+)"', attributes)
     quat = re.search(r'quat="([^"]+)"', attributes)
     w, x, y, z = (float(v) for v in quat.group(1).split()) if quat else (1.0, 0.0, 0.0, 0.0)
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(),
-                   np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3))
+    return pin.SE3(
+        pin.Quaternion(w, x, y, z).normalized().matrix(),
+        np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3),
+    )
 
 
 def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
@@ -150,8 +188,11 @@ def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
     i = mocaps.index(name)
     q = pin.Quaternion(X.rotation)
     pos, quat = list(X.translation), [q.w, q.x, q.y, q.z]
-    mjcf = re.sub(rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
-                  f'<body name="{name}" {mjcf_pose_attributes(X)} mocap="true">', mjcf)
+    mjcf = re.sub(
+        rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
+        f'<body name="{name}" {mjcf_pose_attributes(X)} mocap="true">',
+        mjcf,
+    )
 
     def key(m: re.Match) -> str:
         text = m.group(0)
@@ -161,7 +202,7 @@ def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
                 continue
             v = a.group(1).split()
             n = len(values)
-            v[n * i:n * (i + 1)] = [f"{x:.12g}" for x in values]
+            v[n * i : n * (i + 1)] = [f"{x:.12g}" for x in values]
             text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
         return text
 
@@ -172,8 +213,11 @@ def write_scene(text: str, source: Path, out: Path) -> Path:
     """Writes the MJCF ``text`` of scene ``source`` to ``out``, its asset folders (``meshdir``,
     ``texturedir``, relative to ``source``) made absolute so that it loads from anywhere."""
     base = source.resolve().parent
-    text = re.sub(r'(meshdir|texturedir)="([^"]*)"',
-                  lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"', text)
+    text = re.sub(
+        r'(meshdir|texturedir)="([^"]*)"',
+        lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"',
+        text,
+    )
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(text)
     return out
@@ -185,13 +229,17 @@ def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) 
     text = scene.read_text()
     for joint, offset in offsets.items():
         pattern = re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
-        text, n = pattern.subn(lambda m: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1)
+        text, n = pattern.subn(
+            lambda m, offset=offset: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1
+        )
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
     return write_scene(text, scene, out)
 
 
-def true_configuration(model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]) -> np.ndarray:
+def true_configuration(
+    model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]
+) -> np.ndarray:
     """The robot's configuration from encoders that read q + offset (:func:`scene_with_joint_offsets`)."""
     q = q_encoders.copy()
     for joint, offset in joint_offsets.items():

@@ -60,7 +60,7 @@ class Step:
 
     @property
     def kind(self) -> str:
-        """"grasp", "release" or "motion" (the three transition types of §3.2.5.1)."""
+        """ "grasp", "release" or "motion" (the three transition types of §3.2.5.1)."""
         if self.created:
             return "grasp"
         if self.released:
@@ -78,7 +78,9 @@ class Step:
         # the receding gripper is removed).
         approaching = set(self.parent_grasps_to) - set(self.parent_grasps_from)
         leaving = set(self.parent_grasps_from) - set(self.parent_grasps_to)
-        others = (approaching | (leaving & set(self.grasps_from)) | set(self.grasps_to)) - set(holders)
+        others = (approaching | (leaving & set(self.grasps_from)) | set(self.grasps_to)) - set(
+            holders
+        )
         return holders + sorted(others)
 
 
@@ -103,8 +105,10 @@ class PlanRobotMap:
                 labels = [f"{name}[{i}]" for i in range(joint.nq)]
             missing = [lab for lab in labels if lab not in where]
             if missing:
-                raise PlanError(f"the plan has no entry {missing[0]!r} for robot {robot!r} "
-                                f"(its layout starts {layout[:3]})")
+                raise PlanError(
+                    f"the plan has no entry {missing[0]!r} for robot {robot!r} "
+                    f"(its layout starts {layout[:3]})"
+                )
             idx += [where[lab] for lab in labels]
         self.idx = np.array(idx, dtype=int)
         self.objects: dict[str, np.ndarray] = {}
@@ -141,8 +145,7 @@ def steps_from_plan(plan: Plan) -> list[Step]:
     transitions = {t["name"]: t for t in doc["graph"]["transitions"]}
     steps: list[Step] = []
     for entry, (_, qs) in zip(doc["paths"], plan.paths):
-        if (entry["length"] < 1e-4
-                and states[entry["from_state"]] == states[entry["to_state"]]):
+        if entry["length"] < 1e-4 and states[entry["from_state"]] == states[entry["to_state"]]:
             continue  # no motion and no grasp change: nothing to execute
         same = steps and steps[-1].transition == entry["transition"]
         if same:
@@ -153,7 +156,9 @@ def steps_from_plan(plan: Plan) -> list[Step]:
             continue
         parent = transitions.get(entry["parent_transition"])
         if parent is None:
-            raise PlanError(f"path {entry['index']}: unknown transition {entry['parent_transition']!r}")
+            raise PlanError(
+                f"path {entry['index']}: unknown transition {entry['parent_transition']!r}"
+            )
         step = Step(
             index=len(steps),
             transition=entry["transition"],

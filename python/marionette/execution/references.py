@@ -47,12 +47,13 @@ class StepTrajectory:
         return len(self.t)
 
 
-def minimum_jerk(p0: np.ndarray, p1: np.ndarray, duration_s: float, dt_s: float
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def minimum_jerk(
+    p0: np.ndarray, p1: np.ndarray, duration_s: float, dt_s: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Samples (N x d) of p(t) = p0 + (p1 - p0) s(t/T), s = 10 u^3 - 15 u^4 + 6 u^5 (the time law
     of :func:`sample_step`, at rest at both ends), and their time derivatives (Flash & Hogan),
     from t = 0 to T inclusive, for points p0, p1 of any dimension d."""
-    u = np.linspace(0.0, 1.0, int(round(duration_s / dt_s)) + 1)[:, None]
+    u = np.linspace(0.0, 1.0, round(duration_s / dt_s) + 1)[:, None]
     s = 10 * u**3 - 15 * u**4 + 6 * u**5
     ds = (30 * u**2 - 60 * u**3 + 30 * u**4) / duration_s
     return p0 + s * (p1 - p0), ds * (p1 - p0)
@@ -64,8 +65,9 @@ def arc_length(model: pin.Model, q: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 
-def step_duration(model: pin.Model, q: np.ndarray, max_joint_velocity: float,
-                  min_duration: float = 0.5) -> float:
+def step_duration(
+    model: pin.Model, q: np.ndarray, max_joint_velocity: float, min_duration: float = 0.5
+) -> float:
     """Duration [s] of the quintic time law along the polyline q (k x nq) such that no joint
     (velocity-space component) exceeds ``max_joint_velocity``."""
     if max_joint_velocity <= 0.0:
@@ -77,19 +79,24 @@ def step_duration(model: pin.Model, q: np.ndarray, max_joint_velocity: float,
     dq = np.array([pin.difference(model, a, b) for a, b in zip(q, q[1:])])  # (k-1) x nv
     ds = np.diff(s)
     ok = ds > 0
-    slope = np.max(np.abs(dq[ok]) / ds[ok, None])      # max_j |dq_j/ds| <= 1
+    slope = np.max(np.abs(dq[ok]) / ds[ok, None])  # max_j |dq_j/ds| <= 1
     sdot_max = max_joint_velocity / max(slope, 1e-9)
     return max(min_duration, 15.0 / 8.0 * length / sdot_max)
 
 
-def sample_step(step: Step, robot_map: PlanRobotMap, dt: float = 1e-3,
-                max_joint_velocity: float = 0.5, min_duration: float = 0.5) -> StepTrajectory:
+def sample_step(
+    step: Step,
+    robot_map: PlanRobotMap,
+    dt: float = 1e-3,
+    max_joint_velocity: float = 0.5,
+    min_duration: float = 0.5,
+) -> StepTrajectory:
     """The step's configurations every ``dt`` along its time law (both ends included)."""
     model = robot_map.model
     q_robot = robot_map.robot_q(step.q)
     s = arc_length(model, q_robot)
     T = step_duration(model, q_robot, max_joint_velocity, min_duration)
-    n = max(1, int(math.ceil(T / dt)))
+    n = max(1, math.ceil(T / dt))
     T = n * dt
     t = np.arange(n + 1) * dt
     u = t / T
@@ -112,7 +119,7 @@ def dwell(traj: StepTrajectory, seconds: float) -> None:
     the waypoint, e.g. while vision corrects the pre-grasp before the grasp (§5.3.1: "when the
     robot reaches the waypoint, the visual servoing task is activated ... then the reference
     trajectory computed by the motion planner is resumed")."""
-    n = int(round(seconds / traj.dt))
+    n = round(seconds / traj.dt)
     if n <= 0:
         return
     traj.t = np.concatenate([traj.t, traj.t[-1] + traj.dt * np.arange(1, n + 1)])
@@ -120,8 +127,10 @@ def dwell(traj: StepTrajectory, seconds: float) -> None:
     traj.q = np.vstack([traj.q, np.repeat(traj.q[-1:], n, axis=0)])
     traj.q_plan = np.vstack([traj.q_plan, np.repeat(traj.q_plan[-1:], n, axis=0)])
     for name, (values, derivatives) in traj.references.items():
-        traj.references[name] = (np.vstack([values, np.repeat(values[-1:], n, axis=0)]),
-                                 np.vstack([derivatives, np.zeros((n, derivatives.shape[1]))]))
+        traj.references[name] = (
+            np.vstack([values, np.repeat(values[-1:], n, axis=0)]),
+            np.vstack([derivatives, np.zeros((n, derivatives.shape[1]))]),
+        )
 
 
 def _central(values: np.ndarray, dt: float) -> np.ndarray:
@@ -171,8 +180,13 @@ def compute_references(traj: StepTrajectory, spec: ControllerSpec, model: pin.Mo
         traj.references[task.name] = _task_reference(task, traj, model, poses, com)
 
 
-def _task_reference(task: TaskSpec, traj: StepTrajectory, model: pin.Model,
-                    poses: dict[str, list[pin.SE3]], com: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _task_reference(
+    task: TaskSpec,
+    traj: StepTrajectory,
+    model: pin.Model,
+    poses: dict[str, list[pin.SE3]],
+    com: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     if task.kind in ("se3", "pbvs"):
         X = poses[task.frame]
         return _pose_rows(X), _pose_derivatives(X, traj.dt)

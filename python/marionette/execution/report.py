@@ -18,18 +18,29 @@ from marionette import robots
 def _records(result) -> list[dict[str, Any]]:
     out = []
     for r in result.records:
-        out.append({
-            "index": r.index, "transition": r.transition, "kind": r.kind, "result": r.result,
-            "controller_id": r.controller_id, "planned_duration_s": r.duration_s,
-            "controller_time_s": (r.utime_end - r.utime_start) * 1e-6 if r.utime_end else None,
-            "wall_s": r.wall_s, "chunks": r.chunks, "min_lookahead_ms": r.min_lookahead_ms,
-            "max_task_errors": r.max_errors, "final_task_errors": r.final_errors, "events": r.events,
-        })
+        out.append(
+            {
+                "index": r.index,
+                "transition": r.transition,
+                "kind": r.kind,
+                "result": r.result,
+                "controller_id": r.controller_id,
+                "planned_duration_s": r.duration_s,
+                "controller_time_s": (r.utime_end - r.utime_start) * 1e-6 if r.utime_end else None,
+                "wall_s": r.wall_s,
+                "chunks": r.chunks,
+                "min_lookahead_ms": r.min_lookahead_ms,
+                "max_task_errors": r.max_errors,
+                "final_task_errors": r.final_errors,
+                "events": r.events,
+            }
+        )
     return out
 
 
-def write_report(out_dir: Path, report: dict[str, Any], scenario, supervisor, result, recorder,
-                 model: pin.Model) -> None:
+def write_report(
+    out_dir: Path, report: dict[str, Any], scenario, supervisor, result, recorder, model: pin.Model
+) -> None:
     report["steps"] = _records(result)
     plots = []
     try:
@@ -51,90 +62,157 @@ def _jsonable(x: Any) -> Any:
 
 def _markdown(r: dict[str, Any]) -> str:
     c = r["criteria"]
-    lines = [f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}", "",
-             r.get("description", ""), "",
-             f"seed {r['seed']}, robot {r['robot']}, controller speed {r['speed']} "
-             f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
-             + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""), "",
-             "## Success criteria (ARCHITECTURE.md §Demos)", "", "| criterion | measured | limit | ok |",
-             "|---|---|---|---|",
-             f"| object position error | {c['object_position_error_m'] * 1e3:.1f} mm | "
-             f"{c['limits']['position_m'] * 1e3:.0f} mm | {c['object_within_tolerance']} |",
-             f"| object angle error | {c['object_angle_error_deg']:.2f}° | {c['limits']['angle_deg']}° | "
-             f"{c['object_within_tolerance']} |"]
+    lines = [
+        f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}",
+        "",
+        r.get("description", ""),
+        "",
+        f"seed {r['seed']}, robot {r['robot']}, controller speed {r['speed']} "
+        f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
+        + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""),
+        "",
+        "## Success criteria (ARCHITECTURE.md §Demos)",
+        "",
+        "| criterion | measured | limit | ok |",
+        "|---|---|---|---|",
+        f"| object position error | {c['object_position_error_m'] * 1e3:.1f} mm | "
+        f"{c['limits']['position_m'] * 1e3:.0f} mm | {c['object_within_tolerance']} |",
+        f"| object angle error | {c['object_angle_error_deg']:.2f}° | {c['limits']['angle_deg']}° | "
+        f"{c['object_within_tolerance']} |",
+    ]
     if "feet_max_displacement_m" in c:
-        lines += [f"| feet displacement (max) | {c['feet_max_displacement_m'] * 1e3:.2f} mm | "
-                  f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
-                  f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | planned "
-                  f"{c.get('base_planned_drop_m', 0.0) * 1e3:.1f} + 50 mm | {c['no_fall']} |"]
+        lines += [
+            f"| feet displacement (max) | {c['feet_max_displacement_m'] * 1e3:.2f} mm | "
+            f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
+            f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | planned "
+            f"{c.get('base_planned_drop_m', 0.0) * 1e3:.1f} + 50 mm | {c['no_fall']} |",
+        ]
     if "grip_within_tolerance" in c:
-        medians = [h.get("contact_median_n") for g in r["grip"]["grippers"].values() for h in g["held"]]
-        shown = ", ".join("never switched" if m is None else f"{m:.2f} N" for m in medians) or "no hold"
-        lines += [f"| grip force on the jaws (median per hold) | {shown} | "
-                  f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | {c['grip_within_tolerance']} |"]
+        medians = [
+            h.get("contact_median_n") for g in r["grip"]["grippers"].values() for h in g["held"]
+        ]
+        shown = (
+            ", ".join("never switched" if m is None else f"{m:.2f} N" for m in medians) or "no hold"
+        )
+        lines += [
+            f"| grip force on the jaws (median per hold) | {shown} | "
+            f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | {c['grip_within_tolerance']} |"
+        ]
     lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", ""]
     if "perturbation" in r:
         p = r["perturbation"]
-        lines += ["## Perturbations (seeded)", "",
-                  f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
-                  f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); slip in the hand "
-                  f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
-                  f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
-                  + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
-                  + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°", ""]
-    if "calibration" in r:   # the arms' encoder offsets from the head camera, before execution
-        lines += ["## Encoder calibration (thesis 000 ch. 4.2)", "",
-                  "Wrist rings seen by the head camera; the controller runs with the offsets found. Error = "
-                  "found − the perturbation's offset.", "",
-                  "| arm | views used | residual | offsets found | worst error |", "|---|---|---|---|---|"]
+        lines += [
+            "## Perturbations (seeded)",
+            "",
+            f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
+            f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); slip in the hand "
+            f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
+            f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
+            + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
+            + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°",
+            "",
+        ]
+    if "calibration" in r:  # the arms' encoder offsets from the head camera, before execution
+        lines += [
+            "## Encoder calibration (thesis 000 ch. 4.2)",
+            "",
+            "Wrist rings seen by the head camera; the controller runs with the offsets found. Error = "
+            "found − the perturbation's offset.",
+            "",
+            "| arm | views used | residual | offsets found | worst error |",
+            "|---|---|---|---|---|",
+        ]
         for a in r["calibration"]["arms"]:
             worst = max(a["error_deg"].items(), key=lambda kv: abs(kv[1]))
-            lines.append(f"| {a['side']} | {a['views_used']}/{a['views_planned']} | {a['residual_position_mm']:.2f} mm / "
-                         f"{a['residual_rotation_deg']:.2f}° | "
-                         + ", ".join(f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items())
-                         + f" | {worst[1]:+.3f}° ({worst[0]}) |")
+            lines.append(
+                f"| {a['side']} | {a['views_used']}/{a['views_planned']} | {a['residual_position_mm']:.2f} mm / "
+                f"{a['residual_rotation_deg']:.2f}° | "
+                + ", ".join(
+                    f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items()
+                )
+                + f" | {worst[1]:+.3f}° ({worst[0]}) |"
+            )
         lines += [""]
     if "vision" in r:
         v = r["vision"]
-        lines += ["## Vision in the loop (thesis 000 §5.3.1)", "",
-                  f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected.", "",
-                  "| step | last measured object error | correction |", "|---|---|---|"]
-        lines += [f"| {k} | {t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
-                  f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
-                  for k, t in v["last_per_step"].items()]
+        lines += [
+            "## Vision in the loop (thesis 000 §5.3.1)",
+            "",
+            f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected.",
+            "",
+            "| step | last measured object error | correction |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {k} | {t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
+            f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
+            for k, t in v["last_per_step"].items()
+        ]
         lines += [""]
-    if "grip" in r:   # issue 7: the grip force the admittance holds, measured on the contacts
+    if "grip" in r:  # issue 7: the grip force the admittance holds, measured on the contacts
         g = r["grip"]
-        lines += ["## Gripper admittance (thesis 000 §3.2.4.3)", "",
-                  f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
-                  "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.", "",
-                  "| gripper | window [s] | contact median (min-max) | estimate mean |", "|---|---|---|---|"]
+        lines += [
+            "## Gripper admittance (thesis 000 §3.2.4.3)",
+            "",
+            f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
+            "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.",
+            "",
+            "| gripper | window [s] | contact median (min-max) | estimate mean |",
+            "|---|---|---|---|",
+        ]
         for name, d in g["grippers"].items():
             for h in d["held"] or [{"never_switched": True}]:
                 if "contact_median_n" not in h:
-                    lines.append(f"| {name} | - | never switched to admittance or no contact measured | - |")
+                    lines.append(
+                        f"| {name} | - | never switched to admittance or no contact measured | - |"
+                    )
                     continue
-                lines.append(f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_median_n']:.2f} N "
-                             f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |")
+                lines.append(
+                    f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_median_n']:.2f} N "
+                    f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |"
+                )
         lines += ["", f"![{g['plot']}]({g['plot']})", ""]
-    lines += ["## Estimation (§3.2.2)", "",
-              f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
-              f"started at step {r['estimation']['first_step']}", "",
-              "## Timings", "", "| phase | s |", "|---|---|"]
+    lines += [
+        "## Estimation (§3.2.2)",
+        "",
+        f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
+        f"started at step {r['estimation']['first_step']}",
+        "",
+        "## Timings",
+        "",
+        "| phase | s |",
+        "|---|---|",
+    ]
     lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
-    lines += ["", "## Steps (one controller each)", "",
-              "| # | transition | kind | planned s | controller s | wall s | min look-ahead ms | result |",
-              "|---|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "## Steps (one controller each)",
+        "",
+        "| # | transition | kind | planned s | controller s | wall s | min look-ahead ms | result |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for s in r["steps"]:
         ct = f"{s['controller_time_s']:.2f}" if s["controller_time_s"] is not None else "-"
         la = f"{s['min_lookahead_ms']:.0f}" if s["min_lookahead_ms"] is not None else "-"
-        lines.append(f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
-                     f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |")
+        lines.append(
+            f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
+            f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |"
+        )
     ctl = r.get("controller", {})
-    lines += ["", "## Controller", "", ", ".join(f"{k}: {v}" for k, v in ctl.items()), "",
-              "## Plots", ""] + [f"![{p}]({p})" for p in r.get("plots", [])]
-    lines += ["", "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
-              "message of the run; `marionette replay run.lcmlog`), `logs/` (process outputs)."]
+    lines += [
+        "",
+        "## Controller",
+        "",
+        ", ".join(f"{k}: {v}" for k, v in ctl.items()),
+        "",
+        "## Plots",
+        "",
+    ] + [f"![{p}]({p})" for p in r.get("plots", [])]
+    lines += [
+        "",
+        "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
+        "message of the run; `marionette replay run.lcmlog`), `logs/` (process outputs).",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -159,7 +237,7 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
             e = np.array([errs.get(name, np.nan) for _, errs in r.error_trace])
             line = names.get(name)
             kw = {"color": line.get_color()} if line is not None else {"label": name}
-            h, = ax.semilogy(t, np.maximum(e, 1e-7), lw=1, **kw)
+            (h,) = ax.semilogy(t, np.maximum(e, 1e-7), lw=1, **kw)
             names.setdefault(name, h)
         ax.axvline(r.utime_start * 1e-6, color="0.85", lw=0.8)
     ax.set_xlabel("controller time [s]")
@@ -176,8 +254,14 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
             continue
         plan_t.append(traj.t + r.utime_reference_start * 1e-6)
         plan_q.append(traj.q)
-        plan_obj.append(np.array([supervisor.robot_map.object_pose(q, scenario.object_name).translation
-                                  for q in traj.q_plan[::20]]))
+        plan_obj.append(
+            np.array(
+                [
+                    supervisor.robot_map.object_pose(q, scenario.object_name).translation
+                    for q in traj.q_plan[::20]
+                ]
+            )
+        )
         plan_obj[-1] = (plan_t[-1][::20], plan_obj[-1])
     if plan_t:
         pt, pq = np.concatenate(plan_t), np.vstack(plan_q)
@@ -198,8 +282,16 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
         fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
         ot = np.concatenate([t for t, _ in plan_obj])
         op = np.vstack([p for _, p in plan_obj])
-        ex = np.array([o[scenario.object_name][:3] if scenario.object_name in o else [np.nan] * 3
-                       for o in recorder.objects]) if recorder.objects else np.zeros((0, 3))
+        ex = (
+            np.array(
+                [
+                    o[scenario.object_name][:3] if scenario.object_name in o else [np.nan] * 3
+                    for o in recorder.objects
+                ]
+            )
+            if recorder.objects
+            else np.zeros((0, 3))
+        )
         for i, ax in enumerate(axes):
             ax.plot(ot, op[:, i], "k--", lw=1, label="planned")
             if len(ex):

@@ -18,13 +18,13 @@ future from its start, ReferenceStream), so a new measurement acts within ``lead
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from marionette.control.spec import reference_chunk
 
-MAX_LOOKAHEAD_S = 4.0   # ReferenceStream keeps 5 s of samples
+MAX_LOOKAHEAD_S = 4.0  # ReferenceStream keeps 5 s of samples
 
 
 class ReferenceStreamer:
@@ -32,11 +32,19 @@ class ReferenceStreamer:
     controller time ``start_utime``, sample period ``dt_us``; call :meth:`pump` with the
     controller's time as often as it advances."""
 
-    def __init__(self, send: Callable[[object], None], controller_id: int,
-                 references: dict[str, tuple[np.ndarray, np.ndarray]], start_utime: int,
-                 dt_us: int = 1000, chunk_samples: int = 200, lookahead_s: float = 1.0,
-                 max_chunks_per_pump: int = 4, corrections: list | None = None,
-                 servo=None) -> None:
+    def __init__(
+        self,
+        send: Callable[[object], None],
+        controller_id: int,
+        references: dict[str, tuple[np.ndarray, np.ndarray]],
+        start_utime: int,
+        dt_us: int = 1000,
+        chunk_samples: int = 200,
+        lookahead_s: float = 1.0,
+        max_chunks_per_pump: int = 4,
+        corrections: list | None = None,
+        servo=None,
+    ) -> None:
         if not references:
             raise ValueError("nothing to stream")
         sizes = {len(v) for v, _ in references.values()}
@@ -45,8 +53,10 @@ class ReferenceStreamer:
         if not 0.0 < lookahead_s <= MAX_LOOKAHEAD_S:
             raise ValueError(f"lookahead_s must be in (0, {MAX_LOOKAHEAD_S}], got {lookahead_s}")
         if not 1 <= chunk_samples <= 1000:
-            raise ValueError(f"chunk_samples must be in [1, 1000] (the controller's chunk size), "
-                             f"got {chunk_samples}")
+            raise ValueError(
+                f"chunk_samples must be in [1, 1000] (the controller's chunk size), "
+                f"got {chunk_samples}"
+            )
         self.send = send
         self.controller_id = controller_id
         self.references = references
@@ -58,18 +68,30 @@ class ReferenceStreamer:
         self.num_samples = sizes.pop()
         self.next_sample = 0
         self.chunks_sent = 0
-        self.min_margin_us: int | None = None   # smallest lead of the stream over the clock seen
+        self.min_margin_us: int | None = None  # smallest lead of the stream over the clock seen
         self.stopped_at: int | None = None
         self.corrections = {c.task: c for c in corrections or []}
         self.servo = servo
         self._sent_versions: dict[str, int] = {}
         self._last_refresh_us = -(1 << 62)
-        self._sequence = dict.fromkeys(references, 0)   # the next chunk's number, per task
+        self._sequence = dict.fromkeys(references, 0)  # the next chunk's number, per task
 
-    def _send(self, task: str, k0: int, values: np.ndarray, derivatives: np.ndarray, last: bool) -> None:
+    def _send(
+        self, task: str, k0: int, values: np.ndarray, derivatives: np.ndarray, last: bool
+    ) -> None:
         """Sends ``values`` as the task's next chunk, from sample ``k0``."""
-        self.send(reference_chunk(self.controller_id, task, self.start_utime + k0 * self.dt_us,
-                                  values, derivatives, self.dt_us, last, self._sequence[task]))
+        self.send(
+            reference_chunk(
+                self.controller_id,
+                task,
+                self.start_utime + k0 * self.dt_us,
+                values,
+                derivatives,
+                self.dt_us,
+                last,
+                self._sequence[task],
+            )
+        )
         self._sequence[task] += 1
 
     @property
@@ -89,14 +111,19 @@ class ReferenceStreamer:
         if not self.done:
             margin = self.start_utime + self.next_sample * self.dt_us - now_utime
             if self.next_sample > 0:
-                self.min_margin_us = margin if self.min_margin_us is None else min(self.min_margin_us, margin)
+                self.min_margin_us = (
+                    margin if self.min_margin_us is None else min(self.min_margin_us, margin)
+                )
         sent = 0
-        while (not self.done and sent < self.max_chunks_per_pump
-               and self.start_utime + self.next_sample * self.dt_us < now_utime + self.lookahead_us):
+        while (
+            not self.done
+            and sent < self.max_chunks_per_pump
+            and self.start_utime + self.next_sample * self.dt_us < now_utime + self.lookahead_us
+        ):
             k0 = self.next_sample
             k1 = min(k0 + self.chunk_samples, self.num_samples)
             last = k1 >= self.num_samples
-            for task, (values, derivatives) in self.references.items():
+            for task, (_values, _derivatives) in self.references.items():
                 self._send(task, k0, *self._corrected(task, k0, k1), last)
             self.next_sample = k1
             self.chunks_sent += 1
@@ -112,8 +139,10 @@ class ReferenceStreamer:
             return values[k0:k1], derivatives[k0:k1]
         if not c.blend_out:
             return c.apply(values[k0:k1], derivatives[k0:k1], c.C)
-        rows = [c.apply(values[k:k + 1], derivatives[k:k + 1], c.at_sample(k, self.dt_us))
-                for k in range(k0, k1)]
+        rows = [
+            c.apply(values[k : k + 1], derivatives[k : k + 1], c.at_sample(k, self.dt_us))
+            for k in range(k0, k1)
+        ]
         return np.vstack([r[0] for r in rows]), np.vstack([r[1] for r in rows])
 
     def _refresh(self, now_utime: int) -> None:
@@ -123,8 +152,11 @@ class ReferenceStreamer:
         self.servo.update(self.references, self.dt_us, now_utime)
         if now_utime - self._last_refresh_us < self.servo.options.refresh_us:
             return
-        stale = [t for t, c in self.corrections.items()
-                 if not c.blend_out and self._sent_versions.get(t, -1) != c.version]
+        stale = [
+            t
+            for t, c in self.corrections.items()
+            if not c.blend_out and self._sent_versions.get(t, -1) != c.version
+        ]
         if not stale:
             return
         self._last_refresh_us = now_utime
@@ -141,9 +173,14 @@ class ReferenceStreamer:
         """Ends every reference at the sample due ``lead_us`` from now (a force event: the goal
         is reached before the plan says, §3.2.5.2): one last chunk holding that sample, never
         past what was already sent (a sample after a gap would start the stream afresh there)."""
-        k = int(np.clip((now_utime + lead_us - self.start_utime) // self.dt_us, 0,
-                        max(min(self.next_sample, self.num_samples) - 1, 0)))
+        k = int(
+            np.clip(
+                (now_utime + lead_us - self.start_utime) // self.dt_us,
+                0,
+                max(min(self.next_sample, self.num_samples) - 1, 0),
+            )
+        )
         for task, (values, derivatives) in self.references.items():
-            self._send(task, k, values[k:k + 1], np.zeros_like(derivatives[k:k + 1]), True)
+            self._send(task, k, values[k : k + 1], np.zeros_like(derivatives[k : k + 1]), True)
         self.next_sample = self.num_samples
         self.stopped_at = k

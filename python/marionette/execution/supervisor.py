@@ -33,12 +33,16 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-
-from marionette import channels, lcmt_controller_status, lcmt_supervisor_event, lcmt_supervisor_state
-from marionette.execution import decisions
-from marionette.execution.decisions import Decision, DecisionMachine, event_message
+from marionette import (
+    channels,
+    lcmt_controller_status,
+    lcmt_supervisor_event,
+    lcmt_supervisor_state,
+)
 from marionette.control.client import ControllerClient
 from marionette.control.spec import ControllerSpec
+from marionette.execution import decisions
+from marionette.execution.decisions import Decision, DecisionMachine, event_message
 from marionette.execution.factory import END_THRESHOLDS
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import StepTrajectory, compute_references, sample_step
@@ -59,16 +63,16 @@ class SupervisorFailure(RuntimeError):
 
 @dataclass
 class SupervisorOptions:
-    max_joint_velocity: float = 0.5     # [rad/s] time law of the planned paths
-    min_step_duration: float = 0.5      # [s]
-    dt_us: int = 1000                   # reference sampling: the controller's period
+    max_joint_velocity: float = 0.5  # [rad/s] time law of the planned paths
+    min_step_duration: float = 0.5  # [s]
+    dt_us: int = 1000  # reference sampling: the controller's period
     chunk_samples: int = 200
-    lookahead_s: float = 4.0            # controller time streamed ahead (< 5 s kept)
-    start_delay_us: int = 100_000       # first sample this far after the swap is seen
-    accept_timeout_s: float = 20.0      # [s wall] waiting for the swap decision
-    converge_timeout_s: float = 3.0     # [s controller time] end check
-    simulated_grasps: bool = True       # SIM_COMMAND attach/detach welds (MuJoCo backend)
-    step_mode: bool = False             # wait for "approve" before each step
+    lookahead_s: float = 4.0  # controller time streamed ahead (< 5 s kept)
+    start_delay_us: int = 100_000  # first sample this far after the swap is seen
+    accept_timeout_s: float = 20.0  # [s wall] waiting for the swap decision
+    converge_timeout_s: float = 3.0  # [s controller time] end check
+    simulated_grasps: bool = True  # SIM_COMMAND attach/detach welds (MuJoCo backend)
+    step_mode: bool = False  # wait for "approve" before each step
     approval_timeout_s: float = 600.0
 
 
@@ -80,12 +84,12 @@ class StepRecord:
     transition: str
     kind: str
     controller_id: int = 0
-    utime_start: int = 0                # swap seen [us controller time]
+    utime_start: int = 0  # swap seen [us controller time]
     utime_reference_start: int = 0
     utime_reference_end: int = 0
-    utime_end: int = 0                  # end check passed
+    utime_end: int = 0  # end check passed
     wall_s: float = 0.0
-    duration_s: float = 0.0             # planned duration of the reference
+    duration_s: float = 0.0  # planned duration of the reference
     chunks: int = 0
     min_lookahead_ms: float | None = None
     final_errors: dict[str, float] = field(default_factory=dict)
@@ -107,9 +111,16 @@ class SupervisorResult:
 class Supervisor:
     """Runs ``steps`` with their ``specs`` on the controller behind ``client``."""
 
-    def __init__(self, client: ControllerClient, steps: list[Step], specs: list[ControllerSpec],
-                 robot_map: PlanRobotMap, options: SupervisorOptions | None = None,
-                 plan_name: str = "plan", id_base: int | None = None) -> None:
+    def __init__(
+        self,
+        client: ControllerClient,
+        steps: list[Step],
+        specs: list[ControllerSpec],
+        robot_map: PlanRobotMap,
+        options: SupervisorOptions | None = None,
+        plan_name: str = "plan",
+        id_base: int | None = None,
+    ) -> None:
         if len(steps) != len(specs):
             raise ValueError(f"{len(steps)} steps but {len(specs)} controller specs")
         self.client = client
@@ -121,17 +132,17 @@ class Supervisor:
         # Controller ids are never reused by one controller process: start from the clock.
         self._next_id = id_base if id_base is not None else int(time.time() * 10) % 1_000_000_000
         self.trajectories: dict[int, StepTrajectory] = {}
-        self.servo: Any = None   # a visual_servo.VisualServo: corrects the pbvs tasks' references
+        self.servo: Any = None  # a visual_servo.VisualServo: corrects the pbvs tasks' references
         self.state = "idle"
         self.status = ""
         self.detail = ""
         self.step_index = -1
         self.events: list[tuple[int, str, str]] = []
-        self._inputs: list[tuple[str, Any]] = []   # (channel, message) in arrival order
+        self._inputs: list[tuple[str, Any]] = []  # (channel, message) in arrival order
         self._lock = threading.Lock()
         self.machine = DecisionMachine()
         self.decisions: list[Decision] = []
-        self._taken: list[Decision] = []           # decisions not yet awaited by the step's flow
+        self._taken: list[Decision] = []  # decisions not yet awaited by the step's flow
         self._publish_stop = threading.Event()
         client.bus.subscribe(channels.SUPERVISOR_EVENT, lcmt_supervisor_event, self._on_event)
         client.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on_status)
@@ -144,8 +155,9 @@ class Supervisor:
         for step, spec in zip(self.steps[first:], self.specs[first:]):
             if step.index in self.trajectories:
                 continue
-            traj = sample_step(step, self.robot_map, o.dt_us * 1e-6, o.max_joint_velocity,
-                               o.min_step_duration)
+            traj = sample_step(
+                step, self.robot_map, o.dt_us * 1e-6, o.max_joint_velocity, o.min_step_duration
+            )
             compute_references(traj, spec, self.robot_map.model)
             self.trajectories[step.index] = traj
         return time.perf_counter() - t0
@@ -166,7 +178,9 @@ class Supervisor:
 
     def _decided(self, d: Decision) -> Decision:
         """Publishes a decision of the machine on SUPERVISOR_DECISION and keeps it."""
-        self.client.bus.publish(channels.SUPERVISOR_DECISION, d.to_lcm(len(self.decisions), self.plan_name))
+        self.client.bus.publish(
+            channels.SUPERVISOR_DECISION, d.to_lcm(len(self.decisions), self.plan_name)
+        )
         self.decisions.append(d)
         return d
 
@@ -240,11 +254,25 @@ class Supervisor:
         thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
         if self.servo is not None:
             thresholds = self.servo.end_thresholds(spec, thresholds)
-        self._decided(self.machine.begin_step(step.index, step.transition, cid, thresholds,
-                                              int(o.converge_timeout_s * 1e6), o.step_mode))
+        self._decided(
+            self.machine.begin_step(
+                step.index,
+                step.transition,
+                cid,
+                thresholds,
+                int(o.converge_timeout_s * 1e6),
+                o.step_mode,
+            )
+        )
         if o.step_mode:
-            self._drive(record, ("approved",), None, o.approval_timeout_s, "approval_timeout",
-                        "no 'approve' within {} s")
+            self._drive(
+                record,
+                ("approved",),
+                None,
+                o.approval_timeout_s,
+                "approval_timeout",
+                "no 'approve' within {} s",
+            )
         self.emit("step_started", f"{step.index} {step.transition}")
         for gripper, handle in step.released.items():
             self._weld("detach", gripper, handle)
@@ -253,8 +281,14 @@ class Supervisor:
         # Start check: the controller swaps the spec in only without a command jump.
         self._set(status="waiting_start_check", detail=f"controller {cid}")
         self.client.send_spec(dataclasses.replace(spec, controller_id=cid))
-        self._drive(record, ("switch_accepted",), None, o.accept_timeout_s, "switch_timeout",
-                    f"no decision on the swap to controller {cid} within {{}} s")
+        self._drive(
+            record,
+            ("switch_accepted",),
+            None,
+            o.accept_timeout_s,
+            "switch_timeout",
+            f"no decision on the swap to controller {cid} within {{}} s",
+        )
         record.utime_start = self.client.utime()
         self.emit("switch_accepted", f"controller {cid} {spec.name}")
 
@@ -264,9 +298,17 @@ class Supervisor:
         # Visual servoing (execution.visual_servo): the streamer corrects the pbvs tasks and
         # re-sends what it already streamed of them when a measurement arrives.
         corrections = self.servo.begin_step(step, spec, start, o.dt_us) if self.servo else []
-        streamer = ReferenceStreamer(self.client.send_reference, cid, traj.references, start,
-                                     o.dt_us, o.chunk_samples, o.lookahead_s,
-                                     corrections=corrections, servo=self.servo)
+        streamer = ReferenceStreamer(
+            self.client.send_reference,
+            cid,
+            traj.references,
+            start,
+            o.dt_us,
+            o.chunk_samples,
+            o.lookahead_s,
+            corrections=corrections,
+            servo=self.servo,
+        )
         self._decided(self.machine.start_reference(start, streamer.end_utime))
         record.utime_reference_start = start
         record.duration_s = traj.duration
@@ -276,7 +318,9 @@ class Supervisor:
         if self.servo is not None:
             self.servo.end_step(corrections)
         record.chunks = streamer.chunks_sent
-        record.min_lookahead_ms = None if streamer.min_margin_us is None else streamer.min_margin_us / 1e3
+        record.min_lookahead_ms = (
+            None if streamer.min_margin_us is None else streamer.min_margin_us / 1e3
+        )
         self.emit("end_of_reference", f"{step.index} {step.transition}")
 
         # End check: every task error converged (decided on the statuses after the last sample).
@@ -291,8 +335,15 @@ class Supervisor:
         record.result = "ok"
         self.emit("step_done", f"{step.index} {step.transition}")
 
-    def _drive(self, record: StepRecord, until: tuple[str, ...], streamer: ReferenceStreamer | None,
-               timeout_s: float | None = None, timeout_event: str = "", timeout_detail: str = "") -> Decision:
+    def _drive(
+        self,
+        record: StepRecord,
+        until: tuple[str, ...],
+        streamer: ReferenceStreamer | None,
+        timeout_s: float | None = None,
+        timeout_event: str = "",
+        timeout_detail: str = "",
+    ) -> Decision:
         """Feeds the received messages to the decision machine one at a time (streaming the
         references as the controller's clock advances) until it takes a decision in ``until``;
         raises SupervisorFailure on a failure decision. A wall-clock timeout is itself an input
@@ -306,7 +357,9 @@ class Supervisor:
                 if d.event in until:
                     return d
             if self.machine.status in ("ended", "failed"):
-                raise RuntimeError(f"supervisor: the step ended ({self.machine.status}) without {until}")
+                raise RuntimeError(
+                    f"supervisor: the step ended ({self.machine.status}) without {until}"
+                )
             now = self.client.utime()
             if streamer is not None:
                 streamer.pump(now)
@@ -326,12 +379,19 @@ class Supervisor:
             if self._taken:
                 continue
             if deadline is not None and time.monotonic() > deadline:
-                d = self._decided(self.machine.timeout(timeout_event, timeout_detail.format(timeout_s)))
+                d = self._decided(
+                    self.machine.timeout(timeout_event, timeout_detail.format(timeout_s))
+                )
                 raise SupervisorFailure(d.event, d.detail)
-            self.client.wait(lambda c, n=now: c.utime() > n or bool(self._inputs), 5.0,
-                             "controller time to advance")
+            self.client.wait(
+                lambda c, n=now: c.utime() > n or bool(self._inputs),
+                5.0,
+                "controller time to advance",
+            )
 
-    def _act(self, d: Decision, record: StepRecord, streamer: ReferenceStreamer | None, msg: Any) -> None:
+    def _act(
+        self, d: Decision, record: StepRecord, streamer: ReferenceStreamer | None, msg: Any
+    ) -> None:
         """What the supervisor does on a decision besides publishing it."""
         if d.event.startswith("end_check_"):
             record.final_errors = dict(zip(msg.task_name, msg.task_error_norm))
@@ -344,7 +404,10 @@ class Supervisor:
 
     def _fold_status(self, record: StepRecord, st: Any) -> None:
         """The step's task errors, for the report (not a decision)."""
-        if st.active_controller_id == record.controller_id and self.machine.status in ("running", "waiting_end_check"):
+        if st.active_controller_id == record.controller_id and self.machine.status in (
+            "running",
+            "waiting_end_check",
+        ):
             errors = dict(zip(st.task_name, st.task_error_norm))
             record.error_trace.append((st.utime, errors))
             for n, e in errors.items():

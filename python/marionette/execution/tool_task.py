@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import re
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -29,8 +29,8 @@ from marionette.execution.demo import DemoError
 from marionette.execution.references import minimum_jerk
 from marionette.execution.streamer import MAX_LOOKAHEAD_S, ReferenceStreamer
 
-
 # ---- geometry --------------------------------------------------------------------------------
+
 
 def axis_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle [deg] between two directions."""
@@ -53,8 +53,10 @@ def tool_target(X_W_hole: pin.SE3, R_W_tool_now: np.ndarray, standoff: float) ->
 def tool_error(X_W_tool: pin.SE3, X_W_target: pin.SE3) -> tuple[float, float]:
     """(position error [m], axis angle error [deg]) of the tool against a target tool pose;
     rotation about the tool axis is free (masked)."""
-    return (float(np.linalg.norm(X_W_tool.translation - X_W_target.translation)),
-            axis_angle_deg(X_W_tool.rotation[:, 0], X_W_target.rotation[:, 0]))
+    return (
+        float(np.linalg.norm(X_W_tool.translation - X_W_target.translation)),
+        axis_angle_deg(X_W_tool.rotation[:, 0], X_W_target.rotation[:, 0]),
+    )
 
 
 def axis_offset(X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> tuple[float, float, float]:
@@ -64,19 +66,25 @@ def axis_offset(X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> tuple[float, float, flo
     a = X_W_tool.rotation[:, 0]
     d = X_W_hole.translation - X_W_tool.translation
     across = d - np.dot(d, a) * a
-    return (float(np.linalg.norm(across)), axis_angle_deg(a, X_W_hole.rotation[:, 0]),
-            float(np.dot(d, X_W_hole.rotation[:, 0])))
+    return (
+        float(np.linalg.norm(across)),
+        axis_angle_deg(a, X_W_hole.rotation[:, 0]),
+        float(np.dot(d, X_W_hole.rotation[:, 0])),
+    )
 
 
-def draw_displacement(rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float,
-                      centre: np.ndarray) -> pin.SE3:
+def draw_displacement(
+    rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float, centre: np.ndarray
+) -> pin.SE3:
     """Seeded displacement D of a workpiece, applied as X_true = X_nominal D: a rotation of at most
     ``max_rotation_deg`` about a random axis through ``centre`` (workpiece frame) and a
     translation of at most ``max_translation_m``; both magnitudes uniform in [1/2, 1] of their
     bound."""
+
     def unit():
         v = rng.normal(size=3)
         return v / np.linalg.norm(v)
+
     angle = np.radians(max_rotation_deg) * rng.uniform(0.5, 1.0)
     R = pin.exp3(angle * unit())
     t = max_translation_m * rng.uniform(0.5, 1.0) * unit()
@@ -86,11 +94,16 @@ def draw_displacement(rng: np.random.Generator, max_translation_m: float, max_ro
 
 def actuator_limits(scene: Path) -> dict[str, float]:
     """Joint name -> |force limit| of the scene's MJCF actuators (``forcerange``)."""
-    return {n: max(abs(float(a)), abs(float(b))) for n, a, b in re.findall(
-        r'<general name="([^"]+)"[^>]*forcerange="(\S+) (\S+)"', Path(scene).read_text())}
+    return {
+        n: max(abs(float(a)), abs(float(b)))
+        for n, a, b in re.findall(
+            r'<general name="([^"]+)"[^>]*forcerange="(\S+) (\S+)"', Path(scene).read_text()
+        )
+    }
 
 
 # ---- the task --------------------------------------------------------------------------------
+
 
 class ToolTask:
     """Tool pose from ROBOT_STATE (MuJoCo's joint positions) through the robot's kinematics, and
@@ -104,9 +117,18 @@ class ToolTask:
 
     CONTROLLER_ID = 1
 
-    def __init__(self, client: ControllerClient, settings, robot: str, frame: str, tool_link: str,
-                 X_link_tool: pin.SE3, scene: Path, name: str = "tool",
-                 stream_posture: bool = False) -> None:
+    def __init__(
+        self,
+        client: ControllerClient,
+        settings,
+        robot: str,
+        frame: str,
+        tool_link: str,
+        X_link_tool: pin.SE3,
+        scene: Path,
+        name: str = "tool",
+        stream_posture: bool = False,
+    ) -> None:
         self.client, self.settings, self.scene, self.name = client, settings, Path(scene), name
         self.robot, self.frame = robot, frame
         self.model, _ = robots.load_pinocchio(robot, with_collision=False)
@@ -116,21 +138,38 @@ class ToolTask:
                 raise DemoError(f"{robot} has no frame {f} for the tool task")
         self.fid = self.model.getFrameId(frame)
         X_frame_link = self.model.frames[self.fid].placement.actInv(
-            self.model.frames[self.model.getFrameId(tool_link)].placement)
+            self.model.frames[self.model.getFrameId(tool_link)].placement
+        )
         self.X_frame_tool = X_frame_link * X_link_tool
         self.stream_posture = stream_posture
-        self.reference: pin.SE3 | None = None      # last frame reference streamed
-        self.posture: np.ndarray | None = None     # last posture reference streamed
+        self.reference: pin.SE3 | None = None  # last frame reference streamed
+        self.posture: np.ndarray | None = None  # last posture reference streamed
 
     def spec(self) -> ControllerSpec:
         """Tool pose task (rotation about the tool axis = the frame's z masked), posture below."""
-        return ControllerSpec(self.CONTROLLER_ID, self.name, [
-            TaskSpec("tool", "se3", 0, frame=self.frame, mask=(1, 1, 1, 1, 1, 0), gain=10.0, streamed=True),
-            TaskSpec("posture", "posture", 1, gain=1.0, streamed=self.stream_posture)], reference_timeout=0.2)
+        return ControllerSpec(
+            self.CONTROLLER_ID,
+            self.name,
+            [
+                TaskSpec(
+                    "tool",
+                    "se3",
+                    0,
+                    frame=self.frame,
+                    mask=(1, 1, 1, 1, 1, 0),
+                    gain=10.0,
+                    streamed=True,
+                ),
+                TaskSpec("posture", "posture", 1, gain=1.0, streamed=self.stream_posture),
+            ],
+            reference_timeout=0.2,
+        )
 
     def configuration(self, state=None) -> np.ndarray:
         """The robot's configuration (controller layout) from ``state`` (default the latest)."""
-        return configuration_from_state(self.model, state if state is not None else self.client.state)
+        return configuration_from_state(
+            self.model, state if state is not None else self.client.state
+        )
 
     def frame_of(self, q: np.ndarray) -> pin.SE3:
         """Pose X_W_frame of the task's frame at configuration ``q``."""
@@ -152,19 +191,30 @@ class ToolTask:
         X1 = X_W_tool * self.X_frame_tool.inverse()
         self.move_along([X1], duration_s, None if q is None else [q])
 
-    def move_along(self, frames: Sequence[pin.SE3], duration_s: float,
-                   postures: Sequence[np.ndarray] | None = None) -> None:
+    def move_along(
+        self,
+        frames: Sequence[pin.SE3],
+        duration_s: float,
+        postures: Sequence[np.ndarray] | None = None,
+    ) -> None:
         """Like :meth:`move` through the frame references ``frames`` (and postures): one
         minimum-jerk time law over the polyline of both, its knots equally spaced in time."""
         st = self.settings
-        X0 = self.reference if self.reference is not None else self.pose() * self.X_frame_tool.inverse()
+        X0 = (
+            self.reference
+            if self.reference is not None
+            else self.pose() * self.X_frame_tool.inverse()
+        )
         Xs = [X0, *frames]
         xis = [pin.log6(a.actInv(b)).vector for a, b in zip(Xs, Xs[1:])]
         # at least the duration that keeps the mean speed under the limits (the drill's first
         # move turns the spindle from vertical to horizontal: a wrist joint swept 2.3 rad in 1 s,
         # its actuator saturated (54 N.m) and the wrist ended 0.23 rad past its command, stuck)
-        duration_s = max(duration_s, sum(np.linalg.norm(x[:3]) for x in xis) / st.max_tool_speed,
-                         sum(np.linalg.norm(x[3:]) for x in xis) / st.max_tool_rate)
+        duration_s = max(
+            duration_s,
+            sum(np.linalg.norm(x[:3]) for x in xis) / st.max_tool_speed,
+            sum(np.linalg.norm(x[3:]) for x in xis) / st.max_tool_rate,
+        )
         n = len(xis)
         s, ds = minimum_jerk(np.zeros(1), np.array([float(n)]), duration_s, 0.001)
         u, du = s[:, 0], ds[:, 0]
@@ -175,7 +225,7 @@ class ToolTask:
         for i in range(len(u)):
             Xi = Xs[k[i]] * pin.exp6(frac[i] * xis[k[i]])
             tool[i] = pose_to_vector(Xi)
-            vel[i] = du[i] * xis[k[i]]   # d/dt of the log coordinates (the drill's stream)
+            vel[i] = du[i] * xis[k[i]]  # d/dt of the log coordinates (the drill's stream)
         streams = {"tool": (tool, vel)}
         if self.stream_posture:
             q0 = self.posture if self.posture is not None else self.configuration()
@@ -183,14 +233,21 @@ class ToolTask:
             if len(qs) != n + 1:
                 raise ValueError("one posture per frame reference")
             dq = [pin.difference(self.model, a, b) for a, b in zip(qs, qs[1:])]
-            values = np.array([pin.integrate(self.model, qs[k[i]], frac[i] * dq[k[i]]) for i in range(len(u))])
+            values = np.array(
+                [pin.integrate(self.model, qs[k[i]], frac[i] * dq[k[i]]) for i in range(len(u))]
+            )
             streams["posture"] = (values, np.array([du[i] * dq[k[i]] for i in range(len(u))]))
             self.posture = qs[-1]
         self._stream(streams, duration_s)
         self.reference = Xs[-1]
 
-    def follow(self, q_path: Sequence[np.ndarray], duration_s: float,
-               correction: pin.SE3 | None = None, max_step_rad: float = 0.05) -> None:
+    def follow(
+        self,
+        q_path: Sequence[np.ndarray],
+        duration_s: float,
+        correction: pin.SE3 | None = None,
+        max_step_rad: float = 0.05,
+    ) -> None:
         """Moves along a joint path (a planned one): the streamed posture follows it and the
         frame reference follows its forward kinematics, left-multiplied by ``correction`` (a
         world-frame map from the kinematics to the reference, e.g. the one a servo found). The
@@ -220,27 +277,43 @@ class ToolTask:
     def _stream(self, streams: dict, duration_s: float) -> None:
         st = self.settings
         start = self.client.utime() + int(self.START_LEAD_S * 1e6)
-        streamer = ReferenceStreamer(self.client.send_reference, self.CONTROLLER_ID, streams, start,
-                                     lookahead_s=self.LOOKAHEAD_S)
+        streamer = ReferenceStreamer(
+            self.client.send_reference,
+            self.CONTROLLER_ID,
+            streams,
+            start,
+            lookahead_s=self.LOOKAHEAD_S,
+        )
         while not streamer.done:
             streamer.pump(self.client.utime())
             time.sleep(0.005)
         end = streamer.end_utime + int(st.settle_s * 1e6)
-        self.client.wait(lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move")
+        self.client.wait(
+            lambda c: c.state.utime >= end, 10.0 + 10.0 * duration_s, "the end of a tool move"
+        )
         # The MuJoCo joint servos ring for a while after a move in some postures: measuring a
         # moving arm makes the next correction chase it. Wait until it is still (or give up
         # after settle_timeout_s of controller time and let the correction loop judge).
         give_up = end + int(st.settle_timeout_s * 1e6)
-        self.client.wait(lambda c: c.state.utime >= give_up
-                         or max(abs(v) for v in c.state.joint_velocity) < st.still_velocity,
-                         10.0 + 10.0 * st.settle_timeout_s, "the arm to be still")
+        self.client.wait(
+            lambda c: (
+                c.state.utime >= give_up
+                or max(abs(v) for v in c.state.joint_velocity) < st.still_velocity
+            ),
+            10.0 + 10.0 * st.settle_timeout_s,
+            "the arm to be still",
+        )
 
     def reference_tool(self) -> pin.SE3:
         """The tool pose the controller was last asked for."""
         return self.reference * self.X_frame_tool
 
-    def servo(self, target: Callable[[pin.SE3], pin.SE3], measure: Callable[[], pin.SE3] | None = None,
-              aligned: tuple[float, float] | None = None) -> tuple[pin.SE3, int, bool]:
+    def servo(
+        self,
+        target: Callable[[pin.SE3], pin.SE3],
+        measure: Callable[[], pin.SE3] | None = None,
+        aligned: tuple[float, float] | None = None,
+    ) -> tuple[pin.SE3, int, bool]:
         """Corrects the tool until ``target(measured tool pose)`` is within ``aligned`` ([m],
         [deg]; default the settings' ``aligned_m``, ``aligned_deg``) of it; returns the final
         measured tool pose, the number of corrections and whether it got there within
@@ -257,8 +330,10 @@ class ToolTask:
         aligned_m, aligned_deg = aligned or (st.aligned_m, st.aligned_deg)
         for k in range(st.max_corrections + 1):
             if self.client.status.mode != "running":
-                raise DemoError(f"the controller stopped tracking the tool: {self.client.status.mode} "
-                                f"({self.client.status.mode_reason})")
+                raise DemoError(
+                    f"the controller stopped tracking the tool: {self.client.status.mode} "
+                    f"({self.client.status.mode_reason})"
+                )
             X = measure()
             X_t = target(X)
             dp, da = tool_error(X, X_t)
@@ -278,5 +353,8 @@ class ToolTask:
         """Joints whose actuator effort is within 1 % of its MJCF ``forcerange``."""
         limits = actuator_limits(self.scene)
         s = self.client.state
-        return [f"{n} {e:.0f} N.m" for n, e in zip(s.joint_name, s.joint_effort)
-                if n in limits and abs(e) >= 0.99 * limits[n]]
+        return [
+            f"{n} {e:.0f} N.m"
+            for n, e in zip(s.joint_name, s.joint_effort)
+            if n in limits and abs(e) >= 0.99 * limits[n]
+        ]

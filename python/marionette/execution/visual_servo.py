@@ -69,19 +69,19 @@ class ServoOptions:
     """Gains and limits of the visual correction; ``noise_*`` perturb each measurement (a
     seeded camera-noise model on top of the rendered images' own error)."""
 
-    alpha: float = 0.3                  # fraction of the way to C* per measurement
-    max_speed: float = 0.03             # [m/s] of the correction's translation
-    max_angular_speed: float = 0.3      # [rad/s]
+    alpha: float = 0.3  # fraction of the way to C* per measurement
+    max_speed: float = 0.03  # [m/s] of the correction's translation
+    max_angular_speed: float = 0.3  # [rad/s]
     # [m] larger fixed points are rejected as outliers. In the gripper frame a rotation error moves
     # the fixed point by its lever: the plank held 36° off (7°/4° encoder offsets, a slip) gave
     # fixed points over 8 cm: the 12 good measurements (0.1 px) of the carry were all rejected.
     max_correction: float = 0.15
-    max_reprojection_px: float = 3.0    # measurements with a larger RMS are ignored
-    noise_position_m: float = 0.0       # [m] sigma per axis
-    noise_angle_rad: float = 0.0        # [rad] sigma per axis
+    max_reprojection_px: float = 3.0  # measurements with a larger RMS are ignored
+    noise_position_m: float = 0.0  # [m] sigma per axis
+    noise_angle_rad: float = 0.0  # [rad] sigma per axis
     seed: int = 0
-    lead_us: int = 20_000               # corrected samples re-sent from now + lead
-    refresh_us: int = 50_000            # at most one re-send per this much controller time
+    lead_us: int = 20_000  # corrected samples re-sent from now + lead
+    refresh_us: int = 50_000  # at most one re-send per this much controller time
 
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
@@ -104,7 +104,9 @@ def approach_fixed_point(X_WE_plan: pin.SE3, X_WO_measured: pin.SE3, X_WO_plan: 
     return X_WE_plan.inverse() * X_WO_measured * X_WO_plan.inverse() * X_WE_plan
 
 
-def step_toward(C: pin.SE3, C_target: pin.SE3, alpha: float, max_dp: float, max_dtheta: float) -> pin.SE3:
+def step_toward(
+    C: pin.SE3, C_target: pin.SE3, alpha: float, max_dp: float, max_dtheta: float
+) -> pin.SE3:
     """C exp(s log(C^-1 C*)) with s = alpha, shortened so that the translation moves at most
     ``max_dp`` and the rotation at most ``max_dtheta``."""
     xi = pin.log6(C.actInv(C_target)).vector
@@ -117,7 +119,9 @@ def step_toward(C: pin.SE3, C_target: pin.SE3, alpha: float, max_dp: float, max_
     return C * pin.exp6(s * xi)
 
 
-def right_multiply(values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+def right_multiply(
+    values: np.ndarray, derivatives: np.ndarray, C: pin.SE3
+) -> tuple[np.ndarray, np.ndarray]:
     """Pose rows (x y z qw qx qy qz) X -> X C and their world twists (v, ω): the point
     p + R t_C moves at v + ω × (R t_C), the rotation at the same ω."""
     out_v = values.copy()
@@ -132,14 +136,18 @@ def right_multiply(values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> t
     return out_v, out_d
 
 
-def left_multiply(values: np.ndarray, derivatives: np.ndarray, L: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+def left_multiply(
+    values: np.ndarray, derivatives: np.ndarray, L: pin.SE3
+) -> tuple[np.ndarray, np.ndarray]:
     """Pose rows X -> L X (L in the world frame) and their world twists: the origin moves at
     R_L v, the rotation at R_L ω."""
     out_v = values.copy()
     out_d = derivatives.copy()
     R_L = L.rotation
     for k, row in enumerate(values):
-        X = L * pin.SE3(pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3])
+        X = L * pin.SE3(
+            pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3]
+        )
         q = pin.Quaternion(X.rotation)
         out_v[k] = [*X.translation, q.w, q.x, q.y, q.z]
         if derivatives.shape[1] == 6:
@@ -153,16 +161,16 @@ class TaskCorrection:
     """The correction of one streamed gripper task during one step (used by the streamer)."""
 
     task: str
-    servoed: bool                       # updated from measurements (pbvs task)
+    servoed: bool  # updated from measurements (pbvs task)
     C_start: pin.SE3
-    blend_out: bool                     # ramp C_start -> identity over the step
+    blend_out: bool  # ramp C_start -> identity over the step
     duration_us: int = 1
     start_utime: int = 0
     C: pin.SE3 = field(default_factory=pin.SE3.Identity)
-    history: list[tuple[int, pin.SE3]] = field(default_factory=list)   # (from utime, C)
+    history: list[tuple[int, pin.SE3]] = field(default_factory=list)  # (from utime, C)
     version: int = 0
     frame: str = ""
-    anchor: pin.SE3 | None = None       # set: applied as L = anchor C anchor^-1 on the left
+    anchor: pin.SE3 | None = None  # set: applied as L = anchor C anchor^-1 on the left
 
     def at_sample(self, k: int, dt_us: int) -> pin.SE3:
         if not self.blend_out:
@@ -170,7 +178,9 @@ class TaskCorrection:
         a = activation(k * dt_us / max(self.duration_us, 1))
         return interpolate(self.C_start, pin.SE3.Identity(), a)
 
-    def apply(self, values: np.ndarray, derivatives: np.ndarray, C: pin.SE3) -> tuple[np.ndarray, np.ndarray]:
+    def apply(
+        self, values: np.ndarray, derivatives: np.ndarray, C: pin.SE3
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Pose rows and twists corrected by ``C`` (a value of this correction)."""
         if self.anchor is None:
             return right_multiply(values, derivatives, C)
@@ -192,8 +202,15 @@ class VisualServo:
     hand the result to the streamer; the streamer calls :meth:`update` as controller time
     advances (measurements are folded in there, never in the LCM thread)."""
 
-    def __init__(self, bus: Any, steps: list[Step], specs: list[ControllerSpec], robot_map: PlanRobotMap,
-                 trajectories: dict[int, StepTrajectory], options: ServoOptions | None = None) -> None:
+    def __init__(
+        self,
+        bus: Any,
+        steps: list[Step],
+        specs: list[ControllerSpec],
+        robot_map: PlanRobotMap,
+        trajectories: dict[int, StepTrajectory],
+        options: ServoOptions | None = None,
+    ) -> None:
         self.steps = steps
         self.specs = specs
         self.robot_map = robot_map
@@ -208,76 +225,113 @@ class VisualServo:
         self._current: list[tuple[TaskCorrection, Step, str, pin.SE3, bool]] = []
         self.measurements_used = 0
         self.measurements_rejected = 0
-        self.trace: list[dict[str, Any]] = []        # per used measurement, for the report
+        self.trace: list[dict[str, Any]] = []  # per used measurement, for the report
         bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._on_objects)
 
     def _on_objects(self, msg: Any) -> None:
         with self._lock:
             for o in msg.objects:
-                X = pin.SE3(pin.Quaternion(*o.quaternion_world).normalized().matrix(), np.array(o.position_world))
+                X = pin.SE3(
+                    pin.Quaternion(*o.quaternion_world).normalized().matrix(),
+                    np.array(o.position_world),
+                )
                 self._pending.append((int(o.utime), o.object_name, X, float(o.reprojection_error)))
 
-    def end_thresholds(self, spec: ControllerSpec, thresholds: dict[str, float]) -> dict[str, float]:
+    def end_thresholds(
+        self, spec: ControllerSpec, thresholds: dict[str, float]
+    ) -> dict[str, float]:
         """The end check of a step whose gripper reference is corrected by vision leaves out the
         posture: the planned configuration no longer agrees with the corrected gripper pose, and
         the posture (the lowest level, a regularisation) cannot converge onto it."""
-        corrected = any(t.kind == "pbvs" or (t.frame in self._carried and not
-                                              self._carried[t.frame][0].isIdentity()) for t in spec.tasks)
+        corrected = any(
+            t.kind == "pbvs"
+            or (t.frame in self._carried and not self._carried[t.frame][0].isIdentity())
+            for t in spec.tasks
+        )
         if not corrected:
             return thresholds
-        return {n: v for n, v in thresholds.items()
-                if next(t.kind for t in spec.tasks if t.name == n) != "posture"}
+        return {
+            n: v
+            for n, v in thresholds.items()
+            if next(t.kind for t in spec.tasks if t.name == n) != "posture"
+        }
 
     def summary(self) -> dict[str, Any]:
         """Measurements used / rejected and the servo trace (report.json ``vision``)."""
         last = {}
         for row in self.trace:
             last[row["step"]] = row
-        return {"measurements_used": self.measurements_used,
-                "measurements_rejected": self.measurements_rejected,
-                "last_per_step": {str(k): v for k, v in sorted(last.items())},
-                "trace": self.trace}
+        return {
+            "measurements_used": self.measurements_used,
+            "measurements_rejected": self.measurements_rejected,
+            "last_per_step": {str(k): v for k, v in sorted(last.items())},
+            "trace": self.trace,
+        }
 
     # ---- per step ----------------------------------------------------------------------------
-    def begin_step(self, step: Step, spec: ControllerSpec, start_utime: int, dt_us: int) -> list[TaskCorrection]:
+    def begin_step(
+        self, step: Step, spec: ControllerSpec, start_utime: int, dt_us: int
+    ) -> list[TaskCorrection]:
         """The corrections of this step's gripper tasks (empty: nothing to correct)."""
         traj = self.trajectories[step.index]
         corrections: list[TaskCorrection] = []
         self._current = []
         with self._lock:
-            self._pending.clear()   # measurements of the previous step's images
+            self._pending.clear()  # measurements of the previous step's images
         for task in spec.tasks:
-            if task.kind not in ("se3", "pbvs") or not task.streamed or task.frame in ("left_sole_link", "right_sole_link"):
+            if (
+                task.kind not in ("se3", "pbvs")
+                or not task.streamed
+                or task.frame in ("left_sole_link", "right_sole_link")
+            ):
                 continue
             carried = self._carried.get(task.frame)
             if task.kind != "pbvs" and carried is None:
                 continue
             holds = {g.split("/")[-1]: h for g, h in step.grasps.items()}
             gripper = next((g for g in step.active_grippers if task.name == g.split("/")[-1]), None)
-            approach = None if gripper is None or task.name in holds else approached_handle(step, gripper)
+            approach = (
+                None if gripper is None or task.name in holds else approached_handle(step, gripper)
+            )
             C0, carried_anchor = carried if carried is not None else (pin.SE3.Identity(), None)
             if task.kind != "pbvs":
-                anchor = carried_anchor                        # kept or blended out as it was
+                anchor = carried_anchor  # kept or blended out as it was
             elif approach is not None:
-                anchor = self._planned_end(traj, task.frame)   # L = P_e C P_e^-1 (module doc)
+                anchor = self._planned_end(traj, task.frame)  # L = P_e C P_e^-1 (module doc)
                 if carried_anchor is not None:
                     # an anchored correction still on: the same L, re-anchored at this end
                     C0 = anchor.inverse() * carried_anchor * C0 * carried_anchor.inverse() * anchor
             else:
-                anchor = None                                  # a held object: right correction
+                anchor = None  # a held object: right correction
                 if carried_anchor is not None:
                     # a grasp's left correction L still on: the same reference at the start, P0 C = L P0
                     P0 = self._planned_pose(traj, task.frame, 0)
                     C0 = P0.inverse() * carried_anchor * C0 * carried_anchor.inverse() * P0
             releasing = any(g.split("/")[-1] == task.name for g in step.released)
-            at_contact = step.from_state.endswith("_intersec")   # releasing, or lifting what it just took
+            at_contact = step.from_state.endswith(
+                "_intersec"
+            )  # releasing, or lifting what it just took
             # kept: releasing, lifting what it just took, or going on to the grasp from a servoed
             # pre-grasp (the plan resumed, shifted, §5.3.1)
             blend = task.kind != "pbvs" and not releasing and not at_contact and approach is None
-            c = TaskCorrection(task.name, task.kind == "pbvs", C0, blend, int(traj.duration * 1e6),
-                               start_utime, C0, [(start_utime, C0)], frame=task.frame, anchor=anchor)
+            c = TaskCorrection(
+                task.name,
+                task.kind == "pbvs",
+                C0,
+                blend,
+                int(traj.duration * 1e6),
+                start_utime,
+                C0,
+                [(start_utime, C0)],
+                frame=task.frame,
+                anchor=anchor,
+            )
             corrections.append(c)
-            if task.kind == "pbvs" and gripper is not None and (task.name in holds or approach is not None):
+            if (
+                task.kind == "pbvs"
+                and gripper is not None
+                and (task.name in holds or approach is not None)
+            ):
                 obj = (holds[task.name] if task.name in holds else approach).split("/")[0]
                 X_GO = self._planned_grasp(traj, task.frame, obj)
                 self._current.append((c, step, obj, X_GO, approach is not None))
@@ -300,9 +354,13 @@ class VisualServo:
         return pin.SE3(data.oMf[model.getFrameId(frame)])
 
     def _planned_grasp(self, traj: StepTrajectory, frame: str, obj: str) -> pin.SE3:
-        return self._planned_end(traj, frame).actInv(self.robot_map.object_pose(traj.q_plan[-1], obj))
+        return self._planned_end(traj, frame).actInv(
+            self.robot_map.object_pose(traj.q_plan[-1], obj)
+        )
 
-    def update(self, planned: dict[str, tuple[np.ndarray, np.ndarray]], dt_us: int, now_utime: int) -> bool:
+    def update(
+        self, planned: dict[str, tuple[np.ndarray, np.ndarray]], dt_us: int, now_utime: int
+    ) -> bool:
         """Folds the measurements received since the last call into the servoed corrections;
         True when a correction changed."""
         with self._lock:
@@ -319,13 +377,23 @@ class VisualServo:
                     self.measurements_rejected += 1
                     continue
                 if o.noise_position_m > 0 or o.noise_angle_rad > 0:
-                    X_WO = X_WO * pin.exp6(np.concatenate([self._rng.normal(0, o.noise_position_m, 3),
-                                                           self._rng.normal(0, o.noise_angle_rad, 3)]))
+                    X_WO = X_WO * pin.exp6(
+                        np.concatenate(
+                            [
+                                self._rng.normal(0, o.noise_position_m, 3),
+                                self._rng.normal(0, o.noise_angle_rad, 3),
+                            ]
+                        )
+                    )
                 k = int(np.clip((utime - c.start_utime) // dt_us, 0, len(values) - 1))
                 row = values[k]
-                P = pin.SE3(pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3])
+                P = pin.SE3(
+                    pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3]
+                )
                 if approach:
-                    X_WO_plan = self.robot_map.object_pose(traj.q_plan[min(k, len(traj.q_plan) - 1)], obj)
+                    X_WO_plan = self.robot_map.object_pose(
+                        traj.q_plan[min(k, len(traj.q_plan) - 1)], obj
+                    )
                     C_star = approach_fixed_point(c.anchor, X_WO, X_WO_plan)
                 else:
                     C_star = correction_fixed_point(X_GO, X_WO, P * c.active_at(utime))
@@ -343,21 +411,40 @@ class VisualServo:
                 # the plan put it (an approach)
                 X_plan = X_WO_plan if approach else P * X_GO
                 err = X_plan.inverse() * X_WO
-                self.trace.append({"utime": utime, "step": step.index, "approach": approach,
-                                   "object_error_m": float(np.linalg.norm(X_WO.translation - X_plan.translation)),
-                                   "object_error_deg": math.degrees(float(np.linalg.norm(pin.log3(err.rotation)))),
-                                   "correction_m": float(np.linalg.norm(c.C.translation)),
-                                   "correction_deg": math.degrees(float(np.linalg.norm(pin.log3(c.C.rotation))))})
+                self.trace.append(
+                    {
+                        "utime": utime,
+                        "step": step.index,
+                        "approach": approach,
+                        "object_error_m": float(
+                            np.linalg.norm(X_WO.translation - X_plan.translation)
+                        ),
+                        "object_error_deg": math.degrees(
+                            float(np.linalg.norm(pin.log3(err.rotation)))
+                        ),
+                        "correction_m": float(np.linalg.norm(c.C.translation)),
+                        "correction_deg": math.degrees(
+                            float(np.linalg.norm(pin.log3(c.C.rotation)))
+                        ),
+                    }
+                )
         return changed
 
 
 # ---- gaze through the posture references ---------------------------------------------------
 
 
-def head_gaze_posture(model: pin.Model, traj: StepTrajectory, targets_W: np.ndarray, camera_frame: str,
-                      joints: tuple[str, ...] = ("head_1_joint", "head_2_joint"),
-                      extra_joints: tuple[str, ...] = (), ramp_in: bool = False,
-                      every: int = 20, tolerance: float = 0.2) -> None:
+def head_gaze_posture(
+    model: pin.Model,
+    traj: StepTrajectory,
+    targets_W: np.ndarray,
+    camera_frame: str,
+    joints: tuple[str, ...] = ("head_1_joint", "head_2_joint"),
+    extra_joints: tuple[str, ...] = (),
+    ramp_in: bool = False,
+    every: int = 20,
+    tolerance: float = 0.2,
+) -> None:
     """Rewrites the gaze joints of ``traj.references['posture']`` so that the optical axis (z)
     of ``camera_frame`` points at ``targets_W`` (N x 3, one per sample): the two head joints for
     the two image coordinates (x/z, y/z), Gauss-Newton with a finite-difference Jacobian, every
@@ -372,7 +459,7 @@ def head_gaze_posture(model: pin.Model, traj: StepTrajectory, targets_W: np.ndar
     names = tuple(joints) + tuple(extra_joints)
     idx = [model.joints[model.getJointId(j)].idx_q for j in names]
     vdx = [model.joints[model.getJointId(j)].idx_v for j in names]
-    margin = 0.03   # [rad] inside the limits: the controller's joint-limit task keeps off them
+    margin = 0.03  # [rad] inside the limits: the controller's joint-limit task keeps off them
     lo, hi = model.lowerPositionLimit[idx] + margin, model.upperPositionLimit[idx] - margin
     fid = model.getFrameId(camera_frame)
     data = model.createData()
@@ -384,8 +471,9 @@ def head_gaze_posture(model: pin.Model, traj: StepTrajectory, targets_W: np.ndar
         p_C = data.oMf[fid].actInv(p_W)
         return p_C[:2] / max(p_C[2], 1e-3)
 
-    def solve(q: np.ndarray, x: np.ndarray, active: list[int], target: np.ndarray,
-              radius: float = 0.0) -> np.ndarray:
+    def solve(
+        q: np.ndarray, x: np.ndarray, active: list[int], target: np.ndarray, radius: float = 0.0
+    ) -> np.ndarray:
         # Brings the target's image point within ``radius`` of the centre (0: onto it).
         for _ in range(5):
             q[idx] = x
@@ -409,7 +497,9 @@ def head_gaze_posture(model: pin.Model, traj: StepTrajectory, targets_W: np.ndar
         x = solve(q, x, list(range(len(joints))), targets_W[k])
         if np.linalg.norm(image_point(q, targets_W[k])) > tolerance and extra_joints:
             free = [j for j in range(len(joints)) if lo[j] + 1e-6 < x[j] < hi[j] - 1e-6]
-            x = solve(q, x, free + list(range(len(joints), len(names))), targets_W[k], radius=tolerance)
+            x = solve(
+                q, x, free + list(range(len(joints), len(names))), targets_W[k], radius=tolerance
+            )
         out[i] = x
     full = np.column_stack([np.interp(np.arange(n), ks, out[:, j]) for j in range(len(names))])
     if ramp_in:
@@ -426,11 +516,21 @@ def planned_object_positions(traj: StepTrajectory, robot_map: PlanRobotMap, obj:
     return np.array([robot_map.object_pose(q, obj).translation for q in traj.q_plan])
 
 
-def add_gaze(trajectories: dict[int, StepTrajectory], steps: list[Step], robot_map: PlanRobotMap,
-             obj: str, camera_frame: str) -> None:
+def add_gaze(
+    trajectories: dict[int, StepTrajectory],
+    steps: list[Step],
+    robot_map: PlanRobotMap,
+    obj: str,
+    camera_frame: str,
+) -> None:
     """The head of every step's posture reference looks at the planned ``obj`` (ramped in over
     the first step, so the first controller starts where the robot is)."""
     for i, step in enumerate(steps):
         traj = trajectories[step.index]
-        head_gaze_posture(robot_map.model, traj, planned_object_positions(traj, robot_map, obj),
-                          camera_frame, ramp_in=(i == 0))
+        head_gaze_posture(
+            robot_map.model,
+            traj,
+            planned_object_positions(traj, robot_map, obj),
+            camera_frame,
+            ramp_in=(i == 0),
+        )

@@ -15,23 +15,45 @@ from scipy.spatial import ConvexHull
 from marionette.control.spec import ControllerSpec, TaskSpec
 
 FEET = ("left", "right")
-LOADED_FORCE_N = 10.0   # a sole carries load above this normal force [N]
+LOADED_FORCE_N = 10.0  # a sole carries load above this normal force [N]
 
 
 def walking_spec(controller_id: int = 1, name: str = "walk") -> ControllerSpec:
     """The walking stack: feet (20/s) and CoM (5/s) from the controller's pattern generator and
     the waist kept upright (roll, pitch; 20/s) at level 0, posture (2/s) at level 1. A CoM gain
     above ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py)."""
-    return ControllerSpec(controller_id, name, [
-        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0,
-                 reference_channel="walk:left_foot"),
-        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0,
-                 reference_channel="walk:right_foot"),
-        TaskSpec("com", "com", 0, gain=5.0, reference_channel="walk:com"),
-        TaskSpec("waist", "se3", 0, frame="base_link", mask=(False, False, False, True, True, False),
-                 gain=20.0),
-        TaskSpec("posture", "posture", 1, gain=2.0),
-    ])
+    return ControllerSpec(
+        controller_id,
+        name,
+        [
+            TaskSpec(
+                "left_foot",
+                "se3",
+                0,
+                frame="left_sole_link",
+                gain=20.0,
+                reference_channel="walk:left_foot",
+            ),
+            TaskSpec(
+                "right_foot",
+                "se3",
+                0,
+                frame="right_sole_link",
+                gain=20.0,
+                reference_channel="walk:right_foot",
+            ),
+            TaskSpec("com", "com", 0, gain=5.0, reference_channel="walk:com"),
+            TaskSpec(
+                "waist",
+                "se3",
+                0,
+                frame="base_link",
+                mask=(False, False, False, True, True, False),
+                gain=20.0,
+            ),
+            TaskSpec("posture", "posture", 1, gain=2.0),
+        ],
+    )
 
 
 @lru_cache(maxsize=4)
@@ -59,10 +81,14 @@ def polygon_margin(point, corners: np.ndarray) -> float:
     """Signed distance [m] of the 2D ``point`` inside the convex hull of ``corners`` (> 0 inside):
     the smallest distance to a facet, each facet being normal . x + offset <= 0 inside."""
     hull = ConvexHull(np.asarray(corners, dtype=float))
-    return float(-np.max(hull.equations[:, :2] @ np.asarray(point, dtype=float) + hull.equations[:, 2]))
+    return float(
+        -np.max(hull.equations[:, :2] @ np.asarray(point, dtype=float) + hull.equations[:, 2])
+    )
 
 
-def zmp_margins(statuses, loaded_feet: dict[int, list[str]], half: tuple[float, float]) -> np.ndarray:
+def zmp_margins(
+    statuses, loaded_feet: dict[int, list[str]], half: tuple[float, float]
+) -> np.ndarray:
     """(n, 2) rows (utime [s], margin [m]) of the measured ZMP of each WALK_STATUS inside the
     polygon of the soles that carry load at the same tick (``loaded_feet``: utime -> sides).
     Sole poses are the walk's current soles (its references, within a few mm of the real ones).
@@ -72,8 +98,9 @@ def zmp_margins(statuses, loaded_feet: dict[int, list[str]], half: tuple[float, 
         feet = loaded_feet.get(s.utime)
         if not feet or not np.all(np.isfinite(s.zmp_measured)):
             continue
-        corners = np.vstack([sole_corners(s.left_foot if side == "left" else s.right_foot, half)
-                             for side in feet])
+        corners = np.vstack(
+            [sole_corners(s.left_foot if side == "left" else s.right_foot, half) for side in feet]
+        )
         rows.append((s.utime * 1e-6, polygon_margin(s.zmp_measured, corners)))
     return np.array(rows).reshape(-1, 2)
 
@@ -90,7 +117,7 @@ class MergedPlan:
     never changes a started step, Dang §2.6.3; FootstepManager::ApplyPlan)."""
 
     def __init__(self) -> None:
-        self.steps: dict[int, object] = {}     # global index -> lcmt_footstep
+        self.steps: dict[int, object] = {}  # global index -> lcmt_footstep
 
     def apply(self, plan, current_step: int) -> None:
         """``current_step``: WALK_STATUS.current_step_index when the plan arrived (-1 standing)."""
@@ -112,6 +139,11 @@ class MergedPlan:
         return out
 
     def rows(self) -> list[tuple[int, bool, np.ndarray]]:
-        return [(i, bool(self.steps[i].is_left),
-                 np.array([self.steps[i].x, self.steps[i].y, self.steps[i].z, self.steps[i].yaw]))
-                for i in sorted(self.steps)]
+        return [
+            (
+                i,
+                bool(self.steps[i].is_left),
+                np.array([self.steps[i].x, self.steps[i].y, self.steps[i].z, self.steps[i].yaw]),
+            )
+            for i in sorted(self.steps)
+        ]

@@ -26,27 +26,39 @@ import json
 import sys
 import threading
 import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
 import marionette
-from marionette import (channels, lcmt_footstep_plan, lcmt_object_pose, lcmt_object_poses,
-                        lcmt_robot_state, lcmt_walk_status)
+from marionette import (
+    channels,
+    lcmt_footstep_plan,
+    lcmt_object_pose,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_walk_status,
+)
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.execution.demo import DemoError
 from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking_spec
 from marionette.processes import ProcessError, ProcessGroup
 
-PUBLISH_PERIOD_S = 0.05     # OBJECT_POSES at 20 Hz, the footstep process's input
-MIN_REPLAN_HZ = 20.0        # issue #10: footstep replanning at 20 Hz or more (median replan < 50 ms)
-SETTLE_S = 1.5              # [s] of controller time standing before a walk counts as done
+PUBLISH_PERIOD_S = 0.05  # OBJECT_POSES at 20 Hz, the footstep process's input
+MIN_REPLAN_HZ = 20.0  # issue #10: footstep replanning at 20 Hz or more (median replan < 50 ms)
+SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
 
 
-def object_poses_message(utime: int, name: str, position_W: Sequence[float],
-                         quaternion_W: Sequence[float], camera_name: str) -> lcmt_object_poses:
+def object_poses_message(
+    utime: int,
+    name: str,
+    position_W: Sequence[float],
+    quaternion_W: Sequence[float],
+    camera_name: str,
+) -> lcmt_object_poses:
     """OBJECT_POSES with one object ``name`` at a world pose (quaternion w, x, y, z) and no
     camera-frame measure (no tags: the pose is given, not detected)."""
     o = lcmt_object_pose()
@@ -70,8 +82,13 @@ class MovingObjectPublisher(threading.Thread):
     that interpolates linearly: a position, or x, y, yaw). Keeps the history (controller utime,
     pose) for the verdict and the plots."""
 
-    def __init__(self, client: ControllerClient, name: str, pose: np.ndarray,
-                 message: Callable[[int, np.ndarray], lcmt_object_poses]) -> None:
+    def __init__(
+        self,
+        client: ControllerClient,
+        name: str,
+        pose: np.ndarray,
+        message: Callable[[int, np.ndarray], lcmt_object_poses],
+    ) -> None:
         super().__init__(daemon=True)
         self.client, self.name, self.message, self.stop = client, name, message, threading.Event()
         self.p0 = self.p1 = np.array(pose, dtype=float)
@@ -108,7 +125,7 @@ class WalkRecorder:
         self.loaded: dict[int, list[str]] = {}
         self.utimes: list[int] = []
         self.q: list[np.ndarray] = []
-        self.plans: list[tuple[int, Any]] = []          # (controller utime at reception, plan)
+        self.plans: list[tuple[int, Any]] = []  # (controller utime at reception, plan)
         self.merged = MergedPlan()
         self._lock = threading.Lock()
         client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, self._on_status)
@@ -124,7 +141,7 @@ class WalkRecorder:
         with self._lock:
             self._last_utime = msg.utime
             self.loaded[msg.utime] = loaded_soles(msg)
-            if len(self.q) == 0 or msg.utime - self.utimes[-1] >= 20000:   # 50 Hz for plots
+            if len(self.q) == 0 or msg.utime - self.utimes[-1] >= 20000:  # 50 Hz for plots
                 self.utimes.append(msg.utime)
                 self.q.append(configuration_from_state(self.model, msg))
 
@@ -140,7 +157,9 @@ class WalkRecorder:
             return self.statuses[-1] if self.statuses else None
 
 
-def wait_alive(client: ControllerClient, group: ProcessGroup, cond, timeout_s: float, what: str) -> None:
+def wait_alive(
+    client: ControllerClient, group: ProcessGroup, cond, timeout_s: float, what: str
+) -> None:
     """client.wait in 1 s slices, checking that every process still runs (a dead footstep
     process must fail the run with its log, not after the timeout)."""
     deadline = time.monotonic() + timeout_s
@@ -167,8 +186,12 @@ def walk_done(rec: WalkRecorder, settle_s: float) -> bool:
         latest = rec.statuses[-1]
         walked = any(s.current_step_index >= 0 for s in rec.statuses)
         since = [s for s in rec.statuses if s.utime >= latest.utime - settle_s * 1e6]
-    return (walked and latest.utime - last_plan_utime > 2.0e6 and latest.utime - since[0].utime
-            >= 0.9 * settle_s * 1e6 and all(s.phase == "standing" for s in since))
+    return (
+        walked
+        and latest.utime - last_plan_utime > 2.0e6
+        and latest.utime - since[0].utime >= 0.9 * settle_s * 1e6
+        and all(s.phase == "standing" for s in since)
+    )
 
 
 def sole_poses(model: pin.Model, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -198,15 +221,24 @@ def landings(rec: WalkRecorder, model: pin.Model) -> list[tuple[str, np.ndarray]
 def replan_solve_ms(footsteps_log: list[str]) -> dict[str, float | None]:
     """Solve times of the footstep process from its log lines ``footsteps: plan ... (<t> ms)``:
     the first plan's, and the median and max of the replans (None without replans)."""
-    solve_ms = [float(line.rsplit("(", 1)[1].split(" ms")[0]) for line in footsteps_log
-                if line.startswith("footsteps: plan ") and " ms)" in line]
-    return {"median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
-            "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
-            "first_plan": solve_ms[0] if solve_ms else None}
+    solve_ms = [
+        float(line.rsplit("(", 1)[1].split(" ms")[0])
+        for line in footsteps_log
+        if line.startswith("footsteps: plan ") and " ms)" in line
+    ]
+    return {
+        "median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
+        "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
+        "first_plan": solve_ms[0] if solve_ms else None,
+    }
 
 
-def replan_rates(rec: WalkRecorder, solve_ms: dict[str, float | None], utime_move: int | None,
-                 move_duration_s: float) -> dict[str, float | None]:
+def replan_rates(
+    rec: WalkRecorder,
+    solve_ms: dict[str, float | None],
+    utime_move: int | None,
+    move_duration_s: float,
+) -> dict[str, float | None]:
     """Footstep replanning rates (issue #10: "footstep replanning >= 20 Hz"): ``capacity_hz``,
     1 / the median replan time (the rate the process sustains, whatever the input rate);
     ``slowest_hz``, 1 / the slowest replan (step-over's fallback to a fresh sequence when the bar
@@ -219,20 +251,28 @@ def replan_rates(rec: WalkRecorder, solve_ms: dict[str, float | None], utime_mov
         end = utime_move + move_duration_s * 1e6
         during = sum(utime_move <= u <= end for u, _ in rec.plans) / move_duration_s
     median, slowest = solve_ms.get("median"), solve_ms.get("max")
-    return {"capacity_hz": None if not median else 1e3 / median,
-            "slowest_hz": None if not slowest else 1e3 / slowest, "during_move_hz": during}
+    return {
+        "capacity_hz": None if not median else 1e3 / median,
+        "slowest_hz": None if not slowest else 1e3 / slowest,
+        "during_move_hz": during,
+    }
 
 
-def replan_criteria(rec: WalkRecorder, footsteps_log: list[str], utime_move: int | None,
-                    move_duration_s: float) -> dict[str, Any]:
+def replan_criteria(
+    rec: WalkRecorder, footsteps_log: list[str], utime_move: int | None, move_duration_s: float
+) -> dict[str, Any]:
     """The replanning entries of a walking demo's criteria: solve times
     (:func:`replan_solve_ms`), rates (:func:`replan_rates`) and ``replan_fast_enough`` (1 / the
     median replan at least :data:`MIN_REPLAN_HZ`)."""
     solve_ms = replan_solve_ms(footsteps_log)
     rates = replan_rates(rec, solve_ms, utime_move, move_duration_s)
-    return {"replan_solve_ms": solve_ms, "replan_rate_hz": rates,
-            "replan_fast_enough": bool(rates["capacity_hz"] is not None
-                                       and rates["capacity_hz"] >= MIN_REPLAN_HZ)}
+    return {
+        "replan_solve_ms": solve_ms,
+        "replan_rate_hz": rates,
+        "replan_fast_enough": bool(
+            rates["capacity_hz"] is not None and rates["capacity_hz"] >= MIN_REPLAN_HZ
+        ),
+    }
 
 
 def replan_rate_row(c: dict[str, Any], moved: str) -> str:
@@ -242,19 +282,23 @@ def replan_rate_row(c: dict[str, Any], moved: str) -> str:
     def hz(v):
         return "-" if v is None else f"{v:.0f} Hz"
 
-    return (f"| footstep replanning: 1 / median replan (1 / slowest; plans per controller second "
-            f"while the {moved} moved) | {hz(r['capacity_hz'])} ({hz(r['slowest_hz'])}; "
-            f"{hz(r['during_move_hz'])}) | >= {MIN_REPLAN_HZ:.0f} Hz | {c['replan_fast_enough']} |")
+    return (
+        f"| footstep replanning: 1 / median replan (1 / slowest; plans per controller second "
+        f"while the {moved} moved) | {hz(r['capacity_hz'])} ({hz(r['slowest_hz'])}; "
+        f"{hz(r['during_move_hz'])}) | >= {MIN_REPLAN_HZ:.0f} Hz | {c['replan_fast_enough']} |"
+    )
 
 
 def step_counts(rec: WalkRecorder, statuses: list[Any]) -> dict[str, Any]:
     """The steps of a walk: planned by the first plan, executed (the highest step index the
     ``statuses`` show, + 1), executed in order (indices never go back), and the plans received."""
     indices = [s.current_step_index for s in statuses if s.current_step_index >= 0]
-    return {"steps_planned_first": int(rec.plans[0][1].num_steps),
-            "steps_executed": int(max(indices) + 1) if indices else 0,
-            "steps_in_order": bool(indices == sorted(indices)),
-            "footstep_plans": len(rec.plans)}
+    return {
+        "steps_planned_first": int(rec.plans[0][1].num_steps),
+        "steps_executed": int(max(indices) + 1) if indices else 0,
+        "steps_in_order": bool(indices == sorted(indices)),
+        "footstep_plans": len(rec.plans),
+    }
 
 
 def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 0.1) -> np.ndarray:
@@ -262,42 +306,67 @@ def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 
     walking"): direction uniform, distance uniform in [``min_distance``, ``max_distance``] [m];
     returns (dx, dy). Every trial moves the object by a distance that matters to the planner."""
     if not 0.0 <= min_distance <= max_distance:
-        raise ValueError(f"need 0 <= min_distance <= max_distance, got {min_distance}, {max_distance}")
+        raise ValueError(
+            f"need 0 <= min_distance <= max_distance, got {min_distance}, {max_distance}"
+        )
     rng = np.random.default_rng(seed)
     angle = rng.uniform(0.0, 2.0 * np.pi)
     distance = rng.uniform(min_distance, max_distance)
     return distance * np.array([np.cos(angle), np.sin(angle)])
 
 
-def scenario_report(scenario, seed: int, speed: float, url: str, scene: Path, settings) -> dict[str, Any]:
+def scenario_report(
+    scenario, seed: int, speed: float, url: str, scene: Path, settings
+) -> dict[str, Any]:
     """The head of a walking demo's report (scenario, seed, robot, speed, LCM URL, scene relative
     to the repository, the settings)."""
-    return {"scenario": scenario.name, "description": scenario.description,
-            "seed": seed, "robot": "talos", "speed": speed, "lcm_url": url,
-            "scene": str(Path(scene).relative_to(marionette.REPO_ROOT)),
-            "settings": settings.__dict__}
+    return {
+        "scenario": scenario.name,
+        "description": scenario.description,
+        "seed": seed,
+        "robot": "talos",
+        "speed": speed,
+        "lcm_url": url,
+        "scene": str(Path(scene).relative_to(marionette.REPO_ROOT)),
+        "settings": settings.__dict__,
+    }
 
 
 class WalkingRun:
     """One walking demo's live run (:func:`walking_run`): the processes, the controller client,
     the recorder, the stance the robot stands in before it walks and the report's timings."""
 
-    def __init__(self, group: ProcessGroup, client: ControllerClient, rec: WalkRecorder,
-                 model: pin.Model, url: str, timings: dict[str, float]) -> None:
+    def __init__(
+        self,
+        group: ProcessGroup,
+        client: ControllerClient,
+        rec: WalkRecorder,
+        model: pin.Model,
+        url: str,
+        timings: dict[str, float],
+    ) -> None:
         self.group, self.client, self.rec, self.model, self.url = group, client, rec, model, url
         self.timings = timings
         standing = rec.last_status()
         self.start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
-        self.mid = 0.5 * (self.start["left"][:2] + self.start["right"][:2])   # stance centre (x, y)
+        self.mid = 0.5 * (self.start["left"][:2] + self.start["right"][:2])  # stance centre (x, y)
         self.q_start = rec.q[-1].copy()
         self.utime_start = client.utime()
-        self.q_final: np.ndarray | None = None          # set by walk_while_object_moves
-        self.footsteps_log: list[str] = []              # the footstep process's log, at the end
+        self.q_final: np.ndarray | None = None  # set by walk_while_object_moves
+        self.footsteps_log: list[str] = []  # the footstep process's log, at the end
 
 
 @contextlib.contextmanager
-def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: dict[str, Any],
-                speed: float = 1.0, controller_url: str | None = None, view: bool = False) -> Iterator[WalkingRun]:
+def walking_run(
+    model: pin.Model,
+    scene: Path,
+    out_dir: Path,
+    url: str,
+    report: dict[str, Any],
+    speed: float = 1.0,
+    controller_url: str | None = None,
+    view: bool = False,
+) -> Iterator[WalkingRun]:
     """Starts lcm-logger (``run.lcmlog``) and, unless ``controller_url`` names a running one,
     marionette-controller on ``scene`` at ``speed``; sends the walking stack
     (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says standing.
@@ -308,11 +377,28 @@ def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start("lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")])
+        group.start(
+            "lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
+        )
         if controller_url is None:
-            group.start("controller", [marionette.BUILD_DIR / "marionette-controller", "--lcm-url", url,
-                                       "--robot", "talos", "--scene", scene, "--speed", str(speed),
-                                       "--camera-rate", "0", "--status-rate", "100"])
+            group.start(
+                "controller",
+                [
+                    marionette.BUILD_DIR / "marionette-controller",
+                    "--lcm-url",
+                    url,
+                    "--robot",
+                    "talos",
+                    "--scene",
+                    scene,
+                    "--speed",
+                    str(speed),
+                    "--camera-rate",
+                    "0",
+                    "--status-rate",
+                    "100",
+                ],
+            )
         rec = WalkRecorder(client, model)
         client.wait_ready(60.0, processes=group)
         if view:
@@ -320,28 +406,45 @@ def walking_run(model: pin.Model, scene: Path, out_dir: Path, url: str, report: 
 
             report["viewer_url"] = start_viewer(group, "talos", scene, print)
         client.send_spec(walking_spec(1))
-        client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                    "the walking controller")
-        client.wait(lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
-                    10.0, "WALK_STATUS standing")
+        client.wait(
+            lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
+            30.0,
+            "the walking controller",
+        )
+        client.wait(
+            lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
+            10.0,
+            "WALK_STATUS standing",
+        )
         run = WalkingRun(group, client, rec, model, url, timings)
         yield run
         status = client.status
-        report["controller"] = {"mode": status.mode, "mode_reason": status.mode_reason,
-                                "realtime_factor": status.realtime_factor,
-                                "deadline_misses": status.deadline_misses,
-                                "num_rejected": status.num_rejected,
-                                "last_rejection": status.last_rejection}
+        report["controller"] = {
+            "mode": status.mode,
+            "mode_reason": status.mode_reason,
+            "realtime_factor": status.realtime_factor,
+            "deadline_misses": status.deadline_misses,
+            "num_rejected": status.num_rejected,
+            "last_rejection": status.last_rejection,
+        }
         group.check_alive()
     timings["total_wall_s"] = time.perf_counter() - t0
     run.footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
     report["timings"] = timings
 
 
-def walk_while_object_moves(run: WalkingRun, publisher: MovingObjectPublisher, footsteps_args: list[str],
-                            move_to: np.ndarray, move_at_step: int, move_duration_s: float,
-                            walk_timeout_s: float, started: str, tag: str,
-                            log: Callable[[str], None] = print) -> int:
+def walk_while_object_moves(
+    run: WalkingRun,
+    publisher: MovingObjectPublisher,
+    footsteps_args: list[str],
+    move_to: np.ndarray,
+    move_at_step: int,
+    move_duration_s: float,
+    walk_timeout_s: float,
+    started: str,
+    tag: str,
+    log: Callable[[str], None] = print,
+) -> int:
     """The walk: starts ``publisher`` and the footstep process (``marionette footsteps run
     --lcm-url <url> <footsteps_args>``), logs ``started``, waits for the first plan, moves the
     object to ``move_to`` in ``move_duration_s`` when step ``move_at_step`` starts, and waits for
@@ -350,21 +453,44 @@ def walk_while_object_moves(run: WalkingRun, publisher: MovingObjectPublisher, f
     returns the controller utime of the move. Log lines start with ``tag``."""
     client, group, rec = run.client, run.group, run.rec
     publisher.start()
-    group.start("footsteps", [sys.executable, "-m", "marionette.cli", "footsteps", "run",
-                              "--lcm-url", run.url, *footsteps_args])
+    group.start(
+        "footsteps",
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "footsteps",
+            "run",
+            "--lcm-url",
+            run.url,
+            *footsteps_args,
+        ],
+    )
     log(started)
     t1 = time.perf_counter()
     try:
         wait_alive(client, group, lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
         run.timings["first_plan_wall_s"] = time.perf_counter() - t1
         log(f"{tag}: plan 1, {rec.plans[0][1].num_steps} steps")
-        wait_alive(client, group, lambda c: rec.last_status().current_step_index >= move_at_step,
-                   walk_timeout_s * 2, f"step {move_at_step}")
+        wait_alive(
+            client,
+            group,
+            lambda c: rec.last_status().current_step_index >= move_at_step,
+            walk_timeout_s * 2,
+            f"step {move_at_step}",
+        )
         utime_move = publisher.move(move_to, move_duration_s)
-        log(f"{tag}: {publisher.name} moving to {np.round(move_to, 3).tolist()} from step "
-            f"{rec.last_status().current_step_index} on, in {move_duration_s} s")
-        wait_alive(client, group, lambda c: walk_done(rec, SETTLE_S), walk_timeout_s * 2,
-                   "the robot standing at the end of the last plan")
+        log(
+            f"{tag}: {publisher.name} moving to {np.round(move_to, 3).tolist()} from step "
+            f"{rec.last_status().current_step_index} on, in {move_duration_s} s"
+        )
+        wait_alive(
+            client,
+            group,
+            lambda c: walk_done(rec, SETTLE_S),
+            walk_timeout_s * 2,
+            "the robot standing at the end of the last plan",
+        )
     finally:
         publisher.stop.set()
     run.timings["walk_controller_s"] = (client.utime() - run.utime_start) * 1e-6
@@ -372,8 +498,12 @@ def walk_while_object_moves(run: WalkingRun, publisher: MovingObjectPublisher, f
     return utime_move
 
 
-def write_report_files(out_dir: Path, report: dict[str, Any], plots: Callable[[], list[Path]],
-                       markdown: Callable[[dict[str, Any]], str]) -> None:
+def write_report_files(
+    out_dir: Path,
+    report: dict[str, Any],
+    plots: Callable[[], list[Path]],
+    markdown: Callable[[dict[str, Any]], str],
+) -> None:
     """report.json and report.md; the plots' names in ``report["plots"]``. A failing plot is
     recorded as ``plot_error`` (a plot must never hide the run's verdict)."""
     from marionette.execution.report import _jsonable
@@ -397,14 +527,18 @@ def plot_footsteps(ax, rec: WalkRecorder, model: pin.Model, foot) -> None:
     first.apply(rec.plans[0][1], -1)
     for _, is_left, pose in first.rows():
         o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6)
+        ax.plot(
+            o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6
+        )
     for i, is_left, pose in rec.merged.rows():
         o = _sole_outline(pose, foot)
         ax.plot(o[:, 0], o[:, 1], color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1.3)
         ax.annotate(str(i), pose[:2], ha="center", va="center", fontsize=7)
     for k, (_, pose) in enumerate(landings(rec, model)):
         o = _sole_outline(pose, foot)
-        ax.plot(o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None)
+        ax.plot(
+            o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None
+        )
 
 
 def finish_footsteps_axes(ax) -> None:

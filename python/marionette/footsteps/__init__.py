@@ -18,7 +18,19 @@ from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
 from marionette.footsteps.step_over import StepOverPlanner
 
 __all__ = [
-    "AugmentedConfiguration", "AugmentedRobot", "Bar", "CircleObstacle", "Footstep",
-    "FootstepError", "FootstepPlan", "GraspPlanner", "GraspPlannerOptions", "InvalidProblem",
-    "PlanningFailed", "RectangleObstacle", "Stance", "StepOverPlanner", "StepTiming",
+    "AugmentedConfiguration",
+    "AugmentedRobot",
+    "Bar",
+    "CircleObstacle",
+    "Footstep",
+    "FootstepError",
+    "FootstepPlan",
+    "GraspPlanner",
+    "GraspPlannerOptions",
+    "InvalidProblem",
+    "PlanningFailed",
+    "RectangleObstacle",
+    "Stance",
+    "StepOverPlanner",
+    "StepTiming",
 ]

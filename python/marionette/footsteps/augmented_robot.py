@@ -82,8 +82,10 @@ class Stance:
         for name in ("left", "right"):
             value = np.asarray(getattr(self, name), dtype=float)
             if value.shape != (3,) or not np.all(np.isfinite(value)):
-                raise InvalidProblem(f"stance.{name} must be 3 finite numbers (x, y, yaw), "
-                                     f"got {getattr(self, name)!r}")
+                raise InvalidProblem(
+                    f"stance.{name} must be 3 finite numbers (x, y, yaw), "
+                    f"got {getattr(self, name)!r}"
+                )
             object.__setattr__(self, name, value)
 
     def foot(self, side: str) -> np.ndarray:
@@ -105,9 +107,10 @@ class AugmentedConfiguration:
     def num_steps(self) -> int:
         return int(self.steps.shape[0])
 
-    def copy(self) -> "AugmentedConfiguration":
-        return AugmentedConfiguration(self.steps.copy(),
-                                      None if self.q_robot is None else self.q_robot.copy())
+    def copy(self) -> AugmentedConfiguration:
+        return AugmentedConfiguration(
+            self.steps.copy(), None if self.q_robot is None else self.q_robot.copy()
+        )
 
 
 class AugmentedRobot:
@@ -117,8 +120,13 @@ class AugmentedRobot:
     ``first_side``: the foot that makes step 1 (its current sole is P_-1).
     """
 
-    def __init__(self, robot: RobotDescription | None, stance: Stance, first_side: str,
-                 foot: FootShape | None = None) -> None:
+    def __init__(
+        self,
+        robot: RobotDescription | None,
+        stance: Stance,
+        first_side: str,
+        foot: FootShape | None = None,
+    ) -> None:
         if first_side not in SIDES:
             raise InvalidProblem(f"first_side must be 'left' or 'right', got {first_side!r}")
         if robot is None and foot is None:
@@ -128,10 +136,10 @@ class AugmentedRobot:
         self.first_side = first_side
         self.stance_side = "left" if first_side == "right" else "right"
         self.foot = foot if foot is not None else robot.foot
-        self.foot_corners = self.foot.corners()                # (4, 2) sole frame
+        self.foot_corners = self.foot.corners()  # (4, 2) sole frame
         self.foot_corners.flags.writeable = False
-        self.root = stance.foot(self.stance_side)          # P_0
-        self.initial_moving = stance.foot(first_side)      # P_-1
+        self.root = stance.foot(self.stance_side)  # P_0
+        self.initial_moving = stance.foot(first_side)  # P_-1
         self._robot_cache_key: bytes | None = None
         self._robot_cache: dict | None = None
         self._is_left_cache: dict[int, np.ndarray] = {}
@@ -197,11 +205,11 @@ class AugmentedRobot:
         out[0] = self.initial_moving
         out[1] = self.root
         if k:
-            theta = np.empty(k + 1)                                     # θ_0..θ_k
+            theta = np.empty(k + 1)  # θ_0..θ_k
             theta[0] = self.root[2]
             np.cumsum(steps[:, 2], out=theta[1:])
             theta[1:] += self.root[2]
-            c, s = np.cos(theta[:-1]), np.sin(theta[:-1])               # R(θ_(i-1))
+            c, s = np.cos(theta[:-1]), np.sin(theta[:-1])  # R(θ_(i-1))
             out[2:, 0] = c * steps[:, 0] - s * steps[:, 1]
             out[2:, 1] = s * steps[:, 0] + c * steps[:, 1]
             np.cumsum(out[2:, :2], axis=0, out=out[2:, :2])
@@ -209,8 +217,9 @@ class AugmentedRobot:
             out[2:, 2] = theta[1:]
         return out
 
-    def add_step(self, config: AugmentedConfiguration,
-                 nominal_width: float = 0.17) -> AugmentedConfiguration:
+    def add_step(
+        self, config: AugmentedConfiguration, nominal_width: float = 0.17
+    ) -> AugmentedConfiguration:
         """Algorithm 1's new virtual link, appended at the end of the chain.
 
         With a robot, step k+1 lands in place (where P_(k-1) is), the robot moving onto it
@@ -255,19 +264,21 @@ class AugmentedRobot:
         return pin.SE3(rotation_z(pose[2]), np.array([pose[0], pose[1], self.stance.floor_z]))
 
     # -- kinematics --------------------------------------------------------------------------
-    def evaluate(self, config: AugmentedConfiguration, robot_free: bool = True
-                 ) -> "AugmentedKinematics":
+    def evaluate(
+        self, config: AugmentedConfiguration, robot_free: bool = True
+    ) -> AugmentedKinematics:
         """Footprints, robot frames and their Jacobians at ``config``.
 
         ``robot_free`` False: the posture is frozen; Jacobians then have only the 3k step columns.
         """
         if (self.robot is None) != (config.q_robot is None):
-            raise InvalidProblem("q_robot must be given exactly when the augmented robot has a robot")
+            raise InvalidProblem(
+                "q_robot must be given exactly when the augmented robot has a robot"
+            )
         robot_data = None
         if self.robot is not None:
             robot_data = self._robot_kinematics(config.q_robot)
-        return AugmentedKinematics(self, config, robot_data,
-                                   robot_free and self.robot is not None)
+        return AugmentedKinematics(self, config, robot_data, robot_free and self.robot is not None)
 
     def _robot_kinematics(self, q_robot: np.ndarray) -> dict:
         """Frame placements / Jacobians in frame L; cached while q_robot does not change."""
@@ -300,13 +311,18 @@ class AugmentedKinematics:
     Footprint indices run -1..k (P_-1 and P_0 are fixed: zero Jacobian).
     """
 
-    def __init__(self, augmented: AugmentedRobot, config: AugmentedConfiguration,
-                 robot_data: dict | None, robot_free: bool) -> None:
+    def __init__(
+        self,
+        augmented: AugmentedRobot,
+        config: AugmentedConfiguration,
+        robot_data: dict | None,
+        robot_free: bool,
+    ) -> None:
         self.augmented = augmented
         self.config = config
         self.k = config.num_steps
-        self.footprints = augmented.footprints(config.steps)       # (k + 2, 3)
-        self.is_left = augmented.is_left(self.k)                   # (k + 2,)
+        self.footprints = augmented.footprints(config.steps)  # (k + 2, 3)
+        self.is_left = augmented.is_left(self.k)  # (k + 2,)
         self.robot_free = robot_free
         self.nv_steps = 3 * self.k
         self.nv_robot = augmented.nv_robot() if robot_free else 0
@@ -345,8 +361,8 @@ class AugmentedKinematics:
             return out
         mask = (np.arange(1, k + 1)[None, :] <= footprint[:, None]).astype(float)  # (m, k)
         blocks = np.empty((m, 2, k, 3))
-        blocks[:, :, :, :2] = np.transpose(self._rot_prev, (1, 0, 2))[None]     # R(θ_(j-1))
-        d = points[:, None, :] - self.footprints[None, 2:, :2]                     # c − p_j
+        blocks[:, :, :, :2] = np.transpose(self._rot_prev, (1, 0, 2))[None]  # R(θ_(j-1))
+        d = points[:, None, :] - self.footprints[None, 2:, :2]  # c − p_j
         blocks[:, 0, :, 2] = -d[..., 1]
         blocks[:, 1, :, 2] = d[..., 0]
         blocks *= mask[:, None, :, None]
@@ -395,7 +411,7 @@ class AugmentedKinematics:
 
     def frame_jacobian(self, frame: str) -> np.ndarray:
         """World-aligned Jacobian [linear; angular] of a robot frame: (6, nv)."""
-        p_L, _, J_L = self._require_robot()["frames"][frame]
+        _p_L, _, J_L = self._require_robot()["frames"][frame]
         p_W, _ = self.frame_placement(frame)
         return self._attached_jacobian(p_W, J_L)
 
@@ -403,8 +419,10 @@ class AugmentedKinematics:
         """World centre of mass (3,)."""
         robot = self._require_robot()
         last = self.footprints[-1]
-        return (np.array([last[0], last[1], self.augmented.stance.floor_z])
-                + self._rot_last @ robot["com"])
+        return (
+            np.array([last[0], last[1], self.augmented.stance.floor_z])
+            + self._rot_last @ robot["com"]
+        )
 
     def com_jacobian(self) -> np.ndarray:
         """Jacobian of the world centre of mass: (3, nv)."""

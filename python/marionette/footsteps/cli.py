@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from marionette.footsteps.augmented_robot import Stance
 
-def _stance(values) -> "Stance | None":
+
+def _stance(values) -> Stance | None:
     from marionette.footsteps.augmented_robot import Stance
 
     if values is None:
@@ -19,10 +23,17 @@ def _stance(values) -> "Stance | None":
 def _options(args):
     from marionette.footsteps.node import NodeOptions
 
-    return NodeOptions(mode=args.mode, target=args.target, hand=args.hand,
-                       posture_frozen=not args.full_replan, bar=args.bar,
-                       bar_radius=args.bar_radius, bar_length=args.bar_length,
-                       goal=tuple(args.goal), swing_margin=args.swing_margin)
+    return NodeOptions(
+        mode=args.mode,
+        target=args.target,
+        hand=args.hand,
+        posture_frozen=not args.full_replan,
+        bar=args.bar,
+        bar_radius=args.bar_radius,
+        bar_length=args.bar_length,
+        goal=tuple(args.goal),
+        swing_margin=args.swing_margin,
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -36,38 +47,52 @@ def _plan(args: argparse.Namespace) -> int:
     from marionette.footsteps.obstacles import Bar
     from marionette.footsteps.plot import plot_plan
 
-    stance = _stance(args.stance) or Stance(np.array([0.0, 0.085, 0.0]),
-                                            np.array([0.0, -0.085, 0.0]))
+    stance = _stance(args.stance) or Stance(
+        np.array([0.0, 0.085, 0.0]), np.array([0.0, -0.085, 0.0])
+    )
     if args.mode == "grasp":
         from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
         from marionette.footsteps.robot_model import talos
 
         target = np.array(args.object)
-        planner = GraspPlanner(talos(), stance, target,
-                               options=GraspPlannerOptions(hand=args.hand))
+        planner = GraspPlanner(talos(), stance, target, options=GraspPlannerOptions(hand=args.hand))
         report = planner.plan()
         obstacles, goal, hand = [], None, target
         foot = planner.augmented.foot
     else:
         from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
-        bar = Bar(np.array(args.bar_pose[:2]), args.bar_pose[2], args.bar_radius,
-                  args.bar_length)
-        planner = StepOverPlanner(stance, np.array(args.goal), bar,
-                                  options=StepOverOptions(swing_margin=args.swing_margin))
+        bar = Bar(np.array(args.bar_pose[:2]), args.bar_pose[2], args.bar_radius, args.bar_length)
+        planner = StepOverPlanner(
+            stance,
+            np.array(args.goal),
+            bar,
+            options=StepOverOptions(swing_margin=args.swing_margin),
+        )
         report = planner.plan()
         obstacles, goal, hand = [bar], np.array(args.goal), None
         foot = planner.foot
     plan = planner.result()
-    print(f"converged={report.converged} iterations={report.iterations} "
-          f"steps={len(plan.steps)} time={1e3 * report.time_s:.1f} ms")
+    print(
+        f"converged={report.converged} iterations={report.iterations} "
+        f"steps={len(plan.steps)} time={1e3 * report.time_s:.1f} ms"
+    )
     for step in plan.steps:
-        x, y, z, yaw = step.pose
-        print(f"  {step.index:2d} {'L' if step.is_left else 'R'} x={x:+.3f} y={y:+.3f} "
-              f"yaw={yaw:+.3f}" + (f" via={step.via.round(3).tolist()}" if step.via.size else ""))
+        x, y, _z, yaw = step.pose
+        print(
+            f"  {step.index:2d} {'L' if step.is_left else 'R'} x={x:+.3f} y={y:+.3f} "
+            f"yaw={yaw:+.3f}" + (f" via={step.via.round(3).tolist()}" if step.via.size else "")
+        )
     if args.png:
-        plot_plan(args.png, plan, foot, obstacles, goal=goal, hand_target=hand,
-                  title=f"marionette footsteps ({args.mode})")
+        plot_plan(
+            args.png,
+            plan,
+            foot,
+            obstacles,
+            goal=goal,
+            hand_target=hand,
+            title=f"marionette footsteps ({args.mode})",
+        )
         print(f"wrote {args.png}")
     return 0 if report.converged else 1
 
@@ -75,15 +100,29 @@ def _plan(args: argparse.Namespace) -> int:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", choices=["grasp", "step-over"], default="grasp")
     p.add_argument("--hand", choices=["left", "right"], default="right")
-    p.add_argument("--stance", type=float, nargs=6, metavar=("LX", "LY", "LYAW", "RX", "RY",
-                                                             "RYAW"),
-                   help="initial soles (default: from WALK_STATUS when standing)")
+    p.add_argument(
+        "--stance",
+        type=float,
+        nargs=6,
+        metavar=("LX", "LY", "LYAW", "RX", "RY", "RYAW"),
+        help="initial soles (default: from WALK_STATUS when standing)",
+    )
     p.add_argument("--bar-radius", type=float, default=0.02)
     p.add_argument("--bar-length", type=float, default=2.0)
-    p.add_argument("--goal", type=float, nargs=3, default=[2.0, 0.0, 0.0],
-                   metavar=("X", "Y", "YAW"), help="final stance (step-over)")
-    p.add_argument("--swing-margin", type=float, default=0.03,
-                   help="clearance [m] of the crossing swings above the bar (step-over, eq. 5.1)")
+    p.add_argument(
+        "--goal",
+        type=float,
+        nargs=3,
+        default=[2.0, 0.0, 0.0],
+        metavar=("X", "Y", "YAW"),
+        help="final stance (step-over)",
+    )
+    p.add_argument(
+        "--swing-margin",
+        type=float,
+        default=0.03,
+        help="clearance [m] of the crossing swings above the bar (step-over, eq. 5.1)",
+    )
 
 
 def register(subparsers) -> None:
@@ -95,17 +134,32 @@ def register(subparsers) -> None:
     run.add_argument("--lcm-url", default=None)
     run.add_argument("--target", default="ball", help="object to grasp (grasp mode)")
     run.add_argument("--bar", default="bar", help="object name of the bar (step-over mode)")
-    run.add_argument("--full-replan", action="store_true",
-                     help="replan the posture too (default: posture frozen, Dang §6.2.2)")
+    run.add_argument(
+        "--full-replan",
+        action="store_true",
+        help="replan the posture too (default: posture frozen, Dang §6.2.2)",
+    )
     run.add_argument("--rate", type=float, default=50.0, help="replanning checks per second")
     run.add_argument("--duration", type=float, default=None, help="stop after this [s]")
     run.set_defaults(func=_run)
 
     plan = sub.add_parser("plan", help="one plan from the command line, optionally a PNG")
     _common(plan)
-    plan.add_argument("--object", type=float, nargs=3, default=[2.0, -0.2, 0.6],
-                      metavar=("X", "Y", "Z"), help="object to grasp (grasp mode)")
-    plan.add_argument("--bar-pose", type=float, nargs=3, default=[1.0, 0.0, np.pi / 2],
-                      metavar=("X", "Y", "YAW"), help="bar centre and axis yaw (step-over)")
+    plan.add_argument(
+        "--object",
+        type=float,
+        nargs=3,
+        default=[2.0, -0.2, 0.6],
+        metavar=("X", "Y", "Z"),
+        help="object to grasp (grasp mode)",
+    )
+    plan.add_argument(
+        "--bar-pose",
+        type=float,
+        nargs=3,
+        default=[1.0, 0.0, np.pi / 2],
+        metavar=("X", "Y", "YAW"),
+        help="bar centre and axis yaw (step-over)",
+    )
     plan.add_argument("--png", default=None, help="write a top view here")
     plan.set_defaults(func=_plan)

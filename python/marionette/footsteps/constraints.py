@@ -52,9 +52,9 @@ class Task:
 
     name = "task"
     max_step = np.inf
-    regularisation = False   # True: only shapes the solution; ignored by convergence tests
-    best_effort = False      # True: scaled down instead of a proxsuite QP when limits bind and
-                             # the active-set paths fail (lowest level; see hierarchy)
+    regularisation = False  # True: only shapes the solution; ignored by convergence tests
+    best_effort = False  # True: scaled down instead of a proxsuite QP when limits bind and
+    # the active-set paths fail (lowest level; see hierarchy)
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         raise NotImplementedError
@@ -74,24 +74,32 @@ class StepBounds:
     stance of full replanning; real steps keep the non-overlap constraint).
     """
 
-    min_length: float = -0.10     # Δx [m] (backwards)
-    max_length: float = 0.22      # Δx [m] (forwards)
-    min_width: float = 0.16       # |Δy| [m]
-    max_width: float = 0.30       # |Δy| [m]
+    min_length: float = -0.10  # Δx [m] (backwards)
+    max_length: float = 0.22  # Δx [m] (forwards)
+    min_width: float = 0.16  # |Δy| [m]
+    max_width: float = 0.30  # |Δy| [m]
     max_outward_yaw: float = 0.30  # Δθ towards the outside [rad]
-    max_inward_yaw: float = 0.30   # Δθ towards the other foot [rad]
+    max_inward_yaw: float = 0.30  # Δθ towards the other foot [rad]
 
     def __post_init__(self) -> None:
-        if not (self.min_length < self.max_length and self.min_width < self.max_width
-                and self.max_outward_yaw >= 0.0 and self.max_inward_yaw >= 0.0):
+        if not (
+            self.min_length < self.max_length
+            and self.min_width < self.max_width
+            and self.max_outward_yaw >= 0.0
+            and self.max_inward_yaw >= 0.0
+        ):
             raise InvalidProblem(f"inconsistent step bounds {self}")
 
     def lower_upper(self, is_left: bool) -> tuple[np.ndarray, np.ndarray]:
         if is_left:
-            return (np.array([self.min_length, self.min_width, -self.max_inward_yaw]),
-                    np.array([self.max_length, self.max_width, self.max_outward_yaw]))
-        return (np.array([self.min_length, -self.max_width, -self.max_outward_yaw]),
-                np.array([self.max_length, -self.min_width, self.max_inward_yaw]))
+            return (
+                np.array([self.min_length, self.min_width, -self.max_inward_yaw]),
+                np.array([self.max_length, self.max_width, self.max_outward_yaw]),
+            )
+        return (
+            np.array([self.min_length, -self.max_width, -self.max_outward_yaw]),
+            np.array([self.max_length, -self.min_width, self.max_inward_yaw]),
+        )
 
 
 @dataclass
@@ -104,11 +112,17 @@ class StepLimits:
     overrides: dict[int, StepBounds] = field(default_factory=dict)
     final: StepBounds | None = None
 
-    def bounds(self, is_left: np.ndarray, with_final: bool = False
-               ) -> tuple[np.ndarray, np.ndarray]:
+    def bounds(
+        self, is_left: np.ndarray, with_final: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Lower, upper (3k,) for steps 1..k given the side of each moving foot (k,)."""
-        key = (is_left.tobytes(), with_final, id(self.default), id(self.final),
-               tuple(sorted((i, id(b)) for i, b in self.overrides.items())))
+        key = (
+            is_left.tobytes(),
+            with_final,
+            id(self.default),
+            id(self.final),
+            tuple(sorted((i, id(b)) for i, b in self.overrides.items())),
+        )
         cache = self.__dict__.setdefault("_cache", {})
         if key not in cache:
             cache[key] = self._bounds(is_left, with_final)
@@ -127,13 +141,19 @@ class StepLimits:
         return lo, hi
 
 
-FINAL_STANCE = StepBounds(min_length=-0.05, max_length=0.05, min_width=0.16, max_width=0.24,
-                          max_outward_yaw=0.1, max_inward_yaw=0.1)
+FINAL_STANCE = StepBounds(
+    min_length=-0.05,
+    max_length=0.05,
+    min_width=0.16,
+    max_width=0.24,
+    max_outward_yaw=0.1,
+    max_inward_yaw=0.1,
+)
 
 
-def joint_limits(model: pin.Model, q: np.ndarray,
-                 posture_limits: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def joint_limits(
+    model: pin.Model, q: np.ndarray, posture_limits: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Velocity-space bounds (nv,) keeping q ⊕ v within the joint limits (free-flyer unbounded).
 
     ``posture_limits`` (lower, upper), each (nq,), tighten the model's limits (e.g. a comfort
@@ -175,15 +195,15 @@ class FootNonOverlap(Constraint):
 
     def _parts(self, kin):
         steps = np.arange(self.first_step, kin.k + 1)
-        delta = kin.config.steps[steps - 1]                              # (m, 3)
-        sign = np.where(kin.is_left[steps + 1], 1.0, -1.0)              # side of the moving foot
-        c = kin.augmented.foot_corners                                   # (4, 2)
+        delta = kin.config.steps[steps - 1]  # (m, 3)
+        sign = np.where(kin.is_left[steps + 1], 1.0, -1.0)  # side of the moving foot
+        c = kin.augmented.foot_corners  # (4, 2)
         sin, cos = np.sin(delta[:, 2])[:, None], np.cos(delta[:, 2])[:, None]
         return steps, delta, sign, c, sin, cos
 
     def compute_value(self, kin: AugmentedKinematics) -> np.ndarray:
         _, delta, sign, c, sin, cos = self._parts(kin)
-        lateral = delta[:, 1:2] + sin * c[None, :, 0] + cos * c[None, :, 1]     # (m, 4)
+        lateral = delta[:, 1:2] + sin * c[None, :, 0] + cos * c[None, :, 1]  # (m, 4)
         half_width = 0.5 * kin.augmented.foot.width
         return (sign[:, None] * lateral - half_width - self.margin).reshape(-1)
 
@@ -210,8 +230,9 @@ class ObstacleAvoidance(Constraint):
 
     name = "obstacles"
 
-    def __init__(self, obstacles: list[Obstacle], first_step: int = 1,
-                 influence: float = 1.0) -> None:
+    def __init__(
+        self, obstacles: list[Obstacle], first_step: int = 1, influence: float = 1.0
+    ) -> None:
         self.obstacles = [o.floor_region() if isinstance(o, Bar) else o for o in obstacles]
         for o in self.obstacles:
             if not isinstance(o, (CircleObstacle, RectangleObstacle)):
@@ -226,8 +247,9 @@ class ObstacleAvoidance(Constraint):
         for i in steps:
             p = kin.footprints[i + 1, :2]
             for o in self.obstacles:
-                extent = o.radius if isinstance(o, CircleObstacle) else \
-                    0.5 * np.hypot(o.length, o.width)
+                extent = (
+                    o.radius if isinstance(o, CircleObstacle) else 0.5 * np.hypot(o.length, o.width)
+                )
                 if np.linalg.norm(p - o.center) < reach + extent + o.buffer + self.influence:
                     pairs.append((int(i), o))
         return pairs
@@ -239,8 +261,10 @@ class ObstacleAvoidance(Constraint):
 
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
         foot = kin.augmented.foot
-        rows = [sole_clearance(kin.footprints[i + 1], foot, o)[1] @ kin.footprint_jacobian(i)
-                for i, o in self._pairs(kin)]
+        rows = [
+            sole_clearance(kin.footprints[i + 1], foot, o)[1] @ kin.footprint_jacobian(i)
+            for i, o in self._pairs(kin)
+        ]
         return np.vstack(rows) if rows else np.zeros((0, kin.nv))
 
 
@@ -267,7 +291,7 @@ def sole_clearance(pose: np.ndarray, foot: FootShape, obstacle) -> tuple[np.ndar
             axis = int(np.argmin(slack))
             dist = -slack[axis]
             grad = np.zeros(2)
-            grad[axis] = 1.0 if c_F[axis] >= 0.0 else -1.0   # d|c|/dc
+            grad[axis] = 1.0 if c_F[axis] >= 0.0 else -1.0  # d|c|/dc
         value = np.array([dist - o.radius - o.buffer])
         # dc_F = −Rᵀ dp + (c_F.y, −c_F.x) dθ
         d_pose = np.concatenate([grad @ (-R.T), [grad @ np.array([c_F[1], -c_F[0]])]])
@@ -276,7 +300,7 @@ def sole_clearance(pose: np.ndarray, foot: FootShape, obstacle) -> tuple[np.ndar
         raise InvalidProblem(f"unsupported obstacle {obstacle!r}")
     axes_o = o.axes()
     half_o = np.array([0.5 * o.length, 0.5 * o.width])
-    axes_f = R.T                                   # rows: the sole's x and y axes in world
+    axes_f = R.T  # rows: the sole's x and y axes in world
     corners_local = foot.corners()
     corners_f = pose[:2] + corners_local @ R.T
     corners_o = o.corners()
@@ -297,7 +321,7 @@ def sole_clearance(pose: np.ndarray, foot: FootShape, obstacle) -> tuple[np.ndar
         return value, np.column_stack([np.tile(n, (4, 1)), d_theta])
     # Axis of the sole: n = sgn·axis_f[a](θ); one row per obstacle corner.
     n = sgn * axes_f[a]
-    dn = sgn * (axes_f[1] if a == 0 else -axes_f[0])      # dn/dθ
+    dn = sgn * (axes_f[1] if a == 0 else -axes_f[0])  # dn/dθ
     value = (pose[:2] - corners_o) @ n - half[a] - o.buffer
     return value, np.column_stack([np.tile(n, (4, 1)), (pose[:2] - corners_o) @ dn])
 
@@ -318,7 +342,7 @@ class ComInSupportPolygon(Constraint):
 
     def _hull(self, kin):
         idx = np.array([kin.k - 1, kin.k])
-        corners = kin.corners(idx).reshape(-1, 2)             # (8, 2)
+        corners = kin.corners(idx).reshape(-1, 2)  # (8, 2)
         owner = np.repeat(idx, 4)
         hull = _convex_hull_ccw(corners)
         return corners, owner, hull
@@ -334,8 +358,8 @@ class ComInSupportPolygon(Constraint):
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
         corners, owner, hull = self._hull(kin)
         c = kin.com()[:2]
-        J_c = kin.com_jacobian()[:2]                                  # (2, nv)
-        J_corners = kin.points_jacobian(corners, owner)               # (8, 2, nv)
+        J_c = kin.com_jacobian()[:2]  # (2, nv)
+        J_corners = kin.points_jacobian(corners, owner)  # (8, 2, nv)
         nxt = np.roll(hull, -1)
         a, b = corners[hull], corners[nxt]
         Ja, Jb = J_corners[hull], J_corners[nxt]
@@ -345,7 +369,7 @@ class ComInSupportPolygon(Constraint):
         n = uh @ _S.T
         # value = n·(c − a);  dn = S (I − ûûᵀ) du / |u|
         P = np.eye(2)[None] - uh[:, :, None] * uh[:, None, :]
-        w = np.einsum("ej,jk,ekl->el", c - a, _S, P) / L[:, None]      # (c − a)ᵀ S P / |u|
+        w = np.einsum("ej,jk,ekl->el", c - a, _S, P) / L[:, None]  # (c − a)ᵀ S P / |u|
         J = np.einsum("ej,ejv->ev", n, J_c[None] - Ja) + np.einsum("ej,ejv->ev", w, Jb - Ja)
         return J
 
@@ -429,8 +453,13 @@ class FramePositionTask(Task):
     name = "hand"
     max_step = 0.1
 
-    def __init__(self, frame: str, target: np.ndarray, name: str | None = None,
-                 axes: tuple[int, ...] = (0, 1, 2)) -> None:
+    def __init__(
+        self,
+        frame: str,
+        target: np.ndarray,
+        name: str | None = None,
+        axes: tuple[int, ...] = (0, 1, 2),
+    ) -> None:
         self.frame = frame
         self.set_target(target)
         self.axes = np.asarray(axes, dtype=int)
@@ -521,8 +550,14 @@ class StepPreferenceTask(Task):
     name = "step_preference"
     best_effort = False
 
-    def __init__(self, width: float, first_step: int = 1, last_step: int | None = None,
-                 length_weight: float = 0.5, yaw_weight: float = 1.0) -> None:
+    def __init__(
+        self,
+        width: float,
+        first_step: int = 1,
+        last_step: int | None = None,
+        length_weight: float = 0.5,
+        yaw_weight: float = 1.0,
+    ) -> None:
         if width <= 0.0:
             raise InvalidProblem(f"nominal width must be > 0, got {width}")
         self.width = width
@@ -533,7 +568,7 @@ class StepPreferenceTask(Task):
     def _steps(self, kin):
         if self.last_step is None:
             last = kin.k
-        elif self.last_step < 0:                 # counted from the end: -1 = all but the last
+        elif self.last_step < 0:  # counted from the end: -1 = all but the last
             last = kin.k + self.last_step
         else:
             last = min(self.last_step, kin.k)
@@ -564,8 +599,7 @@ class FootprintPoseTask(Task):
     name = "footprint"
     max_step = 0.3
 
-    def __init__(self, index: int | None, target, weights=(1.0, 1.0, 0.5),
-                 name: str | None = None):
+    def __init__(self, index: int | None, target, weights=(1.0, 1.0, 0.5), name: str | None = None):
         self.index = index
         self.set_target(target)
         self.weights = np.asarray(weights, dtype=float)
@@ -586,8 +620,9 @@ class FootprintPoseTask(Task):
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         fp = kin.footprint(self._index(kin))
-        e = np.array([fp[0] - self.target[0], fp[1] - self.target[1],
-                      wrap_angle(fp[2] - self.target[2])])
+        e = np.array(
+            [fp[0] - self.target[0], fp[1] - self.target[1], wrap_angle(fp[2] - self.target[2])]
+        )
         return self.weights * e
 
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
@@ -610,8 +645,7 @@ class StanceGoalTask(Task):
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         mid = 0.5 * (kin.footprint(kin.k)[:2] + kin.footprint(kin.k - 1)[:2])
         yaw = wrap_angle(kin.footprint(kin.k)[2] - self.target[2])
-        return np.array([mid[0] - self.target[0], mid[1] - self.target[1],
-                         self.yaw_weight * yaw])
+        return np.array([mid[0] - self.target[0], mid[1] - self.target[1], self.yaw_weight * yaw])
 
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
         J_last = kin.footprint_jacobian(kin.k)

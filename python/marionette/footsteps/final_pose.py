@@ -29,7 +29,7 @@ class RigidStanceKinematics:
 
     def __init__(self, pose: np.ndarray, frames_L: dict, floor_z: float) -> None:
         self.pose = np.asarray(pose, dtype=float)
-        self._frames = frames_L            # name -> (p_L (3,), R_L (3, 3))
+        self._frames = frames_L  # name -> (p_L (3,), R_L (3, 3))
         self._floor_z = floor_z
         self._R = rotation_z(self.pose[2])
         self._placements: dict = {}
@@ -41,7 +41,7 @@ class RigidStanceKinematics:
         return np.eye(3)
 
     def frame_placement(self, frame: str) -> tuple[np.ndarray, np.ndarray]:
-        placement = self._placements.get(frame)      # tasks ask for it in error and Jacobian
+        placement = self._placements.get(frame)  # tasks ask for it in error and Jacobian
         if placement is None:
             p_L, R_L = self._frames[frame]
             p = np.array([self.pose[0], self.pose[1], self._floor_z]) + self._R @ p_L
@@ -51,16 +51,17 @@ class RigidStanceKinematics:
     def frame_jacobian(self, frame: str) -> np.ndarray:
         """(6, 3): d/d(x, y, θ) of [position; angular velocity] in world."""
         p_L, _ = self._frames[frame]
-        r = self._R @ p_L                                  # lever arm from the footprint
+        r = self._R @ p_L  # lever arm from the footprint
         J = np.zeros((6, 3))
         J[0, 0] = J[1, 1] = 1.0
-        J[0, 2], J[1, 2] = -r[1], r[0]                     # e_z × r
+        J[0, 2], J[1, 2] = -r[1], r[0]  # e_z × r
         J[5, 2] = 1.0
         return J
 
 
-def prioritised_least_squares(levels, n: int, damping: float = 1e-4,
-                              rank_tolerance: float = 1e-7) -> np.ndarray:
+def prioritised_least_squares(
+    levels, n: int, damping: float = 1e-4, rank_tolerance: float = 1e-7
+) -> np.ndarray:
     """Strict hierarchy of unconstrained least-squares levels (A_i x = b_i), highest first:
     x = x_(i-1) + Z_(i-1) z_i with z_i the damped least-squares solution of level i in the null
     space Z_(i-1) of the levels above (Siciliano–Slotine). No bounds: the rigid-stance problem has
@@ -70,7 +71,7 @@ def prioritised_least_squares(levels, n: int, damping: float = 1e-4,
     ``levels``: an iterable of (A_i, b_i), consumed lazily: once the levels above leave no
     freedom the rest are not evaluated (the hand and gaze tasks take all 3 dofs of a stance)."""
     x = np.zeros(n)
-    Z = None                                   # None: identity (no level yet)
+    Z = None  # None: identity (no level yet)
     for A, b in levels:
         M = A if Z is None else A @ Z
         # One SVD M = U S Vᵀ gives both the damped least squares, (MᵀM + μI)⁻¹ Mᵀ r =
@@ -81,13 +82,19 @@ def prioritised_least_squares(levels, n: int, damping: float = 1e-4,
         x = x + (z if Z is None else Z @ z)
         rank = int(np.sum(sv > rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)))
         if rank == M.shape[1]:
-            break                              # no freedom left for the levels below
+            break  # no freedom left for the levels below
         Z = vt[rank:].T if Z is None else Z @ vt[rank:].T
     return x
 
 
-def solve_final_pose(tasks: list, pose0: np.ndarray, frames_L: dict, floor_z: float,
-                     tolerance: float = 1e-7, max_iterations: int = 30) -> tuple[np.ndarray, int]:
+def solve_final_pose(
+    tasks: list,
+    pose0: np.ndarray,
+    frames_L: dict,
+    floor_z: float,
+    tolerance: float = 1e-7,
+    max_iterations: int = 30,
+) -> tuple[np.ndarray, int]:
     """Gauss–Newton over the prioritised ``tasks`` (Task objects, highest first) in (x, y, θ).
 
     Returns (P_k*, iterations). The tasks' error clamps (``max_step``, meant for the long chain)

@@ -43,8 +43,8 @@ class Level:
     """One priority level: ``matrix @ x == vector`` (equality) or ``matrix @ x <= vector``."""
 
     name: str
-    matrix: np.ndarray   # (m, n)
-    vector: np.ndarray   # (m,)
+    matrix: np.ndarray  # (m, n)
+    vector: np.ndarray  # (m,)
     equality: bool
     # Best effort (regularisation levels): when bounds or inequalities bind and the active-set
     # paths fail, the step is scaled down to stay feasible (SNS task scaling) instead of
@@ -52,13 +52,14 @@ class Level:
     best_effort: bool = False
 
     @staticmethod
-    def task(name: str, jacobian: np.ndarray, error: np.ndarray, best_effort: bool = False
-             ) -> "Level":
+    def task(
+        name: str, jacobian: np.ndarray, error: np.ndarray, best_effort: bool = False
+    ) -> Level:
         """Linearised task e(q) → 0: J x = −e (one Gauss–Newton step)."""
         return Level(name, jacobian, -error, True, best_effort)
 
     @staticmethod
-    def constraint(name: str, jacobian: np.ndarray, value: np.ndarray) -> "Level":
+    def constraint(name: str, jacobian: np.ndarray, value: np.ndarray) -> Level:
         """Linearised constraint g(q) ≥ 0: g + J x ≥ 0, i.e. −J x ≤ g."""
         return Level(name, -jacobian, value, False)
 
@@ -67,7 +68,7 @@ class Level:
 class LevelReport:
     name: str
     equality: bool
-    residual: float      # equality: ||A x − b||; inequality: ||max(C x − d, 0)||
+    residual: float  # equality: ||A x − b||; inequality: ||max(C x − d, 0)||
     used_qp: bool
 
 
@@ -81,18 +82,28 @@ class HierarchySolution:
 
 @dataclass
 class HierarchySettings:
-    damping: float = 1e-4        # μ of μ||x||² in every level
+    damping: float = 1e-4  # μ of μ||x||² in every level
     rank_tolerance: float = 1e-7  # singular values below this (× max(1, σ_max)) span the null space
     feasibility_tolerance: float = 1e-7
-    qp_eps: float = 1e-7          # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
+    qp_eps: float = 1e-7  # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
     qp_max_iter: int = 300
     # (Ruiz preconditioner, relaxation [m|rad]) tried in turn, see _Cascade._proxqp.
     qp_attempts: tuple[tuple[bool, float], ...] = (
-        (True, 0.0), (False, 0.0), (False, 1e-6), (True, 1e-5), (False, 1e-5), (False, 1e-4))
+        (True, 0.0),
+        (False, 0.0),
+        (False, 1e-6),
+        (True, 1e-5),
+        (False, 1e-5),
+        (False, 1e-4),
+    )
 
 
-def solve_hierarchy(levels: list[Level], lower: np.ndarray, upper: np.ndarray,
-                    settings: HierarchySettings | None = None) -> HierarchySolution:
+def solve_hierarchy(
+    levels: list[Level],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    settings: HierarchySettings | None = None,
+) -> HierarchySolution:
     """Solve the prioritised system ``levels`` (highest priority first) within box bounds.
 
     ``lower``/``upper`` (n,) are hard bounds of every level (joint and step limits); they must
@@ -106,18 +117,27 @@ def solve_hierarchy(levels: list[Level], lower: np.ndarray, upper: np.ndarray,
     if upper.shape != (n,) or np.any(lower > upper):
         raise InvalidProblem("bounds must have the same shape and satisfy lower <= upper")
     for level in levels:
-        if level.matrix.ndim != 2 or level.matrix.shape[1] != n or \
-                level.vector.shape != (level.matrix.shape[0],):
-            raise InvalidProblem(f"level {level.name!r}: matrix {level.matrix.shape} and vector "
-                                 f"{level.vector.shape} do not fit {n} variables")
+        if (
+            level.matrix.ndim != 2
+            or level.matrix.shape[1] != n
+            or level.vector.shape != (level.matrix.shape[0],)
+        ):
+            raise InvalidProblem(
+                f"level {level.name!r}: matrix {level.matrix.shape} and vector "
+                f"{level.vector.shape} do not fit {n} variables"
+            )
     state = _Cascade(n, lower, upper, s)
     reports, x_after = [], []
     for i, level in enumerate(levels):
         used = False
         if level.matrix.shape[0]:
             if level.equality:
-                used = state.equality(level.matrix, level.vector, last=i == len(levels) - 1,
-                                      best_effort=level.best_effort)
+                used = state.equality(
+                    level.matrix,
+                    level.vector,
+                    last=i == len(levels) - 1,
+                    best_effort=level.best_effort,
+                )
             else:
                 used = state.inequality(level.matrix, level.vector)
         reports.append(LevelReport(level.name, level.equality, 0.0, used))
@@ -142,7 +162,7 @@ class _Cascade:
         self.lower, self.upper = lower, upper
         # Start inside the box: the point of the box nearest to 0.
         self.x0 = np.clip(np.zeros(n), lower, upper)
-        self.Z: np.ndarray | None = None   # None means identity (no equality level yet)
+        self.Z: np.ndarray | None = None  # None means identity (no equality level yet)
         self.G = np.zeros((0, n))
         self.h = np.zeros(0)
         self.qp_solves = 0
@@ -158,12 +178,13 @@ class _Cascade:
         return z if self.Z is None else self.Z @ z
 
     # -- equality level -----------------------------------------------------------------------
-    def equality(self, A: np.ndarray, b: np.ndarray, last: bool = False,
-                 best_effort: bool = False) -> bool:
+    def equality(
+        self, A: np.ndarray, b: np.ndarray, last: bool = False, best_effort: bool = False
+    ) -> bool:
         r = self.free_dim
         if r == 0:
             return False
-        M = self._Zmul(A)                      # (m, r)
+        M = self._Zmul(A)  # (m, r)
         rhs = b - A @ self.x0
         mu = self.s.damping
         Zt_x0 = self.x0 if self.Z is None else self.Z.T @ self.x0
@@ -178,7 +199,7 @@ class _Cascade:
             # MᵀM + μI = V diag(σ² + μ) Vᵀ (σ = 0 past the rank).
             _, sv, vt = np.linalg.svd(M, full_matrices=True)
             s2 = np.zeros(r)
-            s2[:sv.shape[0]] = sv * sv
+            s2[: sv.shape[0]] = sv * sv
             z = vt.T @ ((vt @ g) / (s2 + mu))
         dx_ls = self._lift(z)
         dx = dx_ls
@@ -202,7 +223,7 @@ class _Cascade:
         # Lower levels move only in the null space of M (keep A x exactly).
         tol = self.s.rank_tolerance * max(1.0, sv[0] if sv.size else 0.0)
         rank = int(np.sum(sv > tol))
-        N = vt[rank:].T                           # (r, r - rank)
+        N = vt[rank:].T  # (r, r - rank)
         self.Z = N if self.Z is None else self.Z @ N
         return used_qp
 
@@ -236,25 +257,30 @@ class _Cascade:
         back to proxsuite). As in :meth:`_qp`, rows x0 already violates by a rounding error are
         relaxed to keep z = 0 feasible."""
         tol = self.s.feasibility_tolerance
-        upper = np.concatenate([np.maximum(self.upper - self.x0, 0.0),
-                                np.maximum(self.h - self.G @ self.x0, 0.0)]) + tol
-        lower = np.concatenate([np.minimum(self.lower - self.x0, 0.0) - tol,
-                                np.full(self.G.shape[0], -_INF)])
+        upper = (
+            np.concatenate(
+                [np.maximum(self.upper - self.x0, 0.0), np.maximum(self.h - self.G @ self.x0, 0.0)]
+            )
+            + tol
+        )
+        lower = np.concatenate(
+            [np.minimum(self.lower - self.x0, 0.0) - tol, np.full(self.G.shape[0], -_INF)]
+        )
         if self.Z is None:
             # z = dx: the box is DAQP's simple bounds (the first n entries of upper/lower
             # when they outnumber A's rows), far cheaper than n identity rows.
             A = self.G
         else:
             A = np.vstack([self.Z, self.G @ self.Z]) if self.G.shape[0] else self.Z
-        z, _, exitflag, _ = daqp.solve(H, -g, np.ascontiguousarray(A), upper, lower,
-                                       primal_tol=tol)
+        z, _, exitflag, _ = daqp.solve(H, -g, np.ascontiguousarray(A), upper, lower, primal_tol=tol)
         self.qp_solves += 1
         if exitflag != 1:
             return None
         return self._lift(z)
 
-    def _clamped_least_squares(self, H: np.ndarray, g: np.ndarray, dx: np.ndarray
-                               ) -> np.ndarray | None:
+    def _clamped_least_squares(
+        self, H: np.ndarray, g: np.ndarray, dx: np.ndarray
+    ) -> np.ndarray | None:
         """Fast exact path when few rows bind: min ½zᵀHz − gᵀz with the violated rows (bounds
         and the cascade's inequalities) held as equalities, as in saturation in the null space
         (Flacco et al. 2012), adding rows while new ones are violated. The result is returned
@@ -283,19 +309,20 @@ class _Cascade:
             m = held.shape[0] + held_rows.shape[0]
             kkt = np.zeros((r + m, r + m))
             kkt[:r, :r] = H
-            kkt[r:r + held.shape[0], :r] = Zr[held]
-            kkt[r + held.shape[0]:, :r] = GZ[held_rows]
+            kkt[r : r + held.shape[0], :r] = Zr[held]
+            kkt[r + held.shape[0] :, :r] = GZ[held_rows]
             kkt[:r, r:] = kkt[r:, :r].T
             rhs = np.empty(r + m)
             rhs[:r] = g
-            rhs[r:r + held.shape[0]] = np.where(upper[held], self.upper[held],
-                                                self.lower[held]) - self.x0[held]
-            rhs[r + held.shape[0]:] = self.h[held_rows] - self.G[held_rows] @ self.x0
+            rhs[r : r + held.shape[0]] = (
+                np.where(upper[held], self.upper[held], self.lower[held]) - self.x0[held]
+            )
+            rhs[r + held.shape[0] :] = self.h[held_rows] - self.G[held_rows] @ self.x0
             try:
                 sol = np.linalg.solve(kkt, rhs)
             except np.linalg.LinAlgError:
                 return None
-            if np.abs(kkt @ sol - rhs).max() > 1e-9:   # dependent held rows
+            if np.abs(kkt @ sol - rhs).max() > 1e-9:  # dependent held rows
                 return None
             nu = sol[r:]
             x = self.x0 + Zr @ sol[:r]
@@ -305,7 +332,7 @@ class _Cascade:
             return x - self.x0
         # Hz + Cᵀν = g: upper bounds and ≤ rows hold with ν ≥ 0, lower bounds with ν ≤ 0.
         sign = np.ones(nu.shape[0])
-        sign[:held.shape[0]] = np.where(upper[held], 1.0, -1.0)
+        sign[: held.shape[0]] = np.where(upper[held], 1.0, -1.0)
         if (sign * nu < -1e-9).any():
             return None
         return x - self.x0
@@ -314,8 +341,11 @@ class _Cascade:
         """s·dx with the largest s ∈ [0, 1] keeping x0 + s·dx inside every row (x0 inside)."""
         tol = self.s.feasibility_tolerance
         s = 1.0
-        for a, room in ((dx, self.upper - self.x0), (-dx, self.x0 - self.lower),
-                        (self.G @ dx, self.h - self.G @ self.x0)):
+        for a, room in (
+            (dx, self.upper - self.x0),
+            (-dx, self.x0 - self.lower),
+            (self.G @ dx, self.h - self.G @ self.x0),
+        ):
             moving = a > 1e-15
             if np.any(moving):
                 s = min(s, float(np.min(np.maximum(room[moving] + tol, 0.0) / a[moving])))
@@ -327,7 +357,7 @@ class _Cascade:
         the box, so such a row never binds; dropping it spares the QPs and the feasibility
         checks (e.g. the non-overlap rows of steps whose width limits already keep them apart).
         """
-        with np.errstate(invalid="ignore"):           # 0·inf on unbounded variables
+        with np.errstate(invalid="ignore"):  # 0·inf on unbounded variables
             reach = np.where(C > 0.0, C * self.upper, 0.0) + np.where(C < 0.0, C * self.lower, 0.0)
         binding = ~(reach.sum(axis=1) <= h)
         if not binding.all():
@@ -341,7 +371,7 @@ class _Cascade:
         if self.Z is None:
             return np.zeros((self.n, 0))
         u, _, _ = np.linalg.svd(self.Z, full_matrices=True)
-        return u[:, self.Z.shape[1]:]
+        return u[:, self.Z.shape[1] :]
 
     def _feasible(self, x: np.ndarray) -> bool:
         tol = self.s.feasibility_tolerance
@@ -350,12 +380,17 @@ class _Cascade:
         return not self.G.shape[0] or not (self.G @ x > self.h + tol).any()
 
     # -- QP with constraint generation ------------------------------------------------------------
-    def _qp(self, H: np.ndarray, g: np.ndarray, guess: np.ndarray,
-            extra: tuple[np.ndarray, np.ndarray] | None = None, n_extra_vars: int = 0
-            ) -> np.ndarray:
+    def _qp(
+        self,
+        H: np.ndarray,
+        g: np.ndarray,
+        guess: np.ndarray,
+        extra: tuple[np.ndarray, np.ndarray] | None = None,
+        n_extra_vars: int = 0,
+    ) -> np.ndarray:
         """min ½ yᵀHy + gᵀy over y = (dx, extra vars) s.t. Pᵀ dx = 0, the cascade's rows,
         the box on x0 + dx and the ``extra`` rows. Returns y."""
-        n, nvar = self.n, self.n + n_extra_vars
+        nvar = self.n + n_extra_vars
         tol = self.s.feasibility_tolerance
         rows = [np.hstack([self.G, np.zeros((self.G.shape[0], n_extra_vars))])]
         # x0 may sit outside a row by a rounding error (accepted by an earlier level within
@@ -369,10 +404,12 @@ class _Cascade:
         R = np.vstack(rows)
         hi_all = np.concatenate(hi)
         lo_all = np.full(hi_all.shape[0], -_INF)
-        l_box = np.concatenate([np.minimum(self.lower - self.x0, 0.0) - tol,
-                                np.full(n_extra_vars, -_INF)])
-        u_box = np.concatenate([np.maximum(self.upper - self.x0, 0.0) + tol,
-                                np.full(n_extra_vars, _INF)])
+        l_box = np.concatenate(
+            [np.minimum(self.lower - self.x0, 0.0) - tol, np.full(n_extra_vars, -_INF)]
+        )
+        u_box = np.concatenate(
+            [np.maximum(self.upper - self.x0, 0.0) + tol, np.full(n_extra_vars, _INF)]
+        )
         P = self._complement()
         E = np.hstack([P.T, np.zeros((P.shape[1], n_extra_vars))])
 
@@ -416,8 +453,18 @@ class _Cascade:
             qp.settings.eps_dual_inf = 1e-12
             qp.settings.verbose = False
             qp.settings.max_iter = self.s.qp_max_iter
-            qp.init(H, g, E, b, C, lo - relax, hi + relax, box[0] - relax, box[1] + relax,
-                    compute_preconditioner=precondition)
+            qp.init(
+                H,
+                g,
+                E,
+                b,
+                C,
+                lo - relax,
+                hi + relax,
+                box[0] - relax,
+                box[1] + relax,
+                compute_preconditioner=precondition,
+            )
             qp.solve()
             self.qp_solves += 1
             status = qp.results.info.status

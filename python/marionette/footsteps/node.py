@@ -32,23 +32,22 @@ def yaw_from_quaternion(wxyz) -> float:
 
 @dataclass
 class NodeOptions:
-    mode: str = "grasp"                  # "grasp" | "step-over"
-    target: str = "ball"                 # object whose pose is the hand/gaze target (grasp)
+    mode: str = "grasp"  # "grasp" | "step-over"
+    target: str = "ball"  # object whose pose is the hand/gaze target (grasp)
     hand: str = "right"
-    posture_frozen: bool = True          # replanning mode (Dang §6.2.2)
-    bar: str = "bar"                     # object name of the bar (step-over)
+    posture_frozen: bool = True  # replanning mode (Dang §6.2.2)
+    bar: str = "bar"  # object name of the bar (step-over)
     bar_radius: float = 0.02
     bar_length: float = 2.0
-    goal: tuple[float, float, float] = (2.0, 0.0, 0.0)   # final stance (step-over)
-    move_threshold: float = 0.002        # [m] object displacement that triggers a replan
-    swing_margin: float = 0.03           # [m] eq. 5.1 clearance of the crossing swings (step-over)
+    goal: tuple[float, float, float] = (2.0, 0.0, 0.0)  # final stance (step-over)
+    move_threshold: float = 0.002  # [m] object displacement that triggers a replan
+    swing_margin: float = 0.03  # [m] eq. 5.1 clearance of the crossing swings (step-over)
 
 
 class FootstepNode:
     """Algorithm 4 on messages: replan when the target moves or the step counter advances."""
 
-    def __init__(self, options: NodeOptions, stance: Stance | None = None,
-                 robot=None) -> None:
+    def __init__(self, options: NodeOptions, stance: Stance | None = None, robot=None) -> None:
         if options.mode not in ("grasp", "step-over"):
             raise FootstepError(f"mode must be 'grasp' or 'step-over', got {options.mode!r}")
         self.options = options
@@ -57,7 +56,7 @@ class FootstepNode:
         self.planner = None
         self.plan_id = 0
         self.current_step = -1
-        self.object_pose: np.ndarray | None = None      # (x, y, z, yaw) of target or bar
+        self.object_pose: np.ndarray | None = None  # (x, y, z, yaw) of target or bar
         self._planned_pose: np.ndarray | None = None
         self._planned_step = -1
         self.last_plan: FootstepPlan | None = None
@@ -72,8 +71,9 @@ class FootstepNode:
                 p = np.array(obj.position_world, dtype=float)
                 if np.all(np.isfinite(p)):
                     with self._lock:
-                        self.object_pose = np.array([p[0], p[1], p[2],
-                                                     yaw_from_quaternion(obj.quaternion_world)])
+                        self.object_pose = np.array(
+                            [p[0], p[1], p[2], yaw_from_quaternion(obj.quaternion_world)]
+                        )
 
     def on_walk_status(self, msg) -> None:
         with self._lock:
@@ -82,8 +82,10 @@ class FootstepNode:
             index = int(msg.current_step_index)
             self.current_step = max(self.current_step, index) if self.planner else index
             if self.stance is None and self.planner is None and msg.current_step_index < 0:
-                left, right = np.array(msg.left_foot, dtype=float), np.array(msg.right_foot,
-                                                                               dtype=float)
+                left, right = (
+                    np.array(msg.left_foot, dtype=float),
+                    np.array(msg.right_foot, dtype=float),
+                )
                 self.stance = Stance(left[[0, 1, 3]], right[[0, 1, 3]], float(left[2]))
 
     # -- Algorithm 4 -----------------------------------------------------------------------
@@ -99,12 +101,14 @@ class FootstepNode:
         if self.planner is None:
             self._initial_plan(stance, pose)
         else:
-            moved = np.linalg.norm(pose[:2] - self._planned_pose[:2]) > self.options.move_threshold \
+            moved = (
+                np.linalg.norm(pose[:2] - self._planned_pose[:2]) > self.options.move_threshold
                 or abs(pose[3] - self._planned_pose[3]) > self.options.move_threshold
+            )
             if not moved and step == self._planned_step:
                 return None
             if self.last_plan is not None and step >= len(self.last_plan.steps) - 1:
-                return None                          # walking done: nothing left to change
+                return None  # walking done: nothing left to change
             if not moved and self.last_plan is not None and step + 2 >= len(self.last_plan.steps):
                 # Only the last step is still to start and it belongs to the frozen posture: with
                 # the target where it was planned, a replan could only append two in-place steps
@@ -123,29 +127,39 @@ class FootstepNode:
             from marionette.footsteps.robot_model import talos
 
             robot = self._robot or talos()
-            self.planner = GraspPlanner(robot, stance, pose[:3],
-                                        options=GraspPlannerOptions(hand=self.options.hand))
+            self.planner = GraspPlanner(
+                robot, stance, pose[:3], options=GraspPlannerOptions(hand=self.options.hand)
+            )
             self.planner.plan()
         else:
             from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
             bar = Bar(pose[:2], pose[3], self.options.bar_radius, self.options.bar_length)
             self.planner = StepOverPlanner(
-                stance, np.array(self.options.goal), bar,
-                options=StepOverOptions(swing_margin=self.options.swing_margin))
+                stance,
+                np.array(self.options.goal),
+                bar,
+                options=StepOverOptions(swing_margin=self.options.swing_margin),
+            )
             self.planner.plan()
 
     def _replan(self, pose: np.ndarray, executed: int) -> None:
         if self.options.mode == "grasp":
-            self.planner.replan(pose[:3], executed_steps=executed,
-                                posture_frozen=self.options.posture_frozen)
+            self.planner.replan(
+                pose[:3], executed_steps=executed, posture_frozen=self.options.posture_frozen
+            )
         else:
             bar = self.planner.bar.moved_to(pose[:2], pose[3])
             self.planner.update_bar(bar, executed_steps=executed)
 
 
-def run(options: NodeOptions, lcm_url: str | None = None, rate_hz: float = 50.0,
-        stance: Stance | None = None, duration_s: float | None = None) -> int:
+def run(
+    options: NodeOptions,
+    lcm_url: str | None = None,
+    rate_hz: float = 50.0,
+    stance: Stance | None = None,
+    duration_s: float | None = None,
+) -> int:
     """The process: subscribe, replan at ``rate_hz`` when needed, publish FOOTSTEP_PLAN."""
     from marionette import channels, lcmt_object_poses, lcmt_walk_status
     from marionette.lcm_bus import LcmBus
@@ -160,7 +174,7 @@ def run(options: NodeOptions, lcm_url: str | None = None, rate_hz: float = 50.0,
         period = 1.0 / rate_hz
         try:
             _loop(node, bus, start, period, duration_s)
-        except KeyboardInterrupt:   # SIGINT is how ProcessGroup and a terminal stop the process
+        except KeyboardInterrupt:  # SIGINT is how ProcessGroup and a terminal stop the process
             print("footsteps: stopped", flush=True)
     return 0
 
@@ -177,6 +191,9 @@ def _loop(node: FootstepNode, bus, start: float, period: float, duration_s: floa
             msg = None
         if msg is not None:
             bus.publish(channels.FOOTSTEP_PLAN, msg)
-            print(f"footsteps: plan {msg.plan_id} from step {msg.first_step_index}, "
-                  f"{msg.num_steps} steps ({node.last_solve_ms:.1f} ms)", flush=True)
+            print(
+                f"footsteps: plan {msg.plan_id} from step {msg.first_step_index}, "
+                f"{msg.num_steps} steps ({node.last_solve_ms:.1f} ms)",
+                flush=True,
+            )
         time.sleep(max(0.0, period - (time.monotonic() - tick)))

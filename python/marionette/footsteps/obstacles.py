@@ -33,8 +33,9 @@ class CircleObstacle:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _xy(self.center, "CircleObstacle.center"))
         if not self.radius > 0.0 or not self.buffer >= 0.0:
-            raise InvalidProblem(f"CircleObstacle needs radius > 0 and buffer >= 0, got "
-                                 f"{self.radius}, {self.buffer}")
+            raise InvalidProblem(
+                f"CircleObstacle needs radius > 0 and buffer >= 0, got {self.radius}, {self.buffer}"
+            )
 
 
 @dataclass(frozen=True)
@@ -50,8 +51,10 @@ class RectangleObstacle:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _xy(self.center, "RectangleObstacle.center"))
         if not (self.length > 0.0 and self.width > 0.0 and self.buffer >= 0.0):
-            raise InvalidProblem("RectangleObstacle needs length, width > 0 and buffer >= 0, "
-                                 f"got {self.length}, {self.width}, {self.buffer}")
+            raise InvalidProblem(
+                "RectangleObstacle needs length, width > 0 and buffer >= 0, "
+                f"got {self.length}, {self.width}, {self.buffer}"
+            )
 
     def axes(self) -> np.ndarray:
         """Unit axes (2, 2): row 0 along the length, row 1 along the width."""
@@ -62,8 +65,9 @@ class RectangleObstacle:
         """(4, 2) world corners."""
         u, v = self.axes()
         hl, hw = 0.5 * self.length, 0.5 * self.width
-        return self.center + np.array([hl * u + hw * v, -hl * u + hw * v,
-                                       -hl * u - hw * v, hl * u - hw * v])
+        return self.center + np.array(
+            [hl * u + hw * v, -hl * u + hw * v, -hl * u - hw * v, hl * u - hw * v]
+        )
 
 
 @dataclass(frozen=True)
@@ -82,13 +86,14 @@ class Bar:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _xy(self.center, "Bar.center"))
         if not (self.radius > 0.0 and self.length > 0.0 and self.buffer >= 0.0):
-            raise InvalidProblem("Bar needs radius, length > 0 and buffer >= 0, got "
-                                 f"{self.radius}, {self.length}, {self.buffer}")
+            raise InvalidProblem(
+                "Bar needs radius, length > 0 and buffer >= 0, got "
+                f"{self.radius}, {self.length}, {self.buffer}"
+            )
 
     def floor_region(self) -> RectangleObstacle:
         """The rectangle the bar covers on the floor."""
-        return RectangleObstacle(self.center, self.yaw, self.length, 2.0 * self.radius,
-                                 self.buffer)
+        return RectangleObstacle(self.center, self.yaw, self.length, 2.0 * self.radius, self.buffer)
 
     def normal(self) -> np.ndarray:
         """Unit floor direction across the bar (the walking direction over it)."""
@@ -98,9 +103,10 @@ class Bar:
         """(x, y, yaw) of the bar frame."""
         return np.array([self.center[0], self.center[1], self.yaw])
 
-    def moved_to(self, center, yaw: float) -> "Bar":
-        return Bar(np.asarray(center, dtype=float), float(yaw), self.radius, self.length,
-                   self.buffer)
+    def moved_to(self, center, yaw: float) -> Bar:
+        return Bar(
+            np.asarray(center, dtype=float), float(yaw), self.radius, self.length, self.buffer
+        )
 
 
 Obstacle = CircleObstacle | RectangleObstacle | Bar

@@ -29,44 +29,44 @@ from marionette.footsteps.hierarchy import HierarchySettings, Level, solve_hiera
 class OptimizerSettings:
     max_iterations: int = 300
     max_steps: int = 40
-    step_tolerance: float = 1e-6       # fixed point: |dv|∞ below this
-    settle_ratio: float = 1e-3         # lower tasks settled: each squared error improves by
-    settle_absolute: float = 1e-8      # less than ratio × itself + absolute
+    step_tolerance: float = 1e-6  # fixed point: |dv|∞ below this
+    settle_ratio: float = 1e-3  # lower tasks settled: each squared error improves by
+    settle_absolute: float = 1e-8  # less than ratio × itself + absolute
     constraint_tolerance: float = 1e-5  # levels above the primary: residual below this
-    task_tolerance: float = 1e-3       # primary task reached when ||e|| ≤ this [m]
-    trust_region_steps: float = 0.1    # |ΔΔx|, |ΔΔy| [m] per iteration
-    trust_region_yaw: float = 0.05     # |ΔΔθ| [rad] per iteration (the chain's lever arm)
-    yaw_scale: float = 0.25            # [rad/m] metric of the step yaws (see solve)
-    trust_region_robot: float = 0.1    # |dv| per iteration on the robot [rad, m]
-    blocked_ratio: float = 0.9         # Algorithm 1: primary blocked if its linearised level
-                                       # keeps this fraction of its (clamped) error
-    blocked_iterations: int = 2        # this many iterations in a row,
-    stall_window: int = 5              # or stalled if over this many iterations
-    stall_ratio: float = 0.05          # its error dropped by less than this fraction
-    stall_min_error: float = 0.02      # while above this [m]
-    stretched_fraction: float = 0.6    # ... or when this fraction of free steps is at max length
+    task_tolerance: float = 1e-3  # primary task reached when ||e|| ≤ this [m]
+    trust_region_steps: float = 0.1  # |ΔΔx|, |ΔΔy| [m] per iteration
+    trust_region_yaw: float = 0.05  # |ΔΔθ| [rad] per iteration (the chain's lever arm)
+    yaw_scale: float = 0.25  # [rad/m] metric of the step yaws (see solve)
+    trust_region_robot: float = 0.1  # |dv| per iteration on the robot [rad, m]
+    blocked_ratio: float = 0.9  # Algorithm 1: primary blocked if its linearised level
+    # keeps this fraction of its (clamped) error
+    blocked_iterations: int = 2  # this many iterations in a row,
+    stall_window: int = 5  # or stalled if over this many iterations
+    stall_ratio: float = 0.05  # its error dropped by less than this fraction
+    stall_min_error: float = 0.02  # while above this [m]
+    stretched_fraction: float = 0.6  # ... or when this fraction of free steps is at max length
     stretched_tolerance: float = 0.005  # (within this) [m]
-    auto_steps: bool = True            # Algorithm 1 on/off
-    reach_check: bool = False          # add steps before iterating while the linearised primary
-                                       # cannot be reached within the limits (see solve)
-    reach_tolerance: float = 0.02      # ... by more than this [m] (see _extend_to_reach)
-    relax_stretched: bool = True       # one more step when converged fully stretched (see solve)
-    line_search_steps: int = 5         # step halvings at most (see _line_search)
-    line_search_slack: float = 1e-4    # the levels above the primary may reach this meanwhile
-    restore_primary: bool = False      # second-order correction of the primary task after
-                                       # each step, on the free steps (see _restored)
+    auto_steps: bool = True  # Algorithm 1 on/off
+    reach_check: bool = False  # add steps before iterating while the linearised primary
+    # cannot be reached within the limits (see solve)
+    reach_tolerance: float = 0.02  # ... by more than this [m] (see _extend_to_reach)
+    relax_stretched: bool = True  # one more step when converged fully stretched (see solve)
+    line_search_steps: int = 5  # step halvings at most (see _line_search)
+    line_search_slack: float = 1e-4  # the levels above the primary may reach this meanwhile
+    restore_primary: bool = False  # second-order correction of the primary task after
+    # each step, on the free steps (see _restored)
     hierarchy: HierarchySettings = field(default_factory=HierarchySettings)
 
 
 @dataclass
 class SolveReport:
-    converged: bool = False            # fixed point reached with the primary task satisfied
+    converged: bool = False  # fixed point reached with the primary task satisfied
     iterations: int = 0
     qp_solves: int = 0
     steps_added: int = 0
     primary_error: float = np.inf
     time_s: float = 0.0
-    pose_iterations: int = 0           # posture-frozen replanning: iterations of the stance solve
+    pose_iterations: int = 0  # posture-frozen replanning: iterations of the stance solve
     level_residuals: dict[str, float] = field(default_factory=dict)
 
 
@@ -77,10 +77,15 @@ class FootstepOptimizer:
     error decides Algorithm 1 (must be one of ``levels``).
     """
 
-    def __init__(self, augmented: AugmentedRobot, levels: list[Constraint | Task],
-                 primary: Task, limits: StepLimits | None = None,
-                 settings: OptimizerSettings | None = None,
-                 posture_limits: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    def __init__(
+        self,
+        augmented: AugmentedRobot,
+        levels: list[Constraint | Task],
+        primary: Task,
+        limits: StepLimits | None = None,
+        settings: OptimizerSettings | None = None,
+        posture_limits: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> None:
         if primary not in levels:
             raise InvalidProblem("the primary task must be one of the levels")
         self.augmented = augmented
@@ -103,8 +108,9 @@ class FootstepOptimizer:
         robot_idx = np.setdiff1d(np.arange(nv), robot.frozen_velocity_indices())
         return np.concatenate([steps, 3 * k + robot_idx])
 
-    def limit_gaps(self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
-                   ) -> tuple[np.ndarray, np.ndarray]:
+    def limit_gaps(
+        self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(limit − value) on the free dofs: lower (≤ 0 inside) and upper (≥ 0 inside)."""
         k = config.num_steps
         is_left = self.augmented.is_left(k)[2:]
@@ -112,21 +118,22 @@ class FootstepOptimizer:
         steps = config.steps.reshape(-1)
         lo, hi = lo_s - steps, hi_s - steps
         if robot_free:
-            lo_r, hi_r = joint_limits(self.augmented.robot.model, config.q_robot,
-                                      self.posture_limits)
+            lo_r, hi_r = joint_limits(
+                self.augmented.robot.model, config.q_robot, self.posture_limits
+            )
             lo, hi = np.concatenate([lo, lo_r]), np.concatenate([hi, hi_r])
         return lo[free], hi[free]
 
-    def bounds(self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
-               ) -> tuple[np.ndarray, np.ndarray]:
+    def bounds(
+        self, config: AugmentedConfiguration, free: np.ndarray, robot_free: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of dv on the free dofs: limits − current value, within the trust region."""
         s = self.settings
         lo, hi = self.limit_gaps(config, free, robot_free)
         k = config.num_steps
         tr = np.tile([s.trust_region_steps, s.trust_region_steps, s.trust_region_yaw], k)
         if robot_free:
-            tr = np.concatenate([tr, np.full(self.augmented.robot.model.nv,
-                                             s.trust_region_robot)])
+            tr = np.concatenate([tr, np.full(self.augmented.robot.model.nv, s.trust_region_robot)])
         tr = tr[free]
         # Clip to the trust region; clipping both keeps lower ≤ upper, and a dof outside its
         # limits is pulled back by at most the trust region per iteration.
@@ -139,8 +146,9 @@ class FootstepOptimizer:
         cache = kin.__dict__.setdefault("_values", {})
         key = id(item)
         if key not in cache:
-            cache[key] = item.compute_value(kin) if isinstance(item, Constraint) else \
-                item.compute_error(kin)
+            cache[key] = (
+                item.compute_value(kin) if isinstance(item, Constraint) else item.compute_error(kin)
+            )
         return cache[key]
 
     def linearise(self, kin, free: np.ndarray, count: int | None = None) -> list[Level]:
@@ -150,21 +158,31 @@ class FootstepOptimizer:
         for item in self.levels[:count]:
             if isinstance(item, Constraint):
                 value = self.value(item, kin)
-                jacobian = item.compute_jacobian(kin)[:, free] if value.shape[0] else \
-                    np.zeros((0, free.shape[0]))
+                jacobian = (
+                    item.compute_jacobian(kin)[:, free]
+                    if value.shape[0]
+                    else np.zeros((0, free.shape[0]))
+                )
                 levels.append(Level.constraint(item.name, jacobian, value))
             else:
                 error = self.value(item, kin)
                 norm = float(np.linalg.norm(error))
                 if norm > item.max_step:
                     error = error * (item.max_step / norm)
-                levels.append(Level.task(item.name, item.compute_jacobian(kin)[:, free], error,
-                                         best_effort=item.best_effort))
+                levels.append(
+                    Level.task(
+                        item.name,
+                        item.compute_jacobian(kin)[:, free],
+                        error,
+                        best_effort=item.best_effort,
+                    )
+                )
         return levels
 
     # -- the loop ----------------------------------------------------------------------------
-    def solve(self, config: AugmentedConfiguration, frozen_steps: int = 0,
-              posture_frozen: bool = False) -> tuple[AugmentedConfiguration, SolveReport]:
+    def solve(
+        self, config: AugmentedConfiguration, frozen_steps: int = 0, posture_frozen: bool = False
+    ) -> tuple[AugmentedConfiguration, SolveReport]:
         """Optimise from ``config`` (warm start); returns the new configuration and a report.
 
         Converged: the primary task within ``task_tolerance``, the levels above it satisfied,
@@ -183,15 +201,16 @@ class FootstepOptimizer:
         error, above, below = self._merits(kin)
         history = [error]
         blocked_count = 0
-        reach_check = s.reach_check and s.auto_steps      # at the first iteration only
+        reach_check = s.reach_check and s.auto_steps  # at the first iteration only
         if reach_check and error > s.trust_region_steps:
             # Farther than a trust-region step: the first iteration would most likely leave the
             # primary short and call the reach check below, whose added steps would discard
             # that iteration. Check first (the same test, on the same configuration).
             reach_check = False
             k_before = config.num_steps
-            config, kin = self._extend_to_reach(config, kin, frozen_steps, posture_frozen,
-                                                robot_free, report)
+            config, kin = self._extend_to_reach(
+                config, kin, frozen_steps, posture_frozen, robot_free, report
+            )
             if config.num_steps != k_before:
                 error, above, below = self._merits(kin)
                 history = [error]
@@ -215,8 +234,9 @@ class FootstepOptimizer:
                 # reach of the chain's limits too?
                 reach_check = False
                 k_before = config.num_steps
-                config, kin = self._extend_to_reach(config, kin, frozen_steps, posture_frozen,
-                                                    robot_free, report)
+                config, kin = self._extend_to_reach(
+                    config, kin, frozen_steps, posture_frozen, robot_free, report
+                )
                 if config.num_steps != k_before:
                     error, above, below = self._merits(kin)
                     history = [error]
@@ -237,15 +257,17 @@ class FootstepOptimizer:
             dv_high[free] = x_high
             dv_low = np.zeros(kin.nv)
             dv_low[free] = solution.x - x_high
-            config, kin, alpha = self._line_search(config, kin, dv_high, dv_low, error, above,
-                                                   robot_free)
+            config, kin, alpha = self._line_search(
+                config, kin, dv_high, dv_low, error, above, robot_free
+            )
             step = float(np.max(np.abs(x_high + alpha * (solution.x - x_high))))
             previous_below = below
             error, above, below = self._merits(kin)
             history.append(error)
             reached = error <= s.task_tolerance and above <= s.constraint_tolerance
-            settled = step < s.step_tolerance or bool(np.all(
-                previous_below - below < s.settle_ratio * previous_below + s.settle_absolute))
+            settled = step < s.step_tolerance or bool(
+                np.all(previous_below - below < s.settle_ratio * previous_below + s.settle_absolute)
+            )
             if reached and settled:
                 # Reached, but only with every step at full length: the tasks below are
                 # strained (the robot twists to reach). One more step relaxes the chain.
@@ -277,8 +299,12 @@ class FootstepOptimizer:
             # linearisation promises progress that the nonlinear levels above take back).
             window = history[-1 - s.stall_window] if len(history) > s.stall_window else np.inf
             stalled = error > s.stall_min_error and window - error < s.stall_ratio * window
-            if blocked_count >= s.blocked_iterations or step < s.step_tolerance or stalled or \
-                    (slow and error > s.stall_min_error and self._stretched(config, free)):
+            if (
+                blocked_count >= s.blocked_iterations
+                or step < s.step_tolerance
+                or stalled
+                or (slow and error > s.stall_min_error and self._stretched(config, free))
+            ):
                 config, kin = self._add_step(config, robot_free, report)
                 error, above, below = self._merits(kin)
                 history = [error]
@@ -327,8 +353,7 @@ class FootstepOptimizer:
             config, kin = self._add_step(config, robot_free, report)
         return config, kin
 
-    def _predicted_settled(self, error: float, above: float, below: np.ndarray,
-                           solution) -> bool:
+    def _predicted_settled(self, error: float, above: float, below: np.ndarray, solution) -> bool:
         """The primary task and the levels above it are satisfied, and for every (non
         regularisation) task below, the hierarchy's linearised residual improves its squared
         error by less than settle_ratio × itself + settle_absolute."""
@@ -336,11 +361,14 @@ class FootstepOptimizer:
         if error > s.task_tolerance or above > s.constraint_tolerance:
             return False
         start = self.levels.index(self.primary) + 1
-        residuals = [solution.levels[i].residual ** 2
-                     for i in range(start, len(self.levels))
-                     if isinstance(self.levels[i], Task) and not self.levels[i].regularisation]
-        return bool(np.all(below - np.array(residuals) < s.settle_ratio * below
-                           + s.settle_absolute))
+        residuals = [
+            solution.levels[i].residual ** 2
+            for i in range(start, len(self.levels))
+            if isinstance(self.levels[i], Task) and not self.levels[i].regularisation
+        ]
+        return bool(
+            np.all(below - np.array(residuals) < s.settle_ratio * below + s.settle_absolute)
+        )
 
     def _add_step(self, config, robot_free, report):
         """Algorithm 1's new virtual link. With a frozen posture, two in-place steps: the last
@@ -355,9 +383,11 @@ class FootstepOptimizer:
     def _merits(self, kin) -> tuple[float, float, np.ndarray]:
         """(||primary error||, residual above it, squared error of each task below it)."""
         error = float(np.linalg.norm(self.value(self.primary, kin)))
-        below = [float(np.sum(self.value(item, kin) ** 2))
-                 for item in self.levels[self.levels.index(self.primary) + 1:]
-                 if isinstance(item, Task) and not item.regularisation]
+        below = [
+            float(np.sum(self.value(item, kin) ** 2))
+            for item in self.levels[self.levels.index(self.primary) + 1 :]
+            if isinstance(item, Task) and not item.regularisation
+        ]
         return error, self._above_primary(kin), np.array(below)
 
     def _above_primary(self, kin) -> float:
@@ -402,17 +432,18 @@ class FootstepOptimizer:
             candidate = self.augmented.integrate(config, dv_high + alpha * dv_low)
             kin_c = self.augmented.evaluate(candidate, robot_free=robot_free)
             if s.restore_primary and alpha > 0.0:
-                if predicted is None:     # the linear model of the primary along dv_high
+                if predicted is None:  # the linear model of the primary along dv_high
                     J = self.primary.compute_jacobian(kin)
                     predicted = self.value(self.primary, kin) + J @ dv_high
                     slope = J @ dv_low
-                restored = self._restored(candidate, kin_c, predicted + alpha * slope,
-                                          robot_free)
+                restored = self._restored(candidate, kin_c, predicted + alpha * slope, robot_free)
                 # The correction moves the (Δx, Δy) the levels above did not ask for: it may
                 # not cost them anything (no slack), else the plain candidate is tried.
-                if restored is not None and \
-                        self._above_primary(restored[1]) <= above + 1e-9 and \
-                        self._acceptable(restored[1], error, above):
+                if (
+                    restored is not None
+                    and self._above_primary(restored[1]) <= above + 1e-9
+                    and self._acceptable(restored[1], error, above)
+                ):
                     return restored[0], restored[1], alpha
             if self._acceptable(kin_c, error, above):
                 break
@@ -426,12 +457,15 @@ class FootstepOptimizer:
         above_c = self._above_primary(kin_c)
         if above_c < above - 1e-7:
             return True
-        return above_c <= max(above, s.line_search_slack) + 1e-9 and \
-            float(np.linalg.norm(self.value(self.primary, kin_c))) <= \
-            max(error, 0.5 * s.task_tolerance) + 1e-9
+        return (
+            above_c <= max(above, s.line_search_slack) + 1e-9
+            and float(np.linalg.norm(self.value(self.primary, kin_c)))
+            <= max(error, 0.5 * s.task_tolerance) + 1e-9
+        )
 
-    def _restored(self, candidate: AugmentedConfiguration, kin_c, predicted: np.ndarray,
-                  robot_free: bool):
+    def _restored(
+        self, candidate: AugmentedConfiguration, kin_c, predicted: np.ndarray, robot_free: bool
+    ):
         """Second-order correction (Nocedal & Wright §15.6) of the primary task after a step.
 
         The lower levels move in the null space of the primary task only to first order: their
@@ -455,9 +489,8 @@ class FootstepOptimizer:
         free = free[(free < 3 * k) & (free % 3 != 2)]
         lo, hi = self.limit_gaps(candidate, free, robot_free)
         J = self.primary.compute_jacobian(kin_c)[:, free]
-        moved = np.einsum("ij,ij->i", J, J) > 1e-18          # rows (Δx, Δy) move: not yaws
-        delta = _bounded_least_norm(J[moved], -gap[moved], np.minimum(lo, 0.0),
-                                    np.maximum(hi, 0.0))
+        moved = np.einsum("ij,ij->i", J, J) > 1e-18  # rows (Δx, Δy) move: not yaws
+        delta = _bounded_least_norm(J[moved], -gap[moved], np.minimum(lo, 0.0), np.maximum(hi, 0.0))
         if delta is None:
             return None
         dv = np.zeros(kin_c.nv)
@@ -465,10 +498,14 @@ class FootstepOptimizer:
         corrected = self.augmented.integrate(candidate, dv)
         return corrected, self.augmented.evaluate(corrected, robot_free=robot_free)
 
-    def _relaxing_step_wanted(self, k: int, config: AugmentedConfiguration, free: np.ndarray) -> bool:
+    def _relaxing_step_wanted(
+        self, k: int, config: AugmentedConfiguration, free: np.ndarray
+    ) -> bool:
         """Automatic steps may add one more, and every step is stretched to full length."""
         s = self.settings
-        return s.auto_steps and s.relax_stretched and k < s.max_steps and self._stretched(config, free)
+        return (
+            s.auto_steps and s.relax_stretched and k < s.max_steps and self._stretched(config, free)
+        )
 
     def _stretched(self, config: AugmentedConfiguration, free: np.ndarray) -> bool:
         """The free steps are (nearly) all at their forward limit: the chain cannot extend.
@@ -497,8 +534,9 @@ class FootstepOptimizer:
         return out
 
 
-def _bounded_least_norm(J: np.ndarray, target: np.ndarray, lower: np.ndarray,
-                        upper: np.ndarray, rounds: int = 4) -> np.ndarray | None:
+def _bounded_least_norm(
+    J: np.ndarray, target: np.ndarray, lower: np.ndarray, upper: np.ndarray, rounds: int = 4
+) -> np.ndarray | None:
     """Least-norm δ with J δ = target and lower ≤ δ ≤ upper (lower ≤ 0 ≤ upper), by clamping:
     the entries that cross a bound are held on it and the others solve for the rest. Exact
     when nothing is clamped; None when the free entries run out or the rounds do."""

@@ -20,12 +20,16 @@ class StepTiming:
 
     single_support: float = 0.8
     double_support: float = 0.2
-    first_double_support: float = 0.8   # shift the CoM over the stance foot before step 0
+    first_double_support: float = 0.8  # shift the CoM over the stance foot before step 0
     step_height: float = 0.05
 
     def __post_init__(self) -> None:
-        if not (self.single_support > 0.0 and self.double_support >= 0.0
-                and self.first_double_support >= 0.0 and self.step_height > 0.0):
+        if not (
+            self.single_support > 0.0
+            and self.double_support >= 0.0
+            and self.first_double_support >= 0.0
+            and self.step_height > 0.0
+        ):
             raise InvalidProblem(f"invalid step timing {self}")
 
 
@@ -35,7 +39,7 @@ class Footstep:
 
     index: int
     is_left: bool
-    pose: np.ndarray                     # (4,) x, y, z [m], yaw [rad]
+    pose: np.ndarray  # (4,) x, y, z [m], yaw [rad]
     duration: float
     double_support: float
     step_height: float
@@ -51,21 +55,30 @@ class FootstepPlan:
     stop_at_end: bool = True
 
     @staticmethod
-    def from_footprints(footprints: np.ndarray, is_left: np.ndarray, floor_z: float,
-                        timing: StepTiming) -> "FootstepPlan":
+    def from_footprints(
+        footprints: np.ndarray, is_left: np.ndarray, floor_z: float, timing: StepTiming
+    ) -> FootstepPlan:
         """From the augmented robot's footprints -1..k ((k + 2, 3)) and their sides."""
+
         def pose(row):
             return np.array([row[0], row[1], floor_z, row[2]])
 
-        stance = {("left" if is_left[0] else "right"): pose(footprints[0]),
-                  ("left" if is_left[1] else "right"): pose(footprints[1])}
+        stance = {
+            ("left" if is_left[0] else "right"): pose(footprints[0]),
+            ("left" if is_left[1] else "right"): pose(footprints[1]),
+        }
         steps = []
         for i in range(2, footprints.shape[0]):
-            steps.append(Footstep(
-                index=i - 2, is_left=bool(is_left[i]), pose=pose(footprints[i]),
-                duration=timing.single_support,
-                double_support=timing.first_double_support if i == 2 else timing.double_support,
-                step_height=timing.step_height))
+            steps.append(
+                Footstep(
+                    index=i - 2,
+                    is_left=bool(is_left[i]),
+                    pose=pose(footprints[i]),
+                    duration=timing.single_support,
+                    double_support=timing.first_double_support if i == 2 else timing.double_support,
+                    step_height=timing.step_height,
+                )
+            )
         return FootstepPlan(stance, steps)
 
     def footprints(self) -> np.ndarray:

@@ -27,13 +27,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
-                                                  rotation_2d)
-from marionette.footsteps.constraints import (FINAL_STANCE, ComInSupportPolygon, FacingTask,
-                                              FeetOnFootprints, FootNonOverlap,
-                                              FootprintPoseTask, FramePositionTask, GazeTask,
-                                              ObstacleAvoidance, PostureTask, ReachTask,
-                                              StepBounds, StepLimits, StepPreferenceTask)
+from marionette.footsteps.augmented_robot import (
+    AugmentedConfiguration,
+    AugmentedRobot,
+    Stance,
+    rotation_2d,
+)
+from marionette.footsteps.constraints import (
+    FINAL_STANCE,
+    ComInSupportPolygon,
+    FacingTask,
+    FeetOnFootprints,
+    FootNonOverlap,
+    FootprintPoseTask,
+    FramePositionTask,
+    GazeTask,
+    ObstacleAvoidance,
+    PostureTask,
+    ReachTask,
+    StepBounds,
+    StepLimits,
+    StepPreferenceTask,
+)
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
 from marionette.footsteps.final_pose import solve_final_pose
 from marionette.footsteps.obstacles import Obstacle
@@ -50,8 +65,9 @@ def default_first_side(stance: Stance, target_xy: np.ndarray) -> str:
     return "left" if lateral > 0.0 else "right"
 
 
-def posture_band_limits(robot: RobotDescription, band: dict[str, tuple[float, float]]
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def posture_band_limits(
+    robot: RobotDescription, band: dict[str, tuple[float, float]]
+) -> tuple[np.ndarray, np.ndarray]:
     """Joint limits (nq each) of reference + band for joints whose name starts with a key."""
     model = robot.model
     lower, upper = np.full(model.nq, -np.inf), np.full(model.nq, np.inf)
@@ -69,9 +85,9 @@ def posture_band_limits(robot: RobotDescription, band: dict[str, tuple[float, fl
 class GraspPlannerOptions:
     hand: str = "right"
     gaze: bool = True
-    non_overlap_margin: float = 0.02   # [m] between successive soles
-    com_margin: float = 0.03           # [m] CoM inside the final support polygon
-    nominal_width: float = 0.17        # [m] preferred lateral distance of the soles (TALOS)
+    non_overlap_margin: float = 0.02  # [m] between successive soles
+    com_margin: float = 0.03  # [m] CoM inside the final support polygon
+    nominal_width: float = 0.17  # [m] preferred lateral distance of the soles (TALOS)
     replan_settle_ratio: float = 0.02  # replans stop when lower levels improve less than this
     # Where the object sits in the final stance frame: forward, towards the hand's side [m].
     reach_offset: tuple[float, float] = (0.45, 0.25)
@@ -79,23 +95,36 @@ class GraspPlannerOptions:
     # legs stay near half-sitting and the torso does not fold, so that far objects are reached
     # by walking (Algorithm 1 adds steps) rather than by leaning, and the pattern generator's
     # straight-posture assumption holds until the reach.
-    posture_band: dict[str, tuple[float, float]] = field(default_factory=lambda: {
-        "leg_": (-0.3, 0.3), "torso_1": (-0.3, 0.3), "torso_2": (-0.05, 0.6)})
+    posture_band: dict[str, tuple[float, float]] = field(
+        default_factory=lambda: {
+            "leg_": (-0.3, 0.3),
+            "torso_1": (-0.3, 0.3),
+            "torso_2": (-0.05, 0.6),
+        }
+    )
 
 
 class GraspPlanner:
     """Walk to an object and reach it with one hand: footsteps + final posture (see module)."""
 
-    def __init__(self, robot: RobotDescription, stance: Stance, target: np.ndarray,
-                 obstacles: list[Obstacle] | None = None, first_side: str | None = None,
-                 limits: StepLimits | None = None, options: GraspPlannerOptions | None = None,
-                 settings: OptimizerSettings | None = None,
-                 timing: StepTiming | None = None) -> None:
+    def __init__(
+        self,
+        robot: RobotDescription,
+        stance: Stance,
+        target: np.ndarray,
+        obstacles: list[Obstacle] | None = None,
+        first_side: str | None = None,
+        limits: StepLimits | None = None,
+        options: GraspPlannerOptions | None = None,
+        settings: OptimizerSettings | None = None,
+        timing: StepTiming | None = None,
+    ) -> None:
         self.robot = robot
         self.options = options or GraspPlannerOptions()
         if self.options.hand not in robot.hand_frames:
-            raise InvalidProblem(f"hand must be one of {sorted(robot.hand_frames)}, "
-                                 f"got {self.options.hand!r}")
+            raise InvalidProblem(
+                f"hand must be one of {sorted(robot.hand_frames)}, got {self.options.hand!r}"
+            )
         target = np.asarray(target, dtype=float)
         side = first_side or default_first_side(stance, target[:2])
         self.augmented = AugmentedRobot(robot, stance, side)
@@ -107,8 +136,9 @@ class GraspPlanner:
         self.gaze = GazeTask(robot.camera_frame, target)
         self.facing = FacingTask(target, 0.5 * (stance.left[:2] + stance.right[:2]))
         side = 1.0 if self.options.hand == "left" else -1.0
-        self.reach = ReachTask(target, (self.options.reach_offset[0],
-                                        side * self.options.reach_offset[1]))
+        self.reach = ReachTask(
+            target, (self.options.reach_offset[0], side * self.options.reach_offset[1])
+        )
         joints = np.setdiff1d(np.arange(6, robot.model.nv), robot.frozen_velocity_indices())
         self.posture = PostureTask(robot.reference_posture, joints)
         self._posture_limits = posture_band_limits(robot, self.options.posture_band)
@@ -149,10 +179,11 @@ class GraspPlanner:
         levels.append(self.facing)
         if not posture_frozen:
             levels += [self.reach, self.posture]
-        last = -1 if posture_frozen else None       # the frozen posture owns the last step
+        last = -1 if posture_frozen else None  # the frozen posture owns the last step
         levels.append(StepPreferenceTask(self.options.nominal_width, first, last))
-        return FootstepOptimizer(self.augmented, levels, self.hand, self.limits, self.settings,
-                                 self._posture_limits)
+        return FootstepOptimizer(
+            self.augmented, levels, self.hand, self.limits, self.settings, self._posture_limits
+        )
 
     def plan(self) -> SolveReport:
         """Initial plan (Algorithm 1): from zero virtual links, posture free."""
@@ -160,8 +191,9 @@ class GraspPlanner:
         self.frozen_steps = 0
         return self._solve(posture_frozen=False, relax_stretched=True)
 
-    def replan(self, target=None, executed_steps: int | None = None,
-               posture_frozen: bool = True) -> SolveReport:
+    def replan(
+        self, target=None, executed_steps: int | None = None, posture_frozen: bool = True
+    ) -> SolveReport:
         """Replan after a target move / step progress (Algorithm 4), warm-started.
 
         ``executed_steps``: steps already started (executed or in progress); they are frozen.
@@ -193,9 +225,9 @@ class GraspPlanner:
         self.hand.axes = np.array([0, 1])
         tasks = [self.hand] + ([self.gaze] if self.options.gaze else []) + [self.facing]
         pose0 = self.augmented.footprints(self.config.steps)[-1]
-        stance, pose_iterations = solve_final_pose(tasks, pose0, frames_L,
-                                                   self.augmented.stance.floor_z,
-                                                   tolerance=1e-4)
+        stance, pose_iterations = solve_final_pose(
+            tasks, pose0, frames_L, self.augmented.stance.floor_z, tolerance=1e-4
+        )
         report = self._reach_stance(stance)
         report.pose_iterations = pose_iterations
         report.time_s = time.perf_counter() - start
@@ -207,7 +239,7 @@ class GraspPlanner:
         the last step Δ_k fixed (it belongs to the posture)."""
         # On the last footprint: steps are added in pairs here, so the robot keeps its sides.
         goal = FootprintPoseTask(None, stance, weights=(1.0, 1.0, 1.0), name="robot_stance")
-        goal.max_step = 0.6       # the chain is near its solution: larger Gauss–Newton steps
+        goal.max_step = 0.6  # the chain is near its solution: larger Gauss–Newton steps
         first = self.frozen_steps + 1
         levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
         if self.obstacles:
@@ -235,12 +267,17 @@ class GraspPlanner:
         # An obstacle's linearised rows block directions the chain can still take around it
         # (a 1 mm check added steps there that the iterations did not need): the default then.
         reach_tolerance = self.settings.reach_tolerance if self.obstacles else 1e-3
-        settings = dataclasses.replace(self.settings, relax_stretched=False, reach_check=True,
-                                       trust_region_steps=0.25,
-                                       settle_ratio=self.options.replan_settle_ratio,
-                                       task_tolerance=0.2 * self.settings.task_tolerance,
-                                       blocked_iterations=1, restore_primary=True,
-                                       reach_tolerance=reach_tolerance)
+        settings = dataclasses.replace(
+            self.settings,
+            relax_stretched=False,
+            reach_check=True,
+            trust_region_steps=0.25,
+            settle_ratio=self.options.replan_settle_ratio,
+            task_tolerance=0.2 * self.settings.task_tolerance,
+            blocked_iterations=1,
+            restore_primary=True,
+            reach_tolerance=reach_tolerance,
+        )
         optimizer = FootstepOptimizer(self.augmented, levels, goal, self.limits, settings)
         self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen=True)
         return report
@@ -253,35 +290,48 @@ class GraspPlanner:
         at the stance; otherwise Algorithm 1 adds steps to the chain."""
         start = time.perf_counter()
         k = self.config.num_steps
-        fp = self.augmented.footprints(self.config.steps)            # rows: footprints -1..k
-        root, other = fp[k - 1], fp[k - 2]                           # P_(k-2), P_(k-3)
+        fp = self.augmented.footprints(self.config.steps)  # rows: footprints -1..k
+        root, other = fp[k - 1], fp[k - 2]  # P_(k-2), P_(k-3)
         last_side = self.augmented.side_of(k)
-        stance = Stance(root if last_side == "left" else other,
-                        other if last_side == "left" else root, self.augmented.stance.floor_z)
+        stance = Stance(
+            root if last_side == "left" else other,
+            other if last_side == "left" else root,
+            self.augmented.stance.floor_z,
+        )
         sub = AugmentedRobot(self.robot, stance, self.augmented.side_of(k - 1))
-        sub_config = AugmentedConfiguration(self.config.steps[k - 2:].copy(),
-                                            self.config.q_robot.copy())
-        free_step = StepBounds(-10.0, 10.0, -10.0, 10.0, np.pi, np.pi)     # P_(k-1) anywhere
+        sub_config = AugmentedConfiguration(
+            self.config.steps[k - 2 :].copy(), self.config.q_robot.copy()
+        )
+        free_step = StepBounds(-10.0, 10.0, -10.0, 10.0, np.pi, np.pi)  # P_(k-1) anywhere
         limits = StepLimits(default=free_step, final=self.limits.final)
         self.hand.axes = np.array([0, 1, 2])
-        levels = [FeetOnFootprints(),
-                  FootNonOverlap(self.options.non_overlap_margin, first_step=2)]
+        levels = [FeetOnFootprints(), FootNonOverlap(self.options.non_overlap_margin, first_step=2)]
         if self.obstacles:
             levels.append(ObstacleAvoidance(self.obstacles, first_step=1))
         levels += [ComInSupportPolygon(self.options.com_margin), self.hand]
         if self.options.gaze:
             levels.append(self.gaze)
-        levels += [self.facing, self.reach, self.posture,
-                   StepPreferenceTask(self.options.nominal_width, 2, 2)]
+        levels += [
+            self.facing,
+            self.reach,
+            self.posture,
+            StepPreferenceTask(self.options.nominal_width, 2, 2),
+        ]
         # Two steps, not a long chain: wider trust region and error clamp than the chain's.
         # The closure level may be left at 0.1 mm when lower levels cannot settle (a task the
         # limits cannot satisfy keeps pushing); the iteration budget bounds the replan time.
-        settings = dataclasses.replace(self.settings, auto_steps=False,
-                                       settle_ratio=self.options.replan_settle_ratio,
-                                       trust_region_steps=0.3, trust_region_yaw=0.2,
-                                       constraint_tolerance=1e-4, max_iterations=100)
-        optimizer = FootstepOptimizer(sub, levels, self.hand, limits, settings,
-                                      self._posture_limits)
+        settings = dataclasses.replace(
+            self.settings,
+            auto_steps=False,
+            settle_ratio=self.options.replan_settle_ratio,
+            trust_region_steps=0.3,
+            trust_region_yaw=0.2,
+            constraint_tolerance=1e-4,
+            max_iterations=100,
+        )
+        optimizer = FootstepOptimizer(
+            sub, levels, self.hand, limits, settings, self._posture_limits
+        )
         self.hand.max_step = 0.25
         try:
             sub_config, robot_report = optimizer.solve(sub_config)
@@ -302,9 +352,12 @@ class GraspPlanner:
     def _solve(self, posture_frozen: bool, relax_stretched: bool = False) -> SolveReport:
         optimizer = self.optimizer(posture_frozen)
         optimizer.settings = dataclasses.replace(
-            self.settings, relax_stretched=relax_stretched,
-            settle_ratio=self.settings.settle_ratio if relax_stretched
-            else self.options.replan_settle_ratio)
+            self.settings,
+            relax_stretched=relax_stretched,
+            settle_ratio=self.settings.settle_ratio
+            if relax_stretched
+            else self.options.replan_settle_ratio,
+        )
         self.config, report = optimizer.solve(self.config, self.frozen_steps, posture_frozen)
         self.last_report = report
         return report
@@ -312,11 +365,14 @@ class GraspPlanner:
     def result(self) -> FootstepPlan:
         """The current solution as a footstep plan (world soles, sides, timing)."""
         kin = self.augmented.evaluate(self.config, robot_free=False)
-        return FootstepPlan.from_footprints(kin.footprints, kin.is_left,
-                                            self.augmented.stance.floor_z, self.timing)
+        return FootstepPlan.from_footprints(
+            kin.footprints, kin.is_left, self.augmented.stance.floor_z, self.timing
+        )
 
     def require_converged(self, report: SolveReport) -> None:
         if not report.converged:
-            raise PlanningFailed(f"hand task not reached: error {report.primary_error:.4f} m "
-                                 f"after {report.iterations} iterations, "
-                                 f"{self.config.num_steps} steps")
+            raise PlanningFailed(
+                f"hand task not reached: error {report.primary_error:.4f} m "
+                f"after {report.iterations} iterations, "
+                f"{self.config.num_steps} steps"
+            )

@@ -22,7 +22,7 @@ def _sole_outline(pose: np.ndarray, foot: FootShape) -> np.ndarray:
 
 
 def _draw_plan(ax, plan: FootstepPlan, foot: FootShape, alpha: float, numbers: bool) -> None:
-    for side, pose in plan.stance.items():
+    for _side, pose in plan.stance.items():
         outline = _sole_outline(pose, foot)
         ax.fill(outline[:, 0], outline[:, 1], color="0.8", alpha=alpha, lw=0)
         ax.plot(outline[:, 0], outline[:, 1], color="0.4", lw=1.0, alpha=alpha)
@@ -31,8 +31,15 @@ def _draw_plan(ax, plan: FootstepPlan, foot: FootShape, alpha: float, numbers: b
         outline = _sole_outline(step.pose, foot)
         ax.plot(outline[:, 0], outline[:, 1], color=color, lw=1.2, alpha=alpha)
         if numbers:
-            ax.annotate(str(step.index), step.pose[:2], ha="center", va="center", fontsize=7,
-                        color=color, alpha=alpha)
+            ax.annotate(
+                str(step.index),
+                step.pose[:2],
+                ha="center",
+                va="center",
+                fontsize=7,
+                color=color,
+                alpha=alpha,
+            )
         if step.via.shape[0]:
             ax.plot(step.via[:, 0], step.via[:, 1], "x", color=color, ms=4, alpha=alpha)
 
@@ -42,23 +49,37 @@ def _draw_obstacle(ax, obstacle: Obstacle) -> None:
 
     if isinstance(obstacle, CircleObstacle):
         ax.add_patch(patches.Circle(obstacle.center, obstacle.radius, color="0.3"))
-        ax.add_patch(patches.Circle(obstacle.center, obstacle.radius + obstacle.buffer,
-                                    fill=False, ls="--", color="0.3"))
+        ax.add_patch(
+            patches.Circle(
+                obstacle.center, obstacle.radius + obstacle.buffer, fill=False, ls="--", color="0.3"
+            )
+        )
         return
     region = obstacle.floor_region() if isinstance(obstacle, Bar) else obstacle
     corners = np.vstack([region.corners(), region.corners()[:1]])
-    ax.fill(corners[:, 0], corners[:, 1], color="tab:orange" if isinstance(obstacle, Bar)
-            else "0.3")
-    grown = RectangleObstacle(region.center, region.yaw, region.length + 2 * region.buffer,
-                              region.width + 2 * region.buffer)
+    ax.fill(
+        corners[:, 0], corners[:, 1], color="tab:orange" if isinstance(obstacle, Bar) else "0.3"
+    )
+    grown = RectangleObstacle(
+        region.center,
+        region.yaw,
+        region.length + 2 * region.buffer,
+        region.width + 2 * region.buffer,
+    )
     g = np.vstack([grown.corners(), grown.corners()[:1]])
     ax.plot(g[:, 0], g[:, 1], "--", color="0.3", lw=0.8)
 
 
-def plot_plan(path: str | Path, plan: FootstepPlan, foot: FootShape,
-              obstacles: list[Obstacle] = (), goal: np.ndarray | None = None,
-              hand_target: np.ndarray | None = None,
-              earlier: list[FootstepPlan] = (), title: str = "") -> Path:
+def plot_plan(
+    path: str | Path,
+    plan: FootstepPlan,
+    foot: FootShape,
+    obstacles: list[Obstacle] = (),
+    goal: np.ndarray | None = None,
+    hand_target: np.ndarray | None = None,
+    earlier: list[FootstepPlan] = (),
+    title: str = "",
+) -> Path:
     """Write a PNG top view of ``plan`` (and faded ``earlier`` plans) to ``path``.
 
     ``goal``: (x, y[, yaw]) of the final stance; ``hand_target``: (x, y[, z]) of the object.
@@ -80,11 +101,16 @@ def plot_plan(path: str | Path, plan: FootstepPlan, foot: FootShape,
         goal = np.asarray(goal, dtype=float)
         ax.plot(goal[0], goal[1], "k+", ms=12, mew=2, label="goal")
         if goal.shape[0] > 2:
-            ax.arrow(goal[0], goal[1], 0.1 * np.cos(goal[2]), 0.1 * np.sin(goal[2]),
-                     head_width=0.02, color="k")
+            ax.arrow(
+                goal[0],
+                goal[1],
+                0.1 * np.cos(goal[2]),
+                0.1 * np.sin(goal[2]),
+                head_width=0.02,
+                color="k",
+            )
     if hand_target is not None:
-        ax.plot(hand_target[0], hand_target[1], "*", color="tab:green", ms=14,
-                label="hand target")
+        ax.plot(hand_target[0], hand_target[1], "*", color="tab:green", ms=14, label="hand target")
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

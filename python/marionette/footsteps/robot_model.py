@@ -29,7 +29,9 @@ class FootShape:
 
     def __post_init__(self) -> None:
         if not (self.length > 0.0 and self.width > 0.0):
-            raise InvalidProblem(f"foot length and width must be > 0, got {self.length}, {self.width}")
+            raise InvalidProblem(
+                f"foot length and width must be > 0, got {self.length}, {self.width}"
+            )
 
     def corners(self) -> np.ndarray:
         """The 4 corners in the sole frame, counter-clockwise from front-left: (4, 2) [m]."""
@@ -49,10 +51,10 @@ class RobotDescription:
 
     name: str
     model: pin.Model
-    sole_frames: dict[str, str]           # {"left": ..., "right": ...}
-    hand_frames: dict[str, str]           # {"left": ..., "right": ...} grasp points
-    camera_frame: str                     # optical frame: z forward, x right, y down
-    reference_posture: np.ndarray         # (nq,)
+    sole_frames: dict[str, str]  # {"left": ..., "right": ...}
+    hand_frames: dict[str, str]  # {"left": ..., "right": ...} grasp points
+    camera_frame: str  # optical frame: z forward, x right, y down
+    reference_posture: np.ndarray  # (nq,)
     foot: FootShape
     frozen_joints: tuple[str, ...] = ()
     data: pin.Data = field(init=False, repr=False)
@@ -68,7 +70,8 @@ class RobotDescription:
         if self.reference_posture.shape != (self.model.nq,):
             raise InvalidProblem(
                 f"{self.name}: reference_posture has shape {self.reference_posture.shape}, "
-                f"expected ({self.model.nq},)")
+                f"expected ({self.model.nq},)"
+            )
         for joint in self.frozen_joints:
             if not self.model.existJointName(joint):
                 raise InvalidProblem(f"{self.name}: no joint named {joint!r} to freeze")
@@ -94,8 +97,9 @@ def _talos_data_dir() -> Path:
     prefix = Path(pin.__file__).resolve().parents[4]
     candidate = prefix / "share/example-robot-data/robots/talos_data"
     if not candidate.is_dir():
-        raise InvalidProblem(f"example-robot-data's talos_data not found at {candidate} "
-                             "(scripts/setup installs it)")
+        raise InvalidProblem(
+            f"example-robot-data's talos_data not found at {candidate} (scripts/setup installs it)"
+        )
     return candidate
 
 
@@ -111,8 +115,9 @@ def _load_talos_model() -> tuple[pin.Model, np.ndarray]:
     except (ImportError, AttributeError, KeyError, TypeError, ValueError, OSError):
         pass
     directory = _talos_data_dir()
-    model = pin.buildModelFromUrdf(str(directory / "robots/talos_reduced.urdf"),
-                                   pin.JointModelFreeFlyer())
+    model = pin.buildModelFromUrdf(
+        str(directory / "robots/talos_reduced.urdf"), pin.JointModelFreeFlyer()
+    )
     pin.loadReferenceConfigurations(model, str(directory / "srdf/talos.srdf"))
     return model, model.referenceConfigurations["half_sitting"].copy()
 
@@ -127,8 +132,15 @@ def talos() -> RobotDescription:
         name = f"{side}_grasp_point"
         if not model.existFrame(name):
             placement = parent.placement * pin.SE3(np.eye(3), TALOS_GRASP_POINT)
-            model.addFrame(pin.Frame(name, parent.parentJoint, model.getFrameId(parent.name),
-                                     placement, pin.FrameType.OP_FRAME))
+            model.addFrame(
+                pin.Frame(
+                    name,
+                    parent.parentJoint,
+                    model.getFrameId(parent.name),
+                    placement,
+                    pin.FrameType.OP_FRAME,
+                )
+            )
         hand_frames[side] = name
     return RobotDescription(
         name="talos",

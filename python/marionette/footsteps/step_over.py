@@ -27,11 +27,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot, Stance,
-                                                  planar_compose, planar_relative)
-from marionette.footsteps.constraints import (FINAL_STANCE, FootNonOverlap, FootprintPoseTask,
-                                              ObstacleAvoidance, StanceGoalTask, StepBounds,
-                                              StepLimits, StepPreferenceTask, sole_clearance)
+from marionette.footsteps.augmented_robot import (
+    AugmentedConfiguration,
+    AugmentedRobot,
+    Stance,
+    planar_compose,
+    planar_relative,
+)
+from marionette.footsteps.constraints import (
+    FINAL_STANCE,
+    FootNonOverlap,
+    FootprintPoseTask,
+    ObstacleAvoidance,
+    StanceGoalTask,
+    StepBounds,
+    StepLimits,
+    StepPreferenceTask,
+    sole_clearance,
+)
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
 from marionette.footsteps.obstacles import Bar, Obstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
@@ -47,36 +60,44 @@ class StepOverOptions:
     nominal_width: float = 0.17
     # Longest step allowed over the bar: the straddling double support needs the sole length
     # + the bar's width + two buffers between the sole centres.
-    crossing_max_length: float | None = None     # None: computed from the bar (+ 2 cm)
-    crossing_duration: float = 1.2               # single support of the crossing steps [s]
-    swing_margin: float = 0.03                   # eq. 5.1 clearance of the swing [m]
+    crossing_max_length: float | None = None  # None: computed from the bar (+ 2 cm)
+    crossing_duration: float = 1.2  # single support of the crossing steps [s]
+    swing_margin: float = 0.03  # eq. 5.1 clearance of the swing [m]
     # Replans (Algorithm 3): the crossing footprints are tasks above the goal, and once the
     # crossing stride is at its bound a moved bar leaves them short by a fraction of a
     # millimetre; with the default 10 µm the Gauss–Newton loop ran its 300 iterations (5 s).
     # 0.1 mm is well inside the bar's 3 cm buffer; the iteration cap bounds a replan's time.
-    replan_constraint_tolerance: float = 1e-4    # [m]
+    replan_constraint_tolerance: float = 1e-4  # [m]
     replan_max_iterations: int = 60
     # A bar moved away by more than the free steps before it can stretch leaves the crossing
     # footprints short of their targets (the optimizer twists the feet to gain reach): the free
     # steps are then planned again as an initial sequence (§5.2.1) from the steps taken.
-    crossing_tolerance: float = 0.01             # [m] crossing footprint to its target
-    fresh_shifts: tuple[float, ...] = (0.0, 0.06, 0.12)   # [m] (see _fresh_sequence)
+    crossing_tolerance: float = 0.01  # [m] crossing footprint to its target
+    fresh_shifts: tuple[float, ...] = (0.0, 0.06, 0.12)  # [m] (see _fresh_sequence)
     # Algorithm 3 deforms the plan for small moves; once the bar has moved this far across
     # itself since the crossing was planned, the free steps are planned afresh instead (a plan
     # made for a bar 10-20 cm farther keeps its step count and ends in short shuffling steps,
     # measured: falls at the goal).
-    fresh_after_move: float = 0.05               # [m]
-    fresh_max_iterations: int = 15               # per solve with the bar
+    fresh_after_move: float = 0.05  # [m]
+    fresh_max_iterations: int = 15  # per solve with the bar
 
 
 class StepOverPlanner:
     """Footsteps from ``stance`` to the ``goal`` stance (x, y, yaw) over ``bar`` (see module)."""
 
-    def __init__(self, stance: Stance, goal, bar: Bar, foot: FootShape = TALOS_FOOT,
-                 obstacles: list[Obstacle] | None = None, first_side: str | None = None,
-                 limits: StepLimits | None = None, options: StepOverOptions | None = None,
-                 settings: OptimizerSettings | None = None,
-                 timing: StepTiming | None = None) -> None:
+    def __init__(
+        self,
+        stance: Stance,
+        goal,
+        bar: Bar,
+        foot: FootShape = TALOS_FOOT,
+        obstacles: list[Obstacle] | None = None,
+        first_side: str | None = None,
+        limits: StepLimits | None = None,
+        options: StepOverOptions | None = None,
+        settings: OptimizerSettings | None = None,
+        timing: StepTiming | None = None,
+    ) -> None:
         self.goal = StanceGoalTask(goal)
         self.bar = bar
         self.foot = foot
@@ -89,9 +110,9 @@ class StepOverPlanner:
         self.augmented = AugmentedRobot(None, stance, side, foot)
         self.config = self.augmented.neutral_configuration(0)
         self.frozen_steps = 0
-        self.crossing: tuple[int, int] | None = None        # footprint indices (before, after)
+        self.crossing: tuple[int, int] | None = None  # footprint indices (before, after)
         self._crossing_in_bar: tuple[np.ndarray, np.ndarray] | None = None
-        self._crossing_bar_center = np.zeros(2)             # the bar when they were recorded
+        self._crossing_bar_center = np.zeros(2)  # the bar when they were recorded
         self.last_report: SolveReport | None = None
 
     # -- geometry ------------------------------------------------------------------------
@@ -104,15 +125,18 @@ class StepOverPlanner:
 
     def touching_bar(self, footprints: np.ndarray) -> np.ndarray:
         """Footprints whose sole comes within the bar's buffer: (m,) bool."""
-        return np.array([np.min(sole_clearance(pose, self.foot, self.bar)[0]) < 0.0
-                         for pose in footprints], dtype=bool)
+        return np.array(
+            [np.min(sole_clearance(pose, self.foot, self.bar)[0]) < 0.0 for pose in footprints],
+            dtype=bool,
+        )
 
     def crossing_bounds(self) -> StepBounds:
         d = self.limits.default
         needed = self.foot.length + 2.0 * self.bar.radius + 2.0 * self.bar.buffer
         longest = self.options.crossing_max_length or max(d.max_length, needed + 0.02)
-        return StepBounds(d.min_length, longest, d.min_width, d.max_width,
-                          d.max_outward_yaw, d.max_inward_yaw)
+        return StepBounds(
+            d.min_length, longest, d.min_width, d.max_width, d.max_outward_yaw, d.max_inward_yaw
+        )
 
     # -- planning ------------------------------------------------------------------------
     def plan(self) -> SolveReport:
@@ -132,7 +156,7 @@ class StepOverPlanner:
         if not report.converged:
             raise PlanningFailed(f"goal not reached even without the bar: {report}")
         # 2. Remove the footprints on the bar (and one more if their number is odd).
-        fp = self.augmented.footprints(self.config.steps)[2:]            # P_1..P_k
+        fp = self.augmented.footprints(self.config.steps)[2:]  # P_1..P_k
         touching = np.flatnonzero(self.touching_bar(fp))
         keep = np.ones(fp.shape[0], dtype=bool)
         if touching.size:
@@ -142,12 +166,15 @@ class StepOverPlanner:
                 keep[extra] = False
         self.config = self._chain_through(fp[keep])
         # 3. Re-optimise with the bar, the crossing step allowed to be long.
-        settings = (self.settings if bar_iterations is None
-                    else dataclasses.replace(self.settings, max_iterations=bar_iterations))
+        settings = (
+            self.settings
+            if bar_iterations is None
+            else dataclasses.replace(self.settings, max_iterations=bar_iterations)
+        )
         self._set_crossing_limits()
         report = self._solve(with_bar=True, settings=settings)
         if bar_iterations is not None and not report.converged:
-            return report                     # stalled: the caller tries another way
+            return report  # stalled: the caller tries another way
         self._set_crossing_limits()
         report = self._solve(with_bar=True, settings=settings)
         self._record_crossing()
@@ -160,36 +187,56 @@ class StepOverPlanner:
         if executed_steps is not None:
             self.frozen_steps = executed_steps
         self.bar = bar
-        held = (self.config, self.crossing, self._crossing_in_bar, self._crossing_bar_center,
-                dict(self.limits.overrides))
+        held = (
+            self.config,
+            self.crossing,
+            self._crossing_in_bar,
+            self._crossing_bar_center,
+            dict(self.limits.overrides),
+        )
         moved = abs(float(self.bar.normal() @ (self.bar.center - self._crossing_bar_center)))
         if moved > self.options.fresh_after_move and self.crossing[0] > self.frozen_steps:
             try:
                 return self._fresh_sequence()
             except PlanningFailed:
-                pass                          # Algorithm 3 below
+                pass  # Algorithm 3 below
         report = self._deform()
         if self._crossing_short():
             try:
                 report = self._fresh_sequence()
             except PlanningFailed:
                 # Keep the previous plan (the caller sees a report that did not converge).
-                (self.config, self.crossing, self._crossing_in_bar, self._crossing_bar_center,
-                 self.limits.overrides) = held
+                (
+                    self.config,
+                    self.crossing,
+                    self._crossing_in_bar,
+                    self._crossing_bar_center,
+                    self.limits.overrides,
+                ) = held
         return report
 
     def _deform(self) -> SolveReport:
         """Algorithm 3's solve on the current bar. A short first pass tells a bar beyond the
         strides' reach (its crossing stays short) before the full iteration budget is spent."""
-        settings = dataclasses.replace(self.settings,
-                                       constraint_tolerance=self.options.replan_constraint_tolerance,
-                                       max_iterations=self.options.replan_max_iterations)
+        settings = dataclasses.replace(
+            self.settings,
+            constraint_tolerance=self.options.replan_constraint_tolerance,
+            max_iterations=self.options.replan_max_iterations,
+        )
         first = min(self.options.fresh_max_iterations, settings.max_iterations)
-        report = self._solve(with_bar=True, crossing_targets=True,
-                             settings=dataclasses.replace(settings, max_iterations=first))
+        report = self._solve(
+            with_bar=True,
+            crossing_targets=True,
+            settings=dataclasses.replace(settings, max_iterations=first),
+        )
         if not report.converged and not self._crossing_short():
-            report = self._solve(with_bar=True, crossing_targets=True, settings=dataclasses.replace(
-                settings, max_iterations=settings.max_iterations - first))
+            report = self._solve(
+                with_bar=True,
+                crossing_targets=True,
+                settings=dataclasses.replace(
+                    settings, max_iterations=settings.max_iterations - first
+                ),
+            )
         return report
 
     def _fresh_sequence(self) -> SolveReport:
@@ -199,17 +246,24 @@ class StepOverPlanner:
         a bar just out of the strides' reach (the solve then stalls): the sequence is then
         planned for the bar ``fresh_shifts`` farther and deformed back onto it by Algorithm 3."""
         f = self.frozen_steps
-        fp = self.augmented.footprints(self.config.steps)                # rows: P_-1..P_k
+        fp = self.augmented.footprints(self.config.steps)  # rows: P_-1..P_k
         mover = self.augmented.side_of(f + 1)
-        feet = {mover: fp[f], self.augmented.side_of(f): fp[f + 1]}      # P_(f-1), P_f
+        feet = {mover: fp[f], self.augmented.side_of(f): fp[f + 1]}  # P_(f-1), P_f
         stance = Stance(feet["left"], feet["right"], self.augmented.stance.floor_z)
         away = self._away_from(0.5 * (stance.left[:2] + stance.right[:2]))
         for shift in self.options.fresh_shifts:
-            fresh = StepOverPlanner(stance, self.goal.target,
-                                    self.bar.moved_to(self.bar.center + shift * away, self.bar.yaw),
-                                    self.foot, self.obstacles, first_side=mover,
-                                    limits=dataclasses.replace(self.limits, overrides={}),
-                                    options=self.options, settings=self.settings, timing=self.timing)
+            fresh = StepOverPlanner(
+                stance,
+                self.goal.target,
+                self.bar.moved_to(self.bar.center + shift * away, self.bar.yaw),
+                self.foot,
+                self.obstacles,
+                first_side=mover,
+                limits=dataclasses.replace(self.limits, overrides={}),
+                options=self.options,
+                settings=self.settings,
+                timing=self.timing,
+            )
             try:
                 report = fresh._initial_sequence(self.options.fresh_max_iterations)
             except PlanningFailed:
@@ -221,15 +275,18 @@ class StepOverPlanner:
                 report = fresh._deform()
                 if not report.converged or fresh._crossing_short():
                     continue
-            self.config = AugmentedConfiguration(np.vstack([self.config.steps[:f], fresh.config.steps]),
-                                                 None)
+            self.config = AugmentedConfiguration(
+                np.vstack([self.config.steps[:f], fresh.config.steps]), None
+            )
             self.crossing = (fresh.crossing[0] + f, fresh.crossing[1] + f)
             self._crossing_in_bar = fresh._crossing_in_bar
             self._crossing_bar_center = fresh._crossing_bar_center
             self.limits.overrides = {i + f: b for i, b in fresh.limits.overrides.items()}
             return report
-        raise PlanningFailed(f"no sequence over the bar from the stance after step {f} "
-                             f"(bar shifted by {list(self.options.fresh_shifts)} m)")
+        raise PlanningFailed(
+            f"no sequence over the bar from the stance after step {f} "
+            f"(bar shifted by {list(self.options.fresh_shifts)} m)"
+        )
 
     def crossing_errors(self) -> dict[int, np.ndarray]:
         """Footprint index -> (target − footprint) in x, y [m] of the crossing footprints still
@@ -237,8 +294,11 @@ class StepOverPlanner:
         if self.crossing is None or self._crossing_in_bar is None:
             return {}
         fp = self.augmented.footprints(self.config.steps)
-        return {i: target[:2] - fp[i + 1][:2] for i, target in self._crossing_targets().items()
-                if i > self.frozen_steps}
+        return {
+            i: target[:2] - fp[i + 1][:2]
+            for i, target in self._crossing_targets().items()
+            if i > self.frozen_steps
+        }
 
     def _crossing_targets(self) -> dict[int, np.ndarray]:
         """Algorithm 3's targets of the crossing footprints on the current bar: fixed relative
@@ -247,8 +307,10 @@ class StepOverPlanner:
         measured: sideways steps and falls)."""
         axis = np.array([np.cos(self.bar.yaw), np.sin(self.bar.yaw)])
         slide = float(axis @ (self.bar.center - self._crossing_bar_center))
-        return {i: planar_compose(self.bar.pose(), rel - np.array([slide, 0.0, 0.0]))
-                for i, rel in zip(self.crossing, self._crossing_in_bar)}
+        return {
+            i: planar_compose(self.bar.pose(), rel - np.array([slide, 0.0, 0.0]))
+            for i, rel in zip(self.crossing, self._crossing_in_bar)
+        }
 
     def _away_from(self, start: np.ndarray) -> np.ndarray:
         """The bar's floor normal pointing from ``start`` (x, y) towards its far side."""
@@ -258,9 +320,13 @@ class StepOverPlanner:
     def _crossing_short(self) -> bool:
         """A free crossing footprint lies more than ``crossing_tolerance`` short of its target,
         towards the bar's far side: the steps before it cannot stretch that far."""
-        away = self._away_from(0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2]))
-        return any(np.linalg.norm(e) > self.options.crossing_tolerance and e @ away > 0.0
-                   for e in self.crossing_errors().values())
+        away = self._away_from(
+            0.5 * (self.augmented.stance.left[:2] + self.augmented.stance.right[:2])
+        )
+        return any(
+            np.linalg.norm(e) > self.options.crossing_tolerance and e @ away > 0.0
+            for e in self.crossing_errors().values()
+        )
 
     def set_goal(self, goal) -> None:
         self.goal.set_target(goal)
@@ -268,18 +334,19 @@ class StepOverPlanner:
     def _chain_through(self, footprints: np.ndarray) -> AugmentedConfiguration:
         """Step variables through given world footprints P_1..P_m (after P_-1, P_0)."""
         poses = np.vstack([self.augmented.root[None], footprints])
-        steps = np.array([planar_relative(poses[i], poses[i + 1])
-                          for i in range(footprints.shape[0])]).reshape(-1, 3)
+        steps = np.array(
+            [planar_relative(poses[i], poses[i + 1]) for i in range(footprints.shape[0])]
+        ).reshape(-1, 3)
         return AugmentedConfiguration(steps, None)
 
     def _set_crossing_limits(self) -> None:
         """The step landing first past the bar may be long (the others keep the default)."""
         fp = self.augmented.footprints(self.config.steps)
-        side = self.side_of_bar(fp)                                       # rows -1..k
+        side = self.side_of_bar(fp)  # rows -1..k
         past = np.flatnonzero(side < 0.0)
         self.limits.overrides = {}
         if past.size:
-            first_past = int(past[0]) - 1                                 # footprint index
+            first_past = int(past[0]) - 1  # footprint index
             self.limits.overrides[first_past] = self.crossing_bounds()
             self.crossing = (first_past - 1, first_past)
 
@@ -299,17 +366,29 @@ class StepOverPlanner:
             levels.append(ObstacleAvoidance(obstacles, first_step=first))
         if crossing_targets and self.crossing is not None:
             for index, target in self._crossing_targets().items():
-                if index > self.frozen_steps:        # a landed footprint cannot be moved
-                    levels.append(FootprintPoseTask(index, target, weights=(1.0, 1.0, 1.0),
-                                                    name=f"crossing_{index}"))
+                if index > self.frozen_steps:  # a landed footprint cannot be moved
+                    levels.append(
+                        FootprintPoseTask(
+                            index, target, weights=(1.0, 1.0, 1.0), name=f"crossing_{index}"
+                        )
+                    )
         levels.append(self.goal)
         levels.append(StepPreferenceTask(self.options.nominal_width, first))
         return levels
 
-    def _solve(self, with_bar: bool, crossing_targets: bool = False,
-               settings: OptimizerSettings | None = None) -> SolveReport:
-        optimizer = FootstepOptimizer(self.augmented, self._levels(with_bar, crossing_targets),
-                                      self.goal, self.limits, settings or self.settings)
+    def _solve(
+        self,
+        with_bar: bool,
+        crossing_targets: bool = False,
+        settings: OptimizerSettings | None = None,
+    ) -> SolveReport:
+        optimizer = FootstepOptimizer(
+            self.augmented,
+            self._levels(with_bar, crossing_targets),
+            self.goal,
+            self.limits,
+            settings or self.settings,
+        )
         self.config, report = optimizer.solve(self.config, self.frozen_steps)
         self.last_report = report
         return report
@@ -318,17 +397,23 @@ class StepOverPlanner:
     def result(self) -> FootstepPlan:
         """The plan, the two bar-crossing swings with passage points (eq. 5.1)."""
         kin = self.augmented.evaluate(self.config)
-        plan = FootstepPlan.from_footprints(kin.footprints, kin.is_left,
-                                            self.augmented.stance.floor_z, self.timing)
+        plan = FootstepPlan.from_footprints(
+            kin.footprints, kin.is_left, self.augmented.stance.floor_z, self.timing
+        )
         side = self.side_of_bar(kin.footprints)
         z = self.augmented.stance.floor_z
         for step in plan.steps:
-            i = step.index + 1                                   # footprint index of landing
-            lift = kin.footprints[i - 2 + 1]                     # P_(i-2)
-            if side[i + 1] != side[i - 1]:                       # lands past, lifted before
-                via, apex = crossing_via_points(np.array([lift[0], lift[1], z, lift[2]]),
-                                                step.pose, self.bar, self.foot.length,
-                                                self.foot.width, self.options.swing_margin)
+            i = step.index + 1  # footprint index of landing
+            lift = kin.footprints[i - 2 + 1]  # P_(i-2)
+            if side[i + 1] != side[i - 1]:  # lands past, lifted before
+                via, apex = crossing_via_points(
+                    np.array([lift[0], lift[1], z, lift[2]]),
+                    step.pose,
+                    self.bar,
+                    self.foot.length,
+                    self.foot.width,
+                    self.options.swing_margin,
+                )
                 step.via = via
                 step.step_height = apex
                 step.duration = self.options.crossing_duration

@@ -27,8 +27,9 @@ from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.obstacles import Bar
 
 
-def bar_clearance(s: np.ndarray, h: np.ndarray, s_c: float, h_c: float, radius: float,
-                  d1: float, d2: float) -> np.ndarray:
+def bar_clearance(
+    s: np.ndarray, h: np.ndarray, s_c: float, h_c: float, radius: float, d1: float, d2: float
+) -> np.ndarray:
     """Signed clearance of eq. 5.1 for sole points O = (s, h) (any shape): ≥ 0 is collision free.
 
     Lengths in metres. Where the sole spans the bar's axis the value is the height margin
@@ -43,18 +44,25 @@ def bar_clearance(s: np.ndarray, h: np.ndarray, s_c: float, h_c: float, radius: 
     def end_clearance(ds):
         return np.where(dh >= 0.0, np.hypot(ds, dh), np.abs(ds)) - radius
 
-    return np.where(toe < 0.0, end_clearance(toe),
-                    np.where(heel > 0.0, end_clearance(heel), dh - radius))
+    return np.where(
+        toe < 0.0, end_clearance(toe), np.where(heel > 0.0, end_clearance(heel), dh - radius)
+    )
 
 
 def sole_extent_across(bar: Bar, yaw: float, length: float, width: float) -> float:
     """Half extent of a sole of yaw ``yaw`` along the bar's floor normal [m] (d1 = d2)."""
-    phi = yaw - (bar.yaw + 0.5 * np.pi)       # angle between the sole's x and the bar normal
+    phi = yaw - (bar.yaw + 0.5 * np.pi)  # angle between the sole's x and the bar normal
     return 0.5 * length * abs(np.cos(phi)) + 0.5 * width * abs(np.sin(phi))
 
 
-def crossing_via_points(lift_off: np.ndarray, landing: np.ndarray, bar: Bar, length: float,
-                        width: float, margin: float = 0.03) -> tuple[np.ndarray, float]:
+def crossing_via_points(
+    lift_off: np.ndarray,
+    landing: np.ndarray,
+    bar: Bar,
+    length: float,
+    width: float,
+    margin: float = 0.03,
+) -> tuple[np.ndarray, float]:
     """Two passage points of the sole centre over ``bar`` and the swing apex height.
 
     ``lift_off``/``landing``: (x, y, z, yaw) of the sole on either side of the bar [m, rad].
@@ -70,11 +78,13 @@ def crossing_via_points(lift_off: np.ndarray, landing: np.ndarray, bar: Bar, len
     s1 = float(n @ (landing[:2] - bar.center))
     if s0 * s1 >= 0.0:
         raise InvalidProblem("lift-off and landing are on the same side of the bar")
-    direction = np.sign(s1 - s0)              # walk along +n or −n
-    d = max(sole_extent_across(bar, lift_off[3], length, width),
-            sole_extent_across(bar, landing[3], length, width))
+    direction = np.sign(s1 - s0)  # walk along +n or −n
+    d = max(
+        sole_extent_across(bar, lift_off[3], length, width),
+        sole_extent_across(bar, landing[3], length, width),
+    )
     floor_z = lift_off[2]
-    apex = 2.0 * bar.radius + margin          # h_c + R + margin with h_c = R
+    apex = 2.0 * bar.radius + margin  # h_c + R + margin with h_c = R
     vias = []
     for side, s_end in ((-1.0, s0), (1.0, s1)):
         # ``margin`` beyond the band, but never beyond the footprint itself.

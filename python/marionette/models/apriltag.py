@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-from functools import lru_cache
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -44,14 +44,16 @@ class _ImageU8(ctypes.Structure):
     ]
 
 
-@lru_cache(maxsize=None)
+@cache
 def _library() -> tuple[ctypes.CDLL, ctypes.CDLL]:
     """(libapriltag, libapriltag-utils): Debian puts the image_u8 helpers in the second."""
     try:
         lib = ctypes.CDLL(ctypes.util.find_library("apriltag") or "libapriltag.so.3")
         utils = ctypes.CDLL(ctypes.util.find_library("apriltag-utils") or "libapriltag-utils.so.3")
     except OSError as e:
-        raise RuntimeError(f"cannot load libapriltag ({e}); scripts/setup installs libapriltag-dev")
+        raise RuntimeError(
+            f"cannot load libapriltag ({e}); scripts/setup installs libapriltag-dev"
+        ) from e
     lib.tag36h11_create.restype = ctypes.POINTER(_Family)
     lib.apriltag_to_image.restype = ctypes.POINTER(_ImageU8)
     lib.apriltag_to_image.argtypes = [ctypes.POINTER(_Family), ctypes.c_int]
@@ -59,7 +61,7 @@ def _library() -> tuple[ctypes.CDLL, ctypes.CDLL]:
     return lib, utils
 
 
-@lru_cache(maxsize=None)
+@cache
 def _family(name: str):
     if name not in FAMILIES:
         raise ValueError(f"unsupported tag family {name!r}; supported: {FAMILIES}")
@@ -129,15 +131,17 @@ def printed_size(size: float, family: str = "tag36h11") -> float:
     return size * fam.total_width / fam.width_at_border
 
 
-def write_tag_png(path: str | Path, tag_id: int, pixels_per_cell: int = 16,
-                  family: str = "tag36h11") -> Path:
+def write_tag_png(
+    path: str | Path, tag_id: int, pixels_per_cell: int = 16, family: str = "tag36h11"
+) -> Path:
     """Write the tag as an 8-bit grey PNG (no metadata, so the bytes are reproducible)."""
     from PIL import Image
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(tag_image(tag_id, pixels_per_cell, family), mode="L").save(
-        path, format="PNG", optimize=False, compress_level=9)
+        path, format="PNG", optimize=False, compress_level=9
+    )
     return path
 
 

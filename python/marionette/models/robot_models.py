@@ -57,14 +57,14 @@ class ParallelGripper:
     finger: tuple[float, float, float] = (0.02, 0.02, 0.07)
     open_half_gap: float = 0.075
     stroke: float = 0.04
-    grasp_depth: float = 0.015       # grasp frame to fingertips, along z
-    effort: float = 40.0             # [N] on finger_joint (both fingers share it)
-    mass: float = 0.4                # [kg] palm + fingers
+    grasp_depth: float = 0.015  # grasp frame to fingertips, along z
+    effort: float = 40.0  # [N] on finger_joint (both fingers share it)
+    mass: float = 0.4  # [kg] palm + fingers
 
     def finger_origin_y(self) -> float:
         return self.open_half_gap + self.finger[1] / 2
 
-    def finger_z(self) -> float:     # the finger bar's centre
+    def finger_z(self) -> float:  # the finger bar's centre
         return self.palm[2] + self.finger[2] / 2
 
     def grasp_z(self) -> float:
@@ -125,8 +125,11 @@ SERVO_GAINS: dict[str, list[tuple[str, ServoGains]]] = {
 }
 
 # Planar base (MuJoCo side): joint name, type, axis, force limit [N or N m].
-PLANAR_BASE = (("root_x", "slide", (1, 0, 0), 1000.0), ("root_y", "slide", (0, 1, 0), 1000.0),
-               ("root_yaw", "hinge", (0, 0, 1), 500.0))
+PLANAR_BASE = (
+    ("root_x", "slide", (1, 0, 0), 1000.0),
+    ("root_y", "slide", (0, 1, 0), 1000.0),
+    ("root_yaw", "hinge", (0, 0, 1), 500.0),
+)
 
 
 def source_urdf_text(desc: RobotDescription) -> str:
@@ -145,8 +148,10 @@ def derived_urdf(name: str) -> str:
             root.remove(e)
     if name == "tiago":
         _tiago_edits(root)
-        note = (f"robots/{desc.source} with the wheel joints fixed and a deburring drill on "
-                "wrist_ft_tool_link")
+        note = (
+            f"robots/{desc.source} with the wheel joints fixed and a deburring drill on "
+            "wrist_ft_tool_link"
+        )
     elif name == "ur10":
         _ur10_edits(root)
         note = f"robots/{desc.source} on a stand, with a drilling spindle and a two-finger gripper"
@@ -198,27 +203,39 @@ def _add_drill(root: ET.Element, parent: str, X_PD: np.ndarray, drill: Drill | N
     b.link("drill_link", drill.shapes(), mass=drill.mass_kg)
     b.fixed_joint("drill_joint", parent, "drill_link", X_PD)
     b.link("drill_tip_link", [])
-    b.fixed_joint("drill_tip_joint", "drill_link", "drill_tip_link",
-                  homogeneous(p=[0, 0, drill.tip_z()]))
+    b.fixed_joint(
+        "drill_tip_joint", "drill_link", "drill_tip_link", homogeneous(p=[0, 0, drill.tip_z()])
+    )
 
 
 def _ur10_edits(root: ET.Element) -> None:
     for e in list(root):
-        if (e.tag == "link" and e.get("name") == "world") or \
-                (e.tag == "joint" and e.get("name") == "world_joint"):
+        if (e.tag == "link" and e.get("name") == "world") or (
+            e.tag == "joint" and e.get("name") == "world_joint"
+        ):
             root.remove(e)
     b = UrdfBuilder("", "", root=root)
     h = UR10_STAND_HEIGHT
-    b.link("stand_link", [Shape("box", (0.30, 0.30, 0.04), homogeneous(p=[0, 0, 0.02]),
-                                rgba=(0.3, 0.3, 0.32, 1)),
-                          Shape("cylinder", (0.08, h - 0.04), homogeneous(p=[0, 0, 0.04 + (h - 0.04) / 2]),
-                                rgba=(0.3, 0.3, 0.32, 1))], mass=40.0)
+    b.link(
+        "stand_link",
+        [
+            Shape("box", (0.30, 0.30, 0.04), homogeneous(p=[0, 0, 0.02]), rgba=(0.3, 0.3, 0.32, 1)),
+            Shape(
+                "cylinder",
+                (0.08, h - 0.04),
+                homogeneous(p=[0, 0, 0.04 + (h - 0.04) / 2]),
+                rgba=(0.3, 0.3, 0.32, 1),
+            ),
+        ],
+        mass=40.0,
+    )
     b.fixed_joint("stand_joint", "stand_link", "base_link", homogeneous(p=[0, 0, h]))
     _add_drill(root, "tool0", ur10_drill_mount())
-    _add_parallel_gripper(b, "drill_link",
-                          homogeneous(rot_y(-np.pi / 2), [-Drill().housing_radius, 0, 0.05]))
+    _add_parallel_gripper(
+        b, "drill_link", homogeneous(rot_y(-np.pi / 2), [-Drill().housing_radius, 0, 0.05])
+    )
     # Move the new root (stand_link) first so that Pinocchio and readers see it first.
-    stand = [e for e in root if e.tag == "link" and e.get("name") == "stand_link"][0]
+    stand = next(e for e in root if e.tag == "link" and e.get("name") == "stand_link")
     root.remove(stand)
     root.insert(0, stand)
 
@@ -228,8 +245,13 @@ def _ur10_edits(root: ET.Element) -> None:
 # motor force splits between the two fingers (virtual work: τ dq = F dq + F dq), so each finger
 # squeezes with F = τ/2; K_a gives the loop the same 10/s as TALOS' (0.01 m/(s N) x 1000 N/m of
 # finger force per metre of servo error); the closing ramp goes at 2 cm/s (a 1.5 cm gap: 0.8 s).
-PARALLEL_GRIPPER_ADMITTANCE = {"lever_arm": 1.0, "torque_per_effort": 0.5,
-                               "admittance_gain": 0.01, "speed": 0.02, "acceleration": 0.2}
+PARALLEL_GRIPPER_ADMITTANCE = {
+    "lever_arm": 1.0,
+    "torque_per_effort": 0.5,
+    "admittance_gain": 0.01,
+    "speed": 0.02,
+    "acceleration": 0.2,
+}
 
 
 def _add_parallel_gripper(b: UrdfBuilder, parent: str, X_PG: np.ndarray) -> None:
@@ -237,27 +259,44 @@ def _add_parallel_gripper(b: UrdfBuilder, parent: str, X_PG: np.ndarray) -> None
     frame) with its two fingers (:class:`ParallelGripper`)."""
     g = ParallelGripper()
     dark = (0.15, 0.15, 0.17, 1)
-    b.link("gripper_link", [Shape("box", g.palm, homogeneous(p=[0, 0, g.palm[2] / 2]), rgba=dark)],
-           mass=g.mass / 2)
+    b.link(
+        "gripper_link",
+        [Shape("box", g.palm, homogeneous(p=[0, 0, g.palm[2] / 2]), rgba=dark)],
+        mass=g.mass / 2,
+    )
     b.fixed_joint("gripper_joint", parent, "gripper_link", X_PG)
     bar = [Shape("box", g.finger, homogeneous(p=[0, 0, g.finger_z()]), rgba=(0.55, 0.55, 0.6, 1))]
     y = g.finger_origin_y()
     b.link("finger_left_link", bar, mass=g.mass / 4)
-    b.prismatic_joint("finger_joint", "gripper_link", "finger_left_link", homogeneous(p=[0, y, 0]),
-                      # 5 mm of margin both ends: the open (0) and closed (stroke) commands sit
-                      # strictly inside the limits, where no limit constraint is active.
-                      axis=(0, -1, 0), lower=-0.005, upper=g.stroke + 0.005, effort=g.effort,
-                      velocity=0.1)
+    b.prismatic_joint(
+        "finger_joint",
+        "gripper_link",
+        "finger_left_link",
+        homogeneous(p=[0, y, 0]),
+        # 5 mm of margin both ends: the open (0) and closed (stroke) commands sit
+        # strictly inside the limits, where no limit constraint is active.
+        axis=(0, -1, 0),
+        lower=-0.005,
+        upper=g.stroke + 0.005,
+        effort=g.effort,
+        velocity=0.1,
+    )
     b.link("finger_right_link", bar, mass=g.mass / 4)
-    b.fixed_joint("finger_mimic_joint", "gripper_link", "finger_right_link",
-                  homogeneous(p=[0, -y, 0]), mimic="finger_joint", axis=(0, 1, 0))
+    b.fixed_joint(
+        "finger_mimic_joint",
+        "gripper_link",
+        "finger_right_link",
+        homogeneous(p=[0, -y, 0]),
+        mimic="finger_joint",
+        axis=(0, 1, 0),
+    )
 
 
 # TALOS' wrist tags (thesis 000 fig. 5.2: the head camera sees tags on the hands): a ring of six
 # 32 mm tags around arm_<side>_7_link between the wrist centre and the force sensor, faces 5.2 cm
 # from the axis, so that two face any viewer around the forearm. They locate the hand for the
 # encoder-offset calibration (ch. 4.2, marionette.perception.arm_calibration).
-TALOS_WRIST_TAGS = {"left": 52, "right": 44}   # first id of each ring
+TALOS_WRIST_TAGS = {"left": 52, "right": 44}  # first id of each ring
 TALOS_WRIST_RING = {"count": 6, "radius": 0.052, "z": -0.04, "size": 0.032}
 
 
@@ -269,8 +308,15 @@ def talos_wrist_tags(side: str) -> list[Tag]:
     for k in range(ring["count"]):
         phi = 2 * np.pi * k / ring["count"]
         n = np.array([np.cos(phi), np.sin(phi), 0.0])
-        out.append(Tag(TALOS_WRIST_TAGS[side] + k, TAG_FAMILY, ring["size"], link,
-                       tag_frame(n * ring["radius"] + [0, 0, ring["z"]], n, [0, 0, 1])))
+        out.append(
+            Tag(
+                TALOS_WRIST_TAGS[side] + k,
+                TAG_FAMILY,
+                ring["size"],
+                link,
+                tag_frame(n * ring["radius"] + [0, 0, ring["z"]], n, [0, 0, 1]),
+            )
+        )
     return out
 
 
@@ -286,10 +332,17 @@ def robot_semantics(name: str) -> Semantics:
             # the fingers open), x along the approach (-z of the base link), y along which the
             # fingers close (y of the base link): R = Ry(+90 deg).
             X = homogeneous(rot_y(np.pi / 2), [0, 0, -0.12])
-            grippers.append(Gripper(f"talos/{side}_gripper", f"gripper_{side}_base_link",
-                                    Placement.from_matrix(X), clearance=0.05,
-                                    joint=f"gripper_{side}_joint",
-                                    open_position=-0.02, closed_position=-1.0))
+            grippers.append(
+                Gripper(
+                    f"talos/{side}_gripper",
+                    f"gripper_{side}_base_link",
+                    Placement.from_matrix(X),
+                    clearance=0.05,
+                    joint=f"gripper_{side}_joint",
+                    open_position=-0.02,
+                    closed_position=-1.0,
+                )
+            )
         lx, ly = TALOS_SOLE[0] / 2, TALOS_SOLE[1] / 2
         contacts = []
         for side in ("left", "right"):
@@ -306,10 +359,16 @@ def robot_semantics(name: str) -> Semantics:
         # Between the finger pads: x along the approach (z of gripper_link), y along which the
         # fingers close, as TALOS' grippers.
         g = ParallelGripper()
-        gripper = Gripper("ur10/gripper", "gripper_link",
-                          Placement.from_matrix(homogeneous(rot_y(-np.pi / 2), [0, 0, g.grasp_z()])),
-                          clearance=0.05, joint="finger_joint", open_position=0.0,
-                          closed_position=g.stroke, admittance=PARALLEL_GRIPPER_ADMITTANCE)
+        gripper = Gripper(
+            "ur10/gripper",
+            "gripper_link",
+            Placement.from_matrix(homogeneous(rot_y(-np.pi / 2), [0, 0, g.grasp_z()])),
+            clearance=0.05,
+            joint="finger_joint",
+            open_position=0.0,
+            closed_position=g.stroke,
+            admittance=PARALLEL_GRIPPER_ADMITTANCE,
+        )
         return Semantics("ur10", grippers=[drill, gripper])
     raise KeyError(name)
 
@@ -318,14 +377,28 @@ def robot_semantics(name: str) -> Semantics:
 
 REFERENCE_POSTURES = {
     # TIAGo "home": torso at 15 cm, arm folded (PAL's home motion, as in Agimus' TIAGo demos).
-    "tiago": {"torso_lift_joint": 0.15, "arm_1_joint": 0.20, "arm_2_joint": -1.34,
-              "arm_3_joint": -0.20, "arm_4_joint": 1.94, "arm_5_joint": -1.57,
-              "arm_6_joint": 1.37, "arm_7_joint": 0.0, "head_1_joint": 0.0,
-              "head_2_joint": -0.5},
+    "tiago": {
+        "torso_lift_joint": 0.15,
+        "arm_1_joint": 0.20,
+        "arm_2_joint": -1.34,
+        "arm_3_joint": -0.20,
+        "arm_4_joint": 1.94,
+        "arm_5_joint": -1.57,
+        "arm_6_joint": 1.37,
+        "arm_7_joint": 0.0,
+        "head_1_joint": 0.0,
+        "head_2_joint": -0.5,
+    },
     # UR10 "home": upper arm up, forearm forward, spindle pointing down.
-    "ur10": {"shoulder_pan_joint": 0.0, "shoulder_lift_joint": -1.5707963267948966,
-             "elbow_joint": 1.5707963267948966, "wrist_1_joint": -1.5707963267948966,
-             "wrist_2_joint": -1.5707963267948966, "wrist_3_joint": 0.0, "finger_joint": 0.0},
+    "ur10": {
+        "shoulder_pan_joint": 0.0,
+        "shoulder_lift_joint": -1.5707963267948966,
+        "elbow_joint": 1.5707963267948966,
+        "wrist_1_joint": -1.5707963267948966,
+        "wrist_2_joint": -1.5707963267948966,
+        "wrist_3_joint": 0.0,
+        "finger_joint": 0.0,
+    },
 }
 
 
@@ -344,12 +417,16 @@ def derived_srdf(name: str, urdf_text: str) -> str:
         sub(gs, "joint", name=joint, value=fmt_vec([value]))
     for a, b, reason in disabled_collision_pairs(name, urdf_text):
         sub(root, "disable_collisions", link1=a, link2=b, reason=reason)
-    return indent_and_serialize(root, f"{GENERATED}: reference posture and collision pairs "
-                                      "never checked (adjacent or always in collision).")
+    return indent_and_serialize(
+        root,
+        f"{GENERATED}: reference posture and collision pairs "
+        "never checked (adjacent or always in collision).",
+    )
 
 
-def disabled_collision_pairs(name: str, urdf_text: str, samples: int = 300,
-                             seed: int = 0) -> list[tuple[str, str, str]]:
+def disabled_collision_pairs(
+    name: str, urdf_text: str, samples: int = 300, seed: int = 0
+) -> list[tuple[str, str, str]]:
     """Link pairs whose collisions a planner should skip: links on the same rigid body or on
     adjacent moving bodies ("Adjacent"), and pairs in collision in >= 95 % of uniformly
     sampled configurations ("Default": geometric overlap built into the model)."""
@@ -358,8 +435,9 @@ def disabled_collision_pairs(name: str, urdf_text: str, samples: int = 300,
     from marionette.robots import package_dirs
 
     model = pin.buildModelFromXML(urdf_text)
-    geom = pin.buildGeomFromUrdfString(model, urdf_text, pin.GeometryType.COLLISION, None,
-                                       package_dirs())
+    geom = pin.buildGeomFromUrdfString(
+        model, urdf_text, pin.GeometryType.COLLISION, None, package_dirs()
+    )
     geom.addAllCollisionPairs()
     link_of = [model.frames[g.parentFrame].name for g in geom.geometryObjects]
     joint_of = [g.parentJoint for g in geom.geometryObjects]
@@ -394,8 +472,11 @@ def parsed_urdf(name: str) -> Urdf:
 
 def hand_links(name: str, urdf: Urdf) -> set[str]:
     """Links whose geoms may touch objects (class robot_hand): grippers, tools."""
-    roots = {"talos": ["wrist_left_ft_tool_link", "wrist_right_ft_tool_link"],
-             "tiago": ["drill_link"], "ur10": ["drill_link"]}[name]  # the UR10 gripper: under it
+    roots = {
+        "talos": ["wrist_left_ft_tool_link", "wrist_right_ft_tool_link"],
+        "tiago": ["drill_link"],
+        "ur10": ["drill_link"],
+    }[name]  # the UR10 gripper: under it
     out: set[str] = set()
     for r in roots:
         out |= set(urdf.subtree(r))

@@ -61,45 +61,75 @@ class Scene:
 
 def scenes() -> list[Scene]:
     """Every scene, in a fixed order."""
-    table, plank, part, ball, pedestal, bar, box = (Table(), Plank(), AircraftPart(), Ball(),
-                                                    Pedestal(), Bar(), Box())
+    table, plank, part, ball, pedestal, bar, box = (
+        Table(),
+        Plank(),
+        AircraftPart(),
+        Ball(),
+        Pedestal(),
+        Bar(),
+        Box(),
+    )
     # Plank standing on its rear face (x up), tag faces (z) towards TALOS (-x of the world).
     R_plank = np.column_stack([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])
     # Table front edge 25 cm ahead of TALOS' base (clear of its knees), plank 21 cm behind it:
     # every handle is within reach of a gripper with the feet in place, and the tags are in the
     # head camera's view once TALOS looks down (tests/python/models/test_model_scenes.py).
     table_x = 0.60
-    plank_X = homogeneous(R_plank, [table_x - table.depth / 2 + 0.21, 0.0,
-                                    table.top_z() + plank.size[0] / 2])
+    plank_X = homogeneous(
+        R_plank, [table_x - table.depth / 2 + 0.21, 0.0, table.top_z() + plank.size[0] / 2]
+    )
     out = [
-        Scene("talos_plank", "TALOS in half-sitting before a table with the plank standing on it "
-              "(Nicolin 2022, sec. 3.4)", "talos",
-              [SceneObject("table", table, placement(table_x)),
-               SceneObject("plank", plank, plank_X)],
-              graspable=("plank",)),
-        Scene("talos_walk", "TALOS on a flat floor, a bar to step over 1 m ahead and a ball on a "
-              "pedestal 2.2 m ahead (Dang 2012, ch. 5 and 6)", "talos",
-              [SceneObject("bar", bar, placement(1.0)),
-               SceneObject("pedestal", pedestal, placement(2.2)),
-               SceneObject("ball", ball, placement(2.2, 0, pedestal.ball_rest_z(ball.radius)))],
-              graspable=("ball",)),
-        Scene("tiago_deburr", "TIAGo with its deburring drill before the aircraft part "
-              "(Nicolin 2022, sec. 5.3.3)", "tiago",
-              # 10 cm into the floor (its stand's foot hidden): holes at 0.78-0.92 m, where the
-              # head camera sees the held tool's side tags within 60 deg from every pre-grasp
-              # of 20 seeded displacements; at 0.88-1.02 m the top row had none in 2 of 10
-              [SceneObject("part", part, placement(0.95, 0.0, -0.10, np.pi))]),
-        Scene("ur10_drill", "UR10 on its stand with the drilling spindle before the aircraft part "
-              "(the drilling robot of Nicolin 2022, ch. 6)", "ur10",
-              [SceneObject("part", part, placement(1.05, 0.0, 0.0, np.pi))],
-              X_WB=np.eye(4),
-              cameras=[SceneCamera("scene_rgbd", (0.40, -0.30, 1.35), (1.05, 0.0, 0.95))]),
-        Scene("ur10_box", "UR10 on its stand, a table and a box to pick and place", "ur10",
-              [SceneObject("table", table, placement(0.95)),
-               SceneObject("box", box, placement(0.75, 0.25, table.top_z() + box.side / 2))],
-              X_WB=np.eye(4),
-              cameras=[SceneCamera("scene_rgbd", (0.2, -0.9, 1.6), (0.9, 0.0, 0.75))],
-              graspable=("box",)),
+        Scene(
+            "talos_plank",
+            "TALOS in half-sitting before a table with the plank standing on it "
+            "(Nicolin 2022, sec. 3.4)",
+            "talos",
+            [SceneObject("table", table, placement(table_x)), SceneObject("plank", plank, plank_X)],
+            graspable=("plank",),
+        ),
+        Scene(
+            "talos_walk",
+            "TALOS on a flat floor, a bar to step over 1 m ahead and a ball on a "
+            "pedestal 2.2 m ahead (Dang 2012, ch. 5 and 6)",
+            "talos",
+            [
+                SceneObject("bar", bar, placement(1.0)),
+                SceneObject("pedestal", pedestal, placement(2.2)),
+                SceneObject("ball", ball, placement(2.2, 0, pedestal.ball_rest_z(ball.radius))),
+            ],
+            graspable=("ball",),
+        ),
+        Scene(
+            "tiago_deburr",
+            "TIAGo with its deburring drill before the aircraft part (Nicolin 2022, sec. 5.3.3)",
+            "tiago",
+            # 10 cm into the floor (its stand's foot hidden): holes at 0.78-0.92 m, where the
+            # head camera sees the held tool's side tags within 60 deg from every pre-grasp
+            # of 20 seeded displacements; at 0.88-1.02 m the top row had none in 2 of 10
+            [SceneObject("part", part, placement(0.95, 0.0, -0.10, np.pi))],
+        ),
+        Scene(
+            "ur10_drill",
+            "UR10 on its stand with the drilling spindle before the aircraft part "
+            "(the drilling robot of Nicolin 2022, ch. 6)",
+            "ur10",
+            [SceneObject("part", part, placement(1.05, 0.0, 0.0, np.pi))],
+            X_WB=np.eye(4),
+            cameras=[SceneCamera("scene_rgbd", (0.40, -0.30, 1.35), (1.05, 0.0, 0.95))],
+        ),
+        Scene(
+            "ur10_box",
+            "UR10 on its stand, a table and a box to pick and place",
+            "ur10",
+            [
+                SceneObject("table", table, placement(0.95)),
+                SceneObject("box", box, placement(0.75, 0.25, table.top_z() + box.side / 2)),
+            ],
+            X_WB=np.eye(4),
+            cameras=[SceneCamera("scene_rgbd", (0.2, -0.9, 1.6), (0.9, 0.0, 0.75))],
+            graspable=("box",),
+        ),
     ]
     return out
 
@@ -109,16 +139,23 @@ def scene_mjcf(scene: Scene, q_reference: np.ndarray) -> str:
     for o in scene.objects:
         parts.append(object_part(o.spec, o.instance, o.X_WO))
     extra = [_camera(c) for c in scene.cameras]
-    root = assemble(scene.name, parts, f"GENERATED by scripts/generate_models.py: "
-                                      f"{scene.description}.", extra)
+    root = assemble(
+        scene.name, parts, f"GENERATED by scripts/generate_models.py: {scene.description}.", extra
+    )
     grippers = robot_semantics(scene.robot).grippers
     links = {g.name: g.link for g in grippers}
     if scene.graspable:
         eq = ET.Element("equality")
         for g in grippers:
             for inst in scene.graspable:
-                sub(eq, "weld", name=f"grasp/{g.name}/{inst}", body1=links[g.name], body2=inst,
-                    active="false")
+                sub(
+                    eq,
+                    "weld",
+                    name=f"grasp/{g.name}/{inst}",
+                    body1=links[g.name],
+                    body2=inst,
+                    active="false",
+                )
         root.insert(list(root).index(root.find("worldbody")) + 1, eq)
     return indent_and_serialize(root)
 
@@ -140,20 +177,32 @@ def scene_yaml(scene: Scene) -> str:
         "name": scene.name,
         "description": scene.description,
         "robot": scene.robot,
-        "base": (Placement.from_matrix(scene.X_WB).to_dict() if scene.X_WB is not None
-                 else f"{desc.base} root joint, at the {desc.reference} configuration"),
+        "base": (
+            Placement.from_matrix(scene.X_WB).to_dict()
+            if scene.X_WB is not None
+            else f"{desc.base} root joint, at the {desc.reference} configuration"
+        ),
         "keyframe": "reference",
         "cameras": ([desc.camera] if desc.camera else []) + [c.name for c in scene.cameras],
         "objects": [
-            {"name": o.instance, "object": o.spec.name, "sim": o.spec.sim,
-             "pose": Placement.from_matrix(o.X_WO).to_dict()}
+            {
+                "name": o.instance,
+                "object": o.spec.name,
+                "sim": o.spec.sim,
+                "pose": Placement.from_matrix(o.X_WO).to_dict(),
+            }
             for o in scene.objects
         ],
-        "grasp_welds": [f"grasp/{g.name}/{inst}" for g in robot_semantics(scene.robot).grippers
-                        for inst in scene.graspable],
+        "grasp_welds": [
+            f"grasp/{g.name}/{inst}"
+            for g in robot_semantics(scene.robot).grippers
+            for inst in scene.graspable
+        ],
     }
-    return (f"# GENERATED by scripts/generate_models.py (python/marionette/models/scenes.py)\n"
-            + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))
+    return (
+        "# GENERATED by scripts/generate_models.py (python/marionette/models/scenes.py)\n"
+        + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    )
 
 
 def _camera(c: SceneCamera) -> ET.Element:
@@ -164,6 +213,11 @@ def _camera(c: SceneCamera) -> ET.Element:
     right = np.cross([0.0, 0.0, 1.0], back)
     right /= np.linalg.norm(right)
     up = np.cross(back, right)
-    return ET.Element("camera", name=c.name, mode="fixed", pos=fmt_vec(eye),
-                      xyaxes=fmt_vec([*right, *up]), fovy=fmt(c.fovy))
-
+    return ET.Element(
+        "camera",
+        name=c.name,
+        mode="fixed",
+        pos=fmt_vec(eye),
+        xyaxes=fmt_vec([*right, *up]),
+        fovy=fmt(c.fovy),
+    )

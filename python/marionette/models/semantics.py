@@ -36,9 +36,19 @@ class SemanticsError(ValueError):
 
 # Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h;
 # marionette.control.spec checks task specs against it).
-GRIPPER_ADMITTANCE_PARAMETERS = ("force_target", "force_threshold", "release_force", "admittance_gain",
-                                 "lever_arm", "torque_per_effort", "cutoff_frequency", "speed", "acceleration",
-                                 "closing_direction", "release")
+GRIPPER_ADMITTANCE_PARAMETERS = (
+    "force_target",
+    "force_threshold",
+    "release_force",
+    "admittance_gain",
+    "lever_arm",
+    "torque_per_effort",
+    "cutoff_frequency",
+    "speed",
+    "acceleration",
+    "closing_direction",
+    "release",
+)
 # Those a gripper may set in its semantics (the factory derives the others from the step and the
 # gripper's open / closed positions).
 ADMITTANCE_PARAMETERS = frozenset(GRIPPER_ADMITTANCE_PARAMETERS) - {"closing_direction", "release"}
@@ -61,7 +71,7 @@ class Placement:
             raise SemanticsError(f"quaternion xyzw {list(self.xyzw)} has norm {norm}, not 1")
 
     @staticmethod
-    def from_matrix(X: np.ndarray) -> "Placement":
+    def from_matrix(X: np.ndarray) -> Placement:
         """From a 4 x 4 homogeneous matrix (rotation must be orthonormal)."""
         import pinocchio as pin
 
@@ -200,13 +210,22 @@ class Semantics:
             out["handles"] = [_handle_dict(h) for h in self.handles]
         if self.contacts:
             out["contacts"] = [
-                {"name": c.name, "link": c.link, "points": [[_clean(a) for a in p] for p in c.points]}
+                {
+                    "name": c.name,
+                    "link": c.link,
+                    "points": [[_clean(a) for a in p] for p in c.points],
+                }
                 for c in self.contacts
             ]
         if self.tags:
             out["tags"] = [
-                {"id": t.id, "family": t.family, "size": _clean(t.size), "link": t.link,
-                 "pose": t.pose.to_dict()}
+                {
+                    "id": t.id,
+                    "family": t.family,
+                    "size": _clean(t.size),
+                    "link": t.link,
+                    "pose": t.pose.to_dict(),
+                }
                 for t in self.tags
             ]
         return out
@@ -239,23 +258,39 @@ def semantics_from_dict(data: Any, source: str = "<dict>") -> Semantics:
     s = Semantics(name=data["name"])
     for i, g in enumerate(data.get("grippers") or []):
         where = f"{source}: grippers[{i}]"
-        _keys(g, where, {"name", "link", "pose", "clearance"},
-              {"joint", "open_position", "closed_position", "admittance"})
+        _keys(
+            g,
+            where,
+            {"name", "link", "pose", "clearance"},
+            {"joint", "open_position", "closed_position", "admittance"},
+        )
         joint = g.get("joint")
         if joint is not None and ("open_position" not in g or "closed_position" not in g):
-            raise SemanticsError(f"{where}: a gripper joint needs open_position and closed_position")
+            raise SemanticsError(
+                f"{where}: a gripper joint needs open_position and closed_position"
+            )
         admittance = g.get("admittance") or {}
         if admittance and joint is None:
             raise SemanticsError(f"{where}: admittance parameters need a gripper joint")
         if not isinstance(admittance, dict) or set(admittance) - ADMITTANCE_PARAMETERS:
-            raise SemanticsError(f"{where}: admittance must map parameters among "
-                                 f"{sorted(ADMITTANCE_PARAMETERS)} to numbers, got {admittance!r}")
-        s.grippers.append(Gripper(
-            name=_str(g, "name", where), link=_str(g, "link", where),
-            pose=_placement(g["pose"], where), clearance=_nonneg(g, "clearance", where),
-            joint=joint, open_position=_opt_float(g, "open_position", where),
-            closed_position=_opt_float(g, "closed_position", where),
-            admittance={k: _opt_float(admittance, k, f"{where}: admittance") for k in admittance}))
+            raise SemanticsError(
+                f"{where}: admittance must map parameters among "
+                f"{sorted(ADMITTANCE_PARAMETERS)} to numbers, got {admittance!r}"
+            )
+        s.grippers.append(
+            Gripper(
+                name=_str(g, "name", where),
+                link=_str(g, "link", where),
+                pose=_placement(g["pose"], where),
+                clearance=_nonneg(g, "clearance", where),
+                joint=joint,
+                open_position=_opt_float(g, "open_position", where),
+                closed_position=_opt_float(g, "closed_position", where),
+                admittance={
+                    k: _opt_float(admittance, k, f"{where}: admittance") for k in admittance
+                },
+            )
+        )
     for i, h in enumerate(data.get("handles") or []):
         where = f"{source}: handles[{i}]"
         _keys(h, where, {"name", "link", "pose", "clearance"}, {"approach", "mask"})
@@ -265,10 +300,16 @@ def semantics_from_dict(data: Any, source: str = "<dict>") -> Semantics:
         mask = tuple(int(a) for a in h.get("mask", (1,) * 6))
         if len(mask) != 6 or any(m not in (0, 1) for m in mask):
             raise SemanticsError(f"{where}: mask must be six 0/1 values, got {mask}")
-        s.handles.append(Handle(
-            name=_str(h, "name", where), link=_str(h, "link", where),
-            pose=_placement(h["pose"], where), clearance=_nonneg(h, "clearance", where),
-            approach=approach, mask=mask))
+        s.handles.append(
+            Handle(
+                name=_str(h, "name", where),
+                link=_str(h, "link", where),
+                pose=_placement(h["pose"], where),
+                clearance=_nonneg(h, "clearance", where),
+                approach=approach,
+                mask=mask,
+            )
+        )
     for i, c in enumerate(data.get("contacts") or []):
         where = f"{source}: contacts[{i}]"
         _keys(c, where, {"name", "link", "points"}, set())
@@ -284,10 +325,16 @@ def semantics_from_dict(data: Any, source: str = "<dict>") -> Semantics:
         size = _nonneg(t, "size", where)
         if size == 0.0:
             raise SemanticsError(f"{where}: size must be > 0")
-        s.tags.append(Tag(t["id"], _str(t, "family", where), size, _str(t, "link", where),
-                          _placement(t["pose"], where)))
-    for kind, items in (("gripper", s.grippers), ("handle", s.handles),
-                        ("contact", s.contacts)):
+        s.tags.append(
+            Tag(
+                t["id"],
+                _str(t, "family", where),
+                size,
+                _str(t, "link", where),
+                _placement(t["pose"], where),
+            )
+        )
+    for kind, items in (("gripper", s.grippers), ("handle", s.handles), ("contact", s.contacts)):
         names = [item.name for item in items]
         if len(set(names)) != len(names):
             raise SemanticsError(f"{source}: duplicate {kind} names in {names}")
@@ -303,20 +350,32 @@ def dump_semantics(s: Semantics) -> str:
 
 
 def _gripper_dict(g: Gripper) -> dict[str, Any]:
-    d: dict[str, Any] = {"name": g.name, "link": g.link, "pose": g.pose.to_dict(),
-                         "clearance": _clean(g.clearance)}
+    d: dict[str, Any] = {
+        "name": g.name,
+        "link": g.link,
+        "pose": g.pose.to_dict(),
+        "clearance": _clean(g.clearance),
+    }
     if g.joint is not None:
-        d.update(joint=g.joint, open_position=_clean(g.open_position),
-                 closed_position=_clean(g.closed_position))
+        d.update(
+            joint=g.joint,
+            open_position=_clean(g.open_position),
+            closed_position=_clean(g.closed_position),
+        )
     if g.admittance:
         d["admittance"] = {k: _clean(v) for k, v in g.admittance.items()}
     return d
 
 
 def _handle_dict(h: Handle) -> dict[str, Any]:
-    return {"name": h.name, "link": h.link, "pose": h.pose.to_dict(),
-            "clearance": _clean(h.clearance), "approach": [_clean(a) for a in h.approach],
-            "mask": list(h.mask)}
+    return {
+        "name": h.name,
+        "link": h.link,
+        "pose": h.pose.to_dict(),
+        "clearance": _clean(h.clearance),
+        "approach": [_clean(a) for a in h.approach],
+        "mask": list(h.mask),
+    }
 
 
 def _clean(x: float) -> float:

@@ -10,9 +10,9 @@ MuJoCo's joint order equals Pinocchio's, and numbers keep 12 significant digits.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -126,11 +126,14 @@ def parse_urdf(text: str) -> Urdf:
         ie = le.find("inertial")
         if ie is not None:
             inertia = ie.find("inertia")
-            ixx, iyy, izz, ixy, ixz, iyz = (float(inertia.get(k, "0")) for k in
-                                             ("ixx", "iyy", "izz", "ixy", "ixz", "iyz"))
+            ixx, iyy, izz, ixy, ixz, iyz = (
+                float(inertia.get(k, "0")) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
+            )
             link.inertial = Inertial(
-                mass=float(ie.find("mass").get("value")), X_LI=_origin(ie),
-                inertia=np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))
+                mass=float(ie.find("mass").get("value")),
+                X_LI=_origin(ie),
+                inertia=np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]),
+            )
         for tag, out in (("collision", link.collisions), ("visual", link.visuals)):
             for ge in le.findall(tag):
                 g = _geometry(ge, materials, link.name)
@@ -140,14 +143,23 @@ def parse_urdf(text: str) -> Urdf:
     joints: dict[str, Joint] = {}
     for je in root.findall("joint"):
         axis_e = je.find("axis")
-        axis = np.array([float(a) for a in axis_e.get("xyz").split()]) if axis_e is not None \
+        axis = (
+            np.array([float(a) for a in axis_e.get("xyz").split()])
+            if axis_e is not None
             else np.array([1.0, 0.0, 0.0])
+        )
         if je.get("type") in MOVABLE:
             if np.linalg.norm(axis) < 1e-12:
                 raise UrdfError(f"joint {je.get('name')}: zero axis")
             axis = axis / np.linalg.norm(axis)
-        j = Joint(name=je.get("name"), type=je.get("type"), parent=je.find("parent").get("link"),
-                  child=je.find("child").get("link"), X_PJ=_origin(je), axis=axis)
+        j = Joint(
+            name=je.get("name"),
+            type=je.get("type"),
+            parent=je.find("parent").get("link"),
+            child=je.find("child").get("link"),
+            X_PJ=_origin(je),
+            axis=axis,
+        )
         lim = je.find("limit")
         if lim is not None:
             j.lower = _opt(lim.get("lower"))
@@ -160,8 +172,11 @@ def parse_urdf(text: str) -> Urdf:
             j.friction = float(dyn.get("friction", "0"))
         mimic = je.find("mimic")
         if mimic is not None:
-            j.mimic = Mimic(mimic.get("joint"), float(mimic.get("multiplier", "1")),
-                            float(mimic.get("offset", "0")))
+            j.mimic = Mimic(
+                mimic.get("joint"),
+                float(mimic.get("multiplier", "1")),
+                float(mimic.get("offset", "0")),
+            )
         joints[j.name] = j
     return Urdf(root.get("name"), links, joints, text)
 
@@ -252,8 +267,10 @@ def _is_mimic(urdf: Urdf, joint: Joint) -> bool:
         return False
     driver = urdf.joints.get(joint.mimic.joint)
     if driver is None or driver.type not in MOVABLE:
-        raise UrdfError(f"{urdf.name}: joint {joint.name} mimics {joint.mimic.joint}, "
-                        "which is not a movable joint")
+        raise UrdfError(
+            f"{urdf.name}: joint {joint.name} mimics {joint.mimic.joint}, "
+            "which is not a movable joint"
+        )
     if driver.mimic is not None:
         raise UrdfError(f"{urdf.name}: joint {joint.name} mimics {driver.name}, itself a mimic")
     return True
@@ -265,15 +282,23 @@ def mimic_equality(joint: Joint) -> ET.Element:
     a1 = multiplier. Stiffer than MuJoCo's default (time constant 5 ms instead of 20 ms, critically
     damped), so a finger pressed by a contact lags its driver by little."""
     m = joint.mimic
-    return ET.Element("joint", name=f"{joint.name}_mimic", joint1=joint.name, joint2=m.joint,
-                      polycoef=fmt_vec([m.offset, m.multiplier, 0, 0, 0]), solref="0.005 1")
+    return ET.Element(
+        "joint",
+        name=f"{joint.name}_mimic",
+        joint1=joint.name,
+        joint2=m.joint,
+        polycoef=fmt_vec([m.offset, m.multiplier, 0, 0, 0]),
+        solref="0.005 1",
+    )
 
 
 def _collision_geometries(link: Link) -> list[Geometry]:
     out = []
     for g in link.collisions:
         if g.kind == "mesh" and g.filename.lower().endswith(".dae"):
-            stl = [v for v in link.visuals if v.kind == "mesh" and v.filename.lower().endswith(".stl")]
+            stl = [
+                v for v in link.visuals if v.kind == "mesh" and v.filename.lower().endswith(".stl")
+            ]
             if stl and stl[0] not in out:
                 out.append(stl[0])
             continue
@@ -282,8 +307,13 @@ def _collision_geometries(link: Link) -> list[Geometry]:
 
 
 def _same_geometry(a: Geometry, b: Geometry) -> bool:
-    return (a.kind == b.kind and np.allclose(a.X_LG, b.X_LG) and a.size == b.size
-            and a.filename == b.filename and a.scale == b.scale)
+    return (
+        a.kind == b.kind
+        and np.allclose(a.X_LG, b.X_LG)
+        and a.size == b.size
+        and a.filename == b.filename
+        and a.scale == b.scale
+    )
 
 
 def _add_inertial(body: ET.Element, inertial: Inertial) -> None:
@@ -292,40 +322,66 @@ def _add_inertial(body: ET.Element, inertial: Inertial) -> None:
     pos = fmt_vec(inertial.X_LI[:3, 3])
     off = I_L - np.diag(np.diag(I_L))
     if np.all(np.abs(off) <= 1e-14 * max(1.0, np.abs(I_L).max())):
-        sub(body, "inertial", pos=pos, mass=fmt(inertial.mass),
-            diaginertia=fmt_vec(np.maximum(np.diag(I_L), 0.0)))
+        sub(
+            body,
+            "inertial",
+            pos=pos,
+            mass=fmt(inertial.mass),
+            diaginertia=fmt_vec(np.maximum(np.diag(I_L), 0.0)),
+        )
         return
     eig = np.linalg.eigvalsh(I_L)
     if eig.min() > 0:
-        sub(body, "inertial", pos=pos, mass=fmt(inertial.mass),
-            fullinertia=fmt_vec([I_L[0, 0], I_L[1, 1], I_L[2, 2], I_L[0, 1], I_L[0, 2], I_L[1, 2]]))
+        sub(
+            body,
+            "inertial",
+            pos=pos,
+            mass=fmt(inertial.mass),
+            fullinertia=fmt_vec([I_L[0, 0], I_L[1, 1], I_L[2, 2], I_L[0, 1], I_L[0, 2], I_L[1, 2]]),
+        )
         return
     # Not positive definite (a few upstream links carry placeholder inertias): keep the
     # principal axes, clamp negative moments to 0 (MuJoCo's boundinertia lifts them).
     w, V = np.linalg.eigh(I_L)
     if np.linalg.det(V) < 0:
         V[:, 0] = -V[:, 0]
-    sub(body, "inertial", pos=pos, quat=fmt_vec(matrix_to_quat_wxyz(V)), mass=fmt(inertial.mass),
-        diaginertia=fmt_vec(np.maximum(w, 0.0)))
+    sub(
+        body,
+        "inertial",
+        pos=pos,
+        quat=fmt_vec(matrix_to_quat_wxyz(V)),
+        mass=fmt(inertial.mass),
+        diaginertia=fmt_vec(np.maximum(w, 0.0)),
+    )
 
 
 def _add_joint(body: ET.Element, joint: Joint, armature: float, mimic: str | None = None) -> None:
     """``mimic``: the URDF type of the joint this one follows (None: not a mimic)."""
     kind = "slide" if (mimic or joint.type) == "prismatic" else "hinge"
     # A mimic joint is bounded through its driver: its own limit would only fight the equality.
-    limited = (not mimic and joint.type != "continuous" and joint.lower is not None
-               and joint.upper is not None)
+    limited = (
+        not mimic
+        and joint.type != "continuous"
+        and joint.lower is not None
+        and joint.upper is not None
+    )
     # Dry friction as in the URDF, but at most 10 % of the effort limit: TALOS' URDF gives its
     # grippers 1 N m of friction for 1 N m of effort, which would lock them.
     friction = joint.friction
     if joint.effort:
         friction = min(friction, 0.1 * joint.effort)
-    sub(body, "joint", name=joint.name, type=kind, axis=fmt_vec(joint.axis),
+    sub(
+        body,
+        "joint",
+        name=joint.name,
+        type=kind,
+        axis=fmt_vec(joint.axis),
         range=fmt_vec([joint.lower, joint.upper]) if limited else None,
         limited="true" if limited else "false",
         damping=fmt(joint.damping) if joint.damping else None,
         frictionloss=fmt(friction) if friction else None,
-        armature=fmt(armature) if armature else None)
+        armature=fmt(armature) if armature else None,
+    )
 
 
 def _add_geom(body, g: Geometry, cls: str, mesh_file, mesh_prefix: str, meshes: dict) -> None:
@@ -379,15 +435,20 @@ def _geometry(ge: ET.Element, materials: dict, link: str) -> Geometry | None:
     m = ge.find("material")
     if m is not None:
         c = m.find("color")
-        rgba = tuple(float(a) for a in c.get("rgba").split()) if c is not None \
+        rgba = (
+            tuple(float(a) for a in c.get("rgba").split())
+            if c is not None
             else materials.get(m.get("name"))
+        )
     name = ge.get("name")
     if s.tag == "box":
-        return Geometry("box", X, tuple(float(a) for a in s.get("size").split()), rgba=rgba,
-                        name=name)
+        return Geometry(
+            "box", X, tuple(float(a) for a in s.get("size").split()), rgba=rgba, name=name
+        )
     if s.tag == "cylinder":
-        return Geometry("cylinder", X, (float(s.get("radius")), float(s.get("length"))),
-                        rgba=rgba, name=name)
+        return Geometry(
+            "cylinder", X, (float(s.get("radius")), float(s.get("length"))), rgba=rgba, name=name
+        )
     if s.tag == "sphere":
         return Geometry("sphere", X, (float(s.get("radius")),), rgba=rgba, name=name)
     if s.tag == "mesh":

@@ -68,8 +68,13 @@ class UrdfBuilder:
         self.root = root if root is not None else ET.Element("robot", name=name)
         self.comment = comment
 
-    def link(self, name: str, shapes: list[Shape], mass: float | None = None,
-             density: float | None = None) -> None:
+    def link(
+        self,
+        name: str,
+        shapes: list[Shape],
+        mass: float | None = None,
+        density: float | None = None,
+    ) -> None:
         """A link of ``shapes``; inertia from ``density`` (or ``mass`` spread uniformly)."""
         link = sub(self.root, "link", name=name)
         if shapes and (mass or density):
@@ -80,16 +85,30 @@ class UrdfBuilder:
             ie = sub(link, "inertial")
             sub(ie, "origin", xyz=fmt_vec(com), rpy="0 0 0")
             sub(ie, "mass", value=fmt(m))
-            sub(ie, "inertia", ixx=fmt(inertia[0, 0]), ixy=fmt(inertia[0, 1]),
-                ixz=fmt(inertia[0, 2]), iyy=fmt(inertia[1, 1]), iyz=fmt(inertia[1, 2]),
-                izz=fmt(inertia[2, 2]))
+            sub(
+                ie,
+                "inertia",
+                ixx=fmt(inertia[0, 0]),
+                ixy=fmt(inertia[0, 1]),
+                ixz=fmt(inertia[0, 2]),
+                iyy=fmt(inertia[1, 1]),
+                iyz=fmt(inertia[1, 2]),
+                izz=fmt(inertia[2, 2]),
+            )
         for s in shapes:
             self._geometry(link, "visual", s)
             if s.collision:
                 self._geometry(link, "collision", s)
 
-    def fixed_joint(self, name: str, parent: str, child: str, X: np.ndarray,
-                    mimic: str | None = None, axis: tuple[float, float, float] | None = None) -> None:
+    def fixed_joint(
+        self,
+        name: str,
+        parent: str,
+        child: str,
+        X: np.ndarray,
+        mimic: str | None = None,
+        axis: tuple[float, float, float] | None = None,
+    ) -> None:
         """A fixed joint; ``mimic`` names the joint it follows (multiplier 1, offset 0) along
         ``axis`` where the simulation moves it (TALOS' reduced URDF declares its fingers the
         same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
@@ -101,16 +120,31 @@ class UrdfBuilder:
             sub(j, "axis", xyz=fmt_vec(axis))
             sub(j, "mimic", joint=mimic, multiplier="1", offset="0")
 
-    def prismatic_joint(self, name: str, parent: str, child: str, X: np.ndarray,
-                        axis: tuple[float, float, float], lower: float, upper: float,
-                        effort: float, velocity: float) -> None:
+    def prismatic_joint(
+        self,
+        name: str,
+        parent: str,
+        child: str,
+        X: np.ndarray,
+        axis: tuple[float, float, float],
+        lower: float,
+        upper: float,
+        effort: float,
+        velocity: float,
+    ) -> None:
         j = sub(self.root, "joint", name=name, type="prismatic")
         sub(j, "parent", link=parent)
         sub(j, "child", link=child)
         _origin(j, X)
         sub(j, "axis", xyz=fmt_vec(axis))
-        sub(j, "limit", lower=fmt(lower), upper=fmt(upper), effort=fmt(effort),
-            velocity=fmt(velocity))
+        sub(
+            j,
+            "limit",
+            lower=fmt(lower),
+            upper=fmt(upper),
+            effort=fmt(effort),
+            velocity=fmt(velocity),
+        )
 
     def text(self) -> str:
         return indent_and_serialize(self.root, self.comment)

@@ -24,22 +24,27 @@ true angle minus the calibrated correction).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pinocchio as pin
 
 from marionette import robots
-from marionette.perception.calibration import (CalibrationError, JointOffsetProblem, PoseOffsetResult,
-                                               calibrate_joint_offsets_from_poses, pose_residuals_and_jacobian)
+from marionette.perception.calibration import (
+    CalibrationError,
+    JointOffsetProblem,
+    PoseOffsetResult,
+    calibrate_joint_offsets_from_poses,
+    pose_residuals_and_jacobian,
+)
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.objects import TaggedBody, tagged_bodies_from_semantics
 
 # The arm's joints, the link it hangs from, the tagged link (TALOS).
 BASE_FRAME = "torso_2_link"
-ROTATION_WEIGHT = 0.1   # [m/rad]: 1° of tag orientation counts as 1.7 mm
+ROTATION_WEIGHT = 0.1  # [m/rad]: 1° of tag orientation counts as 1.7 mm
 
 
 def arm_joints(side: str) -> tuple[str, ...]:
@@ -52,9 +57,22 @@ def tagged_link(side: str) -> str:
 
 # Sampling box of the arm joints (rad) that brings the hand in front of the chest; the right arm
 # mirrors the left (joints 1, 2, 3, 5, 6 turn the other way). Head: looks down and to that side.
-_LEFT_BOX = ((-1.4, 0.3), (0.05, 1.0), (-1.4, 1.4), (-2.2, -0.5), (-1.8, 1.8), (-1.2, 1.2), (-0.6, 0.6))
+_LEFT_BOX = (
+    (-1.4, 0.3),
+    (0.05, 1.0),
+    (-1.4, 1.4),
+    (-2.2, -0.5),
+    (-1.8, 1.8),
+    (-1.2, 1.2),
+    (-0.6, 0.6),
+)
 _MIRRORED = (0, 1, 2, 4, 5)
-_HEAD_POSTURES = ((0.45, 0.25), (0.6, 0.0), (0.3, 0.45), (0.7, 0.35))   # (head_1 pitch, head_2 yaw) left
+_HEAD_POSTURES = (
+    (0.45, 0.25),
+    (0.6, 0.0),
+    (0.3, 0.45),
+    (0.7, 0.35),
+)  # (head_1 pitch, head_2 yaw) left
 
 
 def _box(side: str) -> list[tuple[float, float]]:
@@ -73,8 +91,15 @@ def wrist_ring(robot: str, side: str) -> TaggedBody:
     raise CalibrationError(f"{robot} declares no tags on {link}")
 
 
-def ring_visibility(model: pin.Model, data: pin.Data, q: np.ndarray, ring: TaggedBody, intrinsics: CameraIntrinsics,
-                    camera_frame: str, margin_px: float = 60.0) -> int:
+def ring_visibility(
+    model: pin.Model,
+    data: pin.Data,
+    q: np.ndarray,
+    ring: TaggedBody,
+    intrinsics: CameraIntrinsics,
+    camera_frame: str,
+    margin_px: float = 60.0,
+) -> int:
     """How many of the ring's tags face the camera (within 55° of its line of sight) with their
     centre inside the image by ``margin_px``, 0.3–0.75 m away (nominal kinematics at ``q``)."""
     pin.framesForwardKinematics(model, data, q)
@@ -86,16 +111,28 @@ def ring_visibility(model: pin.Model, data: pin.Data, q: np.ndarray, ring: Tagge
         if not 0.3 < p[2] < 0.75:
             continue
         u, v = intrinsics.project(p)[0]
-        if not (margin_px < u < intrinsics.width - margin_px and margin_px < v < intrinsics.height - margin_px):
+        if not (
+            margin_px < u < intrinsics.width - margin_px
+            and margin_px < v < intrinsics.height - margin_px
+        ):
             continue
         if -X_CT.rotation[:, 2] @ (p / np.linalg.norm(p)) > np.cos(np.radians(55.0)):
             facing += 1
     return facing
 
 
-def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, side: str, ring: TaggedBody,
-               intrinsics: CameraIntrinsics, camera_frame: str, count: int = 10, candidates: int = 6000,
-               seed: int = 0) -> list[np.ndarray]:
+def plan_views(
+    model: pin.Model,
+    geom: pin.GeometryModel,
+    q_stand: np.ndarray,
+    side: str,
+    ring: TaggedBody,
+    intrinsics: CameraIntrinsics,
+    camera_frame: str,
+    count: int = 10,
+    candidates: int = 6000,
+    seed: int = 0,
+) -> list[np.ndarray]:
     """``count`` configurations (nq,) of the standing robot ``q_stand`` with ``side``'s arm and
     the head moved so that the camera sees the wrist ``ring`` (module doc, step 1). Raises
     :class:`CalibrationError` when fewer than ``count`` candidates qualify."""
@@ -116,20 +153,30 @@ def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, s
             continue
         keep.append(q)
     if len(keep) < count:
-        raise CalibrationError(f"only {len(keep)} of {candidates} sampled {side}-arm configurations show the "
-                               f"wrist ring to the camera clear of the body; {count} needed")
+        raise CalibrationError(
+            f"only {len(keep)} of {candidates} sampled {side}-arm configurations show the "
+            f"wrist ring to the camera clear of the body; {count} needed"
+        )
     # Greedy D-optimal choice: each view adds J_i^T J_i of its pose residual w.r.t. the offsets.
     problem = JointOffsetProblem(model, BASE_FRAME, tagged_link(side), arm_joints(side))
     infos = []
     for q in keep:
         pin.framesForwardKinematics(model, data, q)
-        X = data.oMf[model.getFrameId(BASE_FRAME)].inverse() * data.oMf[model.getFrameId(tagged_link(side))]
-        _, J = pose_residuals_and_jacobian(problem, q[None], [X], np.zeros(len(iq)), ROTATION_WEIGHT)
+        X = (
+            data.oMf[model.getFrameId(BASE_FRAME)].inverse()
+            * data.oMf[model.getFrameId(tagged_link(side))]
+        )
+        _, J = pose_residuals_and_jacobian(
+            problem, q[None], [X], np.zeros(len(iq)), ROTATION_WEIGHT
+        )
         infos.append(J.T @ J)
     chosen: list[int] = []
     total = 1e-9 * np.eye(len(iq))
     for _ in range(count):
-        scores = [np.linalg.slogdet(total + info)[1] if i not in chosen else -np.inf for i, info in enumerate(infos)]
+        scores = [
+            np.linalg.slogdet(total + info)[1] if i not in chosen else -np.inf
+            for i, info in enumerate(infos)
+        ]
         best = int(np.argmax(scores))
         chosen.append(best)
         total = total + infos[best]
@@ -138,15 +185,24 @@ def plan_views(model: pin.Model, geom: pin.GeometryModel, q_stand: np.ndarray, s
 
 @dataclass(frozen=True)
 class WristView:
-    q: np.ndarray              # (nq,) encoder readings (and the base's pose)
-    X_BE: pin.SE3 | None       # measured tagged link in the base frame; None: ring not seen
+    q: np.ndarray  # (nq,) encoder readings (and the base's pose)
+    X_BE: pin.SE3 | None  # measured tagged link in the base frame; None: ring not seen
     tag_ids: tuple[int, ...]
     reprojection_px: float
 
 
-def measure_views(scene, renderer, model: pin.Model, robot: str, ring: TaggedBody, views: list[np.ndarray],
-                  quad_decimate: float = 1.0, max_reprojection_px: float = 1.0, image_noise: float = 2.0,
-                  seed: int = 0) -> list[WristView]:
+def measure_views(
+    scene,
+    renderer,
+    model: pin.Model,
+    robot: str,
+    ring: TaggedBody,
+    views: list[np.ndarray],
+    quad_decimate: float = 1.0,
+    max_reprojection_px: float = 1.0,
+    image_noise: float = 2.0,
+    seed: int = 0,
+) -> list[WristView]:
     """The robot holds each view in the MuJoCo ``scene`` (an ``MjScene``: its encoders, offsets
     included, read the view's joint values) and the head camera's image (``renderer``), with
     Gaussian sensor noise of ``image_noise`` grey levels, locates the ``ring`` (module doc, step
@@ -158,24 +214,34 @@ def measure_views(scene, renderer, model: pin.Model, robot: str, ring: TaggedBod
     data = model.createData()
     camera_frame = robots.robot(robot).camera_frame
     K = _intrinsics(renderer)
-    detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate))
+    detector = AprilTagDetector(
+        DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate)
+    )
     rng = np.random.default_rng(seed)
     out = []
     for q in views:
         robot_qpos = robots.pinocchio_to_mujoco(robot, q)
         qpos = scene.qpos.copy()
-        qpos[:len(robot_qpos)] = robot_qpos
+        qpos[: len(robot_qpos)] = robot_qpos
         scene.qpos = qpos
         scene.forward()
         rgb, depth = renderer.render(scene)
-        gray = np.clip(np.rint(rgb.mean(axis=2) + rng.normal(0.0, image_noise, depth.shape)), 0, 255)
+        gray = np.clip(
+            np.rint(rgb.mean(axis=2) + rng.normal(0.0, image_noise, depth.shape)), 0, 255
+        )
         gray = gray.astype(np.uint8)
         pose = estimate_body_pose(ring, detector.detect(gray, K, depth=depth), K, depth=depth)
         if pose is None or len(pose.tag_ids) < 2 or pose.reprojection_rms > max_reprojection_px:
-            out.append(WristView(q, None, pose.tag_ids if pose else (), pose.reprojection_rms if pose else np.nan))
+            out.append(
+                WristView(
+                    q, None, pose.tag_ids if pose else (), pose.reprojection_rms if pose else np.nan
+                )
+            )
             continue
         pin.framesForwardKinematics(model, data, q)
-        X_BC = data.oMf[model.getFrameId(BASE_FRAME)].actInv(data.oMf[model.getFrameId(camera_frame)])
+        X_BC = data.oMf[model.getFrameId(BASE_FRAME)].actInv(
+            data.oMf[model.getFrameId(camera_frame)]
+        )
         out.append(WristView(q, X_BC * pose.X_CB, pose.tag_ids, pose.reprojection_rms))
     return out
 
@@ -200,11 +266,19 @@ class ArmCalibration:
 
     def summary(self) -> dict:
         r = self.result
-        return {"side": self.side, "views_planned": self.views_planned, "views_used": self.views_used,
-                "encoder_offsets_deg": {j: float(np.degrees(v)) for j, v in self.encoder_offsets().items()},
-                "offsets_std_deg": {j: float(np.degrees(s)) for j, s in zip(self.joints, r.offsets_std)},
-                "residual_position_mm": float(np.median(r.position_residuals) * 1e3),
-                "residual_rotation_deg": float(np.degrees(np.median(r.rotation_residuals)))}
+        return {
+            "side": self.side,
+            "views_planned": self.views_planned,
+            "views_used": self.views_used,
+            "encoder_offsets_deg": {
+                j: float(np.degrees(v)) for j, v in self.encoder_offsets().items()
+            },
+            "offsets_std_deg": {
+                j: float(np.degrees(s)) for j, s in zip(self.joints, r.offsets_std)
+            },
+            "residual_position_mm": float(np.median(r.position_residuals) * 1e3),
+            "residual_rotation_deg": float(np.degrees(np.median(r.rotation_residuals))),
+        }
 
 
 def encoder_offsets_argument(offsets: dict[str, float]) -> str:
@@ -212,8 +286,14 @@ def encoder_offsets_argument(offsets: dict[str, float]) -> str:
     return ",".join(f"{joint}={offset:.9f}" for joint, offset in offsets.items())
 
 
-def calibrate_arm(scene_path: Path, side: str, robot: str = "talos", count: int = 12, seed: int = 0,
-                  log: Callable[[str], None] = print) -> ArmCalibration:
+def calibrate_arm(
+    scene_path: Path,
+    side: str,
+    robot: str = "talos",
+    count: int = 12,
+    seed: int = 0,
+    log: Callable[[str], None] = print,
+) -> ArmCalibration:
     """Plans ``count`` views, measures them in ``scene_path`` and solves the seven offsets of
     ``side``'s arm. Raises :class:`CalibrationError` when fewer than 4 views see the ring."""
     from marionette._core import sim
@@ -224,15 +304,32 @@ def calibrate_arm(scene_path: Path, side: str, robot: str = "talos", count: int 
     scene = sim.MjScene(str(scene_path))
     scene.reset_keyframe("reference")
     renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
-    q_stand = robots.mujoco_to_pinocchio(robot, scene.qpos[:len(robots.pinocchio_to_mujoco(robot, pin.neutral(model)))])
-    views = plan_views(model, geom, q_stand, side, ring, _intrinsics(renderer), desc.camera_frame, count=count,
-                       seed=seed)
-    measured = [v for v in measure_views(scene, renderer, model, robot, ring, views, seed=seed)
-                if v.X_BE is not None]
+    q_stand = robots.mujoco_to_pinocchio(
+        robot, scene.qpos[: len(robots.pinocchio_to_mujoco(robot, pin.neutral(model)))]
+    )
+    views = plan_views(
+        model,
+        geom,
+        q_stand,
+        side,
+        ring,
+        _intrinsics(renderer),
+        desc.camera_frame,
+        count=count,
+        seed=seed,
+    )
+    measured = [
+        v
+        for v in measure_views(scene, renderer, model, robot, ring, views, seed=seed)
+        if v.X_BE is not None
+    ]
     log(f"calibration: {side} arm, {len(measured)}/{len(views)} views saw the wrist ring")
     if len(measured) < 4:
-        raise CalibrationError(f"only {len(measured)} of {len(views)} views saw the {side} wrist ring (4 needed)")
+        raise CalibrationError(
+            f"only {len(measured)} of {len(views)} views saw the {side} wrist ring (4 needed)"
+        )
     problem = JointOffsetProblem(model, BASE_FRAME, tagged_link(side), arm_joints(side))
-    result = calibrate_joint_offsets_from_poses(problem, np.array([v.q for v in measured]),
-                                                [v.X_BE for v in measured], ROTATION_WEIGHT)
+    result = calibrate_joint_offsets_from_poses(
+        problem, np.array([v.q for v in measured]), [v.X_BE for v in measured], ROTATION_WEIGHT
+    )
     return ArmCalibration(side, arm_joints(side), result, len(views), len(measured))

@@ -41,12 +41,23 @@ def make_frames(n: int, K: CameraIntrinsics, noise_std: float, seed: int = 0):
             z = rng.uniform(0.5, 1.5)
             x = (k - 1) * 0.3 * z + rng.uniform(-0.03, 0.03) * z
             y = rng.uniform(-0.15, 0.15) * z
-            X = syn.look_at([x, y, z], tilt_deg=rng.uniform(0, 50),
-                            tilt_axis=(rng.normal(), rng.normal(), 0.0), roll_deg=rng.uniform(-180, 180))
+            X = syn.look_at(
+                [x, y, z],
+                tilt_deg=rng.uniform(0, 50),
+                tilt_axis=(rng.normal(), rng.normal(), 0.0),
+                roll_deg=rng.uniform(-180, 180),
+            )
             tags.append((int(10 * i + k) % 587, size, X))
-        frame = syn.render(K, [syn.tag_quad(t, s, X) for t, s, X in tags], background=120.0,
-                           background_depth=2.0, noise_std=noise_std, depth_noise_std=0.002,
-                           rng=rng, supersample=3)
+        frame = syn.render(
+            K,
+            [syn.tag_quad(t, s, X) for t, s, X in tags],
+            background=120.0,
+            background_depth=2.0,
+            noise_std=noise_std,
+            depth_noise_std=0.002,
+            rng=rng,
+            supersample=3,
+        )
         frames.append((frame, tags))
     return frames
 
@@ -56,8 +67,12 @@ def _errors(truth, found: dict[int, pin.SE3]) -> list[tuple[float, float]]:
     for tag_id, _, X in truth:
         if tag_id in found:
             Y = found[tag_id]
-            out.append((float(np.linalg.norm(Y.translation - X.translation)),
-                        math.degrees(rotation_angle(X.rotation, Y.rotation))))
+            out.append(
+                (
+                    float(np.linalg.norm(Y.translation - X.translation)),
+                    math.degrees(rotation_angle(X.rotation, Y.rotation)),
+                )
+            )
     return out
 
 
@@ -65,10 +80,17 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
     import pupil_apriltags
 
     sizes = {t: s for _, truth in frames for t, s, _ in truth}
-    ours = AprilTagDetector(DetectorConfig(tag_sizes=sizes, quad_decimate=quad_decimate,
-                                           num_threads=1))
-    peer = pupil_apriltags.Detector(families="tag36h11", nthreads=1, quad_decimate=quad_decimate,
-                                    quad_sigma=0.0, refine_edges=1, decode_sharpening=0.25)
+    ours = AprilTagDetector(
+        DetectorConfig(tag_sizes=sizes, quad_decimate=quad_decimate, num_threads=1)
+    )
+    peer = pupil_apriltags.Detector(
+        families="tag36h11",
+        nthreads=1,
+        quad_decimate=quad_decimate,
+        quad_sigma=0.0,
+        refine_edges=1,
+        decode_sharpening=0.25,
+    )
     peer_params = (K.fx, K.fy, K.cx + 0.5, K.cy + 0.5)  # AprilTag's pixel-centre convention
     times = {"marionette": [], "marionette_rgbd": [], "pupil_apriltags": []}
     errors = {"marionette": [], "marionette_rgbd": [], "pupil_apriltags": []}
@@ -84,10 +106,13 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
             # pupil-apriltags takes one tag size per call (one size per frame here).
             peer_found = {}
             for size in sorted({s for _, s, _ in truth}):
-                for d in peer.detect(gray, estimate_tag_pose=True, camera_params=peer_params,
-                                     tag_size=size):
+                for d in peer.detect(
+                    gray, estimate_tag_pose=True, camera_params=peer_params, tag_size=size
+                ):
                     if abs(sizes.get(d.tag_id, -1) - size) < 1e-12:
-                        peer_found[d.tag_id] = pin.SE3(np.asarray(d.pose_R), np.asarray(d.pose_t).ravel())
+                        peer_found[d.tag_id] = pin.SE3(
+                            np.asarray(d.pose_R), np.asarray(d.pose_t).ravel()
+                        )
             t3 = time.perf_counter()
             times["marionette"].append(t1 - t0)
             times["marionette_rgbd"].append(t2 - t1)
@@ -95,42 +120,59 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
             if r == 0:
                 # pupil's tag frame is AprilTag's (z into the tag): ViSP's is x, -y, -z of it.
                 flip = pin.SE3(np.diag([1.0, -1.0, -1.0]), np.zeros(3))
-                for name, found in (("marionette", {d.tag_id: d.X_CT for d in dets}),
-                                    ("marionette_rgbd", {d.tag_id: d.X_CT for d in rgbd}),
-                                    ("pupil_apriltags", {i: X * flip for i, X in peer_found.items()})):
+                for name, found in (
+                    ("marionette", {d.tag_id: d.X_CT for d in dets}),
+                    ("marionette_rgbd", {d.tag_id: d.X_CT for d in rgbd}),
+                    ("pupil_apriltags", {i: X * flip for i, X in peer_found.items()}),
+                ):
                     errors[name] += _errors(truth, found)
                     found_counts[name] += len(found)
     n_tags = sum(len(t) for _, t in frames)
-    out = {"frames": len(frames), "repeats": repeats, "tags": n_tags, "image": "640x480",
-           "quad_decimate": quad_decimate, "noise_std": noise_std}
+    out = {
+        "frames": len(frames),
+        "repeats": repeats,
+        "tags": n_tags,
+        "image": "640x480",
+        "quad_decimate": quad_decimate,
+        "noise_std": noise_std,
+    }
     for name in times:
         t = np.array(times[name]) * 1e3
         e = np.array(errors[name]) if errors[name] else np.zeros((0, 2))
         out[name] = {
-            "median_ms": float(np.median(t)), "p99_ms": float(np.percentile(t, 99)),
+            "median_ms": float(np.median(t)),
+            "p99_ms": float(np.percentile(t, 99)),
             "tags_found": found_counts[name],
             "median_position_error_mm": float(np.median(e[:, 0]) * 1e3) if len(e) else None,
             "p90_position_error_mm": float(np.percentile(e[:, 0], 90) * 1e3) if len(e) else None,
             "median_rotation_error_deg": float(np.median(e[:, 1])) if len(e) else None,
             "p90_rotation_error_deg": float(np.percentile(e[:, 1], 90)) if len(e) else None,
         }
-    out["ratio_median_marionette_over_pupil"] = out["marionette"]["median_ms"] / out["pupil_apriltags"]["median_ms"]
+    out["ratio_median_marionette_over_pupil"] = (
+        out["marionette"]["median_ms"] / out["pupil_apriltags"]["median_ms"]
+    )
     return out
 
 
 def _print(result: dict) -> None:
-    print(f"AprilTag detection + pose, {result['image']}, {result['frames']} frames x "
-          f"{result['repeats']} ({result['tags']} tags), single thread, quad_decimate "
-          f"{result['quad_decimate']:g}, grey noise {result['noise_std']:g}")
+    print(
+        f"AprilTag detection + pose, {result['image']}, {result['frames']} frames x "
+        f"{result['repeats']} ({result['tags']} tags), single thread, quad_decimate "
+        f"{result['quad_decimate']:g}, grey noise {result['noise_std']:g}"
+    )
     print(f"  {'':22s} {'median':>8s} {'p99':>8s}   found   pos err med/p90     rot err med/p90")
     for name in ("marionette", "marionette_rgbd", "pupil_apriltags"):
         r = result[name]
-        print(f"  {name:22s} {r['median_ms']:6.2f}ms {r['p99_ms']:6.2f}ms   "
-              f"{r['tags_found']:3d}/{result['tags']}"
-              f"   {r['median_position_error_mm']:5.2f}/{r['p90_position_error_mm']:5.2f} mm"
-              f"   {r['median_rotation_error_deg']:5.2f}/{r['p90_rotation_error_deg']:5.2f} deg")
-    print(f"  ratio of medians marionette / pupil-apriltags: "
-          f"{result['ratio_median_marionette_over_pupil']:.2f}   (target: median <= 5 ms)")
+        print(
+            f"  {name:22s} {r['median_ms']:6.2f}ms {r['p99_ms']:6.2f}ms   "
+            f"{r['tags_found']:3d}/{result['tags']}"
+            f"   {r['median_position_error_mm']:5.2f}/{r['p90_position_error_mm']:5.2f} mm"
+            f"   {r['median_rotation_error_deg']:5.2f}/{r['p90_rotation_error_deg']:5.2f} deg"
+        )
+    print(
+        f"  ratio of medians marionette / pupil-apriltags: "
+        f"{result['ratio_median_marionette_over_pupil']:.2f}   (target: median <= 5 ms)"
+    )
 
 
 def main(argv=None) -> int:
@@ -138,8 +180,13 @@ def main(argv=None) -> int:
     parser.add_argument("--frames", type=int, default=40)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--quad-decimate", type=float, nargs="+", default=[2.0, 1.0])
-    parser.add_argument("--noise", type=float, nargs="+", default=[0.0, 2.0],
-                        help="grey-level noise std of the frame sets")
+    parser.add_argument(
+        "--noise",
+        type=float,
+        nargs="+",
+        default=[0.0, 2.0],
+        help="grey-level noise std of the frame sets",
+    )
     parser.add_argument("--out", type=Path, default=Path("reports/bench/perception_apriltag.json"))
     args = parser.parse_args(argv)
     K = CameraIntrinsics.from_fovy(640, 480, 45.0)

@@ -21,8 +21,8 @@ columns are Pinocchio's frame Jacobians (checked against finite differences in t
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -82,7 +82,10 @@ class JointOffsetProblem:
         if not self.joints:
             raise CalibrationError("no joints to calibrate")
         for name in self.joints:
-            if not self.model.existJointName(name) or self.model.joints[self.model.getJointId(name)].nq != 1:
+            if (
+                not self.model.existJointName(name)
+                or self.model.joints[self.model.getJointId(name)].nq != 1
+            ):
                 raise CalibrationError(f"{name!r} is not a 1-dof joint of {self.model.name}")
         if len(set(self.joints)) != len(self.joints):
             raise CalibrationError(f"joints listed twice: {self.joints}")
@@ -110,24 +113,38 @@ class JointOffsetResult:
     iterations: int
 
 
-def marker_positions(problem: JointOffsetProblem, Q: np.ndarray, offsets: np.ndarray,
-                     p_EM: np.ndarray, p_BA: np.ndarray) -> np.ndarray:
+def marker_positions(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    offsets: np.ndarray,
+    p_EM: np.ndarray,
+    p_BA: np.ndarray,
+) -> np.ndarray:
     """(N, 3) predicted measurements X_BE(q_i + S offsets) p_EM - p_BA for encoder readings
     Q (N, nq) (also how tests simulate a miscalibrated robot)."""
-    return _residuals(problem, Q, np.zeros((len(Q), 3)), _pack(offsets, p_EM, p_BA), False)[0].reshape(-1, 3)
+    return _residuals(problem, Q, np.zeros((len(Q), 3)), _pack(offsets, p_EM, p_BA), False)[
+        0
+    ].reshape(-1, 3)
 
 
 def _pack(offsets, p_EM, p_BA) -> np.ndarray:
-    return np.concatenate([np.asarray(offsets, float), np.asarray(p_EM, float), np.asarray(p_BA, float)])
+    return np.concatenate(
+        [np.asarray(offsets, float), np.asarray(p_EM, float), np.asarray(p_BA, float)]
+    )
 
 
-def _residuals(problem: JointOffsetProblem, Q: np.ndarray, measured: np.ndarray, x: np.ndarray,
-               with_jacobian: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+def _residuals(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    x: np.ndarray,
+    with_jacobian: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
     """Stacked r (3N,) and dr/dx (3N, k + 6) at x = (offsets, p_EM, p_BA)."""
     model = problem.model
     data = model.createData()
     k = len(problem.joints)
-    offsets, p_EM, p_BA = x[:k], x[k:k + 3], x[k + 3:]
+    offsets, p_EM, p_BA = x[:k], x[k : k + 3], x[k + 3 :]
     b = model.getFrameId(problem.base_frame)
     e = model.getFrameId(problem.marker_frame)
     iq, iv = problem.idx_q, problem.idx_v
@@ -141,7 +158,7 @@ def _residuals(problem: JointOffsetProblem, Q: np.ndarray, measured: np.ndarray,
         X_WE = pin.updateFramePlacement(model, data, e)
         R_WB = X_WB.rotation
         p_WM = X_WE.act(p_EM)
-        r[3 * i:3 * i + 3] = R_WB.T @ (p_WM - X_WB.translation) - p_BA - measured[i]
+        r[3 * i : 3 * i + 3] = R_WB.T @ (p_WM - X_WB.translation) - p_BA - measured[i]
         if not with_jacobian:
             continue
         pin.computeJointJacobians(model, data, q)
@@ -152,17 +169,24 @@ def _residuals(problem: JointOffsetProblem, Q: np.ndarray, measured: np.ndarray,
         x_BM = p_WM - X_WB.translation
         # d/dt (R_WB^T x) = R_WB^T (x' - w_B x x) = R_WB^T (x' + [x]x w_B)
         J_q = R_WB.T @ (J_M - J_B[:3] + pin.skew(x_BM) @ J_B[3:])
-        J[3 * i:3 * i + 3, :k] = J_q[:, iv]
-        J[3 * i:3 * i + 3, k:k + 3] = R_WB.T @ X_WE.rotation
-        J[3 * i:3 * i + 3, k + 3:] = -np.eye(3)
+        J[3 * i : 3 * i + 3, :k] = J_q[:, iv]
+        J[3 * i : 3 * i + 3, k : k + 3] = R_WB.T @ X_WE.rotation
+        J[3 * i : 3 * i + 3, k + 3 :] = -np.eye(3)
     return r, J
 
 
-def residuals_and_jacobian(problem: JointOffsetProblem, Q: np.ndarray, measured: np.ndarray,
-                           offsets: np.ndarray, p_EM: np.ndarray, p_BA: np.ndarray):
+def residuals_and_jacobian(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    offsets: np.ndarray,
+    p_EM: np.ndarray,
+    p_BA: np.ndarray,
+):
     """Stacked residuals (3N,) and their Jacobian (3N, k + 6) w.r.t. (offsets, p_EM, p_BA)."""
-    return _residuals(problem, np.asarray(Q, float), np.asarray(measured, float),
-                      _pack(offsets, p_EM, p_BA))
+    return _residuals(
+        problem, np.asarray(Q, float), np.asarray(measured, float), _pack(offsets, p_EM, p_BA)
+    )
 
 
 def _check_observable(problem: JointOffsetProblem, J: np.ndarray) -> None:
@@ -175,19 +199,33 @@ def _check_observable(problem: JointOffsetProblem, J: np.ndarray) -> None:
     _, singular, Vt = np.linalg.svd(J, full_matrices=False)
     if singular[-1] >= 1e-9 * singular[0]:
         return
-    names = [*(f"offset {j}" for j in problem.joints), "p_EM.x", "p_EM.y", "p_EM.z",
-             "p_BA.x", "p_BA.y", "p_BA.z"]
+    names = [
+        *(f"offset {j}" for j in problem.joints),
+        "p_EM.x",
+        "p_EM.y",
+        "p_EM.z",
+        "p_BA.x",
+        "p_BA.y",
+        "p_BA.z",
+    ]
     mixed = [names[i] for i in np.flatnonzero(np.abs(Vt[-1]) > 0.1)]
     raise CalibrationError(
         f"unknowns not observable from these measurements: {', '.join(mixed)} can change "
         "together without changing any marker position; vary every calibrated joint, and do "
-        "not calibrate the joint just before the marker frame from positions alone")
+        "not calibrate the joint just before the marker frame from positions alone"
+    )
 
 
-def calibrate_joint_offsets(problem: JointOffsetProblem, Q: np.ndarray, measured: np.ndarray,
-                            offsets0: np.ndarray | None = None, p_EM0: np.ndarray | None = None,
-                            p_BA0: np.ndarray | None = None, max_iterations: int = 100,
-                            tolerance: float = 1e-12) -> JointOffsetResult:
+def calibrate_joint_offsets(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    offsets0: np.ndarray | None = None,
+    p_EM0: np.ndarray | None = None,
+    p_BA0: np.ndarray | None = None,
+    max_iterations: int = 100,
+    tolerance: float = 1e-12,
+) -> JointOffsetResult:
     """Offsets, marker positions from encoder readings Q (N, nq) and measured marker positions
     (N, 3) in the base frame: all configurations projected at once (Levenberg-Marquardt).
 
@@ -197,24 +235,30 @@ def calibrate_joint_offsets(problem: JointOffsetProblem, Q: np.ndarray, measured
     Q = np.atleast_2d(np.asarray(Q, dtype=float))
     measured = np.atleast_2d(np.asarray(measured, dtype=float))
     if Q.shape[1] != problem.model.nq or measured.shape != (len(Q), 3):
-        raise CalibrationError(f"need Q (N, {problem.model.nq}) and measured (N, 3), got "
-                               f"{Q.shape} and {measured.shape}")
+        raise CalibrationError(
+            f"need Q (N, {problem.model.nq}) and measured (N, 3), got "
+            f"{Q.shape} and {measured.shape}"
+        )
     if not (np.all(np.isfinite(Q)) and np.all(np.isfinite(measured))):
         raise CalibrationError("configurations and measurements must be finite")
     n = problem.num_unknowns
     if 3 * len(Q) < n:
-        raise CalibrationError(f"{len(Q)} measurements give {3 * len(Q)} equations for {n} unknowns")
+        raise CalibrationError(
+            f"{len(Q)} measurements give {3 * len(Q)} equations for {n} unknowns"
+        )
     k = len(problem.joints)
-    x = _pack(np.zeros(k) if offsets0 is None else offsets0,
-              np.zeros(3) if p_EM0 is None else p_EM0,
-              np.zeros(3) if p_BA0 is None else p_BA0)
+    x = _pack(
+        np.zeros(k) if offsets0 is None else offsets0,
+        np.zeros(3) if p_EM0 is None else p_EM0,
+        np.zeros(3) if p_BA0 is None else p_BA0,
+    )
     r, J = _residuals(problem, Q, measured, x)
     # No observability check here: the initial guess may be degenerate (a marker guessed at
     # the wrist centre hides the wrist offsets); the check runs at the solution.
     damping = 1e-3
     cost = r @ r
     iterations = 0
-    for iterations in range(1, max_iterations + 1):
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (read after the loop)
         H = J.T @ J
         g = J.T @ r
         # Marquardt scaling, floored so that columns still zero at the guess stay solvable.
@@ -237,8 +281,13 @@ def calibrate_joint_offsets(problem: JointOffsetProblem, Q: np.ndarray, measured
     sigma2 = cost / dof
     covariance = sigma2 * np.linalg.inv(J.T @ J)
     return JointOffsetResult(
-        offsets=x[:k], p_EM=x[k:k + 3], p_BA=x[k + 3:], rms_residual=float(np.sqrt(cost / len(r))),
-        offsets_std=np.sqrt(np.diag(covariance)[:k]), iterations=iterations)
+        offsets=x[:k],
+        p_EM=x[k : k + 3],
+        p_BA=x[k + 3 :],
+        rms_residual=float(np.sqrt(cost / len(r))),
+        offsets_std=np.sqrt(np.diag(covariance)[:k]),
+        iterations=iterations,
+    )
 
 
 # ---- joint offsets from marker poses ---------------------------------------------------------
@@ -264,8 +313,13 @@ class PoseOffsetResult:
     outliers: tuple[int, ...] = ()  # views left out of the final solve
 
 
-def pose_residuals_and_jacobian(problem: JointOffsetProblem, Q: np.ndarray, measured: Sequence[pin.SE3],
-                                offsets: np.ndarray, rotation_weight: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def pose_residuals_and_jacobian(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: Sequence[pin.SE3],
+    offsets: np.ndarray,
+    rotation_weight: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Stacked r (6N,) and dr/doffsets (6N, k) of the pose residuals above."""
     model, data = problem.model, problem.model.createData()
     base, end = model.getFrameId(problem.base_frame), model.getFrameId(problem.marker_frame)
@@ -280,13 +334,18 @@ def pose_residuals_and_jacobian(problem: JointOffsetProblem, Q: np.ndarray, meas
         pin.updateFramePlacements(model, data)
         E = M.inverse() * data.oMf[base].inverse() * data.oMf[end]
         J_E = pin.getFrameJacobian(model, data, end, pin.ReferenceFrame.LOCAL)
-        r[6 * i:6 * i + 6] = w * pin.log6(E).vector
-        J[6 * i:6 * i + 6] = w[:, None] * (pin.Jlog6(E) @ J_E[:, iv])
+        r[6 * i : 6 * i + 6] = w * pin.log6(E).vector
+        J[6 * i : 6 * i + 6] = w[:, None] * (pin.Jlog6(E) @ J_E[:, iv])
     return r, J
 
 
-def calibrate_joint_offsets_from_poses(problem: JointOffsetProblem, Q: np.ndarray, measured: Sequence[pin.SE3],
-                                       rotation_weight: float = 0.1, outlier_scale: float = 0.005) -> PoseOffsetResult:
+def calibrate_joint_offsets_from_poses(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: Sequence[pin.SE3],
+    rotation_weight: float = 0.1,
+    outlier_scale: float = 0.005,
+) -> PoseOffsetResult:
     """Offsets of ``problem.joints`` from encoder readings Q (N, nq) and measured poses X_BE
     (``problem.marker_frame`` in ``problem.base_frame``), all views projected at once: a robust
     (Huber, ``outlier_scale`` [m] of weighted residual) trust-region least squares, then the
@@ -297,8 +356,10 @@ def calibrate_joint_offsets_from_poses(problem: JointOffsetProblem, Q: np.ndarra
 
     Q = np.atleast_2d(np.asarray(Q, dtype=float))
     if Q.shape[1] != problem.model.nq or len(measured) != len(Q):
-        raise CalibrationError(f"need Q (N, {problem.model.nq}) and N measured poses, got {Q.shape} and "
-                               f"{len(measured)}")
+        raise CalibrationError(
+            f"need Q (N, {problem.model.nq}) and N measured poses, got {Q.shape} and "
+            f"{len(measured)}"
+        )
     if not np.all(np.isfinite(Q)) or not all(np.all(np.isfinite(M.homogeneous)) for M in measured):
         raise CalibrationError("configurations and measured poses must be finite")
     k = len(problem.joints)
@@ -307,32 +368,49 @@ def calibrate_joint_offsets_from_poses(problem: JointOffsetProblem, Q: np.ndarra
 
     def solve(views: np.ndarray, x0: np.ndarray, loss: str) -> np.ndarray:
         Qv, Mv = Q[views], [measured[i] for i in views]
-        last: dict = {}   # residuals and Jacobian come from one kinematics pass: evaluated once per x
+        last: dict = {}  # residuals and Jacobian come from one kinematics pass: evaluated once per x
 
         def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             if last.get("x") is None or not np.array_equal(last["x"], x):
-                last["x"], last["rJ"] = x.copy(), pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight)
+                last["x"], last["rJ"] = (
+                    x.copy(),
+                    pose_residuals_and_jacobian(problem, Qv, Mv, x, rotation_weight),
+                )
             return last["rJ"]
 
-        return least_squares(lambda x: evaluate(x)[0], x0, jac=lambda x: evaluate(x)[1], loss=loss,
-                             f_scale=outlier_scale).x
+        return least_squares(
+            lambda x: evaluate(x)[0],
+            x0,
+            jac=lambda x: evaluate(x)[1],
+            loss=loss,
+            f_scale=outlier_scale,
+        ).x
 
     everything = np.arange(len(Q))
     x = solve(everything, np.zeros(k), "huber")
-    per_view = np.linalg.norm(pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight)[0]
-                              .reshape(-1, 6), axis=1)
+    per_view = np.linalg.norm(
+        pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight)[0].reshape(-1, 6),
+        axis=1,
+    )
     inliers = everything[per_view <= max(3.0 * np.median(per_view), 2.0 * outlier_scale)]
     if len(inliers) < len(Q):
         x = solve(inliers, x, "linear")
-    r, J = pose_residuals_and_jacobian(problem, Q[inliers], [measured[i] for i in inliers], x, rotation_weight)
+    r, J = pose_residuals_and_jacobian(
+        problem, Q[inliers], [measured[i] for i in inliers], x, rotation_weight
+    )
     _, singular, Vt = np.linalg.svd(J, full_matrices=False)
     if singular[-1] < 1e-6 * singular[0]:
         mixed = [problem.joints[i] for i in np.flatnonzero(np.abs(Vt[-1]) > 0.1)]
-        raise CalibrationError(f"offsets not observable from these views: {', '.join(mixed)} change together "
-                               "without changing any measured pose; vary every calibrated joint")
+        raise CalibrationError(
+            f"offsets not observable from these views: {', '.join(mixed)} change together "
+            "without changing any measured pose; vary every calibrated joint"
+        )
     sigma2 = (r @ r) / max(1, len(r) - k)
     r6 = pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight)[0].reshape(-1, 6)
-    return PoseOffsetResult(offsets=x, offsets_std=np.sqrt(np.diag(sigma2 * np.linalg.inv(J.T @ J))),
-                            position_residuals=np.linalg.norm(r6[:, :3], axis=1),
-                            rotation_residuals=np.linalg.norm(r6[:, 3:], axis=1) / rotation_weight,
-                            outliers=tuple(int(i) for i in np.setdiff1d(everything, inliers)))
+    return PoseOffsetResult(
+        offsets=x,
+        offsets_std=np.sqrt(np.diag(sigma2 * np.linalg.inv(J.T @ J))),
+        position_residuals=np.linalg.norm(r6[:, :3], axis=1),
+        rotation_residuals=np.linalg.norm(r6[:, 3:], axis=1) / rotation_weight,
+        outliers=tuple(int(i) for i in np.setdiff1d(everything, inliers)),
+    )

@@ -26,7 +26,9 @@ class CameraIntrinsics:
     cy: float  # [px]
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.width, (int, np.integer)) and isinstance(self.height, (int, np.integer))):
+        if not (
+            isinstance(self.width, (int, np.integer)) and isinstance(self.height, (int, np.integer))
+        ):
             raise ValueError(f"image size must be integers, got {self.width!r} x {self.height!r}")
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"image size must be positive, got {self.width} x {self.height}")
@@ -36,10 +38,12 @@ class CameraIntrinsics:
                 raise ValueError(f"focal length {name} must be finite and > 0, got {value}")
         for name in ("cx", "cy"):
             if not math.isfinite(float(getattr(self, name))):
-                raise ValueError(f"principal point {name} must be finite, got {getattr(self, name)}")
+                raise ValueError(
+                    f"principal point {name} must be finite, got {getattr(self, name)}"
+                )
 
     @classmethod
-    def from_fovy(cls, width: int, height: int, fovy_deg: float) -> "CameraIntrinsics":
+    def from_fovy(cls, width: int, height: int, fovy_deg: float) -> CameraIntrinsics:
         """Square pixels, centred principal point, vertical field of view ``fovy_deg`` (MuJoCo)."""
         if not 0.0 < fovy_deg < 180.0:
             raise ValueError(f"fovy must be in (0, 180) degrees, got {fovy_deg}")
@@ -70,6 +74,10 @@ class CameraIntrinsics:
         from marionette import _visp
 
         return _visp.CameraIntrinsics(
-            int(self.width), int(self.height), float(self.fx), float(self.fy),
-            float(self.cx), float(self.cy),
+            int(self.width),
+            int(self.height),
+            float(self.fx),
+            float(self.fy),
+            float(self.cx),
+            float(self.cy),
         )

@@ -31,50 +31,93 @@ def _up_axis(text: str) -> tuple[str, np.ndarray]:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "perceive", help="detect AprilTags in camera frames, publish tag detections and object poses",
+        "perceive",
+        help="detect AprilTags in camera frames, publish tag detections and object poses",
         description="Subscribes CAMERA_HEAD (and ROBOT_STATE); publishes APRILTAG_DETECTIONS and "
-                    "OBJECT_POSES at camera rate.")
+        "OBJECT_POSES at camera rate.",
+    )
     p.add_argument("--lcm-url", default=None, help="LCM URL (default: $MARIONETTE_LCM_URL)")
-    p.add_argument("--objects", nargs="*", type=Path, default=None,
-                   help="object YAML files with tags (default: every models/objects/*.yaml with tags)")
-    p.add_argument("--robot", default="talos", help="robot whose kinematics place the camera "
-                   "(talos, tiago, ur10) or 'none'")
+    p.add_argument(
+        "--objects",
+        nargs="*",
+        type=Path,
+        default=None,
+        help="object YAML files with tags (default: every models/objects/*.yaml with tags)",
+    )
+    p.add_argument(
+        "--robot",
+        default="talos",
+        help="robot whose kinematics place the camera (talos, tiago, ur10) or 'none'",
+    )
     p.add_argument("--camera-frame", default=None, help="optical frame (default: the robot's)")
     p.add_argument("--camera-channel", default=None, help="image channel (default CAMERA_HEAD)")
-    p.add_argument("--camera-pose-source", choices=("kinematics", "message"), default=None,
-                   help="world pose of the camera: robot kinematics (default with a robot) or the "
-                        "simulator's pose in the image message")
+    p.add_argument(
+        "--camera-pose-source",
+        choices=("kinematics", "message"),
+        default=None,
+        help="world pose of the camera: robot kinematics (default with a robot) or the "
+        "simulator's pose in the image message",
+    )
     p.add_argument("--no-depth", action="store_true", help="ignore depth (image-only poses)")
-    p.add_argument("--quad-decimate", type=float, default=None,
-                   help="AprilTag quad decimation (default 2: quads on a half-size image; 1 finds "
-                        "tags of ~40 px, e.g. a tool's 3 cm tags at 0.7 m, at about twice the cost)")
-    p.add_argument("--up-axis", action="append", type=_up_axis, default=[], metavar="NAME:X,Y,Z",
-                   help="prior: body NAME rests with this axis up (resolves ambiguous tags)")
+    p.add_argument(
+        "--quad-decimate",
+        type=float,
+        default=None,
+        help="AprilTag quad decimation (default 2: quads on a half-size image; 1 finds "
+        "tags of ~40 px, e.g. a tool's 3 cm tags at 0.7 m, at about twice the cost)",
+    )
+    p.add_argument(
+        "--up-axis",
+        action="append",
+        type=_up_axis,
+        default=[],
+        metavar="NAME:X,Y,Z",
+        help="prior: body NAME rests with this axis up (resolves ambiguous tags)",
+    )
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--stats-period", type=float, default=5.0, help="print statistics every s")
     p.set_defaults(func=_perceive)
 
     c = subparsers.add_parser(
-        "calibrate", help="hand-eye, joint-offset or arm-encoder calibration",
+        "calibrate",
+        help="hand-eye, joint-offset or arm-encoder calibration",
         description="Prints the calibration as JSON: from recorded measurements (hand-eye, joint-offsets) "
-                    "or from the head camera in a MuJoCo scene (arm-encoders).")
+        "or from the head camera in a MuJoCo scene (arm-encoders).",
+    )
     sub = c.add_subparsers(dest="calibration", required=True, metavar="KIND")
     he = sub.add_parser("hand-eye", help="camera mount from (robot pose, target pose) pairs")
-    he.add_argument("measurements", type=Path,
-                    help='JSON {"X_RE": [4x4...], "X_CT": [4x4...]} (eye-in-hand; for a head '
-                         'camera and a target in the hand pass X_HG as X_RE, see calibration.py)')
+    he.add_argument(
+        "measurements",
+        type=Path,
+        help='JSON {"X_RE": [4x4...], "X_CT": [4x4...]} (eye-in-hand; for a head '
+        "camera and a target in the hand pass X_HG as X_RE, see calibration.py)",
+    )
     he.set_defaults(func=_calibrate_hand_eye)
-    jo = sub.add_parser("joint-offsets", help="encoder offsets by simultaneous projection (ch. 4.2)")
-    jo.add_argument("measurements", type=Path,
-                    help='JSON {"robot": "talos", "base_frame": ..., "marker_frame": ..., '
-                         '"joints": [...], "configurations": [[q...]], "positions": [[x,y,z]...]}')
+    jo = sub.add_parser(
+        "joint-offsets", help="encoder offsets by simultaneous projection (ch. 4.2)"
+    )
+    jo.add_argument(
+        "measurements",
+        type=Path,
+        help='JSON {"robot": "talos", "base_frame": ..., "marker_frame": ..., '
+        '"joints": [...], "configurations": [[q...]], "positions": [[x,y,z]...]}',
+    )
     jo.set_defaults(func=_calibrate_joint_offsets)
-    ae = sub.add_parser("arm-encoders", help="TALOS' arm encoder offsets from its wrist tags seen by the head "
-                                             "camera in a MuJoCo scene (ch. 4.2)")
-    ae.add_argument("--scene", type=Path, required=True, help="MJCF scene with the robot (and its encoders)")
-    ae.add_argument("--side", choices=("left", "right"), action="append",
-                    help="arm to calibrate (repeatable; default both)")
+    ae = sub.add_parser(
+        "arm-encoders",
+        help="TALOS' arm encoder offsets from its wrist tags seen by the head "
+        "camera in a MuJoCo scene (ch. 4.2)",
+    )
+    ae.add_argument(
+        "--scene", type=Path, required=True, help="MJCF scene with the robot (and its encoders)"
+    )
+    ae.add_argument(
+        "--side",
+        choices=("left", "right"),
+        action="append",
+        help="arm to calibrate (repeatable; default both)",
+    )
     ae.add_argument("--seed", type=int, default=0, help="seed of the view sampling and image noise")
     ae.set_defaults(func=_calibrate_arm_encoders)
 
@@ -85,7 +128,10 @@ def _perceive(args: argparse.Namespace) -> int:
     from marionette.perception.kinematics import CameraKinematics
     from marionette.perception.node import PerceptionConfig, PerceptionNode
     from marionette.perception.objects import (
-        check_unique_ids, load_tagged_bodies, tagged_bodies_from_semantics)
+        check_unique_ids,
+        load_tagged_bodies,
+        tagged_bodies_from_semantics,
+    )
 
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s", stream=sys.stderr)
     files = args.objects if args.objects is not None else _default_object_files()
@@ -103,11 +149,17 @@ def _perceive(args: argparse.Namespace) -> int:
             bodies += tagged_bodies_from_semantics(robot_sem)
             check_unique_ids(bodies)
     source = args.camera_pose_source or ("kinematics" if kinematics else "message")
-    config = PerceptionConfig(bodies=bodies, use_depth=not args.no_depth, camera_pose_source=source,
-                              up_axes=dict(args.up_axis))
+    config = PerceptionConfig(
+        bodies=bodies,
+        use_depth=not args.no_depth,
+        camera_pose_source=source,
+        up_axes=dict(args.up_axis),
+    )
     if args.quad_decimate is not None:
         if not args.quad_decimate >= 1.0:
-            print(f"perceive: --quad-decimate must be >= 1, got {args.quad_decimate}", file=sys.stderr)
+            print(
+                f"perceive: --quad-decimate must be >= 1, got {args.quad_decimate}", file=sys.stderr
+            )
             return 2
         config.detector.quad_decimate = args.quad_decimate
     if args.camera_channel:
@@ -116,8 +168,11 @@ def _perceive(args: argparse.Namespace) -> int:
     bus = LcmBus(args.lcm_url)
     node.attach(bus)
     bus.start()
-    print(f"perceive: {len(bodies)} tagged bodies ({', '.join(b.name for b in bodies)}), "
-          f"camera pose from {source}, listening on {config.camera_channel}", flush=True)
+    print(
+        f"perceive: {len(bodies)} tagged bodies ({', '.join(b.name for b in bodies)}), "
+        f"camera pose from {source}, listening on {config.camera_channel}",
+        flush=True,
+    )
     start = last_print = time.monotonic()
     try:
         while True:
@@ -142,7 +197,7 @@ def _load_json(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise SystemExit(f"calibrate: cannot read {path}: {exc}")
+        raise SystemExit(f"calibrate: cannot read {path}: {exc}") from None
 
 
 def _calibrate_hand_eye(args: argparse.Namespace) -> int:
@@ -154,9 +209,16 @@ def _calibrate_hand_eye(args: argparse.Namespace) -> int:
     X_RE = [pin.SE3(np.asarray(M, float)) for M in data["X_RE"]]
     X_CT = [pin.SE3(np.asarray(M, float)) for M in data["X_CT"]]
     result = calibrate_hand_eye(X_RE, X_CT)
-    print(json.dumps({"X_EC": result.X_EC.homogeneous.tolist(),
-                      "rms_position_m": result.rms_position,
-                      "rms_rotation_deg": float(np.degrees(result.rms_rotation))}, indent=2))
+    print(
+        json.dumps(
+            {
+                "X_EC": result.X_EC.homogeneous.tolist(),
+                "rms_position_m": result.rms_position,
+                "rms_rotation_deg": float(np.degrees(result.rms_rotation)),
+            },
+            indent=2,
+        )
+    )
     return 0
 
 
@@ -167,14 +229,24 @@ def _calibrate_arm_encoders(args: argparse.Namespace) -> int:
     if not args.scene.is_file():
         raise SystemExit(f"calibrate: no scene file {args.scene}")
     try:
-        arms = [calibrate_arm(args.scene, side, seed=args.seed, log=lambda line: print(line, file=sys.stderr))
-                for side in args.side or ("left", "right")]
+        arms = [
+            calibrate_arm(
+                args.scene, side, seed=args.seed, log=lambda line: print(line, file=sys.stderr)
+            )
+            for side in args.side or ("left", "right")
+        ]
     except CalibrationError as exc:
-        raise SystemExit(f"calibrate: {exc}")
+        raise SystemExit(f"calibrate: {exc}") from None
     offsets = {j: v for arm in arms for j, v in arm.encoder_offsets().items()}
-    print(json.dumps({"arms": [arm.summary() for arm in arms],
-                      "controller_option": "--encoder-offsets " + encoder_offsets_argument(offsets)},
-                     indent=2))
+    print(
+        json.dumps(
+            {
+                "arms": [arm.summary() for arm in arms],
+                "controller_option": "--encoder-offsets " + encoder_offsets_argument(offsets),
+            },
+            indent=2,
+        )
+    )
     return 0
 
 
@@ -185,12 +257,20 @@ def _calibrate_joint_offsets(args: argparse.Namespace) -> int:
     data = _load_json(args.measurements)
     model, _ = robots.load_pinocchio(data["robot"], with_collision=False)
     problem = JointOffsetProblem(model, data["base_frame"], data["marker_frame"], data["joints"])
-    result = calibrate_joint_offsets(problem, np.asarray(data["configurations"], float),
-                                     np.asarray(data["positions"], float))
-    print(json.dumps({"joints": list(problem.joints),
-                      "offsets_deg": np.degrees(result.offsets).tolist(),
-                      "marker_in_end_frame": result.p_EM.tolist(),
-                      "marker_base_in_base_frame": result.p_BA.tolist(),
-                      "rms_residual_m": result.rms_residual,
-                      "iterations": result.iterations}, indent=2))
+    result = calibrate_joint_offsets(
+        problem, np.asarray(data["configurations"], float), np.asarray(data["positions"], float)
+    )
+    print(
+        json.dumps(
+            {
+                "joints": list(problem.joints),
+                "offsets_deg": np.degrees(result.offsets).tolist(),
+                "marker_in_end_frame": result.p_EM.tolist(),
+                "marker_base_in_base_frame": result.p_BA.tolist(),
+                "rms_residual_m": result.rms_residual,
+                "iterations": result.iterations,
+            },
+            indent=2,
+        )
+    )
     return 0

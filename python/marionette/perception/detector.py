@@ -23,8 +23,8 @@ the image-only minima.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
 
 import numpy as np
 import pinocchio as pin
@@ -80,12 +80,15 @@ class DetectorConfig:
     # Depth pixels used: the black square's corner polygon scaled by this about its centre;
     # the white border reaches 1.25 (10 / 8 cells), 1.1 keeps a margin from the tag's edge.
     depth_polygon_scale: float = 1.1
-    quad_decimate: float = 2.0  # AprilTag's default: quads on a half-size image, edges refined at full size
+    quad_decimate: float = (
+        2.0  # AprilTag's default: quads on a half-size image, edges refined at full size
+    )
     num_threads: int = 1
 
 
-def errors_ambiguous(best: float, other: float, num_corners: int, ratio: float,
-                     corner_noise_px: float) -> bool:
+def errors_ambiguous(
+    best: float, other: float, num_corners: int, ratio: float, corner_noise_px: float
+) -> bool:
     """Whether a runner-up local minimum (sum of squared errors ``other`` [px^2]) explains
     ``num_corners`` corners about as well as the best (``best``): within the ratio test, or
     under the error that corner noise alone would produce."""
@@ -108,7 +111,9 @@ class AprilTagDetector:
             if not (math.isfinite(size) and size > 0.0):
                 raise ValueError(f"tag {tag_id}: size must be finite and > 0 m, got {size}")
         if not 0.0 < self.config.ambiguity_ratio < 1.0:
-            raise ValueError(f"ambiguity_ratio must be in (0, 1), got {self.config.ambiguity_ratio}")
+            raise ValueError(
+                f"ambiguity_ratio must be in (0, 1), got {self.config.ambiguity_ratio}"
+            )
         self._visp = _visp
         self._native = _visp.AprilTagDetector(
             quad_decimate=self.config.quad_decimate, num_threads=self.config.num_threads
@@ -149,8 +154,9 @@ class AprilTagDetector:
         """The runner-up explains the corners about as well as the best (see module doc)."""
         if not has_second:
             return False
-        return errors_ambiguous(*errors, 4, self.config.ambiguity_ratio,
-                                self.config.corner_noise_px)
+        return errors_ambiguous(
+            *errors, 4, self.config.ambiguity_ratio, self.config.corner_noise_px
+        )
 
     def _decide(self, d, hyps, errors, intrinsics, depth, prior) -> TagDetection:
         ambiguous = self.is_ambiguous(errors, d.has_second)
@@ -172,9 +178,14 @@ class AprilTagDetector:
         X_depth = None
         if depth is not None and self.config.refine_with_depth:
             fused = self._visp.refine_pose_rgbd(
-                self._visp.tag_corners(d.tag_size), d.corners,
-                [(d.corners, np.array([0.0, 0.0, 1.0]), 0.0)], depth, intrinsics.native,
-                hyps[chosen].homogeneous, self.config.corner_noise_px, self.config.depth_sigma,
+                self._visp.tag_corners(d.tag_size),
+                d.corners,
+                [(d.corners, np.array([0.0, 0.0, 1.0]), 0.0)],
+                depth,
+                intrinsics.native,
+                hyps[chosen].homogeneous,
+                self.config.corner_noise_px,
+                self.config.depth_sigma,
                 self.config.depth_polygon_scale,
             )
             if fused.ok:

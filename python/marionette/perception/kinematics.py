@@ -32,7 +32,9 @@ def configuration_from_state(model: pin.Model, msg) -> np.ndarray:
         w, x, y, z = (float(a) for a in msg.base_quaternion)
         norm = np.sqrt(w * w + x * x + y * y + z * z)
         if not (np.all(np.isfinite(p)) and np.isfinite(norm) and norm > 0.5):
-            raise StateError(f"base pose is not finite or its quaternion is not unit (|q| = {norm})")
+            raise StateError(
+                f"base pose is not finite or its quaternion is not unit (|q| = {norm})"
+            )
         w, x, y, z = w / norm, x / norm, y / norm, z / norm
         if root.nq == 7:
             q[:7] = [*p, x, y, z, w]
@@ -54,7 +56,9 @@ def configuration_from_state(model: pin.Model, msg) -> np.ndarray:
             raise StateError(f"joint {name} position is not finite")
         q[joint.idx_q] = value
     if missing:
-        raise StateError(f"robot state lacks joints {missing[:5]}{'...' if len(missing) > 5 else ''}")
+        raise StateError(
+            f"robot state lacks joints {missing[:5]}{'...' if len(missing) > 5 else ''}"
+        )
     return q
 
 

@@ -23,8 +23,8 @@ import math
 import threading
 import time
 from collections import Counter, deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -66,15 +66,23 @@ def decode_frame(msg) -> Frame:
     if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
         raise FrameError("bad_size", f"image size {w} x {h}")
     try:
-        intrinsics = CameraIntrinsics(w, h, float(msg.fx), float(msg.fy), float(msg.cx), float(msg.cy))
+        intrinsics = CameraIntrinsics(
+            w, h, float(msg.fx), float(msg.fy), float(msg.cx), float(msg.cy)
+        )
     except ValueError as exc:
         raise FrameError("bad_intrinsics", str(exc)) from None
     if msg.num_rgb != w * h * 3 or len(msg.rgb) != w * h * 3:
         raise FrameError("rgb_size", f"{len(msg.rgb)} RGB bytes for {w} x {h} x 3")
     rgb = np.frombuffer(bytes(msg.rgb), dtype=np.uint8).reshape(h, w, 3)
     # ITU-R BT.601 luma in integer arithmetic: (77 R + 150 G + 29 B) / 256.
-    gray = ((rgb[:, :, 0].astype(np.uint16) * 77 + rgb[:, :, 1].astype(np.uint16) * 150
-             + rgb[:, :, 2].astype(np.uint16) * 29) >> 8).astype(np.uint8)
+    gray = (
+        (
+            rgb[:, :, 0].astype(np.uint16) * 77
+            + rgb[:, :, 1].astype(np.uint16) * 150
+            + rgb[:, :, 2].astype(np.uint16) * 29
+        )
+        >> 8
+    ).astype(np.uint8)
     depth = None
     if msg.num_depth != 0:
         if msg.num_depth != w * h or len(msg.depth) != w * h:
@@ -128,8 +136,9 @@ def detections_message(frame: Frame, detections: Sequence[TagDetection], latency
     return out
 
 
-def object_poses_message(frame: Frame, poses: Sequence[BodyPose], X_WC: pin.SE3 | None,
-                         latency_us: float):
+def object_poses_message(
+    frame: Frame, poses: Sequence[BodyPose], X_WC: pin.SE3 | None, latency_us: float
+):
     """``lcmt_object_poses``; world fields are NaN when the camera's world pose is unknown."""
     from marionette import lcmt_object_pose, lcmt_object_poses
 
@@ -188,18 +197,26 @@ class LatencyWindow:
             v = np.array(self._values)
         if v.size == 0:
             return {"n": 0}
-        return {"n": int(v.size), "p50_us": float(np.percentile(v, 50)),
-                "p99_us": float(np.percentile(v, 99)), "max_us": float(v.max())}
+        return {
+            "n": int(v.size),
+            "p50_us": float(np.percentile(v, 50)),
+            "p99_us": float(np.percentile(v, 99)),
+            "max_us": float(v.max()),
+        }
 
 
 class PerceptionNode:
     """The perceive process's logic, transport-agnostic: :meth:`process` maps a frame to the
     two messages; :meth:`attach` wires it to an :class:`~marionette.lcm_bus.LcmBus`."""
 
-    def __init__(self, config: PerceptionConfig, kinematics: CameraKinematics | None = None) -> None:
+    def __init__(
+        self, config: PerceptionConfig, kinematics: CameraKinematics | None = None
+    ) -> None:
         if config.camera_pose_source not in ("kinematics", "message"):
-            raise ValueError(f"camera_pose_source must be kinematics or message, "
-                             f"got {config.camera_pose_source!r}")
+            raise ValueError(
+                f"camera_pose_source must be kinematics or message, "
+                f"got {config.camera_pose_source!r}"
+            )
         if config.camera_pose_source == "kinematics" and kinematics is None:
             raise ValueError("camera_pose_source 'kinematics' needs a robot model (--robot)")
         self.config = config
@@ -235,16 +252,23 @@ class PerceptionNode:
         if self.config.up_axes and X_WC is not None:
             prior = up_axis_prior(self.config.bodies, self.config.up_axes, X_WC.rotation)
         detections = self.detector.detect(frame.gray, frame.intrinsics, depth=depth, prior=prior)
-        poses = estimate_body_poses(self.config.bodies, detections, frame.intrinsics, depth=depth,
-                                    ambiguity_ratio=self.config.detector.ambiguity_ratio,
-                                    corner_noise_px=self.config.detector.corner_noise_px,
-                                    depth_sigma=self.config.detector.depth_sigma,
-                                    depth_polygon_scale=self.config.detector.depth_polygon_scale)
+        poses = estimate_body_poses(
+            self.config.bodies,
+            detections,
+            frame.intrinsics,
+            depth=depth,
+            ambiguity_ratio=self.config.detector.ambiguity_ratio,
+            corner_noise_px=self.config.detector.corner_noise_px,
+            depth_sigma=self.config.detector.depth_sigma,
+            depth_polygon_scale=self.config.detector.depth_polygon_scale,
+        )
         if X_WC is None:
             self.counters["no_camera_pose"] += 1
         latency_us = (time.monotonic() - received) * 1e6
-        return (detections_message(frame, detections, latency_us),
-                object_poses_message(frame, list(poses.values()), X_WC, latency_us))
+        return (
+            detections_message(frame, detections, latency_us),
+            object_poses_message(frame, list(poses.values()), X_WC, latency_us),
+        )
 
     # ---- transport -------------------------------------------------------------------------
     def attach(self, bus) -> None:

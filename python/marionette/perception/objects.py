@@ -10,9 +10,9 @@ more precise and less ambiguous. Tags are declared in the models' YAML
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -73,12 +73,18 @@ class BodyPose:
     resolved_by: str  # "image" | "depth" | "prior"
 
 
+_UP_W = np.array([0.0, 0.0, 1.0])  # world z, the default "up" of a resting body
+_UP_W.flags.writeable = False
+
+
 def tagged_bodies_from_semantics(semantics) -> list[TaggedBody]:
     """One :class:`TaggedBody` per link carrying tags in a :class:`Semantics` declaration."""
     by_link: dict[str, list[TagOnBody]] = {}
     for t in semantics.tags:
         if t.family != "tag36h11":
-            raise ValueError(f"{semantics.name}: tag {t.id} is {t.family}; only tag36h11 is detected")
+            raise ValueError(
+                f"{semantics.name}: tag {t.id} is {t.family}; only tag36h11 is detected"
+            )
         by_link.setdefault(t.link, []).append(TagOnBody(t.id, t.size, t.pose.se3()))
     single = len(by_link) == 1
     return [
@@ -103,7 +109,9 @@ def check_unique_ids(bodies: Sequence[TaggedBody]) -> None:
     for body in bodies:
         for t in body.tags:
             if t.tag_id in seen:
-                raise ValueError(f"tag {t.tag_id} is declared on both {seen[t.tag_id]} and {body.name}")
+                raise ValueError(
+                    f"tag {t.tag_id} is declared on both {seen[t.tag_id]} and {body.name}"
+                )
             seen[t.tag_id] = body.name
 
 
@@ -139,7 +147,10 @@ def estimate_body_pose(
     for d in detections:  # a tag seen twice (a false positive): keep the better fit
         if body.tag(d.tag_id) is not None:
             kept = best_per_tag.get(d.tag_id)
-            if kept is None or d.reprojection_errors[d.chosen] < kept.reprojection_errors[kept.chosen]:
+            if (
+                kept is None
+                or d.reprojection_errors[d.chosen] < kept.reprojection_errors[kept.chosen]
+            ):
                 best_per_tag[d.tag_id] = d
     mine = [best_per_tag[i] for i in sorted(best_per_tag)]
     if not mine:
@@ -156,8 +167,14 @@ def estimate_body_pose(
                 continue
             X = pin.SE3(est.X_CO)
             retained = k == d.chosen
-            same = next((i for i, m in enumerate(minima)
-                         if rotation_angle(m[1].rotation, X.rotation) < 1e-2), None)
+            same = next(
+                (
+                    i
+                    for i, m in enumerate(minima)
+                    if rotation_angle(m[1].rotation, X.rotation) < 1e-2
+                ),
+                None,
+            )
             if same is None:
                 minima.append((est.reprojection_error, X, retained))
             elif retained:
@@ -167,7 +184,8 @@ def estimate_body_pose(
     minima.sort(key=lambda m: m[0])
     best = minima[0]
     ambiguous = len(minima) > 1 and errors_ambiguous(
-        minima[0][0], minima[1][0], len(uv), ambiguity_ratio, corner_noise_px)
+        minima[0][0], minima[1][0], len(uv), ambiguity_ratio, corner_noise_px
+    )
     resolved_by = "image"
     if ambiguous:
         decided = [d.resolved_by for d in mine if d.resolved_by != "image"]
@@ -181,9 +199,17 @@ def estimate_body_pose(
             X_BT = body.tag(d.tag_id).X_BT
             n_B = X_BT.rotation[:, 2]
             planes.append((d.corners, n_B, float(n_B @ X_BT.translation)))
-        fused = _visp.refine_pose_rgbd(p_B, uv, planes, depth, intrinsics.native,
-                                       X_CB.homogeneous, corner_noise_px, depth_sigma,
-                                       depth_polygon_scale)
+        fused = _visp.refine_pose_rgbd(
+            p_B,
+            uv,
+            planes,
+            depth,
+            intrinsics.native,
+            X_CB.homogeneous,
+            corner_noise_px,
+            depth_sigma,
+            depth_polygon_scale,
+        )
         if fused.ok:
             X_CB, error = pin.SE3(fused.X_CO), fused.reprojection_error
     rms = math.sqrt(error / len(uv))
@@ -209,7 +235,7 @@ def up_axis_prior(
     bodies: Sequence[TaggedBody],
     up_B: Mapping[str, np.ndarray],
     R_WC: np.ndarray,
-    up_W: np.ndarray = np.array([0.0, 0.0, 1.0]),
+    up_W: np.ndarray = _UP_W,
 ):
     """A hypothesis prior from the graph state "body B rests with axis ``up_B[name]`` up".
 

@@ -42,8 +42,9 @@ def se3_error(T1: pin.SE3, T2: pin.SE3) -> np.ndarray:
     return pin.log6(T1.actInv(T2)).vector
 
 
-def visual_reference(g_fk: pin.SE3, X_CG: pin.SE3, X_CH: pin.SE3,
-                     X_HG: pin.SE3 | None = None) -> pin.SE3:
+def visual_reference(
+    g_fk: pin.SE3, X_CG: pin.SE3, X_CH: pin.SE3, X_HG: pin.SE3 | None = None
+) -> pin.SE3:
     """Eq. 5.2: reference T2 of the gripper task from the kinematic gripper pose ``g_fk``
     (world), the measured gripper ``X_CG`` and handle ``X_CH`` (camera frame) and the goal
     offset ``X_HG`` (handle -> desired gripper; identity = grasp)."""
@@ -93,9 +94,14 @@ class PbvsReference:
     None. A measurement older than ``timeout`` [s] counts as lost sight.
     """
 
-    def __init__(self, visual_gain: float = 1.0, planned_gain: float = 10.0,
-                 blend_time: float = 0.5, timeout: float = 0.2,
-                 X_HG: pin.SE3 | None = None) -> None:
+    def __init__(
+        self,
+        visual_gain: float = 1.0,
+        planned_gain: float = 10.0,
+        blend_time: float = 0.5,
+        timeout: float = 0.2,
+        X_HG: pin.SE3 | None = None,
+    ) -> None:
         if not (visual_gain > 0 and planned_gain > 0 and blend_time > 0 and timeout > 0):
             raise ValueError("gains, blend_time and timeout must be > 0")
         self.visual_gain = visual_gain
@@ -110,8 +116,9 @@ class PbvsReference:
         self._from_ref: pin.SE3 | None = None
         self._from_gain = planned_gain
 
-    def update(self, t: float, g_fk: pin.SE3, planned: pin.SE3,
-               measurement: VisualMeasurement | None) -> PbvsOutput:
+    def update(
+        self, t: float, g_fk: pin.SE3, planned: pin.SE3, measurement: VisualMeasurement | None
+    ) -> PbvsOutput:
         visible = measurement is not None and t - measurement.t <= self.timeout
         if visible:
             target = visual_reference(g_fk, measurement.X_CG, measurement.X_CH, self.X_HG)
@@ -137,8 +144,14 @@ class PbvsReference:
         return self._last
 
 
-def task_reference_message(task_name: str, controller_id: int, utime: int,
-                           references: list[pin.SE3], dt_us: int, last_chunk: bool = False):
+def task_reference_message(
+    task_name: str,
+    controller_id: int,
+    utime: int,
+    references: list[pin.SE3],
+    dt_us: int,
+    last_chunk: bool = False,
+):
     """``lcmt_task_reference`` of SE(3) samples (x y z qw qx qy qz), no feed-forward."""
     from marionette import lcmt_task_reference
 

@@ -8,8 +8,8 @@ the box-filtered coverage of the scene over the pixel footprint (``supersample``
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -98,8 +98,14 @@ def _image_box(intrinsics: CameraIntrinsics, quads: Sequence[Quad]) -> tuple[int
         if np.any(p_C[:, 2] <= 1e-6):
             return 0, w, 0, h  # crosses the camera plane: cast everywhere
         uv = intrinsics.project(p_C)
-        u0, v0 = min(u0, int(np.floor(uv[:, 0].min())) - 1), min(v0, int(np.floor(uv[:, 1].min())) - 1)
-        u1, v1 = max(u1, int(np.ceil(uv[:, 0].max())) + 2), max(v1, int(np.ceil(uv[:, 1].max())) + 2)
+        u0, v0 = (
+            min(u0, int(np.floor(uv[:, 0].min())) - 1),
+            min(v0, int(np.floor(uv[:, 1].min())) - 1),
+        )
+        u1, v1 = (
+            max(u1, int(np.ceil(uv[:, 0].max())) + 2),
+            max(v1, int(np.ceil(uv[:, 1].max())) + 2),
+        )
     return max(0, u0), min(w, u1), max(0, v0), min(h, v1)
 
 
@@ -157,7 +163,9 @@ def render(
     return SyntheticFrame(gray8, np.repeat(gray8[:, :, None], 3, axis=2), depth.astype(np.float32))
 
 
-def look_at(p_CT: np.ndarray, tilt_deg: float = 0.0, tilt_axis=(1.0, 0.0, 0.0), roll_deg: float = 0.0) -> pin.SE3:
+def look_at(
+    p_CT: np.ndarray, tilt_deg: float = 0.0, tilt_axis=(1.0, 0.0, 0.0), roll_deg: float = 0.0
+) -> pin.SE3:
     """X_CT of a tag at ``p_CT`` facing the camera (z_T towards it, upright: y_T up in the image),
     then tilted by ``tilt_deg`` about ``tilt_axis`` (tag frame) and rolled by ``roll_deg`` about z_T."""
     R_facing = np.diag([1.0, -1.0, -1.0])  # x_T = x_C, y_T = -y_C (up), z_T = -z_C

@@ -23,9 +23,22 @@ def _hpp_block(args: argparse.Namespace, first: int, last: int, samples: int) ->
     env["ROS_PACKAGE_PATH"] = f"{args.hpp_prefix}/share"
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "hpp.json"
-        subprocess.run([args.hpp_python, args.hpp_script, "--seeds", str(first), str(last),
-                        "--projection-samples", str(samples), "--out", str(out)],
-                       env=env, check=True, timeout=3600)
+        subprocess.run(
+            [
+                args.hpp_python,
+                args.hpp_script,
+                "--seeds",
+                str(first),
+                str(last),
+                "--projection-samples",
+                str(samples),
+                "--out",
+                str(out),
+            ],
+            env=env,
+            check=True,
+            timeout=3600,
+        )
         return json.loads(out.read_text())
 
 
@@ -49,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     # HPP seeds start at 1 (its seeds 0 and 1 behave alike, ../shared/bench/ur5_box/README.md).
     seeds = list(range(1, args.seeds + 1))
     for k in range(0, len(seeds), args.block):
-        block = seeds[k:k + args.block]
+        block = seeds[k : k + args.block]
         last_block = k + args.block >= len(seeds)
         samples = args.projection_samples if last_block else 1
         h = _hpp_block(args, block[0], block[-1], samples)
@@ -57,18 +70,22 @@ def main(argv: list[str] | None = None) -> int:
         if last_block:
             hpp_proj = h["projections"]
         mar_runs += [vars(r) for r in benchmark.plan_seeds(problem, block)]
-        print(f"  seeds {block[0]}-{block[-1]}: HPP {benchmark.summary(h['runs'])['median_ms']:.1f} ms, "
-              f"marionette {benchmark.summary(mar_runs[-len(block):])['median_ms']:.1f} ms (block medians)",
-              flush=True)
+        print(
+            f"  seeds {block[0]}-{block[-1]}: HPP {benchmark.summary(h['runs'])['median_ms']:.1f} ms, "
+            f"marionette {benchmark.summary(mar_runs[-len(block) :])['median_ms']:.1f} ms (block medians)",
+            flush=True,
+        )
     mar_proj = benchmark.projection_times(problem, args.projection_samples)
     hs, ms = benchmark.summary(hpp_runs), benchmark.summary(mar_runs)
 
     print(f"\nUR5 box pick-and-place, {len(seeds)} seeds, same machine, alternating blocks")
     print(f"{'':28s}{'HPP 9.0.2':>14s}{'marionette':>14s}{'ratio m/H':>11s}")
-    for key, label, fmt in [("success_rate", "success rate", "{:.0%}"),
-                            ("median_ms", "median planning time [ms]", "{:.1f}"),
-                            ("p90_ms", "p90 planning time [ms]", "{:.1f}"),
-                            ("median_nodes", "median roadmap nodes", "{:.0f}")]:
+    for key, label, fmt in [
+        ("success_rate", "success rate", "{:.0%}"),
+        ("median_ms", "median planning time [ms]", "{:.1f}"),
+        ("p90_ms", "p90 planning time [ms]", "{:.1f}"),
+        ("median_nodes", "median roadmap nodes", "{:.0f}"),
+    ]:
         ratio = ms[key] / hs[key] if hs[key] else float("nan")
         print(f"{label:28s}{fmt.format(hs[key]):>14s}{fmt.format(ms[key]):>14s}{ratio:>11.2f}")
     print("\nprojection of uniform samples onto each state: median time [us] (success rate)")
@@ -78,9 +95,15 @@ def main(argv: list[str] | None = None) -> int:
         ms_ = f"{m['median_us']:.1f} ({m['success']:.0%})" if m else "-"
         print(f"  {name:42s}{hs_:>16s}{ms_:>16s}")
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps({"hpp": {"summary": hs, "runs": hpp_runs, "projections": hpp_proj},
-                                    "marionette": {"summary": ms, "runs": mar_runs,
-                                                   "projections": mar_proj}}, indent=1))
+    args.out.write_text(
+        json.dumps(
+            {
+                "hpp": {"summary": hs, "runs": hpp_runs, "projections": hpp_proj},
+                "marionette": {"summary": ms, "runs": mar_runs, "projections": mar_proj},
+            },
+            indent=1,
+        )
+    )
     print(f"\nwritten {args.out}")
     return 0
 

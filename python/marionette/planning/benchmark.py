@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
@@ -27,8 +27,12 @@ class Run:
     nodes: int
 
 
-def plan_seeds(problem: ManipulationProblem, seeds: Sequence[int], max_iterations: int = 5000,
-               timeout_s: float = 30.0) -> list[Run]:
+def plan_seeds(
+    problem: ManipulationProblem,
+    seeds: Sequence[int],
+    max_iterations: int = 5000,
+    timeout_s: float = 30.0,
+) -> list[Run]:
     """One planning query per seed: a fresh roadmap each time, the graph (initialised before
     timing, as HPP's) and the collision checker shared."""
     checker = CollisionChecker(problem)
@@ -43,8 +47,9 @@ def plan_seeds(problem: ManipulationProblem, seeds: Sequence[int], max_iteration
     return runs
 
 
-def projection_times(problem: ManipulationProblem, samples: int = 200,
-                     seed: int = 0) -> dict[str, dict[str, float]]:
+def projection_times(
+    problem: ManipulationProblem, samples: int = 200, seed: int = 0
+) -> dict[str, dict[str, float]]:
     """Median time and success rate of projecting uniform samples onto each state."""
     graph = graph_from_settings(problem)
     rng = np.random.default_rng(seed)
@@ -79,5 +84,8 @@ def summary(runs: Sequence[Run] | Sequence[dict]) -> dict[str, float]:
 def run_marionette(problem_file: Path, seeds: Sequence[int], samples: int) -> dict:
     problem = load_problem(problem_file)
     runs = plan_seeds(problem, seeds)
-    return {"system": "marionette", "runs": [dataclasses.asdict(r) for r in runs],
-            "projections": projection_times(problem, samples)}
+    return {
+        "system": "marionette",
+        "runs": [dataclasses.asdict(r) for r in runs],
+        "projections": projection_times(problem, samples),
+    }

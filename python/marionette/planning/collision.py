@@ -24,7 +24,9 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from marionette.planning.constraints import ExplicitRelativePose, LockedJoint, RelativeTransformation
+from marionette.planning.constraints import (
+    RelativeTransformation,
+)
 from marionette.planning.problem import ManipulationProblem
 
 if TYPE_CHECKING:
@@ -35,7 +37,7 @@ if TYPE_CHECKING:
 # Two bodies closer than this [m] are in contact: counted as a collision (HPP's tolerance 0
 # up to a micrometre), which also bounds the certified steps from below.
 CONTACT = 1e-6
-MAX_QUERIES = 20000      # evaluations of one segment before it is refused as grazing
+MAX_QUERIES = 20000  # evaluations of one segment before it is refused as grazing
 
 
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
@@ -54,8 +56,14 @@ def _radius(geom: pin.GeometryObject) -> float:
     g = geom.geometry
     g.computeLocalAABB()
     aabb = g.aabb_local
-    corners = np.array([[x, y, z] for x in (aabb.min_[0], aabb.max_[0])
-                        for y in (aabb.min_[1], aabb.max_[1]) for z in (aabb.min_[2], aabb.max_[2])])
+    corners = np.array(
+        [
+            [x, y, z]
+            for x in (aabb.min_[0], aabb.max_[0])
+            for y in (aabb.min_[1], aabb.max_[1])
+            for z in (aabb.min_[2], aabb.max_[2])
+        ]
+    )
     pts = corners @ geom.placement.rotation.T + geom.placement.translation
     return float(np.max(np.linalg.norm(pts, axis=1)))
 
@@ -63,8 +71,9 @@ def _radius(geom: pin.GeometryObject) -> float:
 class CollisionChecker:
     """Configuration and path validation for one problem (one instance per thread)."""
 
-    def __init__(self, problem: ManipulationProblem, convex: bool = True,
-                 backend: str = "cpp") -> None:
+    def __init__(
+        self, problem: ManipulationProblem, convex: bool = True, backend: str = "cpp"
+    ) -> None:
         """``backend``: "cpp" runs path validation in ``marionette._core.planning`` (same
         certified algorithm and tolerance, ~10x faster), "python" in :meth:`_certified`."""
         if backend not in ("cpp", "python"):
@@ -81,18 +90,22 @@ class CollisionChecker:
         self.geom_radius = [_radius(o) for o in objs]
         m = self.model
         # chain_r[g]: list of (joint, r_jg) for every joint j on g's kinematic chain.
-        self.chains = [self._chain(self.geom_joint[g], self.geom_radius[g]) for g in range(len(objs))]
-        self.checks = 0          # number of pair queries (statistics)
+        self.chains = [
+            self._chain(self.geom_joint[g], self.geom_radius[g]) for g in range(len(objs))
+        ]
+        self.checks = 0  # number of pair queries (statistics)
         self.refused_grazing = 0
         self._motion_cache: dict[int, tuple] = {}
         self._grasp_pairs: dict[tuple, frozenset[int]] = {}
-        self._joint_kinds = []   # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
+        self._joint_kinds = []  # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
         for j in range(1, m.njoints):
             jm = m.joints[j]
             if jm.nv == 6:
                 self._joint_kinds.append((j, m.idx_vs[j], 2))
             elif jm.nv == 1:
-                self._joint_kinds.append((j, m.idx_vs[j], 1 if "Prismatic" in jm.shortname() else 0))
+                self._joint_kinds.append(
+                    (j, m.idx_vs[j], 1 if "Prismatic" in jm.shortname() else 0)
+                )
             else:
                 raise ValueError(f"joint {m.names[j]} ({jm.shortname()}) is not supported")
         kinds = self._joint_kinds
@@ -105,8 +118,10 @@ class CollisionChecker:
         self._cpp_motion: dict[tuple, tuple] = {}
         if backend == "cpp":
             from marionette.planning import collision_cpp
-            self._cpp = collision_cpp.build_validator(self.model, self.geom_model, self.pairs,
-                                                      CONTACT, MAX_QUERIES)
+
+            self._cpp = collision_cpp.build_validator(
+                self.model, self.geom_model, self.pairs, CONTACT, MAX_QUERIES
+            )
 
     def _chain(self, joint: int, radius: float) -> list[tuple[int, float]]:
         m = self.model
@@ -147,8 +162,9 @@ class CollisionChecker:
     def is_valid(self, q: np.ndarray, allowed: frozenset[int] = frozenset()) -> bool:
         """No pair in collision at q, except the ``allowed`` ones (grasp contacts)."""
         if not allowed:
-            return not pin.computeCollisions(self.model, self.data, self.geom_model,
-                                             self.geom_data, q, True)
+            return not pin.computeCollisions(
+                self.model, self.data, self.geom_model, self.geom_data, q, True
+            )
         gd = self.geom_data
         for k in allowed:
             gd.deactivateCollisionPair(k)
@@ -162,11 +178,14 @@ class CollisionChecker:
         """Names of the pairs in collision at q (for error messages)."""
         pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, False)
         names = [o.name for o in self.geom_model.geometryObjects]
-        return [(names[a], names[b]) for k, (a, b) in enumerate(self.pairs)
-                if self.geom_data.collisionResults[k].isCollision()]
+        return [
+            (names[a], names[b])
+            for k, (a, b) in enumerate(self.pairs)
+            if self.geom_data.collisionResults[k].isCollision()
+        ]
 
     # --------------------------------------------------------------------------- paths
-    def _motion(self, projector: "Projector") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _motion(self, projector: Projector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per pair, how fast it can close its distance, as linear maps of joint speeds.
 
         Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints)) with
@@ -210,8 +229,9 @@ class CollisionChecker:
         self._motion_cache[key] = (projector, out)
         return out
 
-    def validate(self, path: "ConstrainedPath", allowed: frozenset[int] | None = None,
-                 prefix: bool = True) -> tuple[bool, float]:
+    def validate(
+        self, path: ConstrainedPath, allowed: frozenset[int] | None = None, prefix: bool = True
+    ) -> tuple[bool, float]:
         """(fully valid, s_valid): the path is collision-free on [0, s_valid] (arc length).
 
         Progressive certified validation, segment by segment of the path's polyline.  Pairs in
@@ -225,9 +245,9 @@ class CollisionChecker:
             return self._validate_cpp(path, rigid, R, L, allowed, prefix)
         if allowed:
             rigid = rigid.copy()
-            rigid[list(allowed)] = True     # treated as never moving...
+            rigid[list(allowed)] = True  # treated as never moving...
             skip = np.zeros(len(self.pairs), dtype=bool)
-            skip[list(allowed)] = True      # ...and never checked
+            skip[list(allowed)] = True  # ...and never checked
         else:
             skip = None
         if not prefix:
@@ -238,11 +258,19 @@ class CollisionChecker:
                     return False, 0.0
         return self._certified(path, rigid, R, L, skip)
 
-    def _validate_cpp(self, path: "ConstrainedPath", rigid: np.ndarray, R: np.ndarray,
-                      L: np.ndarray, allowed: frozenset[int], prefix: bool) -> tuple[bool, float]:
+    def _validate_cpp(
+        self,
+        path: ConstrainedPath,
+        rigid: np.ndarray,
+        R: np.ndarray,
+        L: np.ndarray,
+        allowed: frozenset[int],
+        prefix: bool,
+    ) -> tuple[bool, float]:
         """:meth:`validate` in C++: the pair bounds and explicit constraints handed over once per
         (transition projector, allowed pairs), the locked values once per path."""
         from marionette.planning import collision_cpp
+
         projector = path.projector
         key = (id(projector), allowed)
         cached = self._cpp_motion.get(key)
@@ -254,15 +282,22 @@ class CollisionChecker:
             self._cpp_motion[key] = cached
         _, motion, attached = cached
         ok, s, queries, grazing = self._cpp.validate(
-            path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix)
+            path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix
+        )
         self.checks += queries
         self.refused_grazing += grazing
         # The Python evaluation leaves the path's right-hand sides in its projector: keep that.
         projector.restore_rhs(path.rhs_state)
         return ok, s
 
-    def _certified(self, path: "ConstrainedPath", rigid: np.ndarray, R: np.ndarray,
-                   L: np.ndarray, skip: np.ndarray | None) -> tuple[bool, float]:
+    def _certified(
+        self,
+        path: ConstrainedPath,
+        rigid: np.ndarray,
+        R: np.ndarray,
+        L: np.ndarray,
+        skip: np.ndarray | None,
+    ) -> tuple[bool, float]:
         q0 = path.eval(0.0)
         self._update(q0)
         # Pairs that do not move relatively: checked once, at the start.
@@ -297,8 +332,9 @@ class CollisionChecker:
     def _update(self, q: np.ndarray) -> None:
         pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, q)
 
-    def _validate_segment(self, path, qa, qb, s0, s1, rigid, R, L,
-                          budget: np.ndarray) -> tuple[bool, float]:
+    def _validate_segment(
+        self, path, qa, qb, s0, s1, rigid, R, L, budget: np.ndarray
+    ) -> tuple[bool, float]:
         """Certified check of the segment qa -> qb (t in [0, 1]); (ok, first unsafe t).
         ``budget`` (npairs): certified displacement left per pair, updated in place."""
         ang, lin = self._joint_speeds(qa, qb)
@@ -306,7 +342,7 @@ class CollisionChecker:
         moving = (u > 0.0) & ~rigid
         if not moving.any():
             return True, 1.0
-        horizon = np.full(len(u), np.inf)        # t up to which each pair is certified
+        horizon = np.full(len(u), np.inf)  # t up to which each pair is certified
         horizon[moving] = budget[moving] / u[moving]
         t = 0.0
         length = s1 - s0
@@ -353,7 +389,7 @@ def _ancestors_incl(model: pin.Model, joint: int) -> set[int]:
     return out
 
 
-def _rigid_groups(model: pin.Model, projector: "Projector") -> dict[int, int]:
+def _rigid_groups(model: pin.Model, projector: Projector) -> dict[int, int]:
     """Joints welded together by full 6-D relative transformations of the projector
     (constant rhs along a path): maps joint -> representative joint (union-find)."""
     parent: dict[int, int] = {}

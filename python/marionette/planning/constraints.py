@@ -21,7 +21,7 @@ pose of frame F in the frame of joint J.  Rotation errors use log3 (R3 x SO3, as
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -46,7 +46,7 @@ class Kinematics:
         self.oMi = self.data.oMi
         self.q = pin.neutral(model)
         self._com_valid = False
-        self.version = 0      # bumped by every update: constraints cache per-version values
+        self.version = 0  # bumped by every update: constraints cache per-version values
         self._jac: dict[int, np.ndarray] = {}
         # Joints whose motion is irrelevant to the caller (locked): their Jacobian reads as 0.
         self.static: frozenset[int] = frozenset()
@@ -57,7 +57,7 @@ class Kinematics:
         for j in range(1, model.njoints):
             if model.joints[j].nq == 7 and model.parents[j] == 0:
                 J = np.zeros((6, model.nv))
-                J[:, model.idx_vs[j]:model.idx_vs[j] + 6] = np.eye(6)
+                J[:, model.idx_vs[j] : model.idx_vs[j] + 6] = np.eye(6)
                 self._root_ff[j] = J
 
     def update(self, q: np.ndarray, jacobians: bool = True) -> None:
@@ -153,8 +153,12 @@ class Constraint:
 
     def to_dict(self, model: pin.Model) -> dict:
         """Definition for files (a controller builds its task from it)."""
-        return {"type": type(self).__name__, "size": self.size, "parametrised": self.parametrised,
-                "rhs": self.rhs.tolist()}
+        return {
+            "type": type(self).__name__,
+            "size": self.size,
+            "parametrised": self.parametrised,
+            "rhs": self.rhs.tolist(),
+        }
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, size={self.size})"
@@ -168,15 +172,23 @@ class RelativeTransformation(Constraint):
     dp = R nu_lin and d log3(R) = Jlog3(R) nu_ang.  joint1 = 0 gives an absolute transformation.
     """
 
-    def __init__(self, name: str, joint1: int, M1: pin.SE3, joint2: int, M2: pin.SE3,
-                 mask: Sequence[bool] = (True,) * 6, rhs: np.ndarray | None = None,
-                 parametrised: bool = False) -> None:
+    def __init__(
+        self,
+        name: str,
+        joint1: int,
+        M1: pin.SE3,
+        joint2: int,
+        M2: pin.SE3,
+        mask: Sequence[bool] = (True,) * 6,
+        rhs: np.ndarray | None = None,
+        parametrised: bool = False,
+    ) -> None:
         self.mask = _check_mask(mask)
         super().__init__(name, int(self.mask.sum()), parametrised)
         if joint1 == joint2:
             raise ConstraintError(f"{name}: both frames are on joint {joint1}; f would be constant")
         self.joint1, self.M1, self.joint2, self.M2 = joint1, M1, joint2, M2
-        self._Ad1 = M1.inverse().action   # LOCAL Jacobian of F1 = Ad(M1^-1) J_joint1
+        self._Ad1 = M1.inverse().action  # LOCAL Jacobian of F1 = Ad(M1^-1) J_joint1
         self._Ad2 = M2.inverse().action
         self._cache_version = -1
         self._cache_kin: Kinematics | None = None
@@ -194,9 +206,15 @@ class RelativeTransformation(Constraint):
     def to_dict(self, model: pin.Model) -> dict:
         """Frame F1 = (joint1, M1), frame F2 = (joint2, M2): f = [p, log3 R] of F1^-1 F2."""
         out = super().to_dict(model)
-        out.update({"joint1": model.names[self.joint1], "M1": _pose_list(self.M1),
-                    "joint2": model.names[self.joint2], "M2": _pose_list(self.M2),
-                    "mask": [bool(v) for v in self.mask]})
+        out.update(
+            {
+                "joint1": model.names[self.joint1],
+                "M1": _pose_list(self.M1),
+                "joint2": model.names[self.joint2],
+                "M2": _pose_list(self.M2),
+                "mask": [bool(v) for v in self.mask],
+            }
+        )
         return out
 
     def relative_pose(self, kin: Kinematics) -> pin.SE3:
@@ -245,8 +263,9 @@ class RelativeTransformation(Constraint):
         return J if self._all else J[self.mask]
 
 
-def Transformation(name: str, joint: int, M_JF: pin.SE3, X_WT: pin.SE3,
-                   mask: Sequence[bool] = (True,) * 6) -> RelativeTransformation:
+def Transformation(
+    name: str, joint: int, M_JF: pin.SE3, X_WT: pin.SE3, mask: Sequence[bool] = (True,) * 6
+) -> RelativeTransformation:
     """Absolute pose of frame F (on ``joint``) equal to the target ``X_WT`` on the mask rows."""
     return RelativeTransformation(name, 0, X_WT, joint, M_JF, mask)
 
@@ -271,22 +290,32 @@ class Placement(Constraint):
 
     ROWS = np.array([False, False, True, True, True, False])
 
-    def __init__(self, name: str, problem: ManipulationProblem, obj: str,
-                 object_contacts: Sequence[str], env_contacts: Sequence[str],
-                 margin: float = 0.0) -> None:
+    def __init__(
+        self,
+        name: str,
+        problem: ManipulationProblem,
+        obj: str,
+        object_contacts: Sequence[str],
+        env_contacts: Sequence[str],
+        margin: float = 0.0,
+    ) -> None:
         super().__init__(name, 3)
         if not object_contacts or not env_contacts:
             raise ConstraintError(f"{name}: needs object and environment contact surfaces")
         self.object = obj
         self.pairs: list[tuple[ContactSurface, ContactSurface]] = [
-            (problem.contacts[o], problem.contacts[e]) for o in object_contacts for e in env_contacts]
+            (problem.contacts[o], problem.contacts[e])
+            for o in object_contacts
+            for e in env_contacts
+        ]
         self.margin = margin
         self.size = 5
         self.rhs = np.array([margin, 0.0, 0.0, 0.0, 0.0])
         self.pair = 0
-        self._rel = [RelativeTransformation(f"{name}[{i}]", e.joint_id, e.M_JS, o.joint_id,
-                                            _flip(o.M_JS))
-                     for i, (o, e) in enumerate(self.pairs)]
+        self._rel = [
+            RelativeTransformation(f"{name}[{i}]", e.joint_id, e.M_JS, o.joint_id, _flip(o.M_JS))
+            for i, (o, e) in enumerate(self.pairs)
+        ]
         self._polygons = [_Polygon(e.polygon_S) for _, e in self.pairs]
         self._offset_key = None
         self._offset_val = (np.zeros(2), None)
@@ -296,8 +325,14 @@ class Placement(Constraint):
 
     def to_dict(self, model: pin.Model) -> dict:
         out = super().to_dict(model)
-        out.update({"object": self.object, "margin": self.margin,
-                    "pairs": [[o.name, e.name] for o, e in self.pairs], "pair": self.pair})
+        out.update(
+            {
+                "object": self.object,
+                "margin": self.margin,
+                "pairs": [[o.name, e.name] for o, e in self.pairs],
+                "pair": self.pair,
+            }
+        )
         return out
 
     def relative_pose(self, kin: Kinematics, pair: int | None = None) -> pin.SE3:
@@ -310,7 +345,8 @@ class Placement(Constraint):
             for i in range(len(self._rel)):
                 M = self.relative_pose(kin, i)
                 cost = abs(M.translation[2] - self.margin) + 0.3 * np.linalg.norm(
-                    pin.log3(M.rotation)[:2])
+                    pin.log3(M.rotation)[:2]
+                )
                 if cost < best_cost:
                     best, best_cost = i, cost
             self.pair = best
@@ -355,17 +391,17 @@ class _Polygon:
         self.a = np.asarray(poly, dtype=float)
         self.ab = np.roll(self.a, -1, axis=0) - self.a
         self.ab2 = np.einsum("ij,ij->i", self.ab, self.ab)
-        n = np.column_stack([self.ab[:, 1], -self.ab[:, 0]])      # outward for CCW
+        n = np.column_stack([self.ab[:, 1], -self.ab[:, 0]])  # outward for CCW
         self.n = n / np.sqrt(self.ab2)[:, None]
         self._eye = np.eye(2)
 
     def offset(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray | None]:
         """(c - nearest point of the polygon, d/dc of it) with c = (x, y); (0, None) inside."""
-        ca = np.array([x, y]) - self.a                               # (k x 2)
+        ca = np.array([x, y]) - self.a  # (k x 2)
         if (np.einsum("ij,ij->i", ca, self.n) <= 0.0).all():
             return np.zeros(2), None
         t = np.clip(np.einsum("ij,ij->i", ca, self.ab) / self.ab2, 0.0, 1.0)
-        r = ca - t[:, None] * self.ab                                # c - nearest point, per edge
+        r = ca - t[:, None] * self.ab  # c - nearest point, per edge
         i = int(np.argmin(np.einsum("ij,ij->i", r, r)))
         D = self._eye if t[i] in (0.0, 1.0) else np.outer(self.n[i], self.n[i])
         return r[i], D
@@ -429,8 +465,15 @@ class ComPosition(Constraint):
     d p_com_F / dv = R_WF^T (J_com - [J_F,lin in world] + [p_com - p_F]x J_F,ang in world).
     """
 
-    def __init__(self, name: str, joint: int, M_JF: pin.SE3, target: np.ndarray | None = None,
-                 mask: Sequence[bool] = (True, True, True), parametrised: bool = False) -> None:
+    def __init__(
+        self,
+        name: str,
+        joint: int,
+        M_JF: pin.SE3,
+        target: np.ndarray | None = None,
+        mask: Sequence[bool] = (True, True, True),
+        parametrised: bool = False,
+    ) -> None:
         m = np.asarray(mask, dtype=bool)
         if m.shape != (3,) or not m.any():
             raise ConstraintError(f"{name}: CoM mask has 3 entries, at least one true")
@@ -446,8 +489,13 @@ class ComPosition(Constraint):
 
     def to_dict(self, model: pin.Model) -> dict:
         out = super().to_dict(model)
-        out.update({"joint": model.names[self.joint], "M_JF": _pose_list(self.M_JF),
-                    "mask": [bool(v) for v in self.mask]})
+        out.update(
+            {
+                "joint": model.names[self.joint],
+                "M_JF": _pose_list(self.M_JF),
+                "mask": [bool(v) for v in self.mask],
+            }
+        )
         return out
 
     def value(self, kin: Kinematics) -> np.ndarray:
@@ -460,7 +508,7 @@ class ComPosition(Constraint):
         Jc = kin.com_jacobian()
         if self.joint == 0:
             return (X_WF.rotation.T @ Jc)[self.mask]
-        JF = self._Ad @ kin.joint_jacobian(self.joint)        # LOCAL in F
+        JF = self._Ad @ kin.joint_jacobian(self.joint)  # LOCAL in F
         # p_com_F = R^T (c - p). d/dt = R^T(c_dot - p_dot) - [w_F]x p_com_F,  p_dot = R v_F.
         pcF = X_WF.actInv(c)
         J = X_WF.rotation.T @ Jc - JF[:3] + np.cross(pcF, JF[3:].T).T
@@ -498,16 +546,25 @@ class ExplicitRelativePose(ExplicitConstraint):
     :meth:`as_implicit`.
     """
 
-    def __init__(self, name: str, model: pin.Model, output_joint: int, parent_joint: int,
-                 M_PG: pin.SE3, M_OH: pin.SE3) -> None:
+    def __init__(
+        self,
+        name: str,
+        model: pin.Model,
+        output_joint: int,
+        parent_joint: int,
+        M_PG: pin.SE3,
+        M_OH: pin.SE3,
+    ) -> None:
         if model.joints[output_joint].nq != 7:
-            raise ConstraintError(f"{name}: output joint {model.names[output_joint]} is not a free-flyer")
+            raise ConstraintError(
+                f"{name}: output joint {model.names[output_joint]} is not a free-flyer"
+            )
         self.name = name
         self.output_joint = output_joint
         self.parent_joint = parent_joint
         self.M_PG, self.M_OH = M_PG, M_OH
         self.M_PO = M_PG * M_OH.inverse()
-        self.Ad_OP = self.M_PO.inverse().action          # V_O = Ad_OP V_P
+        self.Ad_OP = self.M_PO.inverse().action  # V_O = Ad_OP V_P
         self.idx_q = model.idx_qs[output_joint]
         self.idx_v = model.idx_vs[output_joint]
 
@@ -517,19 +574,26 @@ class ExplicitRelativePose(ExplicitConstraint):
     def to_dict(self, model: pin.Model) -> dict:
         """Grasp: gripper frame (parent_joint, M_PG) on handle frame (output_joint, M_OH)."""
         out = super().to_dict(model)
-        out.update({"parent_joint": model.names[self.parent_joint], "M_PG": _pose_list(self.M_PG),
-                    "M_OH": _pose_list(self.M_OH), "M_PO": _pose_list(self.M_PO)})
+        out.update(
+            {
+                "parent_joint": model.names[self.parent_joint],
+                "M_PG": _pose_list(self.M_PG),
+                "M_OH": _pose_list(self.M_OH),
+                "M_PO": _pose_list(self.M_PO),
+            }
+        )
         return out
 
     def pose(self, kin: Kinematics) -> pin.SE3:
         return kin.data.oMi[self.parent_joint] * self.M_PO
 
     def apply(self, kin: Kinematics, q: np.ndarray) -> None:
-        q[self.idx_q:self.idx_q + 7] = pin.SE3ToXYZQUAT(self.pose(kin))
+        q[self.idx_q : self.idx_q + 7] = pin.SE3ToXYZQUAT(self.pose(kin))
 
     def as_implicit(self) -> Constraint:
-        return RelativeTransformation(self.name, self.parent_joint, self.M_PG,
-                                      self.output_joint, self.M_OH)
+        return RelativeTransformation(
+            self.name, self.parent_joint, self.M_PG, self.output_joint, self.M_OH
+        )
 
 
 class LockedJoint(ExplicitConstraint):
@@ -537,8 +601,9 @@ class LockedJoint(ExplicitConstraint):
 
     parametrised = True
 
-    def __init__(self, name: str, model: pin.Model, joint: int,
-                 value: np.ndarray | None = None) -> None:
+    def __init__(
+        self, name: str, model: pin.Model, joint: int, value: np.ndarray | None = None
+    ) -> None:
         self.name = name
         self.output_joint = joint
         self.model = model
@@ -546,13 +611,16 @@ class LockedJoint(ExplicitConstraint):
         self.nv = model.joints[joint].nv
         self.idx_q = model.idx_qs[joint]
         self.idx_v = model.idx_vs[joint]
-        self.value = (np.asarray(value, dtype=float).copy() if value is not None
-                      else pin.neutral(model)[self.idx_q:self.idx_q + self.nq].copy())
+        self.value = (
+            np.asarray(value, dtype=float).copy()
+            if value is not None
+            else pin.neutral(model)[self.idx_q : self.idx_q + self.nq].copy()
+        )
         if self.value.shape != (self.nq,):
             raise ConstraintError(f"{name}: value must have {self.nq} entries")
 
     def rhs_from_q(self, q: np.ndarray) -> None:
-        self.value = q[self.idx_q:self.idx_q + self.nq].copy()
+        self.value = q[self.idx_q : self.idx_q + self.nq].copy()
 
     def to_dict(self, model: pin.Model) -> dict:
         out = super().to_dict(model)
@@ -560,11 +628,11 @@ class LockedJoint(ExplicitConstraint):
         return out
 
     def apply(self, kin: Kinematics, q: np.ndarray) -> None:
-        q[self.idx_q:self.idx_q + self.nq] = self.value
+        q[self.idx_q : self.idx_q + self.nq] = self.value
 
     def error(self, q: np.ndarray) -> float:
         """Distance of q's joint value to the locked value (quaternion sign-insensitive)."""
-        a = q[self.idx_q:self.idx_q + self.nq]
+        a = q[self.idx_q : self.idx_q + self.nq]
         if self.nq == 7:
             dq = min(np.linalg.norm(a[3:] - self.value[3:]), np.linalg.norm(a[3:] + self.value[3:]))
             return float(np.linalg.norm(a[:3] - self.value[:3]) + dq)
@@ -586,7 +654,7 @@ class _ImplicitLockedJoint(Constraint):
 
     def value(self, kin: Kinematics) -> np.ndarray:
         lk = self.locked
-        a = kin.q[lk.idx_q:lk.idx_q + lk.nq]
+        a = kin.q[lk.idx_q : lk.idx_q + lk.nq]
         if lk.nq == 7:
             return pin.log6(pin.XYZQUATToSE3(lk.value).actInv(pin.XYZQUATToSE3(a))).vector
         return a - lk.value
@@ -595,9 +663,9 @@ class _ImplicitLockedJoint(Constraint):
         lk = self.locked
         J = np.zeros((lk.nv, kin.model.nv))
         if lk.nq == 7:
-            a = kin.q[lk.idx_q:lk.idx_q + lk.nq]
+            a = kin.q[lk.idx_q : lk.idx_q + lk.nq]
             M = pin.XYZQUATToSE3(lk.value).actInv(pin.XYZQUATToSE3(a))
-            J[:, lk.idx_v:lk.idx_v + 6] = pin.Jlog6(M)
+            J[:, lk.idx_v : lk.idx_v + 6] = pin.Jlog6(M)
         else:
-            J[:, lk.idx_v:lk.idx_v + lk.nv] = np.eye(lk.nv)
+            J[:, lk.idx_v : lk.idx_v + lk.nv] = np.eye(lk.nv)
         return J

@@ -15,15 +15,15 @@ how to build the straight, constrained path between two configurations of their 
 from __future__ import annotations
 
 import subprocess
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 
 from marionette.planning.constraints import Constraint, ExplicitConstraint
 from marionette.planning.path import ConstrainedPath, PathError
 from marionette.planning.problem import ManipulationProblem
-from marionette.planning.projector import LineSearch, Projector, ProjectionResult
+from marionette.planning.projector import LineSearch, ProjectionResult, Projector
 
 AnyConstraint = Constraint | ExplicitConstraint
 
@@ -35,9 +35,15 @@ class GraphError(ValueError):
 class State:
     """A node of the constraint graph: a name, its constraints, and grasps (for people)."""
 
-    def __init__(self, graph: "ConstraintGraph", name: str, constraints: Sequence[AnyConstraint],
-                 waypoint: bool = False, priority: int = 0,
-                 grasps: dict[str, str] | None = None) -> None:
+    def __init__(
+        self,
+        graph: ConstraintGraph,
+        name: str,
+        constraints: Sequence[AnyConstraint],
+        waypoint: bool = False,
+        priority: int = 0,
+        grasps: dict[str, str] | None = None,
+    ) -> None:
         self.graph = graph
         self.name = name
         self.constraints = list(constraints)
@@ -51,7 +57,8 @@ class State:
     def projector(self) -> Projector:
         if self._projector is None:
             self._projector = self.graph.make_projector(
-                self.graph.constraints + self.constraints, f"state {self.name}")
+                self.graph.constraints + self.constraints, f"state {self.name}"
+            )
         return self._projector
 
     def contains(self, q: np.ndarray) -> bool:
@@ -76,9 +83,17 @@ class Edge:
     approach from a pre-grasp to the grasp.
     """
 
-    def __init__(self, graph: "ConstraintGraph", name: str, from_state: State, to_state: State,
-                 containing: State, constraints: Sequence[AnyConstraint] = (), weight: float = 1.0,
-                 short: bool = False) -> None:
+    def __init__(
+        self,
+        graph: ConstraintGraph,
+        name: str,
+        from_state: State,
+        to_state: State,
+        containing: State,
+        constraints: Sequence[AnyConstraint] = (),
+        weight: float = 1.0,
+        short: bool = False,
+    ) -> None:
         self.graph = graph
         self.name = name
         self.from_state = from_state
@@ -88,7 +103,7 @@ class Edge:
         self.weight = weight
         self.short = short
         self.parent: WaypointEdge | None = None
-        self.reverse_edge: Edge | None = None   # same constraints, opposite direction
+        self.reverse_edge: Edge | None = None  # same constraints, opposite direction
         self._path_projector: Projector | None = None
         self._target_projector: Projector | None = None
 
@@ -114,15 +129,18 @@ class Edge:
     def path_projector(self) -> Projector:
         if self._path_projector is None:
             self._path_projector = self.graph.make_projector(
-                self.path_constraints(), f"path {self.name}",
-                threshold=0.5 * self.graph.error_threshold)
+                self.path_constraints(),
+                f"path {self.name}",
+                threshold=0.5 * self.graph.error_threshold,
+            )
         return self._path_projector
 
     @property
     def target_projector(self) -> Projector:
         if self._target_projector is None:
             self._target_projector = self.graph.make_projector(
-                self.target_constraints(), f"target {self.name}")
+                self.target_constraints(), f"target {self.name}"
+            )
         return self._target_projector
 
     # ---------------------------------------------------------------- planning operations
@@ -138,16 +156,18 @@ class Edge:
         """Are q1 and q2 on the same leaf of this edge's foliation (rhs from q1)?"""
         proj = self.path_projector
         proj.set_rhs_from(q1)
-        return proj.is_satisfied(q1, self.graph.error_threshold) and \
-            proj.is_satisfied(q2, self.graph.error_threshold)
+        return proj.is_satisfied(q1, self.graph.error_threshold) and proj.is_satisfied(
+            q2, self.graph.error_threshold
+        )
 
     def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
         """Straight constrained path(s) q1 -> q2 in this edge, or None when not on one leaf."""
         if not self.can_connect(q1, q2):
             return None
         try:
-            return [ConstrainedPath.build(self, q1, q2, self.path_projector,
-                                          step=self.graph.path_step)]
+            return [
+                ConstrainedPath.build(self, q1, q2, self.path_projector, step=self.graph.path_step)
+            ]
         except PathError:
             return None
 
@@ -162,8 +182,16 @@ class WaypointEdge(Edge):
     ``WaypointEdge::generateTargetConfig``); building it builds each sub-path.
     """
 
-    def __init__(self, graph: "ConstraintGraph", name: str, from_state: State, to_state: State,
-                 containing: State, sub_edges: Sequence[Edge], weight: float = 1.0) -> None:
+    def __init__(
+        self,
+        graph: ConstraintGraph,
+        name: str,
+        from_state: State,
+        to_state: State,
+        containing: State,
+        sub_edges: Sequence[Edge],
+        weight: float = 1.0,
+    ) -> None:
         super().__init__(graph, name, from_state, to_state, containing, weight=weight)
         if not sub_edges:
             raise GraphError(f"{name}: a waypoint edge needs sub-edges")
@@ -208,7 +236,11 @@ class WaypointEdge(Edge):
         """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached."""
         n = len(self.sub_edges)
         cached = self.last_waypoint_configs
-        if len(cached) == n + 1 and np.array_equal(cached[0], q1) and np.array_equal(cached[-1], q2):
+        if (
+            len(cached) == n + 1
+            and np.array_equal(cached[0], q1)
+            and np.array_equal(cached[-1], q2)
+        ):
             configs = cached
         else:
             configs = [q1]
@@ -236,12 +268,18 @@ class ConstraintGraph:
     on the ground and its centre of mass over them).
     """
 
-    def __init__(self, problem: ManipulationProblem, name: str = "graph",
-                 constraints: Sequence[AnyConstraint] = (), error_threshold: float = 1e-4,
-                 max_iterations: int = 40, line_search: LineSearch = LineSearch(),
-                 path_step: float = 0.1) -> None:
+    def __init__(
+        self,
+        problem: ManipulationProblem,
+        name: str = "graph",
+        constraints: Sequence[AnyConstraint] = (),
+        error_threshold: float = 1e-4,
+        max_iterations: int = 40,
+        line_search: LineSearch = LineSearch(),
+        path_step: float = 0.1,
+    ) -> None:
         self.problem = problem
-        self.path_step = path_step   # progressive projection step of implicit paths (|v| norm)
+        self.path_step = path_step  # progressive projection step of implicit paths (|v| norm)
         self.name = name
         self.constraints = list(constraints)
         self.error_threshold = error_threshold
@@ -252,15 +290,27 @@ class ConstraintGraph:
         # "cpp": Newton loop in C++ where the constraint kinds allow it; "python": the reference.
         self.projector_backend = "cpp"
 
-    def make_projector(self, constraints: Sequence[AnyConstraint], name: str,
-                       threshold: float | None = None) -> Projector:
-        return Projector(self.problem, _unique(list(constraints)), name=name,
-                         error_threshold=threshold or self.error_threshold,
-                         max_iterations=self.max_iterations, line_search=self.line_search,
-                         backend=self.projector_backend)
+    def make_projector(
+        self, constraints: Sequence[AnyConstraint], name: str, threshold: float | None = None
+    ) -> Projector:
+        return Projector(
+            self.problem,
+            _unique(list(constraints)),
+            name=name,
+            error_threshold=threshold or self.error_threshold,
+            max_iterations=self.max_iterations,
+            line_search=self.line_search,
+            backend=self.projector_backend,
+        )
 
-    def add_state(self, name: str, constraints: Sequence[AnyConstraint], waypoint: bool = False,
-                  priority: int = 0, grasps: dict[str, str] | None = None) -> State:
+    def add_state(
+        self,
+        name: str,
+        constraints: Sequence[AnyConstraint],
+        waypoint: bool = False,
+        priority: int = 0,
+        grasps: dict[str, str] | None = None,
+    ) -> State:
         if name in self.states:
             raise GraphError(f"state '{name}' already exists")
         s = State(self, name, constraints, waypoint, priority, grasps)
@@ -281,11 +331,10 @@ class ConstraintGraph:
     def initialize(self) -> None:
         """Compile every projector now (HPP ``graph.initialize()``), not on first use."""
         for s in self.states.values():
-            s.projector
+            _ = s.projector
         for e in self.edges.values():
             if not isinstance(e, WaypointEdge):
-                e.path_projector
-                e.target_projector
+                _ = e.path_projector, e.target_projector
 
     def top_edges(self) -> list[Edge]:
         """Transitions between non-waypoint states (not the sub-edges of waypoint edges)."""
@@ -307,19 +356,25 @@ class ConstraintGraph:
     # ------------------------------------------------------------------------------ export
     def to_dot(self) -> str:
         """Graphviz description: states as ellipses, waypoint states as dashed hexagons."""
-        rankdir = "LR" if len(self.main_states()) <= 4 else "TB"   # wide graphs read downwards
-        lines = [f'digraph "{self.name}" {{', f"  rankdir={rankdir};", '  node [fontsize=10];',
-                 '  edge [fontsize=8];']
+        rankdir = "LR" if len(self.main_states()) <= 4 else "TB"  # wide graphs read downwards
+        lines = [
+            f'digraph "{self.name}" {{',
+            f"  rankdir={rankdir};",
+            "  node [fontsize=10];",
+            "  edge [fontsize=8];",
+        ]
         ids = {name: f"s{i}" for i, name in enumerate(self.states)}
         for name, s in self.states.items():
-            shape = 'shape=hexagon, style=dashed' if s.waypoint else 'shape=ellipse'
+            shape = "shape=hexagon, style=dashed" if s.waypoint else "shape=ellipse"
             lines.append(f'  {ids[name]} [label="{_esc(name)}", {shape}];')
         for e in self.edges.values():
             if isinstance(e, WaypointEdge):
                 continue
-            style = ', style=dashed' if e.weight == 0 and e.parent is None else ''
-            lines.append(f'  {ids[e.from_state.name]} -> {ids[e.to_state.name]} '
-                         f'[label="{_esc(e.name)}"{style}];')
+            style = ", style=dashed" if e.weight == 0 and e.parent is None else ""
+            lines.append(
+                f"  {ids[e.from_state.name]} -> {ids[e.to_state.name]} "
+                f'[label="{_esc(e.name)}"{style}];'
+            )
         lines.append("}")
         return "\n".join(lines) + "\n"
 
@@ -332,8 +387,13 @@ class ConstraintGraph:
             return path
         fmt = path.suffix.lstrip(".") or "png"
         try:
-            subprocess.run(["dot", f"-T{fmt}", "-o", str(path)], input=dot.encode(),
-                           check=True, capture_output=True, timeout=60)
+            subprocess.run(
+                ["dot", f"-T{fmt}", "-o", str(path)],
+                input=dot.encode(),
+                check=True,
+                capture_output=True,
+                timeout=60,
+            )
         except FileNotFoundError as e:
             raise GraphError("graphviz 'dot' not found (Debian package graphviz)") from e
         except subprocess.CalledProcessError as e:
@@ -344,8 +404,11 @@ class ConstraintGraph:
         """Names, constraints and structure (for the plan file)."""
         catalog: dict[str, dict] = {}
         model = self.problem.model
-        for c in self.constraints + [c for s in self.states.values() for c in s.constraints] + \
-                [c for e in self.edges.values() for c in e.constraints]:
+        for c in (
+            self.constraints
+            + [c for s in self.states.values() for c in s.constraints]
+            + [c for e in self.edges.values() for c in e.constraints]
+        ):
             if c.name not in catalog:
                 catalog[c.name] = c.to_dict(model)
         return {
@@ -353,15 +416,30 @@ class ConstraintGraph:
             "name": self.name,
             "error_threshold": self.error_threshold,
             "graph_constraints": [c.name for c in self.constraints],
-            "states": [{"name": s.name, "waypoint": s.waypoint, "priority": s.priority,
-                        "grasps": s.grasps, "constraints": [c.name for c in s.constraints]}
-                       for s in self.states.values()],
-            "transitions": [{"name": e.name, "from": e.from_state.name, "to": e.to_state.name,
-                             "containing_state": e.containing.name, "weight": e.weight,
-                             "constraints": [c.name for c in e.constraints],
-                             "waypoint_edges": [x.name for x in e.sub_edges]
-                             if isinstance(e, WaypointEdge) else []}
-                            for e in self.edges.values()],
+            "states": [
+                {
+                    "name": s.name,
+                    "waypoint": s.waypoint,
+                    "priority": s.priority,
+                    "grasps": s.grasps,
+                    "constraints": [c.name for c in s.constraints],
+                }
+                for s in self.states.values()
+            ],
+            "transitions": [
+                {
+                    "name": e.name,
+                    "from": e.from_state.name,
+                    "to": e.to_state.name,
+                    "containing_state": e.containing.name,
+                    "weight": e.weight,
+                    "constraints": [c.name for c in e.constraints],
+                    "waypoint_edges": [x.name for x in e.sub_edges]
+                    if isinstance(e, WaypointEdge)
+                    else [],
+                }
+                for e in self.edges.values()
+            ],
         }
 
 

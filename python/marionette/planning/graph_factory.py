@@ -22,14 +22,21 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from marionette.planning.constraints import (Constraint, ExplicitConstraint, ExplicitRelativePose,
-                                             LockedJoint, Placement, PlacementComplement,
-                                             RelativeTransformation)
+from marionette.planning.constraints import (
+    Constraint,
+    ExplicitConstraint,
+    ExplicitRelativePose,
+    LockedJoint,
+    Placement,
+    PlacementComplement,
+    RelativeTransformation,
+)
 from marionette.planning.graph import ConstraintGraph, Edge, GraphError, State, WaypointEdge
 from marionette.planning.problem import ManipulationProblem
 from marionette.planning.projector import LineSearch
@@ -73,8 +80,10 @@ class GraspRules:
         if not self.rules:
             return True
         for per_gripper, link in self.rules:
-            if all(p is None or p.fullmatch("" if grasps[i] is None else self.handles[grasps[i]])
-                   for i, p in enumerate(per_gripper)):
+            if all(
+                p is None or p.fullmatch("" if grasps[i] is None else self.handles[grasps[i]])
+                for i, p in enumerate(per_gripper)
+            ):
                 return link
         return False
 
@@ -85,12 +94,12 @@ class _Constraints:
 
     items: list[AnyConstraint] = dataclasses.field(default_factory=list)
 
-    def __add__(self, other: "_Constraints") -> "_Constraints":
+    def __add__(self, other: _Constraints) -> _Constraints:
         out = list(self.items)
         out += [c for c in other.items if all(c is not x for x in out)]
         return _Constraints(out)
 
-    def __sub__(self, other: "_Constraints") -> "_Constraints":
+    def __sub__(self, other: _Constraints) -> _Constraints:
         return _Constraints([c for c in self.items if all(c is not x for x in other.items)])
 
     def empty(self) -> bool:
@@ -100,16 +109,25 @@ class _Constraints:
 class ConstraintFactory:
     """Grasp / pre-grasp / placement constraints of a problem, built once and shared."""
 
-    def __init__(self, problem: ManipulationProblem, placement_margin: float = 0.0,
-                 preplacement_distance: float = 0.05,
-                 object_contacts: dict[str, Sequence[str]] | None = None,
-                 environment_contacts: Sequence[str] | None = None) -> None:
+    def __init__(
+        self,
+        problem: ManipulationProblem,
+        placement_margin: float = 0.0,
+        preplacement_distance: float = 0.05,
+        object_contacts: dict[str, Sequence[str]] | None = None,
+        environment_contacts: Sequence[str] | None = None,
+    ) -> None:
         self.problem = problem
         self.margin = placement_margin
         self.preplace = preplacement_distance
-        self.object_contacts = object_contacts or {o: list(i.contacts) for o, i in problem.objects.items()}
-        self.env_contacts = list(environment_contacts if environment_contacts is not None
-                                 else problem.environment_contacts)
+        self.object_contacts = object_contacts or {
+            o: list(i.contacts) for o, i in problem.objects.items()
+        }
+        self.env_contacts = list(
+            environment_contacts
+            if environment_contacts is not None
+            else problem.environment_contacts
+        )
         self._grasp: dict[tuple[str, str], dict[str, _Constraints]] = {}
         self._place: dict[str, dict[str, _Constraints]] = {}
 
@@ -125,20 +143,45 @@ class ConstraintFactory:
             mask = np.asarray(h.mask, dtype=bool)
             on_freeflyer = p.model.joints[h.joint_id].nq == 7 and p.model.parents[h.joint_id] == 0
             if mask.all() and on_freeflyer:
-                grasp: AnyConstraint = ExplicitRelativePose(name, p.model, h.joint_id, g.joint_id, M_JG, M_JH)
+                grasp: AnyConstraint = ExplicitRelativePose(
+                    name, p.model, h.joint_id, g.joint_id, M_JG, M_JH
+                )
                 complement = _Constraints()
             else:
                 grasp = RelativeTransformation(name, g.joint_id, M_JG, h.joint_id, M_JH, mask)
-                complement = (_Constraints() if mask.all() else _Constraints([RelativeTransformation(
-                    f"{name}/complement", g.joint_id, M_JG, h.joint_id, M_JH, ~mask,
-                    parametrised=True)]))
+                complement = (
+                    _Constraints()
+                    if mask.all()
+                    else _Constraints(
+                        [
+                            RelativeTransformation(
+                                f"{name}/complement",
+                                g.joint_id,
+                                M_JG,
+                                h.joint_id,
+                                M_JH,
+                                ~mask,
+                                parametrised=True,
+                            )
+                        ]
+                    )
+                )
             shift = (g.clearance + h.clearance) * np.asarray(h.approach, dtype=float)
             # HPP createPreGrasp: the handle seen from the gripper is `shift` ahead along the
             # approach axis, i.e. the gripper waits `clearance` behind the handle.
-            pregrasp = RelativeTransformation(f"{gripper} pregrasps {handle}", g.joint_id,
-                                              M_JG * pin.SE3(np.eye(3), shift), h.joint_id, M_JH, mask)
-            self._grasp[key] = {"grasp": _Constraints([grasp]), "complement": complement,
-                                "pregrasp": _Constraints([pregrasp])}
+            pregrasp = RelativeTransformation(
+                f"{gripper} pregrasps {handle}",
+                g.joint_id,
+                M_JG * pin.SE3(np.eye(3), shift),
+                h.joint_id,
+                M_JH,
+                mask,
+            )
+            self._grasp[key] = {
+                "grasp": _Constraints([grasp]),
+                "complement": complement,
+                "pregrasp": _Constraints([pregrasp]),
+            }
         return self._grasp[key]
 
     def placement(self, obj: str) -> dict[str, _Constraints]:
@@ -151,16 +194,27 @@ class ConstraintFactory:
             contacts = self.object_contacts.get(obj, [])
             if not contacts or not self.env_contacts:
                 lock = LockedJoint(f"{obj}/root_joint", p.model, p.objects[obj].joint_id)
-                self._place[obj] = {"placement": _Constraints(), "complement": _Constraints([lock]),
-                                    "preplacement": _Constraints()}
+                self._place[obj] = {
+                    "placement": _Constraints(),
+                    "complement": _Constraints([lock]),
+                    "preplacement": _Constraints(),
+                }
             else:
                 place = Placement(f"place_{obj}", p, obj, contacts, self.env_contacts, self.margin)
                 comp = PlacementComplement(f"place_{obj}/complement", place)
-                pre = Placement(f"preplace_{obj}", p, obj, contacts, self.env_contacts,
-                                self.margin + self.preplace)
-                self._place[obj] = {"placement": _Constraints([place]),
-                                    "complement": _Constraints([comp]),
-                                    "preplacement": _Constraints([pre])}
+                pre = Placement(
+                    f"preplace_{obj}",
+                    p,
+                    obj,
+                    contacts,
+                    self.env_contacts,
+                    self.margin + self.preplace,
+                )
+                self._place[obj] = {
+                    "placement": _Constraints([place]),
+                    "complement": _Constraints([comp]),
+                    "preplacement": _Constraints([pre]),
+                }
         return self._place[obj]
 
 
@@ -179,12 +233,19 @@ class GraphFactory:
     ``graph_constraints``: constraints of every state (humanoid balance, feet).
     """
 
-    def __init__(self, problem: ManipulationProblem, grippers: Sequence[str],
-                 objects: dict[str, Sequence[str]], rules: Sequence[Rule] = (),
-                 constraint_factory: ConstraintFactory | None = None,
-                 graph_constraints: Sequence[AnyConstraint] = (), error_threshold: float = 1e-4,
-                 max_iterations: int = 40, line_search: LineSearch = LineSearch(),
-                 name: str = "graph") -> None:
+    def __init__(
+        self,
+        problem: ManipulationProblem,
+        grippers: Sequence[str],
+        objects: dict[str, Sequence[str]],
+        rules: Sequence[Rule] = (),
+        constraint_factory: ConstraintFactory | None = None,
+        graph_constraints: Sequence[AnyConstraint] = (),
+        error_threshold: float = 1e-4,
+        max_iterations: int = 40,
+        line_search: LineSearch = LineSearch(),
+        name: str = "graph",
+    ) -> None:
         for g in grippers:
             if g not in problem.grippers:
                 raise GraphError(f"unknown gripper '{g}' (known: {sorted(problem.grippers)})")
@@ -204,16 +265,21 @@ class GraphFactory:
         self.handles = tuple(handles)
         self.allowed = GraspRules(self.grippers, self.handles, rules)
         self.cf = constraint_factory or ConstraintFactory(problem)
-        self.graph = ConstraintGraph(problem, name, graph_constraints, error_threshold,
-                                     max_iterations, line_search)
+        self.graph = ConstraintGraph(
+            problem, name, graph_constraints, error_threshold, max_iterations, line_search
+        )
         self._states: dict[tuple[int | None, ...], _StateInfo] = {}
         self._transitions: set[str] = set()
 
     # ------------------------------------------------------------------------------ names
     def state_name(self, grasps: tuple[int | None, ...], abbrev: bool = False) -> str:
-        parts = [(str(ig) if abbrev else self.grippers[ig]) + ("-" if abbrev else " grasps ")
-                 + (str(ih) if abbrev else self.handles[ih])
-                 for ig, ih in enumerate(grasps) if ih is not None]
+        parts = [
+            (str(ig) if abbrev else self.grippers[ig])
+            + ("-" if abbrev else " grasps ")
+            + (str(ih) if abbrev else self.handles[ih])
+            for ig, ih in enumerate(grasps)
+            if ih is not None
+        ]
         if not parts:
             return "f" if abbrev else "free"
         return (":" if abbrev else " : ").join(parts)
@@ -230,12 +296,12 @@ class GraphFactory:
         if not grippers or not handles:
             return
         for ig, g in enumerate(grippers):
-            ngrippers = grippers[:ig] + grippers[ig + 1:]
+            ngrippers = grippers[:ig] + grippers[ig + 1 :]
             isg = self.grippers.index(g)
             for ih, h in enumerate(handles):
-                nhandles = handles[:ih] + handles[ih + 1:]
+                nhandles = handles[:ih] + handles[ih + 1 :]
                 ish = self.handles.index(h)
-                ngrasps = grasps[:isg] + (ish,) + grasps[isg + 1:]
+                ngrasps = grasps[:isg] + (ish,) + grasps[isg + 1 :]
                 next_allowed = self.allowed(ngrasps)
                 is_new = ngrasps not in self._states
                 nxt = self._make_state(ngrasps, depth + 1) if next_allowed else None
@@ -263,15 +329,29 @@ class GraphFactory:
                 foliation += pc["complement"]
         name = self.state_name(grasps)
         state = self.graph.add_state(
-            name, manifold.items, waypoint=False, priority=priority,
-            grasps={self.grippers[ig]: self.handles[ih] for ig, ih in enumerate(grasps)
-                    if ih is not None})
+            name,
+            manifold.items,
+            waypoint=False,
+            priority=priority,
+            grasps={
+                self.grippers[ig]: self.handles[ih]
+                for ig, ih in enumerate(grasps)
+                if ih is not None
+            },
+        )
         info = _StateInfo(grasps, state, manifold, foliation)
         self._states[grasps] = info
         # Loop transition: move keeping the grasps and the placements (weight 0, as HPP: used
         # to connect nodes, never sampled for extension).
-        loop = Edge(self.graph, f"Loop | {self.state_name(grasps, True)}", state, state, state,
-                    foliation.items, weight=0.0)
+        loop = Edge(
+            self.graph,
+            f"Loop | {self.state_name(grasps, True)}",
+            state,
+            state,
+            state,
+            foliation.items,
+            weight=0.0,
+        )
         loop.reverse_edge = loop
         self.graph.add_edge(loop)
         return info
@@ -288,26 +368,44 @@ class GraphFactory:
         no_place = self._grasped(sf.grasps, io)
         gc = self.cf.grasp(g, h)
         if no_place:
-            pc = pcc = ppc = _Constraints()
+            pc = ppc = _Constraints()
         else:
             pl = self.cf.placement(self.objects[io])
-            pc, pcc, ppc = pl["placement"], pl["complement"], pl["preplacement"]
+            pc, ppc = pl["placement"], pl["preplacement"]
         manifold = _Constraints(sf.state.constraints) - pc
         pregrasp = not gc["pregrasp"].empty()
         intersec = not gc["grasp"].empty() and not pc.empty()
         preplace = not ppc.empty()
         graph = self.graph
         wstates = [sf.state]
-        held = st.state.grasps      # the waypoints after the pre-grasp already hold the handle
+        held = st.state.grasps  # the waypoints after the pre-grasp already hold the handle
         if pregrasp:
-            wstates.append(graph.add_state(fwd + "_pregrasp", (pc + gc["pregrasp"] + manifold).items,
-                                           waypoint=True, grasps=sf.state.grasps))
+            wstates.append(
+                graph.add_state(
+                    fwd + "_pregrasp",
+                    (pc + gc["pregrasp"] + manifold).items,
+                    waypoint=True,
+                    grasps=sf.state.grasps,
+                )
+            )
         if intersec:
-            wstates.append(graph.add_state(fwd + "_intersec", (pc + gc["grasp"] + manifold).items,
-                                           waypoint=True, grasps=held))
+            wstates.append(
+                graph.add_state(
+                    fwd + "_intersec",
+                    (pc + gc["grasp"] + manifold).items,
+                    waypoint=True,
+                    grasps=held,
+                )
+            )
         if preplace:
-            wstates.append(graph.add_state(fwd + "_preplace", (ppc + gc["grasp"] + manifold).items,
-                                           waypoint=True, grasps=held))
+            wstates.append(
+                graph.add_state(
+                    fwd + "_preplace",
+                    (ppc + gc["grasp"] + manifold).items,
+                    waypoint=True,
+                    grasps=held,
+                )
+            )
         wstates.append(st.state)
         n = len(wstates) - 1
         # Sub-edges before the grasp exists lie in the source state (object still placed);
@@ -319,10 +417,26 @@ class GraphFactory:
             extra = _Constraints()
             if pregrasp and i == 1:
                 extra = gc["complement"]
-            ef = Edge(graph, f"{fwd}_{i}{i + 1}", wstates[i], wstates[i + 1], containing,
-                      (fol + extra).items, weight=-1, short=i > 0)
-            eb = Edge(graph, f"{bwd}_{i + 1}{i}", wstates[i + 1], wstates[i], containing,
-                      (fol + extra).items, weight=-1, short=i < n - 1)
+            ef = Edge(
+                graph,
+                f"{fwd}_{i}{i + 1}",
+                wstates[i],
+                wstates[i + 1],
+                containing,
+                (fol + extra).items,
+                weight=-1,
+                short=i > 0,
+            )
+            eb = Edge(
+                graph,
+                f"{bwd}_{i + 1}{i}",
+                wstates[i + 1],
+                wstates[i],
+                containing,
+                (fol + extra).items,
+                weight=-1,
+                short=i < n - 1,
+            )
             ef.reverse_edge, eb.reverse_edge = eb, ef
             fsub.append(ef)
             bsub.append(eb)
@@ -343,8 +457,9 @@ class GraphFactory:
         graph.add_edge(wb)
 
 
-def graph_constraints_from_settings(problem: ManipulationProblem,
-                                    entries: Sequence[dict[str, Any]]) -> list[AnyConstraint]:
+def graph_constraints_from_settings(
+    problem: ManipulationProblem, entries: Sequence[dict[str, Any]]
+) -> list[AnyConstraint]:
     """Constraints of every state, from the problem file (values taken at ``init``):
 
     ``{fixed_frame: <frame>, mask: [6 x 0/1]}``: the frame keeps its initial pose (a foot on
@@ -366,8 +481,15 @@ def graph_constraints_from_settings(problem: ManipulationProblem,
             fid = problem.frame_id(e["fixed_frame"])
             f = problem.model.frames[fid]
             X = kin.data.oMi[f.parentJoint] * f.placement
-            out.append(Transformation(f"{e['fixed_frame']} fixed", f.parentJoint, f.placement, X,
-                                      [bool(v) for v in e.get("mask", [1] * 6)]))
+            out.append(
+                Transformation(
+                    f"{e['fixed_frame']} fixed",
+                    f.parentJoint,
+                    f.placement,
+                    X,
+                    [bool(v) for v in e.get("mask", [1] * 6)],
+                )
+            )
         elif "com" in e:
             mask = [bool(v) for v in e["com"]]
             c = ComPosition("com", 0, pin.SE3.Identity(), mask=mask)
@@ -387,26 +509,45 @@ def graph_constraints_from_settings(problem: ManipulationProblem,
     return out
 
 
-def graph_from_settings(problem: ManipulationProblem,
-                        graph_constraints: Sequence[AnyConstraint] = ()) -> ConstraintGraph:
+def graph_from_settings(
+    problem: ManipulationProblem, graph_constraints: Sequence[AnyConstraint] = ()
+) -> ConstraintGraph:
     """Build the graph described by the problem file's ``graph:`` section."""
     s: dict[str, Any] = problem.settings
     graph_constraints = list(graph_constraints) + graph_constraints_from_settings(
-        problem, s.get("constraints", []) or [])
+        problem, s.get("constraints", []) or []
+    )
     grippers = s.get("grippers", list(problem.grippers))
-    objs = s.get("objects") or {o: {"handles": list(i.handles), "contacts": list(i.contacts)}
-                               for o, i in problem.objects.items()}
+    objs = s.get("objects") or {
+        o: {"handles": list(i.handles), "contacts": list(i.contacts)}
+        for o, i in problem.objects.items()
+    }
     objects = {o: list(v.get("handles", problem.objects[o].handles)) for o, v in objs.items()}
     contacts = {o: list(v.get("contacts", problem.objects[o].contacts)) for o, v in objs.items()}
-    cf = ConstraintFactory(problem, float(s.get("placement_margin", 0.0)),
-                           float(s.get("preplacement_distance", 0.05)), contacts,
-                           s.get("environment_contacts"))
-    rules = [Rule(list(r["grippers"]), list(r["handles"]), bool(r.get("link", False)))
-             for r in s.get("rules", []) or []]
+    cf = ConstraintFactory(
+        problem,
+        float(s.get("placement_margin", 0.0)),
+        float(s.get("preplacement_distance", 0.05)),
+        contacts,
+        s.get("environment_contacts"),
+    )
+    rules = [
+        Rule(list(r["grippers"]), list(r["handles"]), bool(r.get("link", False)))
+        for r in s.get("rules", []) or []
+    ]
     ls = s.get("line_search", {}) or {}
-    factory = GraphFactory(problem, grippers, objects, rules, cf, graph_constraints,
-                           float(s.get("error_threshold", 1e-4)), int(s.get("max_iterations", 40)),
-                           LineSearch(**ls) if ls else LineSearch(), name=problem.name)
+    factory = GraphFactory(
+        problem,
+        grippers,
+        objects,
+        rules,
+        cf,
+        graph_constraints,
+        float(s.get("error_threshold", 1e-4)),
+        int(s.get("max_iterations", 40)),
+        LineSearch(**ls) if ls else LineSearch(),
+        name=problem.name,
+    )
     graph = factory.generate()
     graph.path_step = float(s.get("path_step", graph.path_step))
     # HPP's setWeight: how often Manipulation-RRT samples a transition (0: only to connect).

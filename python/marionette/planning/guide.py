@@ -10,7 +10,8 @@ robot solved by projection from perturbations of a reference configuration), and
 from __future__ import annotations
 
 import time
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
@@ -18,13 +19,19 @@ import pinocchio as pin
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.constraints import LockedJoint
 from marionette.planning.graph import ConstraintGraph
-from marionette.planning.planner import ManipulationRRT, PlanResult, PlanningError
+from marionette.planning.planner import ManipulationRRT, PlanningError, PlanResult
 from marionette.planning.problem import ManipulationProblem, _pose7
 
 
-def guide_configuration(problem: ManipulationProblem, graph: ConstraintGraph,
-                        checker: CollisionChecker, entry: dict[str, Any], q_ref: np.ndarray,
-                        rng: np.random.Generator, attempts: int = 300) -> np.ndarray:
+def guide_configuration(
+    problem: ManipulationProblem,
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+    entry: dict[str, Any],
+    q_ref: np.ndarray,
+    rng: np.random.Generator,
+    attempts: int = 300,
+) -> np.ndarray:
     """Collision-free configuration of ``entry['state']`` with the listed objects at their
     poses; raises :class:`PlanningError` naming the state when none is found."""
     name = entry.get("state")
@@ -40,32 +47,39 @@ def guide_configuration(problem: ManipulationProblem, graph: ConstraintGraph,
             raise PlanningError(f"guide: {obj!r} is neither 'state' nor an object")
         info = problem.objects[obj]
         value = pin.SE3ToXYZQUAT(_pose7(pose, f"guide.{obj}"))
-        q0[info.idx_q:info.idx_q + 7] = value
+        q0[info.idx_q : info.idx_q + 7] = value
         lock = LockedJoint(f"guide {obj}", problem.model, info.joint_id, value)
         lock.parametrised = False
         locks.append(lock)
-    projector = graph.make_projector(graph.constraints + state.constraints + locks,
-                                     f"guide {name}")
+    projector = graph.make_projector(graph.constraints + state.constraints + locks, f"guide {name}")
     allowed = checker.grasp_contact_pairs(state.grasps)
     free = projector.free
     for k in range(attempts):
         q = q0.copy()
-        if k > 0:   # perturb the free variables more and more
+        if k > 0:  # perturb the free variables more and more
             dv = np.zeros(problem.nv)
             dv[free] = rng.normal(scale=min(0.05 * k, 1.0), size=int(free.sum()))
             q = pin.integrate(problem.model, q, dv)
-            q = np.clip(q, problem.lower, problem.upper)   # every bound is finite
+            q = np.clip(q, problem.lower, problem.upper)  # every bound is finite
             for i in problem.freeflyer_idx_q:
-                q[i + 3:i + 7] /= np.linalg.norm(q[i + 3:i + 7])
+                q[i + 3 : i + 7] /= np.linalg.norm(q[i + 3 : i + 7])
         if projector.project(q) and state.contains(q) and checker.is_valid(q, allowed):
             return q
-    raise PlanningError(f"guide: no collision-free configuration of {name!r} in {attempts} attempts")
+    raise PlanningError(
+        f"guide: no collision-free configuration of {name!r} in {attempts} attempts"
+    )
 
 
-def plan_through(problem: ManipulationProblem, graph: ConstraintGraph, checker: CollisionChecker,
-                 configurations: Sequence[np.ndarray], seed: int = 0, max_iterations: int = 5000,
-                 timeout_s: float = 600.0,
-                 progress: Callable[[int, int, int], None] | None = None) -> PlanResult:
+def plan_through(
+    problem: ManipulationProblem,
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+    configurations: Sequence[np.ndarray],
+    seed: int = 0,
+    max_iterations: int = 5000,
+    timeout_s: float = 600.0,
+    progress: Callable[[int, int, int], None] | None = None,
+) -> PlanResult:
     """Plan configurations[0] -> [1] -> ... -> [-1], one query per leg, paths concatenated."""
     t0 = time.perf_counter()
     paths, iterations, nodes, stats = [], 0, 0, {}
@@ -78,7 +92,14 @@ def plan_through(problem: ManipulationProblem, graph: ConstraintGraph, checker: 
         for k, v in r.statistics.items():
             stats[k] = stats.get(k, 0) + v
         if not r.success:
-            return PlanResult(False, paths, iterations, time.perf_counter() - t0, nodes,
-                              f"leg {leg + 1}/{len(configurations) - 1}: {r.reason}", stats)
+            return PlanResult(
+                False,
+                paths,
+                iterations,
+                time.perf_counter() - t0,
+                nodes,
+                f"leg {leg + 1}/{len(configurations) - 1}: {r.reason}",
+                stats,
+            )
         paths += r.paths
     return PlanResult(True, paths, iterations, time.perf_counter() - t0, nodes, "", stats)

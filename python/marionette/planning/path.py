@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pinocchio as pin
@@ -46,8 +47,9 @@ class ConstrainedPath:
     ``step`` (already satisfying the constraints).
     """
 
-    def __init__(self, edge: "Edge", points: np.ndarray, projector: "Projector",
-                 rhs: dict[str, list[float]]) -> None:
+    def __init__(
+        self, edge: Edge, points: np.ndarray, projector: Projector, rhs: dict[str, list[float]]
+    ) -> None:
         self.edge = edge
         self.points = points
         self.projector = projector
@@ -55,21 +57,29 @@ class ConstrainedPath:
         self.rhs_state = projector.rhs_state()
         model = projector.model
         self.model = model
-        seg = [float(np.linalg.norm(pin.difference(model, a, b)[projector.free_idx]))
-               for a, b in zip(points, points[1:])]
+        seg = [
+            float(np.linalg.norm(pin.difference(model, a, b)[projector.free_idx]))
+            for a, b in zip(points, points[1:])
+        ]
         self.cum = np.concatenate([[0.0], np.cumsum(seg)])
         self.length = float(self.cum[-1])
 
     @classmethod
-    def build(cls, edge: "Edge", q1: np.ndarray, q2: np.ndarray, projector: "Projector",
-              step: float = 0.05) -> "ConstrainedPath":
+    def build(
+        cls,
+        edge: Edge,
+        q1: np.ndarray,
+        q2: np.ndarray,
+        projector: Projector,
+        step: float = 0.05,
+    ) -> ConstrainedPath:
         """Path q1 -> q2 under ``projector`` (rhs already set from q1)."""
         model = projector.model
         rhs = projector.rhs_vector()
         if not projector.implicit:
             return cls(edge, np.array([q1, q2]), projector, rhs)
         d = np.linalg.norm(pin.difference(model, q1, q2))
-        n = max(1, int(math.ceil(d / step)))
+        n = max(1, math.ceil(d / step))
         pts = [q1.copy()]
         for i in range(1, n):
             q = pin.interpolate(model, q1, q2, i / n)
@@ -106,8 +116,9 @@ class ConstrainedPath:
         if self.length <= 0.0:
             q = self.points[0].copy()
         elif len(self.points) == 2:
-            q = pin.interpolate(self.model, self.points[0], self.points[1],
-                                min(max(s / self.length, 0.0), 1.0))
+            q = pin.interpolate(
+                self.model, self.points[0], self.points[1], min(max(s / self.length, 0.0), 1.0)
+            )
         else:
             s = min(max(s, 0.0), self.length)
             i = int(np.searchsorted(self.cum, s, side="right") - 1)
@@ -122,7 +133,7 @@ class ConstrainedPath:
             return out
         return q
 
-    def extract(self, s0: float, s1: float) -> "ConstrainedPath":
+    def extract(self, s0: float, s1: float) -> ConstrainedPath:
         """Sub-path between arc lengths s0 and s1 (s1 < s0 reverses it)."""
         lo, hi = min(s0, s1), max(s0, s1)
         inner = [p for p, c in zip(self.points, self.cum) if lo < c < hi]
@@ -131,11 +142,11 @@ class ConstrainedPath:
             pts = pts[::-1]
         return self._like(np.array(pts))
 
-    def _like(self, points: np.ndarray) -> "ConstrainedPath":
+    def _like(self, points: np.ndarray) -> ConstrainedPath:
         self.projector.restore_rhs(self.rhs_state)
         return ConstrainedPath(self.edge, points, self.projector, self.rhs)
 
-    def reverse(self) -> "ConstrainedPath":
+    def reverse(self) -> ConstrainedPath:
         """The same motion backwards, labelled with the reverse transition when there is one
         (a grasp sub-path reversed is the matching release sub-path: same constraints)."""
         rev = getattr(self.edge, "reverse_edge", None)
@@ -147,7 +158,7 @@ class ConstrainedPath:
 
     def sample(self, step: float) -> tuple[np.ndarray, np.ndarray]:
         """(s (k,), q (k x nq)) every ``step`` of arc length, both ends included."""
-        n = max(1, int(math.ceil(self.length / step))) if self.length > 0 else 1
+        n = max(1, math.ceil(self.length / step)) if self.length > 0 else 1
         s = np.linspace(0.0, self.length, n + 1)
         return s, np.array([self.eval(x) for x in s])
 
@@ -160,8 +171,13 @@ def concatenate_length(paths: Sequence[ConstrainedPath]) -> float:
 # Plan file
 
 
-def save_plan(path: str | Path, graph: "ConstraintGraph", paths: Sequence[ConstrainedPath],
-              metadata: dict[str, Any] | None = None, step: float = 0.01) -> tuple[Path, Path]:
+def save_plan(
+    path: str | Path,
+    graph: ConstraintGraph,
+    paths: Sequence[ConstrainedPath],
+    metadata: dict[str, Any] | None = None,
+    step: float = 0.01,
+) -> tuple[Path, Path]:
     """Write ``<path>.json`` and ``<path>.npz`` (see the module docstring for the format)."""
     path = Path(path)
     base = path.with_suffix("") if path.suffix in (".json", ".npz") else path
@@ -177,23 +193,25 @@ def save_plan(path: str | Path, graph: "ConstraintGraph", paths: Sequence[Constr
         top = e.parent if e.parent is not None else e
         src = graph.state_of(p.start)
         dst = graph.state_of(p.end)
-        entries.append({
-            "index": i,
-            "transition": e.name,
-            "parent_transition": top.name,
-            "from_state": e.from_state.name,
-            "to_state": e.to_state.name,
-            "containing_state": e.containing.name,
-            "start_state": src.name if src is not None else None,
-            "end_state": dst.name if dst is not None else None,
-            "grasps": e.containing.grasps,
-            "constraints": [c.name for c in e.path_constraints()],
-            "rhs": p.rhs,
-            "length": p.length,
-            "num_samples": int(len(s)),
-            "q_start": p.start.tolist(),
-            "q_end": p.end.tolist(),
-        })
+        entries.append(
+            {
+                "index": i,
+                "transition": e.name,
+                "parent_transition": top.name,
+                "from_state": e.from_state.name,
+                "to_state": e.to_state.name,
+                "containing_state": e.containing.name,
+                "start_state": src.name if src is not None else None,
+                "end_state": dst.name if dst is not None else None,
+                "grasps": e.containing.grasps,
+                "constraints": [c.name for c in e.path_constraints()],
+                "rhs": p.rhs,
+                "length": p.length,
+                "num_samples": len(s),
+                "q_start": p.start.tolist(),
+                "q_end": p.end.tolist(),
+            }
+        )
     doc = {
         "format": PLAN_FORMAT,
         "problem": {
@@ -204,10 +222,14 @@ def save_plan(path: str | Path, graph: "ConstraintGraph", paths: Sequence[Constr
             "configuration_layout": problem.configuration_layout(),
             "q_init": problem.q_init.tolist() if problem.q_init is not None else None,
             "q_goal": problem.q_goal.tolist() if problem.q_goal is not None else None,
-            "grippers": {g.name: {"frame": problem.model.frames[g.frame_id].name,
-                                  "clearance": g.clearance} for g in problem.grippers.values()},
-            "handles": {h.name: {"object": h.object, "clearance": h.clearance,
-                                 "mask": list(h.mask)} for h in problem.handles.values()},
+            "grippers": {
+                g.name: {"frame": problem.model.frames[g.frame_id].name, "clearance": g.clearance}
+                for g in problem.grippers.values()
+            },
+            "handles": {
+                h.name: {"object": h.object, "clearance": h.clearance, "mask": list(h.mask)}
+                for h in problem.handles.values()
+            },
         },
         "graph": graph.describe(),
         "sampling_step": step,

@@ -22,7 +22,7 @@ import heapq
 import math
 import time
 from collections import Counter
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -71,7 +71,7 @@ class Roadmap:
         self.nodes: list[Node] = []
         self._q = np.zeros((64, nq))
         self.adjacency: dict[int, list[tuple[int, list[ConstrainedPath]]]] = {}
-        self._cc: list[int] = []          # union-find parents
+        self._cc: list[int] = []  # union-find parents
 
     def add_node(self, q: np.ndarray, state: State) -> Node:
         n = Node(q.copy(), state, len(self.nodes))
@@ -140,9 +140,14 @@ class Roadmap:
 class ManipulationRRT:
     """Manipulation-RRT over a constraint graph (see the module docstring)."""
 
-    def __init__(self, problem: ManipulationProblem, graph: ConstraintGraph,
-                 checker: CollisionChecker | None = None, seed: int = 0,
-                 connect_k: int = 7) -> None:
+    def __init__(
+        self,
+        problem: ManipulationProblem,
+        graph: ConstraintGraph,
+        checker: CollisionChecker | None = None,
+        seed: int = 0,
+        connect_k: int = 7,
+    ) -> None:
         self.problem = problem
         self.graph = graph
         self.checker = checker or CollisionChecker(problem)
@@ -156,16 +161,24 @@ class ManipulationRRT:
     def _add_query_node(self, q: np.ndarray, what: str) -> Node:
         state = self.graph.state_of(q)
         if state is None:
-            raise PlanningError(f"{what} configuration is in no state of the graph "
-                                f"(constraint errors above {self.graph.error_threshold})")
+            raise PlanningError(
+                f"{what} configuration is in no state of the graph "
+                f"(constraint errors above {self.graph.error_threshold})"
+            )
         if not self.checker.is_valid(q, self.checker.grasp_contact_pairs(state.grasps)):
-            raise PlanningError(f"{what} configuration is in collision: "
-                                f"{self.checker.colliding_pairs(q)}")
+            raise PlanningError(
+                f"{what} configuration is in collision: {self.checker.colliding_pairs(q)}"
+            )
         return self.roadmap.add_node(q, state)
 
-    def solve(self, q_init: np.ndarray, q_goals: Sequence[np.ndarray], max_iterations: int = 5000,
-              timeout_s: float = 60.0,
-              progress: Callable[[int, int, int], None] | None = None) -> PlanResult:
+    def solve(
+        self,
+        q_init: np.ndarray,
+        q_goals: Sequence[np.ndarray],
+        max_iterations: int = 5000,
+        timeout_s: float = 60.0,
+        progress: Callable[[int, int, int], None] | None = None,
+    ) -> PlanResult:
         """Plan from q_init to one of q_goals; ``progress(iteration, nodes, components)``."""
         t0 = time.perf_counter()
         init = self._add_query_node(np.asarray(q_init, dtype=float), "initial")
@@ -188,11 +201,11 @@ class ManipulationRRT:
                 progress(it, len(self.roadmap.nodes), len(self.roadmap.components()))
         elapsed = time.perf_counter() - t0
         if not self._solved(init, goal_idx):
-            return PlanResult(False, [], it, elapsed, len(self.roadmap.nodes), reason,
-                              dict(self.stats))
+            return PlanResult(
+                False, [], it, elapsed, len(self.roadmap.nodes), reason, dict(self.stats)
+            )
         paths = self.roadmap.shortest_path(init.index, goal_idx) or []
-        return PlanResult(True, paths, it, elapsed, len(self.roadmap.nodes), "",
-                          dict(self.stats))
+        return PlanResult(True, paths, it, elapsed, len(self.roadmap.nodes), "", dict(self.stats))
 
     def _solved(self, init: Node, goals: set[int]) -> bool:
         c = self.roadmap.component(init.index)
@@ -203,7 +216,7 @@ class ManipulationRRT:
         rm = self.roadmap
         q_rand = sample_configuration(self.problem, self.rng, self._q_rand)
         new: list[tuple[Node, list[ConstrainedPath], np.ndarray, State]] = []
-        for comp, members in rm.components().items():
+        for _comp, members in rm.components().items():
             by_state: dict[int, list[int]] = {}
             for i in members:
                 by_state.setdefault(id(rm.nodes[i].state), []).append(i)
@@ -320,10 +333,10 @@ class ManipulationRRT:
         count = 0
         rm = self.roadmap
         for i, a in enumerate(nodes):
-            for b in nodes[i + 1:]:
+            for b in nodes[i + 1 :]:
                 if rm.component(a.index) == rm.component(b.index):
                     continue
-                if self._connect(a, b):   # one direction, as HPP: every transition has its reverse
+                if self._connect(a, b):  # one direction, as HPP: every transition has its reverse
                     count += 1
         return count
 
@@ -337,7 +350,9 @@ class ManipulationRRT:
                 done = False
                 for j in rm.nearest(a.q, members, self.connect_k):
                     b = rm.nodes[j]
-                    if self._connect(a, b):   # one direction, as HPP: every transition has its reverse
+                    if self._connect(
+                        a, b
+                    ):  # one direction, as HPP: every transition has its reverse
                         count += 1
                         done = True
                         break
@@ -348,13 +363,25 @@ class ManipulationRRT:
 
 # ---------------------------------------------------------------------------------- shortcut
 def _leaf_key(p: ConstrainedPath) -> tuple:
-    return (p.edge.name, tuple(np.round(np.concatenate(
-        [np.ravel(x) for group in p.rhs_state[:2] for x in group]) if p.rhs_state[0] or p.rhs_state[1]
-        else np.zeros(0), 9)))
+    return (
+        p.edge.name,
+        tuple(
+            np.round(
+                np.concatenate([np.ravel(x) for group in p.rhs_state[:2] for x in group])
+                if p.rhs_state[0] or p.rhs_state[1]
+                else np.zeros(0),
+                9,
+            )
+        ),
+    )
 
 
-def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
-                    rng: np.random.Generator, iterations: int = 40) -> list[ConstrainedPath]:
+def random_shortcut(
+    paths: list[ConstrainedPath],
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 40,
+) -> list[ConstrainedPath]:
     """Random shortcut within transition leaves (see the module docstring).
 
     Consecutive paths of one leaf form a run; a shortcut picks a run and two arc lengths in it
@@ -363,7 +390,7 @@ def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
     paths = list(paths)
     for _ in range(iterations):
         runs = _runs(paths)
-        candidates = [r for r in runs if sum(p.length for p in paths[r[0]:r[1]]) > 1e-6]
+        candidates = [r for r in runs if sum(p.length for p in paths[r[0] : r[1]]) > 1e-6]
         if not candidates:
             break
         i0, i1 = candidates[int(rng.integers(len(candidates)))]
@@ -390,8 +417,13 @@ def random_shortcut(paths: list[ConstrainedPath], checker: CollisionChecker,
     return [p for p in paths if p.length > 0.0 or len(paths) == 1]
 
 
-def graph_shortcut(paths: list[ConstrainedPath], graph: ConstraintGraph, checker: CollisionChecker,
-                   rng: np.random.Generator, iterations: int = 40) -> list[ConstrainedPath]:
+def graph_shortcut(
+    paths: list[ConstrainedPath],
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 40,
+) -> list[ConstrainedPath]:
     """Random shortcut across transitions (HPP's graph steering method): two random points of
     the plan, in the graph states s1 and s2, are joined by a transition from s1 to s2 whose leaf
     holds both (a loop keeps the grasps and placements, a grasp transition regenerates its
@@ -404,8 +436,9 @@ def graph_shortcut(paths: list[ConstrainedPath], graph: ConstraintGraph, checker
         if len(cand) < 1:
             break
         cum = np.concatenate([[0.0], np.cumsum([p.length for p in paths])])
-        picks = sorted((int(i), float(rng.random()) * paths[i].length)
-                       for i in rng.choice(cand, size=2))
+        picks = sorted(
+            (int(i), float(rng.random()) * paths[i].length) for i in rng.choice(cand, size=2)
+        )
         (ia, sa), (ib, sb) = picks
         a, b = cum[ia] + sa, cum[ib] + sb
         if b - a < 1e-6:

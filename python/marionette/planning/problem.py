@@ -114,7 +114,7 @@ class ManipulationProblem:
     source: Path | None = None
     robot_joint_ids: tuple[int, ...] = ()
     freeflyer_idx_q: tuple[int, ...] = ()
-    fixed_rotation_idx_q: tuple[int, ...] = ()   # free-flyers sampled with their init rotation
+    fixed_rotation_idx_q: tuple[int, ...] = ()  # free-flyers sampled with their init rotation
 
     @property
     def nq(self) -> int:
@@ -162,7 +162,7 @@ def _layout(model: pin.Model) -> list[str]:
 def _resolve(path: str, base: Path) -> Path:
     """``package://example-robot-data/...`` or a path relative to the problem file."""
     if path.startswith("package://"):
-        rest = path[len("package://"):]
+        rest = path[len("package://") :]
         for share in _package_dirs():
             candidate = Path(share) / rest
             if candidate.exists():
@@ -227,9 +227,9 @@ def _pose_from_xml(el: ET.Element) -> pin.SE3:
 
 @dataclasses.dataclass
 class _SrdfInfo:
-    grippers: list[tuple[str, str, pin.SE3, float]]          # name, link, pose in link, clearance
+    grippers: list[tuple[str, str, pin.SE3, float]]  # name, link, pose in link, clearance
     handles: list[tuple[str, str, pin.SE3, float, tuple[bool, ...], tuple[float, float, float]]]
-    contacts: list[tuple[str, str, np.ndarray]]             # name, link, points (k x 3) in link
+    contacts: list[tuple[str, str, np.ndarray]]  # name, link, points (k x 3) in link
     disabled: list[tuple[str, str]]
 
 
@@ -238,8 +238,14 @@ def _parse_srdf(path: Path) -> _SrdfInfo:
     info = _SrdfInfo([], [], [], [])
     for g in root.iter("gripper"):
         link = g.find("link").attrib["name"]
-        info.grippers.append((g.attrib["name"], link, _pose_from_xml(g.find("position")),
-                              float(g.attrib.get("clearance", 0.0))))
+        info.grippers.append(
+            (
+                g.attrib["name"],
+                link,
+                _pose_from_xml(g.find("position")),
+                float(g.attrib.get("clearance", 0.0)),
+            )
+        )
     for h in root.iter("handle"):
         link = h.find("link").attrib["name"]
         mask = tuple(True for _ in range(6))
@@ -250,15 +256,23 @@ def _parse_srdf(path: Path) -> _SrdfInfo:
         a = h.find("approaching_direction")
         if a is not None:
             approach = tuple(float(v) for v in a.attrib["xyz"].split())
-        info.handles.append((h.attrib["name"], link, _pose_from_xml(h.find("position")),
-                             float(h.attrib.get("clearance", 0.0)), mask, approach))
+        info.handles.append(
+            (
+                h.attrib["name"],
+                link,
+                _pose_from_xml(h.find("position")),
+                float(h.attrib.get("clearance", 0.0)),
+                mask,
+                approach,
+            )
+        )
     for c in root.iter("contact"):
         link = c.find("link").attrib["name"]
         pts = np.array([float(v) for v in c.find("point").text.split()]).reshape(-1, 3)
         shape = c.find("shape")
         if shape is not None:
             idx = [int(v) for v in shape.text.split()]
-            pts = pts[idx[1:1 + idx[0]]]
+            pts = pts[idx[1 : 1 + idx[0]]]
         info.contacts.append((c.attrib["name"], link, pts))
     for d in root.iter("disable_collisions"):
         info.disabled.append((d.attrib["link1"], d.attrib["link2"]))
@@ -332,14 +346,23 @@ def _robot_root(entry: dict[str, Any]) -> str:
 def _add_semantics(sem: Any, info: _SrdfInfo, owner: str) -> None:
     """Grippers/handles/contacts of a :class:`marionette.models.semantics.Semantics` (names there
     are already ``<owner>/<name>``)."""
+
     def local(n: str) -> str:
         return n.split("/", 1)[1] if "/" in n else n
 
     for g in sem.grippers:
         info.grippers.append((local(g.name), g.link, g.pose.se3(), float(g.clearance)))
     for h in sem.handles:
-        info.handles.append((local(h.name), h.link, h.pose.se3(), float(h.clearance),
-                             tuple(bool(v) for v in h.mask), tuple(float(v) for v in h.approach)))
+        info.handles.append(
+            (
+                local(h.name),
+                h.link,
+                h.pose.se3(),
+                float(h.clearance),
+                tuple(bool(v) for v in h.mask),
+                tuple(float(v) for v in h.approach),
+            )
+        )
     for c in sem.contacts:
         info.contacts.append((local(c.name), c.link, np.asarray(c.points, dtype=float)))
 
@@ -353,13 +376,25 @@ def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
     """
     try:
         for g in entry.get("grippers", []) or []:
-            info.grippers.append((g["name"], g["link"], _pose7(g.get("pose", [0, 0, 0, 0, 0, 0, 1]),
-                                  f"{owner}/{g['name']}.pose"), float(g.get("clearance", 0.0))))
+            info.grippers.append(
+                (
+                    g["name"],
+                    g["link"],
+                    _pose7(g.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{owner}/{g['name']}.pose"),
+                    float(g.get("clearance", 0.0)),
+                )
+            )
         for h in entry.get("handles", []) or []:
-            info.handles.append((h["name"], h["link"], _pose7(h.get("pose", [0, 0, 0, 0, 0, 0, 1]),
-                                 f"{owner}/{h['name']}.pose"), float(h.get("clearance", 0.0)),
-                                 tuple(bool(v) for v in h.get("mask", [1] * 6)),
-                                 tuple(float(v) for v in h.get("approach", [1, 0, 0]))))
+            info.handles.append(
+                (
+                    h["name"],
+                    h["link"],
+                    _pose7(h.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{owner}/{h['name']}.pose"),
+                    float(h.get("clearance", 0.0)),
+                    tuple(bool(v) for v in h.get("mask", [1] * 6)),
+                    tuple(float(v) for v in h.get("approach", [1, 0, 0])),
+                )
+            )
         for c in entry.get("contacts", []) or []:
             info.contacts.append((c["name"], c["link"], np.asarray(c["points"], dtype=float)))
     except KeyError as e:
@@ -392,7 +427,9 @@ def _pose7(v: Any, what: str) -> pin.SE3:
     return pin.XYZQUATToSE3(a)
 
 
-def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) -> ManipulationProblem:
+def build_problem(
+    desc: dict[str, Any], base: Path, source: Path | None = None
+) -> ManipulationProblem:
     """Build the problem from an already parsed description (see :func:`load_problem`)."""
     for key in ("name", "robots"):
         if key not in desc:
@@ -409,7 +446,9 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
         nonlocal model, geom
         entry = _from_models(entry)
         if "urdf" not in entry:
-            raise ProblemError(f"{name}: give 'urdf' (and 'srdf'), 'robot: <name>' or 'object: <name>'")
+            raise ProblemError(
+                f"{name}: give 'urdf' (and 'srdf'), 'robot: <name>' or 'object: <name>'"
+            )
         urdf = _resolve(entry["urdf"], base)
         xml = _prefixed_urdf(urdf, name)
         if root == "freeflyer":
@@ -418,21 +457,30 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
             sub = pin.buildModelFromXML(xml)
         else:
             raise ProblemError(f"{name}: root_joint must be 'fixed' or 'freeflyer', got {root}")
-        sub_geom = pin.buildGeomFromUrdfString(sub, xml, pin.GeometryType.COLLISION,
-                                               package_dirs=_package_dirs())
+        sub_geom = pin.buildGeomFromUrdfString(
+            sub, xml, pin.GeometryType.COLLISION, package_dirs=_package_dirs()
+        )
         pose = _pose7(entry.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{name}.pose")
         if model.njoints == 1 and model.nframes <= 1:
             # First model: keep it as is (frame 0 = universe), placed at `pose`.
             if not pose.isIdentity():
                 if root == "freeflyer":
-                    raise ProblemError(f"{name}: a free-flyer root takes its pose from q, not 'pose'")
-                model_, geom_ = pin.appendModel(pin.Model(), sub, pin.GeometryModel(), sub_geom, 0, pose)
+                    raise ProblemError(
+                        f"{name}: a free-flyer root takes its pose from q, not 'pose'"
+                    )
+                model_, geom_ = pin.appendModel(
+                    pin.Model(), sub, pin.GeometryModel(), sub_geom, 0, pose
+                )
                 model, geom = model_, geom_
             else:
                 model, geom = sub, sub_geom
         else:
             model, geom = pin.appendModel(model, sub, geom, sub_geom, 0, pose)
-        info = _parse_srdf(_resolve(entry["srdf"], base)) if "srdf" in entry else _SrdfInfo([], [], [], [])
+        info = (
+            _parse_srdf(_resolve(entry["srdf"], base))
+            if "srdf" in entry
+            else _SrdfInfo([], [], [], [])
+        )
         if "semantics" in entry:
             _add_semantics(entry["semantics"], info, name)
         _inline(entry, info, name)
@@ -460,7 +508,9 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
 
     # Grippers, handles, contacts become frames / surfaces of the combined model.
     grippers: dict[str, Gripper] = {}
-    handles_raw: list[tuple[str, str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]]] = []
+    handles_raw: list[
+        tuple[str, str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]]
+    ] = []
     contacts: dict[str, ContactSurface] = {}
     for owner, info in srdf_infos:
         for a, b in info.disabled:
@@ -470,9 +520,18 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
             if lf >= model.nframes:
                 raise ProblemError(f"gripper {owner}/{gname}: no link {owner}/{link}")
             frame = model.frames[lf]
-            fid = model.addFrame(pin.Frame(f"{owner}/{gname}", frame.parentJoint, lf,
-                                           frame.placement * M_LG, pin.FrameType.OP_FRAME))
-            grippers[f"{owner}/{gname}"] = Gripper(f"{owner}/{gname}", fid, frame.parentJoint, clearance)
+            fid = model.addFrame(
+                pin.Frame(
+                    f"{owner}/{gname}",
+                    frame.parentJoint,
+                    lf,
+                    frame.placement * M_LG,
+                    pin.FrameType.OP_FRAME,
+                )
+            )
+            grippers[f"{owner}/{gname}"] = Gripper(
+                f"{owner}/{gname}", fid, frame.parentJoint, clearance
+            )
         for hname, link, M_LH, clearance, mask, approach in info.handles:
             handles_raw.append((owner, hname, link, M_LH, clearance, mask, approach))
         for cname, link, pts in info.contacts:
@@ -483,26 +542,42 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
             M_LS, poly = polygon_frame(pts)
             is_object = any(o["name"] == owner for o in object_entries)
             contacts[f"{owner}/{cname}"] = ContactSurface(
-                f"{owner}/{cname}", owner if is_object else None, frame.parentJoint,
-                frame.placement * M_LS, poly)
+                f"{owner}/{cname}",
+                owner if is_object else None,
+                frame.parentJoint,
+                frame.placement * M_LS,
+                poly,
+            )
     handles: dict[str, Handle] = {}
     for owner, hname, link, M_LH, clearance, mask, approach in handles_raw:
         lf = model.getFrameId(f"{owner}/{link}")
         if lf >= model.nframes:
             raise ProblemError(f"handle {owner}/{hname}: no link {owner}/{link}")
         frame = model.frames[lf]
-        fid = model.addFrame(pin.Frame(f"{owner}/{hname}", frame.parentJoint, lf,
-                                       frame.placement * M_LH, pin.FrameType.OP_FRAME))
-        handles[f"{owner}/{hname}"] = Handle(f"{owner}/{hname}", owner, fid, frame.parentJoint,
-                                             clearance, mask, approach)
+        fid = model.addFrame(
+            pin.Frame(
+                f"{owner}/{hname}",
+                frame.parentJoint,
+                lf,
+                frame.placement * M_LH,
+                pin.FrameType.OP_FRAME,
+            )
+        )
+        handles[f"{owner}/{hname}"] = Handle(
+            f"{owner}/{hname}", owner, fid, frame.parentJoint, clearance, mask, approach
+        )
 
     objects: dict[str, ObjectInfo] = {}
     for o in object_entries:
         jid = model.getJointId(f"{o['name']}/root_joint")
         objects[o["name"]] = ObjectInfo(
-            o["name"], jid, model.idx_qs[jid], model.idx_vs[jid],
+            o["name"],
+            jid,
+            model.idx_qs[jid],
+            model.idx_vs[jid],
             tuple(h for h in handles if handles[h].object == o["name"]),
-            tuple(c for c in contacts if contacts[c].owner == o["name"]))
+            tuple(c for c in contacts if contacts[c].owner == o["name"]),
+        )
 
     # Bounds: URDF limits overridden by the problem's; object translations from 'bounds'.
     lower = model.lowerPositionLimit.copy()
@@ -520,57 +595,87 @@ def build_problem(desc: dict[str, Any], base: Path, source: Path | None = None) 
             if not model.existJointName(jn) or model.joints[model.getJointId(jn)].nq != 7:
                 raise ProblemError(f"{name}.root_bounds: the robot has no free-flyer root")
             if b.shape != (6,) or np.any(b[1::2] < b[0::2]):
-                raise ProblemError(f"{name}.root_bounds: [xmin, xmax, ymin, ymax, zmin, zmax], got {b}")
+                raise ProblemError(
+                    f"{name}.root_bounds: [xmin, xmax, ymin, ymax, zmin, zmax], got {b}"
+                )
             i = model.idx_qs[model.getJointId(jn)]
-            lower[i:i + 3], upper[i:i + 3] = b[0::2], b[1::2]
-            lower[i + 3:i + 7], upper[i + 3:i + 7] = -1.0001, 1.0001
+            lower[i : i + 3], upper[i : i + 3] = b[0::2], b[1::2]
+            lower[i + 3 : i + 7], upper[i + 3 : i + 7] = -1.0001, 1.0001
     for o in object_entries:
         b = np.asarray(o.get("bounds", [-1, 1, -1, 1, -1, 1]), dtype=float)
         if b.shape != (6,) or np.any(b[1::2] < b[0::2]):
             raise ProblemError(f"{o['name']}.bounds: [xmin, xmax, ymin, ymax, zmin, zmax], got {b}")
         i = objects[o["name"]].idx_q
-        lower[i:i + 3], upper[i:i + 3] = b[0::2], b[1::2]
-        lower[i + 3:i + 7], upper[i + 3:i + 7] = -1.0001, 1.0001
+        lower[i : i + 3], upper[i : i + 3] = b[0::2], b[1::2]
+        lower[i + 3 : i + 7], upper[i + 3 : i + 7] = -1.0001, 1.0001
     model.lowerPositionLimit = lower
     model.upperPositionLimit = upper
-    unbounded = [lab for lab, lo, hi in zip(_layout(model), lower, upper)
-                 if not (np.isfinite(lo) and np.isfinite(hi))]
+    unbounded = [
+        lab
+        for lab, lo, hi in zip(_layout(model), lower, upper)
+        if not (np.isfinite(lo) and np.isfinite(hi))
+    ]
     if unbounded:
-        raise ProblemError(f"configuration entries without finite bounds (sampling needs them; "
-                           f"give root_bounds / bounds / joint_bounds): {unbounded}")
+        raise ProblemError(
+            f"configuration entries without finite bounds (sampling needs them; "
+            f"give root_bounds / bounds / joint_bounds): {unbounded}"
+        )
 
     _add_collision_pairs(model, geom, disabled)
 
     settings = dict(desc.get("graph", {}) or {})
     settings["planner"] = dict(desc.get("planner", {}) or {})
     settings["guide"] = list(desc.get("guide", []) or [])
-    env_contacts = tuple(settings.get("environment_contacts",
-                                      [c for c in contacts if contacts[c].owner is None]))
+    env_contacts = tuple(
+        settings.get("environment_contacts", [c for c in contacts if contacts[c].owner is None])
+    )
     for c in env_contacts:
         if c not in contacts:
             raise ProblemError(f"environment contact '{c}' is not declared")
 
     problem = ManipulationProblem(
-        name=desc["name"], model=model, geom_model=geom, grippers=grippers, handles=handles,
-        contacts=contacts, objects=objects, environment_contacts=env_contacts,
-        lower=lower, upper=upper, q_init=np.zeros(model.nq), q_goal=None,
-        robot_names=tuple(robot_names), settings=settings, source=source,
+        name=desc["name"],
+        model=model,
+        geom_model=geom,
+        grippers=grippers,
+        handles=handles,
+        contacts=contacts,
+        objects=objects,
+        environment_contacts=env_contacts,
+        lower=lower,
+        upper=upper,
+        q_init=np.zeros(model.nq),
+        q_goal=None,
+        robot_names=tuple(robot_names),
+        settings=settings,
+        source=source,
         robot_joint_ids=tuple(robot_joint_ids),
-        freeflyer_idx_q=tuple(model.idx_qs[j] for j in range(1, model.njoints)
-                              if model.joints[j].nq == 7))
+        freeflyer_idx_q=tuple(
+            model.idx_qs[j] for j in range(1, model.njoints) if model.joints[j].nq == 7
+        ),
+    )
     problem.fixed_rotation_idx_q = tuple(
         model.idx_qs[model.getJointId(f"{r.get('name', r.get('robot'))}/root_joint")]
-        for r in desc["robots"] if r.get("sample_root_rotation", True) is False)
+        for r in desc["robots"]
+        if r.get("sample_root_rotation", True) is False
+    )
     robot_models = {r.get("name", r.get("robot")): r.get("robot") for r in desc["robots"]}
-    problem.q_init = (_configuration(problem, desc["init"], "init", robot_models)
-                      if desc.get("init") is not None else None)
+    problem.q_init = (
+        _configuration(problem, desc["init"], "init", robot_models)
+        if desc.get("init") is not None
+        else None
+    )
     if desc.get("goal") is not None:
         problem.q_goal = _configuration(problem, desc["goal"], "goal", robot_models)
     return problem
 
 
-def _configuration(problem: ManipulationProblem, value: Any, what: str,
-                   robot_models: dict[str, str | None] | None = None) -> np.ndarray:
+def _configuration(
+    problem: ManipulationProblem,
+    value: Any,
+    what: str,
+    robot_models: dict[str, str | None] | None = None,
+) -> np.ndarray:
     """A configuration: a flat list (nq), or a mapping {robot: 'reference' | [q], object: pose}
     in the order of the model (robots, then objects)."""
     if isinstance(value, dict):
@@ -584,7 +689,9 @@ def _configuration(problem: ManipulationProblem, value: Any, what: str,
             elif isinstance(v, str):
                 model_name = (robot_models or {}).get(name)
                 if model_name is None:
-                    raise ProblemError(f"{what}.{name}: '{v}' needs a robot given by 'robot: <name>'")
+                    raise ProblemError(
+                        f"{what}.{name}: '{v}' needs a robot given by 'robot: <name>'"
+                    )
                 parts.append(_reference_of(problem, name, model_name))
             else:
                 parts.append(np.asarray(v, dtype=float))
@@ -596,10 +703,12 @@ def _configuration(problem: ManipulationProblem, value: Any, what: str,
         raise ProblemError(f"problem misses '{what}' (a configuration of size nq={problem.nq})")
     q = np.asarray(value, dtype=float)
     if q.shape != (problem.nq,):
-        raise ProblemError(f"{what}: expected {problem.nq} values "
-                           f"({', '.join(problem.configuration_layout())}), got {q.shape}")
+        raise ProblemError(
+            f"{what}: expected {problem.nq} values "
+            f"({', '.join(problem.configuration_layout())}), got {q.shape}"
+        )
     for o in problem.objects.values():
-        quat = q[o.idx_q + 3:o.idx_q + 7]
+        quat = q[o.idx_q + 3 : o.idx_q + 7]
         if abs(np.linalg.norm(quat) - 1.0) > 1e-6:
             raise ProblemError(f"{what}: quaternion of {o.name} is not unit: {quat}")
     return q
@@ -619,16 +728,17 @@ def _reference_of(problem: ManipulationProblem, name: str, model_name: str) -> n
         jname = problem.model.names[jid]
         if not jname.startswith(prefix):
             continue
-        local = jname[len(prefix):]
+        local = jname[len(prefix) :]
         if not full.existJointName(local):
             raise ProblemError(f"{name}: joint {local} is not in robot model {model_name}")
         j = full.joints[full.getJointId(local)]
-        parts.append(q_ref[j.idx_q:j.idx_q + j.nq])
+        parts.append(q_ref[j.idx_q : j.idx_q + j.nq])
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
-def _add_collision_pairs(model: pin.Model, geom: pin.GeometryModel,
-                         disabled: set[frozenset[str]]) -> None:
+def _add_collision_pairs(
+    model: pin.Model, geom: pin.GeometryModel, disabled: set[frozenset[str]]
+) -> None:
     """All pairs of geometries on different joints, except SRDF-disabled link pairs and pairs of
     two fixed bodies (both on the universe)."""
     objs = geom.geometryObjects
@@ -643,24 +753,30 @@ def _add_collision_pairs(model: pin.Model, geom: pin.GeometryModel,
             geom.addCollisionPair(pin.CollisionPair(i, j))
 
 
-def random_configuration(problem: ManipulationProblem, rng: np.random.Generator,
-                         out: np.ndarray | None = None) -> np.ndarray:
+def random_configuration(
+    problem: ManipulationProblem, rng: np.random.Generator, out: np.ndarray | None = None
+) -> np.ndarray:
     """Uniform sample in the bounds; free-flyer rotations uniform on SO(3) (Shoemake)."""
     q = out if out is not None else np.empty(problem.nq)
     q[:] = problem.lower + rng.random(problem.nq) * (problem.upper - problem.lower)
     for i in problem.freeflyer_idx_q:
         if i in problem.fixed_rotation_idx_q and problem.q_init is not None:
-            q[i + 3:i + 7] = problem.q_init[i + 3:i + 7]
+            q[i + 3 : i + 7] = problem.q_init[i + 3 : i + 7]
             continue
         u1, u2, u3 = rng.random(3)
         a, b = math.sqrt(1 - u1), math.sqrt(u1)
-        q[i + 3:i + 7] = (a * math.sin(2 * math.pi * u2), a * math.cos(2 * math.pi * u2),
-                                      b * math.sin(2 * math.pi * u3), b * math.cos(2 * math.pi * u3))
+        q[i + 3 : i + 7] = (
+            a * math.sin(2 * math.pi * u2),
+            a * math.cos(2 * math.pi * u2),
+            b * math.sin(2 * math.pi * u3),
+            b * math.cos(2 * math.pi * u3),
+        )
     return q
 
 
-def sample_configuration(problem: ManipulationProblem, rng: np.random.Generator,
-                         out: np.ndarray | None = None) -> np.ndarray:
+def sample_configuration(
+    problem: ManipulationProblem, rng: np.random.Generator, out: np.ndarray | None = None
+) -> np.ndarray:
     """The planner's sampler: uniform (:func:`random_configuration`) unless the problem's
     ``planner.sampler`` asks for ``{around: init, sigma: s, uniform_fraction: f}``: then with
     probability 1 - f a Gaussian perturbation (std ``sigma`` on every velocity coordinate) of
@@ -674,7 +790,7 @@ def sample_configuration(problem: ManipulationProblem, rng: np.random.Generator,
     q = pin.integrate(problem.model, problem.q_init, rng.normal(scale=sigma, size=problem.nv))
     q = np.clip(q, problem.lower, problem.upper)
     for i in problem.freeflyer_idx_q:
-        q[i + 3:i + 7] /= np.linalg.norm(q[i + 3:i + 7])
+        q[i + 3 : i + 7] /= np.linalg.norm(q[i + 3 : i + 7])
     if out is not None:
         out[:] = q
         return out

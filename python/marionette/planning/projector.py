@@ -29,15 +29,22 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from marionette.planning.constraints import (Constraint, ConstraintError, ExplicitConstraint,
-                                             ExplicitRelativePose, Kinematics, LockedJoint,
-                                             Placement, PlacementComplement)
+from marionette.planning.constraints import (
+    Constraint,
+    ConstraintError,
+    ExplicitConstraint,
+    ExplicitRelativePose,
+    Kinematics,
+    LockedJoint,
+    Placement,
+    PlacementComplement,
+)
 from marionette.planning.problem import ManipulationProblem
 
 
@@ -65,7 +72,9 @@ class ProjectionResult:
         return self.success
 
     def __str__(self) -> str:
-        return f"{self.status.value} after {self.iterations} iterations, |e| = {self.error_norm:.3g}"
+        return (
+            f"{self.status.value} after {self.iterations} iterations, |e| = {self.error_norm:.3g}"
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,8 +101,10 @@ class LineSearch:
 
     def __post_init__(self) -> None:
         if self.kind not in ("fixed_sequence", "error_norm", "constant"):
-            raise ValueError(f"line search kind must be fixed_sequence, error_norm or constant, "
-                             f"got {self.kind!r}")
+            raise ValueError(
+                f"line search kind must be fixed_sequence, error_norm or constant, "
+                f"got {self.kind!r}"
+            )
 
 
 ALGORITHM_1 = LineSearch("fixed_sequence", alpha0=0.1, alpha_max=0.95, K=0.8, max_step=math.inf)
@@ -107,11 +118,18 @@ class Projector:
     The projector owns its :class:`Kinematics` workspace (one projector per thread).
     """
 
-    def __init__(self, problem: ManipulationProblem,
-                 constraints: Sequence[Constraint | ExplicitConstraint],
-                 levels: Sequence[int] | None = None, error_threshold: float = 1e-4,
-                 max_iterations: int = 40, line_search: LineSearch = LineSearch(),
-                 damping: float = 1e-8, name: str = "", backend: str = "cpp") -> None:
+    def __init__(
+        self,
+        problem: ManipulationProblem,
+        constraints: Sequence[Constraint | ExplicitConstraint],
+        levels: Sequence[int] | None = None,
+        error_threshold: float = 1e-4,
+        max_iterations: int = 40,
+        line_search: LineSearch = LineSearch(),
+        damping: float = 1e-8,
+        name: str = "",
+        backend: str = "cpp",
+    ) -> None:
         if backend not in ("cpp", "python"):
             raise ValueError(f"projector backend must be 'cpp' or 'python', got {backend!r}")
         if error_threshold <= 0:
@@ -134,6 +152,7 @@ class Projector:
         self._cpp = None
         if backend == "cpp":
             from marionette.planning import projector_cpp
+
             self.fallback_reason = projector_cpp.unsupported(self)
             if self.fallback_reason is None:
                 self._cpp = projector_cpp.CppProjector(self)
@@ -159,7 +178,9 @@ class Projector:
         # Placement + complement of one object -> the object is locked where it is.
         self._merged: list[tuple[LockedJoint, Placement]] = []
         placements = {c.object: c for c, _ in implicit if isinstance(c, Placement)}
-        complements = {c.placement.object: c for c, _ in implicit if isinstance(c, PlacementComplement)}
+        complements = {
+            c.placement.object: c for c, _ in implicit if isinstance(c, PlacementComplement)
+        }
         for obj, comp in complements.items():
             plc = comp.placement
             if placements.get(obj) is plc:
@@ -189,26 +210,30 @@ class Projector:
         self.levels = [[c for c, l in implicit if l == L] for L in lv]
         free = np.ones(model.nv, dtype=bool)
         for j in determined:
-            free[model.idx_vs[j]:model.idx_vs[j] + model.joints[j].nv] = False
+            free[model.idx_vs[j] : model.idx_vs[j] + model.joints[j].nv] = False
         self.free = free
         self.free_idx = np.flatnonzero(free)
         self.output_joints = determined
         self.placements = [c for c in self.implicit if isinstance(c, Placement)]
-        self._free_placements = [p for p in self.placements
-                                 if not any(isinstance(c, PlacementComplement) and c.placement is p
-                                            for c in self.implicit)]
+        self._free_placements = [
+            p
+            for p in self.placements
+            if not any(
+                isinstance(c, PlacementComplement) and c.placement is p for c in self.implicit
+            )
+        ]
         self.parametrised = [c for c in self.implicit if c.parametrised]
         # q entries clamped to the bounds: all but quaternions.
         bounded = np.ones(model.nq, dtype=bool)
         for i in self.problem.freeflyer_idx_q:
-            bounded[i + 3:i + 7] = False
+            bounded[i + 3 : i + 7] = False
         self._bounded = np.flatnonzero(bounded)
         self._lower = self.problem.lower[self._bounded]
         self._upper = self.problem.upper[self._bounded]
         # v index of each bounded 1-dof q entry (for saturation); free-flyer translations are
         # handled by clamping only.
         pos = {v: k for k, v in enumerate(self.free_idx)}
-        self._sat_cols = []      # (column in the free variables, q index) of 1-dof joints
+        self._sat_cols = []  # (column in the free variables, q index) of 1-dof joints
         for jid in range(1, model.njoints):
             if model.joints[jid].nq == 1 and model.joints[jid].nv == 1:
                 iv = model.idx_vs[jid]
@@ -224,11 +249,14 @@ class Projector:
         # Relative explicit outputs that are leaf free-flyers under the universe: substituted
         # after a single forward kinematics by patching their pose (no second FK pass).
         children = set(model.parents[1:])
-        self._patchable = all(model.parents[e.output_joint] == 0 and e.output_joint not in children
-                              for e in self.relative)
+        self._patchable = all(
+            model.parents[e.output_joint] == 0 and e.output_joint not in children
+            for e in self.relative
+        )
         # Locked joints (and the joints under them only) never move while projecting.
-        self.kin.static = frozenset(lk.output_joint for lk in self.locked
-                                    if lk.output_joint not in children)
+        self.kin.static = frozenset(
+            lk.output_joint for lk in self.locked if lk.output_joint not in children
+        )
 
     # ----------------------------------------------------------------------------- rhs
     def set_rhs_from(self, q: np.ndarray) -> None:
@@ -245,9 +273,11 @@ class Projector:
 
     def rhs_state(self) -> tuple:
         """Snapshot of every right-hand side (restore it with :meth:`restore_rhs`)."""
-        return (tuple(lk.value.copy() for lk in self.locked),
-                tuple(c.rhs.copy() for c in self.parametrised),
-                tuple(p.pair for p in self.placements))
+        return (
+            tuple(lk.value.copy() for lk in self.locked),
+            tuple(c.rhs.copy() for c in self.parametrised),
+            tuple(p.pair for p in self.placements),
+        )
 
     def restore_rhs(self, state: tuple) -> None:
         for lk, v in zip(self.locked, state[0]):
@@ -297,7 +327,7 @@ class Projector:
         if self.relative:
             self.kin.update(q, jacobians=False)
             for e in self.relative:
-                X = pin.XYZQUATToSE3(q[e.idx_q:e.idx_q + 7])
+                X = pin.XYZQUATToSE3(q[e.idx_q : e.idx_q + 7])
                 err = max(err, float(np.linalg.norm(pin.log6(e.pose(self.kin).actInv(X)).vector)))
         return err
 
@@ -314,10 +344,13 @@ class Projector:
         return bool(e.dot(e) <= th * th)
 
     def _reduced_jacobian(self, level: list[Constraint]) -> np.ndarray:
-        J = (level[0].compute_jacobian(self.kin) if len(level) == 1
-             else np.vstack([c.compute_jacobian(self.kin) for c in level]))
+        J = (
+            level[0].compute_jacobian(self.kin)
+            if len(level) == 1
+            else np.vstack([c.compute_jacobian(self.kin) for c in level])
+        )
         for e in self.relative:
-            Jo = J[:, e.idx_v:e.idx_v + 6]
+            Jo = J[:, e.idx_v : e.idx_v + 6]
             if np.any(Jo):
                 J += Jo @ (e.Ad_OP @ self.kin.joint_jacobian(e.parent_joint))
         return J if len(self.free_idx) == J.shape[1] else J[:, self.free_idx]
@@ -340,7 +373,7 @@ class Projector:
             lk.apply(kin, q)
         self._update_and_substitute(q)
         self._select_pairs()
-        eps2 = self.error_threshold ** 2
+        eps2 = self.error_threshold**2
         levels = self.levels
         errors = [self._errors(L) for L in levels]
         norm2 = _norm2(errors)
@@ -352,8 +385,8 @@ class Projector:
         free_idx = self.free_idx
         all_free = len(free_idx) == model.nv
         lower, upper, bounded = self._lower, self._upper, self._bounded
-        max_step2 = self.max_step ** 2
-        self._clipped = True        # unknown at the start: check the bounds once
+        max_step2 = self.max_step**2
+        self._clipped = True  # unknown at the start: check the bounds once
         it = 0
         while norm2 > eps2:
             if it >= self.max_iterations:
@@ -421,21 +454,22 @@ class Projector:
             kin.update(q)
             for e in self.relative:
                 X = e.pose(kin)
-                q[e.idx_q:e.idx_q + 7] = pin.SE3ToXYZQUAT(X)
+                q[e.idx_q : e.idx_q + 7] = pin.SE3ToXYZQUAT(X)
                 kin.set_joint_placement(e.output_joint, X)
         else:
             self.apply_explicit(q)
             self.kin.update(q)
 
-    def _solve(self, jacobians: list[np.ndarray], errors: list[np.ndarray],
-               sat: Sequence[int]) -> np.ndarray:
+    def _solve(
+        self, jacobians: list[np.ndarray], errors: list[np.ndarray], sat: Sequence[int]
+    ) -> np.ndarray:
         if len(jacobians) == 1:
             J = jacobians[0]
             if len(sat):
                 J = J.copy()
                 J[:, sat] = 0.0
             AAt = J @ J.T
-            AAt.flat[::AAt.shape[0] + 1] += self.damping
+            AAt.flat[:: AAt.shape[0] + 1] += self.damping
             _, x, info = lapack.dposv(AAt, errors[0])
             if info != 0:
                 x = np.linalg.lstsq(AAt, errors[0], rcond=None)[0]
@@ -453,7 +487,7 @@ class Projector:
             # solution, bounded steps near singularities); Cholesky through LAPACK directly,
             # numpy.linalg.solve costs 10x more on these small systems.
             AAt = A @ A.T
-            AAt.flat[::AAt.shape[0] + 1] += self.damping
+            AAt.flat[:: AAt.shape[0] + 1] += self.damping
             _, x, info = lapack.dposv(AAt, r)
             if info != 0:
                 x = np.linalg.lstsq(AAt, r, rcond=None)[0]
@@ -465,8 +499,13 @@ class Projector:
 
 
 # C++ status codes (ProjectionStatus in cpp/include/marionette/planning/projector.h).
-_STATUS = (ProjectionStatus.SUCCESS, ProjectionStatus.MAX_ITERATIONS, ProjectionStatus.NOT_DECREASING,
-           ProjectionStatus.LOCAL_MINIMUM, ProjectionStatus.NOT_FINITE)
+_STATUS = (
+    ProjectionStatus.SUCCESS,
+    ProjectionStatus.MAX_ITERATIONS,
+    ProjectionStatus.NOT_DECREASING,
+    ProjectionStatus.LOCAL_MINIMUM,
+    ProjectionStatus.NOT_FINITE,
+)
 
 
 def _norm2(errors: list[np.ndarray]) -> float:

@@ -13,7 +13,7 @@ import itertools
 
 import numpy as np
 
-_SCALE = 1e6   # OR-tools costs are integers: costs in micro-units
+_SCALE = 1e6  # OR-tools costs are integers: costs in micro-units
 
 
 def path_cost(costs: np.ndarray, order: list[int], start: int = 0) -> float:
@@ -30,7 +30,9 @@ def tsp_order(costs: np.ndarray, start: int = 0, time_limit_s: float = 1.0) -> l
     c = np.asarray(costs, dtype=float)
     n = c.shape[0]
     if c.shape != (n, n) or not np.all(np.isfinite(c)) or np.any(c < 0):
-        raise ValueError(f"costs must be a square matrix of finite values >= 0, got shape {c.shape}")
+        raise ValueError(
+            f"costs must be a square matrix of finite values >= 0, got shape {c.shape}"
+        )
     if not 0 <= start < n:
         raise ValueError(f"start {start} is not a node of {n}")
     if n <= 2:
@@ -49,7 +51,9 @@ def tsp_order(costs: np.ndarray, start: int = 0, time_limit_s: float = 1.0) -> l
     routing.SetArcCostEvaluatorOfAllVehicles(routing.RegisterTransitCallback(arc))
     params = pywrapcp.DefaultRoutingSearchParameters()
     params.first_solution_strategy = routing_enums_pb2.FirstSolutionStrategy.PATH_CHEAPEST_ARC
-    params.local_search_metaheuristic = routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
+    params.local_search_metaheuristic = (
+        routing_enums_pb2.LocalSearchMetaheuristic.GUIDED_LOCAL_SEARCH
+    )
     params.time_limit.FromMilliseconds(max(1, int(time_limit_s * 1000)))
     solution = routing.SolveWithParameters(params)
     if solution is None:

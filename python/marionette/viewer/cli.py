@@ -9,14 +9,22 @@ from pathlib import Path
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
-        "view", help="serve a browser 3D view (meshcat) of the run on the LCM URL",
+        "view",
+        help="serve a browser 3D view (meshcat) of the run on the LCM URL",
         description="Draws ROBOT_STATE, SIM_OBJECT_POSES/OBJECT_POSES, FOOTSTEP_PLAN and SUPERVISOR_STATE "
-                    "in a meshcat page; prints its URL. Stops on Ctrl-C.")
+        "in a meshcat page; prints its URL. Stops on Ctrl-C.",
+    )
     p.add_argument("--robot", required=True, help="talos | tiago | ur10")
-    p.add_argument("--scene", type=Path, default=None,
-                   help="the run's MJCF scene (its .yaml names the objects' models)")
+    p.add_argument(
+        "--scene",
+        type=Path,
+        default=None,
+        help="the run's MJCF scene (its .yaml names the objects' models)",
+    )
     p.add_argument("--lcm-url", default=None, help="default: $MARIONETTE_LCM_URL or LCM's default")
-    p.add_argument("--url-file", type=Path, default=None, help="write the page's URL there once ready")
+    p.add_argument(
+        "--url-file", type=Path, default=None, help="write the page's URL there once ready"
+    )
     p.add_argument("--rate", type=float, default=20.0, help="robot redraws per second (default 20)")
     p.set_defaults(func=run)
 

@@ -19,8 +19,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from marionette import (channels, lcmt_footstep_plan, lcmt_object_poses, lcmt_robot_state,
-                        lcmt_supervisor_state)
+from marionette import (
+    channels,
+    lcmt_footstep_plan,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_supervisor_state,
+)
 from marionette.lcm_bus import LcmBus
 
 
@@ -29,8 +34,12 @@ class MeshcatServer:
     new session, where the SIGINT that stops our process group would not reach it)."""
 
     def __init__(self, timeout_s: float = 30.0) -> None:
-        self.proc = subprocess.Popen([sys.executable, "-u", "-m", "meshcat.servers.zmqserver"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-u", "-m", "meshcat.servers.zmqserver"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
         self.zmq_url = self.web_url = ""
         deadline = time.monotonic() + timeout_s
         while not self.zmq_url and time.monotonic() < deadline:
@@ -46,13 +55,13 @@ class MeshcatServer:
         if not self.zmq_url:
             self.close()
             raise RuntimeError(f"meshcat server gave no zmq_url within {timeout_s} s")
-        if not self.web_url:   # printed on the same or the next line
+        if not self.web_url:  # printed on the same or the next line
             m = re.search(r"web_url=(\S+)", self.proc.stdout.readline())
             self.web_url = m.group(1) if m else ""
         threading.Thread(target=self._drain, daemon=True).start()
 
     def _drain(self) -> None:
-        for _ in self.proc.stdout:   # keep the pipe from filling up
+        for _ in self.proc.stdout:  # keep the pipe from filling up
             pass
 
     def visualizer(self):
@@ -82,16 +91,26 @@ class ViewerNode:
 
     def subscribe(self, bus: LcmBus) -> None:
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
-        bus.subscribe(channels.SIM_OBJECT_POSES, lcmt_object_poses, self._locked(self.scene.on_object_poses))
-        bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._locked(self.scene.on_object_poses))
-        bus.subscribe(channels.FOOTSTEP_PLAN, lcmt_footstep_plan, self._locked(self.scene.on_footstep_plan))
-        bus.subscribe(channels.SUPERVISOR_STATE, lcmt_supervisor_state,
-                      self._locked(self.scene.on_supervisor_state))
+        bus.subscribe(
+            channels.SIM_OBJECT_POSES, lcmt_object_poses, self._locked(self.scene.on_object_poses)
+        )
+        bus.subscribe(
+            channels.OBJECT_POSES, lcmt_object_poses, self._locked(self.scene.on_object_poses)
+        )
+        bus.subscribe(
+            channels.FOOTSTEP_PLAN, lcmt_footstep_plan, self._locked(self.scene.on_footstep_plan)
+        )
+        bus.subscribe(
+            channels.SUPERVISOR_STATE,
+            lcmt_supervisor_state,
+            self._locked(self.scene.on_supervisor_state),
+        )
 
     def _locked(self, draw):
         def handler(msg: Any) -> None:
             with self._lock:
                 draw(msg)
+
         return handler
 
     def _on_state(self, msg: Any) -> None:
@@ -109,8 +128,13 @@ class ViewerNode:
             self._last_draw = time.monotonic()
 
 
-def serve(robot: str, scene: Path | None, lcm_url: str | None, url_file: Path | None,
-          rate_hz: float = 20.0) -> int:
+def serve(
+    robot: str,
+    scene: Path | None,
+    lcm_url: str | None,
+    url_file: Path | None,
+    rate_hz: float = 20.0,
+) -> int:
     """Runs the viewer until SIGINT/SIGTERM; returns the exit code."""
     from marionette.viewer.scene import ViewerScene
 
@@ -127,7 +151,7 @@ def serve(robot: str, scene: Path | None, lcm_url: str | None, url_file: Path | 
             node.subscribe(bus)
             bus.start()
             print(f"marionette view: open {server.web_url}", flush=True)
-            if url_file is not None:   # written whole, then renamed: a reader never sees half of it
+            if url_file is not None:  # written whole, then renamed: a reader never sees half of it
                 tmp = Path(f"{url_file}.tmp")
                 tmp.write_text(server.web_url + "\n")
                 tmp.replace(url_file)
@@ -141,12 +165,23 @@ def serve(robot: str, scene: Path | None, lcm_url: str | None, url_file: Path | 
     return 0
 
 
-def start_viewer(group: Any, robot: str, scene: Path | None, log: Any = print, timeout_s: float = 60.0) -> str:
+def start_viewer(
+    group: Any, robot: str, scene: Path | None, log: Any = print, timeout_s: float = 60.0
+) -> str:
     """Starts ``marionette view`` in the run's ProcessGroup (same LCM URL, stopped with the
     group); returns the page's URL once the scene is ready."""
     url_file = group.log_dir / "viewer.url"
     url_file.unlink(missing_ok=True)
-    argv = [sys.executable, "-m", "marionette.cli", "view", "--robot", robot, "--url-file", url_file]
+    argv = [
+        sys.executable,
+        "-m",
+        "marionette.cli",
+        "view",
+        "--robot",
+        robot,
+        "--url-file",
+        url_file,
+    ]
     if scene is not None:
         argv += ["--scene", scene]
     group.start("viewer", argv)
@@ -154,7 +189,9 @@ def start_viewer(group: Any, robot: str, scene: Path | None, log: Any = print, t
     while not url_file.is_file():
         group.check_alive()
         if time.monotonic() > deadline:
-            raise RuntimeError(f"the viewer gave no URL within {timeout_s} s (log: {group.log_dir / 'viewer.log'})")
+            raise RuntimeError(
+                f"the viewer gave no URL within {timeout_s} s (log: {group.log_dir / 'viewer.log'})"
+            )
         time.sleep(0.1)
     url = url_file.read_text().strip()
     log(f"viewer: open {url}")

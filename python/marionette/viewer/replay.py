@@ -13,16 +13,24 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Callable
+from typing import Any
 
-import lcm
 import numpy as np
 
-from marionette import (channels, lcmt_controller_status, lcmt_footstep_plan, lcmt_object_poses,
-                        lcmt_robot_state, lcmt_supervisor_decision, lcmt_supervisor_state)
+import lcm
+from marionette import (
+    channels,
+    lcmt_controller_status,
+    lcmt_footstep_plan,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_supervisor_decision,
+    lcmt_supervisor_state,
+)
 
 DRAWN = {
     channels.ROBOT_STATE: lcmt_robot_state,
@@ -39,9 +47,9 @@ class ReplayError(ValueError):
 
 @dataclass
 class PlaybackStats:
-    messages: int = 0                      # messages given to the scene
-    robot_frames: int = 0                  # robot redraws
-    log_duration_s: float = 0.0            # first to last message of the log
+    messages: int = 0  # messages given to the scene
+    robot_frames: int = 0  # robot redraws
+    log_duration_s: float = 0.0  # first to last message of the log
     wall_s: float = 0.0
     counts: dict[str, int] = field(default_factory=dict)
 
@@ -66,8 +74,14 @@ def run_scene(log: Path) -> Path | None:
     return SCENARIOS[name].scene if name in SCENARIOS else None
 
 
-def play(log: Path, scene: Any, speed: float = 1.0, rate_hz: float = 20.0,
-         until_s: float | None = None, sleep: Callable[[float], None] = time.sleep) -> PlaybackStats:
+def play(
+    log: Path,
+    scene: Any,
+    speed: float = 1.0,
+    rate_hz: float = 20.0,
+    until_s: float | None = None,
+    sleep: Callable[[float], None] = time.sleep,
+) -> PlaybackStats:
     """Feeds the drawn channels of ``log`` to ``scene`` in log order, paced at ``speed`` x the
     recorded time (0: unpaced), up to ``until_s`` seconds of log time (None: all)."""
     if speed < 0:
@@ -75,9 +89,13 @@ def play(log: Path, scene: Any, speed: float = 1.0, rate_hz: float = 20.0,
     if rate_hz <= 0:
         raise ReplayError(f"rate_hz must be > 0, got {rate_hz}")
     stats = PlaybackStats()
-    handlers = {channels.ROBOT_STATE: scene.on_robot_state, channels.SIM_OBJECT_POSES: scene.on_object_poses,
-                channels.OBJECT_POSES: scene.on_object_poses, channels.FOOTSTEP_PLAN: scene.on_footstep_plan,
-                channels.SUPERVISOR_STATE: scene.on_supervisor_state}
+    handlers = {
+        channels.ROBOT_STATE: scene.on_robot_state,
+        channels.SIM_OBJECT_POSES: scene.on_object_poses,
+        channels.OBJECT_POSES: scene.on_object_poses,
+        channels.FOOTSTEP_PLAN: scene.on_footstep_plan,
+        channels.SUPERVISOR_STATE: scene.on_supervisor_state,
+    }
     # Robot frames at most rate_hz per second of playback: every max(speed, 1)/rate_hz s of log.
     frame_us = 1e6 * max(speed, 1.0) / rate_hz
     wall0 = time.monotonic()
@@ -99,7 +117,9 @@ def play(log: Path, scene: Any, speed: float = 1.0, rate_hz: float = 20.0,
         try:
             msg = lcm_type.decode(ev.data)
         except ValueError as e:
-            raise ReplayError(f"{log}: cannot decode {ev.channel} at {ev.timestamp} us: {e}") from None
+            raise ReplayError(
+                f"{log}: cannot decode {ev.channel} at {ev.timestamp} us: {e}"
+            ) from None
         stats.counts[ev.channel] = stats.counts.get(ev.channel, 0) + 1
         if ev.channel == channels.ROBOT_STATE:
             pending = msg
@@ -109,7 +129,7 @@ def play(log: Path, scene: Any, speed: float = 1.0, rate_hz: float = 20.0,
             stats.robot_frames += 1
         handlers[ev.channel](msg)
         stats.messages += 1
-    if pending is not None:   # the last pose of the run is always shown
+    if pending is not None:  # the last pose of the run is always shown
         scene.on_robot_state(pending)
         stats.robot_frames += 1
         stats.messages += 1
@@ -139,7 +159,9 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
             statuses.append(lcmt_controller_status.decode(ev.data))
         elif ev.channel == channels.SIM_OBJECT_POSES:
             m = lcmt_object_poses.decode(ev.data)
-            latest_objects = {o.object_name: np.array([*o.position_world, *o.quaternion_world]) for o in m.objects}
+            latest_objects = {
+                o.object_name: np.array([*o.position_world, *o.quaternion_world]) for o in m.objects
+            }
         elif ev.channel == channels.ROBOT_STATE:
             k += 1
             if k % every:
@@ -153,15 +175,24 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
     if model is None:
         raise ReplayError(f"{log} holds no {channels.ROBOT_STATE} message: nothing to plot")
     if not decisions:
-        raise ReplayError(f"{log} holds no {channels.SUPERVISOR_DECISION} message: the steps are unknown")
+        raise ReplayError(
+            f"{log} holds no {channels.SUPERVISOR_DECISION} message: the steps are unknown"
+        )
     records = _records(decisions, statuses)
-    recorder = SimpleNamespace(utimes=[u for u, _ in states], q=[q for _, q in states], objects=objects)
-    name = json.loads((Path(log).parent / "report.json").read_text()).get("scenario", "run") \
-        if (Path(log).parent / "report.json").is_file() else "run"
+    recorder = SimpleNamespace(
+        utimes=[u for u, _ in states], q=[q for _, q in states], objects=objects
+    )
+    name = (
+        json.loads((Path(log).parent / "report.json").read_text()).get("scenario", "run")
+        if (Path(log).parent / "report.json").is_file()
+        else "run"
+    )
     scenario = SimpleNamespace(name=f"{name} (replayed)", object_name="", feet=())
     # No planned trajectories in the log: the planned-vs-executed plots are left to the live report.
     supervisor = SimpleNamespace(trajectories={}, robot_map=SimpleNamespace(robot=robot))
-    return report._plots(out_dir, scenario, supervisor, SimpleNamespace(records=records), recorder, model)
+    return report._plots(
+        out_dir, scenario, supervisor, SimpleNamespace(records=records), recorder, model
+    )
 
 
 def _records(decisions: list[Any], statuses: list[Any]) -> list[Any]:
@@ -170,8 +201,15 @@ def _records(decisions: list[Any], statuses: list[Any]) -> list[Any]:
     for d in sorted(decisions, key=lambda m: m.seq):
         ins = dict(zip(d.input_name, d.input_value))
         if d.event == "step_started":
-            records.append(SimpleNamespace(index=d.step_index, controller_id=int(ins["controller_id"]),
-                                           utime_start=0, utime_reference_start=0, error_trace=[]))
+            records.append(
+                SimpleNamespace(
+                    index=d.step_index,
+                    controller_id=int(ins["controller_id"]),
+                    utime_start=0,
+                    utime_reference_start=0,
+                    error_trace=[],
+                )
+            )
         elif records and d.event == "switch_accepted":
             records[-1].utime_start = d.utime
         elif records and d.event == "reference_started":
@@ -194,8 +232,14 @@ def _events(log: Path):
         raise ReplayError(f"{log} is not an LCM log: {e}") from None
 
 
-def serve_replay(log: Path, speed: float, scene_path: Path | None, out_dir: Path, hold: bool,
-                 print_: Callable[[str], None] = print) -> int:
+def serve_replay(
+    log: Path,
+    speed: float,
+    scene_path: Path | None,
+    out_dir: Path,
+    hold: bool,
+    print_: Callable[[str], None] = print,
+) -> int:
     """``marionette replay LOG --view``: serves the page, plays the log, re-plots the report;
     with ``hold`` keeps serving until Ctrl-C. Returns the exit code."""
     from marionette.viewer.node import MeshcatServer
@@ -206,10 +250,14 @@ def serve_replay(log: Path, speed: float, scene_path: Path | None, out_dir: Path
     server = MeshcatServer()
     try:
         scene = ViewerScene(server.visualizer(), robot, scene_path)
-        print_(f"marionette replay: open {server.web_url} ({robot}, playing at {speed}x; Ctrl-C stops)")
+        print_(
+            f"marionette replay: open {server.web_url} ({robot}, playing at {speed}x; Ctrl-C stops)"
+        )
         stats = play(log, scene, speed)
-        print_(f"played {stats.messages} messages ({stats.robot_frames} robot frames) of "
-               f"{stats.log_duration_s:.1f} s of log in {stats.wall_s:.1f} s")
+        print_(
+            f"played {stats.messages} messages ({stats.robot_frames} robot frames) of "
+            f"{stats.log_duration_s:.1f} s of log in {stats.wall_s:.1f} s"
+        )
         plots = replot_report(log, out_dir)
         print_("report re-plotted from the log: " + ", ".join(str(p) for p in plots))
         while hold:

@@ -22,10 +22,13 @@ import yaml
 from marionette import robots
 from marionette.control.client import configuration_from_state
 
-SOLE = (0.21, 0.13, 0.01)            # [m] TALOS sole box drawn for a footstep (length, width, height)
+SOLE = (0.21, 0.13, 0.01)  # [m] TALOS sole box drawn for a footstep (length, width, height)
 LEFT_RGB, RIGHT_RGB = 0x2060E0, 0xE06020
-ROBOT_CAMERA = {"talos": ((0.0, 0.0, 0.9), (3.0, -2.0, 1.8)), "tiago": ((0.5, 0.0, 0.8), (3.0, -2.5, 2.0)),
-                "ur10": ((0.6, 0.0, 0.9), (2.6, -2.6, 2.0))}   # (target, eye) in world [m]
+ROBOT_CAMERA = {
+    "talos": ((0.0, 0.0, 0.9), (3.0, -2.0, 1.8)),
+    "tiago": ((0.5, 0.0, 0.8), (3.0, -2.5, 2.0)),
+    "ur10": ((0.6, 0.0, 0.9), (2.6, -2.6, 2.0)),
+}  # (target, eye) in world [m]
 
 
 class ViewerError(ValueError):
@@ -53,7 +56,9 @@ def scene_objects(scene: Path | None) -> dict[str, tuple[str, np.ndarray]]:
 
 def _X(position, quaternion_wxyz) -> np.ndarray:
     w, x, y, z = quaternion_wxyz
-    return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.asarray(position, float)).homogeneous
+    return pin.SE3(
+        pin.Quaternion(w, x, y, z).normalized().matrix(), np.asarray(position, float)
+    ).homogeneous
 
 
 class ViewerScene:
@@ -72,17 +77,21 @@ class ViewerScene:
         self.data = self.model.createData()
         # The collision meshes (STL, the ones our MJCF models use): the visual Collada meshes
         # (UR10: 9 MB) stall the page's loader in a headless browser without a GPU.
-        visual = pin.buildGeomFromUrdf(self.model, str(desc.urdf), pin.GeometryType.COLLISION,
-                                       package_dirs=robots.package_dirs())
+        visual = pin.buildGeomFromUrdf(
+            self.model,
+            str(desc.urdf),
+            pin.GeometryType.COLLISION,
+            package_dirs=robots.package_dirs(),
+        )
         self._robot_viz = MeshcatVisualizer(self.model, visual, visual)
         self._robot_viz.initViewer(viewer=vis)
         self._robot_viz.loadViewerModel(rootNodeName="robot")
-        vis["robot"].set_property("visible", False)    # until the first ROBOT_STATE
+        vis["robot"].set_property("visible", False)  # until the first ROBOT_STATE
         self.grippers = robots.semantics(robot).grippers
         initial = scene_objects(scene)
         self.object_models = {n: kind for n, (kind, _) in initial.items()}
-        self._objects: dict[str, Any] = {}             # name -> (handles) once loaded
-        for name, (_, X_WO) in initial.items():        # static objects (a mocap table) never move
+        self._objects: dict[str, Any] = {}  # name -> (handles) once loaded
+        for name, (_, X_WO) in initial.items():  # static objects (a mocap table) never move
             if self._object(name) is not None:
                 self.vis[f"objects/{name}"].set_transform(X_WO)
         self.robot_states = 0
@@ -95,7 +104,9 @@ class ViewerScene:
     # ---- camera ---------------------------------------------------------------------------------
     def set_camera(self, target, eye) -> None:
         """Orbit camera looking at ``target`` from ``eye`` (world [m])."""
-        self.vis["/Cameras/default"].set_transform(pin.SE3(np.eye(3), np.asarray(target, float)).homogeneous)
+        self.vis["/Cameras/default"].set_transform(
+            pin.SE3(np.eye(3), np.asarray(target, float)).homogeneous
+        )
         # meshcat's camera node is y-up ("rotated"): world (x, y, z) offset = rotated (x, z, -y).
         d = np.asarray(eye, float) - np.asarray(target, float)
         self.vis["/Cameras/default/rotated/<object>"].set_property("position", [d[0], d[2], -d[1]])
@@ -133,8 +144,12 @@ class ViewerScene:
         self.vis["footsteps"].delete()
         for s in msg.steps:
             node = self.vis[f"footsteps/{s.index}"]
-            node.set_object(g.Box(SOLE), g.MeshLambertMaterial(color=LEFT_RGB if s.is_left else RIGHT_RGB,
-                                                               opacity=0.6, transparent=True))
+            node.set_object(
+                g.Box(SOLE),
+                g.MeshLambertMaterial(
+                    color=LEFT_RGB if s.is_left else RIGHT_RGB, opacity=0.6, transparent=True
+                ),
+            )
             R = pin.rpy.rpyToMatrix(0.0, 0.0, s.yaw)
             node.set_transform(pin.SE3(R, np.array([s.x, s.y, s.z + SOLE[2] / 2])).homogeneous)
         self.footsteps = len(msg.steps)
@@ -156,7 +171,7 @@ class ViewerScene:
 
         kind = self.object_models.get(name, name)
         if kind not in robots.object_names():
-            self._objects[name] = None   # e.g. a perception-only name: nothing to draw
+            self._objects[name] = None  # e.g. a perception-only name: nothing to draw
             return None
         obj = robots.load_object(kind, root="fixed")
         viz = MeshcatVisualizer(obj.model, obj.collision_model, obj.collision_model)
@@ -191,14 +206,19 @@ class ViewerScene:
         panel.set_transform(pin.SE3(np.eye(3), centre).homogeneous)
         self.vis["fsm/lines"].delete()
         for i, line in enumerate(text.splitlines()[:3]):
-            texture = g.GenericTexture({"type": "_text", "text": line or " ", "font_size": 36,
-                                        "font_face": "sans-serif"})
+            texture = g.GenericTexture(
+                {"type": "_text", "text": line or " ", "font_size": 36, "font_face": "sans-serif"}
+            )
             node = self.vis[f"fsm/lines/{i}"]
             # The 256 x 256 canvas holds the line in its middle band: a 1.2 x 0.4 m face puts
             # lines 0.1 m apart; just in front of the panel (towards -y).
             # Front faces only (meshcat draws both by default): the box's +y face would show the
             # canvas upside down through the transparent -y face. The layers overlap: their
             # transparent texels must not hide the lines behind them in the depth buffer.
-            node.set_object(g.Box([1.2, 0.001, 0.4]), g.MeshBasicMaterial(map=texture, transparent=True, side=0,
-                                                                      alphaTest=0.1, depthWrite=False))
+            node.set_object(
+                g.Box([1.2, 0.001, 0.4]),
+                g.MeshBasicMaterial(
+                    map=texture, transparent=True, side=0, alphaTest=0.1, depthWrite=False
+                ),
+            )
             node.set_transform(pin.SE3(np.eye(3), centre + [0.0, -0.01, 0.1 - 0.1 * i]).homogeneous)

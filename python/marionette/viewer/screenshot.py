@@ -10,8 +10,8 @@ from __future__ import annotations
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -37,9 +37,15 @@ def scene_loaded(img: np.ndarray) -> bool:
     return int(panel.sum()) > 1500
 
 
-def screenshot(url: str, out: Path, size: tuple[int, int] = (800, 600), settle_ms: int = 10000,
-               timeout_s: float = 120.0, ready: Callable[[np.ndarray], bool] | None = scene_loaded,
-               attempts: int = 3) -> np.ndarray:
+def screenshot(
+    url: str,
+    out: Path,
+    size: tuple[int, int] = (800, 600),
+    settle_ms: int = 10000,
+    timeout_s: float = 120.0,
+    ready: Callable[[np.ndarray], bool] | None = scene_loaded,
+    attempts: int = 3,
+) -> np.ndarray:
     """Loads ``url`` headless, waits ``settle_ms`` of page time (meshes load over the websocket),
     writes the PNG ``out`` and returns it as an (H, W, 3) uint8 array. The page's virtual time
     does not wait for the websocket: a heavy scene (TALOS' meshes) may not be applied yet, so the
@@ -54,23 +60,42 @@ def screenshot(url: str, out: Path, size: tuple[int, int] = (800, 600), settle_m
     return img
 
 
-def _screenshot(url: str, out: Path, size: tuple[int, int], settle_ms: int, timeout_s: float) -> np.ndarray:
+def _screenshot(
+    url: str, out: Path, size: tuple[int, int], settle_ms: int, timeout_s: float
+) -> np.ndarray:
     from PIL import Image
 
     out.unlink(missing_ok=True)
-    argv = [chromium(), "--headless=new", "--no-sandbox", "--disable-gpu-sandbox", "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader", "--hide-scrollbars", "--no-first-run", "--disable-extensions",
-            f"--window-size={size[0]},{size[1]}", f"--virtual-time-budget={settle_ms}",
-            f"--screenshot={out}", url]
+    argv = [
+        chromium(),
+        "--headless=new",
+        "--no-sandbox",
+        "--disable-gpu-sandbox",
+        "--use-angle=swiftshader",
+        "--enable-unsafe-swiftshader",
+        "--hide-scrollbars",
+        "--no-first-run",
+        "--disable-extensions",
+        f"--window-size={size[0]},{size[1]}",
+        f"--virtual-time-budget={settle_ms}",
+        f"--screenshot={out}",
+        url,
+    ]
     # A profile of its own: Chromium instances sharing one (other tests, a user's browser) hand
     # the URL to the first instance and exit without a screenshot.
     with tempfile.TemporaryDirectory(prefix="marionette-chromium-") as profile:
         try:
-            proc = subprocess.run(argv[:1] + [f"--user-data-dir={profile}"] + argv[1:], capture_output=True,
-                                  text=True, timeout=timeout_s)
+            proc = subprocess.run(
+                argv[:1] + [f"--user-data-dir={profile}"] + argv[1:],
+                capture_output=True,
+                text=True,
+                timeout=timeout_s,
+            )
         except subprocess.TimeoutExpired:
             raise ScreenshotError(f"chromium took more than {timeout_s} s on {url}") from None
     if not out.is_file():
-        raise ScreenshotError(f"chromium wrote no screenshot of {url} (exit {proc.returncode}): "
-                              f"{proc.stderr.strip()[-500:]}")
+        raise ScreenshotError(
+            f"chromium wrote no screenshot of {url} (exit {proc.returncode}): "
+            f"{proc.stderr.strip()[-500:]}"
+        )
     return np.asarray(Image.open(out).convert("RGB"))

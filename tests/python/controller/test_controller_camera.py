@@ -14,7 +14,9 @@ from marionette.control.client import vector_to_pose
 
 def test_camera_frames_rate_intrinsics_and_depth(run_controller):
     scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
-    with run_controller("--robot", "talos", "--scene", scene, "--camera-rate", "15", camera=True) as c:
+    with run_controller(
+        "--robot", "talos", "--scene", scene, "--camera-rate", "15", camera=True
+    ) as c:
         c.wait(lambda c: c.num_images >= 30, 60, "30 camera frames")
         image = c.image
         utimes = np.array(c.image_utimes[1:])  # the first may predate our subscription
@@ -44,13 +46,17 @@ def test_camera_frames_rate_intrinsics_and_depth(run_controller):
 def _two_frames(run_controller, *args: str) -> tuple[np.ndarray, np.ndarray]:
     """Two consecutive head-camera frames (RGB, float) of TIAGo standing in the deburr scene."""
     scene = str(robots.MODELS_DIR / "scenes" / "tiago_deburr.xml")
-    with run_controller("--robot", "tiago", "--scene", scene, "--camera-rate", "15", *args, camera=True) as c:
+    with run_controller(
+        "--robot", "tiago", "--scene", scene, "--camera-rate", "15", *args, camera=True
+    ) as c:
         c.wait(lambda c: c.num_images >= 30, 60, "30 camera frames (the robot settled)")
         first, n = c.image, c.num_images
         c.wait(lambda c: c.num_images >= n + 1, 30, "one more camera frame")
         second = c.image
-    return tuple(np.frombuffer(bytes(i.rgb), dtype=np.uint8).reshape(480, 640, 3).astype(float)
-                 for i in (first, second))
+    return tuple(
+        np.frombuffer(bytes(i.rgb), dtype=np.uint8).reshape(480, 640, 3).astype(float)
+        for i in (first, second)
+    )
 
 
 def test_camera_noise_has_the_requested_sigma(run_controller):
@@ -60,11 +66,13 @@ def test_camera_noise_has_the_requested_sigma(run_controller):
     a, b = _two_frames(run_controller)
     # The robot's residual sway changes ~40 of the 921600 values by one grey level in some runs.
     changed, worst = (a != b).mean(), np.abs(a - b).max()
-    assert changed < 1e-3 and worst <= 1.0, f"the still scene changes: {changed:.2%} of the values, by up to {worst:g}"
+    assert changed < 1e-3 and worst <= 1.0, (
+        f"the still scene changes: {changed:.2%} of the values, by up to {worst:g}"
+    )
     a, b = _two_frames(run_controller, "--camera-noise", "3")
-    inside = ((a > 15) & (a < 240) & (b > 15) & (b < 240)).all(axis=2)   # no channel clamped
+    inside = ((a > 15) & (a < 240) & (b > 15) & (b < 240)).all(axis=2)  # no channel clamped
     assert inside.mean() > 0.5
-    d = (a - b)[inside]                                                    # (n x 3)
+    d = (a - b)[inside]  # (n x 3)
     # Luminance noise: one draw per pixel on R, G and B alike.
     assert (d[:, 0] == d[:, 1]).mean() > 0.999 and (d[:, 0] == d[:, 2]).mean() > 0.999
     sigma = d[:, 0].std() / math.sqrt(2.0)
@@ -75,6 +83,10 @@ def test_camera_noise_has_the_requested_sigma(run_controller):
 def test_negative_camera_noise_is_refused(build_dir):
     binary = build_dir / "marionette-controller"
     for flag in ("--camera-noise", "--depth-noise"):
-        out = subprocess.run([binary, "--robot", "talos", "--duration", "0.01", "--lcm-url", "memq://",
-                              flag, "-1"], capture_output=True, text=True, timeout=60)
+        out = subprocess.run(
+            [binary, "--robot", "talos", "--duration", "0.01", "--lcm-url", "memq://", flag, "-1"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert out.returncode != 0 and flag in out.stderr, (flag, out.returncode, out.stderr)

@@ -4,20 +4,15 @@ watchdog on streamed references, estop, and garbage on every input channel."""
 from __future__ import annotations
 
 import random
-import struct
-import time
 
 import numpy as np
 import pinocchio as pin
-import pytest
 
 from marionette import (
     channels,
     lcmt_command,
-    lcmt_controller_spec,
     lcmt_robot_command,
     lcmt_sim_command,
-    lcmt_task_reference,
     robots,
 )
 from marionette.control.client import configuration_from_state, pose_to_vector
@@ -27,20 +22,41 @@ from marionette.lcm_bus import MessageLog
 UR10 = ["--robot", "ur10", "--backend", "kinematic", "--camera-rate", "0"]
 
 
-def arm_spec(controller_id: int, posture_reference=None, gain: float = 1.0, streamed=False,
-             timeout: float = 0.05) -> ControllerSpec:
+def arm_spec(
+    controller_id: int,
+    posture_reference=None,
+    gain: float = 1.0,
+    streamed=False,
+    timeout: float = 0.05,
+) -> ControllerSpec:
     tasks = [TaskSpec("tool", "se3", 0, frame="tool0", gain=gain, streamed=streamed)]
-    tasks.append(TaskSpec("posture", "posture", 1, gain=gain,
-                          reference=() if posture_reference is None else list(posture_reference)))
-    return ControllerSpec(controller_id, f"arm{controller_id}", tasks, max_switch_velocity_jump=0.05,
-                          reference_timeout=timeout)
+    tasks.append(
+        TaskSpec(
+            "posture",
+            "posture",
+            1,
+            gain=gain,
+            reference=() if posture_reference is None else list(posture_reference),
+        )
+    )
+    return ControllerSpec(
+        controller_id,
+        f"arm{controller_id}",
+        tasks,
+        max_switch_velocity_jump=0.05,
+        reference_timeout=timeout,
+    )
 
 
 def test_continuous_swap_is_accepted_and_a_discontinuous_one_refused(run_controller, lcm_url):
     with run_controller(*UR10, "--state-rate", "1000") as c:
         commands = MessageLog(c.bus, channels.ROBOT_COMMAND, lcmt_robot_command)
         c.send_spec(arm_spec(1))
-        c.wait(lambda c: c.status.active_controller_id == 1 and c.status.mode == "running", 20, "controller 1")
+        c.wait(
+            lambda c: c.status.active_controller_id == 1 and c.status.mode == "running",
+            20,
+            "controller 1",
+        )
         # The same stack again, holding where the robot is: the command stays continuous.
         c.send_spec(arm_spec(2))
         c.wait(lambda c: c.status.active_controller_id == 2, 20, "controller 2")
@@ -50,9 +66,13 @@ def test_continuous_swap_is_accepted_and_a_discontinuous_one_refused(run_control
         assert np.abs(np.diff(v, axis=0)).max() < 0.05, "the command jumped at the swap"
         # A posture reference 1 rad away at the top level would jump: refused, 2 stays active.
         q = np.array(c.state.joint_position)
-        far = q + np.eye(len(q))[0]   # the shoulder 1 rad away
-        spec = ControllerSpec(3, "far", [TaskSpec("posture", "posture", 0, gain=5.0, reference=list(far))],
-                              max_switch_velocity_jump=0.05)
+        far = q + np.eye(len(q))[0]  # the shoulder 1 rad away
+        spec = ControllerSpec(
+            3,
+            "far",
+            [TaskSpec("posture", "posture", 0, gain=5.0, reference=list(far))],
+            max_switch_velocity_jump=0.05,
+        )
         c.send_spec(spec)
         c.wait(lambda c: c.status.num_refused_switches == 1, 20, "the refusal")
         assert "refused controller 'far' (id 3): command jump" in c.status.last_switch_result
@@ -74,20 +94,34 @@ def test_watchdog_holds_when_references_stop_and_estop_latches(run_controller):
         # 300 ms of references moving the tool 1 cm/s upwards, then nothing more.
         t0 = c.utime() + 10_000
         n = 300
-        values = np.array([pose_to_vector(pin.SE3(X.rotation, X.translation + [0, 0, 0.01 * k / 1000]))
-                           for k in range(n)])
+        values = np.array(
+            [
+                pose_to_vector(pin.SE3(X.rotation, X.translation + [0, 0, 0.01 * k / 1000]))
+                for k in range(n)
+            ]
+        )
         derivatives = np.tile([0, 0, 0.01, 0, 0, 0], (n, 1))
         c.send_reference(reference_chunk(1, "tool", t0, values, derivatives))
         last_sample = t0 + 1000 * (n - 1)
         c.wait(lambda c: c.status.mode == "holding", 20, "the watchdog")
         assert "watchdog" in c.status.mode_reason and "tool" in c.status.mode_reason
-        c.wait(lambda c: any(m.utime > last_sample + 100_000 for m in commands.messages), 10, "more commands")
+        c.wait(
+            lambda c: any(m.utime > last_sample + 100_000 for m in commands.messages),
+            10,
+            "more commands",
+        )
         moving = [m.utime for m in commands.messages if np.abs(m.joint_velocity).max() > 0.0]
-        held = [m.utime for m in commands.messages if m.utime > last_sample and np.abs(m.joint_velocity).max() == 0.0]
+        held = [
+            m.utime
+            for m in commands.messages
+            if m.utime > last_sample and np.abs(m.joint_velocity).max() == 0.0
+        ]
         assert moving and held
         first_hold = min(held)
         # Timeout 50 ms after the last sample; the hold starts within 10 ms of that.
-        assert last_sample + 50_000 <= first_hold <= last_sample + 60_000, (first_hold - last_sample) / 1e3
+        assert last_sample + 50_000 <= first_hold <= last_sample + 60_000, (
+            first_hold - last_sample
+        ) / 1e3
         assert max(u for u in moving if u < first_hold + 1) < first_hold
 
         # estop: zero command, latched — a new controller is refused until reset_estop.
@@ -100,7 +134,11 @@ def test_watchdog_holds_when_references_stop_and_estop_latches(run_controller):
         c.send_command("reset_estop")
         c.wait(lambda c: c.status.mode == "holding", 10, "reset")
         c.send_spec(arm_spec(3))
-        c.wait(lambda c: c.status.active_controller_id == 3 and c.status.mode == "running", 10, "controller 3")
+        c.wait(
+            lambda c: c.status.active_controller_id == 3 and c.status.mode == "running",
+            10,
+            "controller 3",
+        )
 
 
 def test_a_burst_of_chunks_is_taken_whole_and_a_chunk_after_a_lost_one_refused(run_controller):
@@ -113,35 +151,61 @@ def test_a_burst_of_chunks_is_taken_whole_and_a_chunk_after_a_lost_one_refused(r
     rarely overflows even the default queue; the refusal after a loss is what this test pins
     down.)"""
     with run_controller(*UR10, "--state-rate", "1000") as c:
-        spec = ControllerSpec(1, "streamed", [TaskSpec("tool", "se3", 0, frame="tool0", streamed=True),
-                                              TaskSpec("wrist", "se3", 1, frame="wrist_1_link", streamed=True),
-                                              TaskSpec("posture", "posture", 2, streamed=True)],
-                              reference_timeout=0.05)
+        spec = ControllerSpec(
+            1,
+            "streamed",
+            [
+                TaskSpec("tool", "se3", 0, frame="tool0", streamed=True),
+                TaskSpec("wrist", "se3", 1, frame="wrist_1_link", streamed=True),
+                TaskSpec("posture", "posture", 2, streamed=True),
+            ],
+            reference_timeout=0.05,
+        )
         c.send_spec(spec)
-        c.wait(lambda c: c.status.active_controller_id == 1 and c.status.mode == "running", 20, "controller 1")
+        c.wait(
+            lambda c: c.status.active_controller_id == 1 and c.status.mode == "running",
+            20,
+            "controller 1",
+        )
         model, _ = robots.load_pinocchio("ur10", with_collision=False)
         data = model.createData()
         q = configuration_from_state(model, c.state)
         pin.framesForwardKinematics(model, data, q)
-        holds = {"tool": pose_to_vector(data.oMf[model.getFrameId("tool0")]),
-                 "wrist": pose_to_vector(data.oMf[model.getFrameId("wrist_1_link")]), "posture": q}
+        holds = {
+            "tool": pose_to_vector(data.oMf[model.getFrameId("tool0")]),
+            "wrist": pose_to_vector(data.oMf[model.getFrameId("wrist_1_link")]),
+            "posture": q,
+        }
         # 2.4 s in chunks of 40 samples: 60 chunks per task (under a stream's 64-chunk queue),
         # 180 messages at once.
         per_chunk, chunks = 40, 60
         t0 = c.utime() + 200_000
         for k in range(chunks):
             for task, hold in holds.items():
-                c.send_reference(reference_chunk(1, task, t0 + 1000 * per_chunk * k,
-                                                 np.tile(hold, (per_chunk, 1)), sequence=k))
-        end = t0 + 1000 * per_chunk * chunks             # one past the last sample sent
+                c.send_reference(
+                    reference_chunk(
+                        1,
+                        task,
+                        t0 + 1000 * per_chunk * k,
+                        np.tile(hold, (per_chunk, 1)),
+                        sequence=k,
+                    )
+                )
+        end = t0 + 1000 * per_chunk * chunks  # one past the last sample sent
         # Chunk 60 (1 s) lost, then chunk 61: played, it would keep the robot going until end + 2 s.
-        c.send_reference(reference_chunk(1, "tool", end + 1_000_000, np.tile(holds["tool"], (1000, 1)),
-                                         sequence=chunks + 1))
+        c.send_reference(
+            reference_chunk(
+                1, "tool", end + 1_000_000, np.tile(holds["tool"], (1000, 1)), sequence=chunks + 1
+            )
+        )
         c.wait(lambda c: c.status.utime > end - 200_000, 20, "the end of the burst")
         assert c.status.mode == "running", f"a chunk of the burst was lost: {c.status.mode_reason}"
-        assert c.status.num_rejected == 1, list(zip(c.status.rejection_reason, c.status.rejection_count))
-        assert "chunk 61 of a reference whose chunk 60 never came" in c.status.last_rejection, \
+        assert c.status.num_rejected == 1, list(
+            zip(c.status.rejection_reason, c.status.rejection_count)
+        )
+        assert "chunk 61 of a reference whose chunk 60 never came" in c.status.last_rejection, (
             c.status.last_rejection
+        )
         # The refused chunk is not played: the stream runs dry at its end and the watchdog holds.
         c.wait(lambda c: c.status.mode == "holding", 10, "the watchdog")
         assert "watchdog" in c.status.mode_reason, c.status.mode_reason
@@ -166,7 +230,9 @@ def _semantic_garbage(rng: random.Random, channel: str, k: int, utime: int):
     """Well-formed messages on ``channel`` with content the controller must refuse."""
     if channel == channels.CONTROLLER_SPEC:
         # Built valid, then broken the ways a buggy sender would (the Python side refuses most).
-        msg = ControllerSpec(1000 + k, "bad", [TaskSpec("t", "se3", 0, frame="left_sole_link")]).to_lcm()
+        msg = ControllerSpec(
+            1000 + k, "bad", [TaskSpec("t", "se3", 0, frame="left_sole_link")]
+        ).to_lcm()
         task = msg.tasks[0]
         breakage = rng.randrange(6)
         if breakage == 0:
@@ -187,8 +253,12 @@ def _semantic_garbage(rng: random.Random, channel: str, k: int, utime: int):
         values[:, 3] = 1.0
         if rng.random() < 0.5:
             values[1, 0] = float("nan")
-        return reference_chunk(rng.choice([999999, 1]), rng.choice(["tool", "nothing"]), utime,
-                               values if rng.random() < 0.5 else np.zeros((2, 3)))
+        return reference_chunk(
+            rng.choice([999999, 1]),
+            rng.choice(["tool", "nothing"]),
+            utime,
+            values if rng.random() < 0.5 else np.zeros((2, 3)),
+        )
     if channel == channels.COMMAND:
         msg = lcmt_command()
         msg.command = rng.choice(["jump", "", "HALT!", "resume please"])
@@ -202,10 +272,22 @@ def _semantic_garbage(rng: random.Random, channel: str, k: int, utime: int):
 
 def test_garbage_on_every_input_channel_is_counted_and_never_moves_the_robot(run_controller):
     rng = random.Random(20261121)
-    with run_controller("--robot", "talos", "--scene", str(robots.robot("talos").mjcf), "--speed", "1",
-                        "--camera-rate", "0", "--status-rate", "200") as c:
+    with run_controller(
+        "--robot",
+        "talos",
+        "--scene",
+        str(robots.robot("talos").mjcf),
+        "--speed",
+        "1",
+        "--camera-rate",
+        "0",
+        "--status-rate",
+        "200",
+    ) as c:
         valid = {
-            channels.CONTROLLER_SPEC: ControllerSpec(1, "ok", [TaskSpec("posture", "posture", 0)]).to_lcm().encode(),
+            channels.CONTROLLER_SPEC: ControllerSpec(1, "ok", [TaskSpec("posture", "posture", 0)])
+            .to_lcm()
+            .encode(),
             channels.TASK_REFERENCE: reference_chunk(1, "posture", 0, np.zeros((1, 3))).encode(),
             channels.COMMAND: lcmt_command().encode(),
             channels.SIM_COMMAND: lcmt_sim_command().encode(),
@@ -228,7 +310,9 @@ def test_garbage_on_every_input_channel_is_counted_and_never_moves_the_robot(run
         reasons = dict(zip(c.status.rejection_reason, c.status.rejection_count))
         assert sum(reasons.values()) == sent
         for channel in valid:
-            assert sum(n for r, n in reasons.items() if r.startswith(channel)) >= per_channel, channel
+            assert sum(n for r, n in reasons.items() if r.startswith(channel)) >= per_channel, (
+                channel
+            )
         assert c.status.mode == "holding" and c.status.num_switches == 0
         assert np.linalg.norm(c.base_position() - base0) < 0.005, "the robot moved"
         assert c.process.alive()

@@ -16,30 +16,58 @@ from marionette.execution.perturbations import scene_with_joint_offsets
 OFFSET = math.radians(7.0)
 
 
-def test_calibrated_encoders_read_the_true_angle_and_the_robot_holds_still(run_controller, tmp_path):
+def test_calibrated_encoders_read_the_true_angle_and_the_robot_holds_still(
+    run_controller, tmp_path
+):
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     i = model.joints[model.getJointId("arm_left_1_joint")].idx_q
-    scene = scene_with_joint_offsets(robots.robot("talos").mjcf, {"arm_left_1_joint": OFFSET}, tmp_path / "s.xml")
+    scene = scene_with_joint_offsets(
+        robots.robot("talos").mjcf, {"arm_left_1_joint": OFFSET}, tmp_path / "s.xml"
+    )
     readings = {}
-    for name, extra in (("raw", ()), ("calibrated", ("--encoder-offsets", f"arm_left_1_joint={OFFSET:.9f}"))):
-        with run_controller("--robot", "talos", "--scene", str(scene), "--speed", "0", "--camera-rate", "0",
-                            *extra) as c:
+    for name, extra in (
+        ("raw", ()),
+        ("calibrated", ("--encoder-offsets", f"arm_left_1_joint={OFFSET:.9f}")),
+    ):
+        with run_controller(
+            "--robot", "talos", "--scene", str(scene), "--speed", "0", "--camera-rate", "0", *extra
+        ) as c:
             q0 = configuration_from_state(model, c.state)
             c.wait_time(2.0)
             q1 = configuration_from_state(model, c.state)
             readings[name] = q0
-            assert np.abs(q1[7:] - q0[7:]).max() < 0.01, f"{name}: the held robot moved"   # settling: < 0.2°
+            assert np.abs(q1[7:] - q0[7:]).max() < 0.01, (
+                f"{name}: the held robot moved"
+            )  # settling: < 0.2°
     raw, calibrated = readings["raw"], readings["calibrated"]
     assert abs(raw[i] - calibrated[i] - OFFSET) < 1e-6
-    others = np.r_[7:i, i + 1:model.nq]
+    others = np.r_[7:i, i + 1 : model.nq]
     assert np.abs(raw[others] - calibrated[others]).max() < 1e-3
 
 
 def test_a_malformed_calibration_is_refused_with_the_reason(build_dir):
     binary = str(build_dir / "marionette-controller")
-    for value, reason in (("arm_left_1_joint=nan", "not joint=value"), ("arm_left_1_joint", "not joint=value"),
-                          ("no_such_joint=0.1", "no such 1-dof joint")):
-        out = subprocess.run([binary, "--robot", "talos", "--duration", "0.01", "--lcm-url", "memq://",
-                              "--camera-rate", "0", "--encoder-offsets", value],
-                             capture_output=True, text=True, timeout=60)
+    for value, reason in (
+        ("arm_left_1_joint=nan", "not joint=value"),
+        ("arm_left_1_joint", "not joint=value"),
+        ("no_such_joint=0.1", "no such 1-dof joint"),
+    ):
+        out = subprocess.run(
+            [
+                binary,
+                "--robot",
+                "talos",
+                "--duration",
+                "0.01",
+                "--lcm-url",
+                "memq://",
+                "--camera-rate",
+                "0",
+                "--encoder-offsets",
+                value,
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert out.returncode != 0 and reason in out.stderr, (value, out.returncode, out.stderr)

@@ -17,10 +17,14 @@ UR10 = ["--robot", "ur10", "--backend", "kinematic", "--camera-rate", "0", "--st
 
 
 def arm(controller_id: int, gain: float = 1.0) -> ControllerSpec:
-    return ControllerSpec(controller_id, f"arm{controller_id}", [
-        TaskSpec("tool", "se3", 0, frame="tool0", gain=gain),
-        TaskSpec("posture", "posture", 1, gain=gain),
-    ])
+    return ControllerSpec(
+        controller_id,
+        f"arm{controller_id}",
+        [
+            TaskSpec("tool", "se3", 0, frame="tool0", gain=gain),
+            TaskSpec("posture", "posture", 1, gain=gain),
+        ],
+    )
 
 
 def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
@@ -28,21 +32,27 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
         c.send_spec(arm(1))
         c.wait(lambda c: c.status.active_controller_id == 1, 20, "controller 1")
         listing = dg.ls()
-        for line in ("command (KinematicDevice)", "safety (SafetyFilter)", "c1_solver (Solver)",
-                     "input velocity : vector 7x1 <- c1_solver.velocity"):
+        for line in (
+            "command (KinematicDevice)",
+            "safety (SafetyFilter)",
+            "c1_solver (Solver)",
+            "input velocity : vector 7x1 <- c1_solver.velocity",
+        ):
             assert line in listing, listing
         dot = dg.dot()
         assert '"c1_solver":"velocity":e -> "safety":"velocity":w' in dot
         # Values: the commanded configuration the graph integrates equals the published command.
         tick, values = dg.get_with_tick("command.configuration", "c1_posture.gain")
         assert values["command.configuration"].shape == (7,)
-        np.testing.assert_allclose(values["command.configuration"], c.command.joint_position, atol=1e-3)
+        np.testing.assert_allclose(
+            values["command.configuration"], c.command.joint_position, atol=1e-3
+        )
         assert float(values["c1_posture.gain"]) == 1.0 and tick > 0
         # Only settable inputs: a gain yes, the safety mode and an output no.
         dg.set("c1_posture.gain", 3.5)
         _, values = dg.get_with_tick("c1_posture.gain")
         assert float(values["c1_posture.gain"]) == 3.5
-        with pytest.raises(IntrospectionError, match="safety.mode is not settable"):
+        with pytest.raises(IntrospectionError, match=r"safety\.mode is not settable"):
             dg.set("safety.mode", 0)
         with pytest.raises(IntrospectionError, match="is an output"):
             dg.set("c1_solver.velocity", np.zeros(7))
@@ -51,14 +61,37 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
         with pytest.raises(IntrospectionError, match="no entity 'nobody'"):
             dg.get("nobody.out")
         # The command line, as a user types it.
-        out = subprocess.run([str(marionette.REPO_ROOT / ".venv/bin/marionette"), "dg", "--lcm-url", lcm_url,
-                              "get", "c1_posture.gain"], capture_output=True, text=True, env=lcm_env,
-                             timeout=30)
+        out = subprocess.run(
+            [
+                str(marionette.REPO_ROOT / ".venv/bin/marionette"),
+                "dg",
+                "--lcm-url",
+                lcm_url,
+                "get",
+                "c1_posture.gain",
+            ],
+            capture_output=True,
+            text=True,
+            env=lcm_env,
+            timeout=30,
+        )
         assert out.returncode == 0, out.stderr
         assert "c1_posture.gain = 3.5" in out.stdout
-        refused = subprocess.run([str(marionette.REPO_ROOT / ".venv/bin/marionette"), "dg", "--lcm-url",
-                                  lcm_url, "set", "safety.mode", "0"], capture_output=True, text=True,
-                                 env=lcm_env, timeout=30)
+        refused = subprocess.run(
+            [
+                str(marionette.REPO_ROOT / ".venv/bin/marionette"),
+                "dg",
+                "--lcm-url",
+                lcm_url,
+                "set",
+                "safety.mode",
+                "0",
+            ],
+            capture_output=True,
+            text=True,
+            env=lcm_env,
+            timeout=30,
+        )
         assert refused.returncode == 1 and "not settable" in refused.stderr
 
 
@@ -73,7 +106,9 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
         quiet_start = c.status
         c.wait_time(3.0)
         before = c.status  # the same 3 s without a trace: what this machine misses anyway
-        samples = list(dg.trace(["command.configuration", "c1_solver.velocity"], rate=1000, duration=3.0))
+        samples = list(
+            dg.trace(["command.configuration", "c1_solver.velocity"], rate=1000, duration=3.0)
+        )
         c.wait_time(0.5)
         during = c.status  # windows of 10 s: mostly ticks with the trace on
         ticks = [s.tick for s in samples]
@@ -87,8 +122,10 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
         # grant is read from the log now, seconds after start-up, not as the process may still print it.
         realtime = "loop thread real-time: SCHED_FIFO priority 80 granted" in c.process.log_tail(50)
         if not realtime:
-            pytest.skip("SCHED_FIFO refused (needs root or CAP_SYS_NICE): the timing comparison needs it; "
-                        "samples checked")
+            pytest.skip(
+                "SCHED_FIFO refused (needs root or CAP_SYS_NICE): the timing comparison needs it; "
+                "samples checked"
+            )
         # A virtual machine's vCPU is itself preempted by its host: SCHED_FIFO in the guest cannot
         # stop that, so misses are compared with those of the quiet window just before, not with 0.
         quiet_misses = before.deadline_misses - quiet_start.deadline_misses

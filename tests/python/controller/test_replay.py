@@ -10,17 +10,16 @@ import subprocess
 import time
 from pathlib import Path
 
-import lcm
 import numpy as np
 import pinocchio as pin
 import pytest
 
+import lcm
 from marionette import lcmt_robot_command, robots
 from marionette.control.client import configuration_from_state, pose_to_vector
 from marionette.control.introspection import GraphClient
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec, reference_chunk
-
 from tests_support import controller_running
 
 SCENE = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
@@ -29,27 +28,55 @@ SCENE = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
 def _record(build_dir: Path, lcm_url: str, log: Path) -> None:
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     data = model.createData()
-    logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    logger = subprocess.Popen(
+        ["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     try:
         time.sleep(0.3)  # subscribed before the controller's first message
-        with controller_running(build_dir, lcm_url, log.parent / "logs", "--robot", "talos", "--scene", SCENE,
-                                "--speed", "0", "--camera-rate", "0") as c:
-            tasks = [TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=10.0),
-                     TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=10.0),
-                     TaskSpec("com", "com", 0, gain=10.0),
-                     TaskSpec("right_gripper", "se3", 1, frame="gripper_right_base_link", gain=5.0, streamed=True),
-                     TaskSpec("posture", "posture", 2, gain=1.0)]
+        with controller_running(
+            build_dir,
+            lcm_url,
+            log.parent / "logs",
+            "--robot",
+            "talos",
+            "--scene",
+            SCENE,
+            "--speed",
+            "0",
+            "--camera-rate",
+            "0",
+        ) as c:
+            tasks = [
+                TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=10.0),
+                TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=10.0),
+                TaskSpec("com", "com", 0, gain=10.0),
+                TaskSpec(
+                    "right_gripper",
+                    "se3",
+                    1,
+                    frame="gripper_right_base_link",
+                    gain=5.0,
+                    streamed=True,
+                ),
+                TaskSpec("posture", "posture", 2, gain=1.0),
+            ]
             c.send_spec(ControllerSpec(1, "reach", tasks, max_switch_velocity_jump=0.05))
             c.wait(lambda c: c.status.active_controller_id == 1, 30.0, "the controller")
             q = configuration_from_state(model, c.state)
             pin.framesForwardKinematics(model, data, q)
             start = pin.SE3(data.oMf[model.getFrameId("gripper_right_base_link")])
             s = np.linspace(0.0, 1.0, 500)
-            values = [pose_to_vector(pin.SE3(start.rotation, start.translation + [0.04 * b, 0, 0.04 * b])) for b in s]
+            values = [
+                pose_to_vector(pin.SE3(start.rotation, start.translation + [0.04 * b, 0, 0.04 * b]))
+                for b in s
+            ]
             t0 = c.utime() + 20_000
             c.send_reference(reference_chunk(1, "right_gripper", t0, values[:250]))
-            c.send_reference(reference_chunk(1, "right_gripper", t0 + 250_000, values[250:], last=True))
+            c.send_reference(
+                reference_chunk(1, "right_gripper", t0 + 250_000, values[250:], last=True)
+            )
             c.wait_time(0.6)
             c.send_command("hold")
             c.wait_time(0.2)
@@ -145,7 +172,9 @@ def test_a_missing_input_is_named(run_log, tmp_path):
     _rewrite(run_log, lossy, edit)
     result = replay_controller(lossy)
     assert not result["ok"]
-    assert any("TASK_REFERENCE message consumed at tick" in p for p in result["problems"]), result["problems"]
+    assert any("TASK_REFERENCE message consumed at tick" in p for p in result["problems"]), result[
+        "problems"
+    ]
     assert result["first_divergence_tick"] >= 0  # without that chunk the arm does not move the same
 
 

@@ -11,8 +11,8 @@ import contextlib
 import os
 import shutil
 import subprocess
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Iterator
 
 LCM_GROUP_ROUTE = "239.255.76.0/24"
 

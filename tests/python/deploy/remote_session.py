@@ -22,8 +22,16 @@ def main(url: str) -> dict:
     tool = model.getFrameId("tool0")
     with ControllerClient(url) as c, GraphClient(url) as dg:
         c.wait_ready(60.0)
-        c.send_spec(ControllerSpec(1, "arm", [TaskSpec("tool", "se3", 0, frame="tool0", gain=5.0, streamed=True),
-                                              TaskSpec("posture", "posture", 1, gain=1.0)]))
+        c.send_spec(
+            ControllerSpec(
+                1,
+                "arm",
+                [
+                    TaskSpec("tool", "se3", 0, frame="tool0", gain=5.0, streamed=True),
+                    TaskSpec("posture", "posture", 1, gain=1.0),
+                ],
+            )
+        )
         c.wait(lambda c: c.status.active_controller_id == 1, 30.0, "the arm controller")
         q = configuration_from_state(model, c.state)
         pin.framesForwardKinematics(model, data, q)
@@ -31,8 +39,12 @@ def main(url: str) -> dict:
         s = np.linspace(0.0, 1.0, 1000)
         blend = 10 * s**3 - 15 * s**4 + 6 * s**5
         target = start.translation + np.array([0.0, 0.0, -0.10])
-        values = [pose_to_vector(pin.SE3(start.rotation, start.translation + b * (target - start.translation)))
-                  for b in blend]
+        values = [
+            pose_to_vector(
+                pin.SE3(start.rotation, start.translation + b * (target - start.translation))
+            )
+            for b in blend
+        ]
         c.send_reference(reference_chunk(1, "tool", c.utime() + 50_000, values, last=True))
         c.wait_time(2.5)
         q = configuration_from_state(model, c.state)

@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from marionette import robots
-
 from deploy.netns import NetnsUnavailable, two_hosts
+from marionette import robots
 
 URL = "udpm://239.255.76.67:7791?ttl=1"  # ttl=1: crosses one link, as between two machines
 HERE = Path(__file__).parent
@@ -33,12 +32,31 @@ def test_controller_on_one_host_driven_and_inspected_from_the_other(hosts, build
     scene = str(robots.MODELS_DIR / "scenes" / "ur10_box.xml")
     log = open(tmp_path / "controller.log", "w")
     controller = subprocess.Popen(
-        a.command([str(build_dir / "marionette-controller"), "--robot", "ur10", "--scene", scene,
-                   "--lcm-url", URL, "--camera-rate", "0", "--duration", "60"]),
-        stdout=log, stderr=subprocess.STDOUT)
+        a.command(
+            [
+                str(build_dir / "marionette-controller"),
+                "--robot",
+                "ur10",
+                "--scene",
+                scene,
+                "--lcm-url",
+                URL,
+                "--camera-rate",
+                "0",
+                "--duration",
+                "60",
+            ]
+        ),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     try:
-        session = subprocess.run(b.command([sys.executable, str(HERE / "remote_session.py"), URL]),
-                                 capture_output=True, text=True, timeout=120)
+        session = subprocess.run(
+            b.command([sys.executable, str(HERE / "remote_session.py"), URL]),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert session.returncode == 0, session.stderr[-3000:]
         result = json.loads(session.stdout.strip().splitlines()[-1])
     finally:
@@ -58,17 +76,40 @@ def test_ttl_0_keeps_lcm_on_its_host(hosts, build_dir):
     host A (a user forgetting ttl=1 sees no controller, rather than a half-working link)."""
     a, b = hosts
     controller = subprocess.Popen(
-        a.command([str(build_dir / "marionette-controller"), "--robot", "ur10", "--backend", "kinematic",
-                   "--lcm-url", URL.replace("ttl=1", "ttl=0"), "--camera-rate", "0", "--duration", "20"]),
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        a.command(
+            [
+                str(build_dir / "marionette-controller"),
+                "--robot",
+                "ur10",
+                "--backend",
+                "kinematic",
+                "--lcm-url",
+                URL.replace("ttl=1", "ttl=0"),
+                "--camera-rate",
+                "0",
+                "--duration",
+                "20",
+            ]
+        ),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         probe = subprocess.run(
-            b.command([sys.executable, "-c",
-                       "import sys; from marionette.control.client import ControllerClient\n"
-                       f"c = ControllerClient('{URL}')\n"
-                       "try:\n    c.wait_ready(4.0)\n    print('seen')\nexcept TimeoutError:\n    print('unseen')\n"
-                       "c.close()"]),
-            capture_output=True, text=True, timeout=60)
+            b.command(
+                [
+                    sys.executable,
+                    "-c",
+                    "import sys; from marionette.control.client import ControllerClient\n"
+                    f"c = ControllerClient('{URL}')\n"
+                    "try:\n    c.wait_ready(4.0)\n    print('seen')\nexcept TimeoutError:\n    print('unseen')\n"
+                    "c.close()",
+                ]
+            ),
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert controller.poll() is None, "the controller on host A died: the probe proves nothing"
     finally:
         controller.terminate()
@@ -83,14 +124,43 @@ def test_ur10_pick_and_place_across_two_hosts(hosts, build_dir, tmp_path):
     scene = str(robots.MODELS_DIR / "scenes" / "ur10_box.xml")
     log = open(tmp_path / "controller.log", "w")
     controller = subprocess.Popen(
-        a.command([str(build_dir / "marionette-controller"), "--robot", "ur10", "--scene", scene,
-                   "--lcm-url", URL, "--speed", "3", "--camera-rate", "0", "--status-rate", "100"]),
-        stdout=log, stderr=subprocess.STDOUT)
+        a.command(
+            [
+                str(build_dir / "marionette-controller"),
+                "--robot",
+                "ur10",
+                "--scene",
+                scene,
+                "--lcm-url",
+                URL,
+                "--speed",
+                "3",
+                "--camera-rate",
+                "0",
+                "--status-rate",
+                "100",
+            ]
+        ),
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     try:
         demo = subprocess.run(
-            b.command([str(Path(sys.executable).parent / "marionette"), "demo", "ur10-box", "--controller-url", URL,
-                       "--out", str(tmp_path / "reports")]),
-            capture_output=True, text=True, timeout=600)
+            b.command(
+                [
+                    str(Path(sys.executable).parent / "marionette"),
+                    "demo",
+                    "ur10-box",
+                    "--controller-url",
+                    URL,
+                    "--out",
+                    str(tmp_path / "reports"),
+                ]
+            ),
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert controller.poll() is None, (tmp_path / "controller.log").read_text()[-3000:]
     finally:
         controller.terminate()

@@ -20,7 +20,9 @@ class Planned:
         self.plan = plan
         self.robot = plan_robot(plan)
         self.model, _ = robots.load_pinocchio(self.robot, with_collision=False)
-        self.robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], self.model, self.robot)
+        self.robot_map = PlanRobotMap(
+            plan.doc["problem"]["configuration_layout"], self.model, self.robot
+        )
         self.steps = steps_from_plan(plan)
         self.ctx = context_from_plan(plan.doc, self.robot, self.model)
         self.specs = build_specs(self.steps, self.ctx)

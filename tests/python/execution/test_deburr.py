@@ -25,9 +25,11 @@ def _pose(attrs: str) -> pin.SE3:
 
 def test_mocap_body_and_keyframe_both_moved():
     # MuJoCo resets mocap bodies to the keyframe's mpos/mquat: both must carry the new pose
-    mjcf = ('<mujoco><worldbody><body name="a" pos="0 0 0" mocap="true"></body>'
-            '<body name="part" pos="1 0 0" quat="1 0 0 0" mocap="true"></body></worldbody>'
-            '<keyframe><key name="k" qpos="0" mpos="0 0 0 1 0 0" mquat="1 0 0 0 1 0 0 0" /></keyframe></mujoco>')
+    mjcf = (
+        '<mujoco><worldbody><body name="a" pos="0 0 0" mocap="true"></body>'
+        '<body name="part" pos="1 0 0" quat="1 0 0 0" mocap="true"></body></worldbody>'
+        '<keyframe><key name="k" qpos="0" mpos="0 0 0 1 0 0" mquat="1 0 0 0 1 0 0 0" /></keyframe></mujoco>'
+    )
     X = pin.SE3(pin.exp3(np.array([0.1, -0.2, 0.3])), np.array([0.9, 0.05, -0.02]))
     out = place_mocap_body(mjcf, "part", X)
     body = re.search(r'<body name="part"([^>]*)>', out).group(1)
@@ -47,12 +49,20 @@ def test_perturbed_scene_moves_the_part_and_the_tool_in_the_hand(tmp_path: Path)
     rng = np.random.default_rng(4)
     T = draw_tool_offset(rng, st)
     assert st.tool_offset_m / 2 <= np.linalg.norm(T.translation) <= st.tool_offset_m + 1e-12
-    assert np.radians(st.tool_offset_deg) / 2 <= np.linalg.norm(pin.log3(T.rotation)) <= np.radians(st.tool_offset_deg) + 1e-12
+    assert (
+        np.radians(st.tool_offset_deg) / 2
+        <= np.linalg.norm(pin.log3(T.rotation))
+        <= np.radians(st.tool_offset_deg) + 1e-12
+    )
     X = pin.SE3(pin.exp3(np.array([0, 0, 3.0])), np.array([0.97, 0.02, 0.01]))
     text = perturbed_scene(X, T, tmp_path / "scene.xml").read_text()
-    assert np.allclose(_pose(re.search(r'<body name="part"([^>]*)>', text).group(1)).homogeneous, X.homogeneous)
+    assert np.allclose(
+        _pose(re.search(r'<body name="part"([^>]*)>', text).group(1)).homogeneous, X.homogeneous
+    )
     # nominal drill body: quat (0.7071, 0, 0.7071, 0) at the origin of its parent
-    nominal = pin.SE3(pin.Quaternion(0.707106781188, 0, 0.707106781185, 0).normalized().matrix(), np.zeros(3))
+    nominal = pin.SE3(
+        pin.Quaternion(0.707106781188, 0, 0.707106781185, 0).normalized().matrix(), np.zeros(3)
+    )
     drill = _pose(re.search(r'<body name="drill_link"([^>]*)>', text).group(1))
     assert np.allclose(drill.homogeneous, (nominal * T).homogeneous, atol=1e-9)
     assert 'meshdir="/' in text
@@ -67,15 +77,19 @@ def test_head_aims_the_optical_axis_at_the_target():
         data = model.createData()
         pin.framesForwardKinematics(model, data, qa)
         p = data.oMf[model.getFrameId(frame)].actInv(np.array(target))
-        assert np.hypot(p[0], p[1]) / p[2] < 1e-5          # on the optical axis, in front
-        assert np.array_equal(np.delete(qa, [12, 13]), np.delete(q, [12, 13]))  # only the head moved
+        assert np.hypot(p[0], p[1]) / p[2] < 1e-5  # on the optical axis, in front
+        assert np.array_equal(
+            np.delete(qa, [12, 13]), np.delete(q, [12, 13])
+        )  # only the head moved
 
 
 def test_axis_offset_closed_form():
-    hole = pin.SE3(pin.exp3(np.array([0.0, np.pi, 0.0])), np.array([0.9, 0.1, 1.0]))   # axis -x
+    hole = pin.SE3(pin.exp3(np.array([0.0, np.pi, 0.0])), np.array([0.9, 0.1, 1.0]))  # axis -x
     a = hole.rotation[:, 0]
     tilt = pin.exp3(np.array([0.0, 0.0, np.radians(0.5)]))
-    tool = pin.SE3(tilt @ hole.rotation, hole.translation - 0.005 * a + np.array([0.0, 0.0, 0.0007]))
+    tool = pin.SE3(
+        tilt @ hole.rotation, hole.translation - 0.005 * a + np.array([0.0, 0.0, 0.0007])
+    )
     d, ang, standoff = axis_offset(tool, hole)
     assert ang == pytest.approx(0.5, abs=1e-9)
     # hole centre 0.7 mm above a line through the tool origin tilted by 0.5 deg in the horizontal plane

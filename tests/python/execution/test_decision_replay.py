@@ -9,15 +9,18 @@ import subprocess
 import sys
 
 import lcm
-
 from marionette import channels, lcmt_controller_status
 from marionette.execution.decision_replay import read_decision_log, replay_supervisor
 
 
 def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     log = ur10_box_run / "run.lcmlog"
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "replay", str(log), "--supervisor"],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "marionette.cli", "replay", str(log), "--supervisor"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "IDENTICAL" in proc.stdout
     recorded, _ = read_decision_log(log)
@@ -25,9 +28,13 @@ def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     steps = len(report["steps"])
     # Independent reference: the report's per-step records, written by the live supervisor.
     events = [d.event for d in recorded]
-    assert events.count("switch_accepted") == events.count("end_check_passed") == steps == 9   # the seed-0 plan
+    assert (
+        events.count("switch_accepted") == events.count("end_check_passed") == steps == 9
+    )  # the seed-0 plan
     accepted = [d for d in recorded if d.event == "switch_accepted"]
-    assert [int(d.inputs["active_controller_id"]) for d in accepted] == [s["controller_id"] for s in report["steps"]]
+    assert [int(d.inputs["active_controller_id"]) for d in accepted] == [
+        s["controller_id"] for s in report["steps"]
+    ]
     assert all(d.utime > 0 for d in accepted)
     ticks = [d.utime for d in recorded]
     assert ticks == sorted(ticks)
@@ -51,5 +58,7 @@ def test_altered_inputs_diverge_at_the_first_changed_decision(ur10_box_run, tmp_
     out.close()
     r = replay_supervisor(dst)
     assert not r.ok
-    assert r.first_divergence.startswith(f"decision {recorded.index(target)} at tick {target.utime} us")
+    assert r.first_divergence.startswith(
+        f"decision {recorded.index(target)} at tick {target.utime} us"
+    )
     assert "recorded end_check_passed" in r.first_divergence

@@ -11,8 +11,8 @@ from __future__ import annotations
 import re
 
 import numpy as np
-import pytest
 import pinocchio as pin
+import pytest
 import yaml
 
 import marionette
@@ -27,15 +27,27 @@ def _se3(xyz, xyzw) -> pin.SE3:
 
 
 def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_env):
-    out, report = run_demo("drill", tmp_path, lcm_env, speed=2, timeout_s=240, args=("--seed", "3", "--view"),
-                           files=("report.md", "hole_errors.png", "run.lcmlog", "logs/viewer.log"))
-    assert report["viewer_url"].startswith("http://")     # --view: the browser view was served
+    out, report = run_demo(
+        "drill",
+        tmp_path,
+        lcm_env,
+        speed=2,
+        timeout_s=240,
+        args=("--seed", "3", "--view"),
+        files=("report.md", "hole_errors.png", "run.lcmlog", "logs/viewer.log"),
+    )
+    assert report["viewer_url"].startswith("http://")  # --view: the browser view was served
 
     # True part pose: the mocap body of the scene the controller ran.
-    body = re.search(r'<body name="part" pos="([^"]+)" quat="([^"]+)" mocap="true">',
-                     (out / "scene.xml").read_text())
+    body = re.search(
+        r'<body name="part" pos="([^"]+)" quat="([^"]+)" mocap="true">',
+        (out / "scene.xml").read_text(),
+    )
     w, x, y, z = (float(v) for v in body.group(2).split())
-    X_WP = pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(body.group(1).split(), dtype=float))
+    X_WP = pin.SE3(
+        pin.Quaternion(w, x, y, z).normalized().matrix(),
+        np.array(body.group(1).split(), dtype=float),
+    )
     part = yaml.safe_load((marionette.MODELS_DIR / "objects" / "part.yaml").read_text())
     holes = {h["name"]: _se3(h["pose"]["xyz"], h["pose"]["xyzw"]) for h in part["handles"]}
     scene = yaml.safe_load((marionette.MODELS_DIR / "scenes" / "ur10_drill.yaml").read_text())
@@ -43,20 +55,32 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_en
     X_WP_nom = _se3(nominal["xyz"], nominal["xyzw"])
     # The perturbation matters: the offline program (nominal part) misses every hole by far more
     # than the tolerance.
-    assert min(np.linalg.norm((X_WP * H).translation - (X_WP_nom * H).translation)
-               for H in holes.values()) > 0.005
+    assert (
+        min(
+            np.linalg.norm((X_WP * H).translation - (X_WP_nom * H).translation)
+            for H in holes.values()
+        )
+        > 0.005
+    )
 
-    gripper = next(g for g in yaml.safe_load((marionette.MODELS_DIR / "ur10" / "grippers.yaml").read_text())
-                   ["grippers"] if g["name"] == "ur10/drill")
+    gripper = next(
+        g
+        for g in yaml.safe_load((marionette.MODELS_DIR / "ur10" / "grippers.yaml").read_text())[
+            "grippers"
+        ]
+        if g["name"] == "ur10/drill"
+    )
     X_link_tool = _se3(gripper["pose"]["xyz"], gripper["pose"]["xyzw"])
     model, _ = robots.load_pinocchio("ur10", with_collision=False)
     data = model.createData()
     link = model.getFrameId(gripper["link"])
     states = robot_states_at(out / "run.lcmlog", {h["utime"] for h in report["holes"]})
     standoff = report["settings"]["standoff_m"]
-    assert {h["hole"] for h in report["holes"]} == set(holes)     # every hole visited
+    assert {h["hole"] for h in report["holes"]} == set(holes)  # every hole visited
     for row in report["holes"]:
-        pin.framesForwardKinematics(model, data, configuration_from_state(model, states[row["utime"]]))
+        pin.framesForwardKinematics(
+            model, data, configuration_from_state(model, states[row["utime"]])
+        )
         X_tool = data.oMf[link] * X_link_tool
         X_hole = X_WP * holes[row["hole"]]
         axis = X_hole.rotation[:, 0]
@@ -76,5 +100,11 @@ def test_drill_without_camera_detects_that_the_sensor_cannot_see_r1(tmp_path, bu
 
     st = DrillSettings(camera=False)
     with pytest.raises(DemoError, match=r"part/R1: the tool sensor does not see the hole"):
-        run_drill(Scenario("drill", "", SCENE, 0, "part", 0.0), 3, tmp_path, speed=2.0, log=lambda m: None,
-                  settings=st)
+        run_drill(
+            Scenario("drill", "", SCENE, 0, "part", 0.0),
+            3,
+            tmp_path,
+            speed=2.0,
+            log=lambda m: None,
+            settings=st,
+        )

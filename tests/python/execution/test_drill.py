@@ -12,12 +12,20 @@ import pinocchio as pin
 import pytest
 
 from marionette.execution.demo import DemoError, Scenario
-from marionette.execution.drill import (SCENE, DrillSettings, HoleSensor, displaced_scene, draw_displacement,
-                                        part_pose_from_references, run_drill, scene_camera)
+from marionette.execution.drill import (
+    PART_YAML,
+    SCENE,
+    DrillSettings,
+    HoleSensor,
+    displaced_scene,
+    draw_displacement,
+    part_pose_from_references,
+    run_drill,
+    scene_camera,
+)
 from marionette.execution.tool_task import axis_angle_deg, tool_target
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.objects import load_tagged_bodies
-from marionette.execution.drill import PART_YAML
 
 
 def test_part_pose_from_two_holes_and_axis_is_exact_on_exact_data():
@@ -36,8 +44,9 @@ def test_part_pose_from_two_holes_and_axis_is_exact_on_exact_data():
 def test_part_pose_refuses_references_on_one_axis():
     p1 = np.zeros(3)
     with pytest.raises(ValueError, match="one hole axis"):
-        part_pose_from_references(p1, p1 + [0.1, 0, 0], np.array([1.0, 0, 0]), p1, p1 + [0.1, 0, 0],
-                                  np.array([1.0, 0, 0]))
+        part_pose_from_references(
+            p1, p1 + [0.1, 0, 0], np.array([1.0, 0, 0]), p1, p1 + [0.1, 0, 0], np.array([1.0, 0, 0])
+        )
 
 
 def test_displacement_within_issue10_bounds_at_the_pattern_centre():
@@ -49,8 +58,12 @@ def test_displacement_within_issue10_bounds_at_the_pattern_centre():
         moved = np.linalg.norm(D * c - c)
         assert 5.0 - 1e-9 <= angle <= 10.0 + 1e-9
         assert 0.025 - 1e-9 <= moved <= 0.05 + 1e-9
-    assert not np.allclose(draw_displacement(1, st, c).homogeneous, draw_displacement(2, st, c).homogeneous)
-    assert np.allclose(draw_displacement(3, st, c).homogeneous, draw_displacement(3, st, c).homogeneous)
+    assert not np.allclose(
+        draw_displacement(1, st, c).homogeneous, draw_displacement(2, st, c).homogeneous
+    )
+    assert np.allclose(
+        draw_displacement(3, st, c).homogeneous, draw_displacement(3, st, c).homogeneous
+    )
 
 
 def test_tool_target_axis_standoff_and_smallest_rotation():
@@ -73,7 +86,7 @@ def test_tool_target_axis_standoff_and_smallest_rotation():
 def test_scene_camera_sees_all_part_tags():
     X_WC, fovy = scene_camera()
     K = CameraIntrinsics.from_fovy(640, 480, fovy)
-    X_WP = pin.SE3(pin.exp3(np.array([0, 0, np.pi])), np.array([1.05, 0.0, 0.0]))   # ur10_drill.yaml
+    X_WP = pin.SE3(pin.exp3(np.array([0, 0, np.pi])), np.array([1.05, 0.0, 0.0]))  # ur10_drill.yaml
     body = load_tagged_bodies([PART_YAML])[0]
     for t in body.tags:
         p_C = X_WC.actInv(X_WP * t.X_BT).translation
@@ -106,7 +119,9 @@ def test_hole_sensor_range_and_noise():
     # averaged readings: std sigma / sqrt(samples) per axis, unbiased
     n = st.sensor_samples
     assert np.allclose(errs[:, :3].std(axis=0), st.sensor_noise_m / np.sqrt(n), rtol=0.2)
-    assert np.allclose(errs[:, 3:].std(axis=0), np.radians(st.sensor_noise_deg) / np.sqrt(n), rtol=0.2)
+    assert np.allclose(
+        errs[:, 3:].std(axis=0), np.radians(st.sensor_noise_deg) / np.sqrt(n), rtol=0.2
+    )
     assert np.all(np.abs(errs.mean(axis=0)) < 4 * errs.std(axis=0) / np.sqrt(400))
 
 

@@ -7,7 +7,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from marionette.execution.estimation import estimate_state, first_step_to_run, measured_configuration
+from marionette.execution.estimation import (
+    estimate_state,
+    first_step_to_run,
+    measured_configuration,
+)
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.problem import load_problem
 
@@ -32,7 +36,7 @@ def test_perturbed_start_of_each_step_is_recognised_and_resumed(ur10_box, ur10_g
         estimate = estimate_state(ur10_graph, _perturbed(p, step.q[0], rng))
         expected = {step.start_state}
         if step.kind == "release" or step.transition.endswith("_23"):
-            expected |= {"free", "ur10/gripper grasps box/top"}   # box grasped on the table: both
+            expected |= {"free", "ur10/gripper grasps box/top"}  # box grasped on the table: both
         assert estimate.state in expected, step.transition
         assert estimate.residual < 0.05
         assert first_step_to_run(p.steps, p.robot_map, estimate) == step.index, step.transition
@@ -40,7 +44,9 @@ def test_perturbed_start_of_each_step_is_recognised_and_resumed(ur10_box, ur10_g
 
 def test_box_already_at_the_goal_means_nothing_left_to_do(ur10_box, ur10_graph):
     p = ur10_box
-    estimate = estimate_state(ur10_graph, _perturbed(p, p.steps[-1].q[-1], np.random.default_rng(1)))
+    estimate = estimate_state(
+        ur10_graph, _perturbed(p, p.steps[-1].q[-1], np.random.default_rng(1))
+    )
     assert estimate.state == "free"
     assert first_step_to_run(p.steps, p.robot_map, estimate) == len(p.steps)
 
@@ -48,8 +54,8 @@ def test_box_already_at_the_goal_means_nothing_left_to_do(ur10_box, ur10_graph):
 def test_box_in_the_gripper_is_the_grasp_state(ur10_box, ur10_graph):
     p = ur10_box
     carry = next(s for s in p.steps if s.transition.endswith("_34"))
-    q = carry.q[len(carry.q) // 2]                      # mid-transfer, box in the air
+    q = carry.q[len(carry.q) // 2]  # mid-transfer, box in the air
     estimate = estimate_state(ur10_graph, _perturbed(p, q, np.random.default_rng(2)))
     assert estimate.state == "ur10/gripper grasps box/top"
     ranking = dict(estimate.ranking)
-    assert ranking["free"] is None or ranking["free"] > 2 * estimate.residual   # box 5 cm up
+    assert ranking["free"] is None or ranking["free"] > 2 * estimate.residual  # box 5 cm up

@@ -29,12 +29,18 @@ FIG_3_13 = {
     "talos/right_gripper > plank/H1 | f_23": {("right_gripper", "se3", "")},
     "talos/right_gripper > plank/H1 | f_34": {("right_gripper", "se3", "")},
     "Loop | 1-0": {("right_gripper", "se3", "")},
-    "talos/left_gripper > plank/H4 | 1-0_01": {("right_gripper", "se3", ""),
-                                               ("left_gripper", "relative_se3", RIGHT)},
-    "talos/left_gripper > plank/H4 | 1-0_12": {("right_gripper", "se3", ""),
-                                               ("left_gripper", "relative_se3", RIGHT)},
-    "talos/right_gripper < plank/H1 | 0-3:1-0_21": {("left_gripper", "se3", ""),
-                                                   ("right_gripper", "relative_se3", LEFT)},
+    "talos/left_gripper > plank/H4 | 1-0_01": {
+        ("right_gripper", "se3", ""),
+        ("left_gripper", "relative_se3", RIGHT),
+    },
+    "talos/left_gripper > plank/H4 | 1-0_12": {
+        ("right_gripper", "se3", ""),
+        ("left_gripper", "relative_se3", RIGHT),
+    },
+    "talos/right_gripper < plank/H1 | 0-3:1-0_21": {
+        ("left_gripper", "se3", ""),
+        ("right_gripper", "relative_se3", LEFT),
+    },
     "talos/right_gripper < plank/H1 | 0-3:1-0_10": {("left_gripper", "se3", "")},
     "talos/left_gripper < plank/H4 | 0-3_43": {("left_gripper", "se3", "")},
     "talos/left_gripper < plank/H4 | 0-3_32": {("left_gripper", "se3", "")},
@@ -48,10 +54,12 @@ def test_talos_plank_controllers_are_those_of_fig_3_13(talos_plank):
     for step, spec in zip(talos_plank.steps, talos_plank.specs):
         assert step.transition in FIG_3_13, f"unexpected transition {step.transition}"
         tasks = {(t.name, t.kind, t.frame_b) for t in spec.tasks}
-        assert tasks == BALANCE | FIG_3_13[step.transition] | {("posture", "posture", "")}, step.transition
+        assert tasks == BALANCE | FIG_3_13[step.transition] | {("posture", "posture", "")}, (
+            step.transition
+        )
         levels = {t.name: t.priority for t in spec.tasks}
-        assert {levels[n] for n, _, _ in BALANCE} == {0}                    # balance first
-        assert levels["posture"] == max(levels.values())                    # posture last
+        assert {levels[n] for n, _, _ in BALANCE} == {0}  # balance first
+        assert levels["posture"] == max(levels.values())  # posture last
         grippers = [levels[n] for n, _, _ in FIG_3_13[step.transition]]
         assert all(p == 1 for p in grippers)
         seen.add(step.transition)
@@ -82,20 +90,26 @@ def test_references_at_step_ends_equal_the_plan_by_pinocchio(which, request):
         compute_references(traj, spec, p.model)
         for k, q_plan in ((0, step.q[0]), (-1, step.q[-1])):
             pin.framesForwardKinematics(pm, pd, q_plan)
-            for task in (t for t in spec.tasks if t.streamed):   # feet: held, not streamed
+            for task in (t for t in spec.tasks if t.streamed):  # feet: held, not streamed
                 values, _ = traj.references[task.name]
                 if task.kind == "se3":
                     X = pd.oMf[pm.getFrameId(f"{p.robot}/{task.frame}")]
-                    expected = np.array([*X.translation, *pin.Quaternion(X.rotation).coeffs()[[3, 0, 1, 2]]])
+                    expected = np.array(
+                        [*X.translation, *pin.Quaternion(X.rotation).coeffs()[[3, 0, 1, 2]]]
+                    )
                 elif task.kind == "relative_se3":
                     Xa = pd.oMf[pm.getFrameId(f"{p.robot}/{task.frame}")]
                     Xb = pd.oMf[pm.getFrameId(f"{p.robot}/{task.frame_b}")]
                     X = Xb.actInv(Xa)
-                    expected = np.array([*X.translation, *pin.Quaternion(X.rotation).coeffs()[[3, 0, 1, 2]]])
+                    expected = np.array(
+                        [*X.translation, *pin.Quaternion(X.rotation).coeffs()[[3, 0, 1, 2]]]
+                    )
                 elif task.kind == "com":
                     # Mass-weighted body centres of the robot's joints (the plank is in this
                     # model too): sum m_i X_Wi c_i / sum m_i.
-                    robot_joints = [j for j in range(1, pm.njoints) if pm.names[j].startswith(f"{p.robot}/")]
+                    robot_joints = [
+                        j for j in range(1, pm.njoints) if pm.names[j].startswith(f"{p.robot}/")
+                    ]
                     masses = np.array([pm.inertias[j].mass for j in robot_joints])
                     centres = np.array([pd.oMi[j].act(pm.inertias[j].lever) for j in robot_joints])
                     expected = masses @ centres / masses.sum()
@@ -103,8 +117,10 @@ def test_references_at_step_ends_equal_the_plan_by_pinocchio(which, request):
                     expected = q_plan[p.robot_map.idx]
                 got = values[k]
                 if len(got) == 7 and np.dot(got[3:], expected[3:]) < 0:
-                    expected[3:] *= -1   # q and -q are one rotation
-                np.testing.assert_allclose(got, expected, atol=1e-9, err_msg=f"{step.transition} {task.name}")
+                    expected[3:] *= -1  # q and -q are one rotation
+                np.testing.assert_allclose(
+                    got, expected, atol=1e-9, err_msg=f"{step.transition} {task.name}"
+                )
 
 
 def test_time_law_keeps_joints_under_the_limit_and_rests_at_both_ends(ur10_box):
@@ -150,8 +166,10 @@ def test_a_dwell_holds_the_last_sample_at_rest(ur10_box):
 def test_se3_feedforward_is_the_derivative_of_the_pose(ur10_box):
     """(v, ω) in world axes against a finite difference of the streamed poses."""
     p = ur10_box
-    step = max((s for s, sp in zip(p.steps, p.specs) if any(t.kind == "se3" for t in sp.tasks)),
-               key=lambda s: len(s.q))
+    step = max(
+        (s for s, sp in zip(p.steps, p.specs) if any(t.kind == "se3" for t in sp.tasks)),
+        key=lambda s: len(s.q),
+    )
     spec = p.specs[step.index]
     traj = sample_step(step, p.robot_map, max_joint_velocity=1.0)
     compute_references(traj, spec, p.model)
@@ -161,7 +179,9 @@ def test_se3_feedforward_is_the_derivative_of_the_pose(ur10_box):
     X0 = pin.XYZQUATToSE3(np.r_[values[k, :3], values[k, 4:], values[k, 3]])
     X1 = pin.XYZQUATToSE3(np.r_[values[k + 1, :3], values[k + 1, 4:], values[k + 1, 3]])
     omega_world = X0.rotation @ pin.log3(X0.rotation.T @ X1.rotation) / traj.dt
-    np.testing.assert_allclose(derivatives[k, :3], (X1.translation - X0.translation) / traj.dt, atol=2e-3)
+    np.testing.assert_allclose(
+        derivatives[k, :3], (X1.translation - X0.translation) / traj.dt, atol=2e-3
+    )
     np.testing.assert_allclose(derivatives[k, 3:], omega_world, atol=2e-3)
 
 
@@ -171,9 +191,9 @@ def test_checks_report_unknown_frames_rank_loss_and_dead_ends(ur10_box):
     steps = copy.deepcopy(p.steps)
     specs[1].tasks.append(TaskSpec("nowhere", "se3", 0, frame="no_such_link"))
     g = next(t for t in specs[2].tasks if t.kind == "se3")
-    specs[2].tasks.append(TaskSpec("twice", "se3", g.priority, frame=g.frame))   # 12 rows, rank 6
+    specs[2].tasks.append(TaskSpec("twice", "se3", g.priority, frame=g.frame))  # 12 rows, rank 6
     steps[4].q = steps[4].q.copy()
-    steps[4].q[:, p.robot_map.idx[0]] += 0.3                                      # a gap of 0.3 rad
+    steps[4].q[:, p.robot_map.idx[0]] += 0.3  # a gap of 0.3 rad
     problems = check_specs(steps, specs, p.ctx, p.robot_map)
     assert any("unknown frame 'no_such_link'" in m and m.startswith("step 1") for m in problems)
     assert any("loses rank" in m and m.startswith("step 2") for m in problems)

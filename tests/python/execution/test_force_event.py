@@ -13,7 +13,7 @@ import threading
 import numpy as np
 import pytest
 
-from marionette import channels, lcmt_robot_state, lcmt_supervisor_event
+from marionette import channels, lcmt_robot_state
 from marionette.execution.force_event import ForceEventDetector, ForceEventNode
 from marionette.execution.supervisor import Supervisor, SupervisorOptions
 from tests_support import controller_running
@@ -35,18 +35,20 @@ def test_filter_is_exact_and_fires_at_the_closed_form_crossing():
     # crosses 4 N at t* = -ln(1 - 4/5) / (2π 5) = 51.2 ms.
     det = ForceEventDetector("gripper_right_joint", threshold=4.0)
     rng = np.random.default_rng(3)
-    assert det.feed(_state(1_000_000, 0.0)) is None            # primes at 0 N
+    assert det.feed(_state(1_000_000, 0.0)) is None  # primes at 0 N
     t_star = -math.log(1.0 - 4.0 / 5.0) / (2.0 * math.pi * 5.0)
     t_us, fired_at = 0, None
     while t_us < 200_000:
-        t_us += int(rng.integers(500, 3000))                    # irregular state period 0.5-3 ms
+        t_us += int(rng.integers(500, 3000))  # irregular state period 0.5-3 ms
         value = det.feed(_state(1_000_000 + t_us, -0.5))
-        assert det.filtered == pytest.approx(5.0 * (1.0 - math.exp(-2.0 * math.pi * 5.0 * t_us * 1e-6)), abs=1e-9)
+        assert det.filtered == pytest.approx(
+            5.0 * (1.0 - math.exp(-2.0 * math.pi * 5.0 * t_us * 1e-6)), abs=1e-9
+        )
         if value is not None:
             assert fired_at is None, "fires once"
             fired_at = t_us
     assert fired_at is not None
-    assert t_star * 1e6 <= fired_at < t_star * 1e6 + 3000       # the first sample past t*
+    assert t_star * 1e6 <= fired_at < t_star * 1e6 + 3000  # the first sample past t*
 
 
 def test_detector_rejects_bad_input_with_the_reason():
@@ -56,8 +58,18 @@ def test_detector_rejects_bad_input_with_the_reason():
         ForceEventDetector("nope", 4.0).feed(_state(0, 0.0))
 
 
-KINEMATIC = ("--robot", "ur10", "--backend", "kinematic", "--speed", "4", "--camera-rate", "0",
-             "--status-rate", "100")
+KINEMATIC = (
+    "--robot",
+    "ur10",
+    "--backend",
+    "kinematic",
+    "--speed",
+    "4",
+    "--camera-rate",
+    "0",
+    "--status-rate",
+    "100",
+)
 
 
 def _run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, at_fraction: float):
@@ -71,10 +83,18 @@ def _run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, at_fraction: float
         first = ur10_box.steps[0]
         steps, specs = [first], [ur10_box.specs[first.index]]
         # 0.5 rad/s: the first step lasts longer than the supervisor's 4 s look-ahead.
-        sup = Supervisor(c, steps, specs, ur10_box.robot_map,
-                         SupervisorOptions(simulated_grasps=False, max_joint_velocity=0.5), "ur10_box")
-        node = ForceEventNode(c.bus, ForceEventDetector("shoulder_lift_joint", threshold=4.0, lever_arm=1.0))
-        c.bus.lcm.unsubscribe(node._subscription)     # the node reads the states through `contact`
+        sup = Supervisor(
+            c,
+            steps,
+            specs,
+            ur10_box.robot_map,
+            SupervisorOptions(simulated_grasps=False, max_joint_velocity=0.5),
+            "ur10_box",
+        )
+        node = ForceEventNode(
+            c.bus, ForceEventDetector("shoulder_lift_joint", threshold=4.0, lever_arm=1.0)
+        )
+        c.bus.lcm.unsubscribe(node._subscription)  # the node reads the states through `contact`
         start = {}
 
         def contact(state):
@@ -111,11 +131,15 @@ def _check_cut(result, node):
     assert record.utime_end > record.utime_reference_end
 
 
-def test_force_event_cuts_the_reference_at_its_tick_and_the_fsm_goes_on(build_dir, lcm_url, tmp_path, ur10_box):
+def test_force_event_cuts_the_reference_at_its_tick_and_the_fsm_goes_on(
+    build_dir, lcm_url, tmp_path, ur10_box
+):
     """Event at 40 % of a step: its reference is still being streamed."""
     _check_cut(*_run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, 0.4))
 
 
-def test_force_event_in_the_last_lookahead_window_cuts_the_reference(build_dir, lcm_url, tmp_path, ur10_box):
+def test_force_event_in_the_last_lookahead_window_cuts_the_reference(
+    build_dir, lcm_url, tmp_path, ur10_box
+):
     """Event at 90 % of the step: everything was already streamed; it must still cut."""
     _check_cut(*_run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, 0.9))

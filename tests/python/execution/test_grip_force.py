@@ -12,8 +12,13 @@ import pinocchio as pin
 import pytest
 
 from marionette import lcmt_robot_state, robots
-from marionette.execution.grip_force import (GripperGeometry, GripForceRecorder, grip_forces,
-                                             holding_windows, settled_windows)
+from marionette.execution.grip_force import (
+    GripForceRecorder,
+    GripperGeometry,
+    grip_forces,
+    holding_windows,
+    settled_windows,
+)
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +36,7 @@ def talos():
 def _state(model, q, wrenches: dict[str, np.ndarray], efforts: dict[str, float], utime=0):
     msg = lcmt_robot_state()
     msg.utime = utime
-    first = 2 if model.joints[1].nq == 7 else 1   # after a free-flyer root
+    first = 2 if model.joints[1].nq == 7 else 1  # after a free-flyer root
     names = [model.names[j] for j in range(first, model.njoints)]
     msg.num_joints = len(names)
     msg.joint_name = names
@@ -52,8 +57,9 @@ def _state(model, q, wrenches: dict[str, np.ndarray], efforts: dict[str, float],
 
 def _random_q(model, seed):
     np.random.seed(seed)
-    return pin.randomConfiguration(model, np.maximum(model.lowerPositionLimit, -3),
-                                   np.minimum(model.upperPositionLimit, 3))
+    return pin.randomConfiguration(
+        model, np.maximum(model.lowerPositionLimit, -3), np.minimum(model.upperPositionLimit, 3)
+    )
 
 
 def test_parallel_gripper_reads_the_squeeze_and_half_the_motor_force(ur10):
@@ -67,12 +73,14 @@ def test_parallel_gripper_reads_the_squeeze_and_half_the_motor_force(ur10):
     F = 5.2
     # The box pushes the left finger along +y of gripper_link and the right one along -y, plus
     # friction along the fingers (z) that must not count.
-    w = {"finger_left_link": np.r_[R @ [0.0, F, 1.5], 0, 0, 0],
-         "finger_right_link": np.r_[R @ [0.0, -F, 1.5], 0, 0, 0]}
+    w = {
+        "finger_left_link": np.r_[R @ [0.0, F, 1.5], 0, 0, 0],
+        "finger_right_link": np.r_[R @ [0.0, -F, 1.5], 0, 0, 0],
+    }
     est, grip, diff = grip_forces(_state(ur10, q, w, {"finger_joint": 2 * F}), ur10, data, g)
     assert grip == pytest.approx(F, abs=1e-9)
     assert diff == pytest.approx(0.0, abs=1e-9)
-    assert est == pytest.approx(F)   # a squeezing motor (+q closes) pushes with 2F
+    assert est == pytest.approx(F)  # a squeezing motor (+q closes) pushes with 2F
 
 
 def test_talos_jaws_read_their_squeeze(talos):
@@ -86,7 +94,7 @@ def test_talos_jaws_read_their_squeeze(talos):
     w[g.plus_jaw[1]][:3] = R @ [0.3, 0.4 * F, 0.0]
     w[g.plus_jaw[2]][:3] = R @ [0.0, 0.6 * F, 0.0]
     w[g.minus_jaw[1]][:3] = R @ [-0.3, -F, 0.0]
-    tau = -0.4   # closing direction -1: a squeezing motor pushes towards negative q
+    tau = -0.4  # closing direction -1: a squeezing motor pushes towards negative q
     est, grip, diff = grip_forces(_state(talos, q, w, {g.joint: tau}), talos, data, g)
     assert grip == pytest.approx(F, abs=1e-9)
     assert diff == pytest.approx(0.0, abs=1e-9)
@@ -95,15 +103,21 @@ def test_talos_jaws_read_their_squeeze(talos):
 
 def test_without_jaw_wrenches_the_contact_is_unknown(ur10):
     g = GripperGeometry.of("finger_joint", {}, closing_direction=1.0)
-    est, grip, _ = grip_forces(_state(ur10, pin.neutral(ur10), {}, {g.joint: 0.0}), ur10, ur10.createData(), g)
+    est, grip, _ = grip_forces(
+        _state(ur10, pin.neutral(ur10), {}, {g.joint: 0.0}), ur10, ur10.createData(), g
+    )
     assert est == 0.0 and np.isnan(grip)
 
 
 def test_holding_windows_run_from_the_first_holding_step_to_the_release():
-    steps = [SimpleNamespace(index=i, grasps=grasps) for i, grasps in
-             enumerate([{}, {"g": "h"}, {"g": "h"}, {}, {"g": "h"}])]
-    records = [SimpleNamespace(index=i, utime_start=int(1e6 * (i + 1)), utime_end=int(1e6 * (i + 1.9)))
-               for i in range(5)]
+    steps = [
+        SimpleNamespace(index=i, grasps=grasps)
+        for i, grasps in enumerate([{}, {"g": "h"}, {"g": "h"}, {}, {"g": "h"}])
+    ]
+    records = [
+        SimpleNamespace(index=i, utime_start=int(1e6 * (i + 1)), utime_end=int(1e6 * (i + 1.9)))
+        for i in range(5)
+    ]
     assert np.allclose(holding_windows(steps, records, "g"), [(2.0, 4.0), (5.0, 5.9)])
     assert holding_windows(steps, records, "other") == []
 

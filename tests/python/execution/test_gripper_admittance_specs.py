@@ -13,12 +13,14 @@ from marionette.execution.factory import ADMITTANCE, build_specs, context_from_p
 
 @pytest.fixture(scope="module")
 def talos_admittance(talos_plank):
-    ctx = context_from_plan(talos_plank.plan.doc, talos_plank.robot, talos_plank.model, gripper_admittance=True)
+    ctx = context_from_plan(
+        talos_plank.plan.doc, talos_plank.robot, talos_plank.model, gripper_admittance=True
+    )
     return ctx, build_specs(talos_plank.steps, ctx)
 
 
 def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
-    ctx, specs = talos_admittance
+    _ctx, specs = talos_admittance
     joints = {g.name: g for g in robots.semantics("talos").grippers}
     seen_hold = seen_release = 0
     for step, spec in zip(talos_plank.steps, specs):
@@ -31,7 +33,7 @@ def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
             releasing = joint in expected_release
             assert t.reference == [g.open_position if releasing else g.closed_position]
             assert t.parameters["release"] == float(releasing)
-            assert t.parameters["closing_direction"] == -1.0       # closed -1.0 < open -0.02
+            assert t.parameters["closing_direction"] == -1.0  # closed -1.0 < open -0.02
             assert t.parameters["force_target"] == ADMITTANCE["force_target"] == 5.0
             assert t.parameters["force_threshold"] < t.parameters["force_target"]
             seen_hold += not releasing
@@ -40,8 +42,11 @@ def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
         (posture,) = [t for t in spec.tasks if t.kind == "posture"]
         if tasks:
             assert not set(posture.joints) & set(tasks)
-            one_dof = [talos_plank.model.names[j] for j in range(1, talos_plank.model.njoints)
-                       if talos_plank.model.joints[j].nv == 1]
+            one_dof = [
+                talos_plank.model.names[j]
+                for j in range(1, talos_plank.model.njoints)
+                if talos_plank.model.joints[j].nv == 1
+            ]
             assert set(posture.joints) | set(tasks) == set(one_dof)
         else:
             assert not posture.joints
@@ -61,7 +66,13 @@ def test_admittance_spec_round_trips_through_lcm(talos_admittance):
 
 
 def test_bad_admittance_specs_are_refused_with_the_reason():
-    ok = dict(name="g", kind="gripper_admittance", priority=0, reference=[-1.0], joints=["gripper_left_joint"])
+    ok = dict(
+        name="g",
+        kind="gripper_admittance",
+        priority=0,
+        reference=[-1.0],
+        joints=["gripper_left_joint"],
+    )
     TaskSpec(**ok).check()
     with pytest.raises(SpecError, match="unknown parameters \\['force'\\]"):
         TaskSpec(**ok, parameters={"force": 5.0}).check()

@@ -8,7 +8,6 @@ broken and the box moved away, the supervisor fails with left_manifold and the r
 from __future__ import annotations
 
 import dataclasses
-
 import threading
 
 import numpy as np
@@ -42,7 +41,7 @@ def test_residual_is_the_relative_motion():
     X = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.4, -0.1, 0.8]))
     offset = pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, 0.05), np.array([0.03, 0.0, -0.04]))
     position, angle = residual_of(X, X * offset)
-    assert position == pytest.approx(0.05, abs=1e-12)      # 3-4-5
+    assert position == pytest.approx(0.05, abs=1e-12)  # 3-4-5
     assert angle == pytest.approx(0.05, abs=1e-12)
 
 
@@ -50,11 +49,14 @@ def test_planned_carry_stays_on_the_grasp_manifold(ur10_box):
     monitor = ExecutionMonitor(ur10_box.model, ur10_box.ctx)
     step = _held_step(ur10_box)
     monitor.begin_step(step)
-    (gripper, handle), = step.grasps.items()
+    ((_gripper, handle),) = step.grasps.items()
     obj = ur10_box.ctx.handle_objects[handle]
     for k in range(0, len(step.q), max(1, len(step.q) // 50)):
         monitor.on_configuration(ur10_box.robot_map.robot_q(step.q[k]))
-        assert monitor.on_object_poses(_poses({obj: ur10_box.robot_map.object_pose(step.q[k], obj)})) is None
+        assert (
+            monitor.on_object_poses(_poses({obj: ur10_box.robot_map.object_pose(step.q[k], obj)}))
+            is None
+        )
     position, angle = monitor.max_residual[obj]
     assert position < 1e-4 and angle < 1e-4, (position, angle)
 
@@ -64,20 +66,20 @@ def test_box_slid_in_the_cup_fires_after_consecutive_messages(ur10_box):
     monitor = ExecutionMonitor(ur10_box.model, ur10_box.ctx, options)
     step = _held_step(ur10_box)
     monitor.begin_step(step)
-    (gripper, handle), = step.grasps.items()
+    ((gripper, handle),) = step.grasps.items()
     obj = ur10_box.ctx.handle_objects[handle]
     frame = ur10_box.model.getFrameId(ur10_box.ctx.gripper_frames[gripper])
     data = ur10_box.model.createData()
-    slip = pin.SE3(np.eye(3), np.array([0.0, 0.03, 0.0]))      # 3 cm in the gripper frame
+    slip = pin.SE3(np.eye(3), np.array([0.0, 0.03, 0.0]))  # 3 cm in the gripper frame
     fired = []
     for k in range(6):
         q_plan = step.q[min(k * 5, len(step.q) - 1)]
         q = ur10_box.robot_map.robot_q(q_plan)
         monitor.on_configuration(q)
         X_WO = ur10_box.robot_map.object_pose(q_plan, obj)
-        if k == 1:      # one outlier, then back: not a failure
+        if k == 1:  # one outlier, then back: not a failure
             X_WO = X_WO * pin.SE3(np.eye(3), np.array([0.05, 0.0, 0.0]))
-        if k >= 3:      # slid: X_WO = X_WG slip X_GO
+        if k >= 3:  # slid: X_WO = X_WG slip X_GO
             pin.framesForwardKinematics(ur10_box.model, data, q)
             X_WG = data.oMf[frame]
             X_WO = X_WG * slip * X_WG.actInv(X_WO)
@@ -97,13 +99,14 @@ def test_placed_object_moved_fires_on_placement(ur10_box):
     # release) without its transition's grasps, as a `Loop | f` step has none (this plan has no
     # such step).
     last = ur10_box.steps[-1]
-    step = dataclasses.replace(last, grasps={}, grasps_from={}, grasps_to={}, parent_grasps_from={},
-                               parent_grasps_to={})
+    step = dataclasses.replace(
+        last, grasps={}, grasps_from={}, grasps_to={}, parent_grasps_from={}, parent_grasps_to={}
+    )
     monitor.begin_step(step)
     monitor.on_configuration(ur10_box.robot_map.robot_q(step.q[0]))
     X = ur10_box.robot_map.object_pose(step.q[0], "box")
     assert monitor.on_object_poses(_poses({"box": X})) is None
-    pushed = pin.SE3(X.rotation, X.translation + np.array([0.0, 0.0, 0.01]))   # 1 cm: tolerated
+    pushed = pin.SE3(X.rotation, X.translation + np.array([0.0, 0.0, 0.01]))  # 1 cm: tolerated
     assert monitor.on_object_poses(_poses({"box": pushed})) is None
     fallen = pin.SE3(X.rotation @ pin.rpy.rpyToMatrix(0.3, 0.0, 0.0), X.translation)
     assert monitor.on_object_poses(_poses({"box": fallen})) is None
@@ -112,16 +115,27 @@ def test_placed_object_moved_fires_on_placement(ur10_box):
     assert residual.angle == pytest.approx(0.3, abs=1e-9)
 
 
-MUJOCO = ("--robot", "ur10", "--backend", "mujoco", "--speed", "3", "--camera-rate", "0",
-          "--status-rate", "100")
+MUJOCO = (
+    "--robot",
+    "ur10",
+    "--backend",
+    "mujoco",
+    "--speed",
+    "3",
+    "--camera-rate",
+    "0",
+    "--status-rate",
+    "100",
+)
 
 
 @pytest.fixture
 def ur10_box_mujoco(build_dir, lcm_url, tmp_path):
     from marionette.execution.demo import SCENARIOS
 
-    with controller_running(build_dir, lcm_url, tmp_path / "logs", *MUJOCO, "--scene",
-                            str(SCENARIOS["ur10-box"].scene)) as client:
+    with controller_running(
+        build_dir, lcm_url, tmp_path / "logs", *MUJOCO, "--scene", str(SCENARIOS["ur10-box"].scene)
+    ) as client:
         yield client
 
 
@@ -135,30 +149,40 @@ def test_box_pulled_out_of_the_gripper_fails_the_step_and_holds(ur10_box_mujoco,
         c.move_object(name, ur10_box.robot_map.object_pose(q0, name))
     c.wait_time(0.3)
 
-    def relay(msg):   # perception stand-in: the simulator's poses as a motion-capture system
+    def relay(msg):  # perception stand-in: the simulator's poses as a motion-capture system
         msg.camera_name = "motion_capture"
         c.bus.publish(channels.OBJECT_POSES, msg)
 
     c.bus.subscribe(channels.SIM_OBJECT_POSES, lcmt_object_poses, relay)
     node = MonitorNode(c.bus, ExecutionMonitor(ur10_box.model, ur10_box.ctx), ur10_box.steps)
-    sup = Supervisor(c, ur10_box.steps, ur10_box.specs, ur10_box.robot_map,
-                     SupervisorOptions(max_joint_velocity=1.0), "ur10_box")
+    sup = Supervisor(
+        c,
+        ur10_box.steps,
+        ur10_box.specs,
+        ur10_box.robot_map,
+        SupervisorOptions(max_joint_velocity=1.0),
+        "ur10_box",
+    )
     out = {}
     runner = threading.Thread(target=lambda: out.setdefault("result", sup.run()))
     runner.start()
     held = _held_step(ur10_box)
-    c.wait(lambda c: sup.step_index == held.index and sup.status == "running", 120.0, "the carry step")
+    c.wait(
+        lambda c: sup.step_index == held.index and sup.status == "running", 120.0, "the carry step"
+    )
     c.wait_time(0.3)
     assert not node.events, f"false alarm before the perturbation: {node.events}"
     before = dict(node.monitor.max_residual)
-    (gripper, handle), = held.grasps.items()
+    ((gripper, handle),) = held.grasps.items()
     obj = ur10_box.ctx.handle_objects[handle]
     c.detach(f"grasp/{gripper}/{obj}")
     c.move_object(obj, ur10_box.robot_map.object_pose(q0, obj))
     runner.join(timeout=120.0)
     result = out["result"]
     assert result.state == "failed" and result.reason.startswith("left_manifold"), result.reason
-    assert obj in result.reason and "mm" in result.reason        # the residual is reported
+    assert obj in result.reason and "mm" in result.reason  # the residual is reported
     assert node.events and node.events[0][1].position > 0.02
-    print(f"residuals before the perturbation (max per object, m, rad): {before}; reported: {result.reason}")
+    print(
+        f"residuals before the perturbation (max per object, m, rad): {before}; reported: {result.reason}"
+    )
     c.wait(lambda c: c.status.mode == "holding", 10.0, "the hold")

@@ -30,7 +30,8 @@ def test_draws_are_reproducible_and_within_bounds():
         assert 0.005 - 1e-12 <= np.linalg.norm(p.slip[:3]) <= 0.01 + 1e-12
         assert math.radians(2.5) - 1e-12 <= np.linalg.norm(p.slip[3:]) <= math.radians(5.0) + 1e-12
         assert {k: abs(math.degrees(v)) for k, v in p.joint_offsets.items()} == pytest.approx(
-            {"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0})
+            {"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+        )
     assert not draw(PerturbationSettings(), 3).any
 
 
@@ -38,7 +39,7 @@ def test_displacement_keeps_the_object_on_its_face_and_slip_is_in_its_frame():
     X = pin.SE3(pin.rpy.rpyToMatrix(0.0, math.pi / 2, 0.3), np.array([0.4, -0.02, 0.83]))
     Y = displaced(X, (0.03, -0.04, math.radians(8.0)))
     assert np.allclose(Y.translation - X.translation, [0.03, -0.04, 0.0])
-    assert np.allclose(Y.rotation[2], X.rotation[2])          # world z of every body axis kept
+    assert np.allclose(Y.rotation[2], X.rotation[2])  # world z of every body axis kept
     angle = pin.log3(Y.rotation @ X.rotation.T)
     assert np.allclose(angle, [0.0, 0.0, math.radians(8.0)])
     Z = slipped(X, (0.01, 0.0, 0.0, 0.0, 0.0, 0.0))
@@ -68,7 +69,9 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
     b.qpos = qb
     b.forward()
     a.forward()
-    assert np.allclose(a.body_pose("gripper_left_base_link"), b.body_pose("gripper_left_base_link"), atol=1e-9)
+    assert np.allclose(
+        a.body_pose("gripper_left_base_link"), b.body_pose("gripper_left_base_link"), atol=1e-9
+    )
     with pytest.raises(ValueError, match="no joint 'nope'"):
         scene_with_joint_offsets(original, {"nope": 0.1}, tmp_path / "bad.xml")
 
@@ -78,7 +81,16 @@ def test_every_preset_is_a_part_of_issue_10():
 
     full = PRESETS["issue10"]
     for name, settings in PRESETS.items():
-        for field_name in ("displacement_m", "displacement_deg", "slip_m", "slip_deg",
-                           "camera_noise_m", "camera_noise_deg"):
-            assert getattr(settings, field_name) in (0.0, getattr(full, field_name)), (name, field_name)
+        for field_name in (
+            "displacement_m",
+            "displacement_deg",
+            "slip_m",
+            "slip_deg",
+            "camera_noise_m",
+            "camera_noise_deg",
+        ):
+            assert getattr(settings, field_name) in (0.0, getattr(full, field_name)), (
+                name,
+                field_name,
+            )
         assert set(settings.joint_offsets_deg) <= set(full.joint_offsets_deg)

@@ -7,7 +7,13 @@ import shutil
 
 import marionette
 from marionette.execution import demo
-from marionette.execution.demo import PLAN_INPUTS_FILE, PROBLEMS_DIR, SCENARIOS, cached_plan, plan_inputs_digest
+from marionette.execution.demo import (
+    PLAN_INPUTS_FILE,
+    PROBLEMS_DIR,
+    SCENARIOS,
+    cached_plan,
+    plan_inputs_digest,
+)
 
 
 def test_the_digest_follows_the_object_models(tmp_path, monkeypatch):
@@ -31,5 +37,7 @@ def test_a_cached_plan_is_reused_only_from_the_same_inputs(tmp_path):
     (tmp_path / "ur10_box-seed0" / PLAN_INPUTS_FILE).write_text("planned from other models\n")
     cached_plan(SCENARIOS["ur10-box"], 0, tmp_path, messages.append)
     assert messages[-2].startswith("plan: planning"), messages
-    assert demo.plan_inputs_digest(PROBLEMS_DIR / "ur10_box.yaml") in (
-        tmp_path / "ur10_box-seed0" / PLAN_INPUTS_FILE).read_text()
+    assert (
+        demo.plan_inputs_digest(PROBLEMS_DIR / "ur10_box.yaml")
+        in (tmp_path / "ur10_box-seed0" / PLAN_INPUTS_FILE).read_text()
+    )

@@ -17,19 +17,33 @@ from tests_support import lcm_log_messages, run_demo
 
 
 def test_seed_103_calibrates_its_arms_and_places_the_plank(tmp_path, lcm_env, talos_plank):
-    run, report = run_demo("plank-flip", tmp_path, lcm_env, speed=1, timeout_s=400,
-                           files=("report.md", "run.lcmlog", "task_errors.png"),
-                           args=("--perturb", "issue10", "--seed", "103", "--plan-seed", "4"))
+    run, report = run_demo(
+        "plank-flip",
+        tmp_path,
+        lcm_env,
+        speed=1,
+        timeout_s=400,
+        files=("report.md", "run.lcmlog", "task_errors.png"),
+        args=("--perturb", "issue10", "--seed", "103", "--plan-seed", "4"),
+    )
     truth = report["perturbation"]["joint_offsets_deg"]
-    assert truth["arm_left_1_joint"] > 6.9 and truth["arm_left_7_joint"] > 3.9   # the pair that failed
+    assert (
+        truth["arm_left_1_joint"] > 6.9 and truth["arm_left_7_joint"] > 3.9
+    )  # the pair that failed
     for arm in report["calibration"]["arms"]:
         assert max(abs(e) for e in arm["error_deg"].values()) < 0.3, arm
     assert "## Encoder calibration" in (run / "report.md").read_text()
 
     last = None
-    for _, msg in lcm_log_messages(run / "run.lcmlog", {channels.SIM_OBJECT_POSES: lcmt_object_poses}):
+    for _, msg in lcm_log_messages(
+        run / "run.lcmlog", {channels.SIM_OBJECT_POSES: lcmt_object_poses}
+    ):
         last = next((o for o in msg.objects if o.object_name == "plank"), last)
-    X = pin.SE3(pin.Quaternion(*last.quaternion_world).normalized().matrix(), np.array(last.position_world))
-    goal = talos_plank.robot_map.object_pose(np.array(talos_plank.plan.doc["problem"]["q_goal"]), "plank")
+    X = pin.SE3(
+        pin.Quaternion(*last.quaternion_world).normalized().matrix(), np.array(last.position_world)
+    )
+    goal = talos_plank.robot_map.object_pose(
+        np.array(talos_plank.plan.doc["problem"]["q_goal"]), "plank"
+    )
     assert np.linalg.norm(X.translation - goal.translation) < 0.01
     assert math.degrees(np.linalg.norm(pin.log3(goal.rotation.T @ X.rotation))) < 5.0

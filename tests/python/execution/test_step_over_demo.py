@@ -9,16 +9,26 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from marionette import (channels, lcmt_footstep_plan, lcmt_object_poses, lcmt_robot_state,
-                        lcmt_walk_status, robots)
+from marionette import (
+    channels,
+    lcmt_footstep_plan,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_walk_status,
+    robots,
+)
 from marionette.control.client import configuration_from_state
 from tests_support import lcm_log_messages, run_demo
 
-TYPES = {channels.FOOTSTEP_PLAN: lcmt_footstep_plan, channels.ROBOT_STATE: lcmt_robot_state,
-         channels.WALK_STATUS: lcmt_walk_status, channels.OBJECT_POSES: lcmt_object_poses}
-BAR = np.array([1.0, 0.0])          # models/scenes/talos_walk.xml: centre, axis along y
+TYPES = {
+    channels.FOOTSTEP_PLAN: lcmt_footstep_plan,
+    channels.ROBOT_STATE: lcmt_robot_state,
+    channels.WALK_STATUS: lcmt_walk_status,
+    channels.OBJECT_POSES: lcmt_object_poses,
+}
+BAR = np.array([1.0, 0.0])  # models/scenes/talos_walk.xml: centre, axis along y
 BAR_RADIUS, BAR_HALF_LENGTH, BLOCK = 0.025, 0.67, 0.07
-HALF = (0.1025, 0.061)              # models/talos/talos.xml sole boxes
+HALF = (0.1025, 0.061)  # models/talos/talos.xml sole boxes
 
 
 def read_log(path):
@@ -41,7 +51,7 @@ def bar_height_under(points) -> float:
     5 cm cylinder along y (R + sqrt(R² − dx²)), the 7 cm end blocks beyond |y| = 0.6 m."""
     dx, dy = np.abs(points[:, 0] - BAR[0]), np.abs(points[:, 1] - BAR[1])
     band = (dx <= BAR_RADIUS) & (dy <= BAR_HALF_LENGTH)
-    height = np.where(band, BAR_RADIUS + np.sqrt(np.clip(BAR_RADIUS ** 2 - dx ** 2, 0.0, None)), 0.0)
+    height = np.where(band, BAR_RADIUS + np.sqrt(np.clip(BAR_RADIUS**2 - dx**2, 0.0, None)), 0.0)
     block = (dx <= BLOCK / 2) & (dy > BAR_HALF_LENGTH - BLOCK) & (dy <= BAR_HALF_LENGTH)
     return float(np.max(np.where(block, BLOCK, height)))
 
@@ -53,8 +63,14 @@ def over_bar(points) -> bool:
 
 
 def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lcm_env):
-    run, report = run_demo("step-over", tmp_path, lcm_env, speed=3, timeout_s=90,
-                           files=("report.md", "run.lcmlog", "footsteps.png", "sole_heights.png"))
+    run, report = run_demo(
+        "step-over",
+        tmp_path,
+        lcm_env,
+        speed=3,
+        timeout_s=90,
+        files=("report.md", "run.lcmlog", "footsteps.png", "sole_heights.png"),
+    )
     c = report["criteria"]
 
     # --- the same verdict from the log alone ---------------------------------------------------
@@ -101,7 +117,9 @@ def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lc
     q_first = configuration_from_state(model, states[0])
     q_last = configuration_from_state(model, states[-1])
     pin.framesForwardKinematics(model, data, q_first)
-    start = np.mean([data.oMf[model.getFrameId(f"{s}_sole_link")].translation for s in ("left", "right")], 0)
+    start = np.mean(
+        [data.oMf[model.getFrameId(f"{s}_sole_link")].translation for s in ("left", "right")], 0
+    )
     pin.framesForwardKinematics(model, data, q_last)
     feet = [data.oMf[model.getFrameId(f"{s}_sole_link")].translation for s in ("left", "right")]
     assert all(f[0] > BAR[0] + BAR_RADIUS + HALF[0] for f in feet), feet
@@ -109,5 +127,7 @@ def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lc
     assert np.linalg.norm(centre[:2] - (start[:2] + [1.8, 0.0])) < 0.10
     z = np.array([s.base_position[2] for s in states])
     assert z.min() > z[0] - 0.05
-    print(f"{c['footstep_plans']} plans, {checked} sole samples over the bar (all above it, unloaded), "
-          f"final stance {1e3 * c['goal_error_m']:.0f} mm from the goal")
+    print(
+        f"{c['footstep_plans']} plans, {checked} sole samples over the bar (all above it, unloaded), "
+        f"final stance {1e3 * c['goal_error_m']:.0f} mm from the goal"
+    )

@@ -17,12 +17,20 @@ def _references(n: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 def test_chunks_are_contiguous_bounded_ahead_and_end_once():
     sent = []
     n, dt = 2345, 1000
-    s = ReferenceStreamer(sent.append, 7, _references(n), start_utime=10_000, dt_us=dt,
-                          chunk_samples=200, lookahead_s=1.0, max_chunks_per_pump=4)
+    s = ReferenceStreamer(
+        sent.append,
+        7,
+        _references(n),
+        start_utime=10_000,
+        dt_us=dt,
+        chunk_samples=200,
+        lookahead_s=1.0,
+        max_chunks_per_pump=4,
+    )
     now = 0
     while not s.done:
         s.pump(now)
-        for m in sent:   # never more than the look-ahead (plus one chunk) ahead of the clock
+        for m in sent:  # never more than the look-ahead (plus one chunk) ahead of the clock
             assert m.utime < now + 1_000_000
         now += 10_000
     for task, (values, derivatives) in _references(n).items():
@@ -43,9 +51,16 @@ def test_chunks_are_contiguous_bounded_ahead_and_end_once():
 
 def test_bursts_are_limited_per_pump():
     sent = []
-    s = ReferenceStreamer(sent.append, 1, _references(5000), 0, chunk_samples=100, lookahead_s=4.0,
-                          max_chunks_per_pump=3)
-    assert s.pump(0) == 3 and len(sent) == 3 * 2          # 3 chunks of each of the 2 tasks
+    s = ReferenceStreamer(
+        sent.append,
+        1,
+        _references(5000),
+        0,
+        chunk_samples=100,
+        lookahead_s=4.0,
+        max_chunks_per_pump=3,
+    )
+    assert s.pump(0) == 3 and len(sent) == 3 * 2  # 3 chunks of each of the 2 tasks
     assert s.pump(0) == 3
 
 
@@ -69,14 +84,16 @@ def test_an_early_stop_past_what_was_sent_holds_the_last_sample_sent():
     sent: a lone sample beyond a gap would start the controller's stream afresh there."""
     sent = []
     s = ReferenceStreamer(sent.append, 1, _references(5000), 0, chunk_samples=500, lookahead_s=1.0)
-    s.pump(0)                                               # samples 0 .. 999
+    s.pump(0)  # samples 0 .. 999
     s.stop_early(now_utime=2_500_000)
     assert {m.utime for m in sent if m.last_chunk} == {999_000}
     assert s.end_utime == 999_000
 
 
-@pytest.mark.parametrize("kwargs, message", [
-    ({"lookahead_s": 6.0}, "lookahead_s"), ({"chunk_samples": 2000}, "chunk_samples")])
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"lookahead_s": 6.0}, "lookahead_s"), ({"chunk_samples": 2000}, "chunk_samples")],
+)
 def test_bad_settings_are_refused(kwargs, message):
     with pytest.raises(ValueError, match=message):
         ReferenceStreamer(lambda m: None, 1, _references(10), 0, **kwargs)

@@ -19,8 +19,18 @@ from marionette.execution import streamer as streamer_module
 from marionette.execution.supervisor import Supervisor, SupervisorOptions
 from tests_support import controller_running
 
-KINEMATIC = ("--robot", "ur10", "--backend", "kinematic", "--speed", "4", "--camera-rate", "0",
-             "--status-rate", "100")
+KINEMATIC = (
+    "--robot",
+    "ur10",
+    "--backend",
+    "kinematic",
+    "--speed",
+    "4",
+    "--camera-rate",
+    "0",
+    "--status-rate",
+    "100",
+)
 
 
 @pytest.fixture
@@ -32,8 +42,9 @@ def ur10_kinematic(build_dir, lcm_url, tmp_path):
 def _supervisor(client, planned, steps=None, specs=None, **options):
     options.setdefault("max_joint_velocity", 2.0)
     opts = SupervisorOptions(simulated_grasps=False, **options)
-    return Supervisor(client, steps or planned.steps, specs or planned.specs, planned.robot_map, opts,
-                      "ur10_box")
+    return Supervisor(
+        client, steps or planned.steps, specs or planned.specs, planned.robot_map, opts, "ur10_box"
+    )
 
 
 def _inject(client, name: str, value: float = 0.0) -> None:
@@ -48,7 +59,7 @@ def test_plan_runs_to_done_through_every_controller(ur10_kinematic, ur10_box):
     assert result.success and result.state == "done", result.reason
     assert [r.result for r in result.records] == ["ok"] * len(ur10_box.steps)
     assert c.status.num_switches == len(ur10_box.steps) and c.status.num_refused_switches == 0
-    assert c.status.mode == "running", c.status.mode_reason      # the watchdog never fired
+    assert c.status.mode == "running", c.status.mode_reason  # the watchdog never fired
     names = [e[1] for e in result.events]
     assert names.count("switch_accepted") == names.count("end_of_reference") == len(ur10_box.steps)
     # The arm ended where the plan ends (kinematic backend: exact tracking up to the gains).
@@ -69,7 +80,11 @@ def test_discontinuous_switch_is_refused_and_the_robot_held(ur10_kinematic, ur10
     assert not result.success and result.state == "failed"
     assert result.reason.startswith("switch_refused")
     assert "switch_refused" in [e[1] for e in result.events]
-    c.wait(lambda c: c.status.num_refused_switches == 1 and c.status.mode == "holding", 10.0, "the hold")
+    c.wait(
+        lambda c: c.status.num_refused_switches == 1 and c.status.mode == "holding",
+        10.0,
+        "the hold",
+    )
 
 
 def test_starved_reference_fails_the_step(ur10_kinematic, ur10_box, monkeypatch):
@@ -78,13 +93,13 @@ def test_starved_reference_fails_the_step(ur10_kinematic, ur10_box, monkeypatch)
     c = ur10_kinematic
     original = streamer_module.ReferenceStreamer.pump
 
-    def pump_once(self, now_utime):   # one chunk (0.2 s), never the last one, then nothing
+    def pump_once(self, now_utime):  # one chunk (0.2 s), never the last one, then nothing
         self.max_chunks_per_pump = 1
         return original(self, now_utime) if self.chunks_sent == 0 else 0
 
     monkeypatch.setattr(streamer_module.ReferenceStreamer, "pump", pump_once)
     monkeypatch.setattr(streamer_module.ReferenceStreamer, "done", property(lambda self: False))
-    steps = [max(ur10_box.steps, key=lambda s: len(s.q))]       # a long step: many chunks
+    steps = [max(ur10_box.steps, key=lambda s: len(s.q))]  # a long step: many chunks
     specs = [ur10_box.specs[steps[0].index]]
     result = _supervisor(c, ur10_box, steps=steps, specs=specs, max_joint_velocity=0.5).run()
     assert result.state == "failed" and result.reason.startswith("reference_starved"), result.reason
@@ -102,7 +117,7 @@ def test_force_event_stops_the_reference_early(ur10_kinematic, ur10_box):
     """§3.2.5.2: a force threshold reached before the end of the planned approach ends the
     reference there; the step still ends by its end check."""
     c = ur10_kinematic
-    step = ur10_box.steps[0]   # from the home posture the controller starts in (4.4 s at 2 rad/s)
+    step = ur10_box.steps[0]  # from the home posture the controller starts in (4.4 s at 2 rad/s)
     sup = _supervisor(c, ur10_box, steps=[step], specs=[ur10_box.specs[step.index]])
     runner, out = _run_in_thread(sup)
     c.wait(lambda c: sup.status == "running", 60.0, "the step running")
@@ -113,7 +128,9 @@ def test_force_event_stops_the_reference_early(ur10_kinematic, ur10_box):
     record = result.records[0]
     assert result.success, result.reason
     assert "force_threshold" in record.events and record.result == "ok"
-    assert (record.utime_reference_end - record.utime_reference_start) * 1e-6 < 0.8 * record.duration_s
+    assert (
+        record.utime_reference_end - record.utime_reference_start
+    ) * 1e-6 < 0.8 * record.duration_s
     assert "reference_stopped" in [e[1] for e in result.events]
 
 
@@ -137,23 +154,48 @@ def test_demo_ur10_box_end_to_end_in_mujoco(tmp_path, lcm_env):
     MuJoCo computes on the fingers, independent of the effort estimate the admittance regulates.
     (3x real time, not unpaced: the references are streamed 4 s of controller time ahead, which
     unpaced at ~18x is ~0.2 s of wall time, less than a loaded CI machine may stall Python.)"""
-    proc = subprocess.run([sys.executable, "-m", "marionette.cli", "demo", "ur10-box", "--speed", "3",
-                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=300,
-                          env=lcm_env)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            "ur10-box",
+            "--speed",
+            "3",
+            "--out",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=lcm_env,
+    )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (run,) = tmp_path.glob("ur10-box-*")
     report = json.loads((run / "report.json").read_text())
     assert report["success"] and report["supervisor"]["state"] == "done"
     assert report["criteria"]["object_position_error_m"] < 0.01
     assert report["criteria"]["object_angle_error_deg"] < 5.0
-    assert report["controller"]["num_refused_switches"] == 0 and report["controller"]["num_rejected"] == 0
+    assert (
+        report["controller"]["num_refused_switches"] == 0
+        and report["controller"]["num_rejected"] == 0
+    )
     assert report["estimation"]["state"] == "free" and report["estimation"]["first_step"] == 0
-    (held,) = report["grip"]["grippers"]["ur10/gripper"]["held"]   # one grasp, one hold
-    assert held["t_to_s"] - held["t_from_s"] > 10.0, held            # the whole carry
+    (held,) = report["grip"]["grippers"]["ur10/gripper"]["held"]  # one grasp, one hold
+    assert held["t_to_s"] - held["t_from_s"] > 10.0, held  # the whole carry
     assert abs(held["contact_median_n"] - 5.0) <= 1.0, held
     assert held["contact_within_tolerance"] >= 0.95, held
-    assert abs(held["estimate_mean_n"] - held["contact_median_n"]) < 0.5, held   # eq. 3.11-3.13 holds
+    assert abs(held["estimate_mean_n"] - held["contact_median_n"]) < 0.5, (
+        held
+    )  # eq. 3.11-3.13 holds
     assert report["criteria"]["grip_within_tolerance"]
-    for name in ("report.md", "controllers.yaml", "run.lcmlog", "task_errors.png", "object_path.png",
-                 "grip_force.png"):
+    for name in (
+        "report.md",
+        "controllers.yaml",
+        "run.lcmlog",
+        "task_errors.png",
+        "object_path.png",
+        "grip_force.png",
+    ):
         assert (run / name).stat().st_size > 0, name

@@ -47,10 +47,10 @@ def test_fixed_point_puts_the_object_on_its_plan_for_any_rigid_bias():
     rng = np.random.default_rng(0)
     for _ in range(20):
         P, X_GO, B, C = (_random_pose(rng) for _ in range(4))
-        R = P * C                      # the reference tracked when the image was taken
-        O_measured = R * B             # what lies between reference and object: B, unknown
+        R = P * C  # the reference tracked when the image was taken
+        O_measured = R * B  # what lies between reference and object: B, unknown
         C_star = correction_fixed_point(X_GO, O_measured, R)
-        O_after = P * C_star * B       # the object once the new reference is tracked
+        O_after = P * C_star * B  # the object once the new reference is tracked
         O_plan = P * X_GO
         assert np.allclose(O_after.homogeneous, O_plan.homogeneous, atol=1e-9)
 
@@ -64,7 +64,7 @@ def test_approach_fixed_point_moves_the_whole_approach_with_the_object():
     for _ in range(20):
         O_plan, D = _random_pose(rng), _random_pose(rng, 0.05, 0.17)
         O_measured = D * O_plan
-        path = [O_plan * _random_pose(rng, 0.2, 0.5) for _ in range(5)]   # P(t), P_e = path[-1]
+        path = [O_plan * _random_pose(rng, 0.2, 0.5) for _ in range(5)]  # P(t), P_e = path[-1]
         P_e = path[-1]
         C_star = approach_fixed_point(P_e, O_measured, O_plan)
         L = P_e * C_star * P_e.inverse()
@@ -73,7 +73,9 @@ def test_approach_fixed_point_moves_the_whole_approach_with_the_object():
             corrected_rel = O_measured.inverse() * (L * P)
             assert np.allclose(corrected_rel.homogeneous, planned_rel.homogeneous, atol=1e-9)
         # A measurement of the plan itself corrects nothing.
-        assert np.allclose(approach_fixed_point(P_e, O_plan, O_plan).homogeneous, np.eye(4), atol=1e-12)
+        assert np.allclose(
+            approach_fixed_point(P_e, O_plan, O_plan).homogeneous, np.eye(4), atol=1e-12
+        )
 
 
 def test_step_toward_respects_its_limits_and_reaches_the_target():
@@ -85,7 +87,9 @@ def test_step_toward_respects_its_limits_and_reaches_the_target():
     # Along the geodesic to the target: the step is parallel to log(C^-1 C*).
     full = pin.log6(C.actInv(target)).vector
     assert abs(np.dot(xi, full) / (np.linalg.norm(xi) * np.linalg.norm(full)) - 1.0) < 1e-9
-    assert np.allclose(step_toward(C, target, 1.0, 10.0, 10.0).homogeneous, target.homogeneous, atol=1e-12)
+    assert np.allclose(
+        step_toward(C, target, 1.0, 10.0, 10.0).homogeneous, target.homogeneous, atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("multiply", [right_multiply, left_multiply])
@@ -113,7 +117,9 @@ class _Plant:
     def __init__(self) -> None:
         self.X_GO = pin.SE3(pin.exp3(np.array([0.0, math.pi / 2, 0.0])), np.array([0.0, 0.0, 0.1]))
         # The planned grasp, off by a slip of 1.4 cm / 6 deg (and sag, encoder offsets: one map).
-        bias = pin.SE3(pin.exp3(np.radians(6.0) * np.array([0.3, 0.2, 0.93])), np.array([0.01, -0.008, 0.006]))
+        bias = pin.SE3(
+            pin.exp3(np.radians(6.0) * np.array([0.3, 0.2, 0.93])), np.array([0.01, -0.008, 0.006])
+        )
         self.B_true = self.X_GO * bias
         self.P = pin.SE3(pin.exp3(np.array([0.1, -0.2, 0.3])), np.array([0.4, 0.2, 0.9]))
 
@@ -126,8 +132,14 @@ def test_integrator_converges_through_camera_noise_within_its_speed_limit():
     from marionette.execution.visual_servo import VisualServo
 
     plant = _Plant()
-    options = ServoOptions(alpha=0.3, max_speed=0.03, max_angular_speed=0.3,
-                           noise_position_m=0.002, noise_angle_rad=math.radians(0.5), seed=3)
+    options = ServoOptions(
+        alpha=0.3,
+        max_speed=0.03,
+        max_angular_speed=0.3,
+        noise_position_m=0.002,
+        noise_angle_rad=math.radians(0.5),
+        seed=3,
+    )
 
     class Bus:
         def subscribe(self, channel, type_, handler):
@@ -135,8 +147,17 @@ def test_integrator_converges_through_camera_noise_within_its_speed_limit():
 
     bus = Bus()
     servo = VisualServo(bus, [], [], None, {}, options)
-    c = TaskCorrection("left_gripper", True, pin.SE3.Identity(), False, 10_000_000, 0,
-                       pin.SE3.Identity(), [(0, pin.SE3.Identity())], frame="gripper_left_base_link")
+    c = TaskCorrection(
+        "left_gripper",
+        True,
+        pin.SE3.Identity(),
+        False,
+        10_000_000,
+        0,
+        pin.SE3.Identity(),
+        [(0, pin.SE3.Identity())],
+        frame="gripper_left_base_link",
+    )
     servo._current = [(c, type("S", (), {"index": 0})(), "plank", plant.X_GO, False)]
     planned = {"left_gripper": (_rows([plant.P] * 4000), np.zeros((4000, 6)))}
     previous = c.C
@@ -169,12 +190,14 @@ def test_a_grasp_correction_is_streamed_on_the_left_and_blends_out_to_the_plan()
     n = 400
     P = [pin.SE3(np.eye(3), np.array([0.5 + 0.001 * k, 0.0, 1.0])) for k in range(n)]
     anchor, C = _random_pose(rng), _random_pose(rng, 0.04, 0.1)
-    c = TaskCorrection("right_gripper", False, C, True, (n - 1) * 1000, 0, C, [(0, C)],
-                       frame="f", anchor=anchor)
+    c = TaskCorrection(
+        "right_gripper", False, C, True, (n - 1) * 1000, 0, C, [(0, C)], frame="f", anchor=anchor
+    )
     refs = {"right_gripper": (_rows(P), np.zeros((n, 6)))}
     sent = []
-    s = ReferenceStreamer(sent.append, 3, refs, start_utime=0, chunk_samples=200, lookahead_s=1.0,
-                          corrections=[c])
+    s = ReferenceStreamer(
+        sent.append, 3, refs, start_utime=0, chunk_samples=200, lookahead_s=1.0, corrections=[c]
+    )
     for now in range(0, 1_000_000, 10_000):
         s.pump(now)
     rows = np.vstack([m.value for m in sent])
@@ -186,26 +209,46 @@ def test_a_grasp_correction_is_streamed_on_the_left_and_blends_out_to_the_plan()
 def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
     n = 1500
     P = [pin.SE3(np.eye(3), np.array([0.001 * k, 0.0, 1.0])) for k in range(n)]
-    refs = {"left_gripper": (_rows(P), np.zeros((n, 6))), "com": (np.zeros((n, 3)), np.zeros((n, 3)))}
-    c = TaskCorrection("left_gripper", True, pin.SE3.Identity(), False, n * 1000, 0, pin.SE3.Identity(),
-                       [(0, pin.SE3.Identity())], frame="f")
+    refs = {
+        "left_gripper": (_rows(P), np.zeros((n, 6))),
+        "com": (np.zeros((n, 3)), np.zeros((n, 3))),
+    }
+    c = TaskCorrection(
+        "left_gripper",
+        True,
+        pin.SE3.Identity(),
+        False,
+        n * 1000,
+        0,
+        pin.SE3.Identity(),
+        [(0, pin.SE3.Identity())],
+        frame="f",
+    )
 
     class Servo:
         options = ServoOptions(lead_us=20_000, refresh_us=50_000)
 
         def update(self, planned, dt_us, now):
-            if now == 300_000:   # a measurement: the correction moves 1 cm up
+            if now == 300_000:  # a measurement: the correction moves 1 cm up
                 c.C = pin.SE3(np.eye(3), np.array([0.0, 0.0, 0.01]))
                 c.version += 1
 
     sent = []
-    s = ReferenceStreamer(sent.append, 3, refs, start_utime=0, chunk_samples=200, lookahead_s=1.0,
-                          corrections=[c], servo=Servo())
+    s = ReferenceStreamer(
+        sent.append,
+        3,
+        refs,
+        start_utime=0,
+        chunk_samples=200,
+        lookahead_s=1.0,
+        corrections=[c],
+        servo=Servo(),
+    )
     for now in range(0, 2_000_000, 10_000):
         s.pump(now)
     grip = [m for m in sent if m.task_name == "left_gripper"]
     resent = [m for m in grip if m.utime == 320_000]
-    assert len(resent) == 1   # from now + lead, the first measurement's effect
+    assert len(resent) == 1  # from now + lead, the first measurement's effect
     # The stream the controller ends up with: later chunks replace the future from their start.
     stream = {}
     for m in grip:
@@ -228,8 +271,14 @@ def test_gaze_posture_points_the_camera_at_the_target_with_the_head_only():
     q[2] = 1.02
     n = 101
     values = np.tile(q, (n, 1))
-    traj = StepTrajectory(1e-3, 0.1, np.arange(n) * 1e-3, values.copy(), values.copy(),
-                          {"posture": (values, np.zeros((n, model.nv)))})
+    traj = StepTrajectory(
+        1e-3,
+        0.1,
+        np.arange(n) * 1e-3,
+        values.copy(),
+        values.copy(),
+        {"posture": (values, np.zeros((n, model.nv)))},
+    )
     # A point moving sideways 0.7 m ahead, 0.4 m below the camera: within the head's reach.
     targets = np.array([[0.7, -0.2 + 0.004 * k, 1.25] for k in range(n)])
     head_gaze_posture(model, traj, targets, frame, every=10)
@@ -239,7 +288,7 @@ def test_gaze_posture_points_the_camera_at_the_target_with_the_head_only():
         qk = traj.references["posture"][0][k]
         pin.framesForwardKinematics(model, data, qk)
         p_C = data.oMf[model.getFrameId(frame)].actInv(targets[k])
-        assert p_C[2] > 0 and np.linalg.norm(p_C[:2] / p_C[2]) < 0.01   # on the optical axis
+        assert p_C[2] > 0 and np.linalg.norm(p_C[:2] / p_C[2]) < 0.01  # on the optical axis
         changed = {i for i in range(model.nq) if abs(qk[i] - q[i]) > 1e-12}
         assert changed <= head
     # Head velocities: central differences of the rewritten positions.
@@ -263,17 +312,31 @@ def test_the_factory_servoes_the_first_grasp_and_the_placement(talos_plank):
     assert not any(t.kind == "pbvs" for spec in talos_plank.specs for t in spec.tasks)
     ctx = dataclasses.replace(talos_plank.ctx, visual_servoing=True)
     specs = build_specs(talos_plank.steps, ctx)
-    servoed = {(s.index, t.name) for s, spec in zip(talos_plank.steps, specs)
-               for t in spec.tasks if t.kind == "pbvs"}
-    placement = {(s.index, "left_gripper") for s in talos_plank.steps
-                 if s.to_state.endswith(("_preplace", "_intersec")) and not s.from_state.endswith("_intersec")
-                 and "talos/left_gripper" in s.grasps and "talos/left_gripper" in s.grasps_to}
-    grasp = {(s.index, "right_gripper") for s in talos_plank.steps
-             if s.to_state.endswith("_pregrasp") and not s.grasps and not s.grasps_from
-             and s.parent_grasps_to.get("talos/right_gripper") == "plank/H1"}
+    servoed = {
+        (s.index, t.name)
+        for s, spec in zip(talos_plank.steps, specs)
+        for t in spec.tasks
+        if t.kind == "pbvs"
+    }
+    placement = {
+        (s.index, "left_gripper")
+        for s in talos_plank.steps
+        if s.to_state.endswith(("_preplace", "_intersec"))
+        and not s.from_state.endswith("_intersec")
+        and "talos/left_gripper" in s.grasps
+        and "talos/left_gripper" in s.grasps_to
+    }
+    grasp = {
+        (s.index, "right_gripper")
+        for s in talos_plank.steps
+        if s.to_state.endswith("_pregrasp")
+        and not s.grasps
+        and not s.grasps_from
+        and s.parent_grasps_to.get("talos/right_gripper") == "plank/H1"
+    }
     assert len(placement) == 2 and len(grasp) == 1
     assert servoed == placement | grasp
-    for s, spec in zip(talos_plank.steps, specs):
+    for _s, spec in zip(talos_plank.steps, specs):
         for t in spec.tasks:
             if t.kind == "pbvs":
                 assert t.streamed and t.frame == talos_plank.ctx.gripper_frames[f"talos/{t.name}"]
@@ -284,18 +347,17 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
     the approach to the first grasp, at the end of the carry to the pre-placement and during the
     placement, with the head turned by the posture references, the plank's tags are detected in
     the head camera's image and the plank pose is within 5 mm / 1°."""
+    import dataclasses
+
     import marionette
     from marionette._core import sim
     from marionette.execution.demo import SCENARIOS
+    from marionette.execution.factory import build_specs
     from marionette.execution.references import compute_references, sample_step
     from marionette.execution.visual_servo import add_gaze
     from marionette.perception.camera import CameraIntrinsics
     from marionette.perception.detector import AprilTagDetector, DetectorConfig
     from marionette.perception.objects import estimate_body_pose, load_tagged_bodies, tag_sizes
-
-    import dataclasses
-
-    from marionette.execution.factory import build_specs
 
     p = talos_plank
     specs = build_specs(p.steps, dataclasses.replace(p.ctx, visual_servoing=True))
@@ -304,18 +366,31 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
     for s in p.steps[: servoed[-1] + 1]:
         trajs[s.index] = sample_step(s, p.robot_map, 1e-3, 0.5, 0.5)
         compute_references(trajs[s.index], specs[s.index], p.model)
-    add_gaze(trajs, p.steps[: servoed[-1] + 1], p.robot_map, "plank", robots.robot("talos").camera_frame)
+    add_gaze(
+        trajs, p.steps[: servoed[-1] + 1], p.robot_map, "plank", robots.robot("talos").camera_frame
+    )
     scene = sim.MjScene(str(marionette.MODELS_DIR / "scenes" / "talos_plank.xml"))
     scene.reset_keyframe("reference")
     renderer = sim.RgbdRenderer(scene, "head_rgbd", 640, 480)
     k = renderer.intrinsics
     K = CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
     (plank,) = load_tagged_bodies([marionette.MODELS_DIR / "objects" / "plank.yaml"])
-    detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([plank]),
-                                               quad_decimate=SCENARIOS["plank-flip"].quad_decimate))
+    detector = AprilTagDetector(
+        DetectorConfig(
+            tag_sizes=tag_sizes([plank]), quad_decimate=SCENARIOS["plank-flip"].quad_decimate
+        )
+    )
     pregrasp, carry, place = servoed
-    first, grasp = pregrasp, pregrasp + 1      # the grasp follows the servoed pre-grasp
-    views = ((first, 0.0), (pregrasp, 1.0), (grasp, 0.5), (grasp, 1.0), (carry, 1.0), (place, 0.0), (place, 1.0))
+    first, grasp = pregrasp, pregrasp + 1  # the grasp follows the servoed pre-grasp
+    views = (
+        (first, 0.0),
+        (pregrasp, 1.0),
+        (grasp, 0.5),
+        (grasp, 1.0),
+        (carry, 1.0),
+        (place, 0.0),
+        (place, 1.0),
+    )
     seen = 0
     for i, fraction in views:
         traj = trajs[i]
@@ -325,7 +400,7 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
         qpos = scene.qpos.copy()
         qpos[: p.model.nq] = robots.pinocchio_to_mujoco("talos", q)
         quat = pin.Quaternion(X_WO.rotation)
-        qpos[p.model.nq: p.model.nq + 7] = [*X_WO.translation, quat.w, quat.x, quat.y, quat.z]
+        qpos[p.model.nq : p.model.nq + 7] = [*X_WO.translation, quat.w, quat.x, quat.y, quat.z]
         scene.qpos = qpos
         scene.forward()
         rgb, depth = renderer.render(scene)

@@ -8,29 +8,50 @@ import pinocchio as pin
 import pytest
 
 from marionette.footsteps.augmented_robot import AugmentedRobot, Stance, rotation_2d
-from marionette.footsteps.constraints import (ComInSupportPolygon, Constraint, FacingTask,
-                                              FeetOnFootprints, FootNonOverlap,
-                                              FootprintPoseTask, FramePositionTask, GazeTask,
-                                              ObstacleAvoidance, PostureTask, ReachTask,
-                                              StanceGoalTask,
-                                              StepBounds, StepPreferenceTask, sole_clearance)
+from marionette.footsteps.constraints import (
+    ComInSupportPolygon,
+    Constraint,
+    FacingTask,
+    FeetOnFootprints,
+    FootNonOverlap,
+    FootprintPoseTask,
+    FramePositionTask,
+    GazeTask,
+    ObstacleAvoidance,
+    PostureTask,
+    ReachTask,
+    StanceGoalTask,
+    StepBounds,
+    StepPreferenceTask,
+    sole_clearance,
+)
 from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.final_pose import RigidStanceKinematics
 from marionette.footsteps.obstacles import Bar, CircleObstacle, RectangleObstacle
 from marionette.footsteps.robot_model import TALOS_FOOT
 
-OBSTACLES = [CircleObstacle([0.3, 0.2], 0.1), RectangleObstacle([0.4, -0.3], 0.3, 0.5, 0.1),
-             Bar([0.2, 0.0], 1.2, 0.03, 2.0)]
+OBSTACLES = [
+    CircleObstacle([0.3, 0.2], 0.1),
+    RectangleObstacle([0.4, -0.3], 0.3, 0.5, 0.1),
+    Bar([0.2, 0.0], 1.2, 0.03, 2.0),
+]
 
 
 def _items(robot):
-    return [FootNonOverlap(), ObstacleAvoidance(OBSTACLES), ComInSupportPolygon(),
-            FeetOnFootprints(), FramePositionTask(robot.hand_frames["right"], [2.0, 0.0, 0.5]),
-            GazeTask(robot.camera_frame, [2.0, 0.3, 0.2]), FacingTask([2.5, 0.4], [0.0, 0.0]),
-            ReachTask([2.5, 0.4], [0.45, -0.25]),
-            PostureTask(robot.reference_posture, np.arange(6, robot.model.nv)),
-            FootprintPoseTask(3, [1.0, 0.2, 0.3]), StanceGoalTask([1.0, 0.1, 0.2]),
-            StepPreferenceTask(0.17)]
+    return [
+        FootNonOverlap(),
+        ObstacleAvoidance(OBSTACLES),
+        ComInSupportPolygon(),
+        FeetOnFootprints(),
+        FramePositionTask(robot.hand_frames["right"], [2.0, 0.0, 0.5]),
+        GazeTask(robot.camera_frame, [2.0, 0.3, 0.2]),
+        FacingTask([2.5, 0.4], [0.0, 0.0]),
+        ReachTask([2.5, 0.4], [0.45, -0.25]),
+        PostureTask(robot.reference_posture, np.arange(6, robot.model.nv)),
+        FootprintPoseTask(3, [1.0, 0.2, 0.3]),
+        StanceGoalTask([1.0, 0.1, 0.2]),
+        StepPreferenceTask(0.17),
+    ]
 
 
 def _value(item, kin):
@@ -44,8 +65,9 @@ def perturbed(robot):
     augmented = AugmentedRobot(robot, stance, "right")
     config = augmented.neutral_configuration(4)
     config.steps += rng.normal(scale=0.05, size=config.steps.shape)
-    config.q_robot = pin.integrate(robot.model, config.q_robot,
-                                   rng.normal(scale=0.1, size=robot.model.nv))
+    config.q_robot = pin.integrate(
+        robot.model, config.q_robot, rng.normal(scale=0.1, size=robot.model.nv)
+    )
     return augmented, config
 
 
@@ -54,9 +76,10 @@ def test_jacobians_match_finite_differences(robot, perturbed, robot_free):
     augmented, config = perturbed
     h = 1e-6
     for item in _items(robot):
-        if not robot_free and isinstance(item, (FeetOnFootprints, PostureTask,
-                                                ComInSupportPolygon)):
-            continue            # their values do not depend on the step variables alone
+        if not robot_free and isinstance(
+            item, (FeetOnFootprints, PostureTask, ComInSupportPolygon)
+        ):
+            continue  # their values do not depend on the step variables alone
         kin = augmented.evaluate(config, robot_free=robot_free)
         J = item.compute_jacobian(kin)
         value = _value(item, kin)
@@ -66,24 +89,33 @@ def test_jacobians_match_finite_differences(robot, perturbed, robot_free):
             dv = np.zeros(kin.nv)
             dv[j] = h
             plus = _value(item, augmented.evaluate(augmented.integrate(config, dv), robot_free))
-            minus = _value(item, augmented.evaluate(augmented.integrate(config, -dv),
-                                                    robot_free))
+            minus = _value(item, augmented.evaluate(augmented.integrate(config, -dv), robot_free))
             J_fd[:, j] = (plus - minus) / (2.0 * h)
         assert np.allclose(J, J_fd, atol=1e-6), (item.name, np.abs(J - J_fd).max())
 
 
 def test_rigid_stance_jacobians_match_finite_differences(robot, perturbed):
     augmented, config = perturbed
-    frames = {n: (p, R) for n, (p, R, _) in
-              augmented._robot_kinematics(config.q_robot)["frames"].items()}
+    frames = {
+        n: (p, R) for n, (p, R, _) in augmented._robot_kinematics(config.q_robot)["frames"].items()
+    }
     pose = np.array([1.2, -0.3, 0.4])
-    for item in [FramePositionTask(robot.hand_frames["right"], [2.0, 0.0, 0.5]),
-                 GazeTask(robot.camera_frame, [2.0, 0.3, 0.2]), FacingTask([2.5, 0.4], [0, 0])]:
+    for item in [
+        FramePositionTask(robot.hand_frames["right"], [2.0, 0.0, 0.5]),
+        GazeTask(robot.camera_frame, [2.0, 0.3, 0.2]),
+        FacingTask([2.5, 0.4], [0, 0]),
+    ]:
         J = item.compute_jacobian(RigidStanceKinematics(pose, frames, 0.0))
-        J_fd = np.column_stack([
-            (item.compute_error(RigidStanceKinematics(pose + 1e-6 * e, frames, 0.0))
-             - item.compute_error(RigidStanceKinematics(pose - 1e-6 * e, frames, 0.0))) / 2e-6
-            for e in np.eye(3)])
+        J_fd = np.column_stack(
+            [
+                (
+                    item.compute_error(RigidStanceKinematics(pose + 1e-6 * e, frames, 0.0))
+                    - item.compute_error(RigidStanceKinematics(pose - 1e-6 * e, frames, 0.0))
+                )
+                / 2e-6
+                for e in np.eye(3)
+            ]
+        )
         assert np.allclose(J, J_fd, atol=1e-6), item.name
 
 
@@ -106,7 +138,7 @@ def test_circle_clearance_is_the_distance_to_the_sole_minus_radius_and_buffer():
         value = sole_clearance(pose, TALOS_FOOT, circle)[0][0]
         samples = _sole_samples(pose, 120)
         distance = np.min(np.linalg.norm(samples - circle.center, axis=1))
-        if distance > 1e-3:          # outside: the clearance is the Euclidean distance
+        if distance > 1e-3:  # outside: the clearance is the Euclidean distance
             assert value == pytest.approx(distance - 0.1, abs=3e-3)
         else:
             assert value < -0.1 + 1e-9
@@ -122,12 +154,13 @@ def test_rectangle_clearance_non_negative_means_no_contact_within_the_buffer():
         samples = _sole_samples(pose, 40)
         # Brute force: does the sole come within the buffer of the rectangle?
         local = (samples - region.center) @ rotation_2d(region.yaw)
-        gap = np.hypot(np.maximum(np.abs(local[:, 0]) - 0.3, 0.0),
-                       np.maximum(np.abs(local[:, 1]) - 0.05, 0.0))
+        gap = np.hypot(
+            np.maximum(np.abs(local[:, 0]) - 0.3, 0.0), np.maximum(np.abs(local[:, 1]) - 0.05, 0.0)
+        )
         if value >= 0.0:
             assert np.min(gap) >= 0.03 - 1e-9
         grown_contacts += int(np.min(gap) < 0.03)
-    assert 20 < grown_contacts < 180      # the sample covered both cases
+    assert 20 < grown_contacts < 180  # the sample covered both cases
 
 
 def test_non_overlap_rows_non_negative_means_successive_soles_are_disjoint(stance):
@@ -143,8 +176,9 @@ def test_non_overlap_rows_non_negative_means_successive_soles_are_disjoint(stanc
             continue
         satisfied += 1
         a, b = kin.footprint(0), kin.footprint(1)
-        inside = _inside_rectangle(_sole_samples(b), a[:2], a[2], TALOS_FOOT.length,
-                                   TALOS_FOOT.width)
+        inside = _inside_rectangle(
+            _sole_samples(b), a[:2], a[2], TALOS_FOOT.length, TALOS_FOOT.width
+        )
         assert not np.any(inside)
     assert satisfied > 30
 

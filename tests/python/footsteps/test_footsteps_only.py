@@ -7,11 +7,20 @@ import numpy as np
 import pytest
 
 from footsteps_checks import sole_points, soles_overlap, step_variables_within
-from marionette.footsteps.augmented_robot import (AugmentedConfiguration, AugmentedRobot,
-                                                  planar_compose)
-from marionette.footsteps.constraints import (FINAL_STANCE, FootNonOverlap, FootprintPoseTask,
-                                              ObstacleAvoidance, StanceGoalTask, StepLimits,
-                                              StepPreferenceTask)
+from marionette.footsteps.augmented_robot import (
+    AugmentedConfiguration,
+    AugmentedRobot,
+    planar_compose,
+)
+from marionette.footsteps.constraints import (
+    FINAL_STANCE,
+    FootNonOverlap,
+    FootprintPoseTask,
+    ObstacleAvoidance,
+    StanceGoalTask,
+    StepLimits,
+    StepPreferenceTask,
+)
 from marionette.footsteps.obstacles import CircleObstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings
 from marionette.footsteps.robot_model import TALOS_FOOT
@@ -65,7 +74,7 @@ def test_moving_the_obstacle_deforms_the_steps_locally(stance):
     assert report.converged and config2.num_steps == config.num_steps
     after = augmented.footprints(config2.steps)
     displacement = np.linalg.norm(after[:, :2] - before[:, :2], axis=1)
-    assert displacement.max() < 0.15           # a 4 cm move does not reshuffle the plan
+    assert displacement.max() < 0.15  # a 4 cm move does not reshuffle the plan
     for pose in after:
         d = np.min(np.linalg.norm(sole_points(pose, TALOS_FOOT) - moved.center, axis=1))
         assert d >= moved.radius + moved.buffer - 2e-3
@@ -81,14 +90,19 @@ def test_second_order_correction_puts_the_goal_back_with_the_yaws_untouched(stan
     config = AugmentedConfiguration(steps)
     goal = FootprintPoseTask(None, augmented.footprints(steps)[-1], weights=(1.0, 1.0, 1.0))
     limits = StepLimits()
-    optimizer = FootstepOptimizer(augmented, [FootNonOverlap(), goal, StepPreferenceTask(0.17)],
-                                  goal, limits, OptimizerSettings(restore_primary=True))
-    optimizer._frozen = (0, False)                    # set by solve(); here one step by hand
+    optimizer = FootstepOptimizer(
+        augmented,
+        [FootNonOverlap(), goal, StepPreferenceTask(0.17)],
+        goal,
+        limits,
+        OptimizerSettings(restore_primary=True),
+    )
+    optimizer._frozen = (0, False)  # set by solve(); here one step by hand
     kin = augmented.evaluate(config)
     J = goal.compute_jacobian(kin)
     rng = np.random.default_rng(3)
     dv = rng.normal(size=18) * np.tile([0.01, 0.01, 0.08], 6)
-    dv -= np.linalg.pinv(J) @ (J @ dv)                # null space of the goal: no first-order move
+    dv -= np.linalg.pinv(J) @ (J @ dv)  # null space of the goal: no first-order move
     candidate = augmented.integrate(config, dv)
 
     def last_footprint(steps):
@@ -98,7 +112,7 @@ def test_second_order_correction_puts_the_goal_back_with_the_yaws_untouched(stan
         return pose
 
     assert np.linalg.norm(last_footprint(candidate.steps) - goal.target) > 1e-3
-    predicted = goal.compute_error(kin) + J @ dv     # = 0 here
+    predicted = goal.compute_error(kin) + J @ dv  # = 0 here
     corrected, _ = optimizer._restored(candidate, augmented.evaluate(candidate), predicted, False)
     assert np.allclose(last_footprint(corrected.steps), goal.target + predicted, atol=1e-9)
     assert np.array_equal(corrected.steps[:, 2], candidate.steps[:, 2])

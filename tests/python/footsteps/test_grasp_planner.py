@@ -6,8 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from footsteps_checks import (BALL, depth_inside_hull, sole_points, soles_overlap,
-                              step_variables_within)
+from footsteps_checks import (
+    BALL,
+    depth_inside_hull,
+    sole_points,
+    soles_overlap,
+    step_variables_within,
+)
 
 
 def _check_plan(planner, target, hand_axes=(0, 1, 2), hand_tol=1e-3):
@@ -72,7 +77,7 @@ def test_frozen_replan_keeps_executed_steps_and_posture(grasp_planner_factory):
 def test_full_replan_moves_steps_and_posture(grasp_planner_factory):
     planner = grasp_planner_factory()
     before = planner.config.copy()
-    target = BALL + np.array([-0.1, 0.1, 0.05])      # also higher: only the posture can do it
+    target = BALL + np.array([-0.1, 0.1, 0.05])  # also higher: only the posture can do it
     report = planner.replan(target, executed_steps=2, posture_frozen=False)
     assert report.converged
     assert np.array_equal(planner.config.steps[:2], before.steps[:2])
@@ -118,15 +123,17 @@ def test_bad_hand_is_rejected(robot, stance):
 
 
 def test_frozen_replan_adds_steps_exactly_when_the_stance_is_beyond_the_chains_reach(
-        grasp_planner_factory):
+    grasp_planner_factory,
+):
     """Algorithm 1 in replanning: the free steps can lengthen by Σ (max_length − Δx_i) at most
     (their heading unchanged); a ball moved farther ahead than that needs new steps, a ball
     moved less does not."""
     planner = grasp_planner_factory()
-    free = planner.config.steps[:-1]                  # the last step belongs to the posture
+    free = planner.config.steps[:-1]  # the last step belongs to the posture
     room = float(np.sum(planner.limits.default.max_length - free[:, 0]))
-    heading = np.array([np.cos(planner.config.steps[:, 2].sum()),
-                        np.sin(planner.config.steps[:, 2].sum()), 0.0])
+    heading = np.array(
+        [np.cos(planner.config.steps[:, 2].sum()), np.sin(planner.config.steps[:, 2].sum()), 0.0]
+    )
     for move, needs_steps in ((0.5 * room, False), (2.0 * room, True)):
         planner = grasp_planner_factory()
         target = BALL + move * heading
@@ -144,8 +151,10 @@ def test_replanning_beside_obstacles_adds_no_steps_for_a_closer_ball(robot, stan
     from marionette.footsteps.obstacles import CircleObstacle
     from marionette.footsteps.planner import GraspPlanner
 
-    discs = [CircleObstacle([1.0, 0.0], 0.12, buffer=0.03),
-             CircleObstacle([1.5, -0.35], 0.1, buffer=0.03)]
+    discs = [
+        CircleObstacle([1.0, 0.0], 0.12, buffer=0.03),
+        CircleObstacle([1.5, -0.35], 0.1, buffer=0.03),
+    ]
     planner = GraspPlanner(robot, stance, BALL, obstacles=discs)
     assert planner.plan().converged
     initial_steps = planner.config.num_steps

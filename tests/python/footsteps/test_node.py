@@ -47,14 +47,14 @@ def test_grasp_node_plans_then_replans_only_unstarted_steps(build_dir, robot):
     from marionette.footsteps.node import FootstepNode, NodeOptions
 
     node = FootstepNode(NodeOptions(mode="grasp"), robot=robot)
-    assert node.update(0) is None                       # no stance, no target yet
+    assert node.update(0) is None  # no stance, no target yet
     node.on_walk_status(_walk_status(-1))
     node.on_object_poses(_object_poses("ball", BALL))
     first = node.update(1)
     assert first.plan_id == 1 and first.first_step_index == 0
     assert first.num_steps == len(first.steps) >= 7
     assert [s.index for s in first.steps] == list(range(first.num_steps))
-    assert node.update(2) is None                       # nothing changed: no replan
+    assert node.update(2) is None  # nothing changed: no replan
     # The robot has started step 2 and the ball rolled 5 cm: steps 0..2 stay, the rest moves.
     node.on_walk_status(_walk_status(2))
     node.on_object_poses(_object_poses("ball", BALL + [0.05, 0.0, 0.0]))
@@ -64,8 +64,9 @@ def test_grasp_node_plans_then_replans_only_unstarted_steps(build_dir, robot):
     old = {s.index: (s.x, s.y, s.yaw) for s in first.steps}
     kept = node.last_plan.steps[:3]
     assert all(np.allclose(old[s.index], (s.pose[0], s.pose[1], s.pose[3])) for s in kept)
-    assert not np.allclose(old[second.steps[-1].index][:2],
-                           (second.steps[-1].x, second.steps[-1].y))
+    assert not np.allclose(
+        old[second.steps[-1].index][:2], (second.steps[-1].x, second.steps[-1].y)
+    )
     assert node.last_solve_ms < 1000.0
     # A status back to "standing" (-1) does not make executed steps replannable again.
     node.on_walk_status(_walk_status(-1))
@@ -95,10 +96,26 @@ def test_footsteps_process_publishes_plans_over_lcm(build_dir, lcm_url, lcm_env)
     from marionette import channels, lcmt_footstep_plan
     from marionette.lcm_bus import LcmBus, MessageLog
 
-    cmd = [sys.executable, "-m", "marionette.cli", "footsteps", "run", "--mode", "step-over",
-           "--goal", "2.0", "0.0", "0.0", "--bar-radius", "0.02", "--duration", "30"]
-    proc = subprocess.Popen(cmd, env=lcm_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "marionette.cli",
+        "footsteps",
+        "run",
+        "--mode",
+        "step-over",
+        "--goal",
+        "2.0",
+        "0.0",
+        "0.0",
+        "--bar-radius",
+        "0.02",
+        "--duration",
+        "30",
+    ]
+    proc = subprocess.Popen(
+        cmd, env=lcm_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     try:
         assert wait_for_line(proc.stdout, "footsteps: ready", 30.0), "process did not start"
         with LcmBus(lcm_url) as bus:
@@ -107,17 +124,19 @@ def test_footsteps_process_publishes_plans_over_lcm(build_dir, lcm_url, lcm_env)
             deadline = time.monotonic() + 20.0
             while not log.messages and time.monotonic() < deadline:
                 bus.publish(channels.WALK_STATUS, _walk_status(-1))
-                bus.publish(channels.OBJECT_POSES, _object_poses("bar", [1.0, 0.0, 0.02],
-                                                                 yaw=np.pi / 2))
+                bus.publish(
+                    channels.OBJECT_POSES, _object_poses("bar", [1.0, 0.0, 0.02], yaw=np.pi / 2)
+                )
                 time.sleep(0.1)
             assert log.wait_for(lambda m: len(m) >= 1, 5.0), "no FOOTSTEP_PLAN received"
             plan = log.latest()
             assert plan.first_step_index == 0 and plan.num_steps >= 8
-            assert sum(1 for s in plan.steps if s.num_via == 2) == 2     # two bar crossings
+            assert sum(1 for s in plan.steps if s.num_via == 2) == 2  # two bar crossings
             # The bar moves: a new plan, the crossing footprints following it.
             for _ in range(20):
-                bus.publish(channels.OBJECT_POSES, _object_poses("bar", [1.05, 0.0, 0.02],
-                                                                 yaw=np.pi / 2))
+                bus.publish(
+                    channels.OBJECT_POSES, _object_poses("bar", [1.05, 0.0, 0.02], yaw=np.pi / 2)
+                )
                 bus.publish(channels.WALK_STATUS, _walk_status(-1))
                 if log.wait_for(lambda m: len(m) >= 2, 0.2):
                     break

@@ -20,9 +20,16 @@ def test_plot_writes_a_top_view_with_the_plan_drawn(tmp_path, stance):
     planner.update_bar(bar.moved_to([1.05, 0.03], np.pi / 2 + 0.1))
     from marionette.footsteps.plot import plot_plan
 
-    path = plot_plan(tmp_path / "plan.png", planner.result(), planner.foot,
-                     [planner.bar, CircleObstacle([0.5, 0.4], 0.1)], goal=[2.0, 0.0, 0.0],
-                     hand_target=np.array([2.2, 0.0, 0.6]), earlier=[earlier], title="test")
+    path = plot_plan(
+        tmp_path / "plan.png",
+        planner.result(),
+        planner.foot,
+        [planner.bar, CircleObstacle([0.5, 0.4], 0.1)],
+        goal=[2.0, 0.0, 0.0],
+        hand_target=np.array([2.2, 0.0, 0.6]),
+        earlier=[earlier],
+        title="test",
+    )
     image = mpimg.imread(path)
     assert image.shape[0] > 300 and image.shape[1] > 500
     rgb = image[..., :3]
@@ -33,9 +40,27 @@ def test_plot_writes_a_top_view_with_the_plan_drawn(tmp_path, stance):
 
 def test_cli_plans_a_step_over_and_writes_the_figure(tmp_path, lcm_env):
     png = tmp_path / "step_over.png"
-    out = subprocess.run([sys.executable, "-m", "marionette.cli", "footsteps", "plan", "--mode",
-                          "step-over", "--bar-pose", "1.0", "0.0", "1.5708", "--png", str(png)],
-                         env=lcm_env, capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "footsteps",
+            "plan",
+            "--mode",
+            "step-over",
+            "--bar-pose",
+            "1.0",
+            "0.0",
+            "1.5708",
+            "--png",
+            str(png),
+        ],
+        env=lcm_env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stderr
     assert "converged=True" in out.stdout
     assert out.stdout.count("via=") == 2

@@ -29,8 +29,12 @@ def planner(stance):
 def _gap_to_bar(pose, bar, foot):
     """Brute force: distance from the sole to the bar's floor band [m]."""
     local = (sole_points(pose, foot) - bar.center) @ rotation_2d(bar.yaw)
-    return np.min(np.hypot(np.maximum(np.abs(local[:, 0]) - 0.5 * bar.length, 0.0),
-                           np.maximum(np.abs(local[:, 1]) - bar.radius, 0.0)))
+    return np.min(
+        np.hypot(
+            np.maximum(np.abs(local[:, 0]) - 0.5 * bar.length, 0.0),
+            np.maximum(np.abs(local[:, 1]) - bar.radius, 0.0),
+        )
+    )
 
 
 def _check(planner):
@@ -51,14 +55,14 @@ def _check(planner):
     half = 0.5 * foot.length
     for step in crossing:
         i = step.index
-        lift = plan.steps[i - 2].pose if i >= 2 else plan.stance["left" if step.is_left
-                                                                 else "right"]
+        lift = (
+            plan.steps[i - 2].pose if i >= 2 else plan.stance["left" if step.is_left else "right"]
+        )
         points = np.vstack([lift[:3], step.via, step.pose[:3]])
         path = np.vstack([np.linspace(a, b, 100) for a, b in zip(points[:-1], points[1:])])
         s = (path[:, :2] - bar.center) @ n
         # The soles cross nearly perpendicular to the bar here: d1 = d2 = half length.
-        assert np.min(bar_clearance(s, path[:, 2], 0.0, bar.radius, bar.radius, half, half)) \
-            > 0.0
+        assert np.min(bar_clearance(s, path[:, 2], 0.0, bar.radius, bar.radius, half, half)) > 0.0
     return plan
 
 
@@ -76,16 +80,18 @@ def test_moved_bar_keeps_the_crossing_steps_fixed_relative_to_it(planner, move):
     planner.options = dataclasses.replace(planner.options, fresh_after_move=np.inf)
     kin = planner.augmented.evaluate(planner.config)
     before = {i: planar_relative(planner.bar.pose(), kin.footprint(i)) for i in planner.crossing}
-    moved = planner.bar.moved_to(planner.bar.center + np.array(move[:2]),
-                                 planner.bar.yaw + move[2])
+    moved = planner.bar.moved_to(planner.bar.center + np.array(move[:2]), planner.bar.yaw + move[2])
     axis = np.array([np.cos(moved.yaw), np.sin(moved.yaw)])
     slide = axis @ np.array(move[:2])
     report = planner.update_bar(moved, executed_steps=1)
     assert report.converged
     kin = planner.augmented.evaluate(planner.config)
     for i in planner.crossing:
-        assert np.allclose(planar_relative(moved.pose(), kin.footprint(i)),
-                           before[i] - [slide, 0.0, 0.0], atol=1e-4)
+        assert np.allclose(
+            planar_relative(moved.pose(), kin.footprint(i)),
+            before[i] - [slide, 0.0, 0.0],
+            atol=1e-4,
+        )
     _check(planner)
 
 
@@ -100,7 +106,7 @@ def test_bar_moved_beyond_the_free_steps_reach_is_crossed_by_a_fresh_sequence(st
     moved = bar.moved_to(bar.center + np.array([away, 0.0]), bar.yaw)
     lone = StepOverPlanner(stance, GOAL, bar)
     assert lone.plan().converged
-    lone.options = dataclasses.replace(lone.options, fresh_shifts=())   # Algorithm 3 alone
+    lone.options = dataclasses.replace(lone.options, fresh_shifts=())  # Algorithm 3 alone
     lone.update_bar(moved, executed_steps=1)
     assert lone._crossing_short(), "the bar was meant to be out of Algorithm 3's reach"
 

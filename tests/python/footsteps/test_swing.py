@@ -10,14 +10,14 @@ from marionette.footsteps.obstacles import Bar
 from marionette.footsteps.robot_model import TALOS_FOOT
 from marionette.footsteps.swing import bar_clearance, crossing_via_points
 
-R, D1, D2 = 0.03, 0.08, 0.13         # bar radius, heel and toe distances of the sole point O
+R, D1, D2 = 0.03, 0.08, 0.13  # bar radius, heel and toe distances of the sole point O
 
 
 def _collides(s: float, h: float) -> bool:
     """Brute force: does the sole segment [s − d1, s + d2] at height h meet the bar (a disc of
     radius R on the floor, completed down to the floor as in eq. 5.2)?"""
     xs = np.linspace(s - D1, s + D2, 801)
-    in_disc = xs ** 2 + (h - R) ** 2 < R ** 2
+    in_disc = xs**2 + (h - R) ** 2 < R**2
     under_disc = (np.abs(xs) < R) & (h < R)
     return bool(np.any(in_disc | under_disc))
 
@@ -28,17 +28,21 @@ def test_eq_5_1_clearance_sign_matches_brute_force():
     h = rng.uniform(0.0, 0.1, 3000)
     value = bar_clearance(s, h, s_c=0.0, h_c=R, radius=R, d1=D1, d2=D2)
     brute = np.array([_collides(a, b) for a, b in zip(s, h)])
-    decided = np.abs(value) > 2e-3             # away from the boundary, up to sampling error
+    decided = np.abs(value) > 2e-3  # away from the boundary, up to sampling error
     assert np.all((value[decided] < 0.0) == brute[decided])
-    assert 100 < brute.sum() < 2900            # both outcomes sampled
+    assert 100 < brute.sum() < 2900  # both outcomes sampled
 
 
 def test_crossing_passage_points_keep_the_swinging_sole_clear():
     bar = Bar([1.0, 0.2], 1.7, R, 2.0, buffer=0.03)
     n = bar.normal()
     half = 0.5 * TALOS_FOOT.length
-    lift = np.array([*(bar.center - (R + half + 0.05) * n + 0.03 * n[::-1]), 0.0, bar.yaw - np.pi / 2])
-    land = np.array([*(bar.center + (R + half + 0.06) * n - 0.02 * n[::-1]), 0.0, bar.yaw - np.pi / 2])
+    lift = np.array(
+        [*(bar.center - (R + half + 0.05) * n + 0.03 * n[::-1]), 0.0, bar.yaw - np.pi / 2]
+    )
+    land = np.array(
+        [*(bar.center + (R + half + 0.06) * n - 0.02 * n[::-1]), 0.0, bar.yaw - np.pi / 2]
+    )
     via, apex = crossing_via_points(lift, land, bar, TALOS_FOOT.length, TALOS_FOOT.width, 0.03)
     assert via.shape == (2, 3) and apex == pytest.approx(2 * R + 0.03)
     # Sample the polyline lift-off → via₁ → via₂ → landing in the bar's cross-section.

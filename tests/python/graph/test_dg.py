@@ -20,7 +20,7 @@ def _damped_system(x0):
 
 
 def test_graph_runs_in_cpp_and_matches_closed_form():
-    graph, x, k, tracer = _damped_system([1.0, -3.0])
+    graph, x, _k, tracer = _damped_system([1.0, -3.0])
     tick = dg.Tick(dt=1e-3)
     graph.run(tick, 500)
     assert tick.index == 500
@@ -67,7 +67,7 @@ def test_builder_errors_reach_python_with_names():
 
 
 def test_introspection_and_dot():
-    graph, x, k, _ = _damped_system([0.0])
+    graph, _x, _k, _ = _damped_system([0.0])
     names = sorted(e.name for e in graph.entities)
     assert names == ["k", "tracer", "x"]
     assert graph.signal("x.derivative").source == "k.out"
@@ -80,7 +80,7 @@ def test_introspection_and_dot():
 
 
 def test_edit_swaps_an_entity_between_ticks():
-    graph, x, k, _ = _damped_system([1.0])
+    graph, x, _k, _ = _damped_system([1.0])
     tick = dg.Tick()
     graph.run(tick, 10)
     edit = dg.GraphEdit(graph)

@@ -57,4 +57,6 @@ def test_every_type_follows_the_convention():
         declared = {f.split()[1].rstrip(";") for f in fields if not f.split()[1].endswith("]")}
         for f in fields:
             for size in re.findall(r"\[(\w+)\]", f):
-                assert size.isdigit() or size in declared, f"{path.name}: {size} declared before use"
+                assert size.isdigit() or size in declared, (
+                    f"{path.name}: {size} declared before use"
+                )

@@ -19,7 +19,15 @@ def test_lcm_spy_type_database_decodes_cpp_messages(build_dir, lcm_url, tmp_path
     jar = build_dir / "lcmtypes" / "marionette_lcmtypes.jar"
     classpath = f"{jar}:/usr/share/java/lcm.jar:{tmp_path}"
     subprocess.run(
-        ["javac", "-nowarn", "-cp", classpath, "-d", str(tmp_path), str(ROOT / "tests/java/SpyDecode.java")],
+        [
+            "javac",
+            "-nowarn",
+            "-cp",
+            classpath,
+            "-d",
+            str(tmp_path),
+            str(ROOT / "tests/java/SpyDecode.java"),
+        ],
         check=True,
         timeout=120,
     )
@@ -30,7 +38,9 @@ def test_lcm_spy_type_database_decodes_cpp_messages(build_dir, lcm_url, tmp_path
     )
     try:
         assert wait_for_line(spy.stdout, "READY", timeout_s=30) is not None
-        subprocess.run([str(build_dir / "lcm_publish_messages"), lcm_url, "5"], check=True, timeout=30)
+        subprocess.run(
+            [str(build_dir / "lcm_publish_messages"), lcm_url, "5"], check=True, timeout=30
+        )
         out, _ = spy.communicate(timeout=30)
     finally:
         spy.kill()

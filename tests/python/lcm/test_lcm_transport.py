@@ -6,9 +6,8 @@ import subprocess
 
 import numpy as np
 
-from marionette import channels
+from marionette import channels, lcmt_controller_spec, lcmt_robot_state, lcmt_task_spec
 from marionette.lcm_bus import LcmBus, MessageLog
-from marionette import lcmt_controller_spec, lcmt_robot_state, lcmt_task_spec
 
 
 def test_python_round_trip_keeps_every_field():

@@ -18,22 +18,30 @@ HAND_WRITTEN = {"README.md"}
 def fresh(tmp_path_factory):
     """A fresh run of the generator (the real script) into an empty directory."""
     out = tmp_path_factory.mktemp("models")
-    subprocess.run([sys.executable, str(REPO_ROOT / "scripts" / "generate_models.py"),
-                    "--out", str(out)], check=True, capture_output=True, text=True)
+    subprocess.run(
+        [sys.executable, str(REPO_ROOT / "scripts" / "generate_models.py"), "--out", str(out)],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return out
 
 
 def _files(root):
-    return {p.relative_to(root).as_posix() for p in root.rglob("*")
-            if p.is_file() and not p.is_symlink() and "meshes" not in p.relative_to(root).parts}
+    return {
+        p.relative_to(root).as_posix()
+        for p in root.rglob("*")
+        if p.is_file() and not p.is_symlink() and "meshes" not in p.relative_to(root).parts
+    }
 
 
 def test_committed_models_are_byte_identical_to_a_fresh_run(fresh):
     committed = _files(MODELS_DIR) - HAND_WRITTEN
     generated = _files(fresh)
     assert committed == generated, "stale or missing files: rerun scripts/generate_models.py"
-    different = [f for f in sorted(generated)
-                 if (fresh / f).read_bytes() != (MODELS_DIR / f).read_bytes()]
+    different = [
+        f for f in sorted(generated) if (fresh / f).read_bytes() != (MODELS_DIR / f).read_bytes()
+    ]
     assert not different, f"regenerate and commit: {different}"
 
 

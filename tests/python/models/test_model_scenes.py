@@ -47,8 +47,11 @@ def _talos_with_gripper_frames():
     for g in robots.semantics("talos").grippers:
         parent = model.getFrameId(g.link)
         f = model.frames[parent]
-        frames[g.name] = model.addFrame(pin.Frame(g.name, f.parentJoint, parent,
-                                                  f.placement * g.pose.se3(), pin.FrameType.OP_FRAME))
+        frames[g.name] = model.addFrame(
+            pin.Frame(
+                g.name, f.parentJoint, parent, f.placement * g.pose.se3(), pin.FrameType.OP_FRAME
+            )
+        )
     return model, frames
 
 
@@ -58,15 +61,16 @@ def _plank_handle(handle: str) -> pin.SE3:
     return X_WP * robots.load_object("plank").semantics.handle(handle).pose.se3()
 
 
-def _reach(model, q0, frame: int, X_target: pin.SE3,
-           iters: int = 1500) -> tuple[float, np.ndarray]:
+def _reach(model, q0, frame: int, X_target: pin.SE3, iters: int = 1500) -> tuple[float, np.ndarray]:
     """Damped least squares on [both soles where they are (6D each), the gripper on the
     target (6D), the centre of mass above the middle of the feet (x, y)], joints clamped to
     their limits; returns the final task error norm and configuration."""
     data = model.createData()
     pin.framesForwardKinematics(model, data, q0)
-    feet = [(model.getFrameId(f), data.oMf[model.getFrameId(f)].copy())
-            for f in robots.robot("talos").sole_frames]
+    feet = [
+        (model.getFrameId(f), data.oMf[model.getFrameId(f)].copy())
+        for f in robots.robot("talos").sole_frames
+    ]
     mid = 0.5 * (feet[0][1].translation + feet[1][1].translation)
     q = q0.copy()
     for _ in range(iters):
@@ -81,15 +85,21 @@ def _reach(model, q0, frame: int, X_target: pin.SE3,
         jacobians.append(pin.jacobianCenterOfMass(model, data, q)[:2])
         e, J = np.concatenate(errors), np.vstack(jacobians)
         dq = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(e.size), e)
-        q = np.clip(pin.integrate(model, q, 0.5 * dq), model.lowerPositionLimit,
-                    model.upperPositionLimit)
+        q = np.clip(
+            pin.integrate(model, q, 0.5 * dq), model.lowerPositionLimit, model.upperPositionLimit
+        )
     return float(np.linalg.norm(e)), q
 
 
-@pytest.mark.parametrize("gripper, handle", [("talos/right_gripper", "plank/H1"),
-                                             ("talos/left_gripper", "plank/H2"),
-                                             ("talos/right_gripper", "plank/H3"),
-                                             ("talos/left_gripper", "plank/H4")])
+@pytest.mark.parametrize(
+    "gripper, handle",
+    [
+        ("talos/right_gripper", "plank/H1"),
+        ("talos/left_gripper", "plank/H2"),
+        ("talos/right_gripper", "plank/H3"),
+        ("talos/left_gripper", "plank/H4"),
+    ],
+)
 def test_talos_reaches_the_plank_handles_without_moving_its_feet(gripper, handle):
     """The grasps of the thesis' experiment (sec. 3.4.2): from half-sitting, with the feet in
     place and the centre of mass above them, the right gripper reaches the handles approached
@@ -135,11 +145,13 @@ def test_talos_head_camera_sees_the_plank_and_table_tags_when_looking_down():
                 u, v = f * p[0] / p[2] + CAMERA_WIDTH / 2, f * p[1] / p[2] + CAMERA_HEIGHT / 2
                 assert p[2] > 0 and 0 < u < CAMERA_WIDTH and 0 < v < CAMERA_HEIGHT, (t.id, u, v)
             seen.append(t.id)
-    assert sorted(seen) == [4, 5, 10, 11, 14, 15]   # 14, 15 on the end face on top
+    assert sorted(seen) == [4, 5, 10, 11, 14, 15]  # 14, 15 on the end face on top
 
 
-@pytest.mark.parametrize("robot, scene, gripper", [("tiago", "tiago_deburr", "tiago/deburring_tool"),
-                                                   ("ur10", "ur10_drill", "ur10/drill")])
+@pytest.mark.parametrize(
+    "robot, scene, gripper",
+    [("tiago", "tiago_deburr", "tiago/deburring_tool"), ("ur10", "ur10_drill", "ur10/drill")],
+)
 def test_every_hole_of_the_part_is_within_reach_of_the_tool(robot, scene, gripper):
     """From the scene's base placement (TIAGo's base kept still), the tool tip reaches every
     hole handle with its axis on the hole axis (mask 1 1 1 0 1 1): damped least squares from
@@ -147,9 +159,15 @@ def test_every_hole_of_the_part_is_within_reach_of_the_tool(robot, scene, grippe
     model, _ = robots.load_pinocchio(robot, with_collision=False)
     g = robots.semantics(robot).gripper(gripper)
     parent = model.getFrameId(g.link)
-    fid = model.addFrame(pin.Frame(g.name, model.frames[parent].parentJoint, parent,
-                                   model.frames[parent].placement * g.pose.se3(),
-                                   pin.FrameType.OP_FRAME))
+    fid = model.addFrame(
+        pin.Frame(
+            g.name,
+            model.frames[parent].parentJoint,
+            parent,
+            model.frames[parent].placement * g.pose.se3(),
+            pin.FrameType.OP_FRAME,
+        )
+    )
     data = model.createData()
     movable = np.ones(model.nv)
     if robots.robot(robot).base == "planar":
@@ -158,8 +176,10 @@ def test_every_hole_of_the_part_is_within_reach_of_the_tool(robot, scene, grippe
     part = next(o for o in _scene(scene)["objects"] if o["object"] == "part")
     X_WP = _pose(part["pose"])
     rng = np.random.default_rng(0)
-    starts = [q_ref] + [pin.integrate(model, q_ref, movable * rng.normal(scale=0.5, size=model.nv))
-                        for _ in range(6)]
+    starts = [q_ref] + [
+        pin.integrate(model, q_ref, movable * rng.normal(scale=0.5, size=model.nv))
+        for _ in range(6)
+    ]
     for h in robots.load_object("part").semantics.handles:
         X = X_WP * h.pose.se3()
         mask = np.asarray(h.mask, dtype=float)
@@ -171,8 +191,11 @@ def test_every_hole_of_the_part_is_within_reach_of_the_tool(robot, scene, grippe
                 e = mask * pin.log6(data.oMf[fid].inverse() * X).vector
                 J = mask[:, None] * pin.getFrameJacobian(model, data, fid, pin.LOCAL) * movable
                 dq = J.T @ np.linalg.solve(J @ J.T + 1e-6 * np.eye(6), e)
-                q = np.clip(pin.integrate(model, q, 0.5 * dq), model.lowerPositionLimit,
-                            model.upperPositionLimit)
+                q = np.clip(
+                    pin.integrate(model, q, 0.5 * dq),
+                    model.lowerPositionLimit,
+                    model.upperPositionLimit,
+                )
             best = min(best, float(np.linalg.norm(e)))
             if best < 1e-6:
                 break

@@ -12,8 +12,13 @@ import pinocchio as pin
 import pytest
 
 from marionette import MODELS_DIR, robots
-from marionette.models.semantics import (Placement, SemanticsError, load_semantics,
-                                         pregrasp_distance, semantics_from_dict)
+from marionette.models.semantics import (
+    Placement,
+    SemanticsError,
+    load_semantics,
+    pregrasp_distance,
+    semantics_from_dict,
+)
 
 OBJECTS = robots.object_names()
 
@@ -26,8 +31,9 @@ def _signed_distance(geom: pin.GeometryModel, gdata_placements, point: np.ndarra
     for go, M in zip(geom.geometryObjects, gdata_placements):
         req, res = coal.DistanceRequest(), coal.DistanceResult()
         req.enable_signed_distance = True
-        d = coal.distance(go.geometry, coal.Transform3s(M.rotation, M.translation), probe,
-                          M_probe, req, res)
+        d = coal.distance(
+            go.geometry, coal.Transform3s(M.rotation, M.translation), probe, M_probe, req, res
+        )
         best = min(best, d)
     return best
 
@@ -35,7 +41,9 @@ def _signed_distance(geom: pin.GeometryModel, gdata_placements, point: np.ndarra
 def _object_placements(obj):
     data = obj.model.createData()
     gdata = pin.GeometryData(obj.collision_model)
-    pin.updateGeometryPlacements(obj.model, data, obj.collision_model, gdata, pin.neutral(obj.model))
+    pin.updateGeometryPlacements(
+        obj.model, data, obj.collision_model, gdata, pin.neutral(obj.model)
+    )
     return [gdata.oMg[i] for i in range(len(obj.collision_model.geometryObjects))]
 
 
@@ -48,7 +56,8 @@ def _link_placement(model, link: str) -> pin.SE3:
 
 def test_every_yaml_parses():
     files = sorted((MODELS_DIR / "objects").glob("*.yaml")) + [
-        robots.robot(n).semantics for n in robots.robot_names()]
+        robots.robot(n).semantics for n in robots.robot_names()
+    ]
     assert len(files) == len(OBJECTS) + 3
     for path in files:
         s = load_semantics(path)
@@ -61,7 +70,9 @@ def test_robot_declarations_name_links_of_the_urdf(name):
     sem = robots.semantics(name)
     assert sem.grippers, f"{name} declares no gripper"
     for link in sem.links():
-        assert model.existBodyName(link), f"{name}: {link} is not a link of {robots.robot(name).urdf}"
+        assert model.existBodyName(link), (
+            f"{name}: {link} is not a link of {robots.robot(name).urdf}"
+        )
     for g in sem.grippers:
         assert g.name.startswith(f"{name}/")
         if g.joint is not None:
@@ -115,7 +126,11 @@ def test_tiago_drill_tags_lie_on_the_tool_and_one_faces_every_side():
     model, collision = robots.load_pinocchio("tiago", with_collision=True)
     data, gdata = model.createData(), pin.GeometryData(collision)
     pin.updateGeometryPlacements(model, data, collision, gdata, pin.neutral(model))
-    drill = [i for i, g in enumerate(collision.geometryObjects) if model.frames[g.parentFrame].name == "drill_link"]
+    drill = [
+        i
+        for i, g in enumerate(collision.geometryObjects)
+        if model.frames[g.parentFrame].name == "drill_link"
+    ]
     assert drill, "no collision geometry on drill_link"
     tool = pin.GeometryModel()
     for i in drill:
@@ -130,7 +145,7 @@ def test_tiago_drill_tags_lie_on_the_tool_and_one_faces_every_side():
         assert 0.0 <= _signed_distance(tool, placements, X.translation) < 2e-4, f"tag {t.id}"
         assert _signed_distance(tool, placements, X.translation + 0.01 * z) > 0.009, f"tag {t.id}"
         assert _signed_distance(tool, placements, X.translation - 0.002 * z) < 0, f"tag {t.id}"
-    normals = np.array([t.pose.se3().rotation[:, 2] for t in tags])    # in the tool frame
+    normals = np.array([t.pose.se3().rotation[:, 2] for t in tags])  # in the tool frame
     heights = np.array([t.pose.xyz[2] for t in tags])
     assert np.allclose(normals[:, 2], 0.0) and np.ptp(heights) >= 0.08
     for azimuth in np.radians(np.arange(0.0, 360.0, 5.0)):
@@ -141,8 +156,9 @@ def test_tiago_drill_tags_lie_on_the_tool_and_one_faces_every_side():
 
 def test_tag_ids_are_unique_across_all_models():
     ids = [t.id for o in OBJECTS for t in robots.load_object(o).semantics.tags]
-    ids += [t.id for n in robots.robot_names() for t in robots.semantics(n).tags
-            if n != "tiago"]  # TIAGo's mounted drill reuses the drill's tag ids from 30
+    ids += [
+        t.id for n in robots.robot_names() for t in robots.semantics(n).tags if n != "tiago"
+    ]  # TIAGo's mounted drill reuses the drill's tag ids from 30
     assert len(ids) == len(set(ids)), sorted(ids)
 
 
@@ -154,8 +170,9 @@ def test_contact_polygons_are_flat_convex_and_face_out_of_the_object(name):
         p, n = c.points, c.normal()
         assert np.allclose((p - p[0]) @ n, 0.0, atol=1e-12), f"{c.name} not planar"
         k = len(p)
-        turns = [np.cross(p[(i + 1) % k] - p[i], p[(i + 2) % k] - p[(i + 1) % k]) @ n
-                 for i in range(k)]
+        turns = [
+            np.cross(p[(i + 1) % k] - p[i], p[(i + 2) % k] - p[(i + 1) % k]) @ n for i in range(k)
+        ]
         assert min(turns) > 0, f"{c.name} not convex counter-clockwise"
         assert (p.mean(axis=0) - com) @ n > 0, f"{c.name} faces into the object"
 
@@ -183,38 +200,109 @@ def test_placement_matrix_matches_pinocchio():
         assert np.allclose(Placement.from_matrix(p.matrix()).matrix(), p.matrix(), atol=1e-12)
 
 
-GOOD = {"name": "thing", "handles": [{"name": "thing/h", "link": "base_link", "clearance": 0.05,
-                                      "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]}
+GOOD = {
+    "name": "thing",
+    "handles": [
+        {
+            "name": "thing/h",
+            "link": "base_link",
+            "clearance": 0.05,
+            "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+        }
+    ],
+}
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda d: d["handles"][0].pop("link"), r"handles\[0\]: missing keys \['link'\]"),
-    (lambda d: d["handles"][0]["pose"].update(xyzw=[0, 0, 0, 2]), r"handles\[0\].pose: .*norm 2"),
-    (lambda d: d["handles"][0].update(clearance=-1), r"clearance must be a finite number >= 0"),
-    (lambda d: d["handles"][0].update(mask=[1, 1, 1]), r"mask must be six 0/1 values"),
-    (lambda d: d["handles"].append(dict(d["handles"][0])), r"duplicate handle names"),
-    (lambda d: d.update(grasps=[]), r"unknown top-level keys \['grasps'\]"),
-    (lambda d: d.update(tags=[{"id": -3, "family": "tag36h11", "size": 0.05, "link": "l",
-                               "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
-     r"tags\[0\]: id must be a non-negative integer"),
-    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
-                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
-     r"grippers\[0\]: a gripper joint needs open_position and closed_position"),
-    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
-                                   "open_position": 0, "closed_position": 0.04,
-                                   "admittance": {"lever_arm": 1.0, "stiffness": 3.0},
-                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
-     r"grippers\[0\]: admittance must map parameters among \['acceleration'.*got .*stiffness"),
-    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1,
-                                   "admittance": {"lever_arm": 1.0},
-                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
-     r"grippers\[0\]: admittance parameters need a gripper joint"),
-    (lambda d: d.update(grippers=[{"name": "g", "link": "l", "clearance": 0.1, "joint": "j",
-                                   "open_position": 0, "closed_position": 0.04,
-                                   "admittance": {"speed": float("nan")},
-                                   "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]}}]),
-     r"grippers\[0\]: admittance: speed must be a finite number"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d["handles"][0].pop("link"), r"handles\[0\]: missing keys \['link'\]"),
+        (
+            lambda d: d["handles"][0]["pose"].update(xyzw=[0, 0, 0, 2]),
+            r"handles\[0\].pose: .*norm 2",
+        ),
+        (lambda d: d["handles"][0].update(clearance=-1), r"clearance must be a finite number >= 0"),
+        (lambda d: d["handles"][0].update(mask=[1, 1, 1]), r"mask must be six 0/1 values"),
+        (lambda d: d["handles"].append(dict(d["handles"][0])), r"duplicate handle names"),
+        (lambda d: d.update(grasps=[]), r"unknown top-level keys \['grasps'\]"),
+        (
+            lambda d: d.update(
+                tags=[
+                    {
+                        "id": -3,
+                        "family": "tag36h11",
+                        "size": 0.05,
+                        "link": "l",
+                        "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+                    }
+                ]
+            ),
+            r"tags\[0\]: id must be a non-negative integer",
+        ),
+        (
+            lambda d: d.update(
+                grippers=[
+                    {
+                        "name": "g",
+                        "link": "l",
+                        "clearance": 0.1,
+                        "joint": "j",
+                        "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+                    }
+                ]
+            ),
+            r"grippers\[0\]: a gripper joint needs open_position and closed_position",
+        ),
+        (
+            lambda d: d.update(
+                grippers=[
+                    {
+                        "name": "g",
+                        "link": "l",
+                        "clearance": 0.1,
+                        "joint": "j",
+                        "open_position": 0,
+                        "closed_position": 0.04,
+                        "admittance": {"lever_arm": 1.0, "stiffness": 3.0},
+                        "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+                    }
+                ]
+            ),
+            r"grippers\[0\]: admittance must map parameters among \['acceleration'.*got .*stiffness",
+        ),
+        (
+            lambda d: d.update(
+                grippers=[
+                    {
+                        "name": "g",
+                        "link": "l",
+                        "clearance": 0.1,
+                        "admittance": {"lever_arm": 1.0},
+                        "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+                    }
+                ]
+            ),
+            r"grippers\[0\]: admittance parameters need a gripper joint",
+        ),
+        (
+            lambda d: d.update(
+                grippers=[
+                    {
+                        "name": "g",
+                        "link": "l",
+                        "clearance": 0.1,
+                        "joint": "j",
+                        "open_position": 0,
+                        "closed_position": 0.04,
+                        "admittance": {"speed": float("nan")},
+                        "pose": {"xyz": [0, 0, 0], "xyzw": [0, 0, 0, 1]},
+                    }
+                ]
+            ),
+            r"grippers\[0\]: admittance: speed must be a finite number",
+        ),
+    ],
+)
 def test_bad_declarations_raise_precise_errors(mutate, message):
     import copy
 

@@ -12,7 +12,7 @@ from marionette import robots
 EXPECTED = {  # robot: (root joint, nq, nv)
     "talos": (pin.JointModelFreeFlyer().shortname(), 39, 38),
     "tiago": (pin.JointModelPlanar().shortname(), 14, 13),
-    "ur10": (None, 7, 7),   # 6 arm joints + the gripper's finger_joint
+    "ur10": (None, 7, 7),  # 6 arm joints + the gripper's finger_joint
 }
 
 
@@ -42,8 +42,11 @@ def test_reference_configuration_is_within_limits_and_collision_free(name):
             assert lo <= q[jm.idx_q] <= hi, model.names[j]
     data, gdata = model.createData(), pin.GeometryData(geom)
     pin.computeCollisions(model, data, geom, gdata, q, False)
-    hits = [(geom.geometryObjects[p.first].name, geom.geometryObjects[p.second].name)
-            for p, r in zip(geom.collisionPairs, gdata.collisionResults) if r.isCollision()]
+    hits = [
+        (geom.geometryObjects[p.first].name, geom.geometryObjects[p.second].name)
+        for p, r in zip(geom.collisionPairs, gdata.collisionResults)
+        if r.isCollision()
+    ]
     assert not hits
 
 
@@ -76,7 +79,7 @@ def test_mujoco_configuration_round_trip(name):
         hi = np.minimum(model.upperPositionLimit, 3)
         q = pin.normalize(model, lo + rng.random(model.nq) * (hi - lo))
         qpos = robots.pinocchio_to_mujoco(name, q)
-        mimics = 1 if name == "ur10" else 0   # the UR10 gripper's right finger (MuJoCo only)
+        mimics = 1 if name == "ur10" else 0  # the UR10 gripper's right finger (MuJoCo only)
         assert qpos.size == model.nq - (1 if robots.robot(name).base == "planar" else 0) + mimics
         assert qpos.size == robots.mujoco_nq(name)
         assert np.allclose(robots.mujoco_to_pinocchio(name, qpos), q, atol=1e-12)

@@ -54,19 +54,33 @@ def test_texture_is_its_tag_bit_for_bit(path):
 
 
 class _Detection(ctypes.Structure):
-    _fields_ = [("family", ctypes.c_void_p), ("id", ctypes.c_int), ("hamming", ctypes.c_int),
-                ("decision_margin", ctypes.c_float), ("H", ctypes.c_void_p),
-                ("c", ctypes.c_double * 2), ("p", (ctypes.c_double * 2) * 4)]
+    _fields_ = [
+        ("family", ctypes.c_void_p),
+        ("id", ctypes.c_int),
+        ("hamming", ctypes.c_int),
+        ("decision_margin", ctypes.c_float),
+        ("H", ctypes.c_void_p),
+        ("c", ctypes.c_double * 2),
+        ("p", (ctypes.c_double * 2) * 4),
+    ]
 
 
 class _Zarray(ctypes.Structure):
-    _fields_ = [("el_sz", ctypes.c_size_t), ("size", ctypes.c_int), ("alloc", ctypes.c_int),
-                ("data", ctypes.c_void_p)]
+    _fields_ = [
+        ("el_sz", ctypes.c_size_t),
+        ("size", ctypes.c_int),
+        ("alloc", ctypes.c_int),
+        ("data", ctypes.c_void_p),
+    ]
 
 
 class _Image(ctypes.Structure):
-    _fields_ = [("width", ctypes.c_int32), ("height", ctypes.c_int32), ("stride", ctypes.c_int32),
-                ("buf", ctypes.POINTER(ctypes.c_uint8))]
+    _fields_ = [
+        ("width", ctypes.c_int32),
+        ("height", ctypes.c_int32),
+        ("stride", ctypes.c_int32),
+        ("buf", ctypes.POINTER(ctypes.c_uint8)),
+    ]
 
 
 def _detect(gray: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
@@ -74,7 +88,11 @@ def _detect(gray: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
     lib = ctypes.CDLL(ctypes.util.find_library("apriltag") or "libapriltag.so.3")
     lib.tag36h11_create.restype = ctypes.c_void_p
     lib.apriltag_detector_create.restype = ctypes.c_void_p
-    lib.apriltag_detector_add_family_bits.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int]
+    lib.apriltag_detector_add_family_bits.argtypes = [
+        ctypes.c_void_p,
+        ctypes.c_void_p,
+        ctypes.c_int,
+    ]
     lib.apriltag_detector_detect.restype = ctypes.POINTER(_Zarray)
     lib.apriltag_detector_detect.argtypes = [ctypes.c_void_p, ctypes.POINTER(_Image)]
     lib.apriltag_detections_destroy.argtypes = [ctypes.POINTER(_Zarray)]
@@ -84,8 +102,9 @@ def _detect(gray: np.ndarray) -> list[tuple[int, int, np.ndarray]]:
     detector = lib.apriltag_detector_create()
     lib.apriltag_detector_add_family_bits(detector, family, 2)
     buf = np.ascontiguousarray(gray, dtype=np.uint8)
-    image = _Image(buf.shape[1], buf.shape[0], buf.shape[1],
-                   buf.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)))
+    image = _Image(
+        buf.shape[1], buf.shape[0], buf.shape[1], buf.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8))
+    )
     found = lib.apriltag_detector_detect(detector, ctypes.byref(image))
     out = []
     pointers = ctypes.cast(found.contents.data, ctypes.POINTER(ctypes.POINTER(_Detection)))

@@ -17,14 +17,17 @@ TRUE = {"arm_left_1_joint": math.radians(7.0), "arm_left_7_joint": math.radians(
 
 @pytest.fixture(scope="module")
 def offset_scene(tmp_path_factory):
-    return scene_with_joint_offsets(marionette.MODELS_DIR / "scenes" / "talos_plank.xml", TRUE,
-                                    tmp_path_factory.mktemp("scene") / "scene.xml")
+    return scene_with_joint_offsets(
+        marionette.MODELS_DIR / "scenes" / "talos_plank.xml",
+        TRUE,
+        tmp_path_factory.mktemp("scene") / "scene.xml",
+    )
 
 
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_every_offset_of_the_arm_within_0p3deg(offset_scene, side):
     cal = calibrate_arm(offset_scene, side, log=lambda line: None)
-    assert cal.views_used >= 5, cal.summary()   # the others: ring hidden by the hand or the plank
+    assert cal.views_used >= 5, cal.summary()  # the others: ring hidden by the hand or the plank
     found = cal.encoder_offsets()
     error_deg = {j: math.degrees(found[j] - TRUE.get(j, 0.0)) for j in arm_joints(side)}
     assert max(abs(e) for e in error_deg.values()) < 0.3, error_deg

@@ -60,7 +60,7 @@ def test_jacobian_matches_finite_differences(problem, talos):
     offsets = rng.normal(0, 0.05, 6)
     p_EM, p_BA = np.array([0.03, -0.02, -0.12]), np.array([0.1, 0.0, 0.2])
     measured = rng.normal(0, 0.1, (4, 3))
-    r, J = residuals_and_jacobian(problem, Q, measured, offsets, p_EM, p_BA)
+    _r, J = residuals_and_jacobian(problem, Q, measured, offsets, p_EM, p_BA)
     x = np.concatenate([offsets, p_EM, p_BA])
     eps = 1e-6
     J_fd = np.empty_like(J)
@@ -98,7 +98,9 @@ def test_recovers_7deg_shoulder_and_4deg_wrist_offsets(problem, talos):
     q = Q[0].copy()
     X_BE = []
     for d7 in (0.0, true[6]):
-        q[talos.joints[talos.getJointId(ARM[6])].idx_q] = Q[0][talos.joints[talos.getJointId(ARM[6])].idx_q] + d7
+        q[talos.joints[talos.getJointId(ARM[6])].idx_q] = (
+            Q[0][talos.joints[talos.getJointId(ARM[6])].idx_q] + d7
+        )
         pin.framesForwardKinematics(talos, data, q)
         X_BE.append(data.oMf[talos.getFrameId("gripper_right_base_link")])
     p_EM_absorbed = (X_BE[0].inverse() * X_BE[1]).act(p_EM)
@@ -138,8 +140,11 @@ def test_head_camera_mount_within_2mm_and_0p2deg_from_detected_tags(talos):
     X_WG = data.oMf[talos.getFrameId("head_2_link")]
     X_WC_cad = data.oMf[talos.getFrameId("rgbd_optical_frame")]
     # The real mount differs from the CAD by 8 mm and 1.5 deg.
-    X_GC = X_WG.inverse() * X_WC_cad * pin.SE3(pin.exp3(np.radians([1.0, -1.0, 0.5])),
-                                               np.array([0.005, -0.004, 0.005]))
+    X_GC = (
+        X_WG.inverse()
+        * X_WC_cad
+        * pin.SE3(pin.exp3(np.radians([1.0, -1.0, 0.5])), np.array([0.005, -0.004, 0.005]))
+    )
     X_HT = pin.SE3(pin.exp3(np.array([0.3, 0.2, 0.1])), np.array([0.02, 0.0, 0.12]))
     K = CameraIntrinsics.from_fovy(640, 480, 45.0)
     detector = AprilTagDetector(DetectorConfig(tag_sizes={21: 0.08}))
@@ -147,10 +152,21 @@ def test_head_camera_mount_within_2mm_and_0p2deg_from_detected_tags(talos):
     X_GH, X_CT = [], []
     for i in range(30):
         p = np.array([rng.uniform(-0.15, 0.15), rng.uniform(-0.1, 0.1), rng.uniform(0.45, 0.8)])
-        X_true = syn.look_at(p, tilt_deg=rng.uniform(15, 40),
-                             tilt_axis=(math.cos(i), math.sin(i), 0.0), roll_deg=rng.uniform(-90, 90))
-        frame = syn.render(K, [syn.tag_quad(21, 0.08, X_true)], background_depth=2.0,
-                           noise_std=2.0, depth_noise_std=0.0015, rng=rng, supersample=3)
+        X_true = syn.look_at(
+            p,
+            tilt_deg=rng.uniform(15, 40),
+            tilt_axis=(math.cos(i), math.sin(i), 0.0),
+            roll_deg=rng.uniform(-90, 90),
+        )
+        frame = syn.render(
+            K,
+            [syn.tag_quad(21, 0.08, X_true)],
+            background_depth=2.0,
+            noise_std=2.0,
+            depth_noise_std=0.0015,
+            rng=rng,
+            supersample=3,
+        )
         (d,) = detector.detect(frame.gray, K, depth=frame.depth)
         X_CT.append(d.X_CT)
         X_GH.append(X_GC * X_true * X_HT.inverse())  # what the kinematics report
@@ -171,11 +187,19 @@ def test_calibrate_command_prints_the_hand_eye_result_as_json(tmp_path, capfd):
     rng = np.random.default_rng(4)
     X_EC = pin.SE3(pin.exp3(np.array([0.2, -0.1, 0.3])), np.array([0.05, 0.02, 0.1]))
     X_RT = pin.SE3(pin.exp3(np.array([0.0, 0.3, 0.0])), np.array([0.7, 0.1, 0.2]))
-    X_RE = [pin.SE3(pin.exp3(rng.uniform(-0.6, 0.6, 3)), rng.uniform(-0.2, 0.2, 3)) for _ in range(8)]
+    X_RE = [
+        pin.SE3(pin.exp3(rng.uniform(-0.6, 0.6, 3)), rng.uniform(-0.2, 0.2, 3)) for _ in range(8)
+    ]
     X_CT = [X_EC.inverse() * X.inverse() * X_RT for X in X_RE]
     path = tmp_path / "pairs.json"
-    path.write_text(json.dumps({"X_RE": [X.homogeneous.tolist() for X in X_RE],
-                                "X_CT": [X.homogeneous.tolist() for X in X_CT]}))
+    path.write_text(
+        json.dumps(
+            {
+                "X_RE": [X.homogeneous.tolist() for X in X_RE],
+                "X_CT": [X.homogeneous.tolist() for X in X_CT],
+            }
+        )
+    )
     assert main(["calibrate", "hand-eye", str(path)]) == 0
     captured = capfd.readouterr()  # file-descriptor level: what ViSP prints from C++ too
     result = json.loads(captured.out)  # stdout is the JSON alone
@@ -228,8 +252,15 @@ def test_recovers_offsets_from_a_wrist_tag_seen_by_the_head_camera(talos):
         uv = K.project(corners)
         if uv.min() < 20 or uv[:, 0].max() > 620 or uv[:, 1].max() > 460:
             continue  # out of the image
-        frame = syn.render(K, [syn.tag_quad(40, 0.05, X_CT)], background_depth=1.5,
-                           noise_std=2.0, depth_noise_std=0.0015, rng=rng, supersample=3)
+        frame = syn.render(
+            K,
+            [syn.tag_quad(40, 0.05, X_CT)],
+            background_depth=1.5,
+            noise_std=2.0,
+            depth_noise_std=0.0015,
+            rng=rng,
+            supersample=3,
+        )
         detections = detector.detect(frame.gray, K, depth=frame.depth)
         if detections:
             Q.append(q)
@@ -255,7 +286,9 @@ def wrist_poses(model, Q, correction, frame="arm_left_7_link"):
         q = q.copy()
         q[iq] += correction
         pin.framesForwardKinematics(model, data, q)
-        out.append(data.oMf[model.getFrameId("torso_2_link")].inverse() * data.oMf[model.getFrameId(frame)])
+        out.append(
+            data.oMf[model.getFrameId("torso_2_link")].inverse() * data.oMf[model.getFrameId(frame)]
+        )
     return out
 
 
@@ -277,13 +310,15 @@ def test_pose_residual_jacobian_matches_finite_differences(talos):
     Q = left_arm_configurations(talos, 3, rng)
     measured = [X * pin.exp6(rng.normal(0, 0.05, 6)) for X in wrist_poses(talos, Q, np.zeros(7))]
     x = rng.normal(0, 0.05, 7)
-    r, J = pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight=0.1)
+    _r, J = pose_residuals_and_jacobian(problem, Q, measured, x, rotation_weight=0.1)
     J_fd = np.empty_like(J)
     for c in range(7):
         dx = np.zeros(7)
         dx[c] = 1e-6
-        J_fd[:, c] = (pose_residuals_and_jacobian(problem, Q, measured, x + dx, 0.1)[0]
-                      - pose_residuals_and_jacobian(problem, Q, measured, x - dx, 0.1)[0]) / 2e-6
+        J_fd[:, c] = (
+            pose_residuals_and_jacobian(problem, Q, measured, x + dx, 0.1)[0]
+            - pose_residuals_and_jacobian(problem, Q, measured, x - dx, 0.1)[0]
+        ) / 2e-6
     np.testing.assert_allclose(J, J_fd, atol=1e-7)
 
 
@@ -296,14 +331,16 @@ def test_every_arm_joint_from_wrist_poses_with_camera_noise(talos):
     true[0], true[6] = math.radians(-7.0), math.radians(-4.0)
     Q = left_arm_configurations(talos, 10, rng)
     # the ring's pose from the head camera: ~1 mm and ~0.3 deg per view
-    measured = [X * pin.exp6(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, math.radians(0.3), 3)])
-                for X in wrist_poses(talos, Q, true)]
-    measured[3] = measured[3] * pin.exp6(np.r_[0.03, 0.0, 0.0, 0.0, 0.3, 0.0])   # one wrong pose
+    measured = [
+        X * pin.exp6(np.r_[rng.normal(0, 1e-3, 3), rng.normal(0, math.radians(0.3), 3)])
+        for X in wrist_poses(talos, Q, true)
+    ]
+    measured[3] = measured[3] * pin.exp6(np.r_[0.03, 0.0, 0.0, 0.0, 0.3, 0.0])  # one wrong pose
     problem = JointOffsetProblem(talos, "torso_2_link", "arm_left_7_link", LEFT_ARM)
     result = calibrate_joint_offsets_from_poses(problem, Q, measured)
     error_deg = np.degrees(np.abs(result.offsets - true))
     assert error_deg.max() < 0.25, dict(zip(LEFT_ARM, error_deg.round(3)))
-    assert result.outliers == (3,)   # the wrong pose is left out, the rest fit
+    assert result.outliers == (3,)  # the wrong pose is left out, the rest fit
     assert np.median(result.position_residuals) < 3e-3
     with pytest.raises(CalibrationError, match="not observable"):
         calibrate_joint_offsets_from_poses(problem, np.tile(Q[0], (3, 1)), [measured[0]] * 3)

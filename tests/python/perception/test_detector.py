@@ -43,9 +43,15 @@ DETECTOR_1M = DetectorConfig(tag_sizes={7: 0.08})
 
 
 def _render_1m(index: int) -> syn.SyntheticFrame:
-    return syn.render(K, [syn.tag_quad(7, 0.08, POSES_AT_1M[index])], background=90.0,
-                      background_depth=2.0, noise_std=2.0,
-                      depth_noise_std=0.003, rng=np.random.default_rng(index))
+    return syn.render(
+        K,
+        [syn.tag_quad(7, 0.08, POSES_AT_1M[index])],
+        background=90.0,
+        background_depth=2.0,
+        noise_std=2.0,
+        depth_noise_std=0.003,
+        rng=np.random.default_rng(index),
+    )
 
 
 @pytest.mark.parametrize("index", range(len(POSES_AT_1M)))
@@ -118,9 +124,21 @@ def _twin_renders(seed):
     X_b = d.hypotheses[1]
     frames = []
     for X in (X_a, X_b):
-        frames.append((X, syn.render(K, [syn.tag_quad(3, size, X)], **wall, supersample=3,
-                                     noise_std=6.0, blur_px=0.5, depth_noise_std=0.003,
-                                     rng=np.random.default_rng(seed))))
+        frames.append(
+            (
+                X,
+                syn.render(
+                    K,
+                    [syn.tag_quad(3, size, X)],
+                    **wall,
+                    supersample=3,
+                    noise_std=6.0,
+                    blur_px=0.5,
+                    depth_noise_std=0.003,
+                    rng=np.random.default_rng(seed),
+                ),
+            )
+        )
     return detector, frames
 
 
@@ -150,7 +168,7 @@ def test_ambiguous_tag_is_resolved_by_a_prior():
         # table), known to ~5 deg: the cost of a hypothesis is its normal's angle to it.
         n_prior = pin.exp3(np.radians([3.0, -3.0, 0.0])) @ X_true.rotation[:, 2]
 
-        def prior(tag_id, X_CT):
+        def prior(tag_id, X_CT, n_prior=n_prior):
             return math.acos(np.clip(X_CT.rotation[:, 2] @ n_prior, -1.0, 1.0))
 
         (d,) = detector.detect(frame.gray, K, prior=prior)

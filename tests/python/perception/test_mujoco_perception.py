@@ -17,9 +17,14 @@ from marionette.perception.objects import TaggedBody, TagOnBody, estimate_body_p
 SCENE = marionette.REPO_ROOT / "tests" / "data" / "perception" / "tag_box_scene.xml"
 SIZE = 0.08
 # The scene's plank: tags 30, 31, 32 on its top, 12 cm apart, 1.1 cm above its centre.
-PLANK = TaggedBody("plank", "plank", tuple(
-    TagOnBody(i, SIZE, pin.SE3(np.eye(3), np.array([x, 0.0, 0.011])))
-    for i, x in ((30, -0.12), (31, 0.0), (32, 0.12))))
+PLANK = TaggedBody(
+    "plank",
+    "plank",
+    tuple(
+        TagOnBody(i, SIZE, pin.SE3(np.eye(3), np.array([x, 0.0, 0.011])))
+        for i, x in ((30, -0.12), (31, 0.0), (32, 0.12))
+    ),
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +35,9 @@ def rig():
     renderer = sim.RgbdRenderer(scene, "head", 640, 480)
     k = renderer.intrinsics
     K = CameraIntrinsics(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
-    detector = AprilTagDetector(DetectorConfig(tag_sizes={5: SIZE, 30: SIZE, 31: SIZE, 32: SIZE},
-                                               depth_sigma=0.001))
+    detector = AprilTagDetector(
+        DetectorConfig(tag_sizes={5: SIZE, 30: SIZE, 31: SIZE, 32: SIZE}, depth_sigma=0.001)
+    )
     return scene, renderer, K, detector
 
 
@@ -45,7 +51,7 @@ def set_free_body(scene, index: int, p: np.ndarray, R: np.ndarray) -> None:
 
 
 def look(rig):
-    scene, renderer, K, detector = rig
+    scene, renderer, _K, _detector = rig
     rgb, depth = renderer.render(scene)
     gray = np.rint(rgb.mean(axis=2)).astype(np.uint8)
     X_WC = pin.SE3(renderer.camera_pose(scene))
@@ -57,8 +63,10 @@ def truth(scene, X_WC: pin.SE3, name: str) -> pin.SE3:
 
 
 def errors(X_true: pin.SE3, X: pin.SE3) -> tuple[float, float]:
-    return (float(np.linalg.norm(X.translation - X_true.translation)),
-            math.degrees(rotation_angle(X_true.rotation, X.rotation)))
+    return (
+        float(np.linalg.norm(X.translation - X_true.translation)),
+        math.degrees(rotation_angle(X_true.rotation, X.rotation)),
+    )
 
 
 @pytest.fixture
@@ -70,7 +78,7 @@ def reset(rig):
 
 
 def test_depth_is_the_distance_to_the_floor_along_the_optical_axis(rig, reset):
-    gray, depth, X_WC = look(rig)
+    _gray, depth, X_WC = look(rig)
     assert depth[5, 5] == pytest.approx(1.0, abs=0.01)  # image corner: ray 28 deg off-axis
     assert depth[470, 630] == pytest.approx(1.0, abs=0.01)
     assert np.allclose(X_WC.translation, [0.0, 0.0, 1.0])
@@ -94,8 +102,9 @@ def test_tag_pose_within_5mm_and_1deg_at_1m_with_depth(rig, reset, tilt_deg):
     # Face-on, the corners alone leave the tilt to within a few degrees (rendered texture
     # edges are ~0.2 px off); the depth plane pins it.
     scene, _, K, detector = rig
-    set_free_body(scene, 0, np.array([0.1, 0.12, 0.01]),
-                  pin.rpy.rpyToMatrix(np.radians(tilt_deg), 0.0, 0.4))
+    set_free_body(
+        scene, 0, np.array([0.1, 0.12, 0.01]), pin.rpy.rpyToMatrix(np.radians(tilt_deg), 0.0, 0.4)
+    )
     gray, depth, X_WC = look(rig)
     (d,) = [d for d in detector.detect(gray, K, depth=depth) if d.tag_id == 5]
     dp, dr = errors(truth(scene, X_WC, "tag5"), d.X_CT)
@@ -156,8 +165,9 @@ def test_talos_head_camera_in_the_plank_scene(rig):
     X_WC_pin = data.oMf[model.getFrameId(robots.robot("talos").camera_frame)]
     assert np.allclose(X_WC_pin.homogeneous, X_WC.homogeneous, atol=1e-6)
 
-    bodies = load_tagged_bodies([marionette.MODELS_DIR / "objects" / f"{n}.yaml"
-                                 for n in ("plank", "table")])
+    bodies = load_tagged_bodies(
+        [marionette.MODELS_DIR / "objects" / f"{n}.yaml" for n in ("plank", "table")]
+    )
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes(bodies)))
     detections = detector.detect(gray, K, depth=depth)
     # 14, 15: the plank's end face on top. Tag 11, on the shaded front face just under them, is

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pinocchio as pin
@@ -27,8 +26,13 @@ K = CameraIntrinsics.from_fovy(640, 480, 45.0)
 PLANK_YAML = marionette.MODELS_DIR / "objects" / "plank.yaml"
 
 
-def camera_message(frame: syn.SyntheticFrame | None, utime: int, K: CameraIntrinsics = K,
-                   X_WC: pin.SE3 | None = None, depth_scale: float = 0.001):
+def camera_message(
+    frame: syn.SyntheticFrame | None,
+    utime: int,
+    K: CameraIntrinsics = K,
+    X_WC: pin.SE3 | None = None,
+    depth_scale: float = 0.001,
+):
     from marionette import lcmt_camera_image
 
     msg = lcmt_camera_image()
@@ -82,14 +86,17 @@ def test_frames_decode_to_luma_and_metric_depth():
     assert decoded.X_WC_message is not None
 
 
-@pytest.mark.parametrize("field, value, reason", [
-    ("width", 0, "bad_size"),
-    ("fx", float("nan"), "bad_intrinsics"),
-    ("fy", -1.0, "bad_intrinsics"),
-    ("rgb", b"\x00" * 10, "rgb_size"),
-    ("depth", [0] * 10, "depth_size"),
-    ("depth_scale", 0.0, "depth_scale"),
-])
+@pytest.mark.parametrize(
+    "field, value, reason",
+    [
+        ("width", 0, "bad_size"),
+        ("fx", float("nan"), "bad_intrinsics"),
+        ("fy", -1.0, "bad_intrinsics"),
+        ("rgb", b"\x00" * 10, "rgb_size"),
+        ("depth", [0] * 10, "depth_size"),
+        ("depth_scale", 0.0, "depth_scale"),
+    ],
+)
 def test_malformed_frames_are_rejected_with_a_reason(field, value, reason):
     msg = camera_message(syn.render(K, []), 1)
     setattr(msg, field, value)
@@ -118,7 +125,9 @@ def test_robot_state_gives_the_configuration_and_the_camera_pose():
     assert t == 1000
     data = model.createData()
     pin.framesForwardKinematics(model, data, q)
-    assert np.allclose(X_WC.homogeneous, data.oMf[model.getFrameId("rgbd_optical_frame")].homogeneous)
+    assert np.allclose(
+        X_WC.homogeneous, data.oMf[model.getFrameId("rgbd_optical_frame")].homogeneous
+    )
     bad = state_message(model, q, 3000)
     bad.joint_name = bad.joint_name[1:]
     bad.joint_position = bad.joint_position[1:]
@@ -141,12 +150,29 @@ def test_perceive_publishes_detections_and_world_poses_over_lcm(lcm_url, lcm_env
     quads = [syn.tag_quad(t.tag_id, t.size, X_CB * t.X_BT) for t in plank.tags]
     frame = syn.render(K, quads, background_depth=2.0, noise_std=2.0, depth_noise_std=0.002)
 
-    cmd = [sys.executable, "-m", "marionette.cli", "perceive", "--robot", "talos", "--objects",
-           str(PLANK_YAML), "--max-frames", "3", "--duration", "60", "--stats-period", "100"]
-    proc = subprocess.Popen(cmd, env=lcm_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "marionette.cli",
+        "perceive",
+        "--robot",
+        "talos",
+        "--objects",
+        str(PLANK_YAML),
+        "--max-frames",
+        "3",
+        "--duration",
+        "60",
+        "--stats-period",
+        "100",
+    ]
+    proc = subprocess.Popen(
+        cmd, env=lcm_env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
     try:
-        assert wait_for_line(proc.stdout, "listening on CAMERA_HEAD", 60.0), "perceive did not start"
+        assert wait_for_line(proc.stdout, "listening on CAMERA_HEAD", 60.0), (
+            "perceive did not start"
+        )
         with LcmBus(lcm_url) as bus:
             from marionette import lcmt_apriltag_detections, lcmt_object_poses
 
@@ -157,7 +183,9 @@ def test_perceive_publishes_detections_and_world_poses_over_lcm(lcm_url, lcm_env
             bad.fx = float("nan")
             for i in range(40):
                 bus.publish(channels.ROBOT_STATE, state_message(model, q, 1_000_000 + i))
-                bus.publish(channels.CAMERA_HEAD, bad if i == 0 else camera_message(frame, 1_000_000 + i))
+                bus.publish(
+                    channels.CAMERA_HEAD, bad if i == 0 else camera_message(frame, 1_000_000 + i)
+                )
                 if objects.wait_for(lambda m: len(m) >= 3, 0.3):
                     break
             assert len(objects.messages) >= 3, "no object poses published"

@@ -45,13 +45,16 @@ def plank_scene(plank: TaggedBody, X_CB: pin.SE3, occlude: tuple[int, ...] = ())
 
 
 def errors(X_true: pin.SE3, X: pin.SE3) -> tuple[float, float]:
-    return (float(np.linalg.norm(X.translation - X_true.translation)),
-            math.degrees(rotation_angle(X_true.rotation, X.rotation)))
+    return (
+        float(np.linalg.norm(X.translation - X_true.translation)),
+        math.degrees(rotation_angle(X_true.rotation, X.rotation)),
+    )
 
 
 # The plank lying on a table 1 m in front of a camera that looks down at 40 deg.
-X_CB = pin.SE3(pin.rpy.rpyToMatrix(np.radians(180 - 40), 0.0, np.radians(20)),
-               np.array([0.05, 0.03, 1.0]))
+X_CB = pin.SE3(
+    pin.rpy.rpyToMatrix(np.radians(180 - 40), 0.0, np.radians(20)), np.array([0.05, 0.03, 1.0])
+)
 
 
 def test_yaml_tags_give_corners_in_the_body_frame(plank):
@@ -65,8 +68,9 @@ def test_yaml_tags_give_corners_in_the_body_frame(plank):
 
 
 def test_object_pose_from_all_visible_tags(plank):
-    frame = syn.render(K, plank_scene(plank, X_CB), background_depth=2.0, noise_std=2.0,
-                       depth_noise_std=0.003)
+    frame = syn.render(
+        K, plank_scene(plank, X_CB), background_depth=2.0, noise_std=2.0, depth_noise_std=0.003
+    )
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([plank])))
     detections = detector.detect(frame.gray, K)
     assert sorted(d.tag_id for d in detections) == [10, 11]  # 12, 13 face the table
@@ -75,16 +79,22 @@ def test_object_pose_from_all_visible_tags(plank):
     dp, dr = errors(X_CB, pose.X_CB)
     assert dp < 5e-3 and dr < 1.0, (dp, dr)
     assert pose.reprojection_rms < 0.5
-    fused = estimate_body_pose(plank, detector.detect(frame.gray, K, depth=frame.depth), K,
-                               depth=frame.depth)
+    fused = estimate_body_pose(
+        plank, detector.detect(frame.gray, K, depth=frame.depth), K, depth=frame.depth
+    )
     dp, dr = errors(X_CB, fused.X_CB)
     assert dp < 5e-3 and dr < 1.0, (dp, dr)
 
 
 @pytest.mark.parametrize("hidden", [10, 11])
 def test_occlusion_of_all_but_one_tag_still_yields_the_pose(plank, hidden):
-    frame = syn.render(K, plank_scene(plank, X_CB, occlude=(hidden,)), background_depth=2.0,
-                       noise_std=2.0, depth_noise_std=0.003)
+    frame = syn.render(
+        K,
+        plank_scene(plank, X_CB, occlude=(hidden,)),
+        background_depth=2.0,
+        noise_std=2.0,
+        depth_noise_std=0.003,
+    )
     detector = AprilTagDetector(DetectorConfig(tag_sizes=tag_sizes([plank])))
     detections = detector.detect(frame.gray, K, depth=frame.depth)
     assert [d.tag_id for d in detections] == [21 - hidden]  # the card hides the other one

@@ -125,7 +125,11 @@ def test_loss_of_sight_falls_back_to_the_plan_shifted_by_the_last_offset_without
         g_fk = planned  # the gripper follows perfectly (measured = kinematic here)
         X_WC = random_se3(np.random.default_rng(9))
         seen = 0.5 <= t < 1.5  # visible between 0.5 s and 1.5 s only
-        m = VisualMeasurement(t, X_WC.inverse() * g_fk, X_WC.inverse() * D * planned) if seen else None
+        m = (
+            VisualMeasurement(t, X_WC.inverse() * g_fk, X_WC.inverse() * D * planned)
+            if seen
+            else None
+        )
         outputs.append((t, planned, pbvs.update(t, g_fk, planned, m)))
     by_time = {round(t, 3): (planned, out) for t, planned, out in outputs}
     assert by_time[0.4][1].mode == "planned"
@@ -136,8 +140,10 @@ def test_loss_of_sight_falls_back_to_the_plan_shifted_by_the_last_offset_without
     assert out.mode == "fallback"
     assert np.allclose(out.reference.homogeneous, (D * planned).homogeneous, atol=1e-9)
     # Continuity: consecutive references and gains never jump, even at the switches.
-    steps = [np.linalg.norm(se3_error(a[2].reference, b[2].reference))
-             for a, b in zip(outputs, outputs[1:])]
+    steps = [
+        np.linalg.norm(se3_error(a[2].reference, b[2].reference))
+        for a, b in zip(outputs, outputs[1:])
+    ]
     assert max(steps) < 0.01  # rad or m per 2 ms; D itself is ~0.2
     gains = np.array([o.gain for _, _, o in outputs])
     assert np.abs(np.diff(gains)).max() < 0.2

@@ -12,14 +12,18 @@ UR5_BOX = marionette.REPO_ROOT / "bench" / "ur5_box" / "problem.yaml"
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "marionette.cli", "plan", *map(str, args)],
-                          capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "marionette.cli", "plan", *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_plan_writes_plan_and_graph_picture(tmp_path):
     r = run_cli(UR5_BOX, "--out", tmp_path, "--seed", "3")
     assert r.returncode == 0, r.stderr
-    assert "planned in" in r.stdout and "iteration" in r.stderr   # progress display
+    assert "planned in" in r.stdout and "iteration" in r.stderr  # progress display
     plan = load_plan(tmp_path / "plan.json")
     assert plan.doc["problem"]["name"] == "ur5_box"
     assert any(" > " in t for t in plan.transitions) and any(" < " in t for t in plan.transitions)

@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pinocchio as pin
 
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
-from marionette.planning.path import ConstrainedPath
 from marionette.planning.problem import random_configuration
 
 
@@ -59,7 +57,7 @@ def test_grasped_box_moves_with_the_gripper_and_is_checked(ur5_box):
     g = graph_from_settings(p)
     edge = g.edges["Loop | 0-0"]
     checker = CollisionChecker(p)
-    rigid, R, L = checker._motion(edge.path_projector)
+    rigid, R, _L = checker._motion(edge.path_projector)
     names = [o.name for o in checker.geom_model.geometryObjects]
     pair_names = [(names[a], names[b]) for a, b in checker.pairs]
     k = pair_names.index(("ur5/tool0_0", "box/base_link_0"))

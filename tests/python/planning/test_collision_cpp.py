@@ -18,7 +18,9 @@ from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.planner import ManipulationRRT
 from marionette.planning.problem import load_problem, random_configuration
 
-TALOS_PLANK = marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems" / "talos_plank.yaml"
+TALOS_PLANK = (
+    marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems" / "talos_plank.yaml"
+)
 
 
 def _recorded_paths(problem, seeds):
@@ -35,8 +37,11 @@ def _recorded_paths(problem, seeds):
 
     checker.validate = record
     for s in seeds:
-        assert ManipulationRRT(problem, graph, checker, seed=s).solve(
-            problem.q_init, [problem.q_goal], 2000, 60).success
+        assert (
+            ManipulationRRT(problem, graph, checker, seed=s)
+            .solve(problem.q_init, [problem.q_goal], 2000, 60)
+            .success
+        )
     return calls
 
 
@@ -67,14 +72,16 @@ def test_same_verdicts_and_prefixes_as_python_on_planner_paths(ur5_box, ur5_path
     assert {ok for _, ok, _ in kinds} == {True, False}
     assert {pre for _, _, pre in kinds} == {True, False}
     assert len({name for name, _, _ in kinds}) >= 4
-    assert cpp.checks == py.checks   # the same certified steps, query for query
+    assert cpp.checks == py.checks  # the same certified steps, query for query
 
 
 def test_never_accepts_what_dense_sampling_finds_in_collision(ur5_box, ur5_paths):
     cpp = CollisionChecker(ur5_box, backend="cpp")
     rng = np.random.default_rng(3)
-    picked = [ur5_paths[i] for i in rng.choice(len(ur5_paths), size=min(40, len(ur5_paths)),
-                                                replace=False)]
+    picked = [
+        ur5_paths[i]
+        for i in rng.choice(len(ur5_paths), size=min(40, len(ur5_paths)), replace=False)
+    ]
     for path, allowed, prefix in picked:
         if allowed is None:
             allowed = cpp.grasp_contact_pairs(path.edge.grasps)
@@ -83,7 +90,7 @@ def test_never_accepts_what_dense_sampling_finds_in_collision(ur5_box, ur5_paths
         if ok:
             assert brute is None, path.edge.name
         elif brute is not None:
-            assert brute >= s_valid - 1e-9     # the certified prefix is collision-free
+            assert brute >= s_valid - 1e-9  # the certified prefix is collision-free
 
 
 def test_pair_speed_bounds_match_python(ur5_box):
@@ -98,8 +105,9 @@ def test_pair_speed_bounds_match_python(ur5_box):
             qa, qb = random_configuration(ur5_box, rng), random_configuration(ur5_box, rng)
             ang, lin = checker._joint_speeds(qa, qb)
             expected = np.where(rigid, 0.0, R @ ang + L @ lin)
-            np.testing.assert_allclose(checker._cpp.pair_speeds(qa, qb, motion), expected,
-                                       rtol=1e-12, atol=1e-15)
+            np.testing.assert_allclose(
+                checker._cpp.pair_speeds(qa, qb, motion), expected, rtol=1e-12, atol=1e-15
+            )
 
 
 def test_projected_humanoid_polylines_agree_with_python():
@@ -138,22 +146,30 @@ def test_bad_input_is_a_precise_error(ur5_box):
     checker = CollisionChecker(ur5_box, backend="cpp")
     v = checker._cpp
     n = len(checker.pairs)
-    motion = collision_cpp._planning.PairMotion(np.zeros(n, bool), np.zeros(n, bool),
-                                                np.zeros((n, ur5_box.model.njoints)),
-                                                np.zeros((n, ur5_box.model.njoints)))
+    motion = collision_cpp._planning.PairMotion(
+        np.zeros(n, bool),
+        np.zeros(n, bool),
+        np.zeros((n, ur5_box.model.njoints)),
+        np.zeros((n, ur5_box.model.njoints)),
+    )
     sub = collision_cpp._planning.Substitution([], [], [], [], [])
     with pytest.raises(ValueError, match="nq"):
         v.validate(np.zeros((2, 3)), np.array([0.0, 1.0]), sub, motion, False)
     with pytest.raises(ValueError, match="npairs"):
-        bad = collision_cpp._planning.PairMotion(np.zeros(2, bool), np.zeros(2, bool),
-                                                 np.zeros((2, 2)), np.zeros((2, 2)))
+        bad = collision_cpp._planning.PairMotion(
+            np.zeros(2, bool), np.zeros(2, bool), np.zeros((2, 2)), np.zeros((2, 2))
+        )
         v.validate(np.tile(ur5_box.q_init, (2, 1)), np.array([0.0, 1.0]), sub, bad, False)
     with pytest.raises(ValueError, match="backend"):
         CollisionChecker(ur5_box, backend="fortran")
     with pytest.raises(ValueError, match="kind 'Planar'"):
         collision_cpp._planning.PathValidator(
-            [collision_cpp._planning.JointSpec("j", 0, "Planar", np.zeros(3), np.eye(4))], [], [],
-            1e-6, 10)
+            [collision_cpp._planning.JointSpec("j", 0, "Planar", np.zeros(3), np.eye(4))],
+            [],
+            [],
+            1e-6,
+            10,
+        )
 
 
 def _two_spheres(kind: str, lever: float):
@@ -171,12 +187,13 @@ def test_stops_at_the_closed_form_first_contact(kind):
     """A sphere driven towards another: the certified prefix ends at the analytic contact
     (never after it, within CONTACT-sized steps of it); a path ending before it is accepted."""
     from marionette.planning.collision import CONTACT, MAX_QUERIES
+
     if kind == "PX":
         P, joints, XA = _two_spheres(kind, 0.0)
         XB = np.eye(4)
         XB[0, 3] = 1.0
-        s_contact = 1.0 - 0.3               # centres 0.3 apart
-        R, L = [[0.0, 0.1]], [[0.0, 1.0]]   # translation: |dq| per unit t
+        s_contact = 1.0 - 0.3  # centres 0.3 apart
+        R, L = [[0.0, 0.1]], [[0.0, 1.0]]  # translation: |dq| per unit t
         q_end = 2.0
     else:
         P, joints, XA = _two_spheres(kind, 1.0)
@@ -185,23 +202,32 @@ def test_stops_at_the_closed_form_first_contact(kind):
         XB[:2, 3] = [np.cos(theta_b), np.sin(theta_b)]
         # Centres on the unit circle: chord 2 sin(dtheta / 2) = 0.3 at first contact.
         s_contact = theta_b - 2.0 * np.arcsin(0.15)
-        R, L = [[0.0, 1.1]], [[0.0, 0.0]]   # a point of A is at most 1.1 from the axis
+        R, L = [[0.0, 1.1]], [[0.0, 0.0]]  # a point of A is at most 1.1 from the axis
         q_end = np.pi
-    geoms = [P.GeometrySpec("A", 1, XA, "sphere", radius=0.1),
-             P.GeometrySpec("B", 0, XB, "sphere", radius=0.2)]
+    geoms = [
+        P.GeometrySpec("A", 1, XA, "sphere", radius=0.1),
+        P.GeometrySpec("B", 0, XB, "sphere", radius=0.2),
+    ]
     v = P.PathValidator(joints, geoms, [(0, 1)], CONTACT, MAX_QUERIES)
     motion = P.PairMotion(np.zeros(1, bool), np.zeros(1, bool), np.array(R), np.array(L))
     sub = P.Substitution([], [], [], [], [])
-    ok, s_valid, queries, grazing = v.validate(np.array([[0.0], [q_end]]), np.array([0.0, q_end]),
-                                               sub, motion, False)
+    ok, s_valid, queries, grazing = v.validate(
+        np.array([[0.0], [q_end]]), np.array([0.0, q_end]), sub, motion, False
+    )
     assert not ok and not grazing
     assert s_contact - 1e-4 <= s_valid <= s_contact
     assert v.distances(np.array([s_valid]))[0] == pytest.approx(0.0, abs=2e-4)
     short = 0.95 * s_contact
-    ok, s_valid, _, _ = v.validate(np.array([[0.0], [short]]), np.array([0.0, short]), sub,
-                                   motion, False)
+    ok, s_valid, _, _ = v.validate(
+        np.array([[0.0], [short]]), np.array([0.0, short]), sub, motion, False
+    )
     assert ok and s_valid == short
     # All or nothing: the probe at half the length already sees the spheres overlap.
-    ok, s_valid, queries, _ = v.validate(np.array([[0.0], [2 * s_contact + 0.05]]),
-                                         np.array([0.0, 2 * s_contact + 0.05]), sub, motion, True)
+    ok, s_valid, queries, _ = v.validate(
+        np.array([[0.0], [2 * s_contact + 0.05]]),
+        np.array([0.0, 2 * s_contact + 0.05]),
+        sub,
+        motion,
+        True,
+    )
     assert not ok and s_valid == 0.0 and queries == 0

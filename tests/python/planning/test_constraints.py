@@ -6,9 +6,16 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from marionette.planning.constraints import (ComPosition, ExplicitRelativePose, Kinematics,
-                                             LockedJoint, Placement, PlacementComplement,
-                                             RelativeTransformation, Transformation)
+from marionette.planning.constraints import (
+    ComPosition,
+    ExplicitRelativePose,
+    Kinematics,
+    LockedJoint,
+    Placement,
+    PlacementComplement,
+    RelativeTransformation,
+    Transformation,
+)
 from marionette.planning.problem import random_configuration
 
 
@@ -40,27 +47,45 @@ def constraints_under_test(p):
     place = Placement("place_box", p, "box", ["box/bottom"], ["table/top"], margin=1e-4)
     comp = PlacementComplement("place_box/complement", place)
     grasp = ExplicitRelativePose("grasp", p.model, h.joint_id, g.joint_id, mg, mh)
-    lock = LockedJoint("lock_box", p.model, p.objects["box"].joint_id, np.array([0.5, 0, 0.1, 0, 0, 0, 1]))
+    lock = LockedJoint(
+        "lock_box", p.model, p.objects["box"].joint_id, np.array([0.5, 0, 0.1, 0, 0, 0, 1])
+    )
     lock_arm = LockedJoint("lock_elbow", p.model, 3, np.array([0.3]))
     return {
         "relative_transformation_6d": RelativeTransformation("rt", g.joint_id, mg, h.joint_id, mh),
         "relative_transformation_mask": RelativeTransformation(
-            "rt_mask", g.joint_id, mg, h.joint_id, mh, mask=(True, False, True, False, True, True)),
-        "transformation": Transformation("tf", g.joint_id, mg, pin.SE3(pin.utils.rotate("x", 0.4), np.array([0.4, 0.1, 0.3]))),
+            "rt_mask", g.joint_id, mg, h.joint_id, mh, mask=(True, False, True, False, True, True)
+        ),
+        "transformation": Transformation(
+            "tf", g.joint_id, mg, pin.SE3(pin.utils.rotate("x", 0.4), np.array([0.4, 0.1, 0.3]))
+        ),
         "placement": place,
         "placement_complement": comp,
         "grasp_as_implicit": grasp.as_implicit(),
         "locked_freeflyer_as_implicit": lock.as_implicit(),
         "locked_revolute_as_implicit": lock_arm.as_implicit(),
-        "com_in_wrist_frame": ComPosition("com", 5, pin.SE3(pin.utils.rotate("y", 0.3), np.array([0.1, 0.0, 0.05]))),
+        "com_in_wrist_frame": ComPosition(
+            "com", 5, pin.SE3(pin.utils.rotate("y", 0.3), np.array([0.1, 0.0, 0.05]))
+        ),
         "com_in_world_xy": ComPosition("com_xy", 0, pin.SE3.Identity(), mask=(True, True, False)),
     }
 
 
-@pytest.mark.parametrize("which", [
-    "relative_transformation_6d", "relative_transformation_mask", "transformation", "placement",
-    "placement_complement", "grasp_as_implicit", "locked_freeflyer_as_implicit",
-    "locked_revolute_as_implicit", "com_in_wrist_frame", "com_in_world_xy"])
+@pytest.mark.parametrize(
+    "which",
+    [
+        "relative_transformation_6d",
+        "relative_transformation_mask",
+        "transformation",
+        "placement",
+        "placement_complement",
+        "grasp_as_implicit",
+        "locked_freeflyer_as_implicit",
+        "locked_revolute_as_implicit",
+        "com_in_wrist_frame",
+        "com_in_world_xy",
+    ],
+)
 def test_jacobian_matches_finite_differences(ur5_box, which):
     c = constraints_under_test(ur5_box)[which]
     kin = Kinematics(ur5_box.model)
@@ -76,9 +101,14 @@ def test_jacobian_matches_finite_differences(ur5_box, which):
 def test_explicit_grasp_puts_handle_on_gripper(ur5_box):
     p = ur5_box
     g, h = p.grippers["ur5/gripper"], p.handles["box/handle"]
-    grasp = ExplicitRelativePose("grasp", p.model, h.joint_id, g.joint_id,
-                                 p.model.frames[g.frame_id].placement,
-                                 p.model.frames[h.frame_id].placement)
+    grasp = ExplicitRelativePose(
+        "grasp",
+        p.model,
+        h.joint_id,
+        g.joint_id,
+        p.model.frames[g.frame_id].placement,
+        p.model.frames[h.frame_id].placement,
+    )
     kin = Kinematics(p.model)
     q = random_configuration(p, np.random.default_rng(1))
     kin.update(q, jacobians=False)
@@ -115,6 +145,6 @@ def test_placement_jacobian_outside_the_surface_polygon(ur5_box, xy):
     q[8] = 0.1
     kin.update(q, jacobians=False)
     e = place.compute_error(kin)
-    assert np.linalg.norm(e[3:]) > 0.1          # offset to the table polygon is reported
+    assert np.linalg.norm(e[3:]) > 0.1  # offset to the table polygon is reported
     J = analytic_jacobian(place, kin, q)
     np.testing.assert_allclose(J, finite_difference_jacobian(place, kin, q), atol=2e-6)

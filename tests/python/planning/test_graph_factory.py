@@ -16,14 +16,26 @@ TALOS_PLANK = marionette.REPO_ROOT / "tests" / "data" / "planning" / "talos_plan
 # HPP 9.0.2's ConstraintGraphFactory on the same UR5 box problem (../shared/bench/ur5_box/
 # problem.json, "graph" section).
 HPP_UR5_STATES = {
-    "free", "ur5/gripper > box/handle | f_intersec", "ur5/gripper > box/handle | f_pregrasp",
-    "ur5/gripper > box/handle | f_preplace", "ur5/gripper grasps box/handle"}
+    "free",
+    "ur5/gripper > box/handle | f_intersec",
+    "ur5/gripper > box/handle | f_pregrasp",
+    "ur5/gripper > box/handle | f_preplace",
+    "ur5/gripper grasps box/handle",
+}
 HPP_UR5_TRANSITIONS = {
-    "Loop | 0-0", "Loop | f", "ur5/gripper < box/handle | 0-0", "ur5/gripper < box/handle | 0-0_10",
-    "ur5/gripper < box/handle | 0-0_21", "ur5/gripper < box/handle | 0-0_32",
-    "ur5/gripper < box/handle | 0-0_43", "ur5/gripper > box/handle | f",
-    "ur5/gripper > box/handle | f_01", "ur5/gripper > box/handle | f_12",
-    "ur5/gripper > box/handle | f_23", "ur5/gripper > box/handle | f_34"}
+    "Loop | 0-0",
+    "Loop | f",
+    "ur5/gripper < box/handle | 0-0",
+    "ur5/gripper < box/handle | 0-0_10",
+    "ur5/gripper < box/handle | 0-0_21",
+    "ur5/gripper < box/handle | 0-0_32",
+    "ur5/gripper < box/handle | 0-0_43",
+    "ur5/gripper > box/handle | f",
+    "ur5/gripper > box/handle | f_01",
+    "ur5/gripper > box/handle | f_12",
+    "ur5/gripper > box/handle | f_23",
+    "ur5/gripper > box/handle | f_34",
+}
 
 
 def test_ur5_box_graph_is_hpps(ur5_box):
@@ -35,7 +47,11 @@ def test_ur5_box_graph_is_hpps(ur5_box):
     assert [s.name.split("_")[-1] for s in grasp.waypoints] == ["pregrasp", "intersec", "preplace"]
     # Approach sub-edges lie in 'free' (box stays on the table), the others in the grasp state.
     assert [e.containing.name for e in grasp.sub_edges] == [
-        "free", "free", "ur5/gripper grasps box/handle", "ur5/gripper grasps box/handle"]
+        "free",
+        "free",
+        "ur5/gripper grasps box/handle",
+        "ur5/gripper grasps box/handle",
+    ]
     assert g.edges["Loop | f"].weight == 0.0 and grasp.weight > 0.0
 
 
@@ -54,7 +70,11 @@ def test_plank_graph_has_the_17_states_of_section_3_4_2(plank_graph):
             continue
         if h1 and h2 and frozenset((h1, h2)) in same_side:
             continue
-        parts = [f"talos/{g} grasps plank/{h}" for g, h in (("left_gripper", h1), ("right_gripper", h2)) if h]
+        parts = [
+            f"talos/{g} grasps plank/{h}"
+            for g, h in (("left_gripper", h1), ("right_gripper", h2))
+            if h
+        ]
         expected.add(" : ".join(parts) or "free")
     assert len(expected) == 17
     assert {s.name for s in plank_graph.main_states()} == expected
@@ -78,20 +98,28 @@ def test_plank_graph_transitions(plank_graph):
     first = g.edges["talos/left_gripper > plank/H1 | f"]
     second = g.edges["talos/right_gripper > plank/H3 | 0-0"]
     assert len(first.waypoints) == 3 and len(second.waypoints) == 1
-    assert "talos/left_gripper grasps plank/H1 : talos/right_gripper grasps plank/H3" == second.to_state.name
+    assert (
+        "talos/left_gripper grasps plank/H1 : talos/right_gripper grasps plank/H3"
+        == second.to_state.name
+    )
     # No transition into a pruned state.
     names = {s.name for s in main}
     assert all(e.to_state.name in names for e in grasps + releases)
 
 
 def test_rules_are_hpps_first_match_semantics():
-    rules = GraspRules(["g1", "g2"], ["H1", "H2"], [Rule(["g1", "g2"], ["H1", "H2"], False),
-                                                    Rule([".*"], [".*"], True)])
+    rules = GraspRules(
+        ["g1", "g2"],
+        ["H1", "H2"],
+        [Rule(["g1", "g2"], ["H1", "H2"], False), Rule([".*"], [".*"], True)],
+    )
     assert rules((None, None))
     assert rules((0, None))
     assert not rules((0, 1))
     assert rules((1, 0))
-    assert not GraspRules(["g1"], ["H1"], [Rule(["g1"], ["H1"], True)])((None,))  # no match: refused
+    assert not GraspRules(["g1"], ["H1"], [Rule(["g1"], ["H1"], True)])(
+        (None,)
+    )  # no match: refused
 
 
 def test_factory_rejects_unknown_names(ur5_box):
@@ -106,7 +134,9 @@ def test_graph_picture_is_written(ur5_box, tmp_path):
     png = g.write_picture(tmp_path / "graph.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     dot = g.to_dot()
-    assert dot.count("->") == len(g.edges) - sum(isinstance(e, WaypointEdge) for e in g.edges.values())
+    assert dot.count("->") == len(g.edges) - sum(
+        isinstance(e, WaypointEdge) for e in g.edges.values()
+    )
 
 
 def test_transition_weights_from_the_problem_file(ur5_box):

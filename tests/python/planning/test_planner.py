@@ -4,16 +4,19 @@ from __future__ import annotations
 
 import itertools
 
-import marionette
-
 import numpy as np
 import pytest
 
+import marionette
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.path import load_plan, save_plan
-from marionette.planning.planner import (ManipulationRRT, PlanningError, graph_shortcut,
-                                         random_shortcut)
+from marionette.planning.planner import (
+    ManipulationRRT,
+    PlanningError,
+    graph_shortcut,
+    random_shortcut,
+)
 
 
 @pytest.fixture(scope="module")
@@ -45,8 +48,12 @@ def dedup(names):
 
 def test_ur5_box_is_solved_for_at_least_19_of_20_seeds(setup):
     problem, graph, checker = setup
-    results = [ManipulationRRT(problem, graph, checker, seed=s).solve(
-        problem.q_init, [problem.q_goal], max_iterations=1000, timeout_s=30) for s in range(20)]
+    results = [
+        ManipulationRRT(problem, graph, checker, seed=s).solve(
+            problem.q_init, [problem.q_goal], max_iterations=1000, timeout_s=30
+        )
+        for s in range(20)
+    ]
     assert sum(r.success for r in results) >= 19
     for r in results[:5]:
         if r.success:
@@ -69,7 +76,7 @@ def test_shortcut_keeps_transitions_and_shortens(setup):
 def test_plan_file_round_trip(setup, tmp_path):
     problem, graph, checker = setup
     r = ManipulationRRT(problem, graph, checker, seed=2).solve(problem.q_init, [problem.q_goal])
-    json_path, npz_path = save_plan(tmp_path / "plan", graph, r.paths, step=0.02)
+    json_path, _npz_path = save_plan(tmp_path / "plan", graph, r.paths, step=0.02)
     plan = load_plan(json_path)
     assert plan.transitions == [p.edge.name for p in r.paths]
     doc = plan.doc
@@ -89,7 +96,9 @@ def test_plan_file_round_trip(setup, tmp_path):
     # frame on the handle frame, given by joints and constant placements.
     grasp = doc["graph"]["constraint_definitions"]["ur5/gripper grasps box/handle"]
     assert grasp["type"] == "ExplicitRelativePose"
-    assert grasp["parent_joint"] == "ur5/wrist_3_joint" and grasp["output_joint"] == "box/root_joint"
+    assert (
+        grasp["parent_joint"] == "ur5/wrist_3_joint" and grasp["output_joint"] == "box/root_joint"
+    )
     pregrasp = doc["graph"]["constraint_definitions"]["ur5/gripper pregrasps box/handle"]
     assert pregrasp["joint1"] == "ur5/wrist_3_joint" and all(pregrasp["mask"])
 
@@ -97,12 +106,12 @@ def test_plan_file_round_trip(setup, tmp_path):
 def test_start_in_collision_or_in_no_state_is_refused(setup):
     problem, graph, checker = setup
     q = problem.q_init.copy()
-    q[8] = 0.3              # box floating: on no placement, not grasped
+    q[8] = 0.3  # box floating: on no placement, not grasped
     with pytest.raises(PlanningError, match="no state"):
         ManipulationRRT(problem, graph, checker).solve(q, [problem.q_goal])
     q = problem.q_init.copy()
     q[8] = 0.0251
-    q[6:8] = [0.0, 0.0]     # box inside the robot base... and outside the table: no state
+    q[6:8] = [0.0, 0.0]  # box inside the robot base... and outside the table: no state
     with pytest.raises(PlanningError):
         ManipulationRRT(problem, graph, checker).solve(q, [problem.q_goal])
 
@@ -111,13 +120,18 @@ def test_ur10_box_moved_across_the_table_in_at_least_19_of_20_seeds():
     """The models' UR10 (two-finger gripper) moves the box 0.5 m across the models' table."""
     from marionette.planning.problem import load_problem
 
-    problem = load_problem(marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems"
-                           / "ur10_box.yaml")
+    problem = load_problem(
+        marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems" / "ur10_box.yaml"
+    )
     graph = graph_from_settings(problem)
     graph.initialize()
     checker = CollisionChecker(problem)
-    results = [ManipulationRRT(problem, graph, checker, seed=s).solve(
-        problem.q_init, [problem.q_goal], max_iterations=2000, timeout_s=60) for s in range(20)]
+    results = [
+        ManipulationRRT(problem, graph, checker, seed=s).solve(
+            problem.q_init, [problem.q_goal], max_iterations=2000, timeout_s=60
+        )
+        for s in range(20)
+    ]
     assert sum(r.success for r in results) >= 19, [r.reason for r in results if not r.success]
     check_plan(problem, graph, checker, next(r for r in results if r.success).paths)
 

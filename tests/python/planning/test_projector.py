@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -11,7 +9,7 @@ import pytest
 from marionette.planning.constraints import LockedJoint, Transformation
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.problem import random_configuration
-from marionette.planning.projector import (ALGORITHM_1, LineSearch, ProjectionStatus, Projector)
+from marionette.planning.projector import ALGORITHM_1, LineSearch, ProjectionStatus, Projector
 
 
 @pytest.fixture(scope="module")
@@ -30,9 +28,16 @@ def configuration_in(graph, state_name, rng):
     raise AssertionError(f"no configuration found in {state_name}")
 
 
-@pytest.mark.parametrize("state_name", [
-    "free", "ur5/gripper grasps box/handle", "ur5/gripper > box/handle | f_pregrasp",
-    "ur5/gripper > box/handle | f_intersec", "ur5/gripper > box/handle | f_preplace"])
+@pytest.mark.parametrize(
+    "state_name",
+    [
+        "free",
+        "ur5/gripper grasps box/handle",
+        "ur5/gripper > box/handle | f_pregrasp",
+        "ur5/gripper > box/handle | f_intersec",
+        "ur5/gripper > box/handle | f_preplace",
+    ],
+)
 def test_projection_converges_from_perturbed_configurations(graph, state_name):
     rng = np.random.default_rng(3)
     model = graph.problem.model
@@ -54,7 +59,7 @@ def test_projection_converges_from_perturbed_configurations(graph, state_name):
 
 def test_grasp_state_is_solved_by_substitution_without_iterating(graph):
     s = graph.states["ur5/gripper grasps box/handle"]
-    assert not s.projector.implicit              # the grasp is explicit: nothing to iterate
+    assert not s.projector.implicit  # the grasp is explicit: nothing to iterate
     q = random_configuration(graph.problem, np.random.default_rng(0))
     result = s.project(q)
     assert result.success and result.iterations == 0
@@ -66,8 +71,14 @@ def test_fixed_sequence_follows_algorithm_1_schedule(ur5_box):
     multiplies the error by (1 - alpha); Algorithm 1's alpha_k+1 = .95 - .8 (.95 - alpha_k)."""
     model = ur5_box.model
     lock = LockedJoint("elbow", model, model.getJointId("ur5/elbow_joint"), np.array([0.5]))
-    proj = Projector(ur5_box, [lock.as_implicit()], error_threshold=1e-12, max_iterations=6,
-                     line_search=ALGORITHM_1, damping=0.0)
+    proj = Projector(
+        ur5_box,
+        [lock.as_implicit()],
+        error_threshold=1e-12,
+        max_iterations=6,
+        line_search=ALGORITHM_1,
+        damping=0.0,
+    )
     q = ur5_box.q_init.copy()
     e0 = q[2] - 0.5
     result = proj.project(q)
@@ -81,15 +92,22 @@ def test_fixed_sequence_follows_algorithm_1_schedule(ur5_box):
 
 def test_unreachable_target_is_reported_not_crashing(ur5_box):
     g = ur5_box.grippers["ur5/gripper"]
-    far = Transformation("far", g.joint_id, ur5_box.model.frames[g.frame_id].placement,
-                         pin.SE3(np.eye(3), np.array([3.0, 0.0, 0.5])))
+    far = Transformation(
+        "far",
+        g.joint_id,
+        ur5_box.model.frames[g.frame_id].placement,
+        pin.SE3(np.eye(3), np.array([3.0, 0.0, 0.5])),
+    )
     proj = Projector(ur5_box, [far], max_iterations=30)
     q = ur5_box.q_init.copy()
     result = proj.project(q)
     assert not result.success
-    assert result.status in (ProjectionStatus.NOT_DECREASING, ProjectionStatus.MAX_ITERATIONS,
-                             ProjectionStatus.LOCAL_MINIMUM)
-    assert result.error_norm > 1.5            # the arm (reach < 1 m) cannot get within 1.5 m
+    assert result.status in (
+        ProjectionStatus.NOT_DECREASING,
+        ProjectionStatus.MAX_ITERATIONS,
+        ProjectionStatus.LOCAL_MINIMUM,
+    )
+    assert result.error_norm > 1.5  # the arm (reach < 1 m) cannot get within 1.5 m
     assert "iteration" in str(result) and "|e|" in str(result)
 
 

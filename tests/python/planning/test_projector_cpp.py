@@ -18,7 +18,6 @@ from marionette.planning.graph import WaypointEdge
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.problem import load_problem, random_configuration
 from marionette.planning.projector import ALGORITHM_1, LineSearch, ProjectionStatus, Projector
-
 from planning.test_constraints import constraints_under_test
 
 PROBLEMS = marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems"
@@ -26,18 +25,26 @@ PROBLEMS = marionette.REPO_ROOT / "python" / "marionette" / "planning" / "proble
 
 def python_twin(proj: Projector, constraints=None, **overrides) -> Projector:
     """The reference projector with the same constraints and settings as ``proj``."""
-    kw = dict(error_threshold=proj.error_threshold, max_iterations=proj.max_iterations,
-              line_search=proj.line_search, damping=proj.damping)
+    kw = dict(
+        error_threshold=proj.error_threshold,
+        max_iterations=proj.max_iterations,
+        line_search=proj.line_search,
+        damping=proj.damping,
+    )
     kw.update(overrides)
-    return Projector(proj.problem, proj.constraints if constraints is None else constraints,
-                     backend="python", **kw)
+    return Projector(
+        proj.problem,
+        proj.constraints if constraints is None else constraints,
+        backend="python",
+        **kw,
+    )
 
 
 def every_projector(graph):
     """(label, projector) of every state and of every transition's path and target."""
     for name, s in graph.states.items():
         yield f"state {name}", s.projector
-    for name, e in graph.edges.items():
+    for e in graph.edges.values():
         edges = e.sub_edges if isinstance(e, WaypointEdge) else [e]
         for sub in edges:
             yield f"path {sub.name}", sub.path_projector
@@ -45,7 +52,7 @@ def every_projector(graph):
 
 
 def outcome(model, r_a, q_a, r_b, q_b) -> str:
-    """"success" (both converged, in as many iterations, 1e-9 apart), "success 1e-6" (the
+    """ "success" (both converged, in as many iterations, 1e-9 apart), "success 1e-6" (the
     same, 1e-6 apart), "same failure" (same reason after as many iterations), "disagree"."""
     if (r_a.status, r_a.iterations) != (r_b.status, r_b.iterations):
         return "disagree"
@@ -55,8 +62,9 @@ def outcome(model, r_a, q_a, r_b, q_b) -> str:
     return "success" if d < 1e-9 else "success 1e-6" if d < 1e-6 else "disagree"
 
 
-def compare(problem, cpp: Projector, py: Projector, rng, starts: int, rhs_configs,
-            tweak=None) -> dict:
+def compare(
+    problem, cpp: Projector, py: Projector, rng, starts: int, rhs_configs, tweak=None
+) -> dict:
     """Project the same starts with both backends and count the outcomes (:func:`outcome`);
     at every start, the first Newton step of both must agree (1e-10): same logic everywhere.
     ``tweak(q0)`` edits the starts in place."""
@@ -123,16 +131,24 @@ def test_same_results_as_python_on_every_state_and_transition(ur5_box, problem_f
     assert_agree(total)
 
 
-@pytest.mark.parametrize("line_search", [ALGORITHM_1, LineSearch("error_norm", max_step=0.5)],
-                         ids=["algorithm_1", "error_norm"])
+@pytest.mark.parametrize(
+    "line_search",
+    [ALGORITHM_1, LineSearch("error_norm", max_step=0.5)],
+    ids=["algorithm_1", "error_norm"],
+)
 def test_same_results_with_the_other_step_size_schedules(ur5_box, line_search):
     graph = graph_from_settings(ur5_box)
     rng = np.random.default_rng(5)
     total: dict = {}
     for name in ("free", "ur5/gripper > box/handle | f_pregrasp"):
         base = graph.states[name].projector
-        cpp = Projector(ur5_box, base.constraints, error_threshold=base.error_threshold,
-                        max_iterations=base.max_iterations, line_search=line_search)
+        cpp = Projector(
+            ur5_box,
+            base.constraints,
+            error_threshold=base.error_threshold,
+            max_iterations=base.max_iterations,
+            line_search=line_search,
+        )
         add(total, compare(ur5_box, cpp, python_twin(cpp), rng, 100, [ur5_box.q_init]))
     assert total["success"] >= 20, total
     assert_agree(total, 0.1)
@@ -143,9 +159,13 @@ def test_same_results_with_priority_levels(ur5_box):
     agree."""
     p = ur5_box
     g = p.grippers["ur5/gripper"]
-    position = Transformation("position", g.joint_id, p.model.frames[g.frame_id].placement,
-                              pin.SE3(np.eye(3), np.array([0.4, 0.1, 0.3])),
-                              mask=(True, True, True, False, False, False))
+    position = Transformation(
+        "position",
+        g.joint_id,
+        p.model.frames[g.frame_id].placement,
+        pin.SE3(np.eye(3), np.array([0.4, 0.1, 0.3])),
+        mask=(True, True, True, False, False, False),
+    )
     wrist = LockedJoint("wrist", p.model, p.model.getJointId("ur5/wrist_1_joint"), np.array([0.3]))
     levels = dict(levels=[0, 1], max_iterations=30)
     cpp = Projector(ur5_box, [position, wrist.as_implicit()], **levels)
@@ -187,24 +207,42 @@ def test_talos_plank_states_without_com_agree_with_python():
 
     def near_start(q0):
         q0[:] = pin.integrate(problem.model, problem.q_init, 0.1 * rng.standard_normal(problem.nv))
-    for name, s in graph.states.items():
+
+    for _name, s in graph.states.items():
         full = s.projector
         assert full.backend == "python" and "ComPosition" in full.fallback_reason
         kept = [c for c in full.constraints if not isinstance(c, ComPosition)]
-        cpp = Projector(problem, kept, error_threshold=full.error_threshold,
-                        max_iterations=full.max_iterations, line_search=full.line_search)
+        cpp = Projector(
+            problem,
+            kept,
+            error_threshold=full.error_threshold,
+            max_iterations=full.max_iterations,
+            line_search=full.line_search,
+        )
         assert cpp.backend == "cpp", cpp.fallback_reason
-        add(total, compare(problem, cpp, python_twin(cpp), rng, 3, [problem.q_init], tweak=near_start))
+        add(
+            total,
+            compare(problem, cpp, python_twin(cpp), rng, 3, [problem.q_init], tweak=near_start),
+        )
         checked += 1
     assert checked == len(graph.states)
     assert total["success"] >= 10, total
     assert_agree(total, 0.1)
 
 
-@pytest.mark.parametrize("which", [
-    "relative_transformation_6d", "relative_transformation_mask", "transformation", "placement",
-    "placement_complement", "grasp_as_implicit", "locked_freeflyer_as_implicit",
-    "locked_revolute_as_implicit"])
+@pytest.mark.parametrize(
+    "which",
+    [
+        "relative_transformation_6d",
+        "relative_transformation_mask",
+        "transformation",
+        "placement",
+        "placement_complement",
+        "grasp_as_implicit",
+        "locked_freeflyer_as_implicit",
+        "locked_revolute_as_implicit",
+    ],
+)
 def test_cpp_errors_match_python_and_jacobians_match_finite_differences(ur5_box, which):
     p = ur5_box
     c = constraints_under_test(p)[which]
@@ -213,7 +251,7 @@ def test_cpp_errors_match_python_and_jacobians_match_finite_differences(ur5_box,
     proj = Projector(p, constraints, levels=[0] * len(constraints))
     assert proj.backend == "cpp"
     cpp = proj._cpp
-    rows = slice(proj.size - c.size, proj.size)          # c is the last constraint
+    rows = slice(proj.size - c.size, proj.size)  # c is the last constraint
     rng = np.random.default_rng(7)
     for _ in range(5):
         q = random_configuration(p, rng)
@@ -280,8 +318,10 @@ def test_membership_verdicts_match_python(ur5_box, problem_file):
             q = random_configuration(problem, rng)
             candidates = [q.copy()]
             if proj.project(q):
-                candidates += [q] + [pin.integrate(model, q, s * rng.standard_normal(model.nv))
-                                     for s in (1e-5, 1e-4, 1e-3)]
+                candidates += [q] + [
+                    pin.integrate(model, q, s * rng.standard_normal(model.nv))
+                    for s in (1e-5, 1e-4, 1e-3)
+                ]
             for c in candidates:
                 expected = py.is_satisfied(c)
                 pairs_py = [p.pair for p in proj._cpp.placements]

@@ -13,7 +13,9 @@ from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.guide import guide_configuration, plan_through
 from marionette.planning.problem import load_problem
 
-PROBLEM = marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems" / "talos_plank.yaml"
+PROBLEM = (
+    marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems" / "talos_plank.yaml"
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,9 +32,10 @@ def frame_pose(problem, kin, name):
 
 def test_guide_waypoint_holds_the_plank_with_both_hands_balanced(setup):
     problem, graph, checker = setup
-    entry = next(e for e in problem.settings["guide"] if " : " in e["state"])   # two hands
-    q = guide_configuration(problem, graph, checker, entry, problem.q_init,
-                            np.random.default_rng(0))
+    entry = next(e for e in problem.settings["guide"] if " : " in e["state"])  # two hands
+    q = guide_configuration(
+        problem, graph, checker, entry, problem.q_init, np.random.default_rng(0)
+    )
     state = graph.states[entry["state"]]
     assert state.contains(q) and len(state.grasps) == 2
     kin = Kinematics(problem.model)
@@ -51,10 +54,19 @@ def test_plank_flip_is_planned_with_feet_fixed_and_com_balanced(setup):
     # Seed 4 plans in a few seconds; across seeds 1-4 planning took 2 s to 3 min (RRT
     # variance, see the planning README): the checks below hold for any plan.
     rng = np.random.default_rng(4)
-    waypoints = [guide_configuration(problem, graph, checker, e, problem.q_init, rng)
-                 for e in problem.settings["guide"]]
-    result = plan_through(problem, graph, checker, [problem.q_init, *waypoints, problem.q_goal],
-                          seed=4, max_iterations=100000, timeout_s=500)
+    waypoints = [
+        guide_configuration(problem, graph, checker, e, problem.q_init, rng)
+        for e in problem.settings["guide"]
+    ]
+    result = plan_through(
+        problem,
+        graph,
+        checker,
+        [problem.q_init, *waypoints, problem.q_goal],
+        seed=4,
+        max_iterations=100000,
+        timeout_s=500,
+    )
     assert result.success, result.reason
     paths = result.paths
     kin = Kinematics(problem.model)
@@ -77,7 +89,7 @@ def test_plank_flip_is_planned_with_feet_fixed_and_com_balanced(setup):
     assert two_hands, "the plank is turned by handing it over from one hand to the other"
     # The plank ends upside down: its front end, up at the start, rests on the table.
     plank = problem.objects["plank"]
-    X_end = pin.XYZQUATToSE3(paths[-1].end[plank.idx_q:plank.idx_q + 7])
-    X_start = pin.XYZQUATToSE3(problem.q_init[plank.idx_q:plank.idx_q + 7])
-    assert X_start.rotation[2, 0] == pytest.approx(1.0, abs=1e-6)    # plank x axis up
-    assert X_end.rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)     # plank x axis down
+    X_end = pin.XYZQUATToSE3(paths[-1].end[plank.idx_q : plank.idx_q + 7])
+    X_start = pin.XYZQUATToSE3(problem.q_init[plank.idx_q : plank.idx_q + 7])
+    assert X_start.rotation[2, 0] == pytest.approx(1.0, abs=1e-6)  # plank x axis up
+    assert X_end.rotation[2, 0] == pytest.approx(-1.0, abs=1e-3)  # plank x axis down

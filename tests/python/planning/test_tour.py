@@ -17,7 +17,8 @@ def test_open_path_matches_the_brute_force_optimum(seed):
     order = tsp_order(costs, start, time_limit_s=0.5)
     assert sorted(order) == [i for i in range(n) if i != start]
     assert path_cost(costs, order, start) == pytest.approx(
-        path_cost(costs, brute_force_order(costs, start), start), abs=1e-5)
+        path_cost(costs, brute_force_order(costs, start), start), abs=1e-5
+    )
 
 
 def test_asymmetric_costs_and_the_free_end():
@@ -29,7 +30,9 @@ def test_asymmetric_costs_and_the_free_end():
     # one-way costs: going "down" is 10x dearer
     asym = np.where(x[:, None] < x[None], costs, 10 * costs)
     order = tsp_order(asym, 2, time_limit_s=0.3)
-    assert path_cost(asym, order, 2) == pytest.approx(path_cost(asym, brute_force_order(asym, 2), 2))
+    assert path_cost(asym, order, 2) == pytest.approx(
+        path_cost(asym, brute_force_order(asym, 2), 2)
+    )
 
 
 def test_bad_costs_are_refused():

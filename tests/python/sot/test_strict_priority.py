@@ -37,18 +37,26 @@ def task_pool(model, q, rng):
     pin.computeJointJacobians(model, data, q)
     pin.framesForwardKinematics(model, data, q)
     nv = model.nv
-    frame = lambda name: pin.getFrameJacobian(model, data, model.getFrameId(name), pin.LOCAL_WORLD_ALIGNED)
+
+    def frame(name):
+        return pin.getFrameJacobian(model, data, model.getFrameId(name), pin.LOCAL_WORLD_ALIGNED)
+
     Jl, Jr = frame("gripper_left_base_link"), frame("gripper_right_base_link")
     Jcom = pin.jacobianCenterOfMass(model, data, q)
-    eq = lambda J: {"jacobian": J, "lower": rng.normal(0.0, 0.3, J.shape[0])}
+
+    def eq(J):
+        return {"jacobian": J, "lower": rng.normal(0.0, 0.3, J.shape[0])}
+
     joints = rng.choice(np.arange(6, nv), size=12, replace=False)
     posture = np.zeros((12, nv))
     posture[np.arange(12), joints] = 1.0
+
     def joint_rows(names):
         rows = np.zeros((len(names), nv))
         for i, name in enumerate(names):
             rows[i, model.joints[model.getJointId(name)].idx_v] = 1.0
         return rows
+
     com_xy = Jcom[:2]
     c0 = rng.normal(0.0, 0.05, 2)
     return {
@@ -59,12 +67,20 @@ def task_pool(model, q, rng):
         "relative_grippers": eq(Jl - Jr),
         "posture": eq(posture),
         # joints no frame task above moves (grippers, head) or only the left gripper does
-        "posture_free": eq(joint_rows(["gripper_left_joint", "gripper_right_joint", "head_1_joint", "head_2_joint"])),
+        "posture_free": eq(
+            joint_rows(
+                ["gripper_left_joint", "gripper_right_joint", "head_1_joint", "head_2_joint"]
+            )
+        ),
         "posture_left_arm": eq(joint_rows([f"arm_left_{i}_joint" for i in range(1, 8)])),
         "com_box": {"jacobian": com_xy, "lower": c0 - 0.02, "upper": c0 + 0.02, "inequality": True},
-        "bounds": {"jacobian": np.eye(nv)[6:], "lower": -rng.uniform(0.05, 0.6, nv - 6),
-                   "upper": rng.uniform(0.05, 0.6, nv - 6), "inequality": True,
-                   "unit_columns": list(range(6, nv))},
+        "bounds": {
+            "jacobian": np.eye(nv)[6:],
+            "lower": -rng.uniform(0.05, 0.6, nv - 6),
+            "upper": rng.uniform(0.05, 0.6, nv - 6),
+            "inequality": True,
+            "unit_columns": list(range(6, nv)),
+        },
     }
 
 
@@ -98,12 +114,20 @@ def achieved(level, v):
     return np.concatenate(out)
 
 
-
-
 STACKS = [
-    [["bounds"], ["left_foot", "right_foot", "com"], ["right_gripper", "relative_grippers"], ["posture"]],
+    [
+        ["bounds"],
+        ["left_foot", "right_foot", "com"],
+        ["right_gripper", "relative_grippers"],
+        ["posture"],
+    ],
     [["bounds"], ["left_foot", "right_foot"], ["com_box"], ["right_gripper"], ["posture"]],
-    [["bounds"], ["left_foot", "right_foot", "com_box"], ["relative_grippers"], ["right_gripper", "posture"]],
+    [
+        ["bounds"],
+        ["left_foot", "right_foot", "com_box"],
+        ["relative_grippers"],
+        ["right_gripper", "posture"],
+    ],
     [["bounds", "left_foot"], ["right_foot", "com"], ["posture"], ["right_gripper"]],
 ]
 
@@ -118,10 +142,26 @@ def wide_bounds(pool, nv):
 # how two rank thresholds cut a near-singular level (damping handles those in the controller;
 # tests/cpp/sot covers conflicting levels in closed form).
 EQUALITY_STACKS = [
-    [["bounds"], ["left_foot", "right_foot", "com"], ["right_gripper"], ["posture_left_arm"], ["posture_free"]],
+    [
+        ["bounds"],
+        ["left_foot", "right_foot", "com"],
+        ["right_gripper"],
+        ["posture_left_arm"],
+        ["posture_free"],
+    ],
     [["bounds"], ["left_foot", "right_foot"], ["relative_grippers"], ["com"], ["posture_free"]],
-    [["bounds", "left_foot"], ["right_foot", "com"], ["posture_left_arm", "posture_free"], ["right_gripper"]],
-    [["bounds"], ["left_foot", "right_foot", "com"], ["relative_grippers", "right_gripper"], ["posture_free"]],
+    [
+        ["bounds", "left_foot"],
+        ["right_foot", "com"],
+        ["posture_left_arm", "posture_free"],
+        ["right_gripper"],
+    ],
+    [
+        ["bounds"],
+        ["left_foot", "right_foot", "com"],
+        ["relative_grippers", "right_gripper"],
+        ["posture_free"],
+    ],
 ]
 
 
@@ -138,8 +178,13 @@ def test_each_level_matches_the_textbook_cascade(talos, seed):
     assert report["qp_failures"] == 0
     reference = brute_force_cascade(levels, talos.nv)
     for k, level in enumerate(levels):
-        np.testing.assert_allclose(achieved(level, v), achieved(level, reference), atol=TOL, rtol=0,
-                                   err_msg=f"level {k} {names[k]} (seed {seed})")
+        np.testing.assert_allclose(
+            achieved(level, v),
+            achieved(level, reference),
+            atol=TOL,
+            rtol=0,
+            err_msg=f"level {k} {names[k]} (seed {seed})",
+        )
     np.testing.assert_allclose(v, reference, atol=1e-7, rtol=0)  # and the same minimum-norm v
 
 
@@ -164,8 +209,13 @@ def test_binding_bounds_hold_and_lower_levels_never_alter_higher_ones(talos, see
         v_cut, _ = _core.solve_hierarchy(levels[: k + 1])
         for j in range(k + 1):
             # 5e-6: the accuracy of the QP levels (eiquadprog; 3.4e-6 measured at worst here)
-            np.testing.assert_allclose(achieved(levels[j], v), achieved(levels[j], v_cut), atol=5e-6, rtol=0,
-                                       err_msg=f"level {j} changed by levels below {k} (seed {seed})")
+            np.testing.assert_allclose(
+                achieved(levels[j], v),
+                achieved(levels[j], v_cut),
+                atol=5e-6,
+                rtol=0,
+                err_msg=f"level {j} changed by levels below {k} (seed {seed})",
+            )
 
 
 @pytest.mark.parametrize("damping", [0.0, 0.02])
@@ -180,17 +230,29 @@ def test_posture_under_feet_and_hands_matches_the_textbook_cascade(talos, seed, 
     pool = task_pool(talos, random_configuration(talos, rng), rng)
     pool["bounds"] = wide_bounds(pool, talos.nv)
     # every actuated joint (drawn after the pool so that the other tests' draws are unchanged)
-    pool["posture_all"] = {"jacobian": np.eye(talos.nv)[6:], "lower": rng.normal(0.0, 0.3, talos.nv - 6)}
-    names = [["bounds"], ["left_foot", "right_foot", "com"], ["right_gripper", "relative_grippers"],
-             ["posture_all"]]
+    pool["posture_all"] = {
+        "jacobian": np.eye(talos.nv)[6:],
+        "lower": rng.normal(0.0, 0.3, talos.nv - 6),
+    }
+    names = [
+        ["bounds"],
+        ["left_foot", "right_foot", "com"],
+        ["right_gripper", "relative_grippers"],
+        ["posture_all"],
+    ]
     levels = [[pool[n] for n in level] for level in names]
     v, report = _core.solve_hierarchy(levels, damping=damping)
     assert report["ranks"] == [0, 15, 12, 11]
     assert report["gram_levels"] == [False, False, False, True]
     reference = brute_force_cascade(levels, talos.nv)
     for k, level in enumerate(levels):
-        np.testing.assert_allclose(achieved(level, v), achieved(level, reference), atol=TOL, rtol=0,
-                                   err_msg=f"level {k} {names[k]} (seed {seed})")
+        np.testing.assert_allclose(
+            achieved(level, v),
+            achieved(level, reference),
+            atol=TOL,
+            rtol=0,
+            err_msg=f"level {k} {names[k]} (seed {seed})",
+        )
     np.testing.assert_allclose(v, reference, atol=1e-7, rtol=0)
 
 
@@ -207,4 +269,6 @@ def test_sparse_rows_after_dense_ones_on_a_square_level_solved_on_its_gram_matri
     levels = [[{"jacobian": dense, "lower": b[:7]}, {"jacobian": sparse, "lower": b[7:]}]]
     v, report = _core.solve_hierarchy(levels)
     assert report["ranks"] == [n] and report["gram_levels"] == [True]
-    np.testing.assert_allclose(v, np.linalg.solve(np.vstack([dense, sparse]), b), atol=1e-10, rtol=0)
+    np.testing.assert_allclose(
+        v, np.linalg.solve(np.vstack([dense, sparse]), b), atol=1e-10, rtol=0
+    )

@@ -42,7 +42,7 @@ def test_viewer_process_shows_the_robot_moving_and_the_fsm_state(lcm_url, tmp_pa
     model, _ = robots.load_pinocchio("ur10", with_collision=False)
     q_a = robots.reference_configuration("ur10", model)
     q_b = q_a.copy()
-    q_b[0] += 1.2                      # shoulder pan: the whole arm swings sideways
+    q_b[0] += 1.2  # shoulder pan: the whole arm swings sideways
     with ProcessGroup(lcm_url, tmp_path / "logs") as group, LcmBus(lcm_url) as bus:
         url = start_viewer(group, "ur10", SCENE, log=lambda m: None)
         empty = screenshot(url, tmp_path / "empty.png")
@@ -50,7 +50,13 @@ def test_viewer_process_shows_the_robot_moving_and_the_fsm_state(lcm_url, tmp_pa
         time.sleep(1.0)
         shot_a = screenshot(url, tmp_path / "a.png")
         st = lcmt_supervisor_state()
-        st.plan_name, st.state, st.step_index, st.num_steps, st.status = "ur10_box", "grasp", 1, 8, "running"
+        st.plan_name, st.state, st.step_index, st.num_steps, st.status = (
+            "ur10_box",
+            "grasp",
+            1,
+            8,
+            "running",
+        )
         bus.publish(channels.SUPERVISOR_STATE, st)
         bus.publish(channels.ROBOT_STATE, ur10_state(q_b, model))
         time.sleep(1.0)
@@ -100,9 +106,11 @@ def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_pat
         server.close()
     assert early.robot_frames >= 1 and full.counts[channels.ROBOT_STATE] > 1000
     assert full.counts[channels.SUPERVISOR_STATE] > 0 and "done" in scene.fsm_text
-    assert scene._objects.get("box") is not None and scene._objects.get("table") is not None  # box: SIM_OBJECT_POSES; table: the scene YAML
+    assert (
+        scene._objects.get("box") is not None and scene._objects.get("table") is not None
+    )  # box: SIM_OBJECT_POSES; table: the scene YAML
     h, w, _ = shot_end.shape
-    assert changed(shot_early, shot_end).sum() > 0.002 * h * w   # the arm and the box moved
+    assert changed(shot_early, shot_end).sum() > 0.002 * h * w  # the arm and the box moved
     plots = replot_report(log, tmp_path / "replot")
     assert [p.name for p in plots] == ["task_errors.png"] and plots[0].stat().st_size > 10_000
     decisions, _ = read_decision_log(log)
@@ -113,8 +121,20 @@ def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_pat
 def test_replay_view_rejects_bad_input(tmp_path):
     import subprocess
 
-    missing = subprocess.run([sys.executable, "-m", "marionette.cli", "replay", str(tmp_path / "nope.lcmlog"),
-                              "--view", "--no-hold"], capture_output=True, text=True, timeout=60)
+    missing = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "replay",
+            str(tmp_path / "nope.lcmlog"),
+            "--view",
+            "--no-hold",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert missing.returncode == 2 and "no LCM log at" in missing.stderr
     with pytest.raises(ValueError, match="speed must be >= 0"):
         play(tmp_path / "x.lcmlog", None, speed=-1.0)

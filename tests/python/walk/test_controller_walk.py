@@ -12,8 +12,14 @@ import time
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from marionette import (channels, lcmt_footstep, lcmt_footstep_plan, lcmt_robot_state, lcmt_walk_status,
-                        robots)
+from marionette import (
+    channels,
+    lcmt_footstep,
+    lcmt_footstep_plan,
+    lcmt_robot_state,
+    lcmt_walk_status,
+    robots,
+)
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
 from tests_support import controller_running
@@ -28,7 +34,14 @@ def walking_spec(controller_id: int = 1):
         TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0),
         TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0),
         TaskSpec("com", "com", 0, gain=5.0),
-        TaskSpec("waist", "se3", 0, frame="base_link", mask=(False, False, False, True, True, False), gain=20.0),
+        TaskSpec(
+            "waist",
+            "se3",
+            0,
+            frame="base_link",
+            mask=(False, False, False, True, True, False),
+            gain=20.0,
+        ),
         TaskSpec("posture", "posture", 1, gain=2.0),
     ]
     msg = ControllerSpec(controller_id, "walk", tasks).to_lcm()
@@ -76,12 +89,26 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
     statuses: list = []
     states: list = []
     log = tmp_path / "walk.lcmlog"
-    logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    logger = subprocess.Popen(
+        ["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
     time.sleep(0.3)  # subscribed before the controller's first message
     try:
-        with controller_running(build_dir, lcm_url, tmp_path / "logs", "--robot", "talos", "--scene",
-                                str(TALOS.mjcf), "--speed", "0", "--camera-rate", "0") as client:
+        with controller_running(
+            build_dir,
+            lcm_url,
+            tmp_path / "logs",
+            "--robot",
+            "talos",
+            "--scene",
+            str(TALOS.mjcf),
+            "--speed",
+            "0",
+            "--camera-rate",
+            "0",
+        ) as client:
             client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
             client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
             # A plan before any walking controller is refused with its reason.
@@ -89,22 +116,34 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
             for _ in range(20):  # UDP: resend until the controller has seen one
                 client.bus.publish(channels.FOOTSTEP_PLAN, early)
                 try:
-                    client.wait(lambda c: "has no walk: tasks" in c.status.last_rejection, 0.5, "the refused plan")
+                    client.wait(
+                        lambda c: "has no walk: tasks" in c.status.last_rejection,
+                        0.5,
+                        "the refused plan",
+                    )
                     break
                 except TimeoutError:
                     continue
             assert "has no walk: tasks" in client.status.last_rejection
 
             client.bus.publish(channels.CONTROLLER_SPEC, walking_spec())
-            client.wait(lambda c: c.status.mode == "running" and c.status.active_controller_id == 1, 30.0,
-                        "the walking controller")
+            client.wait(
+                lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
+                30.0,
+                "the walking controller",
+            )
             client.wait(lambda c: len(statuses) > 0, 10.0, "WALK_STATUS")
             standing = statuses[-1]
             assert standing.phase == "standing" and standing.current_step_index == -1
             base0 = client.base_position()
 
-            client.bus.publish(channels.FOOTSTEP_PLAN, forward_plan(standing.left_foot, standing.right_foot, 6, 0.1))
-            client.wait(lambda c: any(s.current_step_index == 5 for s in statuses), 60.0, "the last step")
+            client.bus.publish(
+                channels.FOOTSTEP_PLAN,
+                forward_plan(standing.left_foot, standing.right_foot, 6, 0.1),
+            )
+            client.wait(
+                lambda c: any(s.current_step_index == 5 for s in statuses), 60.0, "the last step"
+            )
             client.wait(lambda c: statuses[-1].phase == "standing", 30.0, "standing again")
             client.wait_time(0.5)
             base = client.base_position()
@@ -127,16 +166,22 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
     loaded = {}
     for st in states:
         fz = {name: w[2] for name, w in zip(st.contact_frame, st.contact_wrench)}
-        loaded[st.utime] = [side for side in ("left", "right") if fz.get(f"{side}_sole_link", 0.0) > 10.0]
+        loaded[st.utime] = [
+            side for side in ("left", "right") if fz.get(f"{side}_sole_link", 0.0) > 10.0
+        ]
     margins = []
     for s in walked:
         feet = loaded.get(s.utime)
         if not feet or not np.all(np.isfinite(s.zmp_measured)):
             continue
-        corners = np.vstack([sole_corners(s.left_foot if side == "left" else s.right_foot) for side in feet])
+        corners = np.vstack(
+            [sole_corners(s.left_foot if side == "left" else s.right_foot) for side in feet]
+        )
         margins.append(margin(np.array(s.zmp_measured), corners))
-    print(f"measured ZMP margin over {len(margins)} statuses: min {1e3 * min(margins):.1f} mm, "
-          f"median {1e3 * np.median(margins):.1f} mm")
+    print(
+        f"measured ZMP margin over {len(margins)} statuses: min {1e3 * min(margins):.1f} mm, "
+        f"median {1e3 * np.median(margins):.1f} mm"
+    )
     assert len(margins) > 0.8 * len(walked), "statuses and states of the same ticks"
     assert min(margins) > -0.005
     assert np.median(margins) > 0.03

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-BALL = np.array([1.3, -0.1, 0.842])   # the grasp-walk demo's ball (6 steps ahead)
+BALL = np.array([1.3, -0.1, 0.842])  # the grasp-walk demo's ball (6 steps ahead)
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_the_walk_ends_when_only_the_posture_step_is_left(build_dir, robot):
         if plan is not None:
             assert plan.first_step_index == step + 1
             assert plan.steps[-1].index == n - 1, "no step appended for an unmoved target"
-    node.on_walk_status(_status(n - 2))             # the penultimate step starts
+    node.on_walk_status(_status(n - 2))  # the penultimate step starts
     assert node.update(100) is None
     node.on_walk_status(_status(n - 1))
     assert node.update(101) is None

@@ -9,14 +9,24 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
 
-from marionette import (channels, lcmt_footstep_plan, lcmt_object_poses, lcmt_robot_state,
-                        lcmt_walk_status, robots)
+from marionette import (
+    channels,
+    lcmt_footstep_plan,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_walk_status,
+    robots,
+)
 from marionette.control.client import configuration_from_state
 from marionette.footsteps.robot_model import TALOS_GRASP_POINT
 from tests_support import lcm_log_messages, run_demo
 
-TYPES = {channels.FOOTSTEP_PLAN: lcmt_footstep_plan, channels.ROBOT_STATE: lcmt_robot_state,
-         channels.WALK_STATUS: lcmt_walk_status, channels.OBJECT_POSES: lcmt_object_poses}
+TYPES = {
+    channels.FOOTSTEP_PLAN: lcmt_footstep_plan,
+    channels.ROBOT_STATE: lcmt_robot_state,
+    channels.WALK_STATUS: lcmt_walk_status,
+    channels.OBJECT_POSES: lcmt_object_poses,
+}
 
 
 def read_log(path):
@@ -36,8 +46,9 @@ def soles(model, data, q):
     out = {}
     for side in ("left", "right"):
         X = data.oMf[model.getFrameId(f"{side}_sole_link")]
-        out[side] = np.array([X.translation[0], X.translation[1],
-                              np.arctan2(X.rotation[1, 0], X.rotation[0, 0])])
+        out[side] = np.array(
+            [X.translation[0], X.translation[1], np.arctan2(X.rotation[1, 0], X.rotation[0, 0])]
+        )
     return out
 
 
@@ -51,7 +62,9 @@ def final_stance(plans_at, start):
         steps.update({s.index: s for s in p.steps if s.index >= first})
     out = dict(start)
     for i in sorted(steps):
-        out["left" if steps[i].is_left else "right"] = np.array([steps[i].x, steps[i].y, steps[i].yaw])
+        out["left" if steps[i].is_left else "right"] = np.array(
+            [steps[i].x, steps[i].y, steps[i].yaw]
+        )
     return out
 
 
@@ -69,17 +82,30 @@ def zmp_inside(zmp, feet, half, tolerance):
 
 
 def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_env):
-    run, report = run_demo("grasp-walk", tmp_path, lcm_env, speed=3, timeout_s=110,
-                           args=("--seed", "1"), files=("report.md", "run.lcmlog", "footsteps.png", "com_zmp.png", "zmp_margin.png"))
+    run, report = run_demo(
+        "grasp-walk",
+        tmp_path,
+        lcm_env,
+        speed=3,
+        timeout_s=110,
+        args=("--seed", "1"),
+        files=("report.md", "run.lcmlog", "footsteps.png", "com_zmp.png", "zmp_margin.png"),
+    )
     c = report["criteria"]
     assert report["controller"]["num_rejected"] == 0, report["controller"]["last_rejection"]
 
     # --- the same verdict from the log alone ---------------------------------------------------
     log = read_log(run / "run.lcmlog")
-    plans, states, statuses = log[channels.FOOTSTEP_PLAN], log[channels.ROBOT_STATE], log[channels.WALK_STATUS]
+    plans, states, statuses = (
+        log[channels.FOOTSTEP_PLAN],
+        log[channels.ROBOT_STATE],
+        log[channels.WALK_STATUS],
+    )
     assert len(plans) == c["footstep_plans"] >= 3, "a first plan and replans"
     assert plans[0].first_step_index == 0
-    assert all(p.first_step_index >= 1 for p in plans[1:]), "a replan never touches step 0 (started)"
+    assert all(p.first_step_index >= 1 for p in plans[1:]), (
+        "a replan never touches step 0 (started)"
+    )
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     data = model.createData()
     q_first = configuration_from_state(model, states[0])
@@ -102,8 +128,11 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     assert 0.1 <= np.linalg.norm(move) <= 0.3
     shift = 0.5 * sum(planned[s][:2] - first_only[s][:2] for s in ("left", "right"))
     assert shift @ move > 0.5 * move @ move, f"final stance moved {shift} for a ball moved {move}"
-    moved_at = next(m.utime for m in log[channels.OBJECT_POSES]
-                    if np.linalg.norm(np.array(m.objects[0].position_world) - balls[0]) > 0.1)
+    moved_at = next(
+        m.utime
+        for m in log[channels.OBJECT_POSES]
+        if np.linalg.norm(np.array(m.objects[0].position_world) - balls[0]) > 0.1
+    )
     first_step_at = next(s.utime for s in statuses if s.current_step_index >= 0)
     assert moved_at > first_step_at, "the ball moved during the walk"
 
@@ -121,7 +150,9 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     grasp_point = data.oMf[model.getFrameId("gripper_right_base_link")].act(TALOS_GRASP_POINT)
     reach = np.linalg.norm(grasp_point - data.oMf[model.getFrameId("arm_right_1_link")].translation)
     assert np.linalg.norm(balls[-1] - shoulder) < reach
-    print(f"ball {np.linalg.norm(balls[-1] - shoulder):.3f} m from the shoulder, arm reach {reach:.3f} m")
+    print(
+        f"ball {np.linalg.norm(balls[-1] - shoulder):.3f} m from the shoulder, arm reach {reach:.3f} m"
+    )
 
     # Bonus: after the walk, the grasp point reaches the ball (final state, after the reach).
     reach = report["reach"]
@@ -129,14 +160,16 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     pin.framesForwardKinematics(model, data, q_last)
     grasp = data.oMf[model.getFrameId("gripper_right_base_link")].act(TALOS_GRASP_POINT)
     assert np.linalg.norm(grasp - balls[-1]) < 0.03
-    print(f"grasp point {1e3 * np.linalg.norm(grasp - balls[-1]):.1f} mm from the ball after the reach")
+    print(
+        f"grasp point {1e3 * np.linalg.norm(grasp - balls[-1]):.1f} mm from the ball after the reach"
+    )
 
     # No fall: the base never dropped 5 cm.
     z = np.array([s.base_position[2] for s in states])
     assert z.min() > z[0] - 0.05
 
     # Measured ZMP inside the loaded soles (5 mm: the walk's sole poses vs the real ones).
-    half = (0.1025, 0.061)   # models/talos/talos.xml sole boxes
+    half = (0.1025, 0.061)  # models/talos/talos.xml sole boxes
     loaded = {}
     for st in states:
         fz = {name: w[2] for name, w in zip(st.contact_frame, st.contact_wrench)}
@@ -148,8 +181,14 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
             continue
         pose = {"left": s.left_foot, "right": s.right_foot}
         checked += 1
-        outside += not zmp_inside(np.array(s.zmp_measured), [(pose[f][0], pose[f][1], pose[f][3])
-                                                              for f in feet], half, 0.005)
+        outside += not zmp_inside(
+            np.array(s.zmp_measured),
+            [(pose[f][0], pose[f][1], pose[f][3]) for f in feet],
+            half,
+            0.005,
+        )
     assert checked > 0.8 * len(statuses) and outside == 0, f"{outside} of {checked} outside"
-    print(f"{c['footstep_recomputations']} recomputations, ZMP margin min "
-          f"{1e3 * c['zmp_margin_min_m']:.1f} mm, median {1e3 * c['zmp_margin_median_m']:.1f} mm")
+    print(
+        f"{c['footstep_recomputations']} recomputations, ZMP margin min "
+        f"{1e3 * c['zmp_margin_min_m']:.1f} mm, median {1e3 * c['zmp_margin_median_m']:.1f} mm"
+    )

@@ -25,7 +25,7 @@ def test_zmp_margin_is_the_signed_distance_to_the_support_polygon():
     corners = np.vstack([sole_corners(f, half) for f in feet])
     from scipy.spatial import ConvexHull
 
-    hull = corners[ConvexHull(corners).vertices]       # counter-clockwise
+    hull = corners[ConvexHull(corners).vertices]  # counter-clockwise
     edges = list(zip(hull, np.roll(hull, -1, axis=0)))
     for p in rng.uniform([-0.1, -0.25], [0.45, 0.25], size=(300, 2)):
         d = min(_segment_distance(p, a, b) for a, b in edges)
@@ -35,13 +35,15 @@ def test_zmp_margin_is_the_signed_distance_to_the_support_polygon():
             # Inside, the margin is the distance to the nearest edge line = nearest edge.
             assert m == pytest.approx(d, abs=1e-12)
         else:
-            assert m < 0 and -m <= d + 1e-12     # outside: negative, at most the true distance
+            assert m < 0 and -m <= d + 1e-12  # outside: negative, at most the true distance
 
 
 def test_sole_corners_rotate_with_the_yaw():
     c = sole_corners([1.0, 2.0, 0.0, np.pi / 2], (0.1, 0.05))
-    assert np.allclose(sorted(map(tuple, np.round(c, 12))),
-                       sorted([(1.05, 2.1), (0.95, 2.1), (1.05, 1.9), (0.95, 1.9)]))
+    assert np.allclose(
+        sorted(map(tuple, np.round(c, 12))),
+        sorted([(1.05, 2.1), (0.95, 2.1), (1.05, 1.9), (0.95, 1.9)]),
+    )
 
 
 def test_sole_size_comes_from_the_mjcf_and_bad_names_are_named(tmp_path):
@@ -109,7 +111,7 @@ def test_bar_height_under_a_sole_is_the_cylinder_or_an_end_block():
     from marionette.execution.step_over import cylinder_height_under
 
     R, length, block = 0.025, 1.34, 0.07
-    bar = (1.0, 0.0, np.pi / 2)                      # axis along y
+    bar = (1.0, 0.0, np.pi / 2)  # axis along y
 
     def sole(x0, x1, y0=-0.05, y1=0.05):
         return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
@@ -117,7 +119,13 @@ def test_bar_height_under_a_sole_is_the_cylinder_or_an_end_block():
     assert cylinder_height_under(sole(0.9, 1.1), bar, R, length, block) == pytest.approx(2 * R)
     for u in (0.0, 0.01, 0.02, 0.0249):
         expected = R + np.sqrt(R * R - u * u)
-        assert cylinder_height_under(sole(1.0 + u, 1.2), bar, R, length, block) == pytest.approx(expected)
-        assert cylinder_height_under(sole(0.8, 1.0 - u), bar, R, length, block) == pytest.approx(expected)
+        assert cylinder_height_under(sole(1.0 + u, 1.2), bar, R, length, block) == pytest.approx(
+            expected
+        )
+        assert cylinder_height_under(sole(0.8, 1.0 - u), bar, R, length, block) == pytest.approx(
+            expected
+        )
     assert cylinder_height_under(sole(1.03, 1.2), bar, R, length, block) == 0.0
-    assert cylinder_height_under(sole(0.9, 1.1, 0.62, 0.66), bar, R, length, block) == pytest.approx(block)
+    assert cylinder_height_under(
+        sole(0.9, 1.1, 0.62, 0.66), bar, R, length, block
+    ) == pytest.approx(block)
