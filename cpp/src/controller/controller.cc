@@ -580,6 +580,9 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
     else
       throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
   }
+  if (o.robot.empty() && !*help)
+    throw std::invalid_argument("--robot NAME|DIR is required (the robots found: --describe-robot "
+                                "needs one too; see docs/robots.md)");
   if (o.state_rate <= 0.0 || o.state_rate > 1000.0)
     throw std::invalid_argument("--state-rate must be in (0, 1000]");
   if (!o.encoder_offsets.empty() && o.backend != "mujoco") {

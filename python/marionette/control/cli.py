@@ -42,7 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _format(name: str, value: np.ndarray) -> str:
     if value.ndim == 0:
         return f"{name} = {float(value):.9g}"
-    return f"{name} {value.shape} =\n{np.array2string(value, precision=6, suppress_small=True, max_line_width=120)}"
+    text = np.array2string(value, precision=6, suppress_small=True, max_line_width=120)
+    return f"{name} {value.shape} =\n{text}"
 
 
 def _run(args: argparse.Namespace) -> int:

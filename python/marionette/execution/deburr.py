@@ -81,7 +81,6 @@ from marionette.processes import ProcessGroup
 SCENE = marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml"
 PROBLEM = Path(__file__).resolve().parents[1] / "planning" / "problems" / "tiago_deburr.yaml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
-GRIPPERS_YAML = marionette.MODELS_DIR / "tiago" / "grippers.yaml"
 TOOL = "tiago/deburring_tool"
 TOOL_LINK = "drill_link"  # the tool's frame is on it; its z axis is the tool axis
 TOOL_BODY = "tiago"  # perceive's name for the tagged drill_link of TIAGo
@@ -508,7 +507,7 @@ def run_deburr(
     rng = np.random.default_rng(seed)
     handles = {h.name: h for h in load_semantics(PART_YAML).handles}
     holes = {name: h.pose.se3() for name, h in handles.items()}
-    gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
+    gripper = robots.semantics("tiago").gripper(TOOL)
     X_link_tool = gripper.pose.se3()
     X_WP_nom = scene_object_pose(SCENE, "part")
     centre_P = np.mean([X.translation for X in holes.values()], axis=0)

@@ -161,7 +161,7 @@ PLAN_INPUTS_FILE = "inputs.sha256"  # beside a cached plan.json: the digest it w
 
 def plan_inputs_digest(problem: Path) -> str:
     """SHA-256 of what a plan of ``problem`` depends on besides the seed: the problem file and
-    the model files of its robots and objects (URDF, SRDF, grippers / handles YAML). A handle
+    the model files of its robots and objects (URDF, SRDF, robot.yaml, handles YAML). A handle
     moved in models/objects/ changes it; a cache judged by the problem file's date alone kept
     planning with the old handle."""
     doc = yaml.safe_load(problem.read_text())
@@ -169,7 +169,7 @@ def plan_inputs_digest(problem: Path) -> str:
     for r in doc.get("robots", []):
         if "robot" in r:
             desc = robots.robot(r["robot"])
-            files += [desc.urdf, desc.srdf, desc.urdf.parent / "grippers.yaml"]
+            files += [desc.urdf, desc.srdf, desc.semantics]
         files += [Path(r[k]) for k in ("urdf", "srdf") if k in r]
     for o in [*doc.get("objects", []), *doc.get("environment", [])]:
         files += [

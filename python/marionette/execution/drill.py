@@ -68,7 +68,6 @@ from marionette.processes import ProcessGroup
 
 SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
-GRIPPERS_YAML = marionette.MODELS_DIR / "ur10" / "grippers.yaml"
 TOOL = "ur10/drill"
 TIP_FRAME = "drill_tip_link"  # URDF frame at the tool's origin; tool x axis = its z axis
 REFERENCES = ("part/R1", "part/R2")
@@ -217,9 +216,9 @@ def render_part(X_WP: pin.SE3, settings: DrillSettings, rng: np.random.Generator
 
 def _tool(client: ControllerClient, settings: DrillSettings) -> ToolTask:
     """The spindle's SE3 task on ``drill_tip_link`` (tool x axis = its z axis)."""
-    from marionette.models.semantics import load_semantics
+    from marionette import robots
 
-    gripper = next(g for g in load_semantics(GRIPPERS_YAML).grippers if g.name == TOOL)
+    gripper = robots.semantics("ur10").gripper(TOOL)
     return ToolTask(
         client, settings, "ur10", TIP_FRAME, gripper.link, gripper.pose.se3(), SCENE, name="drill"
     )

@@ -110,12 +110,12 @@ def run_grasp_walk(
     view: bool = False,
 ) -> dict[str, Any]:
     """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
-    from marionette.footsteps.robot_model import talos
+    from marionette.footsteps.robot_model import walking_robot
 
     settings = settings or GraspWalkSettings.drawn(seed)
     out_dir.mkdir(parents=True, exist_ok=True)
     desc = robots.robot("talos")
-    model = talos().model  # with the grasp-point frames of the planner
+    model = walking_robot("talos").model  # with the grasp-point frames of the planner
     url = controller_url or private_lcm_url()
     report = scenario_report(scenario, seed, speed, url, desc.mjcf, settings)
     with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url, view) as run:
@@ -225,18 +225,18 @@ def _reach(
 ) -> dict[str, Any]:
     """Bonus: swap to :func:`reach_spec` and bring the grasp point onto the ball. The gripper base
     aims 0.12 m short of the ball along the shoulder-ball line (the grasp point is that far
-    along the forearm's axis, footsteps.robot_model.TALOS_GRASP_POINT); the result is measured
+    along the forearm's axis, the gripper frame's origin in robot.yaml); the result is measured
     at the grasp point."""
     from marionette.execution.streamer import ReferenceStreamer
-    from marionette.footsteps.robot_model import TALOS_GRASP_POINT
 
     hand = settings.hand
+    grasp_point = np.array(robots.semantics("talos").gripper(f"talos/{hand}_gripper").pose.xyz)
     data = model.createData()
     pin.framesForwardKinematics(model, data, configuration_from_state(model, client.state))
     p_hand = data.oMf[model.getFrameId(f"gripper_{hand}_base_link")].translation.copy()
     shoulder = data.oMf[model.getFrameId(f"arm_{hand}_1_link")].translation.copy()
     u = (ball - shoulder) / np.linalg.norm(ball - shoulder)
-    target = ball - np.linalg.norm(TALOS_GRASP_POINT) * u
+    target = ball - np.linalg.norm(grasp_point) * u
     # The controller refuses a swap whose command jumps (the walk's last sway): retry once the
     # robot has settled a little more, with a new controller id each time.
     refusals = []
@@ -286,7 +286,7 @@ def _reach(
             lookahead.append(streamer.min_margin_us / 1e3)
         pin.framesForwardKinematics(model, data, configuration_from_state(model, client.state))
         X_hand = data.oMf[model.getFrameId(f"gripper_{hand}_base_link")]
-        grasp = X_hand.act(TALOS_GRASP_POINT)
+        grasp = X_hand.act(grasp_point)
         errors.append(float(np.linalg.norm(grasp - ball)))
         p_hand, target = target, ball - (grasp - X_hand.translation)
     error = errors[-1]

@@ -154,11 +154,11 @@ def run_step_over(
     view: bool = False,
 ) -> dict[str, Any]:
     """Runs one step-over trial and writes its report folder; returns the report dictionary."""
-    from marionette.footsteps.robot_model import talos
+    from marionette.footsteps.robot_model import walking_robot
 
     settings = settings or StepOverSettings.drawn(seed)
     out_dir.mkdir(parents=True, exist_ok=True)
-    model = talos().model
+    model = walking_robot("talos").model
     url = controller_url or private_lcm_url()
     report = scenario_report(scenario, seed, speed, url, SCENE, settings)
     bar_real = np.array(settings.bar, dtype=float)

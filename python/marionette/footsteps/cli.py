@@ -24,6 +24,7 @@ def _options(args):
     from marionette.footsteps.node import NodeOptions
 
     return NodeOptions(
+        robot=args.robot,
         mode=args.mode,
         target=args.target,
         hand=args.hand,
@@ -50,12 +51,15 @@ def _plan(args: argparse.Namespace) -> int:
     stance = _stance(args.stance) or Stance(
         np.array([0.0, 0.085, 0.0]), np.array([0.0, -0.085, 0.0])
     )
+    from marionette.footsteps.node import resolve_walking_robot
+    from marionette.footsteps.robot_model import walking_robot
+
+    robot = walking_robot(resolve_walking_robot(args.robot))
     if args.mode == "grasp":
         from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
-        from marionette.footsteps.robot_model import talos
 
         target = np.array(args.object)
-        planner = GraspPlanner(talos(), stance, target, options=GraspPlannerOptions(hand=args.hand))
+        planner = GraspPlanner(robot, stance, target, options=GraspPlannerOptions(hand=args.hand))
         report = planner.plan()
         obstacles, goal, hand = [], None, target
         foot = planner.augmented.foot
@@ -67,6 +71,7 @@ def _plan(args: argparse.Namespace) -> int:
             stance,
             np.array(args.goal),
             bar,
+            robot.foot,
             options=StepOverOptions(swing_margin=args.swing_margin),
         )
         report = planner.plan()
@@ -98,6 +103,11 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--robot",
+        default="",
+        help="robot with two feet (name or folder; default: the only one found)",
+    )
     p.add_argument("--mode", choices=["grasp", "step-over"], default="grasp")
     p.add_argument("--hand", choices=["left", "right"], default="right")
     p.add_argument(

@@ -696,8 +696,9 @@ class ReachTask(Task):
     """The object sits at ``offset`` (forward, left) [m] in the final stance frame (2 rows):
     the stance centre m = (p_k + p_(k-1)) / 2 with the yaw θ_k of the last footprint.
 
-    The reference posture alone would choose where to stand from the reference arm pose (TALOS's
-    half_sitting holds the grippers 0.43 m to the sides, so the robot stood half a metre beside
+    The reference posture alone would choose where to stand from the reference arm pose (a
+    humanoid's half-sitting posture may hold the grippers 0.43 m to the sides, so the robot stood
+    half a metre beside
     the object and reached across); this places the stance the way one approaches to grasp.
     e = R(θ_k)ᵀ (t − m) − offset,  de = −R(θ_k)ᵀ dm + S' R(θ_k)ᵀ (t − m) dθ_k, S' = [[0,1],[-1,0]].
     """

@@ -85,7 +85,8 @@ class HierarchySettings:
     damping: float = 1e-4  # μ of μ||x||² in every level
     rank_tolerance: float = 1e-7  # singular values below this (× max(1, σ_max)) span the null space
     feasibility_tolerance: float = 1e-7
-    qp_eps: float = 1e-7  # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
+    # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
+    qp_eps: float = 1e-7
     qp_max_iter: int = 300
     # (Ruiz preconditioner, relaxation [m|rad]) tried in turn, see _Cascade._proxqp.
     qp_attempts: tuple[tuple[bool, float], ...] = (

@@ -32,6 +32,7 @@ def yaw_from_quaternion(wxyz) -> float:
 
 @dataclass
 class NodeOptions:
+    robot: str = ""  # a robot with two feet (robot.yaml); "" = the only such robot found
     mode: str = "grasp"  # "grasp" | "step-over"
     target: str = "ball"  # object whose pose is the hand/gaze target (grasp)
     hand: str = "right"
@@ -42,6 +43,21 @@ class NodeOptions:
     goal: tuple[float, float, float] = (2.0, 0.0, 0.0)  # final stance (step-over)
     move_threshold: float = 0.002  # [m] object displacement that triggers a replan
     swing_margin: float = 0.03  # [m] eq. 5.1 clearance of the crossing swings (step-over)
+
+
+def resolve_walking_robot(name: str) -> str:
+    """``name``, or when empty the only robot with two feet found (FootstepError otherwise)."""
+    from marionette import robots
+
+    if name:
+        return name
+    walkers = [n for n in robots.robot_names() if len(robots.robot(n).feet) == 2]
+    if len(walkers) != 1:
+        raise FootstepError(
+            "give the walking robot with --robot (robots with two feet: "
+            f"{', '.join(walkers) or 'none'})"
+        )
+    return walkers[0]
 
 
 class FootstepNode:
@@ -121,12 +137,19 @@ class FootstepNode:
         self.plan_id += 1
         return self.last_plan.to_lcm(utime, self.plan_id, first_step_index=max(step + 1, 0))
 
+    def robot(self):
+        """The walking robot (its description, loaded once)."""
+        if self._robot is None:
+            from marionette.footsteps.robot_model import walking_robot
+
+            self._robot = walking_robot(resolve_walking_robot(self.options.robot))
+        return self._robot
+
     def _initial_plan(self, stance: Stance, pose: np.ndarray) -> None:
+        robot = self.robot()
         if self.options.mode == "grasp":
             from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
-            from marionette.footsteps.robot_model import talos
 
-            robot = self._robot or talos()
             self.planner = GraspPlanner(
                 robot, stance, pose[:3], options=GraspPlannerOptions(hand=self.options.hand)
             )
@@ -139,6 +162,7 @@ class FootstepNode:
                 stance,
                 np.array(self.options.goal),
                 bar,
+                robot.foot,
                 options=StepOverOptions(swing_margin=self.options.swing_margin),
             )
             self.planner.plan()

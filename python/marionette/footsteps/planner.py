@@ -87,7 +87,7 @@ class GraspPlannerOptions:
     gaze: bool = True
     non_overlap_margin: float = 0.02  # [m] between successive soles
     com_margin: float = 0.03  # [m] CoM inside the final support polygon
-    nominal_width: float = 0.17  # [m] preferred lateral distance of the soles (TALOS)
+    nominal_width: float = 0.17  # [m] preferred lateral distance of the soles (a 1.7 m humanoid)
     replan_settle_ratio: float = 0.02  # replans stop when lower levels improve less than this
     # Where the object sits in the final stance frame: forward, towards the hand's side [m].
     reach_offset: tuple[float, float] = (0.45, 0.25)

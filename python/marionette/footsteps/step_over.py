@@ -50,7 +50,7 @@ from marionette.footsteps.obstacles import Bar, Obstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
 from marionette.footsteps.plan import FootstepPlan, StepTiming
 from marionette.footsteps.planner import default_first_side
-from marionette.footsteps.robot_model import TALOS_FOOT, FootShape
+from marionette.footsteps.robot_model import FootShape
 from marionette.footsteps.swing import crossing_via_points
 
 
@@ -90,7 +90,7 @@ class StepOverPlanner:
         stance: Stance,
         goal,
         bar: Bar,
-        foot: FootShape = TALOS_FOOT,
+        foot: FootShape,
         obstacles: list[Obstacle] | None = None,
         first_side: str | None = None,
         limits: StepLimits | None = None,

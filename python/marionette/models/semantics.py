@@ -34,7 +34,8 @@ class SemanticsError(ValueError):
     """A YAML declaration is malformed; the message names the file and the entry."""
 
 
-# Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h;
+# Parameters of a gripper_admittance task
+# (cpp/include/marionette/controller/gripper_admittance_spec.h;
 # marionette.control.spec checks task specs against it).
 GRIPPER_ADMITTANCE_PARAMETERS = (
     "force_target",

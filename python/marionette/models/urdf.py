@@ -223,9 +223,12 @@ def urdf_to_mjcf(
     the default class of the link's collision geoms. Collision geoms are also what MuJoCo
     renders; with ``visuals``, visual elements that differ from every collision element are
     added in class "visual". A DAE collision mesh (MuJoCo 2.2 reads STL/OBJ/MSH only) is
-    replaced by the link's first STL visual mesh. With ``mimics``, a joint that carries a
+    replaced by the link's first STL visual mesh when it has one (else ``mesh_file`` must convert
+    it). A root link named ``world`` (a URDF that fixes its base to the world) is MuJoCo's
+    reserved world body: its body is named ``<robot>_world`` instead. With ``mimics``, a joint that
+    carries a
     ``<mimic>`` of a movable joint becomes an unactuated MJCF joint (listed in ``tree.mimics``)
-    even when the URDF fixes it (TALOS' reduced URDF fixes its grippers' fingers).
+    even when the URDF fixes it (a reduced humanoid URDF may fix its grippers' fingers).
     """
     order = {name: i for i, name in enumerate(pinocchio_link_order(urdf))}
     tree = MjcfTree(root=ET.Element("body"), meshes={}, joints=[], bodies={})
@@ -257,7 +260,7 @@ def urdf_to_mjcf(
             _set_pose(child, j.X_PJ)
             add_link(child, j.child)
 
-    tree.root.set("name", urdf.root)
+    tree.root.set("name", f"{urdf.name}_world" if urdf.root == "world" else urdf.root)
     add_link(tree.root, urdf.root)
     return tree
 
@@ -299,10 +302,11 @@ def _collision_geometries(link: Link) -> list[Geometry]:
             stl = [
                 v for v in link.visuals if v.kind == "mesh" and v.filename.lower().endswith(".stl")
             ]
-            if stl and stl[0] not in out:
-                out.append(stl[0])
-            continue
-        out.append(g)
+            if stl:
+                if stl[0] not in out:
+                    out.append(stl[0])
+                continue
+        out.append(g)  # a DAE with no STL twin: the mesh namer converts it
     return out
 
 
@@ -365,8 +369,8 @@ def _add_joint(body: ET.Element, joint: Joint, armature: float, mimic: str | Non
         and joint.lower is not None
         and joint.upper is not None
     )
-    # Dry friction as in the URDF, but at most 10 % of the effort limit: TALOS' URDF gives its
-    # grippers 1 N m of friction for 1 N m of effort, which would lock them.
+    # Dry friction as in the URDF, but at most 10 % of the effort limit: a URDF may give a
+    # gripper 1 N m of friction for 1 N m of effort, which would lock it.
     friction = joint.friction
     if joint.effort:
         friction = min(friction, 0.1 * joint.effort)

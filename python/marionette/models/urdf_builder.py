@@ -110,8 +110,8 @@ class UrdfBuilder:
         axis: tuple[float, float, float] | None = None,
     ) -> None:
         """A fixed joint; ``mimic`` names the joint it follows (multiplier 1, offset 0) along
-        ``axis`` where the simulation moves it (TALOS' reduced URDF declares its fingers the
-        same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
+        ``axis`` where the simulation moves it (reduced humanoid URDFs declare their fingers
+        the same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
         j = sub(self.root, "joint", name=name, type="fixed")
         sub(j, "parent", link=parent)
         sub(j, "child", link=child)

@@ -3,7 +3,8 @@ pupil-apriltags (AprilTag 3 with its own pose) on the same synthetic frames, in 
 
     python -m marionette.perception.bench [--frames 40] [--repeats 5] [--out FILE]
 
-Frames: 1-3 tag36h11 tags of one size (6-10 cm) at 0.5-1.5 m, 0-50 deg off-axis, either clean (like the
+Frames: 1-3 tag36h11 tags of one size (6-10 cm) at 0.5-1.5 m, 0-50 deg off-axis, either clean (like
+the
 MuJoCo renderer's) or with i.i.d. grey noise of 2 levels per pixel (which multiplies AprilTag's
 segmentation work: every noisy 4 x 4 tile passes its contrast test). Both
 detectors run single-threaded with the same AprilTag parameters, at quad_decimate 2 (AprilTag's

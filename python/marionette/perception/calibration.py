@@ -294,7 +294,7 @@ def calibrate_joint_offsets(
 #
 # §4.2 with a camera instead of MoCap: a tag body on the end link E gives its full pose in the
 # camera, and the camera's pose in the base link B comes from joints the calibration does not
-# touch (TALOS' head above the arms), so each view i measures M_i = X_BE directly and the
+# touch (a humanoid's head above its arms), so each view i measures M_i = X_BE directly and the
 # marker's placement in E is known (the model's tags). The residual is the pose error
 #
 #     r_i(delta) = W log6( M_i^-1 X_BE(q_i + S delta) ),   W = diag(1, 1, 1, w, w, w)
@@ -368,7 +368,8 @@ def calibrate_joint_offsets_from_poses(
 
     def solve(views: np.ndarray, x0: np.ndarray, loss: str) -> np.ndarray:
         Qv, Mv = Q[views], [measured[i] for i in views]
-        last: dict = {}  # residuals and Jacobian come from one kinematics pass: evaluated once per x
+        # residuals and Jacobian come from one kinematics pass: evaluated once per x
+        last: dict = {}
 
         def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             if last.get("x") is None or not np.array_equal(last["x"], x):

@@ -11,10 +11,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "view",
         help="serve a browser 3D view (meshcat) of the run on the LCM URL",
-        description="Draws ROBOT_STATE, SIM_OBJECT_POSES/OBJECT_POSES, FOOTSTEP_PLAN and SUPERVISOR_STATE "
-        "in a meshcat page; prints its URL. Stops on Ctrl-C.",
+        description="Draws ROBOT_STATE, SIM_OBJECT_POSES/OBJECT_POSES, FOOTSTEP_PLAN and "
+        "SUPERVISOR_STATE in a meshcat page; prints its URL. Stops on Ctrl-C.",
     )
-    p.add_argument("--robot", required=True, help="talos | tiago | ur10")
+    p.add_argument("--robot", required=True, help="robot name or folder (docs/robots.md)")
     p.add_argument(
         "--scene",
         type=Path,

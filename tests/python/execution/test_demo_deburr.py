@@ -56,7 +56,7 @@ def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir, lcm_env):
     holes = {h["name"]: _se3(h["pose"]["xyz"], h["pose"]["xyzw"]) for h in part["handles"]}
     gripper = next(
         g
-        for g in yaml.safe_load((marionette.MODELS_DIR / "tiago" / "grippers.yaml").read_text())[
+        for g in yaml.safe_load((marionette.MODELS_DIR / "tiago" / "robot.yaml").read_text())[
             "grippers"
         ]
         if g["name"] == "tiago/deburring_tool"

@@ -3,7 +3,7 @@ the ur10_drill scene with the part displaced, the scene camera measured by `mari
 alignment on R1/R2, interpolation of the other holes. The verdict is re-derived from the run's
 files alone with independent code: the true part pose parsed from the scene.xml the controller
 loaded, each hole from models/objects/part.yaml, the tool pose from the ROBOT_STATE recorded in
-the LCM log at the hole's time, through drill_link and the gripper pose of grippers.yaml (not the
+the LCM log at the hole's time, through drill_link and the gripper pose of robot.yaml (not the
 demo's tip frame)."""
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_en
 
     gripper = next(
         g
-        for g in yaml.safe_load((marionette.MODELS_DIR / "ur10" / "grippers.yaml").read_text())[
+        for g in yaml.safe_load((marionette.MODELS_DIR / "ur10" / "robot.yaml").read_text())[
             "grippers"
         ]
         if g["name"] == "ur10/drill"

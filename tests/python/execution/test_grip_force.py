@@ -1,6 +1,6 @@
 """grip_force: the grip force from the jaw contact wrenches of one ROBOT_STATE and the estimate of
 eq. 3.11-3.13, on synthetic states whose answer is known in closed form (the UR10's parallel
-gripper with its grippers.yaml parameters, TALOS' two-jaw gripper); the holding windows from step
+gripper with its robot.yaml parameters, TALOS' two-jaw gripper); the holding windows from step
 records."""
 
 from __future__ import annotations

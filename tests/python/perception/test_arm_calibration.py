@@ -26,10 +26,10 @@ def offset_scene(tmp_path_factory):
 
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_every_offset_of_the_arm_within_0p3deg(offset_scene, side):
-    cal = calibrate_arm(offset_scene, side, log=lambda line: None)
+    cal = calibrate_arm(offset_scene, side, "talos", log=lambda line: None)
     assert cal.views_used >= 5, cal.summary()  # the others: ring hidden by the hand or the plank
     found = cal.encoder_offsets()
-    error_deg = {j: math.degrees(found[j] - TRUE.get(j, 0.0)) for j in arm_joints(side)}
+    error_deg = {j: math.degrees(found[j] - TRUE.get(j, 0.0)) for j in arm_joints("talos", side)}
     assert max(abs(e) for e in error_deg.values()) < 0.3, error_deg
     summary = cal.summary()
     assert summary["residual_position_mm"] < 3.0 and summary["residual_rotation_deg"] < 1.0, summary
@@ -38,7 +38,8 @@ def test_every_offset_of_the_arm_within_0p3deg(offset_scene, side):
 def test_the_command_prints_the_controller_option(offset_scene, tmp_path, capsys):
     from marionette.cli import main
 
-    assert main(["calibrate", "arm-encoders", "--scene", str(offset_scene), "--side", "left"]) == 0
+    argv = ["calibrate", "arm-encoders", "--scene", str(offset_scene), "--robot", "talos"]
+    assert main([*argv, "--side", "left"]) == 0
     out = __import__("json").loads(capsys.readouterr().out)
     option = dict(item.split("=") for item in out["controller_option"].split()[1].split(","))
     assert abs(math.degrees(float(option["arm_left_1_joint"])) - 7.0) < 0.3

@@ -9,6 +9,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
 
+from footsteps_checks import TALOS_GRASP_POINT
 from marionette import (
     channels,
     lcmt_footstep_plan,
@@ -18,7 +19,6 @@ from marionette import (
     robots,
 )
 from marionette.control.client import configuration_from_state
-from marionette.footsteps.robot_model import TALOS_GRASP_POINT
 from tests_support import lcm_log_messages, run_demo
 
 TYPES = {
