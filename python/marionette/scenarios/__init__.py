@@ -7,22 +7,24 @@
 | `report.py` | report pieces every scenario shares (report.json, report.md parts, partial report) |
 | `perturbations.py` | seeded perturbations: displacement, slip in the hand, encoder offsets |
 | `plan_and_execute.py`, `..._report.py` | the plan-then-execute kind and its report |
+| `declarations.py` | plan-and-execute scenarios declared in YAML files, found on a search path |
 | `walking_scenario.py` | what the walking scenarios share: moving object, recorder, replans |
 | `plank_flip.py`, `ur10_box.py` | plan-and-execute declarations |
 | `step_over.py`, `grasp_walk.py` | walking scenarios (thesis 001 ch. 5, 6) |
 | `drill.py`, `deburr.py` | tool scenarios (thesis 000 §6.3, §5.3.3) |
 | `cli.py` | `marionette demo` |
 
-:data:`SCENARIOS` holds the scenarios declared in this package's modules.
+:data:`SCENARIOS` holds the scenarios declared in this package's modules; :func:`find` also looks
+for declaration files (:mod:`.declarations`: the bundled ones, then ``MARIONETTE_SCENARIO_PATH``).
 """
 
 from __future__ import annotations
 
-import difflib
 from pathlib import Path
 
 from marionette.scenarios import deburr, drill, grasp_walk, plank_flip, step_over, ur10_box
 from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
+from marionette.scenarios.declarations import declaration_files, find_declaration
 
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
@@ -41,21 +43,14 @@ DEFAULT_SCENARIO = "plank-flip"
 
 
 def names() -> list[str]:
-    """Every scenario name :func:`find` knows (sorted)."""
-    return sorted(SCENARIOS)
+    """Every scenario name :func:`find` knows: the package's and the declaration files' (sorted)."""
+    return sorted(set(SCENARIOS) | set(declaration_files()))
 
 
 def find(name_or_path: str | Path) -> Scenario:
-    """The scenario named ``name_or_path``. ScenarioError naming the close names."""
-    name = str(name_or_path)
-    if name in SCENARIOS:
-        return SCENARIOS[name]
-    close = difflib.get_close_matches(name, names(), n=1)
-    raise ScenarioError(
-        f"no scenario {name!r}"
-        + (f"; did you mean {close[0]!r}?" if close else "")
-        + f" (scenarios: {', '.join(names())})"
-    )
+    """The scenario named ``name_or_path`` (the package's, or a declaration file on the search
+    path), or the declaration file at that path. ScenarioError naming the close names."""
+    return find_declaration(name_or_path, SCENARIOS)
 
 
 __all__ = [
