@@ -2,8 +2,9 @@
 re-plotted from the log.
 
 The LCM log (lcm-logger, e.g. a demo's ``run.lcmlog``) is played in log order at ``speed`` times
-the recorded pace (0: as fast as possible) into a :class:`.scene.ViewerScene`; the robot is
-redrawn at most ``rate_hz`` times per second of playback. The report's task-error plot
+the recorded pace (0: as fast as possible) into a :class:`.scene.ViewerScene` (its scene: the one
+the ``report.json`` beside the log names); the robot is redrawn at most ``rate_hz`` times per
+second of playback. The report's task-error plot
 (:func:`marionette.scenarios.plan_and_execute_report._plots`) is rebuilt from the log alone: the
 steps from the supervisor's decisions (SUPERVISOR_DECISION: controller id, swap and
 reference-start ticks), the error traces from CONTROLLER_STATUS, the executed motion from
@@ -64,15 +65,17 @@ def log_robot(log: Path) -> str:
 
 
 def run_scene(log: Path) -> Path | None:
-    """The MJCF scene of a demo's recorded run, from the report.json beside its log (None if
-    there is none)."""
+    """The MJCF scene of a demo's recorded run: the ``scene`` its report.json beside the log
+    names (relative to the repository, or absolute); None without a report or a scene in it."""
     report = Path(log).parent / "report.json"
     if not report.is_file():
         return None
-    from marionette.scenarios import SCENARIOS
+    import marionette
 
-    name = json.loads(report.read_text()).get("scenario")
-    return SCENARIOS[name].scene if name in SCENARIOS else None
+    scene = json.loads(report.read_text()).get("scene")
+    if not scene:
+        return None
+    return Path(scene) if Path(scene).is_absolute() else marionette.REPO_ROOT / scene
 
 
 def play(
