@@ -98,8 +98,9 @@ class Scenario(abc.ABC):
         """Runs one trial, fills ``report`` (``success``, ``criteria``, ...), writes the report
         folder ``out_dir`` and returns ``report``."""
 
-    def summary(self, report: dict[str, Any]) -> str:
-        """One line for the terminal: the verdict and the measures it rests on."""
+    def summary(self, report: dict[str, Any], trial_seed: int) -> str:
+        """One line for the terminal: the verdict of trial ``trial_seed`` (its report) and the
+        measures it rests on."""
         return report["summary"]
 
     def failure_reason(self, report: dict[str, Any]) -> str:

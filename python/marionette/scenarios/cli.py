@@ -136,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
             return INTERRUPTED_EXIT
         reason = "" if report["success"] else scenario.failure_reason(report)
         rows.append((seed, report["success"], reason, out, report.get("criteria")))
-        print(f"{scenario.summary(report)} -> {out / 'report.md'}")
+        print(f"{scenario.summary(report, seed)} -> {out / 'report.md'}")
     if args.trials > 1:
         ok = sum(r[1] for r in rows)
         print(

@@ -253,10 +253,10 @@ class PlanAndExecute(Scenario):
     ) -> dict[str, Any]:
         return run_plan_and_execute(self, seed, out_dir, options, report)
 
-    def summary(self, report: dict[str, Any]) -> str:
+    def summary(self, report: dict[str, Any], trial_seed: int) -> str:
         c = report["criteria"]
         return (
-            f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {report['seed']}): "
+            f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {trial_seed}): "
             f"{self.object_name} {c['object_position_error_m'] * 1e3:.1f} mm / "
             f"{c['object_angle_error_deg']:.2f}° from the goal"
             + (
