@@ -77,6 +77,14 @@ def test_options_a_kind_does_not_take_are_refused_before_anything_runs(tmp_path)
         drill.run(0, tmp_path / "b", RunOptions(gripper_admittance=False))
     with pytest.raises(ScenarioError, match="speed must be >= 0"):
         drill.run(0, tmp_path / "c", RunOptions(speed=-1.0))
+    offsets = RunOptions(perturbation=draw(PRESETS["joint-offsets"], 3))
+    with pytest.raises(
+        ScenarioError, match=r"ur10-box: .* joints its scene does not have \(arm_left_1_joint, "
+    ):
+        SCENARIOS["ur10-box"].run(0, tmp_path / "d", offsets)
+    remote = dataclasses.replace(offsets, controller_url="udpm://239.255.76.67:7667?ttl=0")
+    with pytest.raises(ScenarioError, match=r"joint offsets need the demo's own controller"):
+        SCENARIOS["plank-flip"].run(0, tmp_path / "e", remote)
     assert not any(tmp_path.iterdir())
 
 
