@@ -27,7 +27,7 @@ COMMAND_MODULES: list[str] = [
     "marionette.control.cli",
     "marionette.control.replay_cli",
     "marionette.execution.cli",
-    "marionette.execution.demo_cli",
+    "marionette.scenarios.cli",
     "marionette.viewer.cli",
     "marionette.models.cli",
 ]

@@ -9,7 +9,7 @@ import math
 import pytest
 
 import marionette
-from marionette.execution.perturbations import scene_with_joint_offsets
+from marionette.scenarios.perturbations import scene_with_joint_offsets
 from marionette.perception.arm_calibration import arm_joints, calibrate_arm
 
 TRUE = {"arm_left_1_joint": math.radians(7.0), "arm_left_7_joint": math.radians(-4.0)}

@@ -1,5 +1,7 @@
 """``marionette demo [SCENARIO] [--seed S] [--trials N] [--speed X]``: the seeds' experiments as
-one command, each trial writing ``reports/demo/<scenario>-<time>/`` (exit 0 only on success)."""
+one command, each trial writing ``reports/demo/<scenario>-<time>-seed<S>/`` (exit 0 only on
+success). SCENARIO is a name (``marionette.scenarios``, or a declaration file on the search path)
+or the path of a declaration file (``docs/scenarios.md``)."""
 
 from __future__ import annotations
 
@@ -9,72 +11,12 @@ import sys
 import time
 from pathlib import Path
 
-
-def _step_over(*args, **kwargs):
-    from marionette.execution.step_over import run_step_over
-
-    return run_step_over(*args, **kwargs)
-
-
-def _drill(*args, **kwargs):
-    from marionette.execution.drill import run_drill
-
-    return run_drill(*args, **kwargs)
-
-
-def _deburr(*args, **kwargs):
-    from marionette.execution.deburr import run_deburr
-
-    return run_deburr(*args, **kwargs)
+INTERRUPTED_EXIT = 130  # the shell's code for Ctrl-C
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    import marionette
-    from marionette.execution.demo import DEFAULT_SCENARIO, SCENARIOS, Scenario
-
-    SCENARIOS.setdefault(
-        "step-over",
-        Scenario(
-            "step-over",
-            "",
-            marionette.MODELS_DIR / "scenes" / "talos_walk.xml",
-            0,
-            "bar",
-            0.0,
-            description="TALOS walks over a bar to a goal zone while the bar's perceived pose moves; "
-            "the footstep process replans (thesis 001 ch. 5, Algorithm 3)",
-            runner=_step_over,
-        ),
-    )
-    SCENARIOS.setdefault(
-        "drill",
-        Scenario(
-            "drill",
-            "",
-            marionette.MODELS_DIR / "scenes" / "ur10_drill.xml",
-            0,
-            "part",
-            0.0,
-            description="UR10 aligns its drill on the reference holes R1, R2 of the displaced aircraft "
-            "part, then interpolates the other holes (thesis 000 §6.3; 0.2 mm / 0.5°)",
-            runner=_drill,
-        ),
-    )
-    SCENARIOS.setdefault(
-        "deburr",
-        Scenario(
-            "deburr",
-            "",
-            marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml",
-            0,
-            "part",
-            0.0,
-            description="TIAGo deburrs the holes of the displaced aircraft part with a tool held off its "
-            "nominal pose, holes ordered by a TSP solver, each reached under visual servoing "
-            "(thesis 000 §5.3.3; tool axis within 1 mm / 1°)",
-            runner=_deburr,
-        ),
-    )
+    from marionette.scenarios import DEFAULT_SCENARIO, names
+    from marionette.scenarios.perturbations import PARTS
 
     p = subparsers.add_parser(
         "demo",
@@ -82,14 +24,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Plan (or load the cached plan), generate one controller per transition, run "
         "marionette-controller and the supervisor on a private LCM URL, record an "
         "LCM log, and write reports/demo/<scenario>-<time>/ (report.md, report.json, "
-        "plots). Exit code 0 only when every trial succeeds.",
+        "plots). Exit code 0 only when every trial succeeds; docs/scenarios.md describes each "
+        "scenario.",
     )
     p.add_argument(
         "scenario",
         nargs="?",
         default=None,
-        choices=sorted(SCENARIOS),
-        help=f"(default {DEFAULT_SCENARIO})",
+        metavar="SCENARIO",
+        help=f"a scenario name ({', '.join(names())}; default {DEFAULT_SCENARIO}) or the path of "
+        "a scenario declaration file (.yaml)",
     )
     p.add_argument("--seed", type=int, default=None, help="planning seed (default: the scenario's)")
     p.add_argument("--trials", type=int, default=1, help="trials with seeds S, S+1, ...")
@@ -102,12 +46,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--perturb",
-        choices=("none", "issue10", "in-hand", "displacement", "joint-offsets"),
+        choices=("none", "all", *PARTS),
         default="none",
-        help="seeded perturbations per trial (execution/perturbations.py PRESETS): issue10 = "
-        "object displaced <= 5 cm / 10 deg before execution and slipping in the hand during "
-        "it, 7 deg shoulder / 4 deg wrist encoder offsets, 2 mm / 0.5 deg camera noise; the "
-        "others are its parts (in-hand = slip + camera noise)",
+        help="seeded perturbations per trial (scenarios/perturbations.py): displacement = "
+        "object displaced <= 5 cm / 10 deg before execution; in-hand = slipping in the hand "
+        "during it (<= 1 cm / 5 deg) and 2 mm / 0.5 deg camera noise; joint-offsets = 7 deg "
+        "shoulder / 4 deg wrist encoder offsets; all = the three at once",
     )
     p.add_argument(
         "--speed",
@@ -142,22 +86,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import marionette
-    from marionette.execution.demo import SCENARIOS, DemoError, run_demo
+    from marionette.scenarios import DEFAULT_SCENARIO, RunOptions, ScenarioError, find, names
 
     if args.scenario is None:
-        from marionette.execution.demo import DEFAULT_SCENARIO
-
         print(
             f"marionette demo: no scenario given, running {DEFAULT_SCENARIO!r} "
-            f"(choose among {', '.join(sorted(SCENARIOS))})"
+            f"(choose among {', '.join(names())})"
         )
         args.scenario = DEFAULT_SCENARIO
-    scenario = SCENARIOS[args.scenario]
     if args.trials < 1:
         print("marionette demo: --trials must be >= 1", file=sys.stderr)
         return 2
     if args.speed < 0:
         print("marionette demo: --speed must be >= 0", file=sys.stderr)
+        return 2
+    try:
+        scenario = find(args.scenario)
+    except ScenarioError as e:
+        print(f"marionette demo: {e}", file=sys.stderr)
         return 2
     seed0 = scenario.seed if args.seed is None else args.seed
     root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
@@ -168,46 +114,29 @@ def run(args: argparse.Namespace) -> int:
         out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
         perturbation = None
         if args.perturb != "none":
-            from marionette.execution.perturbations import PRESETS, draw
+            from marionette.scenarios.perturbations import PRESETS, draw
 
             perturbation = draw(PRESETS[args.perturb], seed)
+        options = RunOptions(
+            speed=args.speed,
+            controller_url=args.controller_url,
+            view=args.view,
+            log=lambda m: print(m, flush=True),
+            perturbation=perturbation,
+            gripper_admittance=args.gripper_admittance,
+        )
         try:
-            report = run_demo(
-                scenario,
-                seed if args.plan_seed is None else args.plan_seed,
-                out,
-                speed=args.speed,
-                controller_url=args.controller_url,
-                log=lambda m: print(m, flush=True),
-                perturbation=perturbation,
-                view=args.view,
-                **(
-                    {}
-                    if args.gripper_admittance is None or scenario.runner is not None
-                    else {"gripper_admittance": args.gripper_admittance}
-                ),
-            )
-        except DemoError as e:
+            report = scenario.run(seed if args.plan_seed is None else args.plan_seed, out, options)
+        except ScenarioError as e:
             print(f"marionette demo: {e}", file=sys.stderr)
             rows.append((seed, False, str(e).splitlines()[0], out, None))
             continue
-        reason = "" if report["success"] else _failure_reason(report)
+        except KeyboardInterrupt:
+            print(f"\nmarionette demo: interrupted; partial report in {out}", file=sys.stderr)
+            return INTERRUPTED_EXIT
+        reason = "" if report["success"] else scenario.failure_reason(report)
         rows.append((seed, report["success"], reason, out, report.get("criteria")))
-        if "summary" in report:  # a demo with its own criteria (grasp-walk)
-            print(f"{report['summary']} -> {out / 'report.md'}")
-            continue
-        c = report["criteria"]
-        print(
-            f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {seed}): {scenario.object_name} "
-            f"{c['object_position_error_m'] * 1e3:.1f} mm / {c['object_angle_error_deg']:.2f}° from "
-            f"the goal"
-            + (
-                f", feet moved {c['feet_max_displacement_m'] * 1e3:.2f} mm"
-                if "feet_max_displacement_m" in c
-                else ""
-            )
-            + f" -> {out / 'report.md'}"
-        )
+        print(f"{scenario.summary(report, seed)} -> {out / 'report.md'}")
     if args.trials > 1:
         ok = sum(r[1] for r in rows)
         print(
@@ -215,9 +144,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print("| seed | success | error mm | error ° | failure reason |\n|---|---|---|---|---|")
         for seed, success, reason, _, c in rows:
-            placed = (
-                c is not None and "object_position_error_m" in c
-            )  # runner demos: no object goal
+            placed = c is not None and "object_position_error_m" in c  # walking: no object goal
             mm = f"{c['object_position_error_m'] * 1e3:.1f}" if placed else "-"
             deg = f"{c['object_angle_error_deg']:.2f}" if placed else "-"
             print(f"| {seed} | {success} | {mm} | {deg} | {reason} |")
@@ -247,22 +174,3 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"trials: {summary}")
     return 0 if all(r[1] for r in rows) else 1
-
-
-def _failure_reason(report) -> str:
-    if "summary" in report:
-        return report["summary"]
-    c = report["criteria"]
-    if not c["fsm_done"]:
-        return f"supervisor: {report['supervisor']['reason']}"
-    reasons = []
-    if not c["object_within_tolerance"]:
-        reasons.append(
-            f"object {c['object_position_error_m'] * 1e3:.1f} mm / "
-            f"{c['object_angle_error_deg']:.1f}° from the goal"
-        )
-    if c.get("feet_never_moved") is False:
-        reasons.append(f"feet moved {c['feet_max_displacement_m'] * 1e3:.1f} mm")
-    if c.get("no_fall") is False:
-        reasons.append("fell")
-    return "; ".join(reasons)

@@ -1,4 +1,4 @@
-"""`marionette demo drill --speed 2 --view` end to end (issue 10, thesis 000 §6.3): MuJoCo controller on
+"""`marionette demo drill --speed 2 --view` end to end (thesis 000 §6.3): MuJoCo controller on
 the ur10_drill scene with the part displaced, the scene camera measured by `marionette perceive`,
 alignment on R1/R2, interpolation of the other holes. The verdict is re-derived from the run's
 files alone with independent code: the true part pose parsed from the scene.xml the controller
@@ -95,16 +95,12 @@ def test_drill_without_camera_detects_that_the_sensor_cannot_see_r1(tmp_path, bu
     its failure". Going to R1 on the nominal model alone (the offline program), the displaced
     hole is outside the tool sensor's view: the demo stops with that reason, it does not drill
     blind."""
-    from marionette.execution.demo import DemoError, Scenario
-    from marionette.execution.drill import SCENE, DrillSettings, run_drill
+    import dataclasses
+
+    from marionette.scenarios import SCENARIOS, RunOptions, ScenarioError
+    from marionette.scenarios.drill import DrillSettings
 
     st = DrillSettings(camera=False)
-    with pytest.raises(DemoError, match=r"part/R1: the tool sensor does not see the hole"):
-        run_drill(
-            Scenario("drill", "", SCENE, 0, "part", 0.0),
-            3,
-            tmp_path,
-            speed=2.0,
-            log=lambda m: None,
-            settings=st,
-        )
+    blind = dataclasses.replace(SCENARIOS["drill"], settings=st)
+    with pytest.raises(ScenarioError, match=r"part/R1: the tool sensor does not see the hole"):
+        blind.run(3, tmp_path, RunOptions(speed=2.0, log=lambda m: None))

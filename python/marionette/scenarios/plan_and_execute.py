@@ -1,18 +1,19 @@
-"""`marionette demo <scenario>`: plan (or load the cached plan), generate the controllers, start
-marionette-controller (MuJoCo) and an LCM logger on one private LCM URL, estimate the initial
-state, run the supervisor FSM, judge the run against the success criteria of ARCHITECTURE.md
-§Demos, and write a report folder (report.md, report.json, plots, controllers.yaml, run.lcmlog).
+"""The plan-and-execute scenario kind: plan a manipulation problem (or load the cached plan),
+generate one controller per transition, start marionette-controller (MuJoCo) and an LCM logger on
+one private LCM URL (:mod:`.harness`), estimate the initial state, run the supervisor FSM, judge
+the run against the declared success criteria and write a report folder (report.md, report.json,
+plots, controllers.yaml, run.lcmlog).
 
-Scenarios: ``plank-flip`` (TALOS turns the plank upside down, thesis 000 §3.4) and ``ur10-box``
-(UR10 moves the box across the table, issue 7's end-to-end check). ur10-box runs open loop from
-the planned references (the thesis's chapter-3 setting); plank-flip closes the loop on vision
-(§5.3.1): the controller renders the head camera, ``marionette perceive`` publishes the plank's
-pose, the head looks at the plank and the carry to the placement is servoed on the measured pose
-(:mod:`.visual_servo`). Before the controller starts, the head camera calibrates the encoder
-offsets of both arms from their wrist tags (thesis 000 ch. 4.2, :mod:`..perception.arm_calibration`)
-and the controller runs with them (``--encoder-offsets``). ``perturbation`` (:mod:`.perturbations`,
-``--perturb issue10``) adds the seeded perturbations of issue #10; without it the objects start
-where the problem file says.
+A scenario of this kind is a declaration only (:class:`PlanAndExecute`): the problem, the scene,
+the object whose final pose is judged, the tolerances, and options — vision in the loop (the
+controller renders the head camera, ``marionette perceive`` publishes the object's pose, the head
+looks at it and the steps that approach or place it are servoed on the measured pose,
+:mod:`marionette.execution.visual_servo`), gripper admittance (close on the handle, hold 5 N,
+release; the grip measured on the jaws), arms whose encoder offsets the head camera calibrates
+before the controller starts (:mod:`marionette.perception.arm_calibration`; the controller runs
+with ``--encoder-offsets``). It is written in Python (``plank_flip.py``, ``ur10_box.py``) or in a
+YAML file (:mod:`.declarations`). ``RunOptions.perturbation`` (:mod:`.perturbations`) adds seeded
+perturbations; without it the objects start where the problem file says.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -52,108 +53,242 @@ from marionette.execution.grip_force import (
     recorder_for,
     settled_windows,
 )
-from marionette.execution.perturbations import (
-    Perturbation,
-    displaced,
-    scene_with_joint_offsets,
-    slipped,
-)
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.references import compute_references, dwell, sample_step
 from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
-from marionette.lcm_bus import private_lcm_url
 from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
 from marionette.planning.path import Plan, load_plan
-from marionette.processes import ProcessGroup
+from marionette.scenarios.base import (
+    Criterion,
+    RunOptions,
+    Scenario,
+    ScenarioError,
+)
+from marionette.scenarios.harness import Processes, harness
+from marionette.scenarios.perturbations import (
+    Perturbation,
+    displaced,
+    missing_joints,
+    scene_with_joint_offsets,
+    slipped,
+)
 
-PROBLEMS_DIR = Path(__file__).resolve().parents[1] / "planning" / "problems"
+PROBLEMS_DIR = Path(marionette.__file__).resolve().parent / "planning" / "problems"
+SCENES_DIR = marionette.MODELS_DIR / "scenes"
 
 
-@dataclass(frozen=True)
-class Scenario:
-    """A demo: the problem to plan, the MuJoCo scene, execution settings and success limits."""
+def problem_names(problem: Path) -> tuple[str, list[str]]:
+    """The robot a planning problem names (``robots: [{robot: NAME}]``: the controller's
+    ``--robot``) and its movable objects. ScenarioError when the file cannot be read or names no
+    single bundled robot."""
+    try:
+        doc = yaml.safe_load(Path(problem).read_text()) or {}
+    except (OSError, yaml.YAMLError) as e:
+        raise ScenarioError(f"cannot read the problem {problem}: {e}") from e
+    robots_ = [r["robot"] for r in doc.get("robots", []) or [] if "robot" in r]
+    if len(robots_) != 1:
+        raise ScenarioError(
+            f"{problem}: a plan-and-execute scenario needs exactly one robot given by name "
+            f"(robots: [{{robot: NAME}}]), found {robots_ or 'none'}"
+        )
+    objects = [o.get("name", o.get("object")) for o in doc.get("objects", []) or []]
+    return robots_[0], objects
 
-    name: str
-    problem: str
-    scene: Path
-    seed: int
+
+@dataclass(frozen=True, kw_only=True)
+class PlanAndExecute(Scenario):
+    """Plan ``problem``, execute the plan in ``scene``, judge where ``object_name`` ends up
+    against the plan's goal. ``robot`` defaults to the problem's (and must agree with it)."""
+
+    KIND: ClassVar[str] = "plan-and-execute"
+    OPTIONS: ClassVar[tuple[str, ...]] = ("perturbation", "gripper_admittance", "cache_dir")
+
+    robot: str = ""
+    problem: Path
     object_name: str
     max_joint_velocity: float  # [rad/s] time law of the planned paths
     position_tolerance: float = 0.01  # [m]   object final pose vs the plan's goal
     angle_tolerance_deg: float = 5.0
     feet: tuple[str, ...] = ()  # frames that must never move (humanoid)
     feet_tolerance: float = 0.005  # [m]
-    description: str = ""
-    runner: Callable[..., dict[str, Any]] | None = None  # a demo with its own flow (no plan/FSM)
+    fall_margin: float = 0.05  # [m] a fall: the base this far below the plan's lowest point
     vision: bool = False  # camera + perception + PBVS on the carried object (ch. 5)
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames with vision
     servo_slowdown: float = 3.0  # servoed steps run this much slower: more frames to servo on
     quad_decimate: float = 2.0  # perceive's AprilTag decimation (1: small or oblique tags too)
     servo_dwell_s: float = 2.0  # a servoed step waits this long at its pre-grasp / pre-placement
-    # gripper_admittance tasks on the grippers with a joint (issue 7: close on the handle, hold
-    # 5 N, release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
+    # gripper_admittance tasks on the grippers with a joint (close on the handle, hold 5 N,
+    # release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
     gripper_admittance: bool = False
     grip_tolerance: float = 1.0  # [N]
     # Arms whose encoder offsets the head camera calibrates before execution (thesis 000 ch. 4.2,
     # :mod:`marionette.perception.arm_calibration`); the controller then corrects its encoders.
     calibrate_arms: tuple[str, ...] = ()
 
+    def __post_init__(self) -> None:
+        for name in ("max_joint_velocity", "position_tolerance", "angle_tolerance_deg"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"{self.name}: {name} must be > 0, got {getattr(self, name)}")
+        for name in ("feet_tolerance", "fall_margin", "grip_tolerance", "camera_rate"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"{self.name}: {name} must be > 0, got {getattr(self, name)}")
+        if self.servo_slowdown < 1 or self.quad_decimate < 1 or self.servo_dwell_s < 0:
+            raise ScenarioError(
+                f"{self.name}: need servo_slowdown >= 1, quad_decimate >= 1, servo_dwell_s >= 0"
+            )
+        for side in self.calibrate_arms:
+            if side not in ("left", "right"):
+                raise ScenarioError(
+                    f"{self.name}: calibrate_arms takes left and right, got {side!r}"
+                )
+        if not Path(self.scene).is_file():
+            raise ScenarioError(f"{self.name}: no scene file {self.scene}")
+        robot, objects = problem_names(self.problem)
+        if self.object_name not in objects:
+            raise ScenarioError(
+                f"{self.name}: object {self.object_name!r} is not a movable object of the "
+                f"problem {self.problem} ({', '.join(map(str, objects)) or 'none'})"
+            )
+        if self.robot and self.robot != robot:
+            raise ScenarioError(
+                f"{self.name}: robot {self.robot!r} but the problem {self.problem} plans for "
+                f"{robot!r}"
+            )
+        object.__setattr__(self, "robot", robot)
 
-def _grasp_walk(*args: Any, **kwargs: Any) -> dict[str, Any]:
-    from marionette.execution.grasp_walk import run_grasp_walk
+    def criteria(self) -> tuple[Criterion, ...]:
+        out = [
+            Criterion(
+                "object_within_tolerance",
+                f"{self.object_name} final pose vs the plan's goal",
+                f"{self.position_tolerance * 1e3:g} mm / {self.angle_tolerance_deg:g}°",
+            ),
+            Criterion("fsm_done", "supervisor FSM reached `done`", "every step done"),
+        ]
+        if self.feet:
+            out += [
+                Criterion(
+                    "feet_never_moved",
+                    f"{', '.join(self.feet)} displacement (max)",
+                    f"{self.feet_tolerance * 1e3:g} mm",
+                ),
+                Criterion(
+                    "no_fall",
+                    "base height drop below the plan's lowest point",
+                    f"< {self.fall_margin * 1e3:g} mm",
+                ),
+            ]
+        if self.gripper_admittance:
+            out.append(
+                Criterion(
+                    "grip_within_tolerance",
+                    "grip force on the jaws, median over each hold (MuJoCo contacts)",
+                    f"{ADMITTANCE['force_target']:g} ± {self.grip_tolerance:g} N",
+                )
+            )
+        return tuple(out)
 
-    return run_grasp_walk(*args, **kwargs)
+    def declared_settings(self) -> dict[str, Any]:
+        """The kind's declaration fields (:mod:`.declarations` reads them back)."""
+        return {
+            "problem": _named(Path(self.problem), PROBLEMS_DIR, ".yaml"),
+            "object": self.object_name,
+            "max_joint_velocity": self.max_joint_velocity,
+            "tolerances": {
+                "position_m": self.position_tolerance,
+                "angle_deg": self.angle_tolerance_deg,
+                "feet_m": self.feet_tolerance,
+                "fall_m": self.fall_margin,
+                "grip_n": self.grip_tolerance,
+            },
+            "feet": list(self.feet),
+            "gripper_admittance": self.gripper_admittance,
+            "calibrate_arms": list(self.calibrate_arms),
+            "vision": (
+                {
+                    "camera_rate_hz": self.camera_rate,
+                    "servo_slowdown": self.servo_slowdown,
+                    "quad_decimate": self.quad_decimate,
+                    "servo_dwell_s": self.servo_dwell_s,
+                }
+                if self.vision
+                else None
+            ),
+        }
+
+    def document(self) -> dict[str, Any]:
+        """The declaration as a YAML document (:func:`.declarations.declaration_from_document`
+        reads it back to an equal scenario)."""
+        doc: dict[str, Any] = {
+            "kind": self.KIND,
+            "name": self.name,
+            "description": self.description,
+            "seed_experiment": self.seed_experiment,
+            "robot": self.robot,
+            "scene": _named(Path(self.scene), SCENES_DIR, ".xml"),
+            "seed": self.seed,
+            **self.declared_settings(),
+        }
+        if doc["vision"] is None:
+            del doc["vision"]
+        return doc
+
+    def check_options(self, options: RunOptions) -> None:
+        super().check_options(options)
+        p = options.perturbation
+        if p is not None and p.joint_offsets:
+            if options.controller_url is not None:
+                raise ScenarioError(
+                    "joint offsets need the demo's own controller (no --controller-url)"
+                )
+            missing = missing_joints(self.scene, sorted(p.joint_offsets))
+            if missing:
+                raise ScenarioError(
+                    f"{self.name}: the perturbation offsets joints its scene does not have "
+                    f"({', '.join(missing)})"
+                )
+
+    def trial(
+        self, seed: int, out_dir: Path, options: RunOptions, report: dict[str, Any]
+    ) -> dict[str, Any]:
+        return run_plan_and_execute(self, seed, out_dir, options, report)
+
+    def summary(self, report: dict[str, Any], trial_seed: int) -> str:
+        c = report["criteria"]
+        return (
+            f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {trial_seed}): "
+            f"{self.object_name} {c['object_position_error_m'] * 1e3:.1f} mm / "
+            f"{c['object_angle_error_deg']:.2f}° from the goal"
+            + (
+                f", feet moved {c['feet_max_displacement_m'] * 1e3:.2f} mm"
+                if "feet_max_displacement_m" in c
+                else ""
+            )
+        )
+
+    def failure_reason(self, report: dict[str, Any]) -> str:
+        c = report["criteria"]
+        if not c["fsm_done"]:
+            return f"supervisor: {report['supervisor']['reason']}"
+        reasons = []
+        if not c["object_within_tolerance"]:
+            reasons.append(
+                f"object {c['object_position_error_m'] * 1e3:.1f} mm / "
+                f"{c['object_angle_error_deg']:.1f}° from the goal"
+            )
+        if c.get("feet_never_moved") is False:
+            reasons.append(f"feet moved {c['feet_max_displacement_m'] * 1e3:.1f} mm")
+        if c.get("no_fall") is False:
+            reasons.append("fell")
+        if c.get("grip_within_tolerance") is False:
+            reasons.append("grip force out of tolerance")
+        return "; ".join(reasons)
 
 
-SCENARIOS: dict[str, Scenario] = {
-    "plank-flip": Scenario(
-        "plank-flip",
-        "talos_plank",
-        marionette.MODELS_DIR / "scenes" / "talos_plank.xml",
-        4,
-        "plank",
-        0.5,
-        feet=("left_sole_link", "right_sole_link"),
-        description="TALOS turns the plank upside down with both grippers (thesis 000 §3.4), "
-        "the first grasp and the placement servoed on the plank pose seen by the head "
-        "camera (§5.3.1)",
-        # On the table the plank's tags face the head 60-70° off their normal: found at
-        # decimation 1 only (1-2 mm / 0.2° along the approach, test_visual_servo.py).
-        vision=True,
-        quad_decimate=1.0,
-        calibrate_arms=("left", "right"),
-    ),
-    "ur10-box": Scenario(
-        "ur10-box",
-        "ur10_box",
-        marionette.MODELS_DIR / "scenes" / "ur10_box.xml",
-        0,
-        "box",
-        1.0,
-        description="UR10 picks the box with its two-finger gripper, holds it with 5 N (gripper "
-        "admittance, thesis 000 §3.2.4.3) and places it 0.5 m away",
-        gripper_admittance=True,
-    ),
-    "grasp-walk": Scenario(
-        "grasp-walk",
-        "",
-        marionette.MODELS_DIR / "talos" / "talos.xml",
-        0,
-        "ball",
-        0.0,
-        description="TALOS walks to a ball moved sideways while it walks; the footstep process "
-        "replans, the controller walks the new steps (thesis 001 ch. 6, no final grasp)",
-        runner=_grasp_walk,
-    ),
-}
-# `marionette demo` without a scenario (`make demo`): the one that meets its criteria reliably.
-# The embedded default (issue #10): plank-flip, the thesis's experiment, with its arms calibrated by
-# the head camera and vision in the loop (execution/README.md for the trial tables).
-DEFAULT_SCENARIO = "plank-flip"
-
-
-class DemoError(RuntimeError):
-    """The demo could not run (planning failed, a process died, bad arguments)."""
+def _named(path: Path, folder: Path, suffix: str) -> str:
+    """A bundled file by its name (``ur10_box``), any other by its path."""
+    p = path.resolve()
+    return p.stem if p.parent == folder.resolve() and p.suffix == suffix else str(p)
 
 
 PLAN_INPUTS_FILE = "inputs.sha256"  # beside a cached plan.json: the digest it was planned from
@@ -183,19 +318,21 @@ def plan_inputs_digest(problem: Path) -> str:
     return h.hexdigest()
 
 
-def cached_plan(scenario: Scenario, seed: int, cache_dir: Path, log: Callable[[str], None]) -> Plan:
+def cached_plan(
+    scenario: PlanAndExecute, seed: int, cache_dir: Path, log: Callable[[str], None]
+) -> Plan:
     """The plan of ``scenario`` for ``seed``: from ``cache_dir`` if planned before from the same
     problem and model files (:func:`plan_inputs_digest`), else planned now with ``marionette
     plan`` (same seed and inputs -> same plan)."""
-    out = cache_dir / f"{scenario.problem}-seed{seed}"
+    problem = Path(scenario.problem)
+    out = cache_dir / f"{problem.stem}-seed{seed}"
     plan_json = out / "plan.json"
-    problem = PROBLEMS_DIR / f"{scenario.problem}.yaml"
     digest = plan_inputs_digest(problem)
     stamp = out / PLAN_INPUTS_FILE
     if plan_json.exists() and stamp.exists() and stamp.read_text().strip() == digest:
         log(f"plan: cached {plan_json}")
         return load_plan(plan_json)
-    log(f"plan: planning {scenario.problem} with seed {seed} ...")
+    log(f"plan: planning {problem.stem} with seed {seed} ...")
     t0 = time.perf_counter()
     cmd = [
         sys.executable,
@@ -211,7 +348,9 @@ def cached_plan(scenario: Scenario, seed: int, cache_dir: Path, log: Callable[[s
     ]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0 or not plan_json.exists():
-        raise DemoError(f"planning failed (exit {proc.returncode}):\n{proc.stdout}\n{proc.stderr}")
+        raise ScenarioError(
+            f"planning failed (exit {proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
+        )
     stamp.write_text(digest + "\n")
     log(f"plan: planned in {time.perf_counter() - t0:.1f} s -> {plan_json}")
     return load_plan(plan_json)
@@ -288,55 +427,54 @@ def calibrate_encoders(
     return out
 
 
-def run_demo(
-    scenario: Scenario,
+def run_plan_and_execute(
+    scenario: PlanAndExecute,
     seed: int,
     out_dir: Path,
-    speed: float = 1.0,
-    cache_dir: Path | None = None,
-    log: Callable[[str], None] = print,
-    controller_url: str | None = None,
-    perturbation: Perturbation | None = None,
-    view: bool = False,
-    gripper_admittance: bool | None = None,
+    options: RunOptions,
+    report: dict[str, Any],
 ) -> dict[str, Any]:
-    """Runs one trial; returns the report dictionary (``success`` and the measured criteria)
-    after writing the report folder ``out_dir``. With ``controller_url`` the trial drives the
-    marionette-controller already running there (another machine: ttl=1) instead of starting one.
-    ``gripper_admittance``: overrides the scenario's (False: weld-only grasps).
-    ``perturbation`` (:mod:`.perturbations`): joint offsets in the simulated robot, the object
-    displaced before execution and slipping in the hand during it, camera noise."""
-    from marionette.execution.report import write_report
+    """One trial of ``scenario`` planned with ``seed`` (:meth:`.base.Scenario.run` calls it):
+    fills ``report`` (``success`` and the measured criteria), writes the report folder and
+    returns it. With ``options.controller_url`` the trial drives the marionette-controller
+    already running there (another machine: ttl=1) instead of starting one.
+    ``options.gripper_admittance`` overrides the scenario's (False: weld-only grasps).
+    ``options.perturbation`` (:mod:`.perturbations`): joint offsets in the simulated robot, the
+    object displaced before execution and slipping in the hand during it, camera noise."""
+    from marionette.scenarios.plan_and_execute_report import write_report
 
-    if scenario.runner is not None:
-        if perturbation is not None and perturbation.any:
-            raise DemoError(f"{scenario.name} has its own perturbations (no --perturb)")
-        return scenario.runner(
-            scenario, seed, out_dir, speed=speed, log=log, controller_url=controller_url, view=view
-        )
-    out_dir.mkdir(parents=True, exist_ok=True)
+    log, perturbation, controller_url = options.log, options.perturbation, options.controller_url
     timings: dict[str, float] = {}
+    report["timings"] = timings  # filled as the trial goes (a partial report has them too)
     t0 = time.perf_counter()
     plan = cached_plan(
-        scenario, seed, cache_dir or (marionette.REPO_ROOT / "reports" / "plans" / "cache"), log
+        scenario,
+        seed,
+        options.cache_dir or (marionette.REPO_ROOT / "reports" / "plans" / "cache"),
+        log,
     )
     timings["plan_s"] = time.perf_counter() - t0
 
     # Controllers (factory) and their checks, before anything moves.
     t1 = time.perf_counter()
     robot = plan_robot(plan)
+    if robot != scenario.robot:
+        raise ScenarioError(f"the plan is for {robot!r}, the scenario for {scenario.robot!r}")
     model, _ = robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
     steps = steps_from_plan(plan)
-    if gripper_admittance is None:
-        gripper_admittance = scenario.gripper_admittance
+    gripper_admittance = (
+        scenario.gripper_admittance
+        if options.gripper_admittance is None
+        else options.gripper_admittance
+    )
     ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=gripper_admittance)
     ctx.visual_servoing = scenario.vision
     specs = build_specs(steps, ctx)
     write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
     problems = check_specs(steps, specs, ctx, robot_map)
     if problems:
-        raise DemoError("controller checks failed:\n  " + "\n  ".join(problems))
+        raise ScenarioError("controller checks failed:\n  " + "\n  ".join(problems))
     timings["factory_s"] = time.perf_counter() - t1
     log(f"factory: {len(steps)} steps, {len(specs)} controllers -> {out_dir / 'controllers.yaml'}")
 
@@ -344,89 +482,45 @@ def run_demo(
     from marionette.planning.problem import load_problem
 
     graph = graph_from_settings(load_problem(plan.doc["problem"]["source"]))
-    url = controller_url or private_lcm_url()
-    report: dict[str, Any] = {
-        "scenario": scenario.name,
-        "description": scenario.description,
-        "seed": seed,
-        "robot": robot,
-        "speed": speed,
-        "lcm_url": url,
-    }
-    result: SupervisorResult | None = None
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        # Camera frames (1.5 MB each) stay out of the log: the object poses measured in them are in.
-        group.start(
-            "lcm-logger",
-            ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
-            + (["--channel=^CAMERA_.*", "--invert-channels"] if scenario.vision else []),
+    scene = scenario.scene
+    if perturbation is not None and perturbation.joint_offsets:  # checked by check_options
+        scene = scene_with_joint_offsets(scene, perturbation.joint_offsets, out_dir / "scene.xml")
+    encoder_offsets: dict[str, float] = {}
+    if scenario.calibrate_arms and controller_url is None:
+        t_cal = time.perf_counter()
+        report["calibration"] = calibrate_encoders(
+            scene, robot, scenario.calibrate_arms, perturbation, log
         )
-        scene = scenario.scene
-        if perturbation is not None and perturbation.joint_offsets:
-            if controller_url is not None:
-                raise DemoError(
-                    "joint offsets need the demo's own controller (no --controller-url)"
-                )
-            scene = scene_with_joint_offsets(
-                scene, perturbation.joint_offsets, out_dir / "scene.xml"
+        encoder_offsets = report["calibration"]["encoder_offsets"]
+        timings["calibration_s"] = time.perf_counter() - t_cal
+    processes = Processes(
+        robot,
+        scene,
+        camera_rate=scenario.camera_rate if scenario.vision else 0.0,
+        controller_args=(
+            ("--encoder-offsets", encoder_offsets_argument(encoder_offsets))
+            if encoder_offsets
+            else ()
+        ),
+        perceive=(
+            (
+                "--robot",
+                robot,
+                "--stats-period",
+                "30",
+                "--quad-decimate",
+                str(scenario.quad_decimate),
             )
-        encoder_offsets: dict[str, float] = {}
-        if scenario.calibrate_arms and controller_url is None:
-            t_cal = time.perf_counter()
-            report["calibration"] = calibrate_encoders(
-                scene, robot, scenario.calibrate_arms, perturbation, log
-            )
-            encoder_offsets = report["calibration"]["encoder_offsets"]
-            timings["calibration_s"] = time.perf_counter() - t_cal
-        if controller_url is None:
-            group.start(
-                "controller",
-                [
-                    marionette.BUILD_DIR / "marionette-controller",
-                    "--lcm-url",
-                    url,
-                    "--robot",
-                    robot,
-                    "--scene",
-                    scene,
-                    "--speed",
-                    str(speed),
-                    "--camera-rate",
-                    str(scenario.camera_rate if scenario.vision else 0),
-                    "--status-rate",
-                    "100",
-                ]
-                + (
-                    ["--encoder-offsets", encoder_offsets_argument(encoder_offsets)]
-                    if encoder_offsets
-                    else []
-                ),
-            )
-        if scenario.vision:
-            group.start(
-                "perceive",
-                [
-                    sys.executable,
-                    "-m",
-                    "marionette.cli",
-                    "perceive",
-                    "--lcm-url",
-                    url,
-                    "--robot",
-                    robot,
-                    "--stats-period",
-                    "30",
-                    "--quad-decimate",
-                    str(scenario.quad_decimate),
-                ],
-            )
-        client.wait_ready(60.0, processes=group)
-        if view:  # the browser 3D view of the run (issue #10), stopped with the group
-            from marionette.viewer.node import start_viewer
-
-            report["viewer_url"] = start_viewer(group, robot, scenario.scene, log)
+            if scenario.vision
+            else None
+        ),
+        view_scene=scenario.scene,
+    )
+    result: SupervisorResult | None = None
+    with harness(out_dir, processes, options, report) as run:
+        client = run.client
         recorder = Recorder(model, client)
-        grip = recorder_for(ctx, model)  # the grip force on the jaws (issue 7)
+        grip = recorder_for(ctx, model)  # the grip force on the jaws
         if grip is not None:
             grip.subscribe(client.bus)
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
@@ -458,9 +552,13 @@ def run_demo(
             f"starting at step {first}/{len(steps)}"
         )
 
-        options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
         supervisor = Supervisor(
-            client, steps, specs, robot_map, options, plan.doc["problem"]["name"]
+            client,
+            steps,
+            specs,
+            robot_map,
+            SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity),
+            plan.doc["problem"]["name"],
         )
         timings["references_s"] = supervisor.prepare(first)
         servo = None
@@ -535,17 +633,6 @@ def run_demo(
         progress.join(timeout=1.0)
         client.wait_time(1.0)  # the object settles on the table after the release
         final_objects = {n: client.object_pose(n) for n in robot_map.objects}
-        status = client.status
-        report["controller"] = {
-            "mode": status.mode,
-            "mode_reason": status.mode_reason,
-            "realtime_factor": status.realtime_factor,
-            "deadline_misses": status.deadline_misses,
-            "num_rejected": status.num_rejected,
-            "num_switches": status.num_switches,
-            "num_refused_switches": status.num_refused_switches,
-        }
-        group.check_alive()
     timings["total_s"] = time.perf_counter() - t0
 
     report.update(
@@ -580,12 +667,12 @@ def run_demo(
 
 def _grip_report(
     grip: GripForceRecorder,
-    scenario: Scenario,
+    scenario: PlanAndExecute,
     steps: list,
     result: SupervisorResult,
     out_dir: Path,
 ) -> dict[str, Any]:
-    """Grip force held by each admittance gripper (issue 7): contact force (MuJoCo) and estimate
+    """Grip force held by each admittance gripper: contact force (MuJoCo) and estimate
     over each holding window from 1 s after the switch to admittance to the release (median,
     mean, range); plot grip_force.png."""
     grip.compute()
@@ -652,7 +739,7 @@ def _progress(supervisor: Supervisor, stop: threading.Event, log: Callable[[str]
 
 
 def _criteria(
-    scenario: Scenario,
+    scenario: PlanAndExecute,
     plan: Plan,
     robot_map: PlanRobotMap,
     model: pin.Model,
@@ -661,7 +748,7 @@ def _criteria(
     q_start: np.ndarray,
     final_objects: dict[str, pin.SE3],
 ) -> dict[str, Any]:
-    """The success criteria of ARCHITECTURE.md §Demos, measured."""
+    """The success criteria (:meth:`PlanAndExecute.criteria`), measured."""
     q_goal = np.array(plan.doc["problem"]["q_goal"])
     X_goal = robot_map.object_pose(q_goal, scenario.object_name)
     dp, dtheta = _pose_error(final_objects[scenario.object_name], X_goal)
@@ -698,7 +785,7 @@ def _criteria(
         criteria["feet_never_moved"] = bool(moved <= scenario.feet_tolerance)
         criteria["base_max_drop_m"] = base_drop
         criteria["base_planned_drop_m"] = planned_drop
-        criteria["no_fall"] = bool(base_drop - planned_drop < 0.05)
+        criteria["no_fall"] = bool(base_drop - planned_drop < scenario.fall_margin)
         ok = ok and criteria["feet_never_moved"] and criteria["no_fall"]
     criteria["limits"] = {
         "position_m": scenario.position_tolerance,

@@ -1,4 +1,4 @@
-"""`marionette demo plank-flip --perturb issue10 --seed 103` end to end (issue 10, thesis 000
+"""`marionette demo plank-flip --perturb all --seed 103` end to end (thesis 000
 §3.4, §5.3.1, ch. 4): the trial whose left encoders read +7° at the shoulder and +4° at the
 wrist, which failed before the arms were calibrated (the hand-over grasped the plank 25° off).
 The head camera calibrates both arms from their wrist rings, the controller runs with the
@@ -24,7 +24,7 @@ def test_seed_103_calibrates_its_arms_and_places_the_plank(tmp_path, lcm_env, ta
         speed=1,
         timeout_s=400,
         files=("report.md", "run.lcmlog", "task_errors.png"),
-        args=("--perturb", "issue10", "--seed", "103", "--plan-seed", "4"),
+        args=("--perturb", "all", "--seed", "103", "--plan-seed", "4"),
     )
     truth = report["perturbation"]["joint_offsets_deg"]
     assert (

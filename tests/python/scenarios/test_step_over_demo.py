@@ -1,4 +1,4 @@
-"""`marionette demo step-over --speed 3` end to end (issue 10, Dang 2012 ch. 5): MuJoCo controller
+"""`marionette demo step-over --speed 3` end to end (Dang 2012 ch. 5): MuJoCo controller
 with the real bar of ``talos_walk``, the real footstep process, the bar's perceived pose moved
 during the walk (seed 0: seen 10 cm nearer, 12 cm along it and turned 7.8°). The demo's verdict
 is checked, then re-derived from its LCM log alone with independent code: soles from a separate

@@ -12,9 +12,9 @@ import pinocchio as pin
 import pytest
 
 from marionette import robots
-from marionette.execution.deburr import DeburrSettings, aim_head, draw_tool_offset, perturbed_scene
-from marionette.execution.perturbations import place_mocap_body
 from marionette.execution.tool_task import axis_offset
+from marionette.scenarios.deburr import DeburrSettings, aim_head, draw_tool_offset, perturbed_scene
+from marionette.scenarios.perturbations import place_mocap_body
 
 
 def _pose(attrs: str) -> pin.SE3:
@@ -100,8 +100,8 @@ def test_axis_offset_closed_form():
 def test_deburr_problem_roots_tiago_fixed_and_keeps_its_reference_posture():
     """``root_joint: fixed`` drops TIAGo's planar base from the planning model; the ``home``
     reference is then taken joint by joint from the robot's own model."""
-    from marionette.execution.deburr import PROBLEM
     from marionette.planning.problem import load_problem
+    from marionette.scenarios.deburr import PROBLEM
 
     problem = load_problem(PROBLEM)
     model, _ = robots.load_pinocchio("tiago", with_collision=False)

@@ -1,6 +1,6 @@
-"""`marionette demo grasp-walk` (Dang 2012 ch. 6, issue 10): TALOS walks to a ball that is moved
-while it walks. The footstep process (`marionette footsteps run`, posture frozen when replanning)
-plans the steps to a stance from which the right hand reaches the ball and publishes
+"""``grasp-walk`` (Dang 2012 ch. 6): TALOS walks to a ball that is moved while it walks.
+
+The footstep process (`marionette footsteps run`, posture frozen when replanning) plans the steps to a stance from which the right hand reaches the ball and publishes
 FOOTSTEP_PLAN; marionette-controller's walking stack (:func:`walking.walking_spec`) executes
 them; the ball is moved sideways during the walk, the footstep process replans and the
 controller's footstep manager applies the new steps to the steps not yet started.
@@ -10,18 +10,19 @@ ahead) lies across the path and the ball sits on a pedestal 2.2 m ahead behind i
 and the pedestal are fixtures SIM_COMMAND cannot move, and a ball moved off its pedestal falls.
 The ball here is the target the demo publishes on OBJECT_POSES (the perception output the
 footstep process listens to; Dang's ball was tracked by motion capture) and moves during the
-walk. Success (ARCHITECTURE.md §Demos, without the final grasp): the robot stops on the final
+walk. Success (``docs/scenarios.md``, without the final grasp): the robot stops on the final
 stance of the last plan with the ball within reach of its right arm, never falls, and its
 measured ZMP stays inside the support polygon of its loaded soles.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -31,7 +32,16 @@ from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.references import minimum_jerk
 from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
-from marionette.execution.walking_scenario import (
+from marionette.scenarios.base import Criterion, RunOptions, Scenario
+from marionette.scenarios.report import (
+    controller_and_plots_lines,
+    save_figure,
+    timings_lines,
+    title,
+    write_report_files,
+)
+from marionette.scenarios.walking_scenario import (
+    MIN_REPLAN_HZ,
     MovingObjectPublisher,
     WalkRecorder,
     draw_floor_move,
@@ -40,14 +50,13 @@ from marionette.execution.walking_scenario import (
     plot_footsteps,
     replan_criteria,
     replan_rate_row,
-    scenario_report,
     sole_poses,
     step_counts,
     walk_while_object_moves,
     walking_run,
-    write_report_files,
 )
-from marionette.lcm_bus import private_lcm_url
+
+ROBOT = "talos"
 
 
 @dataclass(frozen=True)
@@ -72,8 +81,7 @@ class GraspWalkSettings:
     @classmethod
     def drawn(cls, seed: int, max_distance: float = 0.3) -> GraspWalkSettings:
         """A trial's settings (``--seed``): the ball moved during the walk by a seeded floor move
-        of 0.1-0.3 m in any direction (:func:`draw_floor_move`, issue #10: "moved by up to 0.3 m
-        while walking")."""
+        of 0.1-0.3 m in any direction (:func:`draw_floor_move`)."""
         dx, dy = draw_floor_move(seed, max_distance)
         return cls(shift=(float(dx), float(dy)))
 
@@ -99,26 +107,63 @@ def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
     return float(d), shoulder
 
 
+@dataclass(frozen=True, kw_only=True)
+class GraspWalk(Scenario):
+    """The grasp-walk kind: ``settings`` None draws each trial's from its seed
+    (:meth:`GraspWalkSettings.drawn`)."""
+
+    KIND: ClassVar[str] = "grasp-walk"
+
+    settings: GraspWalkSettings | None = None
+
+    def criteria(self) -> tuple[Criterion, ...]:
+        s = self.settings or GraspWalkSettings()
+        return (
+            Criterion(
+                "final_stance_ok",
+                "executed final soles vs the last footstep plan",
+                f"{s.stance_tolerance * 1e3:g} mm, {s.stance_yaw_tolerance_deg:g}°",
+            ),
+            Criterion("ball_within_reach", f"ball to the {s.hand} shoulder", "the arm's reach"),
+            Criterion("no_fall", "base height drop (max)", f"< {s.max_base_drop * 1e3:g} mm"),
+            Criterion(
+                "zmp_inside",
+                "measured ZMP in the loaded soles' polygon (over 80 % of the walk's statuses)",
+                f"> -{s.zmp_tolerance * 1e3:g} mm",
+            ),
+            Criterion("steps_in_order", "steps executed in order", "never back"),
+            Criterion("recomputations_after_move", "footstep replans after the ball moved", "> 0"),
+            Criterion(
+                "replan_fast_enough", "1 / median footstep replan time", f">= {MIN_REPLAN_HZ:g} Hz"
+            ),
+        )
+
+    def declared_settings(self) -> dict[str, Any]:
+        if self.settings is not None:
+            return dataclasses.asdict(self.settings)
+        return {**dataclasses.asdict(GraspWalkSettings()), "shift": "drawn from the seed"}
+
+    def trial(
+        self, seed: int, out_dir: Path, options: RunOptions, report: dict[str, Any]
+    ) -> dict[str, Any]:
+        return run_grasp_walk(self, seed, out_dir, options, report)
+
+
 def run_grasp_walk(
-    scenario,
+    scenario: GraspWalk,
     seed: int,
     out_dir: Path,
-    speed: float = 1.0,
-    log: Callable[[str], None] = print,
-    controller_url: str | None = None,
-    settings: GraspWalkSettings | None = None,
-    view: bool = False,
+    options: RunOptions,
+    report: dict[str, Any],
 ) -> dict[str, Any]:
     """Runs one grasp-walk trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import walking_robot
 
-    settings = settings or GraspWalkSettings.drawn(seed)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    desc = robots.robot("talos")
-    model = walking_robot("talos").model  # with the grasp-point frames of the planner
-    url = controller_url or private_lcm_url()
-    report = scenario_report(scenario, seed, speed, url, desc.mjcf, settings)
-    with walking_run(model, desc.mjcf, out_dir, url, report, speed, controller_url, view) as run:
+    log = options.log
+    settings = scenario.settings or GraspWalkSettings.drawn(seed)
+    model = walking_robot(scenario.robot).model  # with the grasp-point frames of the planner
+    report["settings"] = settings.__dict__
+    with walking_run(scenario.robot, model, scenario.scene, out_dir, options, report) as run:
         client, rec, mid = run.client, run.rec, run.mid
         ball0 = np.array([mid[0] + settings.ball[0], mid[1] + settings.ball[1], settings.ball[2]])
         ball1 = ball0 + np.array([*settings.shift, 0.0])
@@ -337,7 +382,7 @@ def _criteria(
     stance_shift = 0.5 * sum(planned[s][:2] - first_stance[s][:2] for s in FEET)
     base_drop = float(max(q_start[2] - q[2] for q in rec.q))
     walked = [s for s in rec.statuses if s.utime >= utime_start]
-    margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot("talos").mjcf))
+    margins = zmp_margins(walked, rec.loaded, sole_half_size(robots.robot(ROBOT).mjcf))
     replans = [p for u, p in rec.plans[1:]]
     after_move = [p for u, p in rec.plans if u >= utime_move]
     c: dict[str, Any] = {
@@ -418,7 +463,7 @@ def _markdown(r: dict[str, Any]) -> str:
     s = r["settings"]
     ms = c["replan_solve_ms"]
     lines = [
-        f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}",
+        title(r),
         "",
         r.get("description", ""),
         "",
@@ -460,23 +505,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"Final stance moved by {np.round(c['final_stance_shift_m'], 3).tolist()} m for a "
         f"ball moved by {c['ball_shift_m']} m.",
         "",
-        "## Timings",
-        "",
-        "| phase | s |",
-        "|---|---|",
-    ]
-    lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
-    ctl = r.get("controller", {})
-    lines += [
-        "",
-        "## Controller",
-        "",
-        ", ".join(f"{k}: {v}" for k, v in ctl.items()),
-        "",
-        "## Plots",
-        "",
-    ] + [f"![{p}]({p})" for p in r.get("plots", [])]
-    lines += [
+        *timings_lines(r["timings"]),
+        *controller_and_plots_lines(r),
         "",
         "Files: `run.lcmlog` (every LCM message of the run), `logs/` (process outputs: "
         "controller, footsteps, lcm-logger).",
@@ -512,10 +542,9 @@ def _plots(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from marionette.execution.report import _save
     from marionette.footsteps.robot_model import FootShape
 
-    half = sole_half_size(robots.robot("talos").mjcf)
+    half = sole_half_size(robots.robot(ROBOT).mjcf)
     foot = FootShape(length=2 * half[0], width=2 * half[1])
     paths = []
     data = model.createData()
@@ -531,7 +560,7 @@ def _plots(
     ax.plot(*ball1[:2], "o", color="tab:orange", ms=10, label="ball after its move")
     finish_footsteps_axes(ax)
     ax.set_title(f"grasp-walk: footsteps planned vs executed ({len(rec.plans)} plans)")
-    paths.append(_save(fig, out_dir / "footsteps.png"))
+    paths.append(save_figure(fig, out_dir / "footsteps.png"))
 
     # 2. CoM and ZMP along x and y (fig. 2.16): reference ZMP, measured ZMP, CoM reference and
     # measured CoM; plan arrivals and the ball's move marked.
@@ -550,7 +579,7 @@ def _plots(
     axes[0].legend(fontsize=7, ncol=5)
     axes[1].set_xlabel("controller time [s] (grey: footstep plans received)")
     fig.suptitle("grasp-walk: CoM and ZMP (Dang 2012 fig. 2.16)")
-    paths.append(_save(fig, out_dir / "com_zmp.png"))
+    paths.append(save_figure(fig, out_dir / "com_zmp.png"))
 
     # 3. ZMP margin inside the loaded soles' polygon over time.
     m = zmp_margins(rec.statuses, rec.loaded, half)
@@ -560,5 +589,16 @@ def _plots(
     ax.set_xlabel("controller time [s]")
     ax.set_ylabel("ZMP margin [mm]")
     ax.set_title("measured ZMP: distance inside the support polygon of the loaded soles")
-    paths.append(_save(fig, out_dir / "zmp_margin.png"))
+    paths.append(save_figure(fig, out_dir / "zmp_margin.png"))
     return paths
+
+
+SCENARIO = GraspWalk(
+    name="grasp-walk",
+    description="TALOS walks to a ball moved sideways while it walks; the footstep process "
+    "replans, the controller walks the new steps (thesis 001 ch. 6, no final grasp)",
+    seed_experiment="thesis 001 ch. 6 (walking to a ball moved while the robot walks, §6.3)",
+    robot=ROBOT,
+    scene=robots.robot(ROBOT).mjcf,
+    seed=0,
+)

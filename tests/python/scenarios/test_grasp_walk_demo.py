@@ -1,4 +1,4 @@
-"""`marionette demo grasp-walk --speed 0` end to end (issue 10, Dang 2012 ch. 6): MuJoCo
+"""`marionette demo grasp-walk --speed 0` end to end (Dang 2012 ch. 6): MuJoCo
 controller, the real footstep process, the ball moved during the walk (seed 1: 0.29 m). The demo's own
 verdict is checked, then re-derived from its LCM log alone with independent code: plans merged
 by index, soles by a separate Pinocchio model, ZMP containment by hull areas."""

@@ -11,8 +11,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from marionette.execution.demo import DemoError, Scenario
-from marionette.execution.drill import (
+from marionette.execution.tool_task import axis_angle_deg, tool_target
+from marionette.perception.camera import CameraIntrinsics
+from marionette.perception.objects import load_tagged_bodies
+from marionette.scenarios.drill import (
     PART_YAML,
     SCENE,
     DrillSettings,
@@ -20,12 +22,8 @@ from marionette.execution.drill import (
     displaced_scene,
     draw_displacement,
     part_pose_from_references,
-    run_drill,
     scene_camera,
 )
-from marionette.execution.tool_task import axis_angle_deg, tool_target
-from marionette.perception.camera import CameraIntrinsics
-from marionette.perception.objects import load_tagged_bodies
 
 
 def test_part_pose_from_two_holes_and_axis_is_exact_on_exact_data():
@@ -49,7 +47,7 @@ def test_part_pose_refuses_references_on_one_axis():
         )
 
 
-def test_displacement_within_issue10_bounds_at_the_pattern_centre():
+def test_displacement_within_its_bounds_at_the_pattern_centre():
     st = DrillSettings()
     c = np.array([0.01, 0.0, 0.95])
     for seed in range(200):
@@ -126,6 +124,9 @@ def test_hole_sensor_range_and_noise():
 
 
 def test_run_drill_refuses_a_running_controller(tmp_path: Path):
-    sc = Scenario("drill", "", SCENE, 0, "part", 0.0)
-    with pytest.raises(DemoError, match="no --controller-url"):
-        run_drill(sc, 0, tmp_path, controller_url="udpm://239.255.76.67:7667?ttl=0")
+    from marionette.scenarios import SCENARIOS, RunOptions, ScenarioError
+
+    with pytest.raises(ScenarioError, match="no --controller-url"):
+        SCENARIOS["drill"].run(
+            0, tmp_path, RunOptions(controller_url="udpm://239.255.76.67:7667?ttl=0")
+        )

@@ -1,18 +1,18 @@
-"""What the walking demos (`demo grasp-walk`, Dang 2012 ch. 6; `demo step-over`, ch. 5) share:
-TALOS on marionette-controller's walking stack, the footstep process planning towards an object
-published on OBJECT_POSES, and that object moved during the walk so that the footstep process
-replans (the ball carried by hand, the bar pushed).
+"""What the walking scenarios (``grasp-walk``, Dang 2012 ch. 6; ``step-over``, ch. 5) share: a
+humanoid on marionette-controller's walking stack, the footstep process planning towards an
+object published on OBJECT_POSES, and that object moved during the walk so that the footstep
+process replans (the ball carried by hand, the bar pushed).
 
 * :class:`MovingObjectPublisher` — the object's pose at 20 Hz, sliding to a new pose at constant
   speed over a duration of controller time;
 * :class:`WalkRecorder` — WALK_STATUS, ROBOT_STATE and FOOTSTEP_PLAN as the verdicts and plots
   need them (plans merged as the footstep manager applies them);
-* :func:`walking_run` — processes, controller start-up with the walking stack, standing stance,
-  controller summary and timings (the report folder's skeleton);
+* :func:`walking_run` — the trial's processes (:mod:`.harness`), the walking stack, the standing
+  stance and the timings;
 * :func:`walk_while_object_moves` — footstep process start, first plan, the move at a given step,
   the wait for the robot standing at the end of the last plan;
 * measures and report pieces both verdicts use (:func:`sole_poses`, :func:`landings`,
-  :func:`step_counts`, :func:`replan_criteria`, :func:`write_report_files`, :func:`plot_footsteps`,
+  :func:`step_counts`, :func:`replan_criteria`, :func:`plot_footsteps`,
   :func:`finish_footsteps_axes`).
 
 The scenario modules keep what differs: the object, the footstep process's arguments, the
@@ -22,8 +22,6 @@ criteria, the report text and the plots beyond the footsteps.
 from __future__ import annotations
 
 import contextlib
-import json
-import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -33,7 +31,6 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-import marionette
 from marionette import (
     channels,
     lcmt_footstep_plan,
@@ -43,12 +40,12 @@ from marionette import (
     lcmt_walk_status,
 )
 from marionette.control.client import ControllerClient, configuration_from_state
-from marionette.execution.demo import DemoError
 from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking_spec
-from marionette.processes import ProcessError, ProcessGroup
+from marionette.scenarios.base import RunOptions
+from marionette.scenarios.harness import Processes, Run, harness
 
 PUBLISH_PERIOD_S = 0.05  # OBJECT_POSES at 20 Hz, the footstep process's input
-MIN_REPLAN_HZ = 20.0  # issue #10: footstep replanning at 20 Hz or more (median replan < 50 ms)
+MIN_REPLAN_HZ = 20.0  # footstep replanning at 20 Hz or more (median replan < 50 ms)
 SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
 
 
@@ -157,25 +154,6 @@ class WalkRecorder:
             return self.statuses[-1] if self.statuses else None
 
 
-def wait_alive(
-    client: ControllerClient, group: ProcessGroup, cond, timeout_s: float, what: str
-) -> None:
-    """client.wait in 1 s slices, checking that every process still runs (a dead footstep
-    process must fail the run with its log, not after the timeout)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            client.wait(cond, min(1.0, max(0.01, deadline - time.monotonic())), what)
-            return
-        except TimeoutError as e:
-            try:
-                group.check_alive()
-            except ProcessError as dead:
-                raise DemoError(f"waiting for {what}: {dead}") from dead
-            if time.monotonic() >= deadline:
-                raise DemoError(str(e)) from e
-
-
 def walk_done(rec: WalkRecorder, settle_s: float) -> bool:
     """Standing on the latest plan, at least one step walked, for ``settle_s`` of controller time
     with no plan since (a walk starts 1.6 s after its plan arrives, so a later plan would show)."""
@@ -239,7 +217,7 @@ def replan_rates(
     utime_move: int | None,
     move_duration_s: float,
 ) -> dict[str, float | None]:
-    """Footstep replanning rates (issue #10: "footstep replanning >= 20 Hz"): ``capacity_hz``,
+    """Footstep replanning rates (the target: replanning at 20 Hz or more): ``capacity_hz``,
     1 / the median replan time (the rate the process sustains, whatever the input rate);
     ``slowest_hz``, 1 / the slowest replan (step-over's fallback to a fresh sequence when the bar
     moves beyond the strides' reach takes up to ~0.5 s); ``during_move_hz``, the plans received
@@ -302,8 +280,8 @@ def step_counts(rec: WalkRecorder, statuses: list[Any]) -> dict[str, Any]:
 
 
 def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 0.1) -> np.ndarray:
-    """A seeded move of an object on the floor (issue #10: "moved by up to 0.3 m while
-    walking"): direction uniform, distance uniform in [``min_distance``, ``max_distance``] [m];
+    """A seeded move of an object on the floor (moved by up to 0.3 m while the robot walks):
+    direction uniform, distance uniform in [``min_distance``, ``max_distance``] [m];
     returns (dx, dy). Every trial moves the object by a distance that matters to the planner."""
     if not 0.0 <= min_distance <= max_distance:
         raise ValueError(
@@ -315,122 +293,59 @@ def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 
     return distance * np.array([np.cos(angle), np.sin(angle)])
 
 
-def scenario_report(
-    scenario, seed: int, speed: float, url: str, scene: Path, settings
-) -> dict[str, Any]:
-    """The head of a walking demo's report (scenario, seed, robot, speed, LCM URL, scene relative
-    to the repository, the settings)."""
-    return {
-        "scenario": scenario.name,
-        "description": scenario.description,
-        "seed": seed,
-        "robot": "talos",
-        "speed": speed,
-        "lcm_url": url,
-        "scene": str(Path(scene).relative_to(marionette.REPO_ROOT)),
-        "settings": settings.__dict__,
-    }
-
-
 class WalkingRun:
-    """One walking demo's live run (:func:`walking_run`): the processes, the controller client,
-    the recorder, the stance the robot stands in before it walks and the report's timings."""
+    """One walking trial's live run (:func:`walking_run`): the harness's :class:`~.harness.Run`
+    (processes, controller client), the recorder, the stance the robot stands in before it walks
+    and the report's timings."""
 
     def __init__(
-        self,
-        group: ProcessGroup,
-        client: ControllerClient,
-        rec: WalkRecorder,
-        model: pin.Model,
-        url: str,
-        timings: dict[str, float],
+        self, run: Run, rec: WalkRecorder, model: pin.Model, timings: dict[str, float]
     ) -> None:
-        self.group, self.client, self.rec, self.model, self.url = group, client, rec, model, url
-        self.timings = timings
+        self.run, self.rec, self.model, self.timings = run, rec, model, timings
+        self.client, self.group, self.url = run.client, run.group, run.url
         standing = rec.last_status()
         self.start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
         self.mid = 0.5 * (self.start["left"][:2] + self.start["right"][:2])  # stance centre (x, y)
         self.q_start = rec.q[-1].copy()
-        self.utime_start = client.utime()
+        self.utime_start = self.client.utime()
         self.q_final: np.ndarray | None = None  # set by walk_while_object_moves
         self.footsteps_log: list[str] = []  # the footstep process's log, at the end
 
 
 @contextlib.contextmanager
 def walking_run(
+    robot: str,
     model: pin.Model,
     scene: Path,
     out_dir: Path,
-    url: str,
+    options: RunOptions,
     report: dict[str, Any],
-    speed: float = 1.0,
-    controller_url: str | None = None,
-    view: bool = False,
 ) -> Iterator[WalkingRun]:
-    """Starts lcm-logger (``run.lcmlog``) and, unless ``controller_url`` names a running one,
-    marionette-controller on ``scene`` at ``speed``; sends the walking stack
-    (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says standing.
-    On a normal exit: the controller's summary in ``report["controller"]``, every process still
-    alive, then the processes stopped, ``report["timings"]`` (with ``total_wall_s``) and
-    :attr:`WalkingRun.footsteps_log` read from ``logs/footsteps.log``. ``view``: the browser 3D
-    view of the run (robot, objects, footsteps) in ``report["viewer_url"]``."""
+    """Starts the trial's processes on ``scene`` (:func:`.harness.harness`), sends the walking
+    stack (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says
+    standing. Afterwards ``report["timings"]`` has ``total_wall_s`` and
+    :attr:`WalkingRun.footsteps_log` is read from ``logs/footsteps.log``."""
     timings: dict[str, float] = {}
+    report["timings"] = timings
     t0 = time.perf_counter()
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start(
-            "lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
-        )
-        if controller_url is None:
-            group.start(
-                "controller",
-                [
-                    marionette.BUILD_DIR / "marionette-controller",
-                    "--lcm-url",
-                    url,
-                    "--robot",
-                    "talos",
-                    "--scene",
-                    scene,
-                    "--speed",
-                    str(speed),
-                    "--camera-rate",
-                    "0",
-                    "--status-rate",
-                    "100",
-                ],
-            )
+    with harness(out_dir, Processes(robot, scene), options, report) as run:
+        client = run.client
         rec = WalkRecorder(client, model)
-        client.wait_ready(60.0, processes=group)
-        if view:
-            from marionette.viewer.node import start_viewer
-
-            report["viewer_url"] = start_viewer(group, "talos", scene, print)
         client.send_spec(walking_spec(1))
-        client.wait(
+        run.wait(
             lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
             30.0,
             "the walking controller",
         )
-        client.wait(
+        run.wait(
             lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
             10.0,
             "WALK_STATUS standing",
         )
-        run = WalkingRun(group, client, rec, model, url, timings)
-        yield run
-        status = client.status
-        report["controller"] = {
-            "mode": status.mode,
-            "mode_reason": status.mode_reason,
-            "realtime_factor": status.realtime_factor,
-            "deadline_misses": status.deadline_misses,
-            "num_rejected": status.num_rejected,
-            "last_rejection": status.last_rejection,
-        }
-        group.check_alive()
+        walking = WalkingRun(run, rec, model, timings)
+        yield walking
     timings["total_wall_s"] = time.perf_counter() - t0
-    run.footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
-    report["timings"] = timings
+    walking.footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
 
 
 def walk_while_object_moves(
@@ -451,30 +366,16 @@ def walk_while_object_moves(
     the robot standing at the end of the last plan (:func:`walk_done`); the publisher stops in
     any case. Fills ``first_plan_wall_s``, ``walk_controller_s`` and :attr:`WalkingRun.q_final`;
     returns the controller utime of the move. Log lines start with ``tag``."""
-    client, group, rec = run.client, run.group, run.rec
+    client, rec = run.client, run.rec
     publisher.start()
-    group.start(
-        "footsteps",
-        [
-            sys.executable,
-            "-m",
-            "marionette.cli",
-            "footsteps",
-            "run",
-            "--lcm-url",
-            run.url,
-            *footsteps_args,
-        ],
-    )
+    run.run.start_cli("footsteps", ["footsteps", "run", "--lcm-url", run.url, *footsteps_args])
     log(started)
     t1 = time.perf_counter()
     try:
-        wait_alive(client, group, lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
+        run.run.wait(lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
         run.timings["first_plan_wall_s"] = time.perf_counter() - t1
         log(f"{tag}: plan 1, {rec.plans[0][1].num_steps} steps")
-        wait_alive(
-            client,
-            group,
+        run.run.wait(
             lambda c: rec.last_status().current_step_index >= move_at_step,
             walk_timeout_s * 2,
             f"step {move_at_step}",
@@ -484,9 +385,7 @@ def walk_while_object_moves(
             f"{tag}: {publisher.name} moving to {np.round(move_to, 3).tolist()} from step "
             f"{rec.last_status().current_step_index} on, in {move_duration_s} s"
         )
-        wait_alive(
-            client,
-            group,
+        run.run.wait(
             lambda c: walk_done(rec, SETTLE_S),
             walk_timeout_s * 2,
             "the robot standing at the end of the last plan",
@@ -496,26 +395,6 @@ def walk_while_object_moves(
     run.timings["walk_controller_s"] = (client.utime() - run.utime_start) * 1e-6
     run.q_final = configuration_from_state(run.model, client.state)
     return utime_move
-
-
-def write_report_files(
-    out_dir: Path,
-    report: dict[str, Any],
-    plots: Callable[[], list[Path]],
-    markdown: Callable[[dict[str, Any]], str],
-) -> None:
-    """report.json and report.md; the plots' names in ``report["plots"]``. A failing plot is
-    recorded as ``plot_error`` (a plot must never hide the run's verdict)."""
-    from marionette.execution.report import _jsonable
-
-    paths: list[Path] = []
-    try:
-        paths = plots()
-    except Exception as e:  # a plot must never hide the run's verdict
-        report["plot_error"] = repr(e)
-    report["plots"] = [p.name for p in paths]
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
-    (out_dir / "report.md").write_text(markdown(report))
 
 
 def plot_footsteps(ax, rec: WalkRecorder, model: pin.Model, foot) -> None:

@@ -1,4 +1,4 @@
-"""`marionette demo step-over` (Dang 2012 ch. 5, issue 10): TALOS walks in MuJoCo to a goal zone
+"""``step-over`` (Dang 2012 ch. 5): TALOS walks in MuJoCo to a goal zone
 beyond a bar lying across its path while the bar's perceived pose changes during the walk.
 
 Flow: marionette-controller runs the walking stack (:func:`walking.walking_spec`) in the
@@ -15,17 +15,17 @@ by ``perceived_offset`` (drawn from the trial's seed: 0.1-0.3 m in any direction
 turned by up to 10°, :meth:`StepOverSettings.drawn`) and, once the walk has started, slides to
 the bar's real pose over ``correction_s`` seconds — to the planner exactly a bar moved during the
 walk (Dang's bar was pushed by hand), while the feet physically straddle the real bar in the
-end, so the crossing is tested against MuJoCo's contacts. Success (ARCHITECTURE.md §Demos): no
+end, so the crossing is tested against MuJoCo's contacts. Success (``docs/scenarios.md``): no
 sole ever loaded over the real bar's floor region, no sole inside the bar's volume, the final
 stance in the goal zone beyond the bar, no fall, and replans after the bar moved.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -33,7 +33,16 @@ import pinocchio as pin
 import marionette
 from marionette import lcmt_object_poses, robots
 from marionette.execution.walking import FEET, sole_corners, sole_half_size
-from marionette.execution.walking_scenario import (
+from marionette.scenarios.base import Criterion, RunOptions, Scenario
+from marionette.scenarios.report import (
+    controller_and_plots_lines,
+    save_figure,
+    timings_lines,
+    title,
+    write_report_files,
+)
+from marionette.scenarios.walking_scenario import (
+    MIN_REPLAN_HZ,
     MovingObjectPublisher,
     WalkRecorder,
     draw_floor_move,
@@ -42,15 +51,13 @@ from marionette.execution.walking_scenario import (
     plot_footsteps,
     replan_criteria,
     replan_rate_row,
-    scenario_report,
     sole_poses,
     step_counts,
     walk_while_object_moves,
     walking_run,
-    write_report_files,
 )
-from marionette.lcm_bus import private_lcm_url
 
+ROBOT = "talos"
 SCENE = marionette.MODELS_DIR / "scenes" / "talos_walk.xml"
 
 
@@ -80,9 +87,8 @@ class StepOverSettings:
         cls, seed: int, max_distance: float = 0.3, max_yaw_deg: float = 10.0
     ) -> StepOverSettings:
         """A trial's settings (``--seed``): the bar first perceived off its real pose by a seeded
-        floor move of 0.1-0.3 m in any direction (:func:`draw_floor_move`, issue #10: "moved by up
-        to 0.3 m while walking") and turned by up to ``max_yaw_deg``; it slides onto the real bar
-        during the first step."""
+        floor move of 0.1-0.3 m in any direction (:func:`draw_floor_move`) and turned by up to
+        ``max_yaw_deg``; it slides onto the real bar during the first step."""
         dx, dy = draw_floor_move(seed, max_distance)
         yaw = np.radians(max_yaw_deg) * np.random.default_rng([seed, 1]).uniform(-1.0, 1.0)
         return cls(perceived_offset=(float(dx), float(dy), float(yaw)))
@@ -143,26 +149,66 @@ def _ordered(corners: np.ndarray) -> np.ndarray:
     return corners[np.argsort(np.arctan2(corners[:, 1] - c[1], corners[:, 0] - c[0]))]
 
 
+@dataclass(frozen=True, kw_only=True)
+class StepOver(Scenario):
+    """The step-over kind: ``settings`` None draws each trial's from its seed
+    (:meth:`StepOverSettings.drawn`)."""
+
+    KIND: ClassVar[str] = "step-over"
+
+    settings: StepOverSettings | None = None
+
+    def criteria(self) -> tuple[Criterion, ...]:
+        s = self.settings or StepOverSettings()
+        return (
+            Criterion(
+                "no_foot_on_bar",
+                "no sole loaded over the bar's floor region, none inside its volume",
+                "0 samples",
+            ),
+            Criterion(
+                "in_goal_zone",
+                "final stance centre beyond the bar, in the goal zone",
+                f"{s.goal_tolerance * 1e3:g} mm from the goal",
+            ),
+            Criterion("no_fall", "base height drop (max)", f"< {s.max_base_drop * 1e3:g} mm"),
+            Criterion("steps_in_order", "steps executed in order", "never back"),
+            Criterion("recomputations_after_move", "footstep replans after the bar moved", "> 0"),
+            Criterion(
+                "replan_fast_enough", "1 / median footstep replan time", f">= {MIN_REPLAN_HZ:g} Hz"
+            ),
+        )
+
+    def declared_settings(self) -> dict[str, Any]:
+        if self.settings is not None:
+            return dataclasses.asdict(self.settings)
+        return {
+            **dataclasses.asdict(StepOverSettings()),
+            "perceived_offset": "drawn from the seed",
+        }
+
+    def trial(
+        self, seed: int, out_dir: Path, options: RunOptions, report: dict[str, Any]
+    ) -> dict[str, Any]:
+        return run_step_over(self, seed, out_dir, options, report)
+
+
 def run_step_over(
-    scenario,
+    scenario: StepOver,
     seed: int,
     out_dir: Path,
-    speed: float = 1.0,
-    log: Callable[[str], None] = print,
-    controller_url: str | None = None,
-    settings: StepOverSettings | None = None,
-    view: bool = False,
+    options: RunOptions,
+    report: dict[str, Any],
 ) -> dict[str, Any]:
     """Runs one step-over trial and writes its report folder; returns the report dictionary."""
     from marionette.footsteps.robot_model import walking_robot
 
-    settings = settings or StepOverSettings.drawn(seed)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    model = walking_robot("talos").model
-    url = controller_url or private_lcm_url()
-    report = scenario_report(scenario, seed, speed, url, SCENE, settings)
+    log = options.log
+    settings = scenario.settings or StepOverSettings.drawn(seed)
+    model = walking_robot(scenario.robot).model
+    report["settings"] = settings.__dict__
     bar_real = np.array(settings.bar, dtype=float)
-    with walking_run(model, SCENE, out_dir, url, report, speed, controller_url, view) as run:
+    with walking_run(scenario.robot, model, scenario.scene, out_dir, options, report) as run:
         mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])
         bar_seen = bar_real + np.array(settings.perceived_offset)
@@ -233,7 +279,7 @@ def step_over_criteria(
     footsteps_log,
 ) -> dict[str, Any]:
     """The success criteria, measured on the robot states (module docstring)."""
-    half = sole_half_size(robots.robot("talos").mjcf)
+    half = sole_half_size(robots.robot(ROBOT).mjcf)
     bar = bar_corners(bar_real, settings.bar_radius, settings.bar_length)
     data = model.createData()
     loaded_over, inside, clearance = 0, 0, np.inf
@@ -333,7 +379,7 @@ def _markdown(report: dict[str, Any]) -> str:
     c, s = report["criteria"], report["settings"]
     ms = c["replan_solve_ms"]
     lines = [
-        f"# Demo `{report['scenario']}` — {'SUCCESS' if report['success'] else 'FAILURE'}",
+        title(report),
         "",
         report.get("description", ""),
         "",
@@ -362,21 +408,9 @@ def _markdown(report: dict[str, Any]) -> str:
         f"Footstep plans: {c['footstep_plans']} (first {ms['first_plan']} ms; replans median "
         f"{ms['median']} ms, max {ms['max']} ms).",
         "",
-        "## Timings",
-        "",
-        "| phase | s |",
-        "|---|---|",
+        *timings_lines(report["timings"]),
+        *controller_and_plots_lines(report),
     ]
-    lines += [f"| {k} | {v:.2f} |" for k, v in report["timings"].items()]
-    lines += [
-        "",
-        "## Controller",
-        "",
-        ", ".join(f"{k}: {v}" for k, v in report["controller"].items()),
-        "",
-        "## Plots",
-        "",
-    ] + [f"![{p}]({p})" for p in report["plots"]]
     return "\n".join(lines) + "\n"
 
 
@@ -395,11 +429,10 @@ def _plots(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from marionette.execution.report import _save
     from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR
     from marionette.footsteps.robot_model import FootShape
 
-    half = sole_half_size(robots.robot("talos").mjcf)
+    half = sole_half_size(robots.robot(ROBOT).mjcf)
     foot = FootShape(length=2 * half[0], width=2 * half[1])
     data = model.createData()
     com = np.array([pin.centerOfMass(model, data, q) for q in rec.q])
@@ -420,7 +453,7 @@ def _plots(
     ax.set_ylim(-0.7, 0.7)
     finish_footsteps_axes(ax)
     ax.set_title(f"step-over: footsteps and bar ({len(rec.plans)} plans, {len(history)} bar poses)")
-    paths = [_save(fig, out_dir / "footsteps.png")]
+    paths = [save_figure(fig, out_dir / "footsteps.png")]
     # Sole heights along x: the crossing swings over the bar.
     fig, ax = plt.subplots(figsize=(9, 3))
     for side in FEET:
@@ -447,5 +480,17 @@ def _plots(
     ax.set_xlabel("x [m]")
     ax.set_ylabel("sole height [mm]")
     ax.legend(fontsize=7)
-    paths.append(_save(fig, out_dir / "sole_heights.png"))
+    paths.append(save_figure(fig, out_dir / "sole_heights.png"))
     return paths
+
+
+SCENARIO = StepOver(
+    name="step-over",
+    description="TALOS walks over a bar to a goal zone while the bar's perceived pose moves; "
+    "the footstep process replans (thesis 001 ch. 5, Algorithm 3)",
+    seed_experiment="thesis 001 ch. 5 (stepping over a bar moved while the robot walks, "
+    "Algorithm 3)",
+    robot=ROBOT,
+    scene=SCENE,
+    seed=0,
+)

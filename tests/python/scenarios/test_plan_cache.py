@@ -1,16 +1,17 @@
-"""The demos' plan cache: a cached plan is reused only when the problem file and the model files it
-was planned from are unchanged (a handle moved in models/objects/ must replan)."""
+"""The plan-and-execute scenarios' plan cache: a cached plan is reused only when the problem file
+and the model files it was planned from are unchanged (a handle moved in models/objects/ must
+replan)."""
 
 from __future__ import annotations
 
 import shutil
 
 import marionette
-from marionette.execution import demo
-from marionette.execution.demo import (
+from marionette.scenarios import SCENARIOS
+from marionette.scenarios import plan_and_execute as demo
+from marionette.scenarios.plan_and_execute import (
     PLAN_INPUTS_FILE,
     PROBLEMS_DIR,
-    SCENARIOS,
     cached_plan,
     plan_inputs_digest,
 )

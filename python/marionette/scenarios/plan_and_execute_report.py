@@ -1,11 +1,10 @@
-"""The report folder of a demo run: report.json (success, criteria with measured values,
-timings, per-step records), report.md (the same for people) and PNG plots: task errors per step
-(the decay of fig. 5.4), planned vs executed joints and object path, CoM vs support polygon
+"""The report folder of a plan-and-execute trial: report.json (success, criteria with measured
+values, timings, per-step records), report.md (the same for people) and PNG plots: task errors per
+step (the decay of fig. 5.4), planned vs executed joints and object path, CoM vs support polygon
 (humanoids)."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +12,13 @@ import numpy as np
 import pinocchio as pin
 
 from marionette import robots
+from marionette.scenarios.report import (
+    controller_and_plots_lines,
+    save_figure,
+    timings_lines,
+    title,
+    write_report_files,
+)
 
 
 def _records(result) -> list[dict[str, Any]]:
@@ -42,28 +48,18 @@ def write_report(
     out_dir: Path, report: dict[str, Any], scenario, supervisor, result, recorder, model: pin.Model
 ) -> None:
     report["steps"] = _records(result)
-    plots = []
-    try:
-        plots = _plots(out_dir, scenario, supervisor, result, recorder, model)
-    except Exception as e:  # a plot must never hide the run's verdict
-        report["plot_error"] = repr(e)
-    report["plots"] = [p.name for p in plots]
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1, default=_jsonable))
-    (out_dir / "report.md").write_text(_markdown(report))
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
+    write_report_files(
+        out_dir,
+        report,
+        lambda: _plots(out_dir, scenario, supervisor, result, recorder, model),
+        _markdown,
+    )
 
 
 def _markdown(r: dict[str, Any]) -> str:
     c = r["criteria"]
     lines = [
-        f"# Demo `{r['scenario']}` — {'SUCCESS' if r['success'] else 'FAILURE'}",
+        title(r),
         "",
         r.get("description", ""),
         "",
@@ -71,7 +67,7 @@ def _markdown(r: dict[str, Any]) -> str:
         f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
         + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""),
         "",
-        "## Success criteria (ARCHITECTURE.md §Demos)",
+        "## Success criteria (docs/scenarios.md)",
         "",
         "| criterion | measured | limit | ok |",
         "|---|---|---|---|",
@@ -149,7 +145,7 @@ def _markdown(r: dict[str, Any]) -> str:
             for k, t in v["last_per_step"].items()
         ]
         lines += [""]
-    if "grip" in r:  # issue 7: the grip force the admittance holds, measured on the contacts
+    if "grip" in r:  # the grip force the admittance holds, measured on the contacts
         g = r["grip"]
         lines += [
             "## Gripper admittance (thesis 000 §3.2.4.3)",
@@ -178,12 +174,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
         f"started at step {r['estimation']['first_step']}",
         "",
-        "## Timings",
-        "",
-        "| phase | s |",
-        "|---|---|",
+        *timings_lines(r["timings"]),
     ]
-    lines += [f"| {k} | {v:.2f} |" for k, v in r["timings"].items()]
     lines += [
         "",
         "## Steps (one controller each)",
@@ -198,16 +190,7 @@ def _markdown(r: dict[str, Any]) -> str:
             f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
             f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |"
         )
-    ctl = r.get("controller", {})
-    lines += [
-        "",
-        "## Controller",
-        "",
-        ", ".join(f"{k}: {v}" for k, v in ctl.items()),
-        "",
-        "## Plots",
-        "",
-    ] + [f"![{p}]({p})" for p in r.get("plots", [])]
+    lines += controller_and_plots_lines(r)
     lines += [
         "",
         "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
@@ -244,7 +227,7 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
     ax.set_ylabel("task error ||e||")
     ax.set_title(f"{scenario.name}: task errors, one controller per step (grey lines: switches)")
     ax.legend(fontsize=7, ncol=4)
-    paths.append(_save(fig, out_dir / "task_errors.png"))
+    paths.append(save_figure(fig, out_dir / "task_errors.png"))
 
     # 2. Planned vs executed joints (the 6 that move most) and object path.
     plan_t, plan_q, plan_obj = [], [], []
@@ -277,7 +260,7 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
             ax.set_title(labels[k] if k < len(labels) else f"q[{k}]", fontsize=8)
         axes.flat[0].legend(fontsize=7)
         fig.suptitle(f"{scenario.name}: planned vs executed joints [rad]")
-        paths.append(_save(fig, out_dir / "joints.png"))
+        paths.append(save_figure(fig, out_dir / "joints.png"))
 
         fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
         ot = np.concatenate([t for t, _ in plan_obj])
@@ -300,7 +283,7 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
         axes[0].legend(fontsize=7)
         axes[-1].set_xlabel("controller time [s]")
         fig.suptitle(f"{scenario.name}: {scenario.object_name} position, planned vs executed")
-        paths.append(_save(fig, out_dir / "object_path.png"))
+        paths.append(save_figure(fig, out_dir / "object_path.png"))
 
     # 3. CoM vs support polygon (humanoid).
     if scenario.feet and len(q_rec):
@@ -329,14 +312,5 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
         ax.set_ylabel("y [m]")
         ax.legend(fontsize=7)
         ax.set_title(f"{scenario.name}: CoM over the support polygon")
-        paths.append(_save(fig, out_dir / "com_support.png"))
+        paths.append(save_figure(fig, out_dir / "com_support.png"))
     return paths
-
-
-def _save(fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return path

@@ -1,4 +1,4 @@
-"""`marionette demo drill` (thesis 000 §6.3, issue 10): the UR10 with the drilling spindle aligns
+"""``drill`` (thesis 000 §6.3): the UR10 with the drilling spindle aligns
 its tool on the reference holes R1 and R2 of the aircraft part, then interpolates every other
 hole from the two corrected references.
 
@@ -34,7 +34,7 @@ servos of the MuJoCo arm sag under gravity by a few mm, which the controller's t
 (it tracks its own integrated configuration); the corrections move the reference by the error
 measured from the joint encoders until it is below ``aligned_m`` / ``aligned_deg``.
 
-Verdict (ARCHITECTURE.md §Demos): every hole, R1 and R2 included, within 0.2 mm / 0.5 deg
+Verdict (``docs/scenarios.md``): every hole, R1 and R2 included, within 0.2 mm / 0.5 deg
 after alignment, judged in ground truth: the tool pose from MuJoCo's joint positions
 (ROBOT_STATE) through the robot's kinematics (the MJCF is generated from the same URDF) against
 the true hole pose (the displaced mocap pose times the hole's pose in the part).
@@ -42,15 +42,12 @@ the true hole pose (the displaced mocap pose times the hole's pose in the part).
 
 from __future__ import annotations
 
-import json
 import re
-import sys
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -58,13 +55,13 @@ import pinocchio as pin
 import marionette
 from marionette import channels, lcmt_camera_image, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
-from marionette.execution import tool_task
-from marionette.execution.demo import DemoError
 from marionette.execution.monitor import pose_from_message
-from marionette.execution.perturbations import place_mocap_body, write_scene
 from marionette.execution.tool_task import ToolTask, tool_error, tool_target
-from marionette.lcm_bus import private_lcm_url
-from marionette.processes import ProcessGroup
+from marionette.scenarios import perturbations
+from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
+from marionette.scenarios.harness import Processes, harness
+from marionette.scenarios.perturbations import place_mocap_body, write_scene
+from marionette.scenarios.report import write_report_files
 
 SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
@@ -77,7 +74,7 @@ REFERENCES = ("part/R1", "part/R2")
 class DrillSettings:
     """Perturbation, sensor model, motion and tolerances of the drill demo."""
 
-    max_displacement_m: float = 0.05  # issue #10: part displaced <= 5 cm ...
+    max_displacement_m: float = 0.05  # part displaced <= 5 cm ...
     max_rotation_deg: float = 10.0  # ... and <= 10 deg (about the hole pattern's centre)
     standoff_m: float = 0.01  # tool origin this far before the hole on its axis
     move_duration_s: float = 1.0  # minimum-jerk move between holes (at least)
@@ -138,9 +135,9 @@ def part_pose_from_references(
 
 
 def draw_displacement(seed: int, settings: DrillSettings, centre_P: np.ndarray) -> pin.SE3:
-    """The part's seeded displacement (:func:`tool_task.draw_displacement` within the settings'
-    bounds, about the centre of its hole pattern)."""
-    return tool_task.draw_displacement(
+    """The part's seeded displacement (:func:`perturbations.draw_displacement` within the
+    settings' bounds, about the centre of its hole pattern)."""
+    return perturbations.draw_displacement(
         np.random.default_rng(seed),
         settings.max_displacement_m,
         settings.max_rotation_deg,
@@ -156,7 +153,7 @@ def displaced_scene(X_WP: pin.SE3, out: Path) -> Path:
     try:
         text = place_mocap_body(SCENE.read_text(), "part", X_WP)
     except ValueError as e:
-        raise DemoError(f"{SCENE}: {e}") from e
+        raise ScenarioError(f"{SCENE}: {e}") from e
     return write_scene(text, SCENE, out)
 
 
@@ -168,7 +165,7 @@ def scene_camera() -> tuple[pin.SE3, float]:
         SCENE.read_text(),
     )
     if m is None:
-        raise DemoError(f"{SCENE}: no camera scene_rgbd")
+        raise ScenarioError(f"{SCENE}: no camera scene_rgbd")
     pos = np.array(m.group(1).split(), dtype=float)
     xy = np.array(m.group(2).split(), dtype=float)
     x = xy[:3] / np.linalg.norm(xy[:3])
@@ -262,34 +259,63 @@ class HoleSensor:
         return self._read(X_W_tool.actInv(X_W_hole)).rotation
 
 
+@dataclass(frozen=True, kw_only=True)
+class Drill(Scenario):
+    """The drill kind: the part, the tool sensor and the tolerances in ``settings``."""
+
+    KIND: ClassVar[str] = "drill"
+
+    settings: DrillSettings = DrillSettings()
+
+    def criteria(self) -> tuple[Criterion, ...]:
+        s = self.settings
+        return (
+            Criterion(
+                "all_holes_within_tolerance",
+                "every hole, R1 and R2 included: tool vs the true hole after alignment "
+                "(ground truth)",
+                f"{s.position_tolerance_m * 1e3:g} mm / {s.angle_tolerance_deg:g}°",
+            ),
+            Criterion(
+                "every_servo_converged",
+                "each alignment and hole servo reached its threshold",
+                f"{s.aligned_m * 1e3:g} mm / {s.aligned_deg:g}° in {s.max_corrections} corrections",
+            ),
+        )
+
+    def declared_settings(self) -> dict[str, Any]:
+        return asdict(self.settings)
+
+    def trial(
+        self, seed: int, out_dir: Path, options: RunOptions, report: dict[str, Any]
+    ) -> dict[str, Any]:
+        return run_drill(self, seed, out_dir, options, report)
+
+
 def run_drill(
-    scenario,
+    scenario: Drill,
     seed: int,
     out_dir: Path,
-    speed: float = 1.0,
-    log: Callable[[str], None] = print,
-    controller_url: str | None = None,
-    settings: DrillSettings | None = None,
-    view: bool = False,
+    options: RunOptions,
+    report: dict[str, Any],
 ) -> dict[str, Any]:
     """Runs one drill trial and writes its report folder; returns the report dictionary.
-    ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
+    ``options.view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette.models.scenes import scene_object_pose
     from marionette.models.semantics import load_semantics
 
-    st = settings or DrillSettings()
-    if controller_url is not None:
-        raise DemoError(
+    st, log = scenario.settings, options.log
+    if options.controller_url is not None:
+        raise ScenarioError(
             "drill displaces the part in the scene file it starts the controller with: "
             "no --controller-url"
         )
-    out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     part = load_semantics(PART_YAML)
     holes = {h.name: h.pose.se3() for h in part.handles}
     for r in REFERENCES:
         if r not in holes:
-            raise DemoError(f"{PART_YAML}: no reference hole {r}")
+            raise ScenarioError(f"{PART_YAML}: no reference hole {r}")
     X_WP_nom = scene_object_pose(SCENE, "part")
     centre_P = np.mean([X.translation for X in holes.values()], axis=0)
     D = draw_displacement(seed, st, centre_P)
@@ -300,61 +326,33 @@ def run_drill(
         f"{np.degrees(np.linalg.norm(pin.log3(D.rotation))):.2f} deg (hole pattern centre moved "
         f"{np.linalg.norm((X_WP_true * centre_P) - (X_WP_nom * centre_P)) * 1e3:.1f} mm)"
     )
-    url = private_lcm_url()
-    report: dict[str, Any] = {
-        "scenario": scenario.name,
-        "description": scenario.description,
-        "seed": seed,
-        "speed": speed,
-        "lcm_url": url,
-        "settings": asdict(st),
-        "part_nominal": pose_to_vector(X_WP_nom).tolist(),
-        "part_true": pose_to_vector(X_WP_true).tolist(),
-    }
+    report.update(
+        settings=asdict(st),
+        part_nominal=pose_to_vector(X_WP_nom).tolist(),
+        part_true=pose_to_vector(X_WP_true).tolist(),
+    )
     timings: dict[str, float] = {}
+    report["timings"] = timings
     t0 = time.perf_counter()
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        group.start(
-            "lcm-logger", ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
-        )
-        group.start(
-            "controller",
-            [
-                marionette.BUILD_DIR / "marionette-controller",
-                "--lcm-url",
-                url,
-                "--robot",
-                "ur10",
-                "--scene",
-                scene,
-                "--speed",
-                str(speed),
-                "--camera-rate",
-                "0",
-                "--status-rate",
-                "50",
-            ],
-        )
-        group.start(
-            "perceive",
-            [
-                sys.executable,
-                "-m",
-                "marionette.cli",
-                "perceive",
-                "--lcm-url",
-                url,
-                "--robot",
-                "none",
-                "--camera-pose-source",
-                "message",
-                "--no-depth",
-                "--camera-channel",
-                channels.CAMERA_SCENE_RGBD,
-                "--objects",
-                str(PART_YAML),
-            ],
-        )
+    processes = Processes(
+        scenario.robot,
+        scene,
+        status_rate=50,
+        perceive=(
+            "--robot",
+            "none",
+            "--camera-pose-source",
+            "message",
+            "--no-depth",
+            "--camera-channel",
+            channels.CAMERA_SCENE_RGBD,
+            "--objects",
+            str(PART_YAML),
+        ),
+        view_scene=SCENE,  # the viewer's objects: the nominal scene's
+    )
+    with harness(out_dir, processes, options, report) as run:
+        client, group = run.client, run.group
         poses: list[pin.SE3] = []
         lock = threading.Lock()
 
@@ -365,13 +363,6 @@ def run_drill(
                         poses.append(pose_from_message(o))
 
         client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, on_poses)
-        client.wait_ready(60.0, processes=group)
-        if view:
-            from marionette.viewer.node import start_viewer
-
-            report["viewer_url"] = start_viewer(
-                group, "ur10", SCENE, log
-            )  # its objects: the nominal scene's
         timings["start_s"] = time.perf_counter() - t0
 
         # §6.3 detection: the scene camera measures the part (tags 20-23).
@@ -383,7 +374,7 @@ def run_drill(
                     break
             if time.monotonic() > deadline:
                 group.check_alive()
-                raise DemoError(
+                raise ScenarioError(
                     "the perception process published no pose of the part in 30 s "
                     "(tags out of view?)"
                 )
@@ -432,7 +423,7 @@ def run_drill(
             # the arm's sag out first (encoders): the sensor needs the hole in its view only
             X, _, _ = tool.servo(lambda X, target=X_cam_target: target)
             if tool_error(X, X_cam_target)[0] > 0.5 * st.sensor_range_m:
-                raise DemoError(
+                raise ScenarioError(
                     f"{name}: the arm does not hold the pose before the hole: tool "
                     f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
                     f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}"
@@ -454,7 +445,7 @@ def run_drill(
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
             if lost:
-                raise DemoError(
+                raise ScenarioError(
                     f"{name}: the tool sensor does not see the hole (more than "
                     f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): alignment failed"
                 )
@@ -541,7 +532,6 @@ def run_drill(
             )
             log(f"drill: {name:14s} {dp * 1e3:.3f} mm / {da:.3f} deg {'ok' if ok else 'OUT'}")
         timings["holes_s"] = time.perf_counter() - t
-        group.check_alive()
     timings["total_s"] = time.perf_counter() - t0
     not_converged = [n for n, ok in converged.items() if not ok]
     success = all(r["within_tolerance"] for r in rows) and not not_converged
@@ -573,13 +563,17 @@ def run_drill(
 
 
 def _write_report(out_dir: Path, r: dict[str, Any]) -> None:
+    """report.json, report.md and the per-hole error plot."""
+    write_report_files(out_dir, r, lambda: [_plot(out_dir, r)], _markdown)
+
+
+def _plot(out_dir: Path, r: dict[str, Any]) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     st = r["settings"]
-    (out_dir / "report.json").write_text(json.dumps(r, indent=1))
     names = [h["hole"] for h in r["holes"]]
     fig, ax = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     x = np.arange(len(names))
@@ -596,6 +590,10 @@ def _write_report(out_dir: Path, r: dict[str, Any]) -> None:
     fig.tight_layout()
     fig.savefig(out_dir / "hole_errors.png", dpi=100)
     plt.close(fig)
+    return out_dir / "hole_errors.png"
+
+
+def _markdown(r: dict[str, Any]) -> str:
     lines = [
         f"# demo drill, seed {r['seed']}",
         "",
@@ -625,4 +623,15 @@ def _write_report(out_dir: Path, r: dict[str, Any]) -> None:
         for h in r["holes"]
     ]
     lines += ["", "![per-hole errors](hole_errors.png)", ""]
-    (out_dir / "report.md").write_text("\n".join(lines))
+    return "\n".join(lines)
+
+
+SCENARIO = Drill(
+    name="drill",
+    description="UR10 aligns its drill on the reference holes R1, R2 of the displaced aircraft "
+    "part, then interpolates the other holes (thesis 000 §6.3; 0.2 mm / 0.5°)",
+    seed_experiment="thesis 000 §6.3 (the drilling procedure, steps 1-6)",
+    robot="ur10",
+    scene=SCENE,
+    seed=0,
+)

@@ -1,4 +1,4 @@
-"""`marionette demo deburr --speed 2` end to end (issue 10, thesis 000 §5.3.3): TIAGo, the part
+"""`marionette demo deburr --speed 2` end to end (thesis 000 §5.3.3): TIAGo, the part
 displaced, the tool off its nominal pose in the hand and encoder offsets in the arm (the
 controller's model off the robot), the head camera measured by `marionette perceive`, every hole
 planned as a handle, ordered by the TSP solver and reached under visual servoing. The verdict is

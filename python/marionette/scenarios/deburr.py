@@ -1,5 +1,5 @@
-"""`marionette demo deburr` (thesis 000 §5.3.3, issue 10): TIAGo deburrs the holes of the aircraft
-part with the tool it holds, the holes ordered by a travelling-salesman solver and each one
+"""``deburr`` (thesis 000 §5.3.3): TIAGo deburrs the holes of the aircraft part with the tool it
+holds, the holes ordered by a travelling-salesman solver and each one
 reached under visual servoing of the tool relative to the part.
 
 The thesis's steps, on the ``tiago_deburr`` scene (the base does not move: the navigation of
@@ -32,7 +32,7 @@ step 1 is optional there):
   transit (the thesis's improvement: "the following paths could be modified to integrate the
   measured difference").
 
-Verdict (ARCHITECTURE.md §Demos): for every hole, the tool axis within 1 mm / 1 deg of the hole
+Verdict (``docs/scenarios.md``): for every hole, the tool axis within 1 mm / 1 deg of the hole
 axis (distance of the hole's centre from the tool axis, angle between the axes), in ground
 truth: the tool from MuJoCo's joint positions (ROBOT_STATE) through the kinematics with the
 *true* tool offset, the hole from the true part pose; every hole reached; the order from the TSP
@@ -41,15 +41,13 @@ solver.
 
 from __future__ import annotations
 
-import json
 import re
-import sys
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -57,9 +55,12 @@ import pinocchio as pin
 import marionette
 from marionette import channels, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
-from marionette.execution.demo import DemoError
 from marionette.execution.monitor import pose_from_message
-from marionette.execution.perturbations import (
+from marionette.execution.tool_task import ToolTask, axis_angle_deg, axis_offset, tool_target
+from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
+from marionette.scenarios.harness import Processes, harness
+from marionette.scenarios.perturbations import (
+    draw_displacement,
     draw_joint_offsets,
     mjcf_pose,
     mjcf_pose_attributes,
@@ -68,15 +69,7 @@ from marionette.execution.perturbations import (
     true_configuration,
     write_scene,
 )
-from marionette.execution.tool_task import (
-    ToolTask,
-    axis_angle_deg,
-    axis_offset,
-    draw_displacement,
-    tool_target,
-)
-from marionette.lcm_bus import private_lcm_url
-from marionette.processes import ProcessGroup
+from marionette.scenarios.report import write_report_files
 
 SCENE = marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml"
 PROBLEM = Path(__file__).resolve().parents[1] / "planning" / "problems" / "tiago_deburr.yaml"
@@ -91,11 +84,11 @@ HEAD_JOINTS = ("head_1_joint", "head_2_joint")
 class DeburrSettings:
     """Perturbations, motion, vision and tolerances of the deburr demo."""
 
-    max_displacement_m: float = 0.05  # issue #10: part displaced <= 5 cm ...
+    max_displacement_m: float = 0.05  # part displaced <= 5 cm ...
     max_rotation_deg: float = 10.0  # ... and <= 10 deg (about the hole pattern's centre)
     tool_offset_m: float = 0.005  # tool off its nominal pose in the hand <= 5 mm ...
     tool_offset_deg: float = 3.0  # ... and <= 3 deg
-    # encoder offsets (issue #10, ch. 4: 7 deg shoulder, 4 deg wrist), joint -> |offset| [deg], sign
+    # encoder offsets (ch. 4: 7 deg shoulder, 4 deg wrist), joint -> |offset| [deg], sign
     # drawn per trial; the simulated joint reports q + offset (MJCF ref), the controller's model
     # believes it: the plan alone then misses the holes by ~9 cm, only vision closes the gap
     joint_offsets_deg: dict[str, float] = field(
@@ -122,7 +115,7 @@ class DeburrSettings:
     head_scan_deg: float = 1.5  # while the head circles its aim by this much ...
     head_scan_s: float = 2.0  # ... in this time (new pixels in every frame)
     vision_timeout_s: float = 30.0  # wall time to get them
-    position_tolerance_m: float = 1e-3  # ARCHITECTURE.md: tool axis within 1 mm ...
+    position_tolerance_m: float = 1e-3  # tool axis within 1 mm ...
     angle_tolerance_deg: float = 1.0  # ... and 1 deg of each hole axis
     target_attempts: int = 300  # projections per hole for its grasp configurations
     max_tag_view_deg: float = 60.0  # ... keeping those where a tool tag faces the camera
@@ -132,7 +125,7 @@ class DeburrSettings:
     camera_noise_grey: float = 2.0  # head camera's sensor noise (1 sigma) on the image; none on
     # the depth: at 3 mm (a structured-light sensor at ~1 m) the RGB-D fusion tilts a 4 cm tool tag by
     # 1.2 deg median (0.56 with the depth weighted as 1 cm) and seed 1 misses a hole by 1.04 deg
-    # (execution/README.md)
+    # (python/marionette/scenarios/README.md)
     depth_noise_m: float = 0.0
 
 
@@ -151,10 +144,10 @@ def perturbed_scene(X_WP: pin.SE3, tool_offset: pin.SE3, out: Path) -> Path:
     try:
         text = place_mocap_body(SCENE.read_text(), "part", X_WP)
     except ValueError as e:
-        raise DemoError(f"{SCENE}: {e}") from e
+        raise ScenarioError(f"{SCENE}: {e}") from e
     m = re.search(rf'<body name="{TOOL_LINK}"([^>]*)>', text)
     if m is None:
-        raise DemoError(f"{SCENE}: no body {TOOL_LINK}")
+        raise ScenarioError(f"{SCENE}: no body {TOOL_LINK}")
     X_true = mjcf_pose(m.group(1)) * tool_offset
     text = text.replace(m.group(0), f'<body name="{TOOL_LINK}" {mjcf_pose_attributes(X_true)}>', 1)
     return write_scene(text, SCENE, out)
@@ -190,7 +183,7 @@ class Vision:
         self, names: tuple[str, ...], after_utime: int, what: str
     ) -> list[dict[str, pin.SE3]]:
         """The frames taken after ``after_utime`` (controller time) that see every body of
-        ``names``, once there are at least ``vision_frames``; DemoError naming what was not seen
+        ``names``, once there are at least ``vision_frames``; ScenarioError naming what was not seen
         after ``vision_timeout_s``."""
         deadline = time.monotonic() + self.settings.vision_timeout_s
         with self._cond:
@@ -206,7 +199,7 @@ class Vision:
                 if left <= 0:
                     recent = [seen for t, seen in self.frames if t > after_utime]
                     counts = {n: sum(n in s for s in recent) for n in names}
-                    raise DemoError(
+                    raise ScenarioError(
                         f"{what}: {len(got)} of {self.settings.vision_frames} camera frames "
                         f"see {' and '.join(names)} in {self.settings.vision_timeout_s:.0f} s "
                         f"({len(recent)} frames; seen per body: {counts})"
@@ -319,7 +312,7 @@ def plan_deburring(
     graph = graph_from_settings(problem)
     checker = CollisionChecker(problem)
     if not checker.is_valid(q0):
-        raise DemoError(
+        raise ScenarioError(
             f"the start configuration is in collision: {checker.colliding_pairs(q0)[:3]}"
         )
     edges = {e.name: e for e in graph.top_edges()}
@@ -394,7 +387,7 @@ def plan_deburring(
         else:
             targets[hole] = (best[1], best[2])
     if unreachable:
-        raise DemoError(
+        raise ScenarioError(
             f"no pre-grasp/grasp configuration in {settings.target_attempts} projections for "
             + "; ".join(unreachable)
         )
@@ -423,7 +416,7 @@ def plan_deburring(
             planner = ManipulationRRT(problem, graph, checker, seed=int(rng.integers(1 << 30)))
             result = planner.solve(previous, [pre], 2000, 30.0)
             if not result.success:
-                raise DemoError(f"no collision-free transit to {name}: {result.reason}")
+                raise ScenarioError(f"no collision-free transit to {name}: {result.reason}")
             plans.append(HolePlan(name, pre, grasp, [p.end for p in result.paths], "rrt"))
         previous = pre
     tour["transits"] = {p.name: p.transit_kind for p in plans}
@@ -482,28 +475,54 @@ def aim_head(
 # ---- the run -----------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True, kw_only=True)
+class Deburr(Scenario):
+    """The deburring kind: perturbations, motion, vision and tolerances in ``settings``."""
+
+    KIND: ClassVar[str] = "deburr"
+
+    settings: DeburrSettings = DeburrSettings()
+
+    def criteria(self) -> tuple[Criterion, ...]:
+        s = self.settings
+        return (
+            Criterion(
+                "all_holes_within_tolerance",
+                "every hole: the hole's centre from the tool axis, and the angle between the "
+                "axes (ground truth)",
+                f"{s.position_tolerance_m * 1e3:g} mm / {s.angle_tolerance_deg:g}°",
+            ),
+            Criterion("holes_visited", "every hole planned is visited", "all"),
+            Criterion("ordered_by_tsp", "holes ordered by the travelling-salesman solver", "-"),
+        )
+
+    def declared_settings(self) -> dict[str, Any]:
+        return asdict(self.settings)
+
+    def trial(
+        self, seed: int, out_dir: Path, options: RunOptions, report: dict[str, Any]
+    ) -> dict[str, Any]:
+        return run_deburr(self, seed, out_dir, options, report)
+
+
 def run_deburr(
-    scenario,
+    scenario: Deburr,
     seed: int,
     out_dir: Path,
-    speed: float = 1.0,
-    log: Callable[[str], None] = print,
-    controller_url: str | None = None,
-    settings: DeburrSettings | None = None,
-    view: bool = False,
+    options: RunOptions,
+    report: dict[str, Any],
 ) -> dict[str, Any]:
     """Runs one deburr trial and writes its report folder; returns the report dictionary.
-    ``view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
+    ``options.view``: serve the browser 3D view of the run (:func:`viewer.node.start_viewer`)."""
     from marionette import robots
     from marionette.models.scenes import scene_object_pose
     from marionette.models.semantics import load_semantics, pregrasp_distance
 
-    st = settings or DeburrSettings()
-    if controller_url is not None:
-        raise DemoError(
+    st, log = scenario.settings, options.log
+    if options.controller_url is not None:
+        raise ScenarioError(
             "deburr perturbs the scene file it starts the controller with: no --controller-url"
         )
-    out_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     handles = {h.name: h for h in load_semantics(PART_YAML).handles}
     holes = {name: h.pose.se3() for name, h in handles.items()}
@@ -527,88 +546,40 @@ def run_deburr(
         f"its nominal pose in the hand by {np.linalg.norm(T_tool.translation) * 1e3:.1f} mm / "
         f"{np.degrees(np.linalg.norm(pin.log3(T_tool.rotation))):.2f} deg (tool tip {tool_tip_shift * 1e3:.1f} mm)"
     )
-    url = private_lcm_url()
-    report: dict[str, Any] = {
-        "scenario": scenario.name,
-        "description": scenario.description,
-        "seed": seed,
-        "speed": speed,
-        "lcm_url": url,
-        "settings": asdict(st),
-        "part_nominal": pose_to_vector(X_WP_nom).tolist(),
-        "part_true": pose_to_vector(X_WP_true).tolist(),
-        "tool_offset": pose_to_vector(T_tool).tolist(),
-        "tool_tip_offset_m": float(tool_tip_shift),
-        "joint_offsets_deg": {j: float(np.degrees(v)) for j, v in joint_offsets.items()},
-    }
+    report.update(
+        settings=asdict(st),
+        part_nominal=pose_to_vector(X_WP_nom).tolist(),
+        part_true=pose_to_vector(X_WP_true).tolist(),
+        tool_offset=pose_to_vector(T_tool).tolist(),
+        tool_tip_offset_m=float(tool_tip_shift),
+        joint_offsets_deg={j: float(np.degrees(v)) for j, v in joint_offsets.items()},
+    )
     timings: dict[str, float] = {}
+    report["timings"] = timings
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
-    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
-        # Camera frames (1.5 MB each) stay out of the log: the poses measured in them are in.
-        group.start(
-            "lcm-logger",
-            [
-                "lcm-logger",
-                f"--lcm-url={url}",
-                "-f",
-                str(out_dir / "run.lcmlog"),
-                "--channel=^CAMERA_.*",
-                "--invert-channels",
-            ],
-        )
-        group.start(
-            "controller",
-            [
-                marionette.BUILD_DIR / "marionette-controller",
-                "--lcm-url",
-                url,
-                "--robot",
-                "tiago",
-                "--scene",
-                scene,
-                "--speed",
-                str(speed),
-                "--camera-rate",
-                str(st.camera_rate_hz),
-                "--status-rate",
-                "50",
-                "--camera-noise",
-                str(st.camera_noise_grey),
-                "--depth-noise",
-                str(st.depth_noise_m),
-            ],
-        )
-        group.start(
-            "perceive",
-            [
-                sys.executable,
-                "-m",
-                "marionette.cli",
-                "perceive",
-                "--lcm-url",
-                url,
-                "--robot",
-                "tiago",
-                "--objects",
-                str(PART_YAML),
-                "--quad-decimate",
-                "1",
-            ],
-        )
+    processes = Processes(
+        scenario.robot,
+        scene,
+        camera_rate=st.camera_rate_hz,
+        status_rate=50,
+        controller_args=(
+            "--camera-noise",
+            str(st.camera_noise_grey),
+            "--depth-noise",
+            str(st.depth_noise_m),
+        ),
+        perceive=("--robot", scenario.robot, "--objects", str(PART_YAML), "--quad-decimate", "1"),
+        view_scene=SCENE,  # the viewer's objects: the nominal scene's
+    )
+    with harness(out_dir, processes, options, report) as run:
+        client = run.client
         vision = Vision(client, st)
-        client.wait_ready(60.0, processes=group)
-        if view:
-            from marionette.viewer.node import start_viewer
-
-            report["viewer_url"] = start_viewer(
-                group, "tiago", SCENE, log
-            )  # its objects: the nominal scene's
         timings["start_s"] = time.perf_counter() - t0
         tool = ToolTask(
             client,
             st,
-            "tiago",
+            scenario.robot,
             TOOL_LINK,
             TOOL_LINK,
             X_link_tool,
@@ -617,7 +588,7 @@ def run_deburr(
             stream_posture=True,
         )
         model = tool.model
-        camera = robots.robot("tiago").camera_frame
+        camera = robots.robot(scenario.robot).camera_frame
         q_home = aim_head(model, tool.configuration(), camera, X_WP_nom * centre_P)
         client.send_spec(tool.spec())
         tool.move(tool.tool_of(q_home), 0.05, q=tool.configuration())
@@ -731,7 +702,6 @@ def run_deburr(
             correction = tool.reference_tool() * (tool.tool_of(q_grasp) * back_off).inverse()
             tool.move(correction * tool.tool_of(q_pre), st.move_duration_s, q=q_pre)
         timings["holes_s"] = time.perf_counter() - t
-        group.check_alive()
     timings["total_s"] = time.perf_counter() - t0
     within = sum(r["within_tolerance"] for r in rows)
     success = bool(rows) and within == len(rows) and len(rows) == len(plans)
@@ -761,13 +731,17 @@ def run_deburr(
 
 
 def _write_report(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -> None:
+    """report.json, report.md and the per-hole error and tour plot."""
+    write_report_files(out_dir, r, lambda: [_plot(out_dir, r, holes)], _markdown)
+
+
+def _plot(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -> Path:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     st = r["settings"]
-    (out_dir / "report.json").write_text(json.dumps(r, indent=1))
     rows = r["holes"]
     fig, ax = plt.subplots(1, 3, figsize=(15, 4.5))
     x = np.arange(len(rows))
@@ -804,6 +778,11 @@ def _write_report(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -
     fig.tight_layout()
     fig.savefig(out_dir / "hole_errors.png", dpi=100)
     plt.close(fig)
+    return out_dir / "hole_errors.png"
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    rows = r["holes"]
     lines = [
         f"# demo deburr, seed {r['seed']}",
         "",
@@ -836,4 +815,16 @@ def _write_report(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -
         for h in rows
     ]
     lines += ["", "![per-hole errors and tour](hole_errors.png)", ""]
-    (out_dir / "report.md").write_text("\n".join(lines))
+    return "\n".join(lines)
+
+
+SCENARIO = Deburr(
+    name="deburr",
+    description="TIAGo deburrs the holes of the displaced aircraft part with a tool held off its "
+    "nominal pose, holes ordered by a TSP solver, each reached under visual servoing "
+    "(thesis 000 §5.3.3; tool axis within 1 mm / 1°)",
+    seed_experiment="thesis 000 §5.3.3 (deburring with a tool held by TIAGo, fig. 5.9)",
+    robot="tiago",
+    scene=SCENE,
+    seed=0,
+)

@@ -1,5 +1,5 @@
-"""Seeded perturbations of a demo trial (ARCHITECTURE §Demos, issue #10): what vision must
-close (thesis 000 ch. 4-5).
+"""Seeded perturbations of a scenario's trial: what vision and calibration must close (thesis 000
+ch. 4-5; ``docs/scenarios.md``).
 
 * **displacement before execution** — the object is moved on the table between planning and
   execution (uniform in a disc of ``displacement_m`` and a yaw within ``displacement_deg``);
@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -53,28 +53,39 @@ class PerturbationSettings:
                 raise ValueError(f"perturbation {name} must be >= 0, got {getattr(self, name)}")
 
 
-# Issue #10's set for plank-flip.
-ISSUE_10 = PerturbationSettings(
-    displacement_m=0.05,
-    displacement_deg=10.0,
-    slip_m=0.01,
-    slip_deg=5.0,
-    joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
-    camera_noise_m=0.002,
-    camera_noise_deg=0.5,
-)
-# `marionette demo --perturb NAME`: issue #10's set, and its parts.
-PRESETS: dict[str, PerturbationSettings] = {
-    "issue10": ISSUE_10,
+# `marionette demo --perturb NAME`: each part alone, and all of them (the set plank-flip's trials
+# are judged under: docs/scenarios.md).
+PARTS: dict[str, PerturbationSettings] = {
+    # The object moved on the table between planning and execution.
+    "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
     # What the placement servo alone is built to close: the object slipping in the hand, noise.
     "in-hand": PerturbationSettings(
         slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5
     ),
-    "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
+    # Encoder offsets of TALOS' left arm (ch. 4: 7° at the shoulder, 4° at the wrist).
     "joint-offsets": PerturbationSettings(
         joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
     ),
 }
+
+
+def combined(parts: list[PerturbationSettings]) -> PerturbationSettings:
+    """The perturbations of every part at once: each magnitude from the part that sets it
+    (ValueError when two parts set the same one differently)."""
+    out: dict[str, Any] = {}
+    default = PerturbationSettings()
+    for part in parts:
+        for f in fields(PerturbationSettings):
+            value = getattr(part, f.name)
+            if value == getattr(default, f.name):
+                continue
+            if f.name in out and out[f.name] != value:
+                raise ValueError(f"perturbation parts disagree on {f.name}: {out[f.name]}, {value}")
+            out[f.name] = value
+    return PerturbationSettings(**out)
+
+
+PRESETS: dict[str, PerturbationSettings] = {"all": combined(list(PARTS.values())), **PARTS}
 
 
 @dataclass(frozen=True)
@@ -141,6 +152,25 @@ def draw_joint_offsets(rng: np.random.Generator, offsets_deg: dict[str, float]) 
         for j, m in sorted(offsets_deg.items())
         if m
     }
+
+
+def draw_displacement(
+    rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float, centre: np.ndarray
+) -> pin.SE3:
+    """Seeded displacement D of a workpiece, applied as X_true = X_nominal D: a rotation of at most
+    ``max_rotation_deg`` about a random axis through ``centre`` (workpiece frame) and a
+    translation of at most ``max_translation_m``; both magnitudes uniform in [1/2, 1] of their
+    bound."""
+
+    def unit():
+        v = rng.normal(size=3)
+        return v / np.linalg.norm(v)
+
+    angle = np.radians(max_rotation_deg) * rng.uniform(0.5, 1.0)
+    R = pin.exp3(angle * unit())
+    t = max_translation_m * rng.uniform(0.5, 1.0) * unit()
+    # rotation about the centre, then translation: p -> R (p - c) + c + t
+    return pin.SE3(R, centre - R @ centre + t)
 
 
 def displaced(X_WO: pin.SE3, displacement: tuple[float, float, float]) -> pin.SE3:
@@ -223,12 +253,22 @@ def write_scene(text: str, source: Path, out: Path) -> Path:
     return out
 
 
+def _joint_pattern(joint: str) -> re.Pattern:
+    return re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
+
+
+def missing_joints(scene: Path, joints: list[str]) -> list[str]:
+    """The ``joints`` the MJCF ``scene`` has no joint element of (none can be offset)."""
+    text = Path(scene).read_text()
+    return [j for j in joints if not _joint_pattern(j).search(text)]
+
+
 def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) -> Path:
     """A copy of the MJCF ``scene`` in which each joint of ``offsets`` has ``ref`` = offset [rad]
     (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
     text = scene.read_text()
     for joint, offset in offsets.items():
-        pattern = re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
+        pattern = _joint_pattern(joint)
         text, n = pattern.subn(
             lambda m, offset=offset: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1
         )
