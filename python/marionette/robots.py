@@ -124,7 +124,11 @@ class RobotDescription:
     actuators: tuple[Actuator, ...] = ()
     hand_links: tuple[str, ...] = ()
     moving_mimics: bool = True
+    # gripper -> its jaws' finger links (+y jaw first), whose contact forces the simulator measures
     grip_bodies: dict[str, tuple[str, ...]] = field(default_factory=dict, hash=False)
+    jaws: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = field(
+        default_factory=dict, hash=False
+    )
     calibration_base_frame: str | None = None
     calibration_head_joints: tuple[str, ...] = ()
     calibrated_arms: tuple[CalibratedArm, ...] = ()
@@ -258,8 +262,11 @@ def _load_robot(folder: Path) -> RobotDescription:
         actuators=tuple(Actuator(**a) for a in sim.get("actuators") or []),
         hand_links=tuple(sim.get("hand_links") or [g["link"] for g in grippers]),
         moving_mimics=sim.get("moving_mimics", True),
+        jaws={
+            g["name"]: (tuple(g["jaws"][0]), tuple(g["jaws"][1])) for g in grippers if "jaws" in g
+        },
         grip_bodies={
-            g["name"]: tuple(g["contact_bodies"]) for g in grippers if "contact_bodies" in g
+            g["name"]: tuple(b for jaw in g["jaws"] for b in jaw) for g in grippers if "jaws" in g
         },
         calibration_base_frame=calibration.get("base_frame"),
         calibration_head_joints=tuple(calibration.get("head_joints", ())),
@@ -396,12 +403,18 @@ def configuration_from_srdf(model, srdf_text: str, state: str, sem: Semantics) -
     return pin.normalize(model, q)
 
 
+@cache
+def root_link(name: str | Path) -> str:
+    """The URDF's root link of robot ``name`` (a free-flyer's base body)."""
+    from marionette.models.urdf import read_urdf
+
+    return read_urdf(robot(name).urdf).root
+
+
 def semantics(name: str | Path) -> Semantics:
     """Grippers, contact surfaces and tags of robot ``name`` (its robot.yaml)."""
     d = robot(name).data
-    grippers = [
-        {k: v for k, v in g.items() if k != "contact_bodies"} for g in d.get("grippers", [])
-    ]
+    grippers = [{k: v for k, v in g.items() if k != "jaws"} for g in d.get("grippers", [])]
     sections = {"name": d["name"], "grippers": grippers}
     sections.update({k: d[k] for k in ("contacts", "tags") if k in d})
     return semantics_from_dict(sections, str(robot(name).semantics))

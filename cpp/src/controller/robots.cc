@@ -88,8 +88,8 @@ RobotInfo Read(const fs::path& folder) {
     for (size_t i = 0; i < grippers.size(); ++i) {
       const YAML::Node g = grippers[i];
       const std::string at = where + ": grippers/" + std::to_string(i);
-      for (const std::string& body : GetOr<std::vector<std::string>>(g, "contact_bodies", at, {})) {
-        r.grip_bodies.push_back(body);
+      for (const auto& jaw : GetOr<std::vector<std::vector<std::string>>>(g, "jaws", at, {})) {
+        r.grip_bodies.insert(r.grip_bodies.end(), jaw.begin(), jaw.end());
       }
       if (!g["joint"]) continue;  // a tool tip or a suction cup: nothing to drive
       r.grippers.push_back({Get<std::string>(g, "name", at), Get<std::string>(g, "joint", at),

@@ -279,7 +279,7 @@ def _check_links(desc: RobotDescription, bodies: dict[str, ET.Element], sem: Sem
         *(("cameras", c.frame) for c in desc.cameras),
         *(("force_torque_sensors", link) for _, link in desc.force_torque_sensors),
         *((("imu", desc.imu_link),) if desc.imu_link else ()),
-        *(("grippers/contact_bodies", b) for bs in desc.grip_bodies.values() for b in bs),
+        *(("grippers/jaws", b) for bs in desc.grip_bodies.values() for b in bs),
     ]
     for key, link in named:
         if link not in bodies:

@@ -180,11 +180,7 @@ def _name_findings(desc: robots.RobotDescription, model) -> list[Finding]:
         *((f"cameras/{c.name}/frame", c.frame) for c in desc.cameras),
         *((f"force_torque_sensors/{n}/link", link) for n, link in desc.force_torque_sensors),
         *((("imu/link", desc.imu_link),) if desc.imu_link else ()),
-        *(
-            (f"grippers/{g}/contact_bodies", b)
-            for g, bodies in desc.grip_bodies.items()
-            for b in bodies
-        ),
+        *((f"grippers/{g}/jaws", b) for g, bodies in desc.grip_bodies.items() for b in bodies),
         *(("simulation/hand_links", link) for link in desc.hand_links),
         *((f"calibration/arms/{a.side}/tagged_link", a.tagged_link) for a in desc.calibrated_arms),
         *(

@@ -1,5 +1,5 @@
 """Plan-and-execute scenarios declared as data: one YAML file per scenario, ``<name>.yaml``,
-validated against ``plan_and_execute.schema.json`` (beside this module; unknown keys refused with
+validated against ``schemas/scenario.schema.json`` (unknown keys refused with
 the closest known one), then read into a :class:`~.plan_and_execute.PlanAndExecute`.
 
 A file is found by its scenario's name on the search path — this package's ``declarations/``
@@ -24,28 +24,24 @@ optional; ``docs/scenarios.md``):
 from __future__ import annotations
 
 import difflib
-import json
 import os
 from collections.abc import Mapping
-from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-import jsonschema
 import yaml
 
+from marionette import schemas
 from marionette.scenarios.base import Scenario, ScenarioError
 from marionette.scenarios.plan_and_execute import PROBLEMS_DIR, SCENES_DIR, PlanAndExecute
 
-SCHEMA_FILE = Path(__file__).resolve().parent / "plan_and_execute.schema.json"
 BUNDLED_DIR = Path(__file__).resolve().parent / "declarations"
 PATH_VARIABLE = "MARIONETTE_SCENARIO_PATH"
 SUFFIXES = (".yaml", ".yml")
 
 
-@lru_cache(maxsize=1)
 def schema() -> dict[str, Any]:
-    return json.loads(SCHEMA_FILE.read_text())
+    return schemas.schema("scenario")
 
 
 def search_path() -> list[Path]:
@@ -65,25 +61,10 @@ def declaration_files() -> dict[str, list[Path]]:
     return out
 
 
-def _where(path: Any) -> str:
-    return "/".join(str(p) for p in path) or "(top level)"
-
-
 def schema_problems(doc: Any) -> list[str]:
     """What is wrong with a declaration document, one line each: where, what, and for an unknown
     key the closest known one."""
-    validator = jsonschema.Draft202012Validator(schema())
-    out = []
-    for e in sorted(validator.iter_errors(doc), key=lambda e: list(map(str, e.absolute_path))):
-        if e.validator == "additionalProperties" and isinstance(e.instance, Mapping):
-            known = sorted(e.schema.get("properties", {}))
-            for key in sorted(set(e.instance) - set(known), key=str):
-                close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
-                hint = f"did you mean {close[0]!r}?" if close else f"known keys: {', '.join(known)}"
-                out.append(f"{_where(e.absolute_path)}: unknown key {key!r}; {hint}")
-        else:
-            out.append(f"{_where(e.absolute_path)}: {e.message}")
-    return out
+    return schemas.problems(doc, "scenario")
 
 
 def _file(value: str, bundled_dir: Path, suffix: str, base_dir: Path, key: str) -> Path:

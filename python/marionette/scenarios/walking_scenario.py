@@ -331,7 +331,7 @@ def walking_run(
     with harness(out_dir, Processes(robot, scene), options, report) as run:
         client = run.client
         rec = WalkRecorder(client, model)
-        client.send_spec(walking_spec(1))
+        client.send_spec(walking_spec(robot, 1))
         run.wait(
             lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
             30.0,

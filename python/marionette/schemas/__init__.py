@@ -2,7 +2,9 @@
 file): one function, :func:`load_validated`, and one error, :class:`DataFileError`, whose message
 is one line that names the file, the line, the key and what to do.
 
-    robot.yaml       robot.schema.json      (docs/robots.md)
+    robot.yaml                    robot.schema.json      (docs/robots.md)
+    models/scenes/<scene>.yaml    scene.schema.json      (docs/robots.md)
+    scenario declarations         scenario.schema.json   (docs/scenarios.md)
 
 A YAML syntax error, an unknown key (with the closest known one: "did you mean"), a wrong type or
 a value out of range are all refused the same way, before anything reads the data.
@@ -21,7 +23,7 @@ import yaml
 
 SCHEMAS_DIR = Path(__file__).resolve().parent
 
-__all__ = ["SCHEMAS_DIR", "DataFileError", "load_validated", "schema", "validate"]
+__all__ = ["SCHEMAS_DIR", "DataFileError", "load_validated", "problems", "schema", "validate"]
 
 
 class DataFileError(ValueError):
@@ -63,44 +65,48 @@ def load_validated(path: str | Path, schema_name: str) -> dict[str, Any]:
     return data
 
 
+def problems(data: Any, schema_name: str) -> list[str]:
+    """Every way ``data`` breaks schema ``schema_name``, one line each, ``where: what``, ordered
+    by place; an unknown key with the closest known one ("did you mean"), else the known keys."""
+    out = []
+    for e in sorted(
+        _validator(schema_name).iter_errors(data), key=lambda e: list(map(str, e.absolute_path))
+    ):
+        where = _where(e.absolute_path)
+        if e.validator == "additionalProperties" and isinstance(e.instance, dict):
+            known = sorted((e.schema.get("properties") or {}).keys())
+            for key in sorted(set(e.instance) - set(known), key=str):
+                close = difflib.get_close_matches(str(key), known, n=1, cutoff=0.6)
+                hint = f"did you mean {close[0]!r}?" if close else f"known keys: {', '.join(known)}"
+                out.append(f"{where}: unknown key {key!r}; {hint}")
+        else:
+            out.append(f"{where}: {e.message}")
+    return out
+
+
 def validate(data: Any, schema_name: str, source: str = "<data>", node: Any = None) -> None:
-    """Raises :class:`DataFileError` when ``data`` does not follow schema ``schema_name``.
-    ``node`` (``yaml.compose`` of the same text) lets the message give the line."""
+    """Raises :class:`DataFileError` naming the first problem of ``data`` against schema
+    ``schema_name`` (with its line when ``node``, ``yaml.compose`` of the same text, is given)."""
     errors = sorted(_validator(schema_name).iter_errors(data), key=_error_rank)
     if not errors:
         return
-    e = errors[0]
-    key = "/".join(str(p) for p in e.absolute_path) or "(top level)"
-    line = _line_of(node, list(e.absolute_path))
+    first = errors[0]
+    line = _line_of(node, list(first.absolute_path))
     where = f"{source}:{line}" if line else source
-    raise DataFileError(f"{where}: {key}: {_explain(e)}")
+    message = next(
+        p for p in problems(data, schema_name) if p.startswith(_where(first.absolute_path))
+    )
+    raise DataFileError(f"{where}: {message}")
+
+
+def _where(path) -> str:
+    return "/".join(str(p) for p in path) or "(top level)"
 
 
 def _error_rank(e: jsonschema.ValidationError) -> tuple[int, int]:
     # Unknown and missing keys first (typos), then the deepest error (the most precise).
     kind = 0 if e.validator in ("additionalProperties", "required") else 1
     return (kind, -len(e.absolute_path))
-
-
-def _explain(e: jsonschema.ValidationError) -> str:
-    if e.validator == "additionalProperties":
-        known = sorted((e.schema.get("properties") or {}).keys())
-        unknown = sorted(set(e.instance) - set(known))
-        parts = []
-        for k in unknown:
-            close = difflib.get_close_matches(str(k), known, n=1, cutoff=0.6)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            parts.append(f"{k!r}{hint}")
-        return f"unknown key {', '.join(parts)}; known keys: {', '.join(known)}"
-    if e.validator == "required":
-        return f"{e.message.replace(' is a required property', '')} is missing (required)"
-    if e.validator == "enum":
-        return f"{e.instance!r} is not one of {', '.join(map(repr, e.validator_value))}"
-    if e.validator == "const":
-        return f"{e.instance!r} must be {e.validator_value!r}"
-    if e.validator == "type":
-        return f"{e.instance!r} is not of type {e.validator_value}"
-    return e.message
 
 
 def _line_of(node: Any, path: list[Any]) -> int | None:

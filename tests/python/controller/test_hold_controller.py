@@ -125,7 +125,7 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
         ):
             c.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
             c.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
-            c.send_spec(walking_spec())
+            c.send_spec(walking_spec("talos"))
             c.wait(
                 lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
                 30.0,
