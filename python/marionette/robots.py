@@ -153,7 +153,11 @@ class RobotDescription:
         return tuple(f.frame for f in self.feet)
 
     def actuator(self, joint: str) -> Actuator:
-        """The servo of ``joint``: the first actuator entry whose prefix matches its name."""
+        """The servo of ``joint``: the entry naming it exactly, else the first entry whose prefix
+        matches its name."""
+        for a in self.actuators:
+            if joint == a.joints:
+                return a
         for a in self.actuators:
             if joint.startswith(a.joints):
                 return a
