@@ -136,7 +136,16 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("footsteps", help="footstep optimiser (Dang 2012)")
+    parser = subparsers.add_parser(
+        "footsteps",
+        help="footstep optimiser (Dang 2012)",
+        epilog=(
+            "examples:\n"
+            "  marionette footsteps plan --mode grasp --png steps.png\n"
+            "  marionette footsteps run --mode step-over --goal 1.8 0 0"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = parser.add_subparsers(dest="footsteps_command", required=True)
 
     run = sub.add_parser("run", help="the LCM process: OBJECT_POSES, WALK_STATUS -> FOOTSTEP_PLAN")
