@@ -1,4 +1,4 @@
-// TALOS walks in MuJoCo (issue 9): the footstep manager and the preview-control pattern
+// TALOS walks in MuJoCo: the footstep manager and the preview-control pattern
 // generator drive the feet and CoM tasks of the stack; the robot walks 10 steps forward, walks
 // a turn, and stops, without falling; the feet land where planned; the ZMP measured from the
 // soles' contact wrenches stays inside the support polygon.

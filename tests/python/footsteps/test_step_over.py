@@ -127,8 +127,8 @@ def test_bar_moved_beyond_the_free_steps_reach_is_crossed_by_a_fresh_sequence(st
 
 @pytest.mark.parametrize("x0", [1.1, 1.25])
 def test_bar_come_nearer_is_replanned_with_the_steps_it_needs(stance, x0):
-    """A bar first seen 10-25 cm farther slides to 1 m while the first step is taken (issue #10's
-    moved bar). Algorithm 3 alone keeps the step count planned for the far bar (a surplus step
+    """A bar first seen 10-25 cm farther slides to 1 m while the first step is taken (a moved
+    bar). Algorithm 3 alone keeps the step count planned for the far bar (a surplus step
     that ends the walk shuffling, measured: falls at the goal); once the bar has moved more than
     ``fresh_after_move`` the free steps are planned afresh and end with as many steps as a plan
     made for the bar at 1 m, every sole clear of it."""
