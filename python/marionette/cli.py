@@ -19,6 +19,7 @@ import importlib
 import os
 import re
 import sys
+from typing import NoReturn
 
 COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
@@ -51,7 +52,7 @@ class Parser(argparse.ArgumentParser):
     choice, where the help is), exit code 2: every sub-parser is of this class (argparse makes
     sub-parsers of their parent's class)."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
         if m:
             import difflib

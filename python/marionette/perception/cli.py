@@ -92,7 +92,8 @@ def register(subparsers) -> None:
         "joint-offsets) or from the head camera in a MuJoCo scene (arm-encoders).",
         epilog=(
             "examples:\n"
-            "  marionette calibrate arm-encoders --scene models/scenes/talos_plank.xml --side left\n"
+            "  marionette calibrate arm-encoders --scene models/scenes/talos_plank.xml"
+            " --side left\n"
             "  marionette calibrate hand-eye measurements.json"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,

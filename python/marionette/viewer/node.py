@@ -40,10 +40,12 @@ class MeshcatServer:
             stderr=subprocess.STDOUT,
             text=True,
         )
+        assert self.proc.stdout is not None  # stdout=PIPE: Popen made the pipe
+        self.output = self.proc.stdout
         self.zmq_url = self.web_url = ""
         deadline = time.monotonic() + timeout_s
         while not self.zmq_url and time.monotonic() < deadline:
-            line = self.proc.stdout.readline()
+            line = self.output.readline()
             if not line and self.proc.poll() is not None:
                 raise RuntimeError(f"meshcat server exited with code {self.proc.returncode}")
             m = re.search(r"zmq_url=(\S+)", line)
@@ -56,12 +58,12 @@ class MeshcatServer:
             self.close()
             raise RuntimeError(f"meshcat server gave no zmq_url within {timeout_s} s")
         if not self.web_url:  # printed on the same or the next line
-            m = re.search(r"web_url=(\S+)", self.proc.stdout.readline())
+            m = re.search(r"web_url=(\S+)", self.output.readline())
             self.web_url = m.group(1) if m else ""
         threading.Thread(target=self._drain, daemon=True).start()
 
     def _drain(self) -> None:
-        for _ in self.proc.stdout:  # keep the pipe from filling up
+        for _ in self.output:  # keep the pipe from filling up
             pass
 
     def visualizer(self):
@@ -110,8 +112,8 @@ class ViewerNode:
             self._clock_reversals += 1
             if self._clock_reversals >= 3:
                 self._warn(
-                    "two controllers publish ROBOT_STATE on this LCM URL (their clocks interleave): "
-                    "give each run its own URL"
+                    "two controllers publish ROBOT_STATE on this LCM URL "
+                    "(their clocks interleave): give each run its own URL"
                 )
         self._last_utime = msg.utime
 
