@@ -253,7 +253,9 @@ def _plots(
     fig = plot_task_errors(
         split_by_unit(task_steps, model, t_rec, q_rec),
         [r.utime_start * 1e-6 for r in result.records if r.error_trace],
-        f"{scenario.name}: task errors by unit, one controller per step (grey lines: switches)",
+        f"{scenario.name}: task errors by unit, one controller per step (grey lines: switches)\n"
+        "(measured): forward kinematics of the recorded robot state vs the task's reference; "
+        "others: the controller's ||e||",
     )
     paths.append(save_figure(fig, out_dir / "task_errors.png"))
 

@@ -20,8 +20,12 @@ se3 / pbvs without a known        pose ‖log6 e‖, labelled as mixing m and ra
 reference (walk, visual servo)    reference is corrected by vision at run time)
 ================================  =========================================================
 
-A "held" reference (a fixed task with no reference) is the task's pose in the first recorded
-state at or after the controller switch.
+The recomputed pose errors are those of the *measured* robot (ROBOT_STATE: the joints the
+simulator or the hardware reached), named "<task> (measured)": they include what the controller's
+own error does not see, such as joint servos sagging under gravity (the controller tracks its own
+integrated configuration; its ‖e‖ per task stays in report.json). The other series are the
+controller's ‖e‖. A "held" reference (a fixed task with no reference) is the task's pose in the
+first recorded state at or after the controller switch.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ _NORM_PANEL = {  # kinds whose reported norm has a single unit: (panel, factor t
     "gaze": (IMAGE, 1.0),
 }
 _POSES = ("se3", "relative_se3")
+MEASURED = " (measured)"  # suffix of the series recomputed from the recorded robot state
 MAX_SAMPLES_PER_STEP = 1500  # forward kinematics on at most this many recorded states per step
 
 
@@ -66,7 +71,8 @@ class StepTasks:
     references: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
-# panel -> task name -> segments (t [s], error in the panel's unit), one per step
+# panel -> series (the task's name, + MEASURED when recomputed) -> segments (t [s], error in the
+# panel's unit), one per step
 Panels = dict[str, dict[str, list[tuple[np.ndarray, np.ndarray]]]]
 
 
@@ -166,9 +172,11 @@ def split_by_unit(
                 if split is not None:
                     (tp, ep), (to, eo) = split
                     if ep is not None:
-                        panels[POSITION].setdefault(name, []).append((tp, ep * 1e3))
+                        panels[POSITION].setdefault(name + MEASURED, []).append((tp, ep * 1e3))
                     if eo is not None:
-                        panels[ORIENTATION].setdefault(name, []).append((to, np.degrees(eo)))
+                        panels[ORIENTATION].setdefault(name + MEASURED, []).append(
+                            (to, np.degrees(eo))
+                        )
                     continue
             if task is None:
                 panel, factor = UNKNOWN, 1.0

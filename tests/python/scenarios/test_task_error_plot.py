@@ -19,6 +19,7 @@ from marionette.execution.references import StepTrajectory
 from marionette.scenarios import plan_and_execute_report as report
 from marionette.scenarios.task_error_plot import (
     JOINT,
+    MEASURED,
     MIXED,
     ORIENTATION,
     POSITION,
@@ -176,14 +177,16 @@ def test_pose_errors_come_back_as_the_offsets_in_mm_and_degrees(robot):
     for k in range(2):
         for name in ("hand", "hands"):
             mm, deg = truth[(k, name)]
-            assert np.allclose(panels[POSITION][name][k][1], mm, rtol=1e-6), (k, name)
-            assert np.allclose(panels[ORIENTATION][name][k][1], deg, rtol=1e-6), (k, name)
-        _, held_mm = panels[POSITION]["held"][k]
+            measured = name + MEASURED
+            assert np.allclose(panels[POSITION][measured][k][1], mm, rtol=1e-6), (k, name)
+            assert np.allclose(panels[ORIENTATION][measured][k][1], deg, rtol=1e-6), (k, name)
+        _, held_mm = panels[POSITION]["held" + MEASURED][k]
         assert held_mm[0] == pytest.approx(0.0, abs=1e-9)  # held since the switch
     assert np.allclose(
         panels[POSITION]["com"][0][1], [1e3 * e["com"] for _, e in result.records[0].error_trace]
     )
     assert "posture" not in panels[POSITION] and "com" not in panels[ORIENTATION]
+    assert "hand" not in panels[POSITION]  # a pose task's norm mixes units: never plotted as is
 
 
 def test_a_position_mask_leaves_no_orientation_and_a_fixed_reference_is_used():
@@ -200,9 +203,10 @@ def test_a_position_mask_leaves_no_orientation_and_a_fixed_reference_is_used():
     }
     step = StepTasks([(0, {"xyz": 1.0, "fixed": 1.0}), (20_000, {"xyz": 1.0, "fixed": 1.0})], tasks)
     panels = split_by_unit([step], model, np.array([0.0, 0.01, 0.02]), q)
-    assert set(panels[POSITION]) == {"xyz", "fixed"} and set(panels[ORIENTATION]) == {"fixed"}
-    assert np.allclose(panels[POSITION]["fixed"][0][1], 10.0)
-    assert np.allclose(panels[ORIENTATION]["fixed"][0][1], np.degrees(0.2))
+    xyz, fixed = "xyz" + MEASURED, "fixed" + MEASURED
+    assert set(panels[POSITION]) == {xyz, fixed} and set(panels[ORIENTATION]) == {fixed}
+    assert np.allclose(panels[POSITION][fixed][0][1], 10.0)
+    assert np.allclose(panels[ORIENTATION][fixed][0][1], np.degrees(0.2))
     assert pose(ref).isApprox(target)
 
 
@@ -289,7 +293,6 @@ def test_a_replayed_run_splits_its_pose_errors_from_the_log_alone(tmp_path, figu
     """``marionette replay``'s re-plot: tasks from CONTROLLER_SPEC, references from
     TASK_REFERENCE, the motion from ROBOT_STATE; a known offset comes back in mm and degrees."""
     import lcm
-
     from marionette import (
         channels,
         lcmt_controller_status,
@@ -350,7 +353,7 @@ def test_a_replayed_run_splits_its_pose_errors_from_the_log_alone(tmp_path, figu
     assert set(by_label) == {POSITION, ORIENTATION, JOINT}
 
     def hand(panel: str) -> np.ndarray:
-        (line,) = [ln for ln in by_label[panel].get_lines() if ln.get_label() == "hand"]
+        (line,) = [ln for ln in by_label[panel].get_lines() if ln.get_label() == "hand" + MEASURED]
         return np.asarray(line.get_ydata())
 
     assert np.allclose(hand(POSITION), 4.0, rtol=1e-6)
