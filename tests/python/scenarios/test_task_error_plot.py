@@ -1,7 +1,9 @@
 """Task errors split by unit (position, orientation, joints, gripper, image) and every axis of
 the report plots labelled with its unit, on synthetic runs of every bundled robot: known pose
 offsets between the recorded motion and the streamed references must come back as the same
-millimetres and degrees, each on its own axis."""
+millimetres and degrees, each on its own axis, live and replayed from a log. The plots of the
+other scenarios (grip force, deburr, drill, grasp-walk, step-over) are drawn from synthetic data
+and their axes checked the same way."""
 
 from __future__ import annotations
 
@@ -358,3 +360,65 @@ def test_a_replayed_run_splits_its_pose_errors_from_the_log_alone(tmp_path, figu
 
     assert np.allclose(hand(POSITION), 4.0, rtol=1e-6)
     assert np.allclose(hand(ORIENTATION), np.degrees(0.03), rtol=1e-6)
+
+
+def test_every_axis_of_the_walking_plots_has_its_unit(tmp_path, figures):
+    """grasp-walk and step-over plots of a synthetic walk: three steps planned, statuses through
+    the swing phases, standing TALOS states with both soles loaded."""
+    from marionette import (
+        lcmt_footstep,
+        lcmt_footstep_plan,
+        lcmt_robot_state,
+        lcmt_walk_status,
+    )
+    from marionette.scenarios import grasp_walk, step_over
+    from marionette.scenarios.walking_scenario import WalkRecorder
+
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    client = SimpleNamespace(bus=SimpleNamespace(subscribe=lambda *args: None))
+    rec = WalkRecorder(client, model)
+    plan = lcmt_footstep_plan()
+    plan.plan_id, plan.num_steps, plan.stop_at_end = 1, 3, True
+    for i in range(3):
+        step = lcmt_footstep()
+        step.index, step.is_left, step.x, step.y = i, i % 2 == 0, 0.1 * (i + 1), 0.1 - 0.2 * (i % 2)
+        plan.steps.append(step)
+    q = robots.reference_configuration("talos", model)
+    names = [model.names[j] for j in range(2, model.njoints)]
+    phases = ["double_support", "left_swing", "double_support", "right_swing", "standing"]
+    for k in range(50):
+        utime = 1_000_000 + k * 20_000
+        state = lcmt_robot_state()
+        state.utime, state.robot_name = utime, "talos"
+        state.num_joints, state.joint_name = len(names), names
+        state.joint_position = [float(q[model.joints[model.getJointId(n)].idx_q]) for n in names]
+        state.joint_velocity = state.joint_effort = [0.0] * len(names)
+        state.base_position, state.base_quaternion = list(q[:3]), [1.0, 0.0, 0.0, 0.0]
+        state.num_contacts = 2
+        state.contact_frame = ["left_sole_link", "right_sole_link"]
+        state.contact_wrench = [[0.0, 0.0, 400.0, 0.0, 0.0, 0.0]] * 2
+        rec._on_state(state)
+        status = lcmt_walk_status()
+        status.utime, status.phase = utime, phases[min(k // 10, 4)]
+        status.com = [0.01 * k / 50, 0.0, 0.87]
+        status.zmp_reference = status.zmp_measured = [0.01 * k / 50, 0.0]
+        status.left_foot, status.right_foot = [0.0, 0.1, 0.0, 0.0], [0.0, -0.1, 0.0, 0.0]
+        rec._on_status(status)
+        if k == 0:
+            rec._on_plan(plan)
+    grasp_walk._plots(
+        tmp_path, rec, np.array([0.5, 0.0, 0.8]), np.array([0.6, 0.1, 0.8]), 1_500_000, model
+    )
+    bar = np.array([0.3, 0.0, 0.0])
+    step_over._plots(
+        tmp_path,
+        rec,
+        [bar],
+        bar,
+        bar,
+        np.array([0.8, 0.0, 0.0]),
+        model,
+        step_over.StepOverSettings(),
+    )
+    assert len(figures) == 5
+    assert_every_axis_has_units(figures)
