@@ -5,6 +5,8 @@ namespace marionette::controller {
 
 Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) {
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
+  if (!options.key_file.empty())
+    verifier = std::make_unique<wire::Verifier>(wire::LoadKey(o.key_file));
   try {
     robot = FindRobot(options.robot, options.models_dir);
   } catch (const std::invalid_argument& e) {
@@ -138,10 +140,17 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
 
 void Controller::Impl::Reject(const std::string& channel, const std::string& category,
                               const std::string& detail) {
+  // The detail quotes what was sent: printable, and short enough for the status's bounds.
+  constexpr size_t kMaxDetail = 1024;
+  std::string shown = detail.substr(0, kMaxDetail);
+  for (char& c : shown) {
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+  }
+  if (detail.size() > kMaxDetail) shown += "...";
   std::lock_guard<std::mutex> lock(stats_mutex);
   ++rejections[channel + ": " + category];
   ++num_rejected;
-  last_rejection = channel + ": " + detail;
+  last_rejection = channel + ": " + shown;
   if (options.verbose) runtime::LogLine("[controller] rejected ", last_rejection);
 }
 
@@ -190,6 +199,7 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   if (safety->num_clamped_output().Eval(t) > 0) ++loop_state.clamped_ticks;
   Watchdog(t);
   CheckBudgets(t);
+  HoldOnSilence(t);
   DecideSwitch(t);
   if (device) device->Write(t);
   FillSnapshot(t, clock);
@@ -334,6 +344,37 @@ void Controller::Impl::Watchdog(const graph::Tick& t) {
   }
 }
 
+void Controller::Impl::HoldOnSilence(const graph::Tick& t) {
+  // Live: the LCM thread saw the supervisor silent; a replay: the journal says this tick held.
+  const bool silent =
+      replaying ? replay_silence_hold >= 0 : silence_request.load(std::memory_order_acquire);
+  if (!silent) return;
+  const bool supervised =
+      mode == ControlMode::kRun && active != nullptr && active->id != kHoldControllerId &&
+      switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted);
+  if (!replaying && !supervised) {  // holding already, or a new spec is about to be decided
+    silence_request.store(false, std::memory_order_relaxed);
+    silence_retries = 0;
+    return;
+  }
+  bool engaged = false;
+  if (replaying) {
+    engaged = replay_silence_hold == 1 && EngageHoldController(t) == Engage::kEngaged;
+    replay_silence_hold = -1;
+  } else {
+    // The hold controller first; a busy lease is retried for a few ticks, then zero velocity.
+    const Engage engage = EngageHoldController(t);
+    if (engage == Engage::kRetry && ++silence_retries < kSilenceEngageRetries) return;
+    engaged = engage == Engage::kEngaged;
+    silence_request.store(false, std::memory_order_relaxed);
+    silence_retries = 0;
+  }
+  Journal(t.index, kSilenceHoldChannel, engaged ? 1 : 0);
+  if (!engaged) mode = ControlMode::kHold;
+  loop_state.reason = Reason::kSupervisorSilent;
+  loop_state.reason_value = silence_seconds.load(std::memory_order_relaxed);
+}
+
 void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   if (switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted))
     return;
@@ -456,6 +497,15 @@ int Controller::Run() {
     runtime::LogLine(
         "[controller] real-time scheduling not requested (--realtime): normal priority");
   }
+  runtime::LogLine(
+      "[controller] commands: ",
+      c.verifier ? "signed only (key " + c.options.key_file + ")"
+                 : std::string("unsigned (no key)"),
+      "; supervisor timeout ",
+      c.options.supervisor_timeout > 0.0
+          ? std::to_string(static_cast<int>(std::lround(1e3 * c.options.supervisor_timeout))) +
+                " ms"
+          : std::string("off"));
   runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ",
                    c.model->nv, " dofs, graph of ", c.graph->entities().size(), " entities; ",
                    c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
@@ -511,6 +561,7 @@ std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& 
 ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe_robot) {
   ControllerOptions o;
   if (const char* url = std::getenv("MARIONETTE_LCM_URL")) o.lcm_url = url;
+  if (const char* key = std::getenv("MARIONETTE_KEY")) o.key_file = key;
   *help = false;
   *describe_robot = false;
   const auto value = [&](int& i) -> std::string {
@@ -575,6 +626,10 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
       o.profiling = false;
     else if (a == "--overrun-hold-ticks")
       o.overrun_hold_ticks = static_cast<int64_t>(number(i));
+    else if (a == "--supervisor-timeout")
+      o.supervisor_timeout = number(i);
+    else if (a == "--key")
+      o.key_file = value(i);
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else
