@@ -211,7 +211,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
   if (replaying) {  // the recorded decision, not this machine's timing
     if (replay_budget_hold >= 0 && mode == ControlMode::kRun) {
       const bool engage = (replay_budget_hold & kBudgetHoldEngaged) != 0;
-      const bool engaged = engage && EngageHoldController(t) == Engage::kEngaged;
+      const bool engaged = engage && EngageHoldController(t, Reason::kBudget) == Engage::kEngaged;
       Journal(t.index, kBudgetHoldChannel,
               replay_budget_hold & ~(engage && !engaged ? kBudgetHoldEngaged : 0));
       if (!engaged) mode = ControlMode::kHold;
@@ -233,7 +233,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
       // First the hold controller (balance + posture); when it is not armed (a swap pending, it
       // is the one overrunning, or it failed to build), zero velocity. A busy lease is retried
       // next tick, for as many ticks again at most.
-      const Engage engage = EngageHoldController(t);
+      const Engage engage = EngageHoldController(t, Reason::kBudget);
       if (engage == Engage::kRetry && overruns < 2 * overrun_hold_ticks) return;
       const bool engaged = engage == Engage::kEngaged;
       Journal(t.index, kBudgetHoldChannel,
@@ -247,7 +247,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
   }
 }
 
-Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t) {
+Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t, Reason why) {
   if (hold_state.load(std::memory_order_acquire) != kHoldArmed) return Engage::kUnavailable;
   int free = 0;
   if (!graph_lease.compare_exchange_strong(free, 2, std::memory_order_acquire))
@@ -266,6 +266,7 @@ Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tic
   ++loop_state.switches;
   loop_state.active_id = hold->id;
   hold_engaged_tick = t.index;
+  hold_engaged_why = why;
   hold_state.store(kHoldEngaged, std::memory_order_release);
   graph_lease.store(0, std::memory_order_release);
   return Engage::kEngaged;
@@ -359,11 +360,12 @@ void Controller::Impl::HoldOnSilence(const graph::Tick& t) {
   }
   bool engaged = false;
   if (replaying) {
-    engaged = replay_silence_hold == 1 && EngageHoldController(t) == Engage::kEngaged;
+    engaged = replay_silence_hold == 1 &&
+              EngageHoldController(t, Reason::kSupervisorSilent) == Engage::kEngaged;
     replay_silence_hold = -1;
   } else {
     // The hold controller first; a busy lease is retried for a few ticks, then zero velocity.
-    const Engage engage = EngageHoldController(t);
+    const Engage engage = EngageHoldController(t, Reason::kSupervisorSilent);
     if (engage == Engage::kRetry && ++silence_retries < kSilenceEngageRetries) return;
     engaged = engage == Engage::kEngaged;
     silence_request.store(false, std::memory_order_relaxed);

@@ -286,6 +286,7 @@ struct Controller::Impl {
   std::unique_ptr<BuiltController> hold_controller;  // LCM-thread-owned, lent while armed
   BuiltController* armed_hold = nullptr;             // for the loop, valid while kHoldArmed
   int64_t hold_engaged_tick = -1;                    // written by the loop before kHoldEngaged
+  Reason hold_engaged_why = Reason::kBudget;         // likewise
   int64_t hold_unbuildable_for = -1;                 // active id whose hold failed to build
   int64_t last_decision_utime = 0;                   // of the last swap (LcmThread arms 1 s later)
   std::vector<std::string> soles;                    // robot.contact_bodies the model has
@@ -333,7 +334,8 @@ struct Controller::Impl {
   void DecideSwitch(const graph::Tick& t);
   void Watchdog(const graph::Tick& t);
   void HoldOnSilence(const graph::Tick& t);
-  Engage EngageHoldController(const graph::Tick& t);
+  /// `why`: kBudget or kSupervisorSilent (said by the LCM thread when it collects the swap).
+  Engage EngageHoldController(const graph::Tick& t, Reason why);
   void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
   void FillWalkStatus(const graph::Tick& t, Snapshot* s);  // controller_walk.cc
 

@@ -135,8 +135,10 @@ void Controller::Impl::PostNextSpec() {
     q = shared_q;
     build_tick = shared_tick;
   }
+  // The running controller's entities go, the hold controller's too when it is the one running.
   std::vector<std::string> previous;
-  if (active_owned_id >= 0) previous = controllers.at(active_owned_id)->entity_names;
+  if (controllers.count(active_owned_id) > 0)
+    previous = controllers.at(active_owned_id)->entity_names;
   std::unique_ptr<BuiltController> built;
   try {
     built = factory->Build(spec, *graph, previous, q);
@@ -206,8 +208,11 @@ void Controller::Impl::CollectHoldController() {
   hold_controller->edit.reset();
   if (active_owned_id >= 0) controllers.erase(active_owned_id);
   active_owned_id = kHoldControllerId;
-  const std::string result = "engaged the hold controller '" + hold_controller->name + "' (id " +
-                             std::to_string(kHoldControllerId) + "): time budget overrun";
+  const std::string result =
+      "engaged the hold controller '" + hold_controller->name + "' (id " +
+      std::to_string(kHoldControllerId) +
+      (hold_engaged_why == Reason::kSupervisorSilent ? "): supervisor silent"
+                                                     : "): time budget overrun");
   controllers[kHoldControllerId] = std::move(hold_controller);
   armed_hold = nullptr;
   {
@@ -229,7 +234,7 @@ void Controller::Impl::CollectSwitchDecision() {
     // The edit now holds the previous topology: free it here, off the loop, with the previous
     // controller's bookkeeping.
     posted->edit.reset();
-    if (active_owned_id >= 0) controllers.erase(active_owned_id);
+    controllers.erase(active_owned_id);  // the hold controller too: the next one is built anew
     active_owned_id = id;
     Heard("");  // the watch on its supervisor starts with the controller
     result = "accepted controller '" + posted->name + "' (id " + std::to_string(id) + ")";

@@ -36,9 +36,25 @@ std::string Number(double x) {
 }
 
 uint64_t BigEndian(const uint8_t* p, int bytes) {
-  uint64_t v = 0;
-  for (int i = 0; i < bytes; ++i) v = (v << 8) | p[i];
-  return v;
+  switch (bytes) {
+    case 8: {
+      uint64_t v;
+      std::memcpy(&v, p, 8);
+      return __builtin_bswap64(v);
+    }
+    case 4: {
+      uint32_t v;
+      std::memcpy(&v, p, 4);
+      return __builtin_bswap32(v);
+    }
+    case 2: {
+      uint16_t v;
+      std::memcpy(&v, p, 2);
+      return __builtin_bswap16(v);
+    }
+    default:
+      return p[0];
+  }
 }
 
 int PrimitiveSize(Kind kind) {
@@ -151,22 +167,49 @@ class Walker {
 
   bool Array(const FieldSchema& f, Path* path, const int64_t* dims, int64_t count) {
     const int size = PrimitiveSize(f.kind);
-    // Primitives nobody bounds are skipped whole (an image's pixels are not read one by one).
-    if (size > 0 && !f.ranged && f.kind != Kind::kBoolean) {
-      pos += static_cast<size_t>(count) * size;  // fits: checked by the caller
+    path->num_index = f.num_dims;
+    const auto at = [&](int64_t e) {  // the element's indices, for a refusal ("value[3][6]")
+      for (int d = f.num_dims - 1; d >= 0; --d) {
+        path->index[d] = e % dims[d];
+        e /= dims[d];
+      }
+    };
+    if (size == 0) {  // strings, structs
+      for (int64_t e = 0; e < count; ++e) {
+        at(e);
+        int64_t unused = 0;
+        if (!Element(f, path, &unused)) return false;
+      }
       return true;
     }
-    path->num_index = f.num_dims;
-    for (int64_t e = 0; e < count; ++e) {
-      // The element's indices, for a refusal's detail ("value[3][6]").
-      int64_t rest = e;
-      for (int d = f.num_dims - 1; d >= 0; --d) {
-        path->index[d] = rest % dims[d];
-        rest /= dims[d];
+    // Primitives: a tight pass over the bytes (sizes checked by the caller); the first offender,
+    // if any, is checked again by Element, which says why.
+    if (f.kind == Kind::kDouble && f.ranged) {  // most numbers: references, gains, poses
+      const uint8_t* p = data_ + pos;
+      for (int64_t e = 0; e < count; ++e, p += 8) {
+        const uint64_t bits = BigEndian(p, 8);
+        double x;
+        std::memcpy(&x, &bits, sizeof(x));
+        if (!(x >= f.lo && x <= f.hi)) {
+          at(e);
+          pos = static_cast<size_t>(p - data_);
+          int64_t unused = 0;
+          return Element(f, path, &unused);
+        }
       }
-      int64_t unused = 0;
-      if (!Element(f, path, &unused)) return false;
+    } else if (f.ranged || f.kind == Kind::kBoolean) {
+      const uint8_t* p = data_ + pos;
+      for (int64_t e = 0; e < count; ++e, p += size) {
+        int64_t integer = 0;
+        const double x = AsDouble(f.kind, p, &integer);
+        if ((f.kind == Kind::kBoolean && p[0] > 1) || (f.ranged && !(x >= f.lo && x <= f.hi))) {
+          at(e);
+          pos = static_cast<size_t>(p - data_);
+          return Element(f, path, &integer);
+        }
+      }
     }
+    pos += static_cast<size_t>(count) * size;  // nobody bounds them, or all passed
     return true;
   }
 
