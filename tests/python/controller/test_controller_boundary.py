@@ -16,15 +16,18 @@ import time
 
 import numpy as np
 
+import lcm
 from marionette import (
     channels,
     lcmt_command,
+    lcmt_controller_journal,
     lcmt_controller_spec,
     lcmt_dg_request,
     lcmt_robot_command,
     lcmt_task_reference,
 )
 from marionette.control.introspection import rejections_by_channel
+from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.lcm_bus import LcmBus, MessageLog
 from marionette.lcm_signing import Signer, load_key
@@ -93,6 +96,18 @@ def test_absurd_values_and_unknown_names_are_refused_with_their_reason(
         assert _counts(c.status) == expected
         assert c.status.num_rejected == len(sent)
         assert c.status.num_switches == 0 and list(c.state.joint_position) == q0
+        # What an operator sees.
+        shown = subprocess.run(
+            [sys.executable, "-m", "marionette.cli", "dg", "--lcm-url", lcm_url, "status"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert shown.returncode == 0, shown.stderr
+        assert f"refused inputs: {len(sent)}" in shown.stdout
+        assert re.search(
+            r"CONTROLLER_SPEC\s+6\n\s+5  out of range\n\s+1  invalid spec", shown.stdout
+        )
         # One refusal says what and why (the unknown channel, not taken as streamed).
         c.bus.lcm.publish(
             channels.CONTROLLER_SPEC, _spec(8, **{"task.reference_channel": "NOPE"}).encode()
@@ -239,6 +254,44 @@ def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(build_dir, lcm_
         )
         c.wait_time(0.5)
         assert c.status.mode == "running", c.status.mode_reason  # its heartbeat keeps it
+
+
+def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
+    """The hold on a killed supervisor is the loop's decision at a tick that depends on wall-clock
+    timing: journaled, a replay takes it at the same tick and reproduces every command."""
+    log = tmp_path / "run.lcmlog"
+    logger = subprocess.Popen(["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)])
+    try:
+        time.sleep(0.3)
+        with controller_running(build_dir, lcm_url, tmp_path / "logs", *UR10) as c:
+            driver = subprocess.Popen(
+                [sys.executable, "-c", DRIVER, lcm_url], stdout=subprocess.PIPE, text=True
+            )
+            try:
+                assert wait_for_line(driver.stdout, "streaming", 60.0) is not None
+                c.wait_time(1.5)
+                driver.send_signal(signal.SIGKILL)
+                driver.wait(10)
+            finally:
+                driver.kill()
+            c.wait(lambda c: "supervisor silent" in c.status.mode_reason, 10, "the hold")
+            c.send_spec(ControllerSpec(11, "resumed", [TaskSpec("posture", "posture", 0)]))
+            c.wait(lambda c: c.status.active_controller_id == 11, 20, "the new supervisor")
+            c.wait_time(0.5)
+        time.sleep(0.5)  # the last journal batch reaches the logger
+    finally:
+        logger.terminate()
+        logger.wait(10)
+    journal = [
+        ch
+        for event in lcm.EventLog(str(log), "r")
+        if event.channel == channels.CONTROLLER_JOURNAL
+        for ch in lcmt_controller_journal.decode(event.data).channel
+    ]
+    assert journal.count("CONTROLLER_SILENCE_HOLD") == 1
+    result = replay_controller(log)
+    assert result["ok"], result["output"]
+    assert result["max_difference"] <= 1e-9, result["output"]
 
 
 def test_the_supervisor_timeout_can_be_switched_off(build_dir, lcm_url, tmp_path):
