@@ -12,7 +12,7 @@ kill    a supervisor streaming a shoulder swing (0.3 rad, 4 s period) 4 s ahead,
         motion between the two, and after the hold
 
   python -m marionette.control.boundary_benchmark [--messages N] [--idle S] [--trials K]
-                                                  [--only micro,fuzz,kill] [--controller BIN]
+                                                  [--only micro,fuzz,kill,carry] [--controller BIN]
 """
 
 from __future__ import annotations
@@ -32,12 +32,15 @@ from pathlib import Path
 import numpy as np
 
 import marionette
+import marionette.robots
 from marionette import (
     channels,
     lcmt_controller_journal,
     lcmt_controller_status,
+    lcmt_object_poses,
     lcmt_robot_command,
     lcmt_robot_state,
+    lcmt_supervisor_state,
 )
 from marionette.control.client import ControllerClient
 from marionette.control.fuzz import INPUTS, fuzz_controller, valid_inputs
@@ -306,6 +309,113 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
     }
 
 
+def carry_kill(binary: Path, log=print) -> dict:
+    """The issue's case: `marionette supervise` of the UR10 box plan (MuJoCo, real time) killed
+    2 s into the carry, the box in the gripper; then a new `marionette supervise` resumes."""
+    from marionette.execution.demo import SCENARIOS, cached_plan
+    from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
+
+    scenario = SCENARIOS["ur10-box"]
+    cache = marionette.REPO_ROOT / "reports" / "plans" / "cache"
+    plan = cached_plan(scenario, scenario.seed, cache, log)
+    plan_json = cache / f"{scenario.problem}-seed{scenario.seed}" / "plan.json"
+    robot = plan_robot(plan)
+    model, _ = marionette.robots.load_pinocchio(robot, with_collision=False)
+    robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
+    carry = next(s for s in steps_from_plan(plan) if s.transition.endswith("_34"))
+    url = private_lcm_url()
+    log_dir = Path(tempfile.mkdtemp(prefix="boundary-carry-"))
+    supervise = [sys.executable, "-m", "marionette.cli", "supervise", str(plan_json)]
+    supervise += ["--lcm-url", url, "--gripper-admittance"]
+    with ProcessGroup(url, log_dir) as group:
+        c = ControllerClient(url)
+        proc = group.start(
+            "controller",
+            [binary, "--lcm-url", url, "--robot", "ur10", "--scene", str(scenario.scene)]
+            + ["--camera-rate", "0", "--state-rate", "1000", "--status-rate", "100"],
+        )
+        c.wait_ready(60.0, processes=group)
+        c.process = proc
+        commands: list[tuple[float, int, np.ndarray]] = []
+        holds: list[int] = []
+        boxes: list[tuple[int, np.ndarray]] = []
+        states: list = []
+        c.bus.subscribe(
+            channels.ROBOT_COMMAND,
+            lcmt_robot_command,
+            lambda m: commands.append((time.monotonic(), m.utime, np.array(m.joint_position))),
+        )
+        c.bus.subscribe(
+            channels.CONTROLLER_JOURNAL,
+            lcmt_controller_journal,
+            lambda j: holds.extend(
+                t for t, ch in zip(j.tick, j.channel) if ch == "CONTROLLER_SILENCE_HOLD"
+            ),
+        )
+        c.bus.subscribe(
+            channels.SIM_OBJECT_POSES,
+            lcmt_object_poses,
+            lambda m: boxes.extend(
+                (m.utime, np.array(o.position_world)) for o in m.objects if o.object_name == "box"
+            ),
+        )
+        c.bus.subscribe(channels.SUPERVISOR_STATE, lcmt_supervisor_state, states.append)
+        try:
+            q0 = np.array(plan.doc["problem"]["q_init"])
+            for name in robot_map.objects:
+                c.move_object(name, robot_map.object_pose(q0, name))
+            c.wait_time(0.5)
+            first = group.start("supervise1", [*supervise, "--specs", log_dir / "c1.yaml"])
+            c.wait(
+                lambda c: (
+                    states
+                    and states[-1].step_index == carry.index
+                    and states[-1].status == "running"
+                ),
+                600.0,
+                "the carry",
+            )
+            c.wait_time(2.0)
+            t_kill = time.monotonic()
+            first.popen.send_signal(signal.SIGKILL)
+            first.popen.wait(10)
+            c.wait(lambda c: holds, 10.0, "the hold")
+            c.wait_time(3.0)
+            reason = c.status.mode_reason
+            snapshot = list(commands)
+            recent = [(w, u) for w, u, _ in snapshot if w < t_kill][-2000:]
+            offset = min(w - u * 1e-6 for w, u in recent)
+            kill_us = (t_kill - offset) * 1e6
+            hold_us = holds[0] * 1000
+            utimes = np.array([u for _, u, _ in snapshot])
+            q = np.array([q for _, _, q in snapshot])
+            k = int(np.argmin(np.abs(utimes - kill_us)))
+            h = int(np.argmin(np.abs(utimes - hold_us)))
+            after = q[(utimes >= hold_us) & (utimes <= hold_us + 3_000_000)]
+            box_u = np.array([u for u, _ in boxes])
+            box_p = np.array([p for _, p in boxes])
+            kb = int(np.argmin(np.abs(box_u - kill_us)))
+            later = box_p[(box_u >= kill_us) & (box_u <= hold_us + 3_000_000)]
+            t0 = time.monotonic()
+            second = group.start("supervise2", [*supervise, "--specs", log_dir / "c2.yaml"])
+            code = second.popen.wait(900)
+            resumed = second.log_path.read_text()
+        finally:
+            c.close()
+    return {
+        "kill_to_hold_ms": (hold_us - kill_us) * 1e-3,
+        "hold": reason,
+        "joint_motion_kill_to_hold_mrad": float(1e3 * np.abs(q[h] - q[k]).max()),
+        "joint_motion_after_hold_mrad": float(1e3 * np.abs(after - q[h]).max()),
+        "box_motion_after_kill_mm": float(1e3 * np.linalg.norm(later - box_p[kb], axis=1).max()),
+        "resumed_exit_code": code,
+        "resumed_wall_s": time.monotonic() - t0,
+        "resumed_output": [
+            ln for ln in resumed.splitlines() if "starting at" in ln or "supervisor:" in ln
+        ],
+    }
+
+
 # ---- report -------------------------------------------------------------------------------------
 
 
@@ -352,6 +462,16 @@ def _print(results: dict) -> None:
             f"{k['velocity_at_kill_rad_s']['max']:.2f} rad/s); after the hold at most "
             f"{k['motion_after_hold_mrad']['max']:.1f} mrad"
         )
+    if "carry" in results:
+        k = results["carry"]
+        print(
+            f"ur10-box supervisor killed mid-carry: death -> hold {k['kill_to_hold_ms']:.1f} ms "
+            f"({k['hold']}); joint motion in between "
+            f"{k['joint_motion_kill_to_hold_mrad']:.1f} mrad, after "
+            f"{k['joint_motion_after_hold_mrad']:.1f} mrad; box moved "
+            f"{k['box_motion_after_kill_mm']:.1f} mm; resumed: exit {k['resumed_exit_code']} "
+            f"{k['resumed_output']}"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -359,7 +479,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--messages", type=int, default=100_000)
     p.add_argument("--idle", type=float, default=20.0, help="[s] of idle run before the fuzz")
     p.add_argument("--trials", type=int, default=10)
-    p.add_argument("--only", default="micro,fuzz,kill")
+    p.add_argument("--only", default="micro,fuzz,kill,carry")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--controller", type=Path, default=marionette.BUILD_DIR / "marionette-controller"
@@ -378,6 +498,8 @@ def main(argv: list[str] | None = None) -> int:
         results["fuzz"] = fuzz(args.messages, args.idle, args.controller, args.seed)
     if "kill" in only:
         results["kill"] = kill_trials(args.trials, args.controller, args.seed)
+    if "carry" in only:
+        results["carry"] = carry_kill(args.controller)
     _print(results)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1))
