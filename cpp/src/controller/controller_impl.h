@@ -237,8 +237,13 @@ struct Controller::Impl {
 
   // The supervisor's heartbeat (LCM thread): any accepted spec, reference chunk or command
   // (COMMAND "heartbeat" among them) is one. While a supervisor's controller is active, a silence
-  // of --supervisor-timeout raises silence_request; the loop then holds (HoldOnSilence).
-  Clock::time_point last_heartbeat{};
+  // of --supervisor-timeout raises silence_request; the loop then holds (HoldOnSilence). Times are
+  // when the kernel received the messages (LCM's recv_utime, wall clock [us]): LCM's reader thread
+  // queues what arrives while this thread builds a controller, and hands it over in arrival order,
+  // so the silence is measured up to the arrival of the message being handled (or now, when none
+  // is waiting) — neither a long build nor a flood of other messages changes it.
+  int64_t last_heartbeat_us = 0;
+  int64_t handled_us = 0;       // arrival of the message being handled
   std::string driver;           // the source of the last COMMAND heard
   bool silence_raised = false;  // once per silence: the next heartbeat clears it
   std::atomic<bool> silence_request{false};
@@ -349,9 +354,9 @@ struct Controller::Impl {
   /// Runs `handle` so that no exception leaves an LCM handler: one is counted as "internal error".
   template <typename Handle>
   void Guarded(const char* channel, Handle&& handle);
-  void Heard(const std::string& source);  // a heartbeat
-  void WatchSupervisor();                 // after an idle wait: raises silence_request
-  int WaitMs();                           // how long the next wait may be (the silence's deadline)
+  void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
+  void WatchSupervisor(bool idle);  // after each wait: raises silence_request
+  int WaitMs();                     // how long the next wait may be (the silence's deadline)
   void OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
@@ -401,6 +406,7 @@ inline int64_t WallUs() {
 
 template <typename Msg>
 bool Controller::Impl::Admit(const char* channel, const lcm::ReceiveBuffer* rbuf, Msg* msg) {
+  handled_us = rbuf->recv_utime;
   const void* data = rbuf->data;
   size_t size = rbuf->data_size;
   // A replay takes the messages the live run took: their signatures were checked then.

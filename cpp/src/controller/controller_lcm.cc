@@ -34,10 +34,8 @@ void Controller::Impl::LcmThread() {
                      runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
-    // Nothing left to handle after an idle wait: a silence since the last heartbeat is real (the
-    // heartbeats are not waiting in a queue behind a long spec build).
     const bool idle = lcm.handleTimeout(WaitMs()) == 0;
-    if (idle) WatchSupervisor();
+    WatchSupervisor(idle);
     GraphReadLease lease(graph_lease);
     try {
       CollectSwitchDecision();
@@ -62,8 +60,8 @@ void Controller::Impl::LcmThread() {
 
 // ---- the supervisor's heartbeat ----------------------------------------------------------------
 
-void Controller::Impl::Heard(const std::string& source) {
-  last_heartbeat = Clock::now();
+void Controller::Impl::Heard(const std::string& source, int64_t arrival_us) {
+  last_heartbeat_us = std::max(last_heartbeat_us, arrival_us);
   if (!source.empty()) driver = source;
   silence_raised = false;
 }
@@ -71,15 +69,17 @@ void Controller::Impl::Heard(const std::string& source) {
 int Controller::Impl::WaitMs() {
   if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return 2;
   const double left_ms =
-      1e3 * (options.supervisor_timeout -
-             std::chrono::duration<double>(Clock::now() - last_heartbeat).count());
+      1e3 * options.supervisor_timeout - 1e-3 * static_cast<double>(WallUs() - last_heartbeat_us);
   return left_ms <= 0.0 ? 0 : std::clamp(static_cast<int>(std::ceil(left_ms)), 1, 2);
 }
 
-void Controller::Impl::WatchSupervisor() {
+void Controller::Impl::WatchSupervisor(bool idle) {
   // Only a supervisor's controller is watched (not the hold controller, nor before the first).
   if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return;
-  const double silent = std::chrono::duration<double>(Clock::now() - last_heartbeat).count();
+  // Up to now when nothing waits; else up to the arrival of the message just handled: what
+  // arrived before it, heartbeats included, has been handled (LCM hands messages over in order).
+  const int64_t until_us = idle ? WallUs() : handled_us;
+  const double silent = 1e-6 * static_cast<double>(until_us - last_heartbeat_us);
   if (silent < options.supervisor_timeout) return;
   silence_raised = true;
   {
@@ -98,7 +98,7 @@ void Controller::Impl::OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string&
   Guarded(channels::kControllerSpec, [&] {
     lcmt_controller_spec spec;
     if (!Admit(channels::kControllerSpec, rbuf, &spec)) return;
-    Heard("");
+    Heard("", rbuf->recv_utime);
     if (waiting_specs.size() >= 8) {
       Reject(channels::kControllerSpec, "queue full",
              "controller '" + spec.name + "' dropped: 8 specs waiting");
@@ -236,7 +236,7 @@ void Controller::Impl::CollectSwitchDecision() {
     posted->edit.reset();
     controllers.erase(active_owned_id);  // the hold controller too: the next one is built anew
     active_owned_id = id;
-    Heard("");  // the watch on its supervisor starts with the controller
+    Heard("", WallUs());  // the watch on its supervisor starts with the controller
     result = "accepted controller '" + posted->name + "' (id " + std::to_string(id) + ")";
   } else {
     char jump[64];
@@ -323,7 +323,7 @@ void Controller::Impl::ReceiveReference(const lcm::ReceiveBuffer* rbuf) {
     Reject(channels::kTaskReference, "queue full", "task '" + msg.task_name + "': chunk dropped");
     return;
   }
-  Heard("");  // the stream itself is a heartbeat
+  Heard("", rbuf->recv_utime);  // the stream itself is a heartbeat
 }
 
 void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
@@ -334,7 +334,7 @@ void Controller::Impl::ReceiveCommand(const lcm::ReceiveBuffer* rbuf) {
   lcmt_command msg;
   if (!Admit(channels::kCommand, rbuf, &msg)) return;
   if (ToLower(msg.command) == "heartbeat") {  // the supervisor is alive; nothing for the loop
-    Heard(msg.source.empty() ? "?" : msg.source);
+    Heard(msg.source.empty() ? "?" : msg.source, rbuf->recv_utime);
     return;
   }
   static const std::map<std::string, Command> kCommands = {{"hold", Command::kHold},
@@ -349,7 +349,7 @@ void Controller::Impl::ReceiveCommand(const lcm::ReceiveBuffer* rbuf) {
            "'" + msg.command + "' (hold, resume, start, estop, reset_estop, stop, heartbeat)");
     return;
   }
-  Heard(msg.source.empty() ? "?" : msg.source);
+  Heard(msg.source.empty() ? "?" : msg.source, rbuf->recv_utime);
   // An estop must never be overwritten by a later, milder request before the loop saw it.
   command_hash.store(Fnv1a(rbuf->data, rbuf->data_size), std::memory_order_release);
   int expected = command_request.load();
