@@ -44,7 +44,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return int(args.func(args) or 0)
+    from marionette.lcm_signing import KeyFileError
+
+    try:
+        return int(args.func(args) or 0)
+    except KeyFileError as e:  # MARIONETTE_KEY names a file that cannot be the shared key
+        print(f"marionette {args.command}: {e}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
