@@ -63,9 +63,23 @@ class Refusal:
         return f"{self.reason}: {self.detail}"
 
 
+# Where the walk is, formatted only for a refusal: None (the message), or (parent, field name,
+# element index or None, dimensions).
+Where = tuple | None
+
+
+def _format(where: Where) -> str:
+    if where is None:
+        return ""
+    parent, name, e, dims = where
+    head = _format(parent)
+    return (f"{head}.{name}" if head else name) + ("" if e is None else _index(e, dims))
+
+
 class _Refused(Exception):
-    def __init__(self, reason: str, path: str, what: str) -> None:
+    def __init__(self, reason: str, where: Where, what: str) -> None:
         super().__init__(reason)
+        path = _format(where)
         self.refusal = Refusal(reason, f"{path}: {what}" if path and what else path or what)
 
 
@@ -145,12 +159,12 @@ class _Walker:
         self.pos = 0
         self.now_us = now_us
 
-    def walk_struct(self, name: str, path: str) -> None:
+    def walk_struct(self, name: str, path: Where) -> None:
         ops = _plan(name)
         integers = [0] * len(ops)
         for i, op in enumerate(ops):
             if not op.dims:
-                value = self.element(op, f"{path}.{op.name}" if path else op.name)
+                value = self.element(op, (path, op.name, None, None))
                 if op.integer:
                     integers[i] = value
                 continue
@@ -164,13 +178,12 @@ class _Walker:
                 if count > left // op.size:
                     raise _Refused(
                         PAST_THE_END,
-                        f"{path}.{op.name}" if path else op.name,
+                        (path, op.name, None, None),
                         f"{count} elements of at least {op.size} bytes, {left} bytes left",
                     )
             if op.kind == "number" and not op.read:
                 self.pos += count * op.size  # nobody bounds them: skipped whole
                 continue
-            where = f"{path}.{op.name}" if path else op.name
             if op.type == "double" and op.clock is None and count > 8:
                 # Many doubles: the range check in numpy, the first offender named as C++ does.
                 values = np.frombuffer(self.data, dtype=">f8", count=count, offset=self.pos)
@@ -180,14 +193,18 @@ class _Walker:
                     self.pos += count * 8
                     continue
                 self.pos += int(bad[0]) * 8
-                self.element(op, where + _index(int(bad[0]), dims))
+                self.element(op, (path, op.name, int(bad[0]), dims))
                 raise AssertionError("unreachable: the element was out of range")
+            if op.kind == "string":
+                for e in range(count):
+                    self.string(op, path, e, dims)
+                continue
             for e in range(count):
-                self.element(op, where + _index(e, dims))
+                self.element(op, (path, op.name, e, dims))
 
-    def element(self, op: _Op, where: str) -> int | float | None:
+    def element(self, op: _Op, where: Where) -> int | float | None:
         if op.kind == "string":
-            self.string(op, where)
+            self.string(op, where[0], where[2], where[3])
             return None
         if op.kind == "struct":
             self.walk_struct(op.type, where)
@@ -224,8 +241,9 @@ class _Walker:
                     )
         return value
 
-    def string(self, op: _Op, where: str) -> None:
+    def string(self, op: _Op, path: Where, e: int | None, dims: list[int] | None) -> None:
         left = self.size - self.pos
+        where = (path, op.name, e, dims)
         if left < 4:
             raise _Refused(PAST_THE_END, where, f"a string length needs 4 bytes, {left} left")
         (length,) = _INT32.unpack_from(self.data, self.pos)
@@ -268,7 +286,7 @@ def validate(lcm_type: type, data: bytes, now_us: int | None = None) -> Refusal 
     w = _Walker(data, now_us)
     w.pos = 8
     try:
-        w.walk_struct(name, "")
+        w.walk_struct(name, None)
     except _Refused as refused:
         return refused.refusal
     if w.size > w.pos:
