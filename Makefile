@@ -1,8 +1,10 @@
 # The two commands of README.md, plus the pieces they are made of.
-#   make demo      set up if needed, then run the main demo
-#   make test      set up if needed, then ctest (gtest + pytest); non-zero on any failure
-#   make sanitize  the controller built with AddressSanitizer + UndefinedBehaviorSanitizer (in
-#                  build-sanitize/), then the boundary's gtests and the fuzz suite against it
+#   make demo       set up if needed, then run the main demo
+#   make test       set up if needed, then everything: gtest, pytest (quick and slow), lint
+#   make test-fast  set up if needed, then all but the long end-to-end runs (ctest -LE slow)
+#   make lint       ruff, format, mypy, clang-format (scripts/lint)
+#   make sanitize   the controller built with AddressSanitizer + UndefinedBehaviorSanitizer (in
+#                   build-sanitize/), then the boundary's gtests and the fuzz suite against it
 SHELL := /bin/bash
 BUILD ?= build
 VENV ?= .venv
@@ -16,7 +18,7 @@ SANITIZE_ENV := ASAN_OPTIONS=abort_on_error=1:detect_leaks=1:strict_string_check
   UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   LSAN_OPTIONS=suppressions=$(abspath tests/sanitize/lsan.supp)
 
-.PHONY: setup demo test bench sanitize clean
+.PHONY: setup demo test test-fast lint bench sanitize clean
 
 setup:
 	@JOBS=$(JOBS) scripts/setup
@@ -26,6 +28,12 @@ demo: setup
 
 test: setup
 	cd $(BUILD) && ctest --output-on-failure --timeout 1800 -j $(JOBS)
+
+test-fast: setup
+	cd $(BUILD) && ctest --output-on-failure --timeout 1800 -j $(JOBS) -LE slow
+
+lint: setup
+	scripts/lint
 
 bench: setup
 	scripts/bench

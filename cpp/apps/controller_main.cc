@@ -21,7 +21,8 @@ void OnSignal(int) {
 
 constexpr const char* kUsage = R"(usage: marionette-controller [options]
 
-  --robot NAME          talos | tiago | ur10                      (default talos)
+  --robot NAME|DIR      the robot: a name found in --models or $MARIONETTE_ROBOT_PATH, or a
+                        folder holding robot.yaml (required; docs/robots.md)
   --backend NAME        mujoco | kinematic                        (default mujoco)
   --scene FILE          MJCF scene (mujoco backend; default: the robot alone)
   --encoder-offsets J=X,...  encoder calibration (mujoco backend): joint J's encoder reads X
@@ -44,7 +45,7 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
                         (no heartbeat, spec, reference or command; default 0.1, 0 = never)
   --key FILE            take signed commands only, with this shared key (default $MARIONETTE_KEY;
                         none: unsigned commands; lcmtypes/README.md)
-  --models DIR          the models/ folder (default: the repository's)
+  --models DIR          the models/ folder (robots, scenes; default: the repository's)
   --describe-robot      print what the controller knows of --robot as JSON and exit
   -v, --verbose         log every rejected input and controller switch
 
@@ -122,7 +123,7 @@ int main(int argc, char** argv) {
   try {
     options = mc::ParseOptions(argc, argv, &help, &describe);
   } catch (const std::exception& e) {
-    std::cerr << "marionette-controller: " << e.what() << "\n" << kUsage;
+    std::cerr << "marionette-controller: " << e.what() << " (see marionette-controller --help)\n";
     return 2;
   }
   if (help) {

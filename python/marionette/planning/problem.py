@@ -716,7 +716,7 @@ def _configuration(
 
 def _reference_of(problem: ManipulationProblem, name: str, model_name: str) -> np.ndarray:
     """Robot ``name``'s part of a configuration at its model's reference posture, joint by joint:
-    the problem may root the robot differently (``root_joint: fixed`` for TIAGo's planar base),
+    the problem may root the robot differently (``root_joint: fixed`` for a planar base held still),
     so the reference's base coordinates are dropped then."""
     from marionette import robots
 

@@ -1,4 +1,4 @@
-"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM (issue 9): a
+"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM: a
 controller spec whose feet and CoM tasks take their references from the pattern generator
 ("walk:" reference channels), FOOTSTEP_PLAN in, WALK_STATUS out; the robot walks the steps,
 stops, and the ZMP it reports from the soles' contact wrenches stays under its feet. The run is
@@ -126,7 +126,7 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
                     continue
             assert "has no walk: tasks" in client.status.last_rejection
 
-            client.bus.publish(channels.CONTROLLER_SPEC, walking_spec())
+            client.bus.publish(channels.CONTROLLER_SPEC, walking_spec("talos"))
             client.wait(
                 lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
                 30.0,
