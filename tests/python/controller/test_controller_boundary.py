@@ -296,6 +296,9 @@ def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
             finally:
                 driver.kill()
             c.wait(lambda c: "supervisor silent" in c.status.mode_reason, 10, "the hold")
+            # The new supervisor comes once the hold has stopped the swing (the switch-jump
+            # limit refuses a spec while the held robot still moves).
+            c.wait(lambda c: np.abs(c.state.joint_velocity).max() < 0.02, 10, "the robot at rest")
             c.send_spec(ControllerSpec(11, "resumed", [TaskSpec("posture", "posture", 0)]))
             c.wait(lambda c: c.status.active_controller_id == 11, 20, "the new supervisor")
             c.wait_time(0.5)
