@@ -312,13 +312,14 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
 def carry_kill(binary: Path, log=print) -> dict:
     """The issue's case: `marionette supervise` of the UR10 box plan (MuJoCo, real time) killed
     2 s into the carry, the box in the gripper; then a new `marionette supervise` resumes."""
-    from marionette.execution.demo import SCENARIOS, cached_plan
     from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
+    from marionette.scenarios import SCENARIOS
+    from marionette.scenarios.plan_and_execute import cached_plan
 
     scenario = SCENARIOS["ur10-box"]
     cache = marionette.REPO_ROOT / "reports" / "plans" / "cache"
     plan = cached_plan(scenario, scenario.seed, cache, log)
-    plan_json = cache / f"{scenario.problem}-seed{scenario.seed}" / "plan.json"
+    plan_json = cache / f"{Path(scenario.problem).stem}-seed{scenario.seed}" / "plan.json"
     robot = plan_robot(plan)
     model, _ = marionette.robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)

@@ -7,15 +7,16 @@ from __future__ import annotations
 import re
 import signal
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from marionette import channels, lcmt_supervisor_state
 from marionette.control.client import ControllerClient
-from marionette.execution.demo import SCENARIOS
 from marionette.lcm_bus import MessageLog
 from marionette.processes import ProcessGroup
+from marionette.scenarios import SCENARIOS
 
 pytestmark = pytest.mark.slow
 
@@ -25,7 +26,7 @@ def test_a_supervisor_killed_mid_carry_holds_and_a_new_one_finishes(
 ):
     p = ur10_box
     scenario = SCENARIOS["ur10-box"]
-    plan_json = plan_cache / f"{scenario.problem}-seed{scenario.seed}" / "plan.json"
+    plan_json = plan_cache / f"{Path(scenario.problem).stem}-seed{scenario.seed}" / "plan.json"
     assert plan_json.exists()
     carry = next(s for s in p.steps if s.transition.endswith("_34"))
     supervise = [sys.executable, "-m", "marionette.cli", "supervise", str(plan_json)]
