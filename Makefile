@@ -3,13 +3,22 @@
 #   make test       set up if needed, then everything: gtest, pytest (quick and slow), lint
 #   make test-fast  set up if needed, then all but the long end-to-end runs (ctest -LE slow)
 #   make lint       ruff, format, mypy, clang-format (scripts/lint)
+#   make sanitize   the controller built with AddressSanitizer + UndefinedBehaviorSanitizer (in
+#                   build-sanitize/), then the boundary's gtests and the fuzz suite against it
 SHELL := /bin/bash
 BUILD ?= build
 VENV ?= .venv
 JOBS ?= $(shell nproc)
 export MARIONETTE_BUILD_DIR := $(abspath $(BUILD))
 
-.PHONY: setup demo test test-fast lint bench clean
+SANITIZE_BUILD ?= build-sanitize
+SANITIZE_FLAGS := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer
+# Any report fails the run: ASan aborts, UBSan halts, LSan's leaks fail the exit code.
+SANITIZE_ENV := ASAN_OPTIONS=abort_on_error=1:detect_leaks=1:strict_string_checks=1 \
+  UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  LSAN_OPTIONS=suppressions=$(abspath tests/sanitize/lsan.supp)
+
+.PHONY: setup demo test test-fast lint bench sanitize clean
 
 setup:
 	@JOBS=$(JOBS) scripts/setup
@@ -28,6 +37,18 @@ lint: setup
 
 bench: setup
 	scripts/bench
+
+sanitize: setup
+	cmake -S . -B $(SANITIZE_BUILD) -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+	  -DCMAKE_CXX_FLAGS="$(SANITIZE_FLAGS)" -DCMAKE_C_FLAGS="$(SANITIZE_FLAGS)" \
+	  -DCMAKE_EXE_LINKER_FLAGS="$(SANITIZE_FLAGS)" -DCMAKE_SHARED_LINKER_FLAGS="$(SANITIZE_FLAGS)" \
+	  -DCMAKE_PREFIX_PATH="$$($(VENV)/bin/cmeel cmake)" -DPython_EXECUTABLE=$(abspath $(VENV))/bin/python \
+	  -Dpybind11_DIR="$$($(VENV)/bin/python -m pybind11 --cmakedir)" -DBoost_NO_WARN_NEW_VERSIONS=ON \
+	  $$(command -v ccache >/dev/null && echo -DCMAKE_CXX_COMPILER_LAUNCHER=ccache) >/dev/null
+	cmake --build $(SANITIZE_BUILD) -j $(JOBS) --target marionette-controller lcm_boundary_test
+	$(SANITIZE_ENV) $(SANITIZE_BUILD)/lcm_boundary_test
+	$(SANITIZE_ENV) MARIONETTE_FUZZ_CONTROLLER=$(abspath $(SANITIZE_BUILD))/marionette-controller \
+	  $(VENV)/bin/python -m pytest tests/python/fuzz tests/python/controller/test_controller_boundary.py -q
 
 clean:
 	rm -rf $(BUILD)

@@ -2,6 +2,10 @@
 #   C++    -> ${CMAKE_BINARY_DIR}/lcmtypes/cpp/marionette/*.hpp   (target marionette_lcmtypes)
 #   Python -> ${MARIONETTE_PYTHON_OUT}/lcmt_*.py                  (imported as marionette.lcmt_*)
 #   Java   -> ${CMAKE_BINARY_DIR}/lcmtypes/marionette_lcmtypes.jar (lcm-spy's classpath)
+#   Bounds -> ${CMAKE_BINARY_DIR}/lcmtypes/cpp/marionette/lcm_bounds.hpp and
+#             ${MARIONETTE_PYTHON_OUT}/lcm_bounds.py: the tables of the validators
+#             (marionette::wire::Validate, marionette.lcm_validate), from the bounds annotated on
+#             the fields (lcmtypes/README.md), by scripts/generate_lcm_bounds.py
 # C++ and Java come from Debian's lcm-gen (matching liblcm 1.3); Python from the venv's
 # lcm-gen (matching the lcm 1.5 wheel). Both compute the same fingerprints.
 find_program(LCM_GEN lcm-gen PATHS /usr/bin NO_DEFAULT_PATH REQUIRED)
@@ -43,7 +47,17 @@ add_custom_command(
   COMMAND ${Java_JAR_EXECUTABLE} cf ${LCM_TYPES_JAR} -C ${_java_dir}/classes .
   DEPENDS ${LCM_TYPE_FILES}
   COMMENT "lcm-gen: Java types -> marionette_lcmtypes.jar")
-add_custom_target(marionette_lcmtypes_gen ALL DEPENDS ${_cpp_headers} ${_py_files} ${LCM_TYPES_JAR})
+set(LCM_BOUNDS_HEADER ${_cpp_dir}/marionette/lcm_bounds.hpp)
+set(_bounds_py ${MARIONETTE_PYTHON_OUT}/lcm_bounds.py)
+set(_bounds_generator ${PROJECT_SOURCE_DIR}/scripts/generate_lcm_bounds.py)
+add_custom_command(
+  OUTPUT ${LCM_BOUNDS_HEADER} ${_bounds_py}
+  COMMAND ${Python_EXECUTABLE} ${_bounds_generator} ${PROJECT_SOURCE_DIR}/lcmtypes
+          ${LCM_BOUNDS_HEADER} ${_bounds_py}
+  DEPENDS ${LCM_TYPE_FILES} ${_bounds_generator} ${PROJECT_SOURCE_DIR}/python/marionette/lcm_schema.py
+  COMMENT "lcm bounds: validator tables from the annotated lcmtypes")
+add_custom_target(marionette_lcmtypes_gen ALL
+  DEPENDS ${_cpp_headers} ${_py_files} ${LCM_TYPES_JAR} ${LCM_BOUNDS_HEADER} ${_bounds_py})
 
 add_library(marionette_lcmtypes INTERFACE)
 add_dependencies(marionette_lcmtypes marionette_lcmtypes_gen)

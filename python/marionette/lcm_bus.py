@@ -1,14 +1,25 @@
-"""LCM for marionette's Python processes: URL choice, typed subscriptions, a handling thread.
+"""LCM for marionette's Python processes: URL choice, typed subscriptions, a handling thread,
+and the boundary every message crosses.
 
 Every process takes its URL from ``--lcm-url`` or ``MARIONETTE_LCM_URL``; tests and demos make a
 private one with :func:`private_lcm_url` so that concurrent runs never cross-talk. TTL 0 keeps
 multicast on the machine.
+
+Received messages are checked against their type's declared bounds before they are decoded
+(:mod:`marionette.lcm_validate`); a refused one is counted per channel and reason
+(:attr:`LcmBus.refusals`), the first of each reported in one line, and never reaches a handler.
+With a shared key (``MARIONETTE_KEY``, :mod:`marionette.lcm_signing`) the command channels'
+messages are signed when sent and must be signed when received. A bus that sent a controller spec
+drives the controller: from then on it sends the supervisor's heartbeat (COMMAND ``heartbeat``
+every :data:`HEARTBEAT_PERIOD_S`) until it stops — the controller holds the robot when its
+supervisor falls silent.
 """
 
 from __future__ import annotations
 
 import os
 import random
+import sys
 import threading
 import time
 from collections import defaultdict
@@ -16,6 +27,11 @@ from collections.abc import Callable
 from typing import Any
 
 import lcm
+from marionette import channels
+from marionette import lcm_signing as signing
+from marionette.lcm_validate import validate
+
+HEARTBEAT_PERIOD_S = 0.02  # five per 100 ms, the controller's default --supervisor-timeout
 
 DEFAULT_LCM_URL = "udpm://239.255.76.67:7667?ttl=0"
 
@@ -34,30 +50,99 @@ def private_lcm_url(rng: random.Random | None = None) -> str:
 class LcmBus:
     """An LCM instance with typed subscriptions and an optional background handling thread.
 
-    Messages that do not decode as the subscribed type are counted in ``decode_errors``
-    (per channel) and dropped: a malformed message never reaches a handler.
+    A message refused on its way in (bounds, signature, decoding) is counted in ``refusals``
+    ((channel, reason) -> count) and ``decode_errors`` (per channel) and dropped: it never
+    reaches a handler. An exception raised by a handler is counted too (reason "handler error")
+    and reported once: no exception leaves the handling thread. ``key``: the shared key of signed
+    messages (default: ``$MARIONETTE_KEY``'s, None for none; ``False`` forces none).
     """
 
-    def __init__(self, url: str | None = None) -> None:
+    def __init__(self, url: str | None = None, key: bytes | bool | None = None) -> None:
         self.url = lcm_url(url)
         self.lcm = lcm.LCM(self.url)
+        if key is None:
+            key = signing.key_from_environment()
+        self.key = key or None
+        self._signer = signing.Signer(self.key) if self.key else None
+        self._verifier = signing.Verifier(self.key) if self.key else None
         self.decode_errors: dict[str, int] = defaultdict(int)
+        self.refusals: dict[tuple[str, str], int] = defaultdict(int)
         self._thread: threading.Thread | None = None
         self._running = False
+        self._heartbeat: threading.Thread | None = None
+        self._heartbeat_stop = threading.Event()
+        self.source = f"{os.path.basename(sys.argv[0]) or 'python'}:{os.getpid()}"
 
     def publish(self, channel: str, message: Any) -> None:
-        self.lcm.publish(channel, message.encode())
+        data = message.encode()
+        if self._signer is not None and channel in signing.SIGNED_CHANNELS:
+            data = self._signer.sign(channel, data)
+        self.lcm.publish(channel, data)
+        if channel == channels.CONTROLLER_SPEC:
+            self._start_heartbeat()
 
     def subscribe(self, channel: str, lcm_type: type, handler: Callable[[Any], None]):
+        signed = self._verifier is not None and channel in signing.SIGNED_CHANNELS
+
         def _on_message(_channel: str, data: bytes) -> None:
+            if signed:
+                data, reason, detail = self._verifier.verify(channel, data)
+                if data is None:
+                    self._refuse(channel, reason, detail)
+                    return
+            refusal = validate(lcm_type, data)
+            if refusal is not None and refusal.reason == "trailing bytes":
+                if signing.has_trailer(data):
+                    self._refuse(
+                        channel,
+                        signing.SIGNED_NO_KEY,
+                        "a signed message, and this process has no key (MARIONETTE_KEY)",
+                    )
+                    return
+            if refusal is not None:
+                self._refuse(channel, refusal.reason, refusal.detail)
+                return
             try:
                 msg = lcm_type.decode(data)
-            except ValueError:
-                self.decode_errors[channel] += 1
+            except Exception as exc:  # bounds passed: lcm-gen's decoder should not fail
+                self._refuse(channel, "undecodable", repr(exc))
                 return
-            handler(msg)
+            try:
+                handler(msg)
+            except Exception as exc:
+                self._refuse(channel, "handler error", f"{type(exc).__name__}: {exc}")
 
         return self.lcm.subscribe(channel, _on_message)
+
+    def _refuse(self, channel: str, reason: str, detail: str) -> None:
+        self.decode_errors[channel] += 1
+        self.refusals[(channel, reason)] += 1
+        if self.refusals[(channel, reason)] == 1:
+            print(
+                f"lcm: refused a {channel} message ({reason}: {detail[:300]}); further ones are "
+                "counted",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    def _start_heartbeat(self) -> None:
+        if self._heartbeat is not None:
+            return
+        self._heartbeat_stop.clear()
+        self._heartbeat = threading.Thread(target=self._beat, name="lcm-heartbeat", daemon=True)
+        self._heartbeat.start()
+
+    def _beat(self) -> None:
+        from marionette import lcmt_command
+
+        msg = lcmt_command()
+        msg.command, msg.source = "heartbeat", self.source
+        while not self._heartbeat_stop.wait(HEARTBEAT_PERIOD_S):
+            msg.utime = int(time.time() * 1e6)
+            data = msg.encode()
+            if self._signer is not None:
+                data = self._signer.sign(channels.COMMAND, data)
+            self.lcm.publish(channels.COMMAND, data)
 
     def handle(self, timeout_s: float) -> bool:
         """Handle at most one message, waiting up to ``timeout_s``; True if one was handled."""
@@ -71,10 +156,16 @@ class LcmBus:
         return self
 
     def stop(self) -> None:
+        """Stops the handling thread and the heartbeat (the controller then holds the robot after
+        its --supervisor-timeout, unless another spec or heartbeat comes)."""
         self._running = False
         if self._thread is not None:
             self._thread.join(timeout=1.0)
             self._thread = None
+        self._heartbeat_stop.set()
+        if self._heartbeat is not None:
+            self._heartbeat.join(timeout=1.0)
+            self._heartbeat = None
 
     def _loop(self) -> None:
         while self._running:

@@ -40,10 +40,11 @@ def controller_running(
     *args: str,
     camera: bool = False,
     ready_timeout: float = 60.0,
+    binary: Path | None = None,
 ) -> Iterator[ControllerClient]:
-    """Starts marionette-controller with ``args`` and yields a ready ControllerClient; the
-    process is stopped afterwards and must exit cleanly."""
-    binary = build_dir / "marionette-controller"
+    """Starts marionette-controller (``binary``, default the build's) with ``args`` and yields a
+    ready ControllerClient; the process is stopped afterwards and must exit cleanly."""
+    binary = binary or build_dir / "marionette-controller"
     with (
         ProcessGroup(lcm_url, log_dir) as group,
         ControllerClient(lcm_url, camera=camera) as client,

@@ -5,6 +5,8 @@ namespace marionette::controller {
 
 Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) {
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
+  if (!options.key_file.empty())
+    verifier = std::make_unique<wire::Verifier>(wire::LoadKey(o.key_file));
   try {
     robot = FindRobot(options.robot, options.models_dir);
   } catch (const std::invalid_argument& e) {
@@ -138,10 +140,17 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
 
 void Controller::Impl::Reject(const std::string& channel, const std::string& category,
                               const std::string& detail) {
+  // The detail quotes what was sent: printable, and short enough for the status's bounds.
+  constexpr size_t kMaxDetail = 1024;
+  std::string shown = detail.substr(0, kMaxDetail);
+  for (char& c : shown) {
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = '?';
+  }
+  if (detail.size() > kMaxDetail) shown += "...";
   std::lock_guard<std::mutex> lock(stats_mutex);
   ++rejections[channel + ": " + category];
   ++num_rejected;
-  last_rejection = channel + ": " + detail;
+  last_rejection = channel + ": " + shown;
   if (options.verbose) runtime::LogLine("[controller] rejected ", last_rejection);
 }
 
@@ -190,6 +199,7 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   if (safety->num_clamped_output().Eval(t) > 0) ++loop_state.clamped_ticks;
   Watchdog(t);
   CheckBudgets(t);
+  HoldOnSilence(t);
   DecideSwitch(t);
   if (device) device->Write(t);
   FillSnapshot(t, clock);
@@ -201,7 +211,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
   if (replaying) {  // the recorded decision, not this machine's timing
     if (replay_budget_hold >= 0 && mode == ControlMode::kRun) {
       const bool engage = (replay_budget_hold & kBudgetHoldEngaged) != 0;
-      const bool engaged = engage && EngageHoldController(t) == Engage::kEngaged;
+      const bool engaged = engage && EngageHoldController(t, Reason::kBudget) == Engage::kEngaged;
       Journal(t.index, kBudgetHoldChannel,
               replay_budget_hold & ~(engage && !engaged ? kBudgetHoldEngaged : 0));
       if (!engaged) mode = ControlMode::kHold;
@@ -223,7 +233,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
       // First the hold controller (balance + posture); when it is not armed (a swap pending, it
       // is the one overrunning, or it failed to build), zero velocity. A busy lease is retried
       // next tick, for as many ticks again at most.
-      const Engage engage = EngageHoldController(t);
+      const Engage engage = EngageHoldController(t, Reason::kBudget);
       if (engage == Engage::kRetry && overruns < 2 * overrun_hold_ticks) return;
       const bool engaged = engage == Engage::kEngaged;
       Journal(t.index, kBudgetHoldChannel,
@@ -237,7 +247,7 @@ void Controller::Impl::CheckBudgets(const graph::Tick& t) {
   }
 }
 
-Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t) {
+Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tick& t, Reason why) {
   if (hold_state.load(std::memory_order_acquire) != kHoldArmed) return Engage::kUnavailable;
   int free = 0;
   if (!graph_lease.compare_exchange_strong(free, 2, std::memory_order_acquire))
@@ -256,6 +266,7 @@ Controller::Impl::Engage Controller::Impl::EngageHoldController(const graph::Tic
   ++loop_state.switches;
   loop_state.active_id = hold->id;
   hold_engaged_tick = t.index;
+  hold_engaged_why = why;
   hold_state.store(kHoldEngaged, std::memory_order_release);
   graph_lease.store(0, std::memory_order_release);
   return Engage::kEngaged;
@@ -332,6 +343,38 @@ void Controller::Impl::Watchdog(const graph::Tick& t) {
       return;
     }
   }
+}
+
+void Controller::Impl::HoldOnSilence(const graph::Tick& t) {
+  // Live: the LCM thread saw the supervisor silent; a replay: the journal says this tick held.
+  const bool silent =
+      replaying ? replay_silence_hold >= 0 : silence_request.load(std::memory_order_acquire);
+  if (!silent) return;
+  const bool supervised =
+      mode == ControlMode::kRun && active != nullptr && active->id != kHoldControllerId &&
+      switch_state.load(std::memory_order_acquire) != static_cast<int>(SwitchState::kPosted);
+  if (!replaying && !supervised) {  // holding already, or a new spec is about to be decided
+    silence_request.store(false, std::memory_order_relaxed);
+    silence_retries = 0;
+    return;
+  }
+  bool engaged = false;
+  if (replaying) {
+    engaged = replay_silence_hold == 1 &&
+              EngageHoldController(t, Reason::kSupervisorSilent) == Engage::kEngaged;
+    replay_silence_hold = -1;
+  } else {
+    // The hold controller first; a busy lease is retried for a few ticks, then zero velocity.
+    const Engage engage = EngageHoldController(t, Reason::kSupervisorSilent);
+    if (engage == Engage::kRetry && ++silence_retries < kSilenceEngageRetries) return;
+    engaged = engage == Engage::kEngaged;
+    silence_request.store(false, std::memory_order_relaxed);
+    silence_retries = 0;
+  }
+  Journal(t.index, kSilenceHoldChannel, engaged ? 1 : 0);
+  if (!engaged) mode = ControlMode::kHold;
+  loop_state.reason = Reason::kSupervisorSilent;
+  loop_state.reason_value = silence_seconds.load(std::memory_order_relaxed);
 }
 
 void Controller::Impl::DecideSwitch(const graph::Tick& t) {
@@ -456,6 +499,15 @@ int Controller::Run() {
     runtime::LogLine(
         "[controller] real-time scheduling not requested (--realtime): normal priority");
   }
+  runtime::LogLine(
+      "[controller] commands: ",
+      c.verifier ? "signed only (key " + c.options.key_file + ")"
+                 : std::string("unsigned (no key)"),
+      "; supervisor timeout ",
+      c.options.supervisor_timeout > 0.0
+          ? std::to_string(static_cast<int>(std::lround(1e3 * c.options.supervisor_timeout))) +
+                " ms"
+          : std::string("off"));
   runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ",
                    c.model->nv, " dofs, graph of ", c.graph->entities().size(), " entities; ",
                    c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
@@ -511,6 +563,7 @@ std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& 
 ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe_robot) {
   ControllerOptions o;
   if (const char* url = std::getenv("MARIONETTE_LCM_URL")) o.lcm_url = url;
+  if (const char* key = std::getenv("MARIONETTE_KEY")) o.key_file = key;
   *help = false;
   *describe_robot = false;
   const auto value = [&](int& i) -> std::string {
@@ -575,6 +628,10 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
       o.profiling = false;
     else if (a == "--overrun-hold-ticks")
       o.overrun_hold_ticks = static_cast<int64_t>(number(i));
+    else if (a == "--supervisor-timeout")
+      o.supervisor_timeout = number(i);
+    else if (a == "--key")
+      o.key_file = value(i);
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else

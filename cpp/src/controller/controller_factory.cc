@@ -7,6 +7,7 @@
 #include <stdexcept>
 
 #include "marionette/controller/gripper_admittance_spec.h"
+#include "marionette/lcm/channels.h"
 #include "marionette/sot/feature_com.h"
 #include "marionette/sot/feature_gaze.h"
 #include "marionette/sot/feature_position.h"
@@ -210,6 +211,13 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
     }
     if (!names.insert(t.name).second) Fail(who, "two tasks have this name");
     if (t.priority < 0 || t.priority > 100) Fail(who, "priority must be in [0, 100]");
+    // A reference comes from nowhere else: an unknown name is refused, never taken as streamed.
+    if (!t.reference_channel.empty() && t.reference_channel != channels::kTaskReference &&
+        t.reference_channel.rfind(kWalkPrefix, 0) != 0) {
+      Fail(who, "unknown reference_channel '" + t.reference_channel + "' (\"\" fixed, " +
+                    channels::kTaskReference +
+                    " streamed, walk:left_foot, walk:right_foot, walk:com)");
+    }
     if (!(t.gain > 0.0) && t.gain != 0.0) Fail(who, "gain must be >= 0");
     for (double x : {t.gain, t.gain_max, t.gain_slope}) {
       if (!std::isfinite(x) || x < 0.0) Fail(who, "gains must be finite and >= 0");

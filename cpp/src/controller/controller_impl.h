@@ -19,6 +19,7 @@
 #include <mutex>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/parsers/srdf.hpp>
+#include <set>
 #include <sstream>
 #include <thread>
 #include "marionette/controller/controller.h"
@@ -32,6 +33,8 @@
 #include "marionette/graph/arithmetic.h"
 #include "marionette/graph/graph.h"
 #include "marionette/lcm/channels.h"
+#include "marionette/lcm/signing.h"
+#include "marionette/lcm/validate.h"
 #include "marionette/lcmt_camera_image.hpp"
 #include "marionette/lcmt_command.hpp"
 #include "marionette/lcmt_controller_journal.hpp"
@@ -77,10 +80,11 @@ inline int64_t TickUs(const graph::Tick& t) {
 enum class Reason : int {
   kStartup,  // holding until a controller is accepted
   kControllerAccepted,
-  kCommand,    // COMMAND hold / resume / estop / reset_estop
-  kWatchdog,   // a streamed reference went stale
-  kNonFinite,  // the solver produced NaN/Inf
-  kBudget,     // an entity overran its time budget too many ticks in a row
+  kCommand,           // COMMAND hold / resume / estop / reset_estop
+  kWatchdog,          // a streamed reference went stale
+  kNonFinite,         // the solver produced NaN/Inf
+  kBudget,            // an entity overran its time budget too many ticks in a row
+  kSupervisorSilent,  // no heartbeat from the supervisor for --supervisor-timeout
 };
 
 enum class Command : int { kNone = 0, kHold, kResume, kEstop, kResetEstop, kStop };
@@ -151,16 +155,23 @@ inline constexpr char kBudgetHoldEntry[] = "CONTROLLER_BUDGET_HOLD";
 /// -1: the initial configuration), journaled with the spec's swap — a walking controller's
 /// pattern generator takes its CoM height from it, so a replay builds against the same one.
 inline constexpr char kBuildTickEntry[] = "CONTROLLER_BUILD_TICK";
+/// Not a channel: the loop's decision to hold because the supervisor fell silent (hash 1 when the
+/// hold controller was engaged, 0 for a zero-velocity hold), replayed as an input like a budget's.
+inline constexpr char kSilenceHoldEntry[] = "CONTROLLER_SILENCE_HOLD";
 inline constexpr const char* kJournalChannels[] = {
     channels::kControllerSpec, channels::kTaskReference, channels::kCommand,
     channels::kSimCommand,     channels::kDgRequest,     kBudgetHoldEntry,
-    channels::kFootstepPlan,   kBuildTickEntry};
+    channels::kFootstepPlan,   kBuildTickEntry,          kSilenceHoldEntry};
 inline constexpr int kBudgetHoldChannel = 5;
 /// A budget-hold entry's hash is the overrunning entity's index, plus this flag when the hold
 /// controller was engaged (else the loop held with zero velocity).
 inline constexpr int64_t kBudgetHoldEngaged = int64_t{1} << 32;
 inline constexpr int kFootstepPlanChannel = 6;  // consumed by the active walking controller's poll
 inline constexpr int kBuildTickChannel = 7;
+inline constexpr int kSilenceHoldChannel = 8;
+/// Ticks the loop retries engaging the hold controller for a silent supervisor while the LCM thread
+/// holds the graph lease, before it holds with zero velocity.
+inline constexpr int kSilenceEngageRetries = 10;
 
 inline std::string ToLower(std::string s) {
   for (char& c : s) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -210,7 +221,7 @@ struct Controller::Impl {
   struct SimRequest {
     enum Kind { kMove, kAttach, kDetach } kind = kMove;
     int id = -1;  // body (move) or weld equality (attach, detach)
-    pinocchio::SE3 pose;
+    pinocchio::SE3 pose = pinocchio::SE3::Identity();
     int64_t hash = 0;  // the message's, for the journal
   };
   runtime::SpscQueue<SimRequest> sim_requests{64};
@@ -220,6 +231,26 @@ struct Controller::Impl {
   runtime::SpscQueue<runtime::TickTiming> timings{20000};
   std::unique_ptr<runtime::TripleBuffer<std::vector<double>>> render_states;  // qpos + mocap
   int render_every = 0;
+
+  // The boundary (LCM thread): signed commands when a key is given (nullptr: unsigned).
+  std::unique_ptr<wire::Verifier> verifier;
+
+  // The supervisor's heartbeat (LCM thread): any accepted spec, reference chunk or command
+  // (COMMAND "heartbeat" among them) is one. While a supervisor's controller is active, a silence
+  // of --supervisor-timeout raises silence_request; the loop then holds (HoldOnSilence). Times are
+  // when the kernel received the messages (LCM's recv_utime, wall clock [us]): LCM's reader thread
+  // queues what arrives while this thread builds a controller, and hands it over in arrival order,
+  // so the silence is measured up to the arrival of the message being handled (or now, when none
+  // is waiting) — neither a long build nor a flood of other messages changes it.
+  int64_t last_heartbeat_us = 0;
+  int64_t handled_us = 0;       // arrival of the message being handled
+  std::string driver;           // the source of the last COMMAND heard
+  bool silence_raised = false;  // once per silence: the next heartbeat clears it
+  std::atomic<bool> silence_request{false};
+  std::atomic<double> silence_seconds{0.0};  // how long it had been silent, for the status
+  int silence_retries = 0;                   // loop: ticks waiting for the graph lease
+  int64_t replay_silence_hold = -1;          // replay: 1 engage the hold controller, 0 hold
+  std::string silence_driver;                // under stats_mutex: who fell silent
 
   // LCM-thread-owned.
   std::map<int64_t, std::unique_ptr<BuiltController>> controllers;  // posted or active
@@ -260,6 +291,7 @@ struct Controller::Impl {
   std::unique_ptr<BuiltController> hold_controller;  // LCM-thread-owned, lent while armed
   BuiltController* armed_hold = nullptr;             // for the loop, valid while kHoldArmed
   int64_t hold_engaged_tick = -1;                    // written by the loop before kHoldEngaged
+  Reason hold_engaged_why = Reason::kBudget;         // likewise
   int64_t hold_unbuildable_for = -1;                 // active id whose hold failed to build
   int64_t last_decision_utime = 0;                   // of the last swap (LcmThread arms 1 s later)
   std::vector<std::string> soles;                    // robot.contact_bodies the model has
@@ -306,16 +338,33 @@ struct Controller::Impl {
   void CopyTimings(const graph::Tick& t);
   void DecideSwitch(const graph::Tick& t);
   void Watchdog(const graph::Tick& t);
-  Engage EngageHoldController(const graph::Tick& t);
+  void HoldOnSilence(const graph::Tick& t);
+  /// `why`: kBudget or kSupervisorSilent (said by the LCM thread when it collects the swap).
+  Engage EngageHoldController(const graph::Tick& t, Reason why);
   void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
   void FillWalkStatus(const graph::Tick& t, Snapshot* s);  // controller_walk.cc
 
   // LCM thread.
   void LcmThread();
+  /// Every input message passes here before its handler: the signature (with a key), the
+  /// schema's bounds and ranges (@clock against the controller's time), then lcm-gen's decode.
+  /// False when it is refused (counted under the channel and the reason).
+  template <typename Msg>
+  bool Admit(const char* channel, const lcm::ReceiveBuffer* rbuf, Msg* msg);
+  /// Runs `handle` so that no exception leaves an LCM handler: one is counted as "internal error".
+  template <typename Handle>
+  void Guarded(const char* channel, Handle&& handle);
+  void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
+  void WatchSupervisor(bool idle);  // after each wait: raises silence_request
+  int WaitMs();                     // how long the next wait may be (the silence's deadline)
   void OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  void ReceiveReference(const lcm::ReceiveBuffer* rbuf);  // the handlers' bodies, guarded
+  void ReceiveCommand(const lcm::ReceiveBuffer* rbuf);
+  void ReceiveSimCommand(const lcm::ReceiveBuffer* rbuf);
+  void ReceiveFootstepPlan(const lcm::ReceiveBuffer* rbuf);  // controller_walk.cc
   void OnFootstepPlan(const lcm::ReceiveBuffer* rbuf,
                       const std::string& channel);  // controller_walk.cc
   void PostNextSpec();
@@ -348,5 +397,68 @@ struct Controller::Impl {
                      runtime::TimingWindow& compute, runtime::TimingWindow& lateness);
   void CameraThread();
 };
+
+inline int64_t WallUs() {
+  return std::chrono::duration_cast<std::chrono::microseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+template <typename Msg>
+bool Controller::Impl::Admit(const char* channel, const lcm::ReceiveBuffer* rbuf, Msg* msg) {
+  handled_us = rbuf->recv_utime;
+  const void* data = rbuf->data;
+  size_t size = rbuf->data_size;
+  // A replay takes the messages the live run took: their signatures were checked then.
+  if (verifier && !replaying) {
+    std::string detail;
+    const wire::SignatureCheck check =
+        verifier->Verify(channel, data, size, WallUs(), &size, &detail);
+    if (check != wire::SignatureCheck::kAccepted) {
+      Reject(channel, wire::ToString(check), detail);
+      return false;
+    }
+  }
+  const int64_t now_us = loop_utime();
+  wire::Verdict verdict = wire::Validate<Msg>(data, size, now_us);
+  if (verdict.refusal == wire::Refusal::kTrailingBytes && wire::HasTrailer(data, size) &&
+      (verifier == nullptr || replaying)) {
+    if (!replaying) {
+      Reject(channel, "signed, no key",
+             "a signed message, and this controller has no key to check it (--key FILE or "
+             "MARIONETTE_KEY)");
+      return false;
+    }
+    size -= wire::kTrailerSize;
+    verdict = wire::Validate<Msg>(data, size, now_us);
+  }
+  if (!verdict.ok()) {
+    Reject(channel, wire::ToString(verdict.refusal), verdict.detail);
+    return false;
+  }
+  // Bounds checked: lcm-gen's decoder reads within the buffer and allocates what was declared.
+  if (msg->decode(data, 0, static_cast<int>(size)) != static_cast<int>(size)) {
+    Reject(channel, "undecodable", std::string("not a valid ") + Msg::getTypeName());
+    return false;
+  }
+  return true;
+}
+
+template <typename Handle>
+void Controller::Impl::Guarded(const char* channel, Handle&& handle) {
+  const auto count = [&](const char* what) {
+    try {
+      Reject(channel, "internal error", what);
+    } catch (...) {  // out of memory: nothing more to do than not to throw
+    }
+  };
+  try {
+    handle();
+  } catch (const std::exception& e) {
+    count(e.what());
+  } catch (...) {
+    count("unknown exception");
+  }
+}
 
 }  // namespace marionette::controller

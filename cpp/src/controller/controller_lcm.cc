@@ -8,11 +8,6 @@ namespace marionette::controller {
 
 namespace {
 
-template <typename Msg>
-bool Decode(const lcm::ReceiveBuffer* rbuf, Msg* msg) {
-  return msg->decode(rbuf->data, 0, rbuf->data_size) == static_cast<int>(rbuf->data_size);
-}
-
 // The graph's structure is read (controllers built, requests served) only while this thread
 // holds the lease; the loop takes it for the few microseconds of engaging the hold controller.
 class GraphReadLease {
@@ -39,34 +34,78 @@ void Controller::Impl::LcmThread() {
                      runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
-    const bool idle = lcm.handleTimeout(2) == 0;
+    const bool idle = lcm.handleTimeout(WaitMs()) == 0;
+    WatchSupervisor(idle);
     GraphReadLease lease(graph_lease);
-    CollectSwitchDecision();
-    CollectHoldController();
-    service.CollectGarbage();
-    ServeSamples();
-    ServeDg();
-    PublishTiming();
-    PostNextSpec();
-    // Building a TALOS hold controller keeps this thread off the socket for 20-50 ms: not while
-    // messages come in, nor in the first second (controller time) after a swap, when a step's
-    // first chunks arrive just ahead of their start (a late chunk makes the stream skip samples).
-    if (idle && loop_utime() > last_decision_utime + 1'000'000) ArmHoldController();
+    try {
+      CollectSwitchDecision();
+      CollectHoldController();
+      service.CollectGarbage();
+      ServeSamples();
+      ServeDg();
+      PublishTiming();
+      PostNextSpec();
+      // Building a TALOS hold controller keeps this thread off the socket for 20-50 ms: not while
+      // messages come in, nor in the first second (controller time) after a swap, when a step's
+      // first chunks arrive just ahead of their start (a late chunk makes the stream skip
+      // samples).
+      if (idle && loop_utime() > last_decision_utime + 1'000'000) ArmHoldController();
+    } catch (const std::exception& e) {  // counted, and the thread goes on serving
+      Guarded("LCM_THREAD", [&] { Reject("LCM_THREAD", "internal error", e.what()); });
+    } catch (...) {
+      Guarded("LCM_THREAD", [&] { Reject("LCM_THREAD", "internal error", "unknown exception"); });
+    }
+  }
+}
+
+// ---- the supervisor's heartbeat ----------------------------------------------------------------
+
+void Controller::Impl::Heard(const std::string& source, int64_t arrival_us) {
+  last_heartbeat_us = std::max(last_heartbeat_us, arrival_us);
+  if (!source.empty()) driver = source;
+  silence_raised = false;
+}
+
+int Controller::Impl::WaitMs() {
+  if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return 2;
+  const double left_ms =
+      1e3 * options.supervisor_timeout - 1e-3 * static_cast<double>(WallUs() - last_heartbeat_us);
+  return left_ms <= 0.0 ? 0 : std::clamp(static_cast<int>(std::ceil(left_ms)), 1, 2);
+}
+
+void Controller::Impl::WatchSupervisor(bool idle) {
+  // Only a supervisor's controller is watched (not the hold controller, nor before the first).
+  if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return;
+  // Up to now when nothing waits; else up to the arrival of the message just handled: what
+  // arrived before it, heartbeats included, has been handled (LCM hands messages over in order).
+  const int64_t until_us = idle ? WallUs() : handled_us;
+  const double silent = 1e-6 * static_cast<double>(until_us - last_heartbeat_us);
+  if (silent < options.supervisor_timeout) return;
+  silence_raised = true;
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    silence_driver = driver;
+  }
+  silence_seconds.store(silent, std::memory_order_relaxed);
+  silence_request.store(true, std::memory_order_release);
+  if (options.verbose) {
+    runtime::LogLine("[controller] supervisor silent for ", 1e3 * silent, " ms (last heard: '",
+                     driver, "'): holding");
   }
 }
 
 void Controller::Impl::OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string&) {
-  lcmt_controller_spec spec;
-  if (!Decode(rbuf, &spec)) {
-    Reject(channels::kControllerSpec, "undecodable", "not a valid lcmt_controller_spec");
-    return;
-  }
-  if (waiting_specs.size() >= 8) {
-    Reject(channels::kControllerSpec, "queue full",
-           "controller '" + spec.name + "' dropped: 8 specs waiting");
-    return;
-  }
-  waiting_specs.emplace_back(std::move(spec), Fnv1a(rbuf->data, rbuf->data_size));
+  Guarded(channels::kControllerSpec, [&] {
+    lcmt_controller_spec spec;
+    if (!Admit(channels::kControllerSpec, rbuf, &spec)) return;
+    Heard("", rbuf->recv_utime);
+    if (waiting_specs.size() >= 8) {
+      Reject(channels::kControllerSpec, "queue full",
+             "controller '" + spec.name + "' dropped: 8 specs waiting");
+      return;
+    }
+    waiting_specs.emplace_back(std::move(spec), Fnv1a(rbuf->data, rbuf->data_size));
+  });
 }
 
 void Controller::Impl::PostNextSpec() {
@@ -96,8 +135,10 @@ void Controller::Impl::PostNextSpec() {
     q = shared_q;
     build_tick = shared_tick;
   }
+  // The running controller's entities go, the hold controller's too when it is the one running.
   std::vector<std::string> previous;
-  if (active_owned_id >= 0) previous = controllers.at(active_owned_id)->entity_names;
+  if (controllers.count(active_owned_id) > 0)
+    previous = controllers.at(active_owned_id)->entity_names;
   std::unique_ptr<BuiltController> built;
   try {
     built = factory->Build(spec, *graph, previous, q);
@@ -167,8 +208,11 @@ void Controller::Impl::CollectHoldController() {
   hold_controller->edit.reset();
   if (active_owned_id >= 0) controllers.erase(active_owned_id);
   active_owned_id = kHoldControllerId;
-  const std::string result = "engaged the hold controller '" + hold_controller->name + "' (id " +
-                             std::to_string(kHoldControllerId) + "): time budget overrun";
+  const std::string result =
+      "engaged the hold controller '" + hold_controller->name + "' (id " +
+      std::to_string(kHoldControllerId) +
+      (hold_engaged_why == Reason::kSupervisorSilent ? "): supervisor silent"
+                                                     : "): time budget overrun");
   controllers[kHoldControllerId] = std::move(hold_controller);
   armed_hold = nullptr;
   {
@@ -190,8 +234,9 @@ void Controller::Impl::CollectSwitchDecision() {
     // The edit now holds the previous topology: free it here, off the loop, with the previous
     // controller's bookkeeping.
     posted->edit.reset();
-    if (active_owned_id >= 0) controllers.erase(active_owned_id);
+    controllers.erase(active_owned_id);  // the hold controller too: the next one is built anew
     active_owned_id = id;
+    Heard("", WallUs());  // the watch on its supervisor starts with the controller
     result = "accepted controller '" + posted->name + "' (id " + std::to_string(id) + ")";
   } else {
     char jump[64];
@@ -216,11 +261,12 @@ void Controller::Impl::CollectSwitchDecision() {
 }
 
 void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  Guarded(channels::kTaskReference, [&] { ReceiveReference(rbuf); });
+}
+
+void Controller::Impl::ReceiveReference(const lcm::ReceiveBuffer* rbuf) {
   lcmt_task_reference msg;
-  if (!Decode(rbuf, &msg)) {
-    Reject(channels::kTaskReference, "undecodable", "not a valid lcmt_task_reference");
-    return;
-  }
+  if (!Admit(channels::kTaskReference, rbuf, &msg)) return;
   auto it = controllers.find(msg.controller_id);
   if (it == controllers.end()) {
     Reject(
@@ -273,14 +319,22 @@ void Controller::Impl::OnReference(const lcm::ReceiveBuffer* rbuf, const std::st
     Reject(channels::kTaskReference, "invalid samples", "task '" + msg.task_name + "': " + problem);
     return;
   }
-  if (!s.Push(chunk))
+  if (!s.Push(chunk)) {
     Reject(channels::kTaskReference, "queue full", "task '" + msg.task_name + "': chunk dropped");
+    return;
+  }
+  Heard("", rbuf->recv_utime);  // the stream itself is a heartbeat
 }
 
 void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  Guarded(channels::kCommand, [&] { ReceiveCommand(rbuf); });
+}
+
+void Controller::Impl::ReceiveCommand(const lcm::ReceiveBuffer* rbuf) {
   lcmt_command msg;
-  if (!Decode(rbuf, &msg)) {
-    Reject(channels::kCommand, "undecodable", "not a valid lcmt_command");
+  if (!Admit(channels::kCommand, rbuf, &msg)) return;
+  if (ToLower(msg.command) == "heartbeat") {  // the supervisor is alive; nothing for the loop
+    Heard(msg.source.empty() ? "?" : msg.source, rbuf->recv_utime);
     return;
   }
   static const std::map<std::string, Command> kCommands = {{"hold", Command::kHold},
@@ -292,9 +346,10 @@ void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::stri
   const auto it = kCommands.find(ToLower(msg.command));
   if (it == kCommands.end()) {
     Reject(channels::kCommand, "unknown command",
-           "'" + msg.command + "' (hold, resume, start, estop, reset_estop, stop)");
+           "'" + msg.command + "' (hold, resume, start, estop, reset_estop, stop, heartbeat)");
     return;
   }
+  Heard(msg.source.empty() ? "?" : msg.source, rbuf->recv_utime);
   // An estop must never be overwritten by a later, milder request before the loop saw it.
   command_hash.store(Fnv1a(rbuf->data, rbuf->data_size), std::memory_order_release);
   int expected = command_request.load();
@@ -305,11 +360,12 @@ void Controller::Impl::OnCommand(const lcm::ReceiveBuffer* rbuf, const std::stri
 }
 
 void Controller::Impl::OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  Guarded(channels::kSimCommand, [&] { ReceiveSimCommand(rbuf); });
+}
+
+void Controller::Impl::ReceiveSimCommand(const lcm::ReceiveBuffer* rbuf) {
   lcmt_sim_command msg;
-  if (!Decode(rbuf, &msg)) {
-    Reject(channels::kSimCommand, "undecodable", "not a valid lcmt_sim_command");
-    return;
-  }
+  if (!Admit(channels::kSimCommand, rbuf, &msg)) return;
   if (!scene) {
     Reject(channels::kSimCommand, "no simulator", "the kinematic backend has no objects");
     return;
@@ -422,18 +478,17 @@ std::string Controller::Impl::TimingText() {
 // ---- introspection (DG_REQUEST) ----------------------------------------------------------
 
 void Controller::Impl::OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string&) {
-  lcmt_dg_request request;
-  if (!Decode(rbuf, &request)) {
-    Reject(channels::kDgRequest, "undecodable", "not a valid lcmt_dg_request");
-    return;
-  }
-  if (waiting_dg.size() >= 64) {
-    Reject(channels::kDgRequest, "queue full",
-           "request " + std::to_string(request.request_id) + " dropped");
-    return;
-  }
-  dg_hashes.push_back(Fnv1a(rbuf->data, rbuf->data_size));
-  waiting_dg.push_back(std::move(request));
+  Guarded(channels::kDgRequest, [&] {
+    lcmt_dg_request request;
+    if (!Admit(channels::kDgRequest, rbuf, &request)) return;
+    if (waiting_dg.size() >= 64) {
+      Reject(channels::kDgRequest, "queue full",
+             "request " + std::to_string(request.request_id) + " dropped");
+      return;
+    }
+    dg_hashes.push_back(Fnv1a(rbuf->data, rbuf->data_size));
+    waiting_dg.push_back(std::move(request));
+  });
 }
 
 void Controller::Impl::ServeDg() {
@@ -445,7 +500,7 @@ void Controller::Impl::ServeDg() {
     current_dg_hash = dg_hashes.front();
     waiting_dg.pop_front();
     dg_hashes.pop_front();
-    ServeDgRequest(request);
+    Guarded(channels::kDgRequest, [&] { ServeDgRequest(request); });
   }
 }
 
@@ -459,7 +514,14 @@ void Controller::Impl::ReplyDg(const lcmt_dg_request& request, bool ok, const st
   reply.error = error;
   reply.text = text;
   lcm.publish(channels::kDgReply, &reply);
-  if (!ok) Reject(channels::kDgRequest, "refused " + request.command, error);
+  // Counted under the command when it is one (a finite set of reasons, whatever is sent).
+  static const std::set<std::string> kDgCommands = {"ls",      "get",   "set",    "trace",
+                                                    "untrace", "graph", "timing", "budget"};
+  if (!ok) {
+    Reject(channels::kDgRequest,
+           kDgCommands.count(request.command) ? "refused " + request.command : "unknown command",
+           error);
+  }
 }
 
 void Controller::Impl::ServeDgRequest(const lcmt_dg_request& request) {

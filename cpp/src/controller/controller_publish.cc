@@ -196,6 +196,17 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
     case Reason::kNonFinite:
       st.mode_reason = "the solver produced a non-finite velocity";
       break;
+    case Reason::kSupervisorSilent: {
+      char buffer[200];
+      std::snprintf(buffer, sizeof(buffer), "supervisor silent: nothing heard for %.0f ms",
+                    1e3 * s.reason_value);
+      st.mode_reason = buffer;
+      if (!silence_driver.empty()) st.mode_reason += " (last from '" + silence_driver + "')";
+      st.mode_reason += s.active_id == kHoldControllerId && names != names_by_id.end()
+                            ? "; the " + names->second.controller + " controller holds the robot"
+                            : "; zero-velocity hold";
+      break;
+    }
     case Reason::kBudget: {
       char buffer[200];
       std::snprintf(buffer, sizeof(buffer),

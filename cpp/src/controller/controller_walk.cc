@@ -9,11 +9,12 @@
 namespace marionette::controller {
 
 void Controller::Impl::OnFootstepPlan(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  Guarded(channels::kFootstepPlan, [&] { ReceiveFootstepPlan(rbuf); });
+}
+
+void Controller::Impl::ReceiveFootstepPlan(const lcm::ReceiveBuffer* rbuf) {
   lcmt_footstep_plan msg;
-  if (msg.decode(rbuf->data, 0, rbuf->data_size) != static_cast<int>(rbuf->data_size)) {
-    Reject(channels::kFootstepPlan, "undecodable", "not a valid lcmt_footstep_plan");
-    return;
-  }
+  if (!Admit(channels::kFootstepPlan, rbuf, &msg)) return;
   const std::string which = "plan " + std::to_string(msg.plan_id);
   auto it = controllers.find(active_owned_id);
   walk::FootstepManager* steps = it == controllers.end() ? nullptr : it->second->walk_steps;

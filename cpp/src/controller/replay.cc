@@ -96,6 +96,7 @@ ControllerOptions OptionsFromConfig(const std::string& config, const ReplayOptio
   o.camera_rate = 0.0;
   o.profiling = false;  // budgets are replayed from the journal
   o.speed = 0.0;
+  o.key_file.clear();  // the journal names messages whose signatures the live run checked
   o.verbose = replay.verbose;
   return o;
 }
@@ -167,6 +168,7 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
     expected.clear();
     c.shared_q = c.q_kinematics->value();  // logs without build ticks: the best guess
     c.shared_tick = t.index - 1;
+    c.shared_utime = TickUs(t);  // the clock references are checked against
     for (size_t k = next_entry; k < run.entries.size() && run.entries[k].tick == t.index; ++k) {
       const JournalEntry& e = run.entries[k];
       if (e.channel != kBuildTickChannel) continue;
@@ -188,6 +190,10 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
       ++result.inputs;
       if (e.channel == kBudgetHoldChannel) {
         c.replay_budget_hold = e.hash;
+        continue;
+      }
+      if (e.channel == kSilenceHoldChannel) {
+        c.replay_silence_hold = e.hash;
         continue;
       }
       if (e.channel == kBuildTickChannel) continue;  // applied above, before the spec is built

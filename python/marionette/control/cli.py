@@ -1,5 +1,6 @@
 """``marionette dg ...``: the running controller's graph from the command line (any machine on
-the LCM network): ls, get, set, trace, graph, timing, budget."""
+the LCM network): ls, get, set, trace, graph, timing, budget; and status (mode, refused inputs per
+channel and reason)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,12 @@ import sys
 
 import numpy as np
 
-from marionette.control.introspection import GraphClient, IntrospectionError
+from marionette.control.introspection import (
+    GraphClient,
+    IntrospectionError,
+    read_status,
+    status_text,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dot", action="store_true", help="print dot (the default)")
     p.add_argument("--png", default=None, help="render to this PNG with Graphviz")
     cmds.add_parser("timing", help="per-entity compute time (p50, p99, max), budgets, overruns")
+    cmds.add_parser(
+        "status", help="mode and why, active controller, refused inputs per channel and reason"
+    )
     p = cmds.add_parser("budget", help="declare an entity's compute-time budget per tick")
     p.add_argument("entity")
     p.add_argument("budget_us", type=float, help="microseconds, 0 removes the budget")
@@ -58,6 +67,13 @@ def _format(name: str, value: np.ndarray) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.dg_command == "status":  # CONTROLLER_STATUS: no request to the controller
+        try:
+            print(status_text(read_status(args.lcm_url, args.timeout)), end="")
+        except IntrospectionError as exc:
+            print(f"marionette dg: {exc}", file=sys.stderr)
+            return 1
+        return 0
     try:
         with GraphClient(args.lcm_url, timeout_s=args.timeout) as client:
             if args.dg_command == "ls":

@@ -1,5 +1,7 @@
 """The running controller's graph from any machine on the LCM network (DG_REQUEST / DG_REPLY /
-DG_TRACE): list it, read and set signals, trace them, draw it, read per-entity timing.
+DG_TRACE): list it, read and set signals, trace them, draw it, read per-entity timing; and its
+health from CONTROLLER_STATUS (:func:`read_status`, :func:`status_text`: mode, why, and every
+refused input counted per channel and reason).
 
     client = GraphClient(url)
     print(client.ls())
@@ -19,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from marionette import channels, lcmt_dg_reply, lcmt_dg_request
-from marionette.lcm_bus import LcmBus
+from marionette import channels, lcmt_controller_status, lcmt_dg_reply, lcmt_dg_request
+from marionette.lcm_bus import LcmBus, MessageLog
 
 
 class IntrospectionError(RuntimeError):
@@ -168,3 +170,45 @@ class GraphClient:
                 self.request("untrace")
             except IntrospectionError:
                 pass
+
+
+def read_status(lcm_url: str | None = None, timeout_s: float = 5.0):
+    """The next CONTROLLER_STATUS; raises IntrospectionError when none comes in time."""
+    with LcmBus(lcm_url) as bus:
+        log = MessageLog(bus, channels.CONTROLLER_STATUS, lcmt_controller_status)
+        bus.start()
+        if not log.wait_for(lambda m: len(m) > 0, timeout_s):
+            raise IntrospectionError(
+                f"no CONTROLLER_STATUS within {timeout_s} s (is marionette-controller running on "
+                f"{bus.url}?)"
+            )
+        return log.latest()
+
+
+def rejections_by_channel(status) -> dict[str, dict[str, int]]:
+    """channel -> reason -> count, from a status's "CHANNEL: reason" counters."""
+    out: dict[str, dict[str, int]] = {}
+    for key, count in zip(status.rejection_reason, status.rejection_count):
+        channel, _, reason = key.partition(": ")
+        out.setdefault(channel, {})[reason or "?"] = int(count)
+    return out
+
+
+def status_text(status) -> str:
+    """The controller's mode and why, its active controller, and its refused inputs per channel
+    and reason, as ``marionette dg status`` prints them."""
+    lines = [
+        f"{status.robot_name}: {status.mode} ({status.mode_reason})",
+        f"active controller: {status.active_controller or '-'} (id {status.active_controller_id}); "
+        f"{status.num_switches} switches, {status.num_refused_switches} refused",
+        f"loop: lateness p99 {status.lateness.p99_us:.1f} us, {status.deadline_misses} deadline "
+        "misses",
+        f"refused inputs: {status.num_rejected}",
+    ]
+    for channel, reasons in sorted(rejections_by_channel(status).items()):
+        lines.append(f"  {channel:22s} {sum(reasons.values()):9d}")
+        for reason, count in sorted(reasons.items(), key=lambda rc: -rc[1]):
+            lines.append(f"    {count:9d}  {reason}")
+    if status.last_rejection:
+        lines.append(f"last: {status.last_rejection}")
+    return "\n".join(lines) + "\n"

@@ -15,6 +15,10 @@ Per step:
   grasps        grasps created at the step's end are closed (simulated: weld on);
   approval      with ``step_mode``, waits for an ``approve`` event (the operator of §3.4.2).
 On any failure the supervisor sends COMMAND hold and ends in ``failed`` (the robot holds).
+From its first spec on, its client's bus sends the heartbeat (COMMAND ``heartbeat`` every 20 ms,
+:mod:`marionette.lcm_bus`; the streamed chunks count too): a supervisor that dies leaves the robot
+held by the controller within its ``--supervisor-timeout``, not playing the 4 s streamed ahead;
+``marionette supervise`` started again estimates where the plan stands and resumes from there.
 
 State on SUPERVISOR_STATE (10 Hz and on change), events on SUPERVISOR_EVENT; events from other
 sources (``marionette fsm inject``) are read from SUPERVISOR_EVENT too.

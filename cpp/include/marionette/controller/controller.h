@@ -19,8 +19,13 @@
 /// "hold"; estop latches until "reset_estop". An entity over its time budget for
 /// --overrun-hold-ticks ticks in a row engages the hold controller (hold_controller.h: balance
 /// + posture for humanoids, posture for arms; status "holding", active id -2), or holds with
-/// zero velocity when it is not armed. Every rejected input is counted with its reason
-/// in CONTROLLER_STATUS; the robot never moves on garbage.
+/// zero velocity when it is not armed. So does a supervisor that falls silent: while a
+/// supervisor's controller runs, no heartbeat (COMMAND "heartbeat", or any accepted spec,
+/// reference chunk or command) for --supervisor-timeout holds the robot (status "holding",
+/// "supervisor silent"); a new spec resumes. Every input message is checked against its type's
+/// declared bounds before it is decoded (lcm/validate.h) and, with a key, its signature
+/// (lcm/signing.h); every rejected input is counted with its reason in CONTROLLER_STATUS; no
+/// exception leaves an LCM handler; the robot never moves on garbage.
 
 #include <atomic>
 #include <memory>
@@ -53,6 +58,11 @@ struct ControllerOptions {
   std::string timing_log;            ///< write every tick's timing here (CSV) at exit, "" = no
   bool profiling = true;             ///< per-entity compute time (CONTROLLER_TIMING, budgets)
   int64_t overrun_hold_ticks = 100;  ///< hold after this many consecutive over-budget ticks
+  /// [s] hold when the supervisor of the active controller is silent this long (no heartbeat,
+  /// spec, reference chunk or command); 0 = never
+  double supervisor_timeout = 0.1;
+  /// The shared key of signed commands ("" = $MARIONETTE_KEY, none: unsigned commands)
+  std::string key_file;
   bool verbose = false;
 };
 
