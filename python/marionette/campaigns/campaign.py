@@ -136,6 +136,7 @@ class Campaign:
         o, work = finished.outcome, finished.work_dir
         run = {
             "host": o.host,
+            "started": o.started,
             "wall_s": o.wall_s,
             "exit_code": o.exit_code,
             "attempts": finished.attempts,

@@ -3,14 +3,15 @@ worker nodes, all on 127.0.0.1 (``ray start --node-ip-address 127.0.0.1``: the n
 other over loopback; Ray's gRPC servers still listen on every interface, Ray has no bind option),
 each node a ``ray start --block`` process of its own session, stopped with everything it started.
 
-    with local_cluster(workers=2) as address:
-        run_campaign(folder, settings, scenario, cluster=address)
+    with local_cluster(workers=2) as cluster:
+        run_campaign(folder, settings, scenario, cluster=cluster.address)
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -18,7 +19,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from marionette.campaigns.errors import CampaignError
@@ -78,18 +79,30 @@ def _stop(nodes: list[_Node], timeout_s: float = 30.0) -> None:
         node.popen.wait()
 
 
+@dataclass
+class LocalCluster:
+    """``address`` of the head; ``leftover``: after the stop, the pids of the processes the
+    cluster started that outlived its nodes (killed then; a clean stop leaves it empty)."""
+
+    address: str
+    leftover: list[int] = field(default_factory=list)
+
+
 @contextlib.contextmanager
 def local_cluster(
     workers: int = 2, cpus_per_worker: int = 1, log_dir: Path | None = None
-) -> Iterator[str]:
+) -> Iterator[LocalCluster]:
     """Starts the head and ``workers`` nodes of ``cpus_per_worker`` CPUs (environment: this
-    marionette and its build, :func:`.trial.child_environment`); yields the head's address;
-    stops them all."""
+    marionette and its build, :func:`.trial.child_environment`); yields the cluster; stops them
+    all."""
     ray = str(Path(sys.executable).parent / "ray")
     temp = Path(tempfile.mkdtemp(prefix="ray", dir="/tmp"))  # short: Ray's socket paths
-    log_dir = Path(log_dir or temp)
+    log_dir = Path(log_dir) if log_dir is not None else temp
     log_dir.mkdir(parents=True, exist_ok=True)
-    env = {**child_environment(), "RAY_TMPDIR": str(temp)}
+    # TMPDIR marks every process the cluster starts (Ray's, the trials' and theirs): the ones
+    # still there after the nodes stopped are found by it and killed.
+    (temp / "tmp").mkdir()
+    env = {**child_environment(), "RAY_TMPDIR": str(temp), "TMPDIR": str(temp / "tmp")}
     common = ["--node-ip-address", "127.0.0.1", "--block", "--disable-usage-stats"]
     common += ["--object-store-memory", str(OBJECT_STORE_BYTES)]
     port = _free_port()
@@ -139,6 +152,30 @@ def local_cluster(
                     log_dir,
                 )
             )
-        yield f"127.0.0.1:{port}"
+        cluster = LocalCluster(f"127.0.0.1:{port}")
+        yield cluster
     finally:
         _stop(nodes)
+        leftover = processes_with_env("TMPDIR", env["TMPDIR"])
+        for pid in leftover:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        if nodes and len(nodes) == workers + 1:
+            cluster.leftover = leftover
+        if log_dir != temp:
+            shutil.rmtree(temp, ignore_errors=True)  # Ray's session files
+
+
+def processes_with_env(key: str, value: str) -> list[int]:
+    """The pids of the processes (but this one) whose environment has ``key=value``."""
+    marker = f"{key}={value}".encode()
+    out = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit() or int(proc.name) == os.getpid():
+            continue
+        try:
+            if marker in (proc / "environ").read_bytes().split(b"\0"):
+                out.append(int(proc.name))
+        except OSError:
+            continue
+    return out

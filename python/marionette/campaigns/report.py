@@ -68,6 +68,16 @@ def unit_of(path: str, value: float) -> tuple[str, float]:
     return ("count", 1.0) if float(value).is_integer() else ("no unit", 1.0)
 
 
+def label(path: str, unit: str) -> str:
+    """An axis label: the name without its unit suffix, the unit shown in brackets."""
+    head, _, last = path.rpartition(".")
+    for suffix, _, _ in UNITS:
+        if last.endswith(suffix):
+            last = last[: -len(suffix)]
+            break
+    return f"{head + '.' if head else ''}{last} [{unit}]"
+
+
 def worse_when(path: str) -> str | None:
     """ "high" when a larger value is worse (errors, displacements, drops, distances), "low" for
     margins and clearances, None for the rest (counts, rates)."""
@@ -317,6 +327,7 @@ def _plots(folder: Path, r: dict[str, Any]) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     status = {t["seed"]: t["status"] for t in r["trials"]}
     out = []
@@ -336,8 +347,9 @@ def _plots(folder: Path, r: dict[str, Any]) -> list[Path]:
                 color=["tab:blue", "tab:red"],
                 label=["succeeded", "failed"],
             )
-            ax.set_xlabel(f"{path} [{e['unit']}]")
+            ax.set_xlabel(label(path, e["unit"]))
             ax.set_ylabel("trials")
+            ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         for ax in list(axes.flat)[len(varying) :]:
             ax.axis("off")
         axes.flat[0].legend(fontsize=8)
@@ -351,7 +363,7 @@ def _plots(folder: Path, r: dict[str, Any]) -> list[Path]:
             e = holes[path]
             ax.boxplot([v * e["factor"] for _, v in e["values"]])
             ax.set_xticks([1], [f"all holes of all trials (n = {e['n']})"])
-            ax.set_ylabel(f"{path} [{e['unit']}]")
+            ax.set_ylabel(label(path, e["unit"]))
         fig.suptitle("per-hole errors")
         out.append(save_figure(fig, folder / "holes.png"))
     walls = [(t["seed"], t["wall_s"], t["status"]) for t in r["trials"] if t.get("wall_s")]

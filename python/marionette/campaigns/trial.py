@@ -86,6 +86,7 @@ class TrialOutcome:
     folder: str | None
     complete: bool
     reason: str
+    started: float = 0.0  # time.time() of the host when the trial's process started
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -125,7 +126,7 @@ def run_trial(
     argv = spec.command(work_dir)
     if sys.platform == "linux":
         argv = [sys.executable, "-c", _ORPHAN_GUARD, str(os.getpid()), *argv]
-    t0 = time.perf_counter()
+    t0, started_at = time.perf_counter(), time.time()
     with open(work_dir / LOG, "w") as log:
         popen = subprocess.Popen(
             argv,
@@ -152,6 +153,7 @@ def run_trial(
         None if folder is None else folder.name,
         complete,
         reason,
+        started_at,
     )
 
 
