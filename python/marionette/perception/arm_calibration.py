@@ -60,6 +60,17 @@ def calibrated_arm(robot: str, side: str) -> robots.CalibratedArm:
     )
 
 
+def calibration_frames(robot: str) -> tuple[str, str]:
+    """(base frame of the arm poses, camera optical frame) of ``robot``'s robot.yaml; raises
+    :class:`CalibrationError` naming the file when either is missing."""
+    desc = robots.robot(robot)
+    if desc.calibration_base_frame is None:
+        raise CalibrationError(f"{desc.semantics}: calibration declares no base_frame")
+    if desc.camera_frame is None:
+        raise CalibrationError(f"{desc.semantics}: no camera to calibrate with (cameras)")
+    return desc.calibration_base_frame, desc.camera_frame
+
+
 def arm_joints(robot: str, side: str) -> tuple[str, ...]:
     return calibrated_arm(robot, side).joints
 
@@ -142,7 +153,7 @@ def plan_views(
             f"wrist ring to the camera clear of the body; {count} needed"
         )
     # Greedy D-optimal choice: each view adds J_i^T J_i of its pose residual w.r.t. the offsets.
-    base = desc.calibration_base_frame
+    base, _ = calibration_frames(robot)
     problem = JointOffsetProblem(model, base, arm.tagged_link, arm.joints)
     infos = []
     for q in keep:
@@ -194,7 +205,7 @@ def measure_views(
     from marionette.perception.objects import estimate_body_pose, tag_sizes
 
     data = model.createData()
-    camera_frame = robots.robot(robot).camera_frame
+    base_frame, camera_frame = calibration_frames(robot)
     K = _intrinsics(renderer)
     detector = AprilTagDetector(
         DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate)
@@ -221,7 +232,7 @@ def measure_views(
             )
             continue
         pin.framesForwardKinematics(model, data, q)
-        X_BC = data.oMf[model.getFrameId(robots.robot(robot).calibration_base_frame)].actInv(
+        X_BC = data.oMf[model.getFrameId(base_frame)].actInv(
             data.oMf[model.getFrameId(camera_frame)]
         )
         out.append(WristView(q, X_BC * pose.X_CB, pose.tag_ids, pose.reprojection_rms))
@@ -283,6 +294,7 @@ def calibrate_arm(
     model, geom = robots.load_pinocchio(robot, with_collision=True)
     desc = robots.robot(robot)
     ring = wrist_ring(robot, side)
+    base_frame, camera_frame = calibration_frames(robot)
     scene = sim.MjScene(str(scene_path))
     scene.reset_keyframe("reference")
     renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
@@ -297,7 +309,7 @@ def calibrate_arm(
         side,
         ring,
         _intrinsics(renderer),
-        desc.camera_frame,
+        camera_frame,
         count=count,
         seed=seed,
     )
@@ -312,7 +324,7 @@ def calibrate_arm(
             f"only {len(measured)} of {len(views)} views saw the {side} wrist ring (4 needed)"
         )
     arm = calibrated_arm(robot, side)
-    problem = JointOffsetProblem(model, desc.calibration_base_frame, arm.tagged_link, arm.joints)
+    problem = JointOffsetProblem(model, base_frame, arm.tagged_link, arm.joints)
     result = calibrate_joint_offsets_from_poses(
         problem, np.array([v.q for v in measured]), [v.X_BE for v in measured], ROTATION_WEIGHT
     )
