@@ -445,11 +445,12 @@ class ReferenceWait {
   // timeout of the current starvation has passed.
   void Before(const Controller::Impl& c, const graph::Tick& t) {
     if (!Starved(c, t)) {
-      since_.reset();
+      starved_ = false;
       return;
     }
-    if (!since_) since_ = std::chrono::steady_clock::now();
-    const auto deadline = *since_ + kStarvedWallTimeout;
+    if (!starved_) since_ = std::chrono::steady_clock::now();
+    starved_ = true;
+    const auto deadline = since_ + kStarvedWallTimeout;
     while (Starved(c, t) && !InputPending(c) && std::chrono::steady_clock::now() < deadline)
       std::this_thread::sleep_for(kStarvedPoll);
   }
@@ -466,7 +467,8 @@ class ReferenceWait {
            c.command_request.load(std::memory_order_acquire) != static_cast<int>(Command::kNone) ||
            c.switch_state.load(std::memory_order_acquire) == static_cast<int>(SwitchState::kPosted);
   }
-  std::optional<std::chrono::steady_clock::time_point> since_;  // the starvation began (wall)
+  bool starved_ = false;
+  std::chrono::steady_clock::time_point since_{};  // the starvation began (wall), when starved_
 };
 
 }  // namespace
