@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from marionette.campaigns.backend import Backend, Finished
+from marionette.campaigns.backend import Backend, Finished, Running
 from marionette.campaigns.errors import CampaignError
 from marionette.campaigns.report import TrialRow, aggregate, write_campaign_report
 from marionette.campaigns.trial import LOG, TrialSpec, complete_report
@@ -259,6 +259,7 @@ class Progress:
     def __init__(self, campaign: Campaign, to_run: int, t0: float, slots: int) -> None:
         self.campaign, self.to_run, self.t0, self.slots = campaign, to_run, t0, slots
         self.done = 0
+        self.walls: list[float] = []  # [s] the trials finished in this session
         self.counts = {"succeeded": 0, "failed": 0, "lost": 0}
         self._last_state: tuple = (-1, -1, [])
         self._last_counts: tuple = (-1, -1)
@@ -266,6 +267,8 @@ class Progress:
 
     def finished(self, row: TrialRow) -> None:
         self.done += 1
+        if row.run.get("wall_s"):
+            self.walls.append(float(row.run["wall_s"]))
         self.counts[row.status] = self.counts.get(row.status, 0) + 1
         what = row.status.upper() if row.status != "succeeded" else "ok"
         wall = row.run.get("wall_s") or 0.0
@@ -275,18 +278,22 @@ class Progress:
             + (f": {row.reason}" if row.reason else "")
         )
 
-    def eta_s(self, now: float) -> float | None:
-        """Trials left / the rate trials finished at so far."""
-        if self.done == 0:
+    def eta_s(self, running: dict[int, Running], queued: int) -> float | None:
+        """The work left, at the mean wall time of the trials finished so far (what the running
+        ones have done counted), shared by the engine's slots."""
+        if not self.walls:
             return None
-        return (self.to_run - self.done) * (now - self.t0) / self.done
+        mean = sum(self.walls) / len(self.walls)
+        now = time.time()
+        left = sum(max(0.0, mean - (now - r.since)) for r in running.values()) + queued * mean
+        return left / max(1, self.slots)
 
     def show(self, running: dict, queued: int, force: bool = False) -> None:
         """A progress line when something changed (at least every PROGRESS_PERIOD_S);
         progress.json whenever what runs where changed."""
         now = time.monotonic()
         queued = max(0, queued - len(running))
-        eta = self.eta_s(now)
+        eta = self.eta_s(running, queued)
         state = {
             "done": self.done,
             "to_run": self.to_run,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -178,3 +179,19 @@ def test_units_directions_and_reason_groups():
     )
     assert worse_when("replan_rate_hz.capacity_hz") is None
     assert reason_group("stale for 201 ms (step 3, -1.5e-3)") == "stale for # ms (step #, #)"
+
+
+def test_the_eta_counts_the_work_the_running_trials_have_done(tmp_path):
+    """Mean trial time 100 s, two slots: one trial 40 s in, one queued -> (60 + 100) / 2 s."""
+    from marionette.campaigns.campaign import Progress
+    from marionette.campaigns.report import TrialRow
+
+    campaign = Campaign(tmp_path, settings(3), UR10_BOX, log=lambda m: None)
+    progress = Progress(campaign, to_run=3, t0=0.0, slots=2)
+    assert progress.eta_s({}, 3) is None, "no trial finished: no estimate"
+    progress.finished(TrialRow(100, "succeeded", run={"wall_s": 100.0}))
+    now = time.time()
+    running = {101: Running("h", now - 40.0)}
+    assert progress.eta_s(running, 1) == pytest.approx(80.0, abs=0.5)
+    running = {101: Running("h", now - 140.0)}  # longer than the mean: counted done
+    assert progress.eta_s(running, 0) == pytest.approx(0.0, abs=0.5)
