@@ -288,7 +288,7 @@ class Progress:
         left = sum(max(0.0, mean - (now - r.since)) for r in running.values()) + queued * mean
         return left / max(1, self.slots)
 
-    def show(self, running: dict, queued: int, force: bool = False) -> None:
+    def show(self, running: dict[int, Running], queued: int, force: bool = False) -> None:
         """A progress line when something changed (at least every PROGRESS_PERIOD_S);
         progress.json whenever what runs where changed."""
         now = time.monotonic()
@@ -301,7 +301,7 @@ class Progress:
             "queued": queued,
             "running": [{"seed": s, **asdict(r)} for s, r in sorted(running.items())],
         }
-        where = [(r["seed"], r["host"], r["pid"], r["attempt"]) for r in state["running"]]
+        where = [(s, r.host, r.pid, r.attempt) for s, r in sorted(running.items())]
         if force or (self.done, queued, where) != self._last_state:
             write_json(
                 self.campaign.folder / "progress.json",

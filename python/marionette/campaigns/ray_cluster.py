@@ -86,7 +86,7 @@ class RayCluster:
         self.slots = cpus
         nodes = sum(1 for n in ray.nodes() if n.get("Alive") and n["Resources"].get("CPU", 0) > 0)
         self.description = f"Ray cluster at {address} ({nodes} nodes, {cpus} CPUs)"
-        self._board = ray.remote(num_cpus=0)(TrialBoard).remote()
+        self._board: Any = ray.remote(num_cpus=0)(TrialBoard).remote()  # an actor handle
         self._task = ray.remote(num_cpus=1, max_retries=retries, retry_exceptions=False)(trial_task)
         self._refs: dict[Any, tuple[TrialSpec, Path]] = {}
         self._closed = False

@@ -31,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "examples:\n"
             "  marionette demo                           # the plank flip\n"
             "  marionette demo ur10-box --trials 20 --speed 0\n"
+            "  marionette demo ur10-box --trials 20 --speed 0 --jobs 2   # two trials at a time\n"
+            "  marionette demo ur10-box --trials 20 --speed 0 --cluster HEAD:6379  # on Ray\n"
             "  marionette demo plank-flip --perturb all --trials 5\n"
             "  marionette demo my/arm-cube.yaml          # a scenario declared in a file"
         ),
