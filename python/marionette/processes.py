@@ -112,6 +112,10 @@ class ProcessGroup:
         return self
 
     def __exit__(self, *exc: object) -> None:
+        if self._previous_sigterm is not None:
+            # A further SIGTERM must not cut the stop short and leave the rest running: a
+            # process started under PR_SET_PDEATHSIG gets one per thread of its dying parent.
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
         try:
             self.close()
         finally:
@@ -121,6 +125,7 @@ class ProcessGroup:
 
 
 def _exit_on_sigterm(signum: int, frame: object) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the group's __exit__ stops it all
     raise SystemExit(128 + signum)
 
 

@@ -4,12 +4,29 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 import marionette
 from marionette.lcm_bus import private_lcm_url
+
+
+@pytest.fixture(scope="session", autouse=True)
+def plan_cache_in_tmp(tmp_path_factory) -> Iterator[Path]:
+    """Plans go to a temporary folder for the session (``MARIONETTE_PLAN_CACHE``, inherited by
+    the demos the tests start), never to the checkout's reports/plans/cache."""
+    from marionette.scenarios.plan_cache import CACHE_ENV
+
+    before = os.environ.get(CACHE_ENV)
+    path = tmp_path_factory.mktemp("plan-cache")
+    os.environ[CACHE_ENV] = str(path)
+    yield path
+    if before is None:
+        del os.environ[CACHE_ENV]
+    else:
+        os.environ[CACHE_ENV] = before
 
 
 @pytest.fixture(scope="session")

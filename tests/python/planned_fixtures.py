@@ -12,7 +12,7 @@ from marionette import robots
 from marionette.execution.factory import build_specs, context_from_plan
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.scenarios import SCENARIOS
-from marionette.scenarios.plan_and_execute import cached_plan
+from marionette.scenarios.plan_cache import cached_plan
 
 
 class Planned:
@@ -31,15 +31,17 @@ class Planned:
 
 
 @pytest.fixture(scope="session")
-def plan_cache(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("plans")
+def plan_cache(plan_cache_in_tmp: Path) -> Path:
+    """The session's plan cache (``$MARIONETTE_PLAN_CACHE``, tests/python/conftest.py): shared
+    with the demos the tests run."""
+    return plan_cache_in_tmp
 
 
 @pytest.fixture(scope="session")
 def ur10_box(plan_cache: Path) -> Planned:
-    return Planned(cached_plan(SCENARIOS["ur10-box"], 0, plan_cache, log=lambda m: None))
+    return Planned(cached_plan(SCENARIOS["ur10-box"].problem, 0, plan_cache, log=lambda m: None))
 
 
 @pytest.fixture(scope="session")
 def talos_plank(plan_cache: Path) -> Planned:
-    return Planned(cached_plan(SCENARIOS["plank-flip"], 4, plan_cache, log=lambda m: None))
+    return Planned(cached_plan(SCENARIOS["plank-flip"].problem, 4, plan_cache, log=lambda m: None))

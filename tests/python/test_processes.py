@@ -46,3 +46,36 @@ def test_sigterm_to_the_parent_stops_the_group(tmp_path):
         assert not _alive(child), "the group's process outlived its parent"
     finally:
         parent.kill()
+
+
+SLOW_TO_STOP = """
+import sys, time
+from marionette.processes import ProcessGroup
+with ProcessGroup("udpm://239.255.76.67:7667?ttl=0", sys.argv[1]) as group:
+    first = group.start("sleeper", ["sleep", "60"])
+    last = group.start("stubborn", ["sh", "-c", "trap '' INT; sleep 60"])  # stopped by SIGKILL
+    print(first.popen.pid, last.popen.pid, flush=True)
+    time.sleep(60)
+"""
+
+
+def test_a_second_sigterm_while_the_group_stops_does_not_cut_the_stop_short(tmp_path):
+    """A process started with PR_SET_PDEATHSIG gets SIGTERM once per thread of its dying parent:
+    the ones that arrive while the group is stopping must not leave the rest running."""
+    parent = subprocess.Popen(
+        [sys.executable, "-c", SLOW_TO_STOP, str(tmp_path)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        children = [int(pid) for pid in parent.stdout.readline().split()]
+        time.sleep(0.5)  # the stubborn one's trap is set
+        parent.send_signal(signal.SIGTERM)
+        time.sleep(1.0)  # the stubborn one ignores SIGINT: the group waits for it
+        assert parent.poll() is None, "the group did not wait for its stubborn process"
+        parent.send_signal(signal.SIGTERM)
+        assert parent.wait(timeout=20) == 128 + signal.SIGTERM
+        deadline = time.monotonic() + 5
+        while any(map(_alive, children)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not any(map(_alive, children)), "a process outlived its group's parent"
+    finally:
+        parent.kill()

@@ -1,4 +1,8 @@
 // marionette-controller: start-up, the persistent graph, the 1 kHz loop, the command line.
+#include <chrono>
+#include <optional>
+#include <thread>
+
 #include "controller_impl.h"
 
 namespace marionette::controller {
@@ -464,6 +468,54 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   }
 }
 
+// ---- unpaced pacing ---------------------------------------------------------------------------
+
+namespace {
+
+// Unpaced (--speed 0) controller time is simulated: it advances as fast as the loop computes (~10x
+// real time) and outran the process streaming a reference (a few seconds of controller time ahead)
+// whenever that process was slowed down; the watchdog, a real-time safety device, then held the
+// robot for a streamer that was merely late (or the first chunk of a step arrived already in the
+// past). So the unpaced loop starts no tick that a running stream does not cover: it waits for its
+// first or next chunk (or a command, a swap, a stop), and only after kStarvedWallTimeout of wall
+// time without one lets the clock go on, and the watchdog fire: the streaming process is gone.
+constexpr auto kStarvedWallTimeout = std::chrono::seconds(5);
+constexpr auto kStarvedPoll = std::chrono::microseconds(100);
+
+class ReferenceWait {
+ public:
+  // Before tick `t`: returns once no running stream is starved at t, an input is pending, or the
+  // timeout of the current starvation has passed.
+  void Before(const Controller::Impl& c, const graph::Tick& t) {
+    if (!Starved(c, t)) {
+      starved_ = false;
+      return;
+    }
+    if (!starved_) since_ = std::chrono::steady_clock::now();
+    starved_ = true;
+    const auto deadline = since_ + kStarvedWallTimeout;
+    while (Starved(c, t) && !InputPending(c) && std::chrono::steady_clock::now() < deadline)
+      std::this_thread::sleep_for(kStarvedPoll);
+  }
+
+ private:
+  static bool Starved(const Controller::Impl& c, const graph::Tick& t) {
+    if (c.mode != ControlMode::kRun || c.active == nullptr) return false;
+    for (const ReferenceStream* s : c.active_streams)
+      if (s->Starved(TickUs(t))) return true;
+    return false;
+  }
+  static bool InputPending(const Controller::Impl& c) {
+    return c.stop ||
+           c.command_request.load(std::memory_order_acquire) != static_cast<int>(Command::kNone) ||
+           c.switch_state.load(std::memory_order_acquire) == static_cast<int>(SwitchState::kPosted);
+  }
+  bool starved_ = false;
+  std::chrono::steady_clock::time_point since_{};  // the starvation began (wall), when starved_
+};
+
+}  // namespace
+
 // ---- Controller -----------------------------------------------------------------------------
 
 Controller::Controller(const ControllerOptions& options) : impl_(std::make_unique<Impl>(options)) {}
@@ -515,9 +567,12 @@ int Controller::Run() {
                    " at speed ", c.options.speed);
 
   runtime::LoopClock clock(kDt, c.options.speed);
+  ReferenceWait reference_wait;
+  const bool unpaced = c.options.speed == 0.0;
   graph::Tick t{0, 0.0, kDt};
   const int64_t last_tick = c.options.duration > 0.0 ? std::llround(c.options.duration / kDt) : -1;
   while (!c.stop && (last_tick < 0 || t.index < last_tick)) {
+    if (unpaced) reference_wait.Before(c, t);
     runtime::TickTiming timing = clock.WaitNextTick();
     c.LoopTick(t, clock);
     timing.compute_us = clock.ElapsedInTickUs();

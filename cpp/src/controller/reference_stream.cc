@@ -216,6 +216,11 @@ void ReferenceStream::CalcAge(const graph::Tick& t, double* out) const {
   *out = std::max<int64_t>(0, TickUs(t) - last_us) * kUsToS;
 }
 
+bool ReferenceStream::Starved(int64_t time_us) const {
+  if (ends_ || (end_ > begin_ && time_us <= origin_us_ + (end_ - 1) * dt_us_)) return false;
+  return queue_.Front() == nullptr;
+}
+
 void ReferenceStream::CalcEnded(const graph::Tick& t, bool* out) const {
   *out = ends_ && end_ > begin_ && TickUs(t) >= origin_us_ + (end_ - 1) * dt_us_;
 }

@@ -55,7 +55,7 @@ class RunOptions:
     log: Callable[[str], None] = print
     perturbation: Perturbation | None = None  # --perturb (kinds that accept it)
     gripper_admittance: bool | None = None  # None: the scenario's (kinds that have it)
-    cache_dir: Path | None = None  # plans (kinds that plan); None: reports/plans/cache
+    cache_dir: Path | None = None  # plans (kinds that plan); None: plan_cache.default_cache_dir()
 
 
 def repo_relative(path: Path) -> str:
@@ -86,6 +86,9 @@ class Scenario(abc.ABC):
     KIND: ClassVar[str]
     #: RunOptions fields this kind uses besides speed, controller_url, view and log.
     OPTIONS: ClassVar[tuple[str, ...]] = ()
+    #: The report entries (``a.b``: entry b of entry a) holding what the trial's seed drew: its
+    #: perturbation, listed per trial in a campaign's report.
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("perturbation",)
 
     @abc.abstractmethod
     def criteria(self) -> tuple[Criterion, ...]:
@@ -106,6 +109,17 @@ class Scenario(abc.ABC):
     def failure_reason(self, report: dict[str, Any]) -> str:
         """Why a trial failed, for the trials table (``report`` of a failed trial)."""
         return report["summary"]
+
+    def draw(self, report: dict[str, Any]) -> dict[str, Any]:
+        """What the seed of the trial behind ``report`` drew (:attr:`DRAW_KEYS` found in it)."""
+        out = {}
+        for key in self.DRAW_KEYS:
+            value: Any = report
+            for part in key.split("."):
+                value = value.get(part) if isinstance(value, dict) else None
+            if value is not None:
+                out[key] = value
+        return out
 
     def declared_settings(self) -> dict[str, Any]:
         """The kind's own settings, JSON-able (the declaration's ``settings``)."""

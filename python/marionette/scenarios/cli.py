@@ -1,12 +1,13 @@
 """``marionette demo [SCENARIO] [--seed S] [--trials N] [--speed X]``: the seeds' experiments as
-one command, each trial writing ``reports/demo/<scenario>-<time>-seed<S>/`` (exit 0 only on
+one command, a trial writing ``reports/demo/<scenario>-<time>-seed<S>/`` (exit 0 only on
 success). SCENARIO is a name (``marionette.scenarios``, or a declaration file on the search path)
-or the path of a declaration file (``docs/scenarios.md``)."""
+or the path of a declaration file (``docs/scenarios.md``). Several trials (``--trials N``,
+``--jobs K``, ``--cluster ADDRESS``) are a campaign (:mod:`marionette.campaigns`): one folder, the
+trials' reports in it, one campaign report."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -30,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "examples:\n"
             "  marionette demo                           # the plank flip\n"
             "  marionette demo ur10-box --trials 20 --speed 0\n"
+            "  marionette demo ur10-box --trials 20 --speed 0 --jobs 2   # two trials at a time\n"
+            "  marionette demo ur10-box --trials 20 --speed 0 --cluster HEAD:6379  # on Ray\n"
             "  marionette demo plank-flip --perturb all --trials 5\n"
             "  marionette demo my/arm-cube.yaml          # a scenario declared in a file"
         ),
@@ -84,6 +87,35 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "weld-only grasps",
     )
     p.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="K",
+        help="run K trials at once on this machine (each with its own processes, private LCM "
+        "URL and report folder; the plan cache is shared)",
+    )
+    p.add_argument(
+        "--cluster",
+        default=None,
+        metavar="ADDRESS",
+        help="run each trial as a task on the Ray cluster at ADDRESS (HOST:PORT of its head, "
+        "auto, or ray://HOST:PORT); every node runs this marionette (docs/scenarios.md)",
+    )
+    p.add_argument(
+        "--campaign",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the campaign folder (default <out>/<scenario>-campaign-<time>): trials/, the "
+        "campaign report; an existing one is resumed (its finished trials are not rerun)",
+    )
+    p.add_argument(
+        "--retries",
+        type=int,
+        default=1,
+        help="with --cluster: times a trial whose worker died is run again (default 1)",
+    )
+    p.add_argument(
         "--view",
         action="store_true",
         help="serve a browser 3D view of the run (meshcat; its URL is printed; `marionette "
@@ -115,70 +147,109 @@ def run(args: argparse.Namespace) -> int:
         return 2
     seed0 = scenario.seed if args.seed is None else args.seed
     root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
+    if args.trials > 1 or args.jobs != 1 or args.cluster or args.campaign:
+        return _campaign(args, scenario, seed0, root)
     print(f"demo {scenario.name}: {scenario.description}")
-    rows = []
-    for k in range(args.trials):
-        seed = seed0 + k
-        out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
-        perturbation = None
-        if args.perturb != "none":
-            from marionette.scenarios.perturbations import PRESETS, draw
+    out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed0}"
+    perturbation = None
+    if args.perturb != "none":
+        from marionette.scenarios.perturbations import PRESETS, draw
 
-            perturbation = draw(PRESETS[args.perturb], seed)
-        options = RunOptions(
-            speed=args.speed,
-            controller_url=args.controller_url,
-            view=args.view,
-            log=lambda m: print(m, flush=True),
-            perturbation=perturbation,
-            gripper_admittance=args.gripper_admittance,
-        )
-        try:
-            report = scenario.run(seed if args.plan_seed is None else args.plan_seed, out, options)
-        except ScenarioError as e:
-            print(f"marionette demo: {e}", file=sys.stderr)
-            rows.append((seed, False, str(e).splitlines()[0], out, None))
-            continue
-        except KeyboardInterrupt:
-            print(f"\nmarionette demo: interrupted; partial report in {out}", file=sys.stderr)
-            return INTERRUPTED_EXIT
-        reason = "" if report["success"] else scenario.failure_reason(report)
-        rows.append((seed, report["success"], reason, out, report.get("criteria")))
-        print(f"{scenario.summary(report, seed)} -> {out / 'report.md'}")
-    if args.trials > 1:
-        ok = sum(r[1] for r in rows)
-        print(
-            f"\n{scenario.name}: {ok}/{len(rows)} trials succeeded ({100.0 * ok / len(rows):.0f} %)"
-        )
-        print("| seed | success | error mm | error ° | failure reason |\n|---|---|---|---|---|")
-        for seed, success, reason, _, c in rows:
-            placed = c is not None and "object_position_error_m" in c  # walking: no object goal
-            mm = f"{c['object_position_error_m'] * 1e3:.1f}" if placed else "-"
-            deg = f"{c['object_angle_error_deg']:.2f}" if placed else "-"
-            print(f"| {seed} | {success} | {mm} | {deg} | {reason} |")
-        summary = root / f"{scenario.name}-trials-{time.strftime('%Y%m%d-%H%M%S')}.json"
-        summary.write_text(
-            json.dumps(
-                {
-                    "scenario": scenario.name,
-                    "perturb": args.perturb,
-                    "speed": args.speed,
-                    "succeeded": ok,
-                    "trials": len(rows),
-                    "rows": [
-                        {
-                            "seed": seed,
-                            "success": success,
-                            "failure_reason": reason,
-                            "report": str(o),
-                            "object_position_error_m": c and c.get("object_position_error_m"),
-                            "object_angle_error_deg": c and c.get("object_angle_error_deg"),
-                        }
-                        for seed, success, reason, o, c in rows
-                    ],
-                },
-                indent=1,
+        perturbation = draw(PRESETS[args.perturb], seed0)
+    options = RunOptions(
+        speed=args.speed,
+        controller_url=args.controller_url,
+        view=args.view,
+        log=lambda m: print(m, flush=True),
+        perturbation=perturbation,
+        gripper_admittance=args.gripper_admittance,
+    )
+    try:
+        report = scenario.run(seed0 if args.plan_seed is None else args.plan_seed, out, options)
+    except ScenarioError as e:
+        print(f"marionette demo: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\nmarionette demo: interrupted; partial report in {out}", file=sys.stderr)
+        return INTERRUPTED_EXIT
+    print(f"{scenario.summary(report, seed0)} -> {out / 'report.md'}")
+    return 0 if report["success"] else 1
+
+
+def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path) -> int:
+    """Several trials: a campaign (marionette.campaigns) on this machine or a Ray cluster."""
+    from marionette.campaigns import CampaignError, CampaignSettings, run_campaign
+    from marionette.scenarios import RunOptions, ScenarioError
+
+    problem = None
+    if args.jobs < 1:
+        problem = f"--jobs must be >= 1, got {args.jobs}"
+    elif args.retries < 0:
+        problem = f"--retries must be >= 0, got {args.retries}"
+    elif args.cluster and args.jobs != 1:
+        problem = "--jobs is for this machine: a cluster runs as many trials as it has CPUs"
+    elif args.view:
+        problem = "--view shows one trial: run it alone (without --trials, --jobs, --cluster)"
+    elif args.controller_url and (args.jobs > 1 or args.cluster):
+        problem = "--controller-url drives one controller: trials at once need their own"
+    if problem is None:
+        try:  # the options every trial takes, refused once here rather than in each trial
+            perturbation = None
+            if args.perturb != "none":
+                from marionette.scenarios.perturbations import PRESETS, draw
+
+                perturbation = draw(PRESETS[args.perturb], seed0)
+            scenario.check_options(
+                RunOptions(
+                    speed=args.speed,
+                    controller_url=args.controller_url,
+                    perturbation=perturbation,
+                    gripper_admittance=args.gripper_admittance,
+                )
             )
+        except ScenarioError as e:
+            problem = str(e)
+    if problem is not None:
+        print(f"marionette demo: {problem}", file=sys.stderr)
+        return 2
+    scenario_arg = args.scenario
+    if Path(scenario_arg).suffix in (".yaml", ".yml") and Path(scenario_arg).exists():
+        scenario_arg = str(Path(scenario_arg).resolve())  # the trials run elsewhere
+    settings = CampaignSettings(
+        scenario_arg,
+        seed0,
+        args.trials,
+        args.plan_seed,
+        args.perturb,
+        args.speed,
+        args.gripper_admittance,
+        args.controller_url,
+    )
+    folder = args.campaign or root / f"{scenario.name}-campaign-{time.strftime('%Y%m%d-%H%M%S')}"
+    try:
+        report = run_campaign(
+            folder, settings, scenario, args.jobs, args.cluster, args.retries, print_flush
         )
-        print(f"trials: {summary}")
-    return 0 if all(r[1] for r in rows) else 1
+    except CampaignError as e:
+        print(f"marionette demo: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(
+            f"\nmarionette demo: interrupted; the campaign report of the finished trials is in "
+            f"{folder} (run the same command with --campaign {folder} to resume)",
+            file=sys.stderr,
+        )
+        return INTERRUPTED_EXIT
+    rate, counts = report["success_rate"], report["counts"]
+    lo, hi = rate["wilson"]
+    print(
+        f"\n{scenario.name}: {rate['successes']}/{rate['trials']} trials succeeded "
+        f"({100 * lo:.0f}-{100 * hi:.0f} % at {100 * rate['confidence']:.0f} %, Wilson)"
+        + (f", {counts['lost']} lost" if counts["lost"] else "")
+        + f" -> {folder / 'report.md'}"
+    )
+    return 0 if counts["succeeded"] == len(report["trials"]) else 1
+
+
+def print_flush(message: str) -> None:
+    print(message, flush=True)

@@ -69,7 +69,7 @@ from marionette.scenarios.perturbations import (
     true_configuration,
     write_scene,
 )
-from marionette.scenarios.report import write_report_files
+from marionette.scenarios.report import speed_text, write_report_files
 
 SCENE = marionette.MODELS_DIR / "scenes" / "tiago_deburr.xml"
 PROBLEM = Path(__file__).resolve().parents[1] / "planning" / "problems" / "tiago_deburr.yaml"
@@ -480,6 +480,7 @@ class Deburr(Scenario):
     """The deburring kind: perturbations, motion, vision and tolerances in ``settings``."""
 
     KIND: ClassVar[str] = "deburr"
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("part_true", "tool_offset", "joint_offsets_deg")
 
     settings: DeburrSettings = DeburrSettings()
 
@@ -789,6 +790,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"# demo deburr, seed {r['seed']}",
         "",
         r["description"],
+        "",
+        speed_text(r["speed"]),
         "",
         f"**{r['summary']}**",
         "",

@@ -61,7 +61,7 @@ from marionette.scenarios import perturbations
 from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
 from marionette.scenarios.harness import Processes, harness
 from marionette.scenarios.perturbations import place_mocap_body, write_scene
-from marionette.scenarios.report import write_report_files
+from marionette.scenarios.report import speed_text, write_report_files
 
 SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
@@ -264,6 +264,7 @@ class Drill(Scenario):
     """The drill kind: the part, the tool sensor and the tolerances in ``settings``."""
 
     KIND: ClassVar[str] = "drill"
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("part_true",)
 
     settings: DrillSettings = DrillSettings()
 
@@ -600,6 +601,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"# demo drill, seed {r['seed']}",
         "",
         r["description"],
+        "",
+        speed_text(r["speed"]),
         "",
         f"**{r['summary']}**",
         "",

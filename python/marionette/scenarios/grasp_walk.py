@@ -36,6 +36,7 @@ from marionette.scenarios.base import Criterion, RunOptions, Scenario
 from marionette.scenarios.report import (
     controller_and_plots_lines,
     save_figure,
+    speed_text,
     timings_lines,
     title,
     write_report_files,
@@ -113,6 +114,7 @@ class GraspWalk(Scenario):
     (:meth:`GraspWalkSettings.drawn`)."""
 
     KIND: ClassVar[str] = "grasp-walk"
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("settings.shift",)
 
     settings: GraspWalkSettings | None = None
 
@@ -468,7 +470,7 @@ def _markdown(r: dict[str, Any]) -> str:
         r.get("description", ""),
         "",
         f"robot talos, scene `{r['scene']}` (TALOS alone: the ball is the target published on "
-        f"OBJECT_POSES), controller speed {r['speed']} (0 = as fast as possible)",
+        f"OBJECT_POSES), {speed_text(r['speed'])}",
         "",
         summary(r),
         "",

@@ -18,9 +18,6 @@ perturbations; without it the objects start where the problem file says.
 
 from __future__ import annotations
 
-import hashlib
-import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -57,7 +54,7 @@ from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from
 from marionette.execution.references import compute_references, dwell, sample_step
 from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
 from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
-from marionette.planning.path import Plan, load_plan
+from marionette.planning.path import Plan
 from marionette.scenarios.base import (
     Criterion,
     RunOptions,
@@ -72,6 +69,7 @@ from marionette.scenarios.perturbations import (
     scene_with_joint_offsets,
     slipped,
 )
+from marionette.scenarios.plan_cache import PlanningFailed, cached_plan, default_cache_dir
 
 PROBLEMS_DIR = Path(marionette.__file__).resolve().parent / "planning" / "problems"
 SCENES_DIR = marionette.MODELS_DIR / "scenes"
@@ -291,71 +289,6 @@ def _named(path: Path, folder: Path, suffix: str) -> str:
     return p.stem if p.parent == folder.resolve() and p.suffix == suffix else str(p)
 
 
-PLAN_INPUTS_FILE = "inputs.sha256"  # beside a cached plan.json: the digest it was planned from
-
-
-def plan_inputs_digest(problem: Path) -> str:
-    """SHA-256 of what a plan of ``problem`` depends on besides the seed: the problem file and
-    the model files of its robots and objects (URDF, SRDF, robot.yaml, handles YAML). A handle
-    moved in models/objects/ changes it; a cache judged by the problem file's date alone kept
-    planning with the old handle."""
-    doc = yaml.safe_load(problem.read_text())
-    files = [problem]
-    for r in doc.get("robots", []):
-        if "robot" in r:
-            desc = robots.robot(r["robot"])
-            files += [desc.urdf, desc.srdf, desc.semantics]
-        files += [Path(r[k]) for k in ("urdf", "srdf") if k in r]
-    for o in [*doc.get("objects", []), *doc.get("environment", [])]:
-        files += [
-            marionette.MODELS_DIR / "objects" / f"{o['object']}{ext}" for ext in (".urdf", ".yaml")
-        ]
-    h = hashlib.sha256()
-    for f in files:
-        h.update(
-            str(f.name).encode() + b"\0" + (f.read_bytes() if f.exists() else b"(missing)") + b"\0"
-        )
-    return h.hexdigest()
-
-
-def cached_plan(
-    scenario: PlanAndExecute, seed: int, cache_dir: Path, log: Callable[[str], None]
-) -> Plan:
-    """The plan of ``scenario`` for ``seed``: from ``cache_dir`` if planned before from the same
-    problem and model files (:func:`plan_inputs_digest`), else planned now with ``marionette
-    plan`` (same seed and inputs -> same plan)."""
-    problem = Path(scenario.problem)
-    out = cache_dir / f"{problem.stem}-seed{seed}"
-    plan_json = out / "plan.json"
-    digest = plan_inputs_digest(problem)
-    stamp = out / PLAN_INPUTS_FILE
-    if plan_json.exists() and stamp.exists() and stamp.read_text().strip() == digest:
-        log(f"plan: cached {plan_json}")
-        return load_plan(plan_json)
-    log(f"plan: planning {problem.stem} with seed {seed} ...")
-    t0 = time.perf_counter()
-    cmd = [
-        sys.executable,
-        "-m",
-        "marionette.cli",
-        "plan",
-        str(problem),
-        "--out",
-        str(out),
-        "--seed",
-        str(seed),
-        "--quiet",
-    ]
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    if proc.returncode != 0 or not plan_json.exists():
-        raise ScenarioError(
-            f"planning failed (exit {proc.returncode}):\n{proc.stdout}\n{proc.stderr}"
-        )
-    stamp.write_text(digest + "\n")
-    log(f"plan: planned in {time.perf_counter() - t0:.1f} s -> {plan_json}")
-    return load_plan(plan_json)
-
-
 @dataclass
 class Recorder:
     """ROBOT_STATE samples (every ``every``-th) with the simulator's object poses, for plots."""
@@ -447,12 +380,12 @@ def run_plan_and_execute(
     timings: dict[str, float] = {}
     report["timings"] = timings  # filled as the trial goes (a partial report has them too)
     t0 = time.perf_counter()
-    plan = cached_plan(
-        scenario,
-        seed,
-        options.cache_dir or (marionette.REPO_ROOT / "reports" / "plans" / "cache"),
-        log,
-    )
+    try:
+        plan = cached_plan(
+            Path(scenario.problem), seed, options.cache_dir or default_cache_dir(), log
+        )
+    except PlanningFailed as e:
+        raise ScenarioError(str(e)) from e
     timings["plan_s"] = time.perf_counter() - t0
 
     # Controllers (factory) and their checks, before anything moves.

@@ -15,6 +15,7 @@ from marionette import robots
 from marionette.scenarios.report import (
     controller_and_plots_lines,
     save_figure,
+    speed_text,
     timings_lines,
     title,
     write_report_files,
@@ -69,8 +70,8 @@ def _markdown(r: dict[str, Any]) -> str:
         "",
         r.get("description", ""),
         "",
-        f"seed {r['seed']}, robot {r['robot']}, controller speed {r['speed']} "
-        f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
+        f"seed {r['seed']}, robot {r['robot']}, {speed_text(r['speed'])}, "
+        f"supervisor: {r['supervisor']['state']}"
         + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""),
         "",
         "## Success criteria (docs/scenarios.md)",

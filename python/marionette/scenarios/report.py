@@ -54,7 +54,8 @@ def write_partial_report(out_dir: Path, report: dict[str, Any], reason: str) -> 
         "",
         report.get("description", ""),
         "",
-        f"seed {report['seed']}: the trial stopped before its verdict: {reason}",
+        f"seed {report['seed']}, {speed_text(report['speed'])}: the trial stopped before its "
+        f"verdict: {reason}",
         "",
         "`report.json` holds what was measured until then; `run.lcmlog` and `logs/` (process "
         "outputs) what was recorded.",
@@ -76,6 +77,13 @@ def controller_summary(status: Any) -> dict[str, Any]:
         "num_refused_switches": status.num_refused_switches,
         "last_rejection": status.last_rejection,
     }
+
+
+def speed_text(speed: float) -> str:
+    """How fast the trial's controller ran, for its report.md (report.json: ``speed``)."""
+    if speed == 0:
+        return "controller speed 0 (unpaced: as fast as the CPU allows, simulated time)"
+    return f"controller speed {speed:g} (× real time)"
 
 
 def title(report: dict[str, Any]) -> str:

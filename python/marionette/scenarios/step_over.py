@@ -37,6 +37,7 @@ from marionette.scenarios.base import Criterion, RunOptions, Scenario
 from marionette.scenarios.report import (
     controller_and_plots_lines,
     save_figure,
+    speed_text,
     timings_lines,
     title,
     write_report_files,
@@ -155,6 +156,7 @@ class StepOver(Scenario):
     (:meth:`StepOverSettings.drawn`)."""
 
     KIND: ClassVar[str] = "step-over"
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("settings.perceived_offset",)
 
     settings: StepOverSettings | None = None
 
@@ -383,7 +385,7 @@ def _markdown(report: dict[str, Any]) -> str:
         "",
         report.get("description", ""),
         "",
-        f"scene `{report['scene']}`, controller speed {report['speed']} (0 = as fast as possible)",
+        f"scene `{report['scene']}`, {speed_text(report['speed'])}",
         "",
         report["summary"],
         "",

@@ -75,6 +75,31 @@ TEST(ReferenceStreamTest, ALaterChunkReplacesTheFutureAndMayEndTheReference) {
   EXPECT_TRUE(s.ended_output().Eval(t));
 }
 
+// An unpaced loop waits while a stream is starved: no sample yet or all of them behind the tick,
+// the reference not ended, nothing queued. Inside the samples, with a chunk queued and after the
+// last chunk it is not.
+TEST(ReferenceStreamTest, StarvedWithoutSamplesCoveringTheTickNorAChunkQueuedBeforeTheEnd) {
+  ReferenceStream s("s", ReferenceStream::Kind::kVector, Eigen::VectorXd::Zero(1), 1);
+  graph::GraphBuilder b;
+  b.AddShared(std::shared_ptr<ReferenceStream>(&s, [](ReferenceStream*) {}));
+  auto g = b.Build();
+  EXPECT_TRUE(s.Starved(0)) << "no sample yet";
+  ASSERT_TRUE(s.Push(Ramp(0, 100, 0.0, 1.0)));  // samples at 0 .. 99 ms
+  EXPECT_FALSE(s.Starved(150000)) << "the chunk waits in the queue";
+  g->Evaluate(At(0));
+  EXPECT_FALSE(s.Starved(99000)) << "the last sample";
+  EXPECT_TRUE(s.Starved(100000));
+  EXPECT_TRUE(s.Starved(150000));
+  ASSERT_TRUE(s.Push(Ramp(100000, 100, 100.0, 1.0)));
+  EXPECT_FALSE(s.Starved(150000));
+  g->Evaluate(At(1000));
+  EXPECT_FALSE(s.Starved(199000));
+  EXPECT_TRUE(s.Starved(200000));
+  ASSERT_TRUE(s.Push(Ramp(200000, 10, 200.0, 1.0, /*last=*/true)));
+  g->Evaluate(At(2000));
+  EXPECT_FALSE(s.Starved(500000)) << "an ended reference holds its last sample";
+}
+
 // A plank-flip trial (seed 105) lost the last chunks of a 4 s burst in LCM's receive queue; the
 // next chunk, 1 s further on, then became the stream's only samples and the robot jumped 4 s
 // ahead along its plan. A numbered chunk whose predecessor never came is refused: the stream

@@ -67,6 +67,10 @@ class ReferenceStream final : public graph::Entity {
   /// unit quaternion, or a sequence number that does not follow the last chunk pushed.
   std::string ValidateChunk(const ReferenceChunk& chunk) const;
   int64_t dropped_chunks() const { return dropped_.load(); }
+  /// Loop thread, between ticks: the stream does not cover `time_us` — the reference has not
+  /// ended, no sample came yet or the last one is before `time_us`, and no chunk waits in the
+  /// queue. An unpaced loop (simulated time) waits while this holds instead of ticking on.
+  bool Starved(int64_t time_us) const;
   /// Loop thread: the source_hash of the chunks the last poll took in (up to 64 per tick).
   int drained_count() const { return drained_count_; }
   int64_t drained_hash(int i) const { return drained_hashes_[i]; }
