@@ -787,13 +787,20 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   int k = 0;    // task index
   int row = 0;  // first row of task k among all tasks' rows
   const int num_levels = hierarchy.num_levels();
-  // Last level holding equality rows: no basis rotation is needed after it.
-  int last_rotation_level = -1;
-  for (int l = 0; l < num_levels; ++l) {
-    for (const TaskShape& s : hierarchy.levels()[l]) {
-      if (!s.inequality) last_rotation_level = l;
-    }
-  }
+  // A level's basis rotation (Z's trailing columns onto null(A Z)) is deferred until a level
+  // below reads Z: the next level with equality rows (its M = A Z), or a QP (its variables are
+  // the coordinates of Z). A stack whose last levels need neither (posture last, or inequality
+  // levels whose unconstrained step keeps them) never pays for it. Until then the level's
+  // reflectors stay in Mt: only an equality level overwrites it, and it applies them first.
+  struct PendingRotation {
+    int off = 0, r = 0, m = 0, rho = 0, rho1 = 0, s_group = 0;
+  } pending;
+  auto rotate_pending = [&]() {
+    if (pending.rho == 0) return;
+    RotateBasis(w, w.Z.middleCols(pending.off, pending.r), w.Mt.topLeftCorner(pending.r, pending.m),
+                pending.rho, pending.rho1, pending.s_group);
+    pending.rho = 0;
+  };
   for (int l = 0; l < num_levels; ++l) {
     // Gather the level's active rows.
     int m = 0, mi = 0;
@@ -837,6 +844,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     bool rotated = false;
     auto Z_blk = w.Z.middleCols(off, r);
     if (m > 0 && r > 0) {
+      rotate_pending();
       auto mt = w.Mt.topLeftCorner(r, m);
       if (dense) {
         // Unit rows are filled as rows of the identity so one product serves all rows.
@@ -903,6 +911,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     if (inside) w.active[l].clear();
     if (w.num_carried + mi > 0 && !inside) {
       if (r > 0) {
+        rotate_pending();          // (a level above's; this level's own follows)
         if (rho > 0 && !w.gram) {  // a Gram level's QP works in the unrotated u
           RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
           rotated = true;
@@ -924,9 +933,8 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.
     }
-    if (rho > 0 && !rotated && !w.gram &&
-        l < last_rotation_level) {  // (Gram: ρ = r, no null space)
-      RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
+    if (rho > 0 && !rotated && !w.gram) {  // (Gram: ρ = r, no null space)
+      pending = {off, r, m, rho, rho1, s_group};
     }
     // Carry the level's inequality rows, shifted by their optimal slack s = Cv - clip(Cv).
     for (int i = 0; i < mi; ++i) {
