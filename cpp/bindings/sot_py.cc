@@ -94,7 +94,7 @@ void RegisterSot(py::module_& m) {
                           "are those of `levels`): " MARIONETTE_LEVELS_DOC
                           ". Defaults are the exact cascade.")
       .def(py::init<const std::vector<std::vector<py::dict>>&, double, double, bool>(),
-           py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 1e-10,
+           py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 0.0,
            py::arg("active_set_shortcut") = true)
       .def("solve", &PyHierarchy::Solve, py::arg("levels"),
            "Solve levels of the same shapes; returns (v, report).");
@@ -104,10 +104,10 @@ void RegisterSot(py::module_& m) {
          bool active_set_shortcut) {
         return PyHierarchy(levels, damping, qp_regularization, active_set_shortcut).Solve(levels);
       },
-      py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 1e-10,
+      py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 0.0,
       py::arg("active_set_shortcut") = true,
       "Solve a strict hierarchy once: " MARIONETTE_LEVELS_DOC
-      ". Returns (v, report). Defaults are the exact cascade (no damping, tiny QP "
+      ". Returns (v, report). Defaults are the exact cascade (no damping, no QP "
       "regularisation).");
 }
 
