@@ -365,10 +365,8 @@ def robot_kinematics(name: str) -> RobotKinematics:
 
 
 def bundled_robots() -> list[str]:
-    """Every robot the project bundles (models/<name>/<name>.urdf)."""
-    return sorted(
-        p.parent.name for p in robots.MODELS_DIR.glob("*/*.urdf") if p.stem == p.parent.name
-    )
+    """Every robot on the search path (models/ and any added later, generically)."""
+    return robots.robot_names()
 
 
 def random_configuration(rk: RobotKinematics, rng: np.random.Generator) -> np.ndarray:
