@@ -115,10 +115,31 @@ std::string Run(const char* scenario, const sot::testing::TalosStackOptions& opt
 
 }  // namespace
 
+constexpr const char* kUsage =
+    "usage: marionette-bench-sot [--ticks N]\n"
+    "Times the TALOS reference stack in closed loop at 1 kHz (N ticks per run, N >= 10000,\n"
+    "default 20000) and prints one JSON object (medians, p90, p99, max in us per phase).\n"
+    "Run it through scripts/bench sot, which puts TSID and pink in the same run.\n";
+
 int main(int argc, char** argv) {
   int ticks = 20000;
-  for (int i = 1; i + 1 < argc; ++i) {
-    if (std::strcmp(argv[i], "--ticks") == 0) ticks = std::atoi(argv[i + 1]);
+  for (int i = 1; i < argc; ++i) {
+    if (std::strcmp(argv[i], "--help") == 0 || std::strcmp(argv[i], "-h") == 0) {
+      std::fputs(kUsage, stdout);
+      return 0;
+    }
+    if (std::strcmp(argv[i], "--ticks") == 0 && i + 1 < argc) {
+      char* end = nullptr;
+      const long value = std::strtol(argv[++i], &end, 10);
+      if (*end != '\0') {
+        std::fprintf(stderr, "--ticks takes a whole number of ticks (got '%s')\n", argv[i]);
+        return 2;
+      }
+      ticks = static_cast<int>(std::min(value, 100000000L));
+      continue;
+    }
+    std::fprintf(stderr, "unknown argument '%s'\n%s", argv[i], kUsage);
+    return 2;
   }
   if (ticks < 10000) {
     std::fprintf(stderr, "--ticks must be >= 10000 (got %d)\n", ticks);

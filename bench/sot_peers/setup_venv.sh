@@ -18,11 +18,19 @@ if ! "$VENV/bin/python" -c "import pink, daqp" 2>/dev/null; then
 fi
 # libtsid first: cmeel builds the tsid bindings against the venv's prefix, so libtsid's CMake
 # config must be installed before tsid's metadata is prepared (one pip command fails).
+# Both sdists are built without build isolation, against the build requirements installed here
+# from PyPI: an isolated build lacks jrl-cmakemodules and clones it from its repository, which a
+# machine reaching only the package registries cannot; found in the venv's cmeel prefix, it is
+# used as is ("JRL cmakemodules found on system").
 if [ ! -f "$VENV/lib/python3.11/site-packages/cmeel.prefix/lib/cmake/tsid/tsidConfig.cmake" ]; then
-  say "compiling libtsid 1.10.0 from source (several minutes, once)"
-  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-binary libtsid "libtsid==1.10.0" -c bench/sot_peers/requirements.txt
+  say "installing the build requirements of libtsid (cmeel, jrl-cmakemodules) from PyPI"
+  "${pip[@]}" -r bench/sot_peers/build-requirements.txt
+  say "compiling libtsid 1.10.0 from its PyPI sdist (several minutes, once)"
+  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-build-isolation --no-binary libtsid "libtsid==1.10.0" \
+    -c bench/sot_peers/requirements.txt
 fi
 if ! "$VENV/bin/python" -c "import tsid" 2>/dev/null; then
-  say "compiling the tsid 1.10.0 bindings from source (a few minutes, once)"
-  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-binary tsid "tsid==1.10.0" -c bench/sot_peers/requirements.txt
+  say "compiling the tsid 1.10.0 bindings from their PyPI sdist (a few minutes, once)"
+  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-build-isolation --no-binary tsid "tsid==1.10.0" \
+    -c bench/sot_peers/requirements.txt
 fi

@@ -4,6 +4,8 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <memory>
+
 #include "marionette/sot/hierarchy.h"
 
 namespace py = pybind11;
@@ -26,48 +28,87 @@ sot::TaskTerms TermsFromDict(const py::dict& d) {
   return t;
 }
 
+// A Hierarchy built from the shapes of a list of levels, with its workspace kept across solves
+// (as the Solver entity keeps it across ticks: the active-set shortcut's first guess is the
+// last solve's active set).
+class PyHierarchy {
+ public:
+  PyHierarchy(const std::vector<std::vector<py::dict>>& levels, double damping,
+              double qp_regularization, bool active_set_shortcut) {
+    if (levels.empty() || levels[0].empty()) throw py::value_error("no level");
+    std::vector<std::vector<sot::TaskShape>> shapes;
+    int nv = -1;
+    for (const auto& level : levels) {
+      shapes.emplace_back();
+      for (const py::dict& task : level) {
+        const sot::TaskTerms t = TermsFromDict(task);
+        if (nv < 0) nv = static_cast<int>(t.jacobian.cols());
+        shapes.back().push_back({static_cast<int>(t.lower.size()), t.inequality, t.unit_columns});
+      }
+    }
+    sot::HierarchyOptions options;
+    options.damping = damping;
+    options.qp_regularization = qp_regularization;
+    options.active_set_shortcut = active_set_shortcut;
+    hierarchy_ = std::make_unique<sot::Hierarchy>(nv, std::move(shapes), options);
+    workspace_ = std::make_unique<sot::HierarchyWorkspace>(*hierarchy_);
+  }
+
+  py::tuple Solve(const std::vector<std::vector<py::dict>>& levels) {
+    std::vector<sot::TaskTerms> terms;
+    for (const auto& level : levels) {
+      for (const py::dict& task : level) terms.push_back(TermsFromDict(task));
+    }
+    std::vector<const sot::TaskTerms*> pointers;
+    for (const auto& t : terms) pointers.push_back(&t);
+    Eigen::VectorXd v;
+    sot::SolveHierarchy(*hierarchy_, pointers, workspace_.get(), &v);
+    const sot::HierarchyReport& r = workspace_->report();
+    py::dict report;
+    report["ranks"] = r.ranks;
+    report["num_qp"] = r.num_qp;
+    report["num_active_set"] = r.num_active_set;
+    report["qp_levels"] = r.qp_levels;
+    report["active_set_levels"] = r.active_set_levels;
+    report["gram_levels"] = r.gram_levels;
+    report["qp_failures"] = r.qp_failures;
+    report["remaining_dof"] = r.remaining_dof;
+    return py::make_tuple(v, report);
+  }
+
+ private:
+  std::unique_ptr<sot::Hierarchy> hierarchy_;
+  std::unique_ptr<sot::HierarchyWorkspace> workspace_;
+};
+
+#define MARIONETTE_LEVELS_DOC                                                                \
+  "levels is a list (highest priority first) of lists of tasks, each a dict with jacobian, " \
+  "lower, "                                                                                  \
+  "upper (equality when absent), inequality, unit_columns"
+
 }  // namespace
 
 void RegisterSot(py::module_& m) {
+  py::class_<PyHierarchy>(m, "Hierarchy",
+                          "A strict hierarchy and its workspace, kept across solves (the shapes "
+                          "are those of `levels`): " MARIONETTE_LEVELS_DOC
+                          ". Defaults are the exact cascade.")
+      .def(py::init<const std::vector<std::vector<py::dict>>&, double, double, bool>(),
+           py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 0.0,
+           py::arg("active_set_shortcut") = true)
+      .def("solve", &PyHierarchy::Solve, py::arg("levels"),
+           "Solve levels of the same shapes; returns (v, report).");
   m.def(
       "solve_hierarchy",
-      [](const std::vector<std::vector<py::dict>>& levels, double damping,
-         double qp_regularization) {
-        if (levels.empty() || levels[0].empty()) throw py::value_error("no level");
-        std::vector<sot::TaskTerms> terms;
-        std::vector<std::vector<sot::TaskShape>> shapes;
-        for (const auto& level : levels) {
-          shapes.emplace_back();
-          for (const py::dict& task : level) {
-            terms.push_back(TermsFromDict(task));
-            const sot::TaskTerms& t = terms.back();
-            shapes.back().push_back(
-                {static_cast<int>(t.lower.size()), t.inequality, t.unit_columns});
-          }
-        }
-        sot::HierarchyOptions options;
-        options.damping = damping;
-        options.qp_regularization = qp_regularization;
-        sot::Hierarchy h(static_cast<int>(terms[0].jacobian.cols()), shapes, options);
-        sot::HierarchyWorkspace w(h);
-        std::vector<const sot::TaskTerms*> pointers;
-        for (const auto& t : terms) pointers.push_back(&t);
-        Eigen::VectorXd v;
-        sot::SolveHierarchy(h, pointers, &w, &v);
-        const sot::HierarchyReport& r = w.report();
-        py::dict report;
-        report["ranks"] = r.ranks;
-        report["num_qp"] = r.num_qp;
-        report["num_active_set"] = r.num_active_set;
-        report["gram_levels"] = r.gram_levels;
-        report["qp_failures"] = r.qp_failures;
-        return py::make_tuple(v, report);
+      [](const std::vector<std::vector<py::dict>>& levels, double damping, double qp_regularization,
+         bool active_set_shortcut) {
+        return PyHierarchy(levels, damping, qp_regularization, active_set_shortcut).Solve(levels);
       },
-      py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 1e-10,
-      "Solve a strict hierarchy: levels is a list (highest priority first) of lists of tasks, each "
-      "a "
-      "dict with jacobian, lower, upper (equality when absent), inequality, unit_columns. Returns "
-      "(v, report). Defaults are the exact cascade (no damping, tiny QP regularisation).");
+      py::arg("levels"), py::arg("damping") = 0.0, py::arg("qp_regularization") = 0.0,
+      py::arg("active_set_shortcut") = true,
+      "Solve a strict hierarchy once: " MARIONETTE_LEVELS_DOC
+      ". Returns (v, report). Defaults are the exact cascade (no damping, no QP "
+      "regularisation).");
 }
 
 }  // namespace marionette::bindings

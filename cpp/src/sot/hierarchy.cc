@@ -16,8 +16,10 @@ Hierarchy::Hierarchy(int nv, std::vector<std::vector<TaskShape>> levels, Hierarc
   if (nv_ < 1) throw SotError("Hierarchy: nv must be >= 1, got " + std::to_string(nv_));
   if (!(options_.rank_tolerance > 0.0) || options_.damping < 0.0 ||
       !(options_.damping_threshold > 0.0) || !(options_.constraint_tolerance >= 0.0) ||
-      options_.qp_max_iterations < 1) {
-    throw SotError("Hierarchy: invalid options (tolerances > 0, damping >= 0, iterations >= 1)");
+      !(options_.qp_regularization >= 0.0) || options_.qp_max_iterations < 1) {
+    throw SotError(
+        "Hierarchy: invalid options (tolerances > 0, damping and qp_regularization >= 0, "
+        "iterations >= 1)");
   }
   for (size_t l = 0; l < levels_.size(); ++l) {
     int eq = 0, in = 0;
@@ -80,12 +82,24 @@ struct HierarchyWorkspace::Impl {
     row_count.resize(me);
     R1.resize(n, me);
     H1.resize(n, n);
+    Hfull.resize(n, n);
+    K.resize(n, n);
     AW.resize(n, n);
     HiA.resize(n, n);
     S.resize(n, n);
-    for (Eigen::VectorXd* e : {&g1, &hig, &lambda, &ut, &a_row, &dx, &x_free}) e->resize(n);
-    row_old.resize(mc);
+    for (Eigen::VectorXd* e : {&g1, &hig, &lambda, &ut, &dx, &beta, &residual, &qr_tau, &grad})
+      e->resize(n);
+    qr_perm.resize(n);
+    chol_perm.resize(n);
+    chol_tmp.resize(n);
+    b22.resize(n);
+    M22.resize(n, n);
+    D.resize(n, mc);
+    for (Eigen::VectorXd* e : {&row_val, &row_lo, &row_hi}) e->resize(mc);
     row_live.resize(mc);
+    in_W.assign(mc, 0);
+    s_eqp.resize(mi);
+    s_cur.resize(mi);
     W_rows.reserve(mc);
     W_sides.reserve(mc);
     active.resize(h.levels().size());
@@ -104,7 +118,6 @@ struct HierarchyWorkspace::Impl {
       qp->ci0.resize(nc);
       qp->CE.resize(0, nz);
       qp->ce0.resize(0);
-      qp->R1.resize(n, me);
       qp->solver.reset(nz, 0, nc);
       qp->solver.setMaxIter(h.options().qp_max_iterations);
       qps.push_back(std::move(qp));
@@ -151,27 +164,36 @@ struct HierarchyWorkspace::Impl {
   // variables ũ (nv, padded beyond r) and one slack per inequality row of the level;
   // constraints CI z + ci0 >= 0, two per carried or level inequality row (padding rows 0 z + 1).
   struct LevelQp {
-    Eigen::MatrixXd H, CI, CE, R1;
+    Eigen::MatrixXd H, CI, CE;
     Eigen::VectorXd g, ci0, ce0, z, row;
     eiquadprog::solvers::EiquadprogFast solver;
   };
   std::vector<std::unique_ptr<LevelQp>> qps;
-  // Active-set shortcut (TryActiveSet), all in the r coordinates ũ of the rotated Z_blk:
-  // R1 (ρ x m) the level's triangular factor, H1 = R1 R1^T + (μ² + 1e-12) I (ρ x ρ, then its
-  // Cholesky factor in place), g1 = -R1 cperm (ρ), hig = H^-1 g (r); for the k fixed rows:
-  // AW (r x k) their directions, HiA = H^-1 AW (r x k), S = AW^T H^-1 AW (k x k), lambda (k);
-  // ut the candidate ũ (r), a_row one carried row's direction (r), dx a step in v (n), x_free
-  // the unconstrained step (n).
-  Eigen::MatrixXd R1, H1, AW, HiA, S;
-  Eigen::VectorXd g1, hig, lambda, ut, a_row, dx, x_free;
-  // Per carried row, for the level's TryActiveSet: its value at x_old and whether the levels
-  // above left it free (CarriedRow's verdict, computed once per level instead of per check).
-  Eigen::VectorXd row_old;
+  // The level QP (see SolveQp), in the r coordinates ũ of Z_blk. Its objective: R1 (ρ x m) the
+  // level's triangular factor, H1 = R1 R1^T + μ² I (ρ x ρ, then its Cholesky factor
+  // in place), g1 = -R1 cperm (ρ), Hfull the whole H (r x r, unfactored). Its rows (carried,
+  // then the level's own; t < nc + mi): D.col(t) their directions (r), row_val their values
+  // at x_old, row_lo / row_hi their bounds, row_live whether the levels above left them free.
+  Eigen::MatrixXd R1, H1, Hfull, D;
+  Eigen::VectorXd g1, row_val, row_lo, row_hi;
+  double qp_scale = 0.0;  // the largest curvature or squared row norm of the QP
   std::vector<char> row_live;
-  // The working set: carried-row index, side (+1 upper, -1 lower).
+  // The working set: rows (t), sides (+1 upper, -1 lower), in_W per row. Its equality QP: K
+  // (r x r, H plus the own rows of W, factored), hig = K^-1 g_W (r), for its kc carried rows
+  // AW (r x kc) their directions, HiA = K^-1 AW, S = AW^T HiA (kc x kc), beta their targets,
+  // lambda their multipliers, residual (refinement); ut its point ũ (r), s_eqp its slacks
+  // (mi). The primal method's iterate: u (ũ, r) and s_cur (mi); dx its step (r).
   std::vector<int> W_rows, W_sides;
-  // Per level, the carried rows active at the last tick's QP optimum (row, side): only the
-  // first guess, never the result.
+  std::vector<char> in_W;
+  Eigen::MatrixXd K, AW, HiA, S;
+  Eigen::VectorXd hig, lambda, beta, residual, ut, dx, s_eqp, s_cur, grad;
+  // The null-space method's QR of W's carried rows (NullSpaceEqp): reflector coefficients, and
+  // the pivot order of the rows.
+  Eigen::VectorXd qr_tau, chol_tmp, b22;
+  Eigen::MatrixXd M22;  // a copy of the null-space method's reduced Hessian
+  std::vector<int> qr_perm, chol_perm;
+  // Per level, the working set of the last tick's QP (row, side): only the first guess, never
+  // the result.
   std::vector<std::vector<std::pair<int, int>>> active;
 };
 
@@ -399,7 +421,7 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
   const double largest = w.Mt(0, 0) * w.Mt(0, 0),
                smallest = w.Mt(rho - 1, rho - 1) * w.Mt(rho - 1, rho - 1);
   if (largest + mu * mu <= 1e4 * (smallest + mu * mu)) {
-    auto U = w.R1.topLeftCorner(rho, m);  // scratch (TryActiveSet rebuilds its own)
+    auto U = w.R1.topLeftCorner(rho, m);  // scratch (PrepareObjective rebuilds its own)
     U = R1.triangularView<Eigen::Upper>();
     auto H = w.H1.topLeftCorner(rho, rho);
     H.setZero();
@@ -435,314 +457,613 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
   B.topLeftCorner(rho, rho).triangularView<Eigen::Upper>().solveInPlace(w.y.head(rho));
 }
 
-// One QP for a level whose unconstrained step violates an inequality: variables (ũ (r), s (mi))
-// with v = x_old + Z_blk ũ. Objective ½||R1^T ũ_1 - cperm||² + ½||s||²; constraints: carried
-// rows within their bounds, the level's rows within theirs up to s. Solved by eiquadprog's dual
-// active-set method (Goldfarb–Idnani, TSID's QP): exact, and robust on the degenerate vertices
-// met here (many velocity bounds active at the current point), where a proximal method (proxsuite)
-// stalled or reported feasible problems infeasible. Returns false on failure.
-bool SolveLevelQp(Impl& w, Impl::LevelQp& q, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int m,
-                  int rho, int mi, double mu, double regularization, HierarchyReport* report) {
-  const int r = static_cast<int>(Z_blk.cols()), n = static_cast<int>(Z_blk.rows());
-  const int slack0 = n;  // slack variables follow the (padded) ũ
-  q.H.setZero();
-  q.g.setZero();
-  // The level's objective directions ũ_1 (first ρ) are left exact: a regularization there
-  // would bias the level's own optimum (feet drifting whenever bounds bind below them).
-  q.H.diagonal().head(n).setConstant(std::max(regularization, 1e-12));
-  q.H.diagonal().head(rho).setConstant(1e-12);
-  q.H.diagonal().tail(q.H.rows() - n).setOnes();  // ½||s||² (and unused slacks)
+// ---------------------------------------------------------------------------------------------
+// The level's QP. Variables: ũ (r), the coordinates of Z_blk (v = x_old + Z_blk ũ), and one
+// slack s_j per inequality row of the level's own:
+//   min ½ ũ^T H ũ + g^T ũ + ½ ||s||²
+//   s.t. lo_t <= val_t + d_t^T ũ <= hi_t              (carried rows t)
+//        lo_j <= val_j + d_j^T ũ - s_j <= hi_j        (the level's rows j)
+// with d = Z_blk^T (row)^T, val the row's value at x_old, and
+//   H = blockdiag(R1 R1^T + μ² I_ρ, ε I_{r-ρ}),  g = [-R1 cperm; 0]
+// (ũ_1: the level's objective directions after the rotation, ũ_2 the ones it does not see; a
+// Gram level: H = M^T M, g = -M^T c, ρ = r, unrotated). ε = qp_regularization (0: exact).
+// The carried rows' bounds are widened to include val (rounding above may leave x_old 1e-15
+// outside them); a carried row the levels above fixed (|d| ~ 0) is left out.
+//
+// Solved by a primal active-set method (Nocedal & Wright 2006 §16.5), every iterate feasible.
+// A working set W fixes some rows at one of their bounds. For the level's own rows in W the
+// slack is then determined (s_j = val_j + d_j^T ũ - bound_j) and enters the objective as
+// ½ (d_j^T ũ - β_j)², β_j = bound_j - val_j: so with K = H + Σ_{j in W} d_j d_j^T and
+// g_W = g - Σ_{j in W} d_j β_j the equality QP of W is
+//   min ½ ũ^T K ũ + g_W^T ũ   s.t.  d_t^T ũ = β_t  (carried rows t in W)
+// solved by its Schur complement: S λ = β + A^T K^-1 g_W, S = A^T K^-1 A, ũ = K^-1 (A λ - g_W),
+// A = [d_t]. K is H (block diagonal: cheap) while no own row is in W, else formed and factored.
+// A point is the QP's optimum (the QP is strictly convex: unique) iff the KKT conditions hold
+// (Nocedal & Wright Thm 16.4): every row within its bounds, every carried row of W with a
+// multiplier of the sign of its bound (λ <= 0 at an upper bound, >= 0 at a lower one),
+// every own row of W with a slack of that sign (s >= 0 at an upper bound: the row is violated
+// there, not merely touching it); stationarity holds by construction. Verify() checks exactly
+// that on the point a working set gives; nothing else is accepted.
+
+// The rows of the level's QP (see above) in the ũ coordinates: D.col(t), row_val, row_lo,
+// row_hi, row_live; carried rows first (nc), then the level's own (mi).
+void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int mi,
+                 double rank_tolerance) {
+  const int r = static_cast<int>(Z_blk.cols()), nc = w.num_carried;
+  w.qp_scale = 0.0;
+  for (int t = 0; t < nc + mi; ++t) {
+    const bool own = t >= nc;
+    const int i = own ? t - nc : t;
+    const int col = own ? w.c_col[i] : w.g_col[i];
+    auto d = w.D.col(t).head(r);
+    double value, norm2 = 1.0;
+    if (col >= 0) {
+      d = Z_blk.row(col).transpose();
+      value = w.x_old[col];
+    } else {
+      const auto row = own ? w.C.row(i) : w.G.row(i);
+      d.noalias() = Z_blk.transpose() * row.transpose();
+      value = row.dot(w.x_old);
+      norm2 = row.squaredNorm();
+    }
+    w.row_val[t] = value;
+    // A row the levels above fixed (what is left of it in the remaining freedom is below the
+    // rank tolerance) cannot move: left out (an own row keeps its violation as its slack).
+    w.row_live[t] = d.squaredNorm() > rank_tolerance * rank_tolerance * norm2;
+    if (w.row_live[t]) w.qp_scale = std::max(w.qp_scale, d.squaredNorm());
+    if (own) {
+      w.row_lo[t] = w.clo[i];
+      w.row_hi[t] = w.chi[i];
+    } else {
+      w.row_lo[t] = std::min(w.glo[i], value);
+      w.row_hi[t] = std::max(w.ghi[i], value);
+    }
+  }
+}
+
+// The level's objective (H, g above): H1 (ρ x ρ) factored in place (its unfactored copy in
+// Hfull for a working set with own rows), g1. A Gram level has set both (ρ = r). False if
+// R1 R1^T is not positive definite.
+bool PrepareObjective(Impl& w, int r, int m, int rho, double mu, double eps) {
+  auto Hf = w.Hfull.topLeftCorner(r, r);
   if (w.gram) {
-    // ρ = r, unrotated: ½||M u - c||² = ½ u^T M^T M u - c^T M u + const.
-    q.H.topLeftCorner(r, r) += w.Gram.topLeftCorner(r, r);
-    q.g.head(r) = w.g1.head(r);
-  } else if (rho > 0) {
-    // A Z_blk = [Π R1^T, 0] after the rotation, so ||A v - b||² = ||R1^T ũ_1 - cperm||².
-    auto R1 = q.R1.topLeftCorner(rho, m);
-    R1 = w.Mt.topLeftCorner(rho, m);
-    R1.triangularView<Eigen::StrictlyLower>().setZero();
-    q.H.topLeftCorner(rho, rho).noalias() += R1 * R1.transpose();
-    q.H.diagonal().head(rho).array() += mu * mu;  // the same damping as the unconstrained step
-    q.g.head(rho).noalias() = -R1 * w.cperm.head(m);
+    Hf = w.Gram.topLeftCorner(r, r);
+    w.qp_scale = std::max(w.qp_scale, Hf.diagonal().maxCoeff());
+    return true;  // (H1 = its Cholesky factor, g1: GramLevel)
   }
-  q.CI.setZero();
-  q.ci0.setOnes();  // padding rows: 1 >= 0
-  int row = 0;
-  // lo <= a·z + value <= hi as  a·z + (value - lo) >= 0  and  -a·z + (hi - value) >= 0; the
-  // bounds are widened to include the current point (value), which the QPs above may leave
-  // outside by their rounding (~1e-15).
-  auto add = [&](const auto& a, double value, double lo, double hi) {
-    if (!std::isinf(lo)) {
-      q.CI.row(row) = a;
-      q.ci0[row] = std::max(value - lo, 0.0);
-    }
-    ++row;
-    if (!std::isinf(hi)) {
-      q.CI.row(row) = -a;
-      q.ci0[row] = std::max(hi - value, 0.0);
-    }
-    ++row;
-  };
-  Eigen::Ref<Eigen::VectorXd> a = q.row;
-  for (int i = 0; i < w.num_carried; ++i) {
-    a.setZero();
-    double value;
-    if (w.g_col[i] >= 0) {
-      a.head(r) = Z_blk.row(w.g_col[i]).transpose();
-      value = w.x_old[w.g_col[i]];
-    } else {
-      a.head(r).noalias() = Z_blk.transpose() * w.G.row(i).transpose();
-      value = w.G.row(i).dot(w.x_old);
-    }
-    if (a.head(r).squaredNorm() < 1e-24) {  // fixed by higher levels: nothing to decide
-      row += 2;
-      continue;
-    }
-    add(a.transpose(), value, w.glo[i], w.ghi[i]);
+  Hf.setZero();
+  Hf.diagonal().tail(r - rho).setConstant(eps);
+  if (rho == 0) return true;
+  auto R1 = w.R1.topLeftCorner(rho, m);
+  R1 = w.Mt.topLeftCorner(rho, m);
+  R1.triangularView<Eigen::StrictlyLower>().setZero();
+  auto H1 = w.H1.topLeftCorner(rho, rho);
+  H1.noalias() = R1 * R1.transpose();
+  H1.diagonal().array() += mu * mu;
+  Hf.topLeftCorner(rho, rho) = H1;
+  w.qp_scale = std::max(w.qp_scale, H1.diagonal().maxCoeff());
+  // R1 has full row rank (the pivoted QR stopped at the rank tolerance), so H1 is positive
+  // definite; only if rounding says otherwise is it raised by 1e-12 (a bias of that order).
+  Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H1);  // in place: no allocation
+  if (llt.info() != Eigen::Success) {
+    H1 = Hf.topLeftCorner(rho, rho);
+    H1.diagonal().array() += 1e-12;
+    Hf.topLeftCorner(rho, rho) = H1;
+    llt.compute(H1);
+    if (llt.info() != Eigen::Success) return false;
   }
-  for (int i = 0; i < mi; ++i) {
-    a.setZero();
-    if (w.c_col[i] >= 0) {
-      a.head(r) = Z_blk.row(w.c_col[i]).transpose();
-    } else {
-      a.head(r).noalias() = Z_blk.transpose() * w.C.row(i).transpose();
-    }
-    a[slack0 + i] = -1.0;
-    // The level's own rows: the slack absorbs any violation, no widening.
-    const double value = RowValue(w, i, w.x_old);
-    if (!std::isinf(w.clo[i])) {
-      q.CI.row(row) = a.transpose();
-      q.ci0[row] = value - w.clo[i];
-    }
-    ++row;
-    if (!std::isinf(w.chi[i])) {
-      q.CI.row(row) = -a.transpose();
-      q.ci0[row] = w.chi[i] - value;
-    }
-    ++row;
-  }
-  const auto status = q.solver.solve_quadprog(q.H, q.g, q.CE, q.ce0, q.CI, q.ci0, q.z);
-  report->last_qp_status = static_cast<int>(status);
-  report->last_qp_iterations = q.solver.getIteratios();
-  if (status != eiquadprog::solvers::EIQUADPROG_FAST_OPTIMAL || !q.z.allFinite()) return false;
-  w.x = w.x_old;
-  w.x.noalias() += Z_blk * q.z.head(r);
+  w.g1.head(rho).noalias() = -R1 * w.cperm.head(m);
   return true;
 }
 
-// Direction of carried row i in the ũ coordinates (a = Z_blk^T G_i^T, r) and its value at x_old.
-// Returns false for a row the levels above already fixed (|a|² < 1e-24): the QP skips it too.
-bool CarriedRow(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int i, double* value) {
-  const int r = static_cast<int>(Z_blk.cols());
-  if (w.g_col[i] >= 0) {
-    w.a_row.head(r) = Z_blk.row(w.g_col[i]).transpose();
-    *value = w.x_old[w.g_col[i]];
-  } else {
-    w.a_row.head(r).noalias() = Z_blk.transpose() * w.G.row(i).transpose();
-    *value = w.G.row(i).dot(w.x_old);
+struct QpShape {
+  int r, rho, nc, mi;
+  double eps;
+};
+
+// u <- H^-1 u (H block diagonal: H1's Cholesky factor, then 1/ε).
+void ApplyKInverse(const Impl& w, const QpShape& q, bool, Eigen::Ref<Eigen::VectorXd> u) {
+  if (q.rho > 0) {
+    const auto L = w.H1.topLeftCorner(q.rho, q.rho);
+    L.triangularView<Eigen::Lower>().solveInPlace(u.head(q.rho));
+    L.triangularView<Eigen::Lower>().transpose().solveInPlace(u.head(q.rho));
   }
-  return w.a_row.head(r).squaredNorm() >= 1e-24;
+  u.tail(q.r - q.rho) /= q.eps;
 }
 
-// ũ ← H^-1 ũ for H = blockdiag(H1 (Cholesky-factored in place), ε I_{r-ρ}).
-void ApplyHInverse(const Impl& w, int rho, double eps, Eigen::Ref<Eigen::VectorXd> u) {
-  if (rho > 0) {
-    const auto L = w.H1.topLeftCorner(rho, rho);
-    L.triangularView<Eigen::Lower>().solveInPlace(u.head(rho));
-    L.triangularView<Eigen::Lower>().transpose().solveInPlace(u.head(rho));
-  }
-  u.tail(u.size() - rho) /= eps;
-}
+double Bound(const Impl& w, int t, int side) { return side > 0 ? w.row_hi[t] : w.row_lo[t]; }
 
-// Active-set shortcut for a QP level without inequality rows of its own (mi = 0). The level's
-// QP (SolveLevelQp, the same objective and the same widened bounds) is
-//   min_ũ ½ ũ^T H ũ + g^T ũ   s.t.  lo'_i <= value_i + a_i^T ũ <= hi'_i  (carried rows i)
-// with H = blockdiag(R1 R1^T + (μ² + 1e-12) I_ρ, ε I_{r-ρ}), ε = max(regularization, 1e-12),
-// g = [-R1 cperm; 0]: strictly convex, so a point satisfying its KKT conditions is its unique
-// optimum (Nocedal & Wright 2006, Thm 16.4), the one eiquadprog returns. For a working set W of
-// rows fixed at a bound (A_W ũ = β_W) the equality QP is solved by its Schur complement:
-//   S λ = β_W + A_W H^-1 g,  S = A_W H^-1 A_W^T,  ũ = H^-1 (A_W^T λ - g)
-// (stationarity H ũ + g = A_W^T λ; H^-1 is cheap, H being block diagonal). The point is the
-// QP's optimum when every carried row is within its bounds and every λ_i has the sign of a
-// binding bound (λ_i <= 0 on an upper bound, >= 0 on a lower one).
-//  1. Warm guess: W = the rows active at the last tick's optimum (at 1 kHz the active set
-//     rarely changes); accepted only if the KKT conditions verify.
-//  2. Else the primal active-set method (Nocedal & Wright §16.5) from ũ = 0, which is feasible
-//     (the bounds are widened to include x_old): step towards the equality-QP solution up to
-//     the first blocking row, which joins W (its direction is independent of W's, so S stays
-//     positive definite), or, at a full step, drop the row with the worst multiplier; stop when
-//     none is wrong.
-// Returns false (→ eiquadprog) on a rank-deficient W, on rounding leaving the final point off
-// the KKT conditions by more than tol, or after too many iterations (degenerate cycling).
-// On success writes w.x and records W as the level's next first guess.
-bool TryActiveSet(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int m,
-                  int rho, double mu, double regularization, double tol) {
-  const int r = static_cast<int>(Z_blk.cols());
-  if (r == 0) return false;
-  const double eps = std::max(regularization, 1e-12);
-  if (rho > 0 && !w.gram) {  // (a Gram level has set H1 and g1, ρ = r)
-    auto R1 = w.R1.topLeftCorner(rho, m);
-    R1 = w.Mt.topLeftCorner(rho, m);
-    R1.triangularView<Eigen::StrictlyLower>().setZero();
-    auto H1 = w.H1.topLeftCorner(rho, rho);
-    H1.noalias() = R1 * R1.transpose();
-    H1.diagonal().array() += mu * mu + 1e-12;
-    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H1);  // in place: no allocation
-    if (llt.info() != Eigen::Success) return false;
-    w.g1.head(rho).noalias() = -R1 * w.cperm.head(m);
-  }
-  w.hig.head(r).setZero();
-  w.hig.head(rho) = w.g1.head(rho);
-  ApplyHInverse(w, rho, eps, w.hig.head(r));
-  // The QP's bounds: widened to include the current value (rounding of the levels above may
-  // leave it ~1e-15 outside).
-  auto bound = [&](int i, int side, double value_old) {
-    return side > 0 ? std::max(w.ghi[i], value_old) : std::min(w.glo[i], value_old);
-  };
-  auto row_value = [&](int i, const Eigen::VectorXd& x) {
-    return w.g_col[i] >= 0 ? x[w.g_col[i]] : w.G.row(i).dot(x);
-  };
-  // Solves the equality QP of W into w.ut (r) and w.lambda (k); false if S is not positive
-  // definite.
-  auto solve_working_set = [&]() {
-    const int k = static_cast<int>(w.W_rows.size());
-    w.ut.head(r) = -w.hig.head(r);
-    if (k == 0) return true;
-    if (k > r) return false;
-    auto AW = w.AW.topLeftCorner(r, k);
-    auto HiA = w.HiA.topLeftCorner(r, k);
-    auto lambda = w.lambda.head(k);
-    for (int i = 0; i < k; ++i) {
-      double value_old;
-      CarriedRow(w, Z_blk, w.W_rows[i], &value_old);
-      AW.col(i) = w.a_row.head(r);
-      HiA.col(i) = w.a_row.head(r);
-      ApplyHInverse(w, rho, eps, HiA.col(i));
-      lambda[i] = bound(w.W_rows[i], w.W_sides[i], value_old) - value_old;  // β_i
+// Solves M z = b in place for M symmetric positive semidefinite (m x m, overwritten) and b in
+// its range, by Cholesky with symmetric pivoting (Golub & Van Loan 2013 Alg. 4.2.4, LAPACK
+// dpstrf): pivots below 1e-14 x the largest diagonal entry (or the QP's scale) end it — about
+// 100 x the rounding of M; the coordinates left (M's null space: directions neither the
+// level's objective nor W's rows see, ε = 0) get 0, one of the solutions, all equally
+// optimal. (A small but real curvature cut there would leave the point non-stationary:
+// Verify checks stationarity, so it would be rejected, not accepted.)
+void SemidefiniteSolve(Impl& w, Eigen::Ref<Eigen::MatrixXd> M, Eigen::Ref<Eigen::VectorXd> b,
+                       double cut = 1e-14) {
+  const int m = static_cast<int>(M.rows());
+  std::vector<int>& perm = w.chol_perm;
+  for (int i = 0; i < m; ++i) perm[i] = i;
+  // (relative to the QP's scale too: a matrix of rounding noise has no positive pivot)
+  const double largest = std::max(m > 0 ? M.diagonal().maxCoeff() : 0.0, w.qp_scale);
+  int rank = 0;
+  for (int j = 0; j < m; ++j) {
+    int p = j;
+    for (int i = j + 1; i < m; ++i) {
+      if (M(i, i) > M(p, p)) p = i;
     }
-    lambda.noalias() += AW.transpose() * w.hig.head(r);
-    auto S = w.S.topLeftCorner(k, k);
-    S.noalias() = AW.transpose() * HiA;
-    Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(S);
-    if (llt.info() != Eigen::Success) return false;
-    const auto L = w.S.topLeftCorner(k, k);
-    L.triangularView<Eigen::Lower>().solveInPlace(lambda);
-    L.triangularView<Eigen::Lower>().transpose().solveInPlace(lambda);
-    w.ut.head(r).noalias() += HiA * lambda;
-    return true;
-  };
-  // KKT check of w.ut (with w.lambda): returns the index in W of the worst multiplier (-1 if
-  // none), or -2 when a row is off its bounds by more than tol.
-  auto verify = [&]() {
-    w.x = w.x_old;
-    w.x.noalias() += Z_blk * w.ut.head(r);
-    const int k = static_cast<int>(w.W_rows.size());
-    for (int i = 0; i < w.num_carried; ++i) {
-      const double value_old = row_value(i, w.x_old), value = row_value(i, w.x);
-      const auto it = std::find(w.W_rows.begin(), w.W_rows.end(), i);
-      if (it != w.W_rows.end()) {  // W's rows are free (checked when they joined)
-        const int side = w.W_sides[it - w.W_rows.begin()];
-        if (std::abs(value - bound(i, side, value_old)) > tol) return -2;
-      } else if (!Inside(value, bound(i, -1, value_old), bound(i, 1, value_old), tol)) {
-        // Off its bounds: a failure unless the levels above fixed the row (the QP skips it
-        // too); that costlier check only here, where it decides.
-        double unused;
-        if (CarriedRow(w, Z_blk, i, &unused)) return -2;
+    if (!(M(p, p) > cut * largest)) break;
+    if (p != j) {  // symmetric swap of j and p in the lower triangle (trailing part)
+      M.row(j).head(j).swap(M.row(p).head(j));
+      std::swap(M(j, j), M(p, p));
+      for (int i = j + 1; i < p; ++i) std::swap(M(i, j), M(p, i));
+      M.col(j).tail(m - p - 1).swap(M.col(p).tail(m - p - 1));
+      std::swap(perm[j], perm[p]);
+      std::swap(b[j], b[p]);
+    }
+    const double d = std::sqrt(M(j, j));
+    M(j, j) = d;
+    M.col(j).tail(m - j - 1) /= d;
+    M.bottomRightCorner(m - j - 1, m - j - 1)
+        .selfadjointView<Eigen::Lower>()
+        .rankUpdate(M.col(j).tail(m - j - 1), -1.0);
+    ++rank;
+  }
+  const auto L = M.topLeftCorner(rank, rank).triangularView<Eigen::Lower>();
+  L.solveInPlace(b.head(rank));
+  L.transpose().solveInPlace(b.head(rank));
+  b.tail(m - rank).setZero();
+  // Undo the pivoting: z[perm[i]] = b[i] (through w.chol_tmp).
+  for (int i = 0; i < m; ++i) w.chol_tmp[perm[i]] = b[i];
+  b = w.chol_tmp.head(m);
+}
+
+// The equality QP of W by the null-space method, for a dense K (w.K, full, unfactored) and
+// g_W (w.hig): A = Q [R; 0] (Householder QR with column pivoting of W's kc carried rows),
+// ũ = Q [y1; z] with R^T y1 = β (the rows of W hold exactly, whatever K's conditioning),
+// (Q^T K Q)_22 z = -((Q^T K Q)_21 y1 + (Q^T g_W)_2), and R λ = (Q^T (K ũ + g_W))_1. Unlike
+// the Schur complement, its accuracy does not degrade with ε (the Schur complement's
+// condition number grows as 1/ε: with ε = 1e-10 it left W's rows 1e-6 off their bounds, and
+// rows dependent on W's then seemed to block). False if W's rows are dependent.
+bool NullSpaceEqp(Impl& w, const QpShape& q, int kc) {
+  const int r = q.r;
+  auto A = w.AW.topLeftCorner(r, kc);
+  auto beta = w.beta.head(kc);
+  double largest = 0.0;
+  for (int j = 0; j < kc; ++j) {
+    w.qr_perm[j] = j;
+    largest = std::max(largest, A.col(j).norm());
+  }
+  for (int j = 0; j < kc; ++j) {
+    int p = j;
+    double best = -1.0;
+    for (int i = j; i < kc; ++i) {
+      const double norm = A.col(i).tail(r - j).squaredNorm();
+      if (norm > best) {
+        best = norm;
+        p = i;
       }
     }
-    int wrong = -1;
+    if (!(std::sqrt(best) > 1e-10 * largest)) return false;  // dependent rows in W
+    if (p != j) {
+      A.col(j).swap(A.col(p));
+      std::swap(beta[j], beta[p]);
+      std::swap(w.qr_perm[j], w.qr_perm[p]);
+    }
+    double tau, b;
+    A.col(j).tail(r - j).makeHouseholderInPlace(tau, b);
+    A(j, j) = b;
+    w.qr_tau[j] = tau;
+    if (j + 1 < kc) {
+      A.block(j, j + 1, r - j, kc - j - 1)
+          .applyHouseholderOnTheLeft(A.col(j).tail(r - j - 1), tau, w.work.data());
+    }
+  }
+  auto M = w.K.topLeftCorner(r, r);  // K, then Q^T K Q
+  auto rhs = w.hig.head(r);          // g_W, then Q^T g_W
+  for (int j = 0; j < kc; ++j) {
+    const auto v = A.col(j).tail(r - j - 1);
+    M.bottomRows(r - j).applyHouseholderOnTheLeft(v, w.qr_tau[j], w.work.data());
+    M.rightCols(r - j).applyHouseholderOnTheRight(v, w.qr_tau[j], w.work.data());
+    rhs.tail(r - j).applyHouseholderOnTheLeft(v, w.qr_tau[j], w.work.data());
+  }
+  const auto R = A.topLeftCorner(kc, kc).triangularView<Eigen::Upper>();
+  auto y = w.ut.head(r);  // [y1; z], then ũ
+  y.head(kc) = beta;
+  R.transpose().solveInPlace(y.head(kc));
+  if (kc < r) {
+    auto z = y.tail(r - kc);
+    z = -rhs.tail(r - kc);
+    z.noalias() -= M.bottomLeftCorner(r - kc, kc) * y.head(kc);
+    // A cut curvature that was real (small, not rounding: a nearly flat direction the level
+    // still wants to move along) leaves M22 z != b: solved again with a lower cut.
+    const int m2 = r - kc;
+    w.M22.topLeftCorner(m2, m2) = M.bottomRightCorner(m2, m2);
+    w.b22.head(m2) = z;
+    SemidefiniteSolve(w, M.bottomRightCorner(m2, m2), z);
+    auto check = w.grad.head(m2);
+    check = w.b22.head(m2);
+    check.noalias() -= w.M22.topLeftCorner(m2, m2).selfadjointView<Eigen::Lower>() * z;
+    if (check.cwiseAbs().maxCoeff() > 1e-12 * (w.b22.head(m2).cwiseAbs().maxCoeff() + 1e-300)) {
+      z = w.b22.head(m2);
+      SemidefiniteSolve(w, w.M22.topLeftCorner(m2, m2), z, 1e-20);
+    }
+  }
+  // λ (pivot order) from the first kc rows of Q^T (K ũ + g_W) = M [y1; z] + rhs (M's first
+  // kc rows are intact: the factorization overwrote only M22).
+  auto lp = w.residual.head(kc);
+  lp = rhs.head(kc);
+  lp.noalias() += M.topRows(kc) * y;
+  R.solveInPlace(lp);
+  for (int j = 0; j < kc; ++j) w.lambda[w.qr_perm[j]] = lp[j];
+  for (int j = kc - 1; j >= 0; --j) {
+    y.tail(r - j).applyHouseholderOnTheLeft(A.col(j).tail(r - j - 1), w.qr_tau[j], w.work.data());
+  }
+  return true;
+}
+
+// The equality QP of the working set W (w.W_rows, w.W_sides) into w.ut (r), w.s_eqp (mi) and
+// w.lambda (the carried rows of W, in W's order). By the Schur complement when K is H (no own
+// row in W) and ε >= 1e-6 (the controller's QPs: cheap, and accurate with one refinement
+// step), else by the null-space method. False if K is not positive definite or W's rows are
+// dependent.
+bool SolveWorkingSet(Impl& w, const QpShape& q) {
+  const int r = q.r, k = static_cast<int>(w.W_rows.size());
+  bool own = false;
+  int kc = 0;
+  for (int i = 0; i < k; ++i) {
+    own |= w.W_rows[i] >= q.nc;
+    kc += w.W_rows[i] < q.nc;
+  }
+  if (kc > r) return false;  // more fixed rows than DoF: dependent
+  const bool schur = !own && q.eps >= 1e-6;
+  auto g = w.hig.head(r);  // g_W
+  g.setZero();
+  g.head(q.rho) = w.g1.head(q.rho);
+  if (!schur) {
+    auto K = w.K.topLeftCorner(r, r);
+    K = w.Hfull.topLeftCorner(r, r);
     for (int i = 0; i < k; ++i) {
-      const double pull = w.W_sides[i] * w.lambda[i];
-      if (pull > 0.0 && (wrong < 0 || pull > w.W_sides[wrong] * w.lambda[wrong])) wrong = i;
-    }
-    return wrong;
-  };
-  auto accept = [&]() {
-    w.active[level].clear();
-    for (size_t i = 0; i < w.W_rows.size(); ++i)
-      w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
-    return true;
-  };
-  // 1. The warm guess.
-  w.W_rows.clear();
-  w.W_sides.clear();
-  for (const auto& [row, side] : w.active[level]) {
-    double value_old;
-    if (row < w.num_carried && CarriedRow(w, Z_blk, row, &value_old) &&
-        !std::isinf(side > 0 ? w.ghi[row] : w.glo[row])) {
-      w.W_rows.push_back(row);
-      w.W_sides.push_back(side);
+      const int t = w.W_rows[i];
+      if (t < q.nc) continue;
+      const auto d = w.D.col(t).head(r);
+      K.noalias() += d * d.transpose();
+      g -= d * (Bound(w, t, w.W_sides[i]) - w.row_val[t]);
     }
   }
-  if (!w.W_rows.empty() && solve_working_set() && verify() == -1) return accept();
-  // 2. The primal active-set method from ũ = 0.
+  kc = 0;
+  for (int i = 0; i < k; ++i) {
+    const int t = w.W_rows[i];
+    if (t >= q.nc) continue;
+    w.AW.col(kc).head(r) = w.D.col(t).head(r);
+    w.beta[kc++] = Bound(w, t, w.W_sides[i]) - w.row_val[t];
+  }
+  if (!schur) {
+    if (kc == 0) {
+      w.ut.head(r) = -g;
+      SemidefiniteSolve(w, w.K.topLeftCorner(r, r), w.ut.head(r));
+    } else if (!NullSpaceEqp(w, q, kc)) {
+      return false;
+    }
+  } else {
+    ApplyKInverse(w, q, false, g);  // g <- H^-1 g_W
+    w.ut.head(r) = -g;
+    if (kc > 0) {
+      const auto AW = w.AW.topLeftCorner(r, kc);
+      auto HiA = w.HiA.topLeftCorner(r, kc);
+      HiA = AW;
+      for (int j = 0; j < kc; ++j) ApplyKInverse(w, q, false, HiA.col(j));
+      auto S = w.S.topLeftCorner(kc, kc);
+      S.noalias() = AW.transpose() * HiA;
+      Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(S);
+      if (llt.info() != Eigen::Success) return false;
+      auto lambda = w.lambda.head(kc);
+      lambda = w.beta.head(kc);
+      lambda.noalias() += AW.transpose() * g;
+      llt.solveInPlace(lambda);
+      w.ut.head(r).noalias() += HiA * lambda;
+      // One step of iterative refinement on A^T ũ = β.
+      auto residual = w.residual.head(kc);
+      residual = w.beta.head(kc);
+      residual.noalias() -= AW.transpose() * w.ut.head(r);
+      llt.solveInPlace(residual);
+      w.ut.head(r).noalias() += HiA * residual;
+      lambda += residual;
+    }
+  }
+  // Slacks: determined for own rows in W, 0 for the others.
+  w.s_eqp.head(q.mi).setZero();
+  for (int i = 0; i < k; ++i) {
+    const int t = w.W_rows[i];
+    if (t < q.nc) continue;
+    w.s_eqp[t - q.nc] =
+        w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r)) - Bound(w, t, w.W_sides[i]);
+  }
+  return true;
+}
+
+// How far the working set's point is from the bound side row i of W should hold, in units of
+// its tolerance: for a carried row its multiplier pulling the wrong way (side λ / dual_tol),
+// for an own row its slack of the wrong sign (-side s / tol). > 1: drop that row.
+double WrongSign(const Impl& w, const QpShape& q, int i, int carried_index, double tol,
+                 double dual_tol) {
+  const int t = w.W_rows[i], side = w.W_sides[i];
+  if (t < q.nc) return side * w.lambda[carried_index] / dual_tol;
+  return -side * w.s_eqp[t - q.nc] / tol;
+}
+
+// KKT check of the working set's point (w.ut, w.s_eqp, w.lambda): -2 if a row is off its
+// bounds by more than tol, else the index in W of the worst wrong sign (-1: none, optimal).
+int Verify(Impl& w, const QpShape& q, double tol, double dual_tol) {
+  const int r = q.r, nt = q.nc + q.mi, k = static_cast<int>(w.W_rows.size());
+  for (int t = 0; t < nt; ++t) {
+    if (!w.row_live[t] || w.in_W[t]) continue;
+    const double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
+    if (!Inside(value, w.row_lo[t], w.row_hi[t], tol)) {
+      return -2;
+    }
+  }
+  // Stationarity of the level's objective in the remaining freedom: H ũ + g + Σ_{own j in W}
+  // s_j d_j = Σ_{carried t in W} λ_t d_t (exact for the Schur complement; the null-space
+  // method's semidefinite solve may cut a curvature it took for rounding).
+  auto grad = w.grad.head(r);
+  grad.noalias() = w.Hfull.topLeftCorner(r, r) * w.ut.head(r);
+  grad.head(q.rho) += w.g1.head(q.rho);
+  double grad_scale = grad.cwiseAbs().maxCoeff();
+  for (int i = 0, c = 0; i < k; ++i) {
+    const int t = w.W_rows[i];
+    const auto d = w.D.col(t).head(r);
+    const double f = t < q.nc ? -w.lambda[c++] : w.s_eqp[t - q.nc];
+    grad += f * d;
+    grad_scale = std::max(grad_scale, std::abs(f) * d.cwiseAbs().maxCoeff());
+  }
+  if (grad.cwiseAbs().maxCoeff() > 1e-9 * (1.0 + grad_scale)) {
+    return -2;
+  }
+  int worst = -1, kc = 0;
+  double worst_value = 1.0;
+  for (int i = 0; i < k; ++i) {
+    const int t = w.W_rows[i];
+    if (t < q.nc) {
+      const double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
+      if (std::abs(value - Bound(w, t, w.W_sides[i])) > tol) {
+        return -2;
+      }
+    }
+    const double wrong = WrongSign(w, q, i, t < q.nc ? kc : -1, tol, dual_tol);
+    if (t < q.nc) ++kc;
+    if (wrong > worst_value) {
+      worst = i;
+      worst_value = wrong;
+    }
+  }
+  return worst;
+}
+
+void ClearWorkingSet(Impl& w) {
+  for (int t : w.W_rows) w.in_W[t] = 0;
   w.W_rows.clear();
   w.W_sides.clear();
-  auto current = w.u.head(r);  // the feasible iterate ũ (r); w.u is free after the level's step
-  current.setZero();
-  for (int i = 0; i < w.num_carried; ++i) {
-    double value_old;
-    w.row_live[i] = CarriedRow(w, Z_blk, i, &value_old);
-    w.row_old[i] = value_old;
+}
+
+void AddToWorkingSet(Impl& w, int t, int side) {
+  w.W_rows.push_back(t);
+  w.W_sides.push_back(side);
+  w.in_W[t] = 1;
+}
+
+void RemoveFromWorkingSet(Impl& w, int i) {
+  w.in_W[w.W_rows[i]] = 0;
+  w.W_rows.erase(w.W_rows.begin() + i);
+  w.W_sides.erase(w.W_sides.begin() + i);
+}
+
+// The multiplier tolerance: a wrong sign this small (1e-10 of the objective's gradient scale:
+// the level's g1, or its own rows' violations) is rounding, not a direction of descent (what
+// the point loses to the optimum is below that times the row's range); dropping its row would
+// cycle (seen on nearly flat levels: multipliers of 1e-11 changing sign with rounding).
+double DualTolerance(const Impl& w, const QpShape& q) {
+  double scale = q.rho > 0 ? w.g1.head(q.rho).cwiseAbs().maxCoeff() : 0.0;
+  for (int j = 0; j < q.mi; ++j) {
+    const int t = q.nc + j;
+    scale = std::max(scale,
+                     std::abs(w.row_val[t] - std::clamp(w.row_val[t], w.row_lo[t], w.row_hi[t])));
   }
-  const int max_iterations = 2 * r + 10;
+  return 1e-10 * (1.0 + scale);
+}
+
+// Tries the working set in w.W_rows: accepted (true) only if its point verifies.
+bool TryWorkingSet(Impl& w, const QpShape& q, double tol) {
+  return SolveWorkingSet(w, q) && Verify(w, q, tol, DualTolerance(w, q)) == -1;
+}
+
+// The primal active-set method from ũ = 0 (feasible: the carried bounds include x_old) with
+// the level's violated rows in W (s = their violation, so they are feasible too). Each
+// iteration steps towards the working set's point up to the first row that blocks (it joins
+// W; a row whose slope is rounding, e.g. dependent on W's rows, never blocks), or takes the
+// full step and drops the row of the worst wrong sign; optimal when none is wrong. Leaves the
+// last (feasible) iterate in w.u (ũ) and w.s_cur, also on failure (S singular, cycling).
+bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
+  const int r = q.r, nt = q.nc + q.mi;
+  auto u = w.u.head(r);
+  auto s = w.s_cur.head(q.mi);
+  u.setZero();
+  ClearWorkingSet(w);
+  for (int j = 0; j < q.mi; ++j) {
+    const int t = q.nc + j;
+    s[j] = w.row_val[t] - std::clamp(w.row_val[t], w.row_lo[t], w.row_hi[t]);
+    if (s[j] != 0.0 && w.row_live[t]) AddToWorkingSet(w, t, s[j] > 0.0 ? 1 : -1);
+  }
+  const double dual_tol = DualTolerance(w, q);
+  const int max_iterations = 3 * (r + nt) + 10;
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
-    if (!solve_working_set()) return false;
-    // Step p = ũ_W - ũ; in v: dx = Z p, from x_cur = x_old + Z ũ.
-    w.ut.head(r) -= current;
-    w.dx.noalias() = Z_blk * w.ut.head(r);
-    w.x = w.x_old;
-    w.x.noalias() += Z_blk * current;  // x_cur
+    if (!SolveWorkingSet(w, q)) {
+      return false;
+    }
+    auto p = w.dx.head(r);  // the step in ũ; in s: s_eqp - s
+    p = w.ut.head(r) - u;
+    const double p_norm = p.cwiseAbs().maxCoeff();
+    // A step of rounding size (the working set's point is the current one) blocks nothing.
+    const bool moves = p_norm > 1e-13 * (1.0 + u.cwiseAbs().maxCoeff()) ||
+                       (w.s_eqp.head(q.mi) - s).cwiseAbs().maxCoeff() > 1e-13;
     double alpha = 1.0;
     int blocking = -1, blocking_side = 0;
-    for (int i = 0; i < w.num_carried; ++i) {
-      if (std::find(w.W_rows.begin(), w.W_rows.end(), i) != w.W_rows.end()) continue;
-      if (!w.row_live[i]) continue;  // fixed above: never blocks
-      const double value_old = w.row_old[i];
-      const double slope = row_value(i, w.dx), value = row_value(i, w.x);
+    for (int t = 0; moves && t < nt; ++t) {
+      if (!w.row_live[t] || w.in_W[t]) continue;
+      const auto d = w.D.col(t).head(r);
+      double value = w.row_val[t] + d.dot(u), slope = d.dot(p);
+      double scale = d.cwiseAbs().maxCoeff() * p_norm;
+      if (t >= q.nc) {
+        const int j = t - q.nc;
+        value -= s[j];
+        slope -= w.s_eqp[j] - s[j];
+        scale += std::abs(w.s_eqp[j] - s[j]);
+      }
+      // A row the step moves by less than a tenth of the tolerance (or by rounding: a row
+      // dependent on W's, which the step keeps in exact arithmetic; 1e-10 of the step: the
+      // dependence test of NullSpaceEqp) does not block.
+      if (std::abs(slope) <= std::max(1e-10 * scale, 0.1 * tol)) continue;
       double step = 1.0;
       int side = 0;
-      if (slope > 0.0 && !std::isinf(w.ghi[i])) {
-        step = (bound(i, 1, value_old) - value) / slope;
+      if (slope > 0.0 && !std::isinf(w.row_hi[t])) {
+        step = (w.row_hi[t] - value) / slope;
         side = 1;
-      } else if (slope < 0.0 && !std::isinf(w.glo[i])) {
-        step = (bound(i, -1, value_old) - value) / slope;
+      } else if (slope < 0.0 && !std::isinf(w.row_lo[t])) {
+        step = (w.row_lo[t] - value) / slope;
         side = -1;
       }
       if (side != 0 && step < alpha) {
         alpha = std::max(step, 0.0);
-        blocking = i;
+        blocking = t;
         blocking_side = side;
       }
     }
     if (blocking >= 0) {
-      current.noalias() += alpha * w.ut.head(r);
-      w.W_rows.push_back(blocking);
-      w.W_sides.push_back(blocking_side);
+      u.noalias() += alpha * p;
+      s += alpha * (w.s_eqp.head(q.mi) - s);
+      AddToWorkingSet(w, blocking, blocking_side);
       continue;
     }
-    current += w.ut.head(r);  // full step: ũ = ũ_W
-    w.ut.head(r) = current;
-    const int wrong = verify();
+    u = w.ut.head(r);
+    s = w.s_eqp.head(q.mi);
+    const int wrong = Verify(w, q, tol, dual_tol);
+    if (wrong == -1) return true;
     if (wrong == -2) return false;
-    if (wrong == -1) return accept();
-    w.W_rows.erase(w.W_rows.begin() + wrong);
-    w.W_sides.erase(w.W_sides.begin() + wrong);
+    RemoveFromWorkingSet(w, wrong);
   }
   return false;
 }
 
-// After an eiquadprog solve, the carried rows at their bounds: the next tick's first guess.
-void RecordActiveBounds(Impl& w, int level, double tol) {
-  w.active[level].clear();
-  for (int i = 0; i < w.num_carried; ++i) {
-    const double value = w.g_col[i] >= 0 ? w.x[w.g_col[i]] : w.G.row(i).dot(w.x);
-    if (std::abs(value - w.ghi[i]) <= tol) {
-      w.active[level].emplace_back(i, 1);
-    } else if (std::abs(value - w.glo[i]) <= tol) {
-      w.active[level].emplace_back(i, -1);
+// One QP for the level by eiquadprog's dual active-set method (Goldfarb–Idnani, TSID's QP),
+// the fallback when the primal method fails (degenerate working sets): variables (ũ (r),
+// s (mi)), the same objective and rows. Returns false on failure; else its point in w.ut /
+// w.s_eqp, and the rows it holds at a bound in W (its working set, to be verified).
+bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport* report) {
+  const int r = q.r, n = static_cast<int>(w.Z.rows()), nt = q.nc + q.mi;
+  const int slack0 = n;  // slack variables follow the (padded) ũ
+  qp.H.setZero();
+  qp.g.setZero();
+  qp.H.topLeftCorner(r, r) = w.Hfull.topLeftCorner(r, r);
+  // (strictly convex, as the dual method needs: the exact cascade's ε = 0 raised to 1e-9; its
+  // point only proposes a working set, verified on the QP itself)
+  for (int i = q.rho; i < r; ++i) qp.H(i, i) = std::max(qp.H(i, i), 1e-9);
+  qp.H.diagonal().segment(r, n - r).setOnes();      // unused padding
+  qp.H.diagonal().tail(qp.H.rows() - n).setOnes();  // ½||s||² (and unused slacks)
+  qp.g.head(q.rho) = w.g1.head(q.rho);
+  qp.CI.setZero();
+  qp.ci0.setOnes();  // padding rows: 1 >= 0
+  // lo <= val + a·z <= hi as  a·z + (val - lo) >= 0  and  -a·z + (hi - val) >= 0.
+  for (int t = 0; t < nt; ++t) {
+    if (!w.row_live[t]) continue;
+    Eigen::VectorXd& a = qp.row;
+    a.setZero();
+    a.head(r) = w.D.col(t).head(r);
+    if (t >= q.nc) a[slack0 + t - q.nc] = -1.0;
+    if (!std::isinf(w.row_lo[t])) {
+      qp.CI.row(2 * t) = a.transpose();
+      qp.ci0[2 * t] = w.row_val[t] - w.row_lo[t];
+    }
+    if (!std::isinf(w.row_hi[t])) {
+      qp.CI.row(2 * t + 1) = -a.transpose();
+      qp.ci0[2 * t + 1] = w.row_hi[t] - w.row_val[t];
     }
   }
+  const auto status = qp.solver.solve_quadprog(qp.H, qp.g, qp.CE, qp.ce0, qp.CI, qp.ci0, qp.z);
+  report->last_qp_status = static_cast<int>(status);
+  report->last_qp_iterations = qp.solver.getIteratios();
+  if (status != eiquadprog::solvers::EIQUADPROG_FAST_OPTIMAL || !qp.z.allFinite()) return false;
+  w.ut.head(r) = qp.z.head(r);
+  w.s_eqp.head(q.mi) = qp.z.segment(slack0, q.mi);
+  ClearWorkingSet(w);
+  for (int t = 0; t < nt; ++t) {
+    if (!w.row_live[t]) continue;
+    double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
+    if (t >= q.nc) value -= w.s_eqp[t - q.nc];
+    const double scale = 1e-9 * (1.0 + std::abs(value));
+    if (std::abs(value - w.row_hi[t]) <= scale) {
+      AddToWorkingSet(w, t, 1);
+    } else if (std::abs(value - w.row_lo[t]) <= scale) {
+      AddToWorkingSet(w, t, -1);
+    }
+  }
+  return true;
+}
+
+// Solves the level's QP (after PrepareRows / PrepareObjective) into w.x; records the working
+// set as the next tick's first guess. Returns how: 0 active set (warm guess or primal
+// iterations), 1 eiquadprog (its working set verified), -1 none verified (w.x = the primal
+// method's last iterate: feasible, not proven optimal).
+int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, const QpShape& q,
+            bool shortcut, double tol, HierarchyReport* report) {
+  auto accept = [&]() {
+    w.x = w.x_old;
+    w.x.noalias() += Z_blk * w.ut.head(q.r);
+    w.active[level].clear();
+    for (size_t i = 0; i < w.W_rows.size(); ++i)
+      w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
+    ClearWorkingSet(w);
+  };
+  auto eiquadprog = [&]() {
+    return SolveLevelQp(w, *w.qps[level], q, report) && TryWorkingSet(w, q, tol);
+  };
+  auto primal = [&]() { return PrimalActiveSet(w, q, tol); };
+  if (shortcut) {
+    ClearWorkingSet(w);
+    const int nt = q.nc + q.mi;
+    for (const auto& [t, side] : w.active[level]) {
+      if (t < nt && w.row_live[t] && !w.in_W[t] && !std::isinf(Bound(w, t, side))) {
+        AddToWorkingSet(w, t, side);
+      }
+    }
+    if (!w.W_rows.empty() && TryWorkingSet(w, q, tol)) {
+      accept();
+      return 0;
+    }
+    if (primal()) {
+      accept();
+      return 0;
+    }
+    if (eiquadprog()) {
+      accept();
+      return 1;
+    }
+  } else {
+    if (eiquadprog()) {
+      accept();
+      return 1;
+    }
+    if (primal()) {
+      accept();
+      return 0;
+    }
+  }
+  // Nothing verified: the primal method's last iterate, feasible whatever its outcome.
+  ClearWorkingSet(w);
+  w.active[level].clear();
+  w.x = w.x_old;
+  w.x.noalias() += Z_blk * w.u.head(q.r);
+  return -1;
 }
 
 }  // namespace
@@ -787,13 +1108,20 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   int k = 0;    // task index
   int row = 0;  // first row of task k among all tasks' rows
   const int num_levels = hierarchy.num_levels();
-  // Last level holding equality rows: no basis rotation is needed after it.
-  int last_rotation_level = -1;
-  for (int l = 0; l < num_levels; ++l) {
-    for (const TaskShape& s : hierarchy.levels()[l]) {
-      if (!s.inequality) last_rotation_level = l;
-    }
-  }
+  // A level's basis rotation (Z's trailing columns onto null(A Z)) is deferred until a level
+  // below reads Z: the next level with equality rows (its M = A Z), or a QP (its variables are
+  // the coordinates of Z). A stack whose last levels need neither (posture last, or inequality
+  // levels whose unconstrained step keeps them) never pays for it. Until then the level's
+  // reflectors stay in Mt: only an equality level overwrites it, and it applies them first.
+  struct PendingRotation {
+    int off = 0, r = 0, m = 0, rho = 0, rho1 = 0, s_group = 0;
+  } pending;
+  auto rotate_pending = [&]() {
+    if (pending.rho == 0) return;
+    RotateBasis(w, w.Z.middleCols(pending.off, pending.r), w.Mt.topLeftCorner(pending.r, pending.m),
+                pending.rho, pending.rho1, pending.s_group);
+    pending.rho = 0;
+  };
   for (int l = 0; l < num_levels; ++l) {
     // Gather the level's active rows.
     int m = 0, mi = 0;
@@ -837,6 +1165,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     bool rotated = false;
     auto Z_blk = w.Z.middleCols(off, r);
     if (m > 0 && r > 0) {
+      rotate_pending();
       auto mt = w.Mt.topLeftCorner(r, m);
       if (dense) {
         // Unit rows are filled as rows of the identity so one product serves all rows.
@@ -903,30 +1232,29 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     if (inside) w.active[l].clear();
     if (w.num_carried + mi > 0 && !inside) {
       if (r > 0) {
+        rotate_pending();          // (a level above's; this level's own follows)
         if (rho > 0 && !w.gram) {  // a Gram level's QP works in the unrotated u
           RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
           rotated = true;
         }
         report.qp_levels[l] = true;
         ++report.num_qp;
-        w.x_free = w.x;  // the unconstrained step, kept if the QP fails too
-        if (options.active_set_shortcut && mi == 0 &&
-            TryActiveSet(w, l, Z_blk, m, rho, report.dampings[l], options.qp_regularization, tol)) {
+        const QpShape q{r, rho, w.num_carried, mi, options.qp_regularization};
+        PrepareRows(w, Z_blk, mi, options.rank_tolerance);
+        const int how = PrepareObjective(w, r, m, rho, report.dampings[l], q.eps)
+                            ? SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report)
+                            : -1;
+        if (how == 0) {
           report.active_set_levels[l] = true;
           ++report.num_active_set;
-        } else if (!SolveLevelQp(w, *w.qps[l], Z_blk, m, rho, mi, report.dampings[l],
-                                 options.qp_regularization, &report)) {
-          w.x = w.x_free;
+        } else if (how < 0) {
           ++report.qp_failures;
-        } else {
-          RecordActiveBounds(w, l, 1e-9);
         }
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.
     }
-    if (rho > 0 && !rotated && !w.gram &&
-        l < last_rotation_level) {  // (Gram: ρ = r, no null space)
-      RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group);
+    if (rho > 0 && !rotated && !w.gram) {  // (Gram: ρ = r, no null space)
+      pending = {off, r, m, rho, rho1, s_group};
     }
     // Carry the level's inequality rows, shifted by their optimal slack s = Cv - clip(Cv).
     for (int i = 0; i < mi; ++i) {

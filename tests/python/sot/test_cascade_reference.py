@@ -1,0 +1,119 @@
+"""The strict hierarchy is exact on every stack shape: ``marionette._core.Hierarchy`` in exact
+mode (no damping, no QP regularisation), with the active-set shortcut on and off, against the
+independent textbook cascade of tests/python/sot_cascade.py (SVD null spaces, one DAQP QP per
+level with slacks) on generated stacks on every bundled robot: equality, inequality-only (at any
+position, the last included) and mixed levels, conflicting, repeated and rank-deficient tasks,
+singular configurations, joint-velocity bounds binding or not.
+
+Each stack is solved twice by the same Hierarchy (the second time with every target moved, as
+the next tick), so that the QP levels start from the last solve's working set: the shortcut's
+first guess. Per stack and mode, marionette's v must
+* hold the joint-velocity bounds (always feasible: they contain 0) to BOUND_TOLERANCE;
+* be optimal at every level given what it achieves at the levels above (the reference's
+  ``optimality_gaps``, <= GAP_TOLERANCE): by induction that is the lexicographic optimum, and it
+  is what a level solved at a non-optimal point (a +14 % level error) or a level altering the
+  ones above (a 6-D task error from 0 to 0.15) fails;
+* and, on most stacks, achieve what the reference achieves level by level (<= AGREE_TOLERANCE).
+  Where they differ, a level's objective is nearly flat along a direction a level below uses:
+  the two cascades' rounding of order 1e-10 on the upper level moves the lower one by O(1); the
+  gap check then says which point is the optimum (marionette's, on every stack seen).
+Stacks whose projected rows have singular values between RANK_TOLERANCE and 1e-3 of their scale
+(``well_posed``) are left out: there the undamped cascade amplifies rounding by up to 1e9.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from marionette import _core
+from sot_cascade import (
+    ReferenceFailure,
+    achieved,
+    bundled_robots,
+    level_differences,
+    optimality_gaps,
+    perturbed,
+    random_stack,
+    textbook_cascade,
+    well_posed,
+)
+
+BOUND_TOLERANCE = 1e-9  # rad/s (the solver's constraint tolerance)
+# A level's objective above its optimum, relative to 1 + that optimum. The reference resolves
+# it to ~1e-8 on its worst stacks (a 16-D QP level of TALOS: 1e-8 by DAQP, 4e-8 by proxsuite
+# for the same point); the defects this test is for are gaps of 0.06 to 0.15.
+GAP_TOLERANCE = 1e-7
+AGREE_TOLERANCE = 1e-6  # a level's achieved values vs the reference's, relative
+
+
+def bounds_overshoot(levels: list[list[dict]], shapes: list[str], v: np.ndarray) -> float:
+    if shapes[0] != "bounds":
+        return 0.0
+    (task,) = levels[0]
+    Jv = task["jacobian"] @ v
+    return float(np.max(np.abs(Jv - np.clip(Jv, task["lower"], task["upper"]))))
+
+
+def check_stacks(seeds: range) -> dict:
+    robots = bundled_robots()
+    counts = {"stacks": 0, "left_out": 0, "reference_failures": 0, "agree": 0}
+    worst = {"gap": 0.0, "overshoot": 0.0, "difference": 0.0, "shortcut_levels": 0}
+    failures = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        name = robots[seed % len(robots)]
+        levels, shapes = random_stack(name, rng)
+        moved = perturbed(levels, rng)
+        if not (well_posed(levels) and well_posed(moved)):
+            counts["left_out"] += 1
+            continue
+        try:
+            reference = textbook_cascade(moved)
+        except ReferenceFailure:
+            counts["reference_failures"] += 1
+            continue
+        for shortcut in (True, False):
+            hierarchy = _core.Hierarchy(levels, active_set_shortcut=shortcut)
+            hierarchy.solve(levels)
+            v, report = hierarchy.solve(moved)
+            try:
+                gaps = optimality_gaps(moved, v)
+            except ReferenceFailure:
+                counts["reference_failures"] += 1
+                continue
+            counts["stacks"] += 1
+            gap, overshoot = max(gaps), bounds_overshoot(moved, shapes, v)
+            scales = [1.0 + np.max(np.abs(achieved(lv, reference.v))) for lv in moved]
+            difference = max(
+                d / s for d, s in zip(level_differences(moved, v, reference.v), scales, strict=True)
+            )
+            counts["agree"] += difference <= AGREE_TOLERANCE
+            worst["gap"] = max(worst["gap"], gap)
+            worst["overshoot"] = max(worst["overshoot"], overshoot)
+            worst["difference"] = max(worst["difference"], difference)
+            worst["shortcut_levels"] += report["num_active_set"] if shortcut else 0
+            if gap > GAP_TOLERANCE or overshoot > BOUND_TOLERANCE or report["qp_failures"]:
+                failures.append(
+                    f"seed {seed} {name} {shapes} shortcut={shortcut}: gaps "
+                    f"{[f'{g:.2g}' for g in gaps]}, bound overshoot {overshoot:.2g}, "
+                    f"qp_failures {report['qp_failures']}"
+                )
+    print(counts, worst)
+    assert not failures, "\n".join(failures)
+    # The filters must not hollow the test out.
+    total = len(seeds)
+    assert counts["left_out"] <= 0.25 * total, counts
+    assert counts["reference_failures"] <= 0.05 * 2 * total, counts
+    assert counts["agree"] >= 0.97 * counts["stacks"], counts
+    assert worst["shortcut_levels"] > 0.5 * total, worst  # the shortcut was exercised
+    return counts
+
+
+def test_every_level_optimal_on_random_stacks():
+    check_stacks(range(400))
+
+
+@pytest.mark.slow
+def test_every_level_optimal_on_thousands_of_stacks():
+    check_stacks(range(400, 4400))
