@@ -20,20 +20,17 @@
 /// matrix M^T M (Cholesky) with no QR and no rotation, nothing remaining below it. The
 /// unconstrained step is exact for the cascade whenever it satisfies every inequality carried
 /// from above and the level's own: that is checked, and only when it fails is the level solved
-/// as a QP. When the level has no inequality rows of its own (the carried rows are then the
-/// only constraints, e.g. joint-velocity bounds under the feet or gripper tasks), that QP is
-/// first tried by an active-set shortcut: the bounds active at the last tick are fixed as
-/// equalities and the equality-constrained QP solved through its KKT system; if that point
-/// does not verify the QP's KKT conditions (every carried row within its bounds, every fixed
-/// row's multiplier of the sign of a binding bound), a primal active-set iteration from the
-/// current point follows. The QP being strictly convex, a verified point is its unique
-/// optimum, the one the QP solver below returns. Only when neither verifies (a rank-deficient
-/// or ill-conditioned working set: many bounds at once under the exact cascade's tiny
-/// regularization) is the level solved (in the r coordinates of Z, plus one slack per
-/// inequality row) by eiquadprog's dual
-/// active-set method (Goldfarb–Idnani, the QP of TSID): exact, and robust on the degenerate
-/// vertices met when many velocity bounds bind at once (proxsuite, tried first, stalled or
-/// reported such feasible QPs infeasible). An
+/// as a QP. That QP is first tried by an active-set shortcut: the rows active at the last tick
+/// (carried bounds, and the level's own inequality rows) are fixed and the equality QP solved
+/// through its Schur complement; then, if needed, a primal active-set iteration from the current
+/// point (Nocedal & Wright §16.5). A point is accepted only with a KKT certificate: every row
+/// within its bounds, stationarity, every fixed carried row's multiplier and every fixed own
+/// row's slack of the sign of its bound. The QP being strictly convex, a certified point is its
+/// unique optimum, the one the QP solver below returns. Only when no point is certified (a
+/// rank-deficient or ill-conditioned working set) is the level solved (in the r coordinates of
+/// Z, plus one slack per inequality row) by eiquadprog's dual active-set method (Goldfarb–Idnani,
+/// the QP of TSID): exact, and robust on the degenerate vertices met when many velocity bounds
+/// bind at once (proxsuite, tried first, stalled or reported such feasible QPs infeasible). An
 /// inequality level then carries its rows down with bounds shifted by its optimal slack s*
 /// (the level's optimal set is exactly {lo + s* <= C v <= hi + s*}).
 ///
@@ -72,9 +69,10 @@ struct HierarchyOptions {
   double qp_regularization = 1e-2;
   /// Active-set iteration limit of the QP levels (eiquadprog).
   int qp_max_iterations = 1000;
-  /// Try the active-set shortcut (fixed bounds + KKT check) before eiquadprog on QP levels
-  /// without inequality rows of their own. Exact either way (the shortcut's point is accepted
-  /// only when it is the QP's optimum); false = always eiquadprog (for comparison).
+  /// Try the active-set shortcut (working set of the last tick + KKT certificate) before
+  /// eiquadprog on QP levels. Exact either way (a point is accepted only with the certificate
+  /// that it is the QP's optimum; tests/python/sot/test_cascade_reference.py checks it against a
+  /// textbook cascade); false = always eiquadprog (for comparison).
   bool active_set_shortcut = true;
 };
 
