@@ -46,12 +46,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--perturb",
-        choices=("none", "all", *PARTS),
         default="none",
-        help="seeded perturbations per trial (scenarios/perturbations.py): displacement = "
-        "object displaced <= 5 cm / 10 deg before execution; in-hand = slipping in the hand "
-        "during it (<= 1 cm / 5 deg) and 2 mm / 0.5 deg camera noise; joint-offsets = 7 deg "
-        "shoulder / 4 deg wrist encoder offsets; all = the three at once",
+        metavar="PRESET|KEY=VALUE,...|FILE.yaml",
+        help=f"seeded perturbations per trial (scenarios/perturbations.py; presets: none, all, "
+        f"{', '.join(PARTS)}): displacement = object displaced <= 5 cm / 10 deg before "
+        "execution; in-hand = slipping in the hand during it (<= 1 cm / 5 deg) and 2 mm / 0.5 "
+        "deg camera noise; joint-offsets = 7 deg shoulder / 4 deg wrist encoder offsets on both "
+        "arms; all = the three at once. Magnitudes replace or add to presets as key=value items "
+        "(all,displacement_m=0.08,joint_offsets_deg.arm_right_4_joint=6) or come from a YAML "
+        "file (python/marionette/schemas/perturbation.schema.json)",
+    )
+    p.add_argument(
+        "--dry-run",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="play the generated controllers on the plan (kinematic controller) before anything "
+        "moves and refuse a plan that would fail (plan-and-execute scenarios; default on)",
     )
     p.add_argument(
         "--speed",
@@ -105,6 +115,14 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         print(f"marionette demo: {e}", file=sys.stderr)
         return 2
+    from marionette.scenarios.perturbations import draw, settings_from_argument
+    from marionette.schemas import DataFileError
+
+    try:
+        perturb = settings_from_argument(args.perturb)
+    except (ValueError, DataFileError) as e:
+        print(f"marionette demo: {e}", file=sys.stderr)
+        return 2
     seed0 = scenario.seed if args.seed is None else args.seed
     root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
     print(f"demo {scenario.name}: {scenario.description}")
@@ -112,11 +130,7 @@ def run(args: argparse.Namespace) -> int:
     for k in range(args.trials):
         seed = seed0 + k
         out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed}"
-        perturbation = None
-        if args.perturb != "none":
-            from marionette.scenarios.perturbations import PRESETS, draw
-
-            perturbation = draw(PRESETS[args.perturb], seed)
+        perturbation = None if perturb is None else draw(perturb, seed)
         options = RunOptions(
             speed=args.speed,
             controller_url=args.controller_url,
@@ -124,6 +138,7 @@ def run(args: argparse.Namespace) -> int:
             log=lambda m: print(m, flush=True),
             perturbation=perturbation,
             gripper_admittance=args.gripper_admittance,
+            dry_run=args.dry_run,
         )
         try:
             report = scenario.run(seed if args.plan_seed is None else args.plan_seed, out, options)
