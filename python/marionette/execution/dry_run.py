@@ -104,6 +104,7 @@ class DryRun:
     controller_s: float = 0.0
     supervisor: str = ""  # the played supervisor's end state and reason
     completed: bool = False  # the played supervisor reached done
+    speeds: tuple[float, ...] = ()  # the controller pacings played (a starved one, then real time)
 
     @property
     def ok(self) -> bool:
@@ -125,6 +126,7 @@ class DryRun:
             "controller_s": self.controller_s,
             "supervisor": self.supervisor,
             "completed": self.completed,
+            "speeds": list(self.speeds),
             "steps": [s.to_dict() for s in self.steps],
         }
 
@@ -383,7 +385,9 @@ def dry_run(
     ``trajectories`` the supervisor streams): the verdict per step."""
     options = options or DryRunOptions()
     t0 = time.perf_counter()
+    speeds: list[float] = []
     for speed in (options.speed, options.fallback_speed):
+        speeds.append(speed)
         verdicts = {s.index: StepVerdict(s.index, s.transition) for s in steps}
         singular_crossings(robot_map.model, steps, specs, trajectories, options, verdicts)
         completed, supervisor, played_s = play(
@@ -407,4 +411,5 @@ def dry_run(
         played_s,
         supervisor,
         completed,
+        tuple(speeds),
     )
