@@ -119,7 +119,7 @@ int main(int argc, char** argv) {
   try {
     options = mc::ParseOptions(argc, argv, &help, &describe);
   } catch (const std::exception& e) {
-    std::cerr << "marionette-controller: " << e.what() << "\n" << kUsage;
+    std::cerr << "marionette-controller: " << e.what() << " (see marionette-controller --help)\n";
     return 2;
   }
   if (help) {

@@ -19,6 +19,7 @@ import importlib
 import os
 import re
 import sys
+from typing import NoReturn
 
 COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
@@ -46,6 +47,23 @@ EXAMPLES = """examples:
 """
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line (the problem, a "did you mean" for a mistyped
+    choice, where the help is), exit code 2: every sub-parser is of this class (argparse makes
+    sub-parsers of their parent's class)."""
+
+    def error(self, message: str) -> NoReturn:
+        m = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)", message)
+        if m:
+            import difflib
+
+            choices = re.findall(r"'([^']*)'", m.group(2))
+            close = difflib.get_close_matches(m.group(1), choices, n=1)
+            if close:
+                message += f"; did you mean {close[0]!r}?"
+        self.exit(EXIT_USAGE, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def _version(args: argparse.Namespace) -> int:
     import marionette
 
@@ -54,7 +72,7 @@ def _version(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="marionette",
         description="Plan manipulation and walking with a constraint graph; execute it at 1 kHz.",
         epilog=EXAMPLES,
@@ -72,7 +90,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--debug", action="store_true", help="show the traceback of an error (after it too)"
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    sub.add_parser("version", help="print the version").set_defaults(func=_version)
+    sub.add_parser(
+        "version",
+        help="print the version",
+        epilog="example:\n  marionette version",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    ).set_defaults(func=_version)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser

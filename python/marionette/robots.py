@@ -39,6 +39,7 @@ from __future__ import annotations
 import os
 import subprocess
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cache, lru_cache
 from pathlib import Path
@@ -48,6 +49,7 @@ import numpy as np
 
 from marionette import MODELS_DIR
 from marionette.models.semantics import Semantics, load_semantics, semantics_from_dict
+from marionette.models.xml_util import attribute, child, numbers
 from marionette.schemas import DataFileError, load_validated
 
 BaseKind = Literal["free_flyer", "planar", "fixed"]
@@ -355,7 +357,7 @@ def load_pinocchio(name: str | Path, with_collision: bool = True):
     return model, geom
 
 
-def reference_configuration(name: str, model=None) -> np.ndarray:
+def reference_configuration(name: str | Path, model=None) -> np.ndarray:
     """The robot's reference posture (its SRDF ``group_state`` named in robot.yaml), (nq,).
 
     Joints the SRDF does not list keep Pinocchio's neutral value, except gripper joints,
@@ -377,17 +379,19 @@ def configuration_from_srdf(model, srdf_text: str, state: str, sem: Semantics) -
     import pinocchio as pin
 
     root = ET.fromstring(srdf_text)
-    states = {gs.get("name"): gs for gs in root.findall("group_state")}
+    where = f"{model.name}: SRDF"
+    states = {attribute(gs, "name", where): gs for gs in root.findall("group_state")}
     if state not in states:
         raise KeyError(f"{model.name}: SRDF has no group_state {state!r}, only {sorted(states)}")
     q = pin.neutral(model)
     listed = set()
     for j in states[state].findall("joint"):
-        jname = j.get("name")
+        jname = attribute(j, "name", f"{where} state {state}")
         if not model.existJointName(jname):
             raise KeyError(f"{model.name}: SRDF state {state} names unknown joint {jname}")
         jm = model.joints[model.getJointId(jname)]
-        values = [float(a) for a in j.get("value").split()]
+        where_joint = f"{where} state {state} joint {jname}"
+        values = list(numbers(attribute(j, "value", where_joint), where_joint))
         if jm.nq == 2 and jm.nv == 1 and len(values) == 1:  # a continuous joint's angle
             values = [float(np.cos(values[0])), float(np.sin(values[0]))]
         if len(values) != jm.nq:
@@ -436,28 +440,37 @@ class MujocoJoint:
     mimic: tuple[str, float, float] | None = None
 
 
-def mujoco_layout(bodies: ET.Element, equalities=None) -> tuple[MujocoJoint, ...]:
+def mujoco_layout(
+    bodies: ET.Element, equalities: Iterable[ET.Element] | None = None
+) -> tuple[MujocoJoint, ...]:
     """The hinges/slides under ``bodies`` (a <body> or <worldbody>) in document order (= qpos
     order), mimics from ``equalities`` (<joint joint1 joint2 polycoef> elements; default: the
-    ``<equality>`` children of ``bodies`` itself when it is a <mujoco> element)."""
+    ``<equality>`` children of ``bodies`` itself when it is a <mujoco> element). Raises
+    ValueError naming an element that lacks a name MuJoCo needs here."""
     if equalities is None:
         equalities = [e for eq in bodies.findall("equality") for e in eq]
     if bodies.tag == "mujoco":
-        bodies = bodies.find("worldbody")  # <equality> holds <joint> elements too
+        bodies = child(bodies, "worldbody", "MJCF")  # <equality> holds <joint> elements too
     ties = {}
     for e in equalities:
-        if e.tag == "joint" and e.get("joint2"):
-            a = [float(x) for x in e.get("polycoef", "0 1 0 0 0").split()]
-            ties[e.get("joint1")] = (e.get("joint2"), a[1], a[0])
-    return tuple(MujocoJoint(j.get("name"), ties.get(j.get("name"))) for j in bodies.iter("joint"))
+        driver = e.get("joint2")
+        if e.tag == "joint" and driver:
+            where = f"MJCF equality joint {driver}"
+            a = numbers(e.get("polycoef", "0 1 0 0 0"), f"{where} polycoef", 5)
+            ties[attribute(e, "joint1", where)] = (driver, a[1], a[0])
+    joints = []
+    for j in bodies.iter("joint"):
+        name = attribute(j, "name", "MJCF: a joint (the controller maps joints by name)")
+        joints.append(MujocoJoint(name, ties.get(name)))
+    return tuple(joints)
 
 
 @cache
-def _robot_layout(name: str) -> tuple[MujocoJoint, ...]:
+def _robot_layout(name: str | Path) -> tuple[MujocoJoint, ...]:
     return mujoco_layout(ET.parse(robot(name).mjcf).getroot())
 
 
-def pinocchio_to_mujoco(name: str, q: np.ndarray, layout=None) -> np.ndarray:
+def pinocchio_to_mujoco(name: str | Path, q: np.ndarray, layout=None) -> np.ndarray:
     """MuJoCo ``qpos`` of the robot alone (model <robot>.xml) from Pinocchio ``q`` (nq,); mimic
     joints (MuJoCo only) get their driver's value through the mimic relation. ``layout``: the
     model's :func:`mujoco_layout` (default: models/<robot>/<robot>.xml)."""
@@ -485,7 +498,7 @@ def pinocchio_to_mujoco(name: str, q: np.ndarray, layout=None) -> np.ndarray:
     return np.concatenate([head, out])
 
 
-def mujoco_to_pinocchio(name: str, qpos: np.ndarray, layout=None) -> np.ndarray:
+def mujoco_to_pinocchio(name: str | Path, qpos: np.ndarray, layout=None) -> np.ndarray:
     """Pinocchio ``q`` from MuJoCo ``qpos`` of the robot alone (inverse of the above: mimic
     joints dropped)."""
     qpos = np.asarray(qpos, dtype=float)
@@ -507,7 +520,7 @@ def mujoco_to_pinocchio(name: str, qpos: np.ndarray, layout=None) -> np.ndarray:
     return np.concatenate([head, [a for a, j in zip(tail, layout) if j.mimic is None]])
 
 
-def mujoco_nq(name: str) -> int:
+def mujoco_nq(name: str | Path) -> int:
     """Size of the robot's block of MuJoCo ``qpos`` (mimic joints included)."""
     return {"free_flyer": 7, "planar": 0, "fixed": 0}[robot(name).base] + len(_robot_layout(name))
 

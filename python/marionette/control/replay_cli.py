@@ -59,7 +59,15 @@ def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = No
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "replay", help="re-run a recorded run offline and check it reproduces the recording"
+        "replay",
+        help="re-run a recorded run offline and check it reproduces the recording",
+        epilog=(
+            "examples:\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --controller\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --supervisor\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --view"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "log",

@@ -1,4 +1,4 @@
-"""The grip force a gripper holds, two ways (issue 7, thesis 000 §3.2.4.3):
+"""The grip force a gripper holds, two ways (thesis 000 §3.2.4.3):
 
 * **estimate** — what the ``gripper_admittance`` task regulates: the gripper joint's effort
   (ROBOT_STATE ``joint_effort``, MuJoCo's actuator force: the motor current's stand-in) through

@@ -55,7 +55,7 @@ class Row:
     converged: int = 0
     steps_added: int = 0
 
-    def stats(self) -> dict:
+    def stats(self) -> dict[str, float]:
         t = np.array(self.times_ms)
         return {
             "max": float(t.max()),
@@ -89,7 +89,7 @@ def run(
         raise RuntimeError(f"initial plan failed: {report}")
     initial = planner.config.copy()
     rng = np.random.default_rng(seed)
-    rows = {"frozen": {}, "full": {}}
+    rows: dict[str, dict[float, dict[str, float]]] = {"frozen": {}, "full": {}}
     for mode, trials in (("frozen", trials_frozen), ("full", trials_full)):
         for d in MODIFICATIONS:
             row = Row(d)

@@ -203,7 +203,7 @@ class _Cascade:
             s2[: sv.shape[0]] = sv * sv
             z = vt.T @ ((vt @ g) / (s2 + mu))
         dx_ls = self._lift(z)
-        dx = dx_ls
+        dx: np.ndarray | None = dx_ls
         used_qp = False
         if not self._feasible(self.x0 + dx_ls):
             dx = self._active_set_qp(H, g)
@@ -329,7 +329,7 @@ class _Cascade:
             x = self.x0 + Zr @ sol[:r]
         else:
             return None
-        if nu is None:
+        if nu is None or held is None:
             return x - self.x0
         # Hz + Cᵀν = g: upper bounds and ≤ rows hold with ν ≥ 0, lower bounds with ν ≤ 0.
         sign = np.ones(nu.shape[0])

@@ -81,7 +81,7 @@ def _check(args: argparse.Namespace) -> int:
         print(f, file=sys.stderr if f.level == "error" else sys.stdout)
     errors = sum(f.level == "error" for f in findings)
     if errors:
-        print(f"{args.robot}: {errors} problem(s) to fix", file=sys.stderr)
+        print(f"{args.robot}: {errors} problem(s) to fix")
         return 1
     print(f"{args.robot}: ok" + ("" if args.no_build else " (MJCF written and compiled)"))
     return 0

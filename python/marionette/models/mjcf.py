@@ -25,7 +25,7 @@ stable at the 1 ms step.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -106,7 +106,7 @@ class RobotModelError(ValueError):
 
 
 def robot_part(
-    name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = None, models_dir=None
+    name: str | Path, q_reference: np.ndarray, X_WB: np.ndarray | None = None, models_dir=None
 ) -> Part:
     """Robot ``name`` with its base at X_WB (fixed bases) or its reference configuration.
     Mesh files are named relative to ``models_dir`` (the MJCF's meshdir; default: the parent of
@@ -182,7 +182,7 @@ def robot_part(
         # Optical frame: z along the view, y down. MuJoCo camera: looks along -z, y up.
         cam.set("quat", "0 1 0 0")
     # Actuators: the planar base first, then every URDF joint in MJCF (= Pinocchio) order.
-    joints = (
+    joints: list[tuple[str, str, float | None, float | None, float | None]] = (
         [(j, "slide" if k == "slide" else "hinge", None, None, f) for j, k, _, f in PLANAR_BASE]
         if desc.base == "planar"
         else []
@@ -207,7 +207,7 @@ def robot_part(
                     "biasprm": fmt_vec([0, -g.kp, -g.kv]),
                     **(
                         {"ctrllimited": "true", "ctrlrange": fmt_vec([lo, hi])}
-                        if lo is not None
+                        if lo is not None and hi is not None
                         else {"ctrllimited": "false"}
                     ),
                     "forcelimited": "true",
@@ -439,7 +439,7 @@ def assemble(
     model: str,
     parts: list[Part],
     comment: str,
-    extra_world: list[ET.Element] = (),
+    extra_world: Sequence[ET.Element] = (),
     floor: bool = True,
     keyframe: str = "reference",
 ) -> ET.Element:

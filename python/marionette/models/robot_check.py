@@ -51,8 +51,11 @@ def check_robot(folder: str | Path, build: bool = True) -> list[Finding]:
     folder = Path(folder)
     try:
         desc = robots.robot(folder)
-    except (DataFileError, robots.UnknownModel) as e:
-        return [Finding("error", str(folder / robots.ROBOT_FILE), str(e).split(": ", 1)[-1])]
+    except robots.UnknownModel as e:
+        return [Finding("error", str(folder), str(e))]
+    except DataFileError as e:
+        where, _, what = str(e).partition(": ")
+        return [Finding("error", where, what)]
     out: list[Finding] = []
     yaml_file = str(desc.semantics)
     for path, key in ((desc.urdf, "urdf"), (desc.srdf, "srdf")):

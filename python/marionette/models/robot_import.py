@@ -30,8 +30,8 @@ import numpy as np
 import yaml
 
 from .srdf import disabled_collision_pairs, srdf_text
-from .urdf import MOVABLE, parse_urdf
-from .xml_util import indent_and_serialize, sub
+from .urdf import MOVABLE, Joint, Urdf, UrdfError, parse_urdf
+from .xml_util import attribute, indent_and_serialize, sub
 
 SERVO_STIFFNESS_PER_EFFORT = 50.0  # kp / effort limit [1/rad or 1/m]
 SERVO_TIME_CONSTANT = 0.02  # kv / kp [s]
@@ -72,7 +72,10 @@ def import_robot(
     meshes = _mesh_folder(root, urdf_path.parent)
     source = _as_package_uri(urdf_path)
     urdf_text = indent_and_serialize(root, f"imported from {source} by `marionette robot import`")
-    urdf = parse_urdf(urdf_text)
+    try:
+        urdf = parse_urdf(urdf_text)
+    except UrdfError as e:
+        raise RobotImportError(f"{urdf_path}: {e}") from None
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / f"{name}.urdf").write_text(urdf_text)
     srdf, state, end_effector = _srdf(urdf_text, urdf, name, srdf_path, base, notes)
@@ -81,25 +84,27 @@ def import_robot(
     if gripper_link not in urdf.links:
         raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
     finger = _finger_joint(urdf, gripper_link)
-    gripper: dict = {
+    gripper: dict[str, object] = {
         "name": f"{name}/gripper",
         "link": gripper_link,
         "pose": {"xyz": [0.0, 0.0, 0.0], "xyzw": [0.0, 0.0, 0.0, 1.0]},
         "clearance": 0.05,
     }
     if finger is not None:
+        lower, upper = finger.lower, finger.upper
+        if lower is None or upper is None:
+            raise RobotImportError(
+                f"{urdf_path}: finger joint {finger.name} (below {gripper_link}) has no "
+                "<limit lower upper>: add its limits, or name another --gripper-link"
+            )
         gripper.update(
             joint=finger.name,
-            open_position=round(
-                finger.upper - GRIPPER_LIMIT_MARGIN * (finger.upper - finger.lower), 6
-            ),
-            closed_position=round(
-                finger.lower + GRIPPER_LIMIT_MARGIN * (finger.upper - finger.lower), 6
-            ),
+            open_position=round(upper - GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
+            closed_position=round(lower + GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
         )
         notes.append(
-            f"grippers[0]: finger joint {finger.name}, open near its upper limit {finger.upper:g}, "
-            f"closed near its lower limit {finger.lower:g}: swap them if it closes the other way"
+            f"grippers[0]: finger joint {finger.name}, open near its upper limit {upper:g}, "
+            f"closed near its lower limit {lower:g}: swap them if it closes the other way"
         )
     notes.append(
         f"grippers[0]/pose: the gripper frame sits at {gripper_link}'s origin; place it between "
@@ -154,10 +159,12 @@ def _shown(path: Path) -> str:
 def _fix_mimics(root: ET.Element) -> list[str]:
     notes = []
     for j in root.findall("joint"):
-        if j.find("mimic") is not None and j.get("type") in MOVABLE:
+        mimic = j.find("mimic")
+        if mimic is not None and j.get("type") in MOVABLE:
+            name = attribute(j, "name", "URDF", RobotImportError)
+            driver = attribute(mimic, "joint", f"joint {name}", RobotImportError)
             notes.append(
-                f"{j.get('name')}: made fixed (it mimics {j.find('mimic').get('joint')}; MuJoCo "
-                "moves it with its driver)"
+                f"{name}: made fixed (it mimics {driver}; MuJoCo moves it with its driver)"
             )
             j.set("type", "fixed")
     return notes
@@ -202,15 +209,31 @@ def _mesh_folder(root: ET.Element, urdf_dir: Path) -> str | None:
     return f"package://{common}" if packaged[0] else common
 
 
-def _srdf(urdf_text, urdf, name, srdf_path, base, notes) -> tuple[str, str, str | None]:
+def _srdf(
+    urdf_text: str,
+    urdf: Urdf,
+    name: str,
+    srdf_path: str | Path | None,
+    base: str,
+    notes: list[str],
+) -> tuple[str, str, str | None]:
     """(SRDF text, reference state name, end-effector parent link or None)."""
     end_effector = None
     if srdf_path is not None:
-        text = Path(srdf_path).read_text()
-        sroot = ET.fromstring(text)
+        srdf_path = Path(srdf_path)
+        if not srdf_path.is_file():
+            raise RobotImportError(f"{srdf_path}: no such file")
+        text = srdf_path.read_text()
+        try:
+            sroot = ET.fromstring(text)
+        except ET.ParseError as e:
+            raise RobotImportError(f"{srdf_path}: not XML ({e})") from None
+        where = str(srdf_path)
         ee = sroot.find("end_effector")
         end_effector = ee.get("parent_link") if ee is not None else None
-        states = [g.get("name") for g in sroot.findall("group_state")]
+        states = [
+            attribute(g, "name", where, RobotImportError) for g in sroot.findall("group_state")
+        ]
         refused = {}
         for state in states:
             problem = _state_problem(urdf_text, text, state)
@@ -219,7 +242,11 @@ def _srdf(urdf_text, urdf, name, srdf_path, base, notes) -> tuple[str, str, str 
                 return text, state, end_effector
             refused[state] = problem
         pairs = [
-            (d.get("link1"), d.get("link2"), d.get("reason") or "")
+            (
+                attribute(d, "link1", where, RobotImportError),
+                attribute(d, "link2", where, RobotImportError),
+                d.get("reason") or "",
+            )
             for d in sroot.findall("disable_collisions")
         ]
         known = {tuple(sorted(p[:2])) for p in pairs}
@@ -230,7 +257,8 @@ def _srdf(urdf_text, urdf, name, srdf_path, base, notes) -> tuple[str, str, str 
             sub(sroot, "disable_collisions", link1=a, link2=b, reason=reason)
         if missing:
             notes.append(
-                f"SRDF: {len(missing)} collision pairs it lacked (adjacent or always in contact) disabled"
+                f"SRDF: {len(missing)} collision pairs it lacked (adjacent or always in contact) "
+                "disabled"
             )
         posture, _ = _collision_free_posture(urdf_text, _zero_posture(urdf), pairs + missing)
         gs = sub(sroot, "group_state", name=REFERENCE_STATE, group="all")
@@ -266,7 +294,11 @@ def _srdf(urdf_text, urdf, name, srdf_path, base, notes) -> tuple[str, str, str 
 
 
 def _collision_free_posture(
-    urdf_text: str, posture: dict[str, float], pairs, draws: int = 400, seed: int = 0
+    urdf_text: str,
+    posture: dict[str, float],
+    pairs: list[tuple[str, str, str]],
+    draws: int = 400,
+    seed: int = 0,
 ) -> tuple[dict[str, float], int]:
     """``posture`` when the robot is free of self-collision there (the ``pairs`` skipped), else
     the first collision-free posture drawn around it, farther and farther (up to the joint
@@ -325,7 +357,7 @@ def _state_problem(urdf_text: str, srdf: str, state: str) -> str | None:
     return None
 
 
-def _zero_posture(urdf) -> dict[str, float]:
+def _zero_posture(urdf: Urdf) -> dict[str, float]:
     out = {}
     for j in urdf.joints.values():
         if j.type in ("revolute", "prismatic") and j.mimic is None:
@@ -335,10 +367,11 @@ def _zero_posture(urdf) -> dict[str, float]:
     return out
 
 
-def _finger_joint(urdf, gripper_link: str):
+def _finger_joint(urdf: Urdf, gripper_link: str) -> Joint | None:
     """The first movable joint (not a mimic) off the chain from the root to ``gripper_link``, in
     the subtree of that chain's last two links (a hand's fingers beside its tool frame), or None."""
-    chain, link = [], gripper_link
+    chain: list[Joint] = []
+    link = gripper_link
     while (j := urdf.parent_joint(link)) is not None:
         chain.append(j)
         link = j.parent
@@ -351,7 +384,7 @@ def _finger_joint(urdf, gripper_link: str):
     return None
 
 
-def _deepest_link(urdf) -> str:
+def _deepest_link(urdf: Urdf) -> str:
     depth = {urdf.root: 0}
     order = [urdf.root]
     for link in order:
@@ -361,7 +394,7 @@ def _deepest_link(urdf) -> str:
     return max(order, key=lambda link: depth[link])
 
 
-def _actuators(urdf) -> list[dict]:
+def _actuators(urdf: Urdf) -> list[dict[str, object]]:
     out = []
     for j in urdf.joints.values():
         if j.type not in MOVABLE or j.mimic is not None:

@@ -27,7 +27,7 @@ from marionette.schemas import load_validated
 from .mjcf import Part, assemble, object_part, robot_part
 from .semantics import Placement, Semantics, load_semantics
 from .urdf import Urdf, parse_urdf
-from .xml_util import fmt, fmt_vec, indent_and_serialize, sub
+from .xml_util import child, fmt, fmt_vec, indent_and_serialize, sub
 
 
 @dataclass
@@ -133,7 +133,8 @@ def scene_mjcf(
                     body2=inst,
                     active="false",
                 )
-        root.insert(list(root).index(root.find("worldbody")) + 1, eq)
+        worldbody = child(root, "worldbody", f"scene {scene.name}")
+        root.insert(list(root).index(worldbody) + 1, eq)
     return indent_and_serialize(root)
 
 

@@ -73,6 +73,17 @@ def calibrated_arm(robot: str, side: str) -> robots.CalibratedArm:
     )
 
 
+def calibration_frames(robot: str) -> tuple[str, str]:
+    """(base frame of the arm poses, camera optical frame) of ``robot``'s robot.yaml; raises
+    :class:`CalibrationError` naming the file when either is missing."""
+    desc = robots.robot(robot)
+    if desc.calibration_base_frame is None:
+        raise CalibrationError(f"{desc.semantics}: calibration declares no base_frame")
+    if desc.camera_frame is None:
+        raise CalibrationError(f"{desc.semantics}: no camera to calibrate with (cameras)")
+    return desc.calibration_base_frame, desc.camera_frame
+
+
 def arm_joints(robot: str, side: str) -> tuple[str, ...]:
     return calibrated_arm(robot, side).joints
 
@@ -253,7 +264,7 @@ def plan_views(
     # them: each view adds J_i^T J_i of its pose residual w.r.t. the offsets.
     bar = sorted(robust, reverse=True)[count - 1]
     keep = [q for q, r in zip(keep, robust) if r >= bar]
-    base = desc.calibration_base_frame
+    base, _ = calibration_frames(robot)
     problem = JointOffsetProblem(model, base, arm.tagged_link, arm.joints)
     infos = []
     for q in keep:
@@ -331,7 +342,7 @@ def measure_views(
     from marionette.perception.objects import estimate_body_pose, tag_sizes
 
     data = model.createData()
-    camera_frame = robots.robot(robot).camera_frame
+    base_frame, camera_frame = calibration_frames(robot)
     K = _intrinsics(renderer)
     detector = AprilTagDetector(
         DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate)
@@ -358,7 +369,7 @@ def measure_views(
             )
             continue
         pin.framesForwardKinematics(model, data, q)
-        X_BC = data.oMf[model.getFrameId(robots.robot(robot).calibration_base_frame)].actInv(
+        X_BC = data.oMf[model.getFrameId(base_frame)].actInv(
             data.oMf[model.getFrameId(camera_frame)]
         )
         out.append(WristView(q, X_BC * pose.X_CB, pose.tag_ids, pose.reprojection_rms))
@@ -430,13 +441,14 @@ def calibrate_arm(
     desc = robots.robot(robot)
     arm = calibrated_arm(robot, side)
     ring = wrist_ring(robot, side)
+    base_frame, camera_frame = calibration_frames(robot)
     scene = sim.MjScene(str(scene_path))
     scene.reset_keyframe("reference")
     renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
     q_stand = robots.mujoco_to_pinocchio(
         robot, scene.qpos[: len(robots.pinocchio_to_mujoco(robot, pin.neutral(model)))]
     )
-    problem = JointOffsetProblem(model, desc.calibration_base_frame, arm.tagged_link, arm.joints)
+    problem = JointOffsetProblem(model, base_frame, arm.tagged_link, arm.joints)
     rng = np.random.default_rng(seed)
     max_offset = np.radians(arm.max_offset_deg)
     estimate, spread = np.zeros(len(arm.joints)), max_offset  # encoder offsets [rad]
@@ -452,7 +464,7 @@ def calibrate_arm(
             side,
             ring,
             _intrinsics(renderer),
-            desc.camera_frame,
+            camera_frame,
             count=count,
             seed=seed + 1000 * (round_ - 1),
             offsets=offset_hypotheses(estimate, spread, HYPOTHESES, rng),

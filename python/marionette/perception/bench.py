@@ -93,8 +93,9 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
         decode_sharpening=0.25,
     )
     peer_params = (K.fx, K.fy, K.cx + 0.5, K.cy + 0.5)  # AprilTag's pixel-centre convention
-    times = {"marionette": [], "marionette_rgbd": [], "pupil_apriltags": []}
-    errors = {"marionette": [], "marionette_rgbd": [], "pupil_apriltags": []}
+    names = ("marionette", "marionette_rgbd", "pupil_apriltags")
+    times: dict[str, list[float]] = {name: [] for name in names}  # [s] per frame
+    errors: dict[str, list[tuple[float, float]]] = {name: [] for name in names}  # [m], [deg]
     found_counts = {k: 0 for k in times}
     for r in range(repeats):
         for frame, truth in frames:
@@ -129,7 +130,7 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
                     errors[name] += _errors(truth, found)
                     found_counts[name] += len(found)
     n_tags = sum(len(t) for _, t in frames)
-    out = {
+    out: dict[str, object] = {
         "frames": len(frames),
         "repeats": repeats,
         "tags": n_tags,
@@ -137,11 +138,13 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
         "quad_decimate": quad_decimate,
         "noise_std": noise_std,
     }
+    median_ms = {}
     for name in times:
         t = np.array(times[name]) * 1e3
         e = np.array(errors[name]) if errors[name] else np.zeros((0, 2))
+        median_ms[name] = float(np.median(t))
         out[name] = {
-            "median_ms": float(np.median(t)),
+            "median_ms": median_ms[name],
             "p99_ms": float(np.percentile(t, 99)),
             "tags_found": found_counts[name],
             "median_position_error_mm": float(np.median(e[:, 0]) * 1e3) if len(e) else None,
@@ -150,7 +153,7 @@ def run(frames, K: CameraIntrinsics, repeats: int, quad_decimate: float, noise_s
             "p90_rotation_error_deg": float(np.percentile(e[:, 1], 90)) if len(e) else None,
         }
     out["ratio_median_marionette_over_pupil"] = (
-        out["marionette"]["median_ms"] / out["pupil_apriltags"]["median_ms"]
+        median_ms["marionette"] / median_ms["pupil_apriltags"]
     )
     return out
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 import pinocchio as pin
@@ -133,6 +134,22 @@ def _pack(offsets, p_EM, p_BA) -> np.ndarray:
     )
 
 
+@overload
+def _residuals(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    x: np.ndarray,
+    with_jacobian: Literal[True] = True,
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def _residuals(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    x: np.ndarray,
+    with_jacobian: Literal[False],
+) -> tuple[np.ndarray, None]: ...
 def _residuals(
     problem: JointOffsetProblem,
     Q: np.ndarray,
@@ -159,7 +176,7 @@ def _residuals(
         R_WB = X_WB.rotation
         p_WM = X_WE.act(p_EM)
         r[3 * i : 3 * i + 3] = R_WB.T @ (p_WM - X_WB.translation) - p_BA - measured[i]
-        if not with_jacobian:
+        if J is None:
             continue
         pin.computeJointJacobians(model, data, q)
         J_E = pin.getFrameJacobian(model, data, e, pin.LOCAL_WORLD_ALIGNED)
@@ -182,7 +199,7 @@ def residuals_and_jacobian(
     offsets: np.ndarray,
     p_EM: np.ndarray,
     p_BA: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Stacked residuals (3N,) and their Jacobian (3N, k + 6) w.r.t. (offsets, p_EM, p_BA)."""
     return _residuals(
         problem, np.asarray(Q, float), np.asarray(measured, float), _pack(offsets, p_EM, p_BA)

@@ -35,6 +35,12 @@ def register(subparsers) -> None:
         help="detect AprilTags in camera frames, publish tag detections and object poses",
         description="Subscribes CAMERA_HEAD (and ROBOT_STATE); publishes APRILTAG_DETECTIONS and "
         "OBJECT_POSES at camera rate.",
+        epilog=(
+            "examples:\n"
+            "  marionette perceive --robot talos\n"
+            "  marionette perceive --robot none --camera-pose-source message"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--lcm-url", default=None, help="LCM URL (default: $MARIONETTE_LCM_URL)")
     p.add_argument(
@@ -84,6 +90,13 @@ def register(subparsers) -> None:
         help="hand-eye, joint-offset or arm-encoder calibration",
         description="Prints the calibration as JSON: from recorded measurements (hand-eye, "
         "joint-offsets) or from the head camera in a MuJoCo scene (arm-encoders).",
+        epilog=(
+            "examples:\n"
+            "  marionette calibrate arm-encoders --scene models/scenes/talos_plank.xml"
+            " --side left\n"
+            "  marionette calibrate hand-eye measurements.json"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = c.add_subparsers(dest="calibration", required=True, metavar="KIND")
     he = sub.add_parser("hand-eye", help="camera mount from (robot pose, target pose) pairs")

@@ -26,6 +26,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "LCM log, and write reports/demo/<scenario>-<time>/ (report.md, report.json, "
         "plots). Exit code 0 only when every trial succeeds; docs/scenarios.md describes each "
         "scenario.",
+        epilog=(
+            "examples:\n"
+            "  marionette demo                           # the plank flip\n"
+            "  marionette demo ur10-box --trials 20 --speed 0\n"
+            "  marionette demo plank-flip --perturb all --trials 5\n"
+            "  marionette demo my/arm-cube.yaml          # a scenario declared in a file"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "scenario",

@@ -82,6 +82,7 @@ class ViewerScene:
             raise ViewerError(e.args[0]) from None
         self.vis = vis
         self.robot = robot
+        self.robot_name = desc.name
         self.model, _ = robots.load_pinocchio(robot, with_collision=False)
         self.data = self.model.createData()
         # The collision meshes (STL, the ones our MJCF models use): the visual Collada meshes

@@ -1,5 +1,5 @@
-// The UR10 gripper's right finger in MuJoCo follows finger_joint as the URDF's <mimic> says
-// (issue 7): the generated models/ur10/ur10.xml ties finger_mimic_joint to it by an
+// The UR10 gripper's right finger in MuJoCo follows finger_joint as the URDF's <mimic> says:
+// the generated models/ur10/ur10.xml ties finger_mimic_joint to it by an
 // <equality><joint>. Reference: Pinocchio on the full URDF — models/ur10/ur10.urdf with the mimic
 // joint made prismatic (the URDF fixes it for the controller's model) and set to multiplier q +
 // offset as read from the URDF text. Then the physics the grip-force estimate relies on

@@ -1,4 +1,4 @@
-"""Repeated time-budget overruns engage the automatic hold controller (issue 11): posture for an
+"""Repeated time-budget overruns engage the automatic hold controller: posture for an
 arm, balance + posture for a humanoid. TALOS stopped in the middle of a step by an overrunning
 solver shifts its CoM over the stance foot and stands on it, the swing foot held in the air,
 instead of freezing with the CoM between its feet; the engagement is journaled and the run

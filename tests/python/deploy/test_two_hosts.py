@@ -1,4 +1,4 @@
-"""Two-host deployment (issue 11): marionette-controller runs in one network namespace, the
+"""Two-host deployment: marionette-controller runs in one network namespace, the
 user's Python side in another, joined only by a veth link with a multicast route — as two
 computers on one Ethernet segment. Skipped, with the reason, where namespaces cannot be made."""
 

@@ -9,8 +9,14 @@ import math
 import pytest
 
 import marionette
+from marionette import robots
+from marionette.perception.arm_calibration import (
+    CalibrationError,
+    arm_joints,
+    calibrate_arm,
+    calibration_frames,
+)
 from marionette.scenarios.perturbations import scene_with_joint_offsets
-from marionette.perception.arm_calibration import arm_joints, calibrate_arm
 
 TRUE = {"arm_left_1_joint": math.radians(7.0), "arm_left_7_joint": math.radians(-4.0)}
 
@@ -45,3 +51,13 @@ def test_the_command_prints_the_controller_option(offset_scene, tmp_path, capsys
     assert abs(math.degrees(float(option["arm_left_1_joint"])) - 7.0) < 0.3
     with pytest.raises(SystemExit, match="no scene file"):
         main(["calibrate", "arm-encoders", "--scene", str(tmp_path / "missing.xml")])
+
+
+@pytest.mark.parametrize("robot", robots.robot_names())
+def test_a_robot_without_calibration_frames_is_told_which_file_lacks_them(robot):
+    desc = robots.robot(robot)
+    if desc.calibration_base_frame is None or desc.camera_frame is None:
+        with pytest.raises(CalibrationError, match=f"{desc.semantics}: .*(base_frame|camera)"):
+            calibration_frames(robot)
+    else:
+        assert calibration_frames(robot) == (desc.calibration_base_frame, desc.camera_frame)

@@ -1,4 +1,4 @@
-"""The browser viewer (issue #10), loaded in headless Chromium: the page shows the robot, changes
+"""The browser viewer, loaded in headless Chromium: the page shows the robot, changes
 as the robot moves, shows the FSM text; `marionette demo --view` served it during a run;
 `marionette replay LOG --view` plays a recorded run and re-plots its report from the log."""
 

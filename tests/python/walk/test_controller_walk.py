@@ -1,4 +1,4 @@
-"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM (issue 9): a
+"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM: a
 controller spec whose feet and CoM tasks take their references from the pattern generator
 ("walk:" reference channels), FOOTSTEP_PLAN in, WALK_STATUS out; the robot walks the steps,
 stops, and the ZMP it reports from the soles' contact wrenches stays under its feet. The run is
