@@ -475,7 +475,8 @@ class LevelConditioning:
     """One priority level of a controller at a configuration, the levels above projected out:
     its tasks, the rows of its tasks (a stacked posture left out), the rank those rows get, and
     the smallest singular value the level needs — of its task rows, or, with a posture stacked
-    in it, of the whole level over the DoF left to it (0 when it needs more DoF than are left)."""
+    in it, of the whole level over the DoF left to it that its rows move (0 when it needs more
+    DoF than are left)."""
 
     priority: int
     tasks: tuple[str, ...]
@@ -513,10 +514,16 @@ def level_conditioning(
         J = np.vstack(Js) @ N
         s = _svd_values(J)
         rank = int(np.sum(s > tol * max(1.0, s[0]))) if len(s) else 0
+        needed = J.shape[0]
         if stacked:  # the level is the least squares of its tasks and the posture
+            raw = np.vstack([*Js, *stacked])
             J = np.vstack([J, *(P @ N for P in stacked)])
             s = _svd_values(J)
-        needed = min(J.shape[0], N.shape[1]) if stacked else J.shape[0]
+            # over the DoF left to it that its rows move (a joint no row of the level touches,
+            # e.g. a finger another kind of task drives, is no lost rank)
+            touched = np.any(raw != 0.0, axis=0)
+            free = _svd_values(N[touched])
+            needed = min(needed, int(np.sum(free > tol)))
         sigma = float(s[needed - 1]) if 0 < needed <= len(s) else 0.0
         rows = sum(len(Ji) for Ji in Js)
         out.append(LevelConditioning(level, tuple(t.name for t in tasks), rows, rank, sigma))
