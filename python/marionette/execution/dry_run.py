@@ -15,8 +15,8 @@ Two parts, on the references the supervisor will stream (:meth:`Supervisor.prepa
    time (4: unpaced, the controller outruns the Python streamer on a loaded machine and the
    watchdog holds it — a streaming failure, not the plan's; a starved run is played again at real
    time) on a private LCM URL, driven by the same :class:`~.supervisor.Supervisor` with the same
-   controllers and references (no camera: the visual corrections stay at identity). Refused switches are the
-   controller's own start check; an end check that fails within the converge timeout is a task
+   controllers and references (no camera: the visual corrections stay at identity). Refused
+   switches are the controller's own start check; an end check that fails within the converge timeout is a task
    that does not converge; and every joint the posture follows is compared with its streamed
    reference at the same controller time: one farther than ``branch_tolerance`` left the planned
    IK branch (a 6-DoF arm flipping its elbow through a singularity, its gripper on its pose:
@@ -32,6 +32,7 @@ import dataclasses
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -240,6 +241,11 @@ def joint_deviation(
     return worst, where
 
 
+def _later_than(utime: int) -> Callable[[ControllerClient], bool]:
+    """A wait condition: the controller's clock past ``utime``."""
+    return lambda c: c.utime() > utime
+
+
 def _go_to(client: ControllerClient, model: pin.Model, q_goal: np.ndarray, limits: np.ndarray):
     """Brings the kinematic robot to ``q_goal`` (a posture move at rest at both ends, within
     ``limits``): the plan may start elsewhere than the controller's reference posture."""
@@ -268,10 +274,8 @@ def _go_to(client: ControllerClient, model: pin.Model, q_goal: np.ndarray, limit
     )
     while not streamer.done:
         streamer.pump(client.utime())
-        now = client.utime()
-        client.wait(lambda c, n=now: c.utime() > n, 5.0, "controller time")
-    end = streamer.end_utime + 1_000_000
-    client.wait(lambda c: c.utime() > end, 60.0, "the start move to end")
+        client.wait(_later_than(client.utime()), 5.0, "controller time")
+    client.wait(_later_than(streamer.end_utime + 1_000_000), 60.0, "the start move to end")
 
 
 def play(
@@ -302,7 +306,7 @@ def play(
             group.start(
                 "dry-run-controller",
                 [
-                    marionette.BUILD_DIR / "marionette-controller",
+                    str(marionette.BUILD_DIR / "marionette-controller"),
                     "--lcm-url",
                     url,
                     "--robot",
@@ -366,8 +370,8 @@ def play(
                 v.reasons.append(f"a task would not converge: {r.result}")
             else:
                 v.reasons.append(f"played: {r.result}")
-    end = f"{result.state}" + (f" ({result.reason})" if result.reason else "")
-    return result.success, end, played_s
+    final = f"{result.state}" + (f" ({result.reason})" if result.reason else "")
+    return result.success, final, played_s
 
 
 def dry_run(

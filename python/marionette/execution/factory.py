@@ -502,12 +502,15 @@ def level_conditioning(
     N = np.eye(model.nv)  # null-space basis of the levels above
     for level in sorted({t.priority for t in spec.tasks}):
         tasks = [t for t in spec.tasks if t.priority == level]
-        Js = [task_jacobian(model, data, t, q) for t in tasks]
-        Js = [J for J in Js if J is not None]
+        Js = [J for J in (task_jacobian(model, data, t, q) for t in tasks) if J is not None]
         stacked = [
-            task_jacobian(model, data, t, q, posture_rows=True)
-            for t in tasks
-            if t.kind == "posture" and Js
+            P
+            for P in (
+                task_jacobian(model, data, t, q, posture_rows=True)
+                for t in tasks
+                if t.kind == "posture" and Js
+            )
+            if P is not None
         ]
         if not Js:
             continue
