@@ -58,17 +58,19 @@ MISTAKES = [
     (["robot", "check", "nosuch"], 1, "unknown robot 'nosuch'"),
     (["robot", "check", "models"], 1, "no robot.yaml"),
     (["scene", "build", "models/scenes/nope.yaml"], 1, "no such file"),
-    ([_bad_scene], 1, "unknown key 'object'; did you mean 'objects'"),
+    (["scene", "build", _bad_scene], 1, "unknown key 'object'; did you mean 'objects'"),
     (["calibrate", "arm-encoders", "--scene", "nope.xml"], 1, "no scene file"),
     (["footsteps", "plan", "--robot", "ur10"], 1, "two feet"),
+    (["plan", "ur10_bx"], 2, "did you mean 'ur10_box'"),
+    (["plan", _bad_problem], 2, "bad.yaml"),
+    (["plan", "nope.yaml"], 2, "no problem file"),
     (["dg", "--timeout", "1", "ls", "--lcm-url", URL], 1, "no reply"),
 ]
 
 
 @pytest.mark.parametrize(("args", "code", "text"), MISTAKES, ids=lambda v: str(v)[:40])
 def test_a_mistake_gets_one_line_and_its_exit_code(tmp_path, args, code, text):
-    if args and callable(args[0]):
-        args = ["scene", "build", args[0](tmp_path)]
+    args = [a(tmp_path) if callable(a) else a for a in args]
     proc = marionette_cli(*args)
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode == code, proc.stderr
@@ -97,7 +99,9 @@ def test_every_help_page_has_an_example():
 
     parser = build_parser()
     pages = [("marionette", parser)]
-    actions = [a for a in parser._actions if isinstance(a, type(parser._subparsers._group_actions[0]))]
+    actions = [
+        a for a in parser._actions if isinstance(a, type(parser._subparsers._group_actions[0]))
+    ]
     for action in actions:
         for name, sub in action.choices.items():
             pages.append((f"marionette {name}", sub))

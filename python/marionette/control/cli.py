@@ -122,6 +122,7 @@ def _trace(client: GraphClient, args: argparse.Namespace) -> int:
         for j, name in enumerate(header[2:], start=2):
             ax.plot(data[:, 1], data[:, j], label=name)
         ax.set_xlabel("controller time [s]")
+        ax.set_ylabel("signal value [each signal's unit]")
         ax.grid(True, alpha=0.3)
         if len(header) <= 14:
             ax.legend(fontsize=7)

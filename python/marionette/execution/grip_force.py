@@ -8,9 +8,9 @@
   the gripper's jaw bodies, which marionette-controller publishes in ROBOT_STATE after the soles
   (``contact_frame`` = the body name, wrench on the robot, world axes; RobotInfo::grip_bodies).
   A gripper's two jaws close along ±y of its frame (robot.yaml ``grippers[].jaws``, the +y jaw
-  first): a squeezed object pushes the +y jaw along +y and the −y jaw along −y. The grip force is the mean of the two pushes,
-  F = (F₊·y − F₋·y) / 2 (equal for an object the fingers alone hold; a grasp weld can take a share
-  of either).
+  first): a squeezed object pushes the +y jaw along +y and the −y jaw along −y. The grip force is
+  the mean of the two pushes, F = (F₊·y − F₋·y) / 2 (equal for an object the fingers alone hold; a
+  grasp weld can take a share of either).
 """
 
 from __future__ import annotations
@@ -174,9 +174,9 @@ class GripForceRecorder:
             )
             ax.axhline(target, color="k", lw=0.6, ls="--")
             ax.set_ylabel(f"{name} [N]")
+            ax.set_xlabel("controller time [s]")
             ax.set_ylim(-2, max(12.0, 2.5 * target))
             ax.legend(loc="upper right", fontsize=7)
-        axes[-1, 0].set_xlabel("controller time [s]")
         fig.suptitle(f"grip force: {target:g} N target (shaded: the gripper holds)")
         fig.tight_layout()
         fig.savefig(path, dpi=90)

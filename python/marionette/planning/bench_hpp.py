@@ -78,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     mar_proj = benchmark.projection_times(problem, args.projection_samples)
     hs, ms = benchmark.summary(hpp_runs), benchmark.summary(mar_runs)
 
-    print(f"\nUR5 box pick-and-place, {len(seeds)} seeds, same machine, alternating blocks")
+    print(f"\n{problem.name}, {len(seeds)} seeds, same machine, alternating blocks")
     print(f"{'':28s}{'HPP 9.0.2':>14s}{'marionette':>14s}{'ratio m/H':>11s}")
     for key, label, fmt in [
         ("success_rate", "success rate", "{:.0%}"),

@@ -407,6 +407,10 @@ def _load_yaml(path: Path) -> dict[str, Any]:
             data = yaml.safe_load(f)
     except OSError as e:
         raise ProblemError(f"cannot read problem file {path}: {e}") from e
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise ProblemError(f"{where}: not valid YAML: {e.problem or e.context}") from None
     if not isinstance(data, dict):
         raise ProblemError(f"{path}: a problem file is a YAML mapping")
     return data

@@ -7,6 +7,7 @@
 | `report.py` | report pieces every scenario shares (report.json, report.md parts, partial report) |
 | `perturbations.py` | seeded perturbations: displacement, slip in the hand, encoder offsets |
 | `plan_and_execute.py`, `..._report.py` | the plan-then-execute kind and its report |
+| `task_error_plot.py` | task errors split by unit (position mm, orientation deg, joints rad) |
 | `declarations.py` | plan-and-execute scenarios declared in YAML files, found on a search path |
 | `walking_scenario.py` | what the walking scenarios share: moving object, recorder, replans |
 | `plank_flip.py`, `ur10_box.py` | plan-and-execute declarations |

@@ -754,12 +754,14 @@ def _plot(out_dir: Path, r: dict[str, Any], holes: dict[str, pin.SE3]) -> Path:
     ax[0].set_yscale("log")
     ax[0].set_ylabel("hole centre to tool axis [mm]")
     ax[0].set_xticks(x, names, rotation=60, ha="right")
+    ax[0].set_xlabel("hole [name]")
     ax[0].legend()
     ax[1].bar(x - 0.2, [h["axis_angle_deg"] for h in rows], 0.4)
     ax[1].bar(x + 0.2, [h["open_loop_axis_angle_deg"] for h in rows], 0.4)
     ax[1].axhline(st["angle_tolerance_deg"], color="k", ls="--")
     ax[1].set_ylabel("tool axis vs hole axis [deg]")
     ax[1].set_xticks(x, names, rotation=60, ha="right")
+    ax[1].set_xlabel("hole [name]")
     # the tour on the part's face (part frame: y across, z up)
     yz = {n: X.translation[1:] for n, X in holes.items()}
     for n, p in yz.items():

@@ -586,6 +586,8 @@ def _plot(out_dir: Path, r: dict[str, Any]) -> Path:
     ax[1].axhline(st["angle_tolerance_deg"], color="k", ls="--")
     ax[1].set_ylabel("axis error [deg]")
     ax[1].set_xticks(x, names, rotation=45, ha="right")
+    for a in ax:
+        a.set_xlabel("hole [name]")
     ax[0].set_title(f"drill seed {r['seed']}: tool vs true hole (red: references R1, R2)")
     fig.tight_layout()
     fig.savefig(out_dir / "hole_errors.png", dpi=100)

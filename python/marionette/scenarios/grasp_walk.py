@@ -576,8 +576,8 @@ def _plots(
             ax.axvline(u * 1e-6, color="0.85", lw=0.6)
         ax.axvline(utime_move * 1e-6, color="tab:orange", lw=1.2, label="ball starts moving")
         ax.set_ylabel(f"{'xy'[k]} [m]")
+        ax.set_xlabel("controller time [s] (grey: footstep plans received)")
     axes[0].legend(fontsize=7, ncol=5)
-    axes[1].set_xlabel("controller time [s] (grey: footstep plans received)")
     fig.suptitle("grasp-walk: CoM and ZMP (Dang 2012 fig. 2.16)")
     paths.append(save_figure(fig, out_dir / "com_zmp.png"))
 

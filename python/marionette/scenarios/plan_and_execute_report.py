@@ -1,7 +1,7 @@
 """The report folder of a plan-and-execute trial: report.json (success, criteria with measured
 values, timings, per-step records), report.md (the same for people) and PNG plots: task errors per
-step (the decay of fig. 5.4), planned vs executed joints and object path, CoM vs support polygon
-(humanoids)."""
+step, one panel per unit (the decay of fig. 5.4, :mod:`.task_error_plot`), planned vs executed
+joints and object path, CoM vs support polygon (humanoids)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,12 @@ from marionette.scenarios.report import (
     title,
     write_json,
     write_report_files,
+)
+from marionette.scenarios.task_error_plot import (
+    StepTasks,
+    configuration_units,
+    plot_task_errors,
+    split_by_unit,
 )
 
 
@@ -154,8 +160,8 @@ def _markdown(r: dict[str, Any]) -> str:
         "|---|---|---|---|",
         f"| object position error | {c['object_position_error_m'] * 1e3:.1f} mm | "
         f"{c['limits']['position_m'] * 1e3:.0f} mm | {c['object_within_tolerance']} |",
-        f"| object angle error | {c['object_angle_error_deg']:.2f}° | {c['limits']['angle_deg']}° | "
-        f"{c['object_within_tolerance']} |",
+        f"| object angle error | {c['object_angle_error_deg']:.2f}° | "
+        f"{c['limits']['angle_deg']}° | {c['object_within_tolerance']} |",
     ]
     if "feet_max_displacement_m" in c:
         lines += [
@@ -173,7 +179,8 @@ def _markdown(r: dict[str, Any]) -> str:
         )
         lines += [
             f"| grip force on the jaws (median per hold) | {shown} | "
-            f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | {c['grip_within_tolerance']} |"
+            f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | "
+            f"{c['grip_within_tolerance']} |"
         ]
     lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", ""]
     if "perturbation" in r:
@@ -182,11 +189,13 @@ def _markdown(r: dict[str, Any]) -> str:
             "## Perturbations (seeded)",
             "",
             f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
-            f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); slip in the hand "
+            f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); "
+            "slip in the hand "
             f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
             f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
             + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
-            + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°",
+            + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / "
+            f"{np.degrees(p['camera_noise_rad']):.2f}°",
             "",
         ]
     lines += _dry_run_lines(r) + _calibration_lines(r)
@@ -211,8 +220,9 @@ def _markdown(r: dict[str, Any]) -> str:
         lines += [
             "## Gripper admittance (thesis 000 §3.2.4.3)",
             "",
-            f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
-            "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.",
+            f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, "
+            "estimate = joint effort through eq. 3.11-3.13; from 1 s after the switch to "
+            "admittance to the release.",
             "",
             "| gripper | window [s] | contact median (min-max) | estimate mean |",
             "|---|---|---|---|",
@@ -225,15 +235,16 @@ def _markdown(r: dict[str, Any]) -> str:
                     )
                     continue
                 lines.append(
-                    f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_median_n']:.2f} N "
-                    f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |"
+                    f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | "
+                    f"{h['contact_median_n']:.2f} N ({h['contact_min_n']:.2f}-"
+                    f"{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |"
                 )
         lines += ["", f"![{g['plot']}]({g['plot']})", ""]
     lines += [
         "## Estimation (§3.2.2)",
         "",
-        f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
-        f"started at step {r['estimation']['first_step']}",
+        f"state `{r['estimation']['state']}`, projection residual "
+        f"{r['estimation']['residual']:.2e}, started at step {r['estimation']['first_step']}",
         "",
         *timings_lines(r["timings"]),
     ]
@@ -266,7 +277,33 @@ def _markdown(r: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Model) -> list[Path]:
+def run_task_steps(records: list, supervisor) -> list[StepTasks]:
+    """The steps of a live run for :func:`split_by_unit`: each record's error trace, the tasks of
+    its step's spec and the references streamed to them (the step's sampled trajectory)."""
+    specs = {s.index: sp for s, sp in zip(supervisor.steps, supervisor.specs)}
+    out = []
+    for r in records:
+        spec = specs.get(r.index)
+        traj = supervisor.trajectories.get(r.index)
+        references = {}
+        if traj is not None and r.utime_reference_start:
+            t = traj.t + r.utime_reference_start * 1e-6
+            references = {name: (t, values) for name, (values, _) in traj.references.items()}
+        tasks = {t.name: t for t in spec.tasks} if spec is not None else {}
+        out.append(StepTasks(r.error_trace, tasks, references))
+    return out
+
+
+def _plots(
+    out_dir: Path,
+    scenario,
+    supervisor,
+    result,
+    recorder,
+    model: pin.Model,
+    task_steps: list[StepTasks] | None = None,
+) -> list[Path]:
+    """The report's plots; ``task_steps`` (default: from ``supervisor``) for the task errors."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -276,24 +313,16 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
     t_rec = np.array(recorder.utimes) * 1e-6
     q_rec = np.array(recorder.q) if recorder.q else np.zeros((0, model.nq))
 
-    # 1. Task errors per step (fig. 5.4-like decay), step boundaries marked.
-    fig, ax = plt.subplots(figsize=(11, 4.5))
-    names: dict[str, Any] = {}
-    for r in result.records:
-        if not r.error_trace:
-            continue
-        t = np.array([u for u, _ in r.error_trace]) * 1e-6
-        for name in r.error_trace[0][1]:
-            e = np.array([errs.get(name, np.nan) for _, errs in r.error_trace])
-            line = names.get(name)
-            kw = {"color": line.get_color()} if line is not None else {"label": name}
-            (h,) = ax.semilogy(t, np.maximum(e, 1e-7), lw=1, **kw)
-            names.setdefault(name, h)
-        ax.axvline(r.utime_start * 1e-6, color="0.85", lw=0.8)
-    ax.set_xlabel("controller time [s]")
-    ax.set_ylabel("task error ||e||")
-    ax.set_title(f"{scenario.name}: task errors, one controller per step (grey lines: switches)")
-    ax.legend(fontsize=7, ncol=4)
+    # 1. Task errors per step (fig. 5.4-like decay), one panel per unit, step boundaries marked.
+    if task_steps is None:
+        task_steps = run_task_steps(result.records, supervisor)
+    fig = plot_task_errors(
+        split_by_unit(task_steps, model, t_rec, q_rec),
+        [r.utime_start * 1e-6 for r in result.records if r.error_trace],
+        f"{scenario.name}: task errors by unit, one controller per step (grey lines: switches)\n"
+        "(measured): forward kinematics of the recorded robot state vs the task's reference; "
+        "others: the controller's ||e||",
+    )
     paths.append(save_figure(fig, out_dir / "task_errors.png"))
 
     # 2. Planned vs executed joints (the 6 that move most) and object path.
@@ -320,13 +349,16 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
         top = first_joint + np.argsort(motion)[::-1][:6]
         fig, axes = plt.subplots(2, 3, figsize=(12, 6), sharex=True)
         labels = [n for j in range(1, model.njoints) for n in [model.names[j]] * model.joints[j].nq]
+        units = configuration_units(model)
         for ax, k in zip(axes.flat, top):
             ax.plot(pt, pq[:, k], "k--", lw=1, label="planned")
             if len(q_rec):
                 ax.plot(t_rec, q_rec[:, k], lw=1, label="executed")
-            ax.set_title(labels[k] if k < len(labels) else f"q[{k}]", fontsize=8)
+            name = labels[k] if k < len(labels) else f"q[{k}]"
+            ax.set_ylabel(f"{name} [{units[k]}]", fontsize=8)
+            ax.set_xlabel("controller time [s]")
         axes.flat[0].legend(fontsize=7)
-        fig.suptitle(f"{scenario.name}: planned vs executed joints [rad]")
+        fig.suptitle(f"{scenario.name}: planned vs executed joints (the 6 that move most)")
         paths.append(save_figure(fig, out_dir / "joints.png"))
 
         fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
@@ -347,8 +379,8 @@ def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Mod
             if len(ex):
                 ax.plot(t_rec, ex[:, i], lw=1, label="executed (simulator)")
             ax.set_ylabel(f"{'xyz'[i]} [m]")
+            ax.set_xlabel("controller time [s]")
         axes[0].legend(fontsize=7)
-        axes[-1].set_xlabel("controller time [s]")
         fig.suptitle(f"{scenario.name}: {scenario.object_name} position, planned vs executed")
         paths.append(save_figure(fig, out_dir / "object_path.png"))
 

@@ -7,8 +7,9 @@ the ``report.json`` beside the log names); the robot is redrawn at most ``rate_h
 second of playback. The report's task-error plot
 (:func:`marionette.scenarios.plan_and_execute_report._plots`) is rebuilt from the log alone: the
 steps from the supervisor's decisions (SUPERVISOR_DECISION: controller id, swap and
-reference-start ticks), the error traces from CONTROLLER_STATUS, the executed motion from
-ROBOT_STATE and SIM_OBJECT_POSES.
+reference-start ticks), the error traces from CONTROLLER_STATUS, the tasks and their references
+(split by unit) from CONTROLLER_SPEC and TASK_REFERENCE, the executed motion from ROBOT_STATE and
+SIM_OBJECT_POSES.
 """
 
 from __future__ import annotations
@@ -26,12 +27,14 @@ import numpy as np
 import lcm
 from marionette import (
     channels,
+    lcmt_controller_spec,
     lcmt_controller_status,
     lcmt_footstep_plan,
     lcmt_object_poses,
     lcmt_robot_state,
     lcmt_supervisor_decision,
     lcmt_supervisor_state,
+    lcmt_task_reference,
 )
 
 DRAWN = {
@@ -147,11 +150,14 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
     (task errors per step; CoM for humanoids); returns the files written."""
     from marionette import robots
     from marionette.control.client import configuration_from_state
+    from marionette.control.spec import SpecError, TaskSpec
     from marionette.scenarios import plan_and_execute_report as report
+    from marionette.scenarios.task_error_plot import StepTasks
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    decisions, statuses, states, objects = [], [], [], []
+    decisions, statuses, states, objects, chunks = [], [], [], [], []
+    tasks: dict[int, dict[str, TaskSpec]] = {}
     latest_objects: dict[str, np.ndarray] = {}
     robot = None
     model = None
@@ -161,6 +167,14 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
             decisions.append(lcmt_supervisor_decision.decode(ev.data))
         elif ev.channel == channels.CONTROLLER_STATUS:
             statuses.append(lcmt_controller_status.decode(ev.data))
+        elif ev.channel == channels.CONTROLLER_SPEC:
+            spec = lcmt_controller_spec.decode(ev.data)
+            try:
+                tasks[spec.controller_id] = {t.name: TaskSpec.from_lcm(t) for t in spec.tasks}
+            except SpecError:  # refused by the controller too: its errors stay unit-less
+                pass
+        elif ev.channel == channels.TASK_REFERENCE:
+            chunks.append(lcmt_task_reference.decode(ev.data))
         elif ev.channel == channels.SIM_OBJECT_POSES:
             m = lcmt_object_poses.decode(ev.data)
             latest_objects = {
@@ -194,9 +208,40 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
     scenario = SimpleNamespace(name=f"{name} (replayed)", object_name="", feet=())
     # No planned trajectories in the log: the planned-vs-executed plots are left to the live report.
     supervisor = SimpleNamespace(trajectories={}, robot_map=SimpleNamespace(robot=robot))
+    references = _references(chunks)
+    task_steps = [
+        StepTasks(
+            r.error_trace, tasks.get(r.controller_id, {}), references.get(r.controller_id, {})
+        )
+        for r in records
+    ]
     return report._plots(
-        out_dir, scenario, supervisor, SimpleNamespace(records=records), recorder, model
+        out_dir, scenario, supervisor, SimpleNamespace(records=records), recorder, model, task_steps
     )
+
+
+def _references(chunks: list[Any]) -> dict[int, dict[str, tuple[np.ndarray, np.ndarray]]]:
+    """The references streamed in TASK_REFERENCE chunks, by controller id and task: (t [s], values
+    (N x k)); a chunk overrides the samples of earlier ones from its start on, as in the
+    controller."""
+    samples: dict[tuple[int, str], list[tuple[np.ndarray, np.ndarray]]] = {}
+    for c in chunks:
+        if c.num_samples == 0:
+            continue
+        t = (c.utime + c.dt_us * np.arange(c.num_samples)) * 1e-6
+        parts = samples.setdefault((c.controller_id, c.task_name), [])
+        while parts and len(parts[-1][0]) and parts[-1][0][-1] >= t[0]:
+            pt, pv = parts.pop()
+            if pt[0] < t[0]:
+                parts.append((pt[pt < t[0]], pv[pt < t[0]]))
+                break
+        parts.append((t, np.array(c.value, dtype=float).reshape(c.num_samples, c.value_size)))
+    out: dict[int, dict[str, tuple[np.ndarray, np.ndarray]]] = {}
+    for (cid, name), parts in samples.items():
+        t = np.concatenate([pt for pt, _ in parts])
+        if len(t):
+            out.setdefault(cid, {})[name] = (t, np.vstack([pv for _, pv in parts]))
+    return out
 
 
 def _records(decisions: list[Any], statuses: list[Any]) -> list[Any]:

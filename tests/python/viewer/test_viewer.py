@@ -161,12 +161,25 @@ def test_replay_view_rejects_bad_input(tmp_path):
 
 
 def test_footstep_plan_is_drawn_as_soles(tmp_path):
-    """FOOTSTEP_PLAN -> one sole box per step, right feet orange (no orange elsewhere)."""
+    """FOOTSTEP_PLAN -> one sole box per step: the two right feet appear as two orange patches,
+    the left foot as one blue patch (counted as connected regions of new pixels)."""
+    from scipy import ndimage
+
     from marionette import lcmt_footstep, lcmt_footstep_plan
 
     def orange(img: np.ndarray) -> np.ndarray:
         r, g, b = (img[..., k].astype(int) for k in range(3))
         return (r > 150) & (r - b > 80) & (g < r - 30)
+
+    def blue(img: np.ndarray) -> np.ndarray:
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        return (b > 150) & (b - r > 100) & (b - g > 60)
+
+    def patches(mask: np.ndarray) -> list[int]:
+        """Pixel counts of the connected regions of at least 20 pixels (soles, not edges)."""
+        labels, n = ndimage.label(mask)
+        sizes = np.bincount(labels.ravel())[1:]
+        return sorted(int(s) for s in sizes if s >= 20)
 
     server = MeshcatServer()
     try:
@@ -183,5 +196,6 @@ def test_footstep_plan_is_drawn_as_soles(tmp_path):
     finally:
         server.close()
     assert scene.footsteps == 3
-    # (the world triad's red x axis has a few orange-ish pixels already)
-    assert (orange(after) & ~orange(before)).sum() > 300
+    # (the world triad's red x axis has a few orange-ish pixels already: only new pixels count)
+    assert len(patches(orange(after) & ~orange(before))) == 2
+    assert len(patches(blue(after) & ~blue(before))) == 1

@@ -22,7 +22,8 @@ struct JointLimitsOptions {
   double margin = 0.0;           ///< [rad or m] kept away from each position limit
 };
 
-/// 1-DoF joints with finite position limits (a humanoid's and an arm's joints; not continuous wheels).
+/// 1-DoF joints with finite position limits (a humanoid's and an arm's joints; not continuous
+/// wheels).
 std::vector<std::string> LimitedJoints(const pinocchio::Model& model);
 
 /// The bounds of the joint-limit task over `feature` (a posture feature whose reference is the

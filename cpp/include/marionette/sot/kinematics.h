@@ -43,16 +43,13 @@ enum class BaseJoint {
 BaseJoint ParseBaseJoint(const std::string& name);
 
 /// Loads a URDF with the given base. When `srdf_path` is not empty, its reference configurations
-/// (e.g. a humanoid's "half_sitting") are loaded into model->referenceConfigurations. Throws SotError
-/// when a file cannot be read.
+/// (e.g. a humanoid's "half_sitting") are loaded into model->referenceConfigurations. Throws
+/// SotError when a file cannot be read.
 ModelPtr LoadModel(const std::string& urdf_path, BaseJoint base, const std::string& srdf_path = "");
 
 /// The example-robot-data `robots/` folder: $MARIONETTE_ROBOT_DATA_DIR if set, else the folder of
 /// the example-robot-data package found at build time.
 std::string ExampleRobotDataDir();
-
-/// TALOS (talos_reduced.urdf, free-flyer, 38 DoF) with its SRDF reference configurations.
-ModelPtr LoadTalos();
 
 /// A frame a feature controls, resolved once at construction.
 struct FrameRef {
