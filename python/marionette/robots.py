@@ -98,6 +98,7 @@ class CalibratedArm:
     tagged_link: str
     sampling_box: tuple[tuple[float, float], ...]  # [lower, upper] per joint [rad]
     head_postures: tuple[tuple[float, float], ...]  # (pitch, yaw) [rad]
+    max_offset_deg: float = 10.0  # [deg] encoder offsets the view planning finds the ring within
 
 
 @dataclass(frozen=True)
@@ -283,6 +284,7 @@ def _load_robot(folder: Path) -> RobotDescription:
                 a["tagged_link"],
                 tuple(tuple(b) for b in a["sampling_box"]),
                 tuple(tuple(h) for h in a["head_postures"]),
+                float(a.get("max_offset_deg", 10.0)),
             )
             for a in calibration.get("arms", ())
         ),

@@ -52,6 +52,7 @@ class CampaignSettings:
     speed: float = 1.0
     gripper_admittance: bool | None = None
     controller_url: str | None = None
+    dry_run: bool = True  # the controllers played on the plan before anything moves
 
     def seeds(self) -> range:
         return range(self.first_seed, self.first_seed + self.trials)
@@ -65,6 +66,7 @@ class CampaignSettings:
             self.speed,
             self.gripper_admittance,
             self.controller_url,
+            self.dry_run,
         )
 
     def same_trials_as(self, other: CampaignSettings) -> list[str]:

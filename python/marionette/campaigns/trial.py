@@ -54,6 +54,7 @@ class TrialSpec:
     speed: float = 1.0
     gripper_admittance: bool | None = None
     controller_url: str | None = None
+    dry_run: bool = True  # the controllers played on the plan before anything moves
 
     def command(self, out: Path) -> list[str]:
         """The demo's command line, writing its report folder in ``out``."""
@@ -68,6 +69,8 @@ class TrialSpec:
             )
         if self.controller_url is not None:
             argv += ["--controller-url", self.controller_url]
+        if not self.dry_run:
+            argv.append("--no-dry-run")
         return argv
 
     def to_dict(self) -> dict[str, Any]:

@@ -1,8 +1,8 @@
 """``marionette replay LOG --supervisor``: re-take the supervisor's decisions from a recorded run.
 
 Reads the LCM log of a run (lcm-logger, e.g. a demo's ``run.lcmlog``): the decisions published on
-SUPERVISOR_DECISION, and the inputs the supervisor received, CONTROLLER_STATUS and the
-SUPERVISOR_EVENT of other sources, in log order. A fresh :class:`decisions.DecisionMachine` is
+SUPERVISOR_DECISION, and the inputs the supervisor received, CONTROLLER_STATUS, ROBOT_COMMAND and
+the SUPERVISOR_EVENT of other sources, in log order. A fresh :class:`decisions.DecisionMachine` is
 fed those inputs (the recorded STEP/TIMER inputs re-fed at their ticks) and must take the same
 decisions at the same ticks, having read the same values.
 """
@@ -16,10 +16,18 @@ import lcm
 from marionette import (
     channels,
     lcmt_controller_status,
+    lcmt_robot_command,
     lcmt_supervisor_decision,
     lcmt_supervisor_event,
 )
-from marionette.execution.decisions import EVENT, STATUS, Decision, DecisionReplay, replay_decisions
+from marionette.execution.decisions import (
+    COMMAND,
+    EVENT,
+    STATUS,
+    Decision,
+    DecisionReplay,
+    replay_decisions,
+)
 from marionette.execution.supervisor import SOURCE
 
 
@@ -44,6 +52,8 @@ def read_decision_log(log: Path) -> tuple[list[Decision], list[tuple[str, Any]]]
                 recorded.append(lcmt_supervisor_decision.decode(ev.data))
             elif ev.channel == channels.CONTROLLER_STATUS:
                 inputs.append((STATUS, lcmt_controller_status.decode(ev.data)))
+            elif ev.channel == channels.ROBOT_COMMAND:
+                inputs.append((COMMAND, lcmt_robot_command.decode(ev.data)))
             elif ev.channel == channels.SUPERVISOR_EVENT:
                 msg = lcmt_supervisor_event.decode(ev.data)
                 if msg.source != SOURCE:  # the supervisor does not read its own events

@@ -1,11 +1,13 @@
 """The supervisor's decisions as a function of the messages it receives.
 
 :class:`DecisionMachine` holds no clock, thread or I/O: it is fed, one at a time and in arrival
-order, the controller's statuses (CONTROLLER_STATUS, whose ``utime`` is the controller tick),
-the events of other processes (SUPERVISOR_EVENT) and the step's own facts (``STEP``: controller
-id and end-check thresholds from the plan, the streamer's reference start/end times) or a
-wall-clock timeout (``TIMER``), and returns the :class:`Decision` each input caused. The live
-supervisor acts on them (thesis 000 §3.2.5.2: start check, end of reference, end check, events);
+order, the controller's statuses (CONTROLLER_STATUS, whose ``utime`` is the controller tick), its
+commands (ROBOT_COMMAND: the velocity the safety filter passes, read by the end check), the
+events of other processes (SUPERVISOR_EVENT) and the step's own facts (``STEP``: controller id
+and end-check thresholds from the plan, the streamer's reference start/end times, a switch sent
+again) or a wall-clock timeout (``TIMER``), and returns the :class:`Decision` each input caused.
+The live supervisor acts on them (thesis 000 §3.2.5.2: start check, end of reference, end check,
+events);
 ``marionette replay LOG --supervisor`` feeds the recorded inputs of a log to a fresh machine and
 compares what it decides with the recorded decisions (:func:`replay_decisions`).
 
@@ -14,7 +16,21 @@ the status that preceded them), so the same message sequence gives the same deci
 ticks whatever the wall-clock timing of the supervisor's loop.
 
 Step statuses:  starting -> waiting_start_check -> accepted -> running -> waiting_end_check -> ended
-                (any of them -> failed).
+                (any of them -> failed); waiting_start_check -> settling -> resend ->
+                waiting_start_check when a refused switch is retried.
+
+Switch and end check, one semantics. The controller swaps a new controller in only when the
+command it computes at that tick is within ``max_switch_velocity_jump`` (‖Δv‖∞) of the command
+applied; the new controller's references start where the robot is (its streams hold the current
+value until their first sample), so its first command is ~0 and the jump is the command the
+previous controller still applies: the gain times what the robot lags behind its reference. The
+end check therefore tests that lag where it matters: besides every task error below its threshold,
+the command of a status-time ROBOT_COMMAND after the last sample must be at most
+``REST_FRACTION`` of the next controller's jump bound (joints an admittance task ramps are left
+out: the next controller continues their ramp). A switch refused all the same (a transient: a
+grasp weld closing, a slip) is retried up to ``switch_retries`` times: the previous controller
+holds its last reference, and once its command is back under that bound (or after
+``settle_timeout_us``) the supervisor sends the controller again under a new id.
 """
 
 from __future__ import annotations
@@ -26,6 +42,7 @@ from typing import Any
 from marionette.control.spec import HOLD_CONTROLLER_ID
 
 STATUS = "CONTROLLER_STATUS"
+COMMAND = "ROBOT_COMMAND"
 EVENT = "SUPERVISOR_EVENT"
 STEP = "STEP"
 TIMER = "TIMER"
@@ -46,6 +63,9 @@ FAILURES = (
     "end_check_failed",
     "approval_timeout",
 )
+# A step ends, and a refused switch is sent again, only when the command is at most this fraction
+# of the (next) controller's switch bound: half of it is left for what changes until the swap.
+REST_FRACTION = 0.5
 
 
 def event_message(utime: int, name: str, source: str, detail: str = "", value: float = 0.0) -> Any:
@@ -112,6 +132,47 @@ class Decision:
         )
 
 
+@dataclass(frozen=True)
+class StepRest:
+    """The command bounds of one step (module doc): ``switch_jump``, its controller's
+    ``max_switch_velocity_jump``; ``next_switch_jump``, the next controller's (inf: the last
+    step, no end-of-step rest check); refused switches retried ``switch_retries`` times, each
+    after at most ``settle_timeout_us`` of controller time; ``excluded_joints`` ramped by an
+    admittance task (left out of the rest checks)."""
+
+    switch_jump: float = float("inf")
+    next_switch_jump: float = float("inf")
+    switch_retries: int = 0
+    settle_timeout_us: int = 0
+    excluded_joints: tuple[str, ...] = ()
+
+    def inputs(self) -> dict[str, float]:
+        """As a decision's inputs (none for the default: logs of runs without rest checks replay
+        unchanged)."""
+        if self == StepRest():
+            return {}
+        out = {
+            "switch_jump": self.switch_jump,
+            "next_switch_jump": self.next_switch_jump,
+            "switch_retries": float(self.switch_retries),
+            "settle_timeout_us": float(self.settle_timeout_us),
+        }
+        out.update({f"rest_excluded:{j}": 1.0 for j in self.excluded_joints})
+        return out
+
+    @staticmethod
+    def from_inputs(inputs: dict[str, float]) -> StepRest:
+        if "switch_jump" not in inputs:
+            return StepRest()
+        return StepRest(
+            inputs["switch_jump"],
+            inputs["next_switch_jump"],
+            int(inputs["switch_retries"]),
+            int(inputs["settle_timeout_us"]),
+            tuple(n[len("rest_excluded:") :] for n in inputs if n.startswith("rest_excluded:")),
+        )
+
+
 class DecisionMachine:
     """The supervisor FSM's decision function, one step at a time (see the module doc)."""
 
@@ -129,15 +190,28 @@ class DecisionMachine:
         # chunk redefines the controller's stream from its first sample on (reference_stream.cc).
         self.reference_stopped = False
         self.awaiting = ""  # event name awaited in "awaiting_approval"
+        # The last command (ROBOT_COMMAND): its tick, joints and velocities.
+        self.command_utime = -1
+        self._command: tuple[list[str], list[float]] = ([], [])
+        self.rest_excluded: frozenset[str] = frozenset()
+        self.end_rest_speed = float("inf")  # the end check's bound (inf: not checked)
+        self.switch_rest_speed = float("inf")  # a refused switch is resent below this
+        self.switch_retries = 0  # refused switches still to retry in this step
+        self.settle_timeout_us = 0
+        self.refused_tick = 0
 
     # ---- inputs -----------------------------------------------------------------------------
     def feed(self, channel: str, msg: Any) -> list[Decision]:
         """Feeds one received message (CONTROLLER_STATUS or SUPERVISOR_EVENT)."""
         if channel == STATUS:
             return self.on_status(msg)
+        if channel == COMMAND:
+            return self.on_command(msg)
         if channel == EVENT:
             return self.on_event(msg)
-        raise ValueError(f"the decision machine reads {STATUS} and {EVENT}, not {channel!r}")
+        raise ValueError(
+            f"the decision machine reads {STATUS}, {COMMAND} and {EVENT}, not {channel!r}"
+        )
 
     def begin_step(
         self,
@@ -147,19 +221,29 @@ class DecisionMachine:
         thresholds: dict[str, float],
         converge_timeout_us: int,
         approval: bool = False,
+        rest: StepRest | None = None,
     ) -> Decision:
-        """STEP: a new step, its controller id and end-check thresholds (from the plan)."""
+        """STEP: a new step, its controller id and end-check thresholds (from the plan), and the
+        command bounds of its switch and end check (``rest``; None: neither checked nor
+        retried)."""
         self.step_index, self.transition = int(step_index), transition
         self.controller_id = int(controller_id)
         self.thresholds = dict(thresholds)
         self.converge_timeout_us = int(converge_timeout_us)
         self.end_utime, self.reference_sent, self.reference_stopped = 0, False, False
+        rest = rest or StepRest()
+        self.end_rest_speed = REST_FRACTION * rest.next_switch_jump
+        self.switch_rest_speed = REST_FRACTION * rest.switch_jump
+        self.switch_retries = int(rest.switch_retries)
+        self.settle_timeout_us = int(rest.settle_timeout_us)
+        self.rest_excluded = frozenset(rest.excluded_joints)
         inputs = {
             "controller_id": float(controller_id),
             "converge_timeout_us": float(converge_timeout_us),
             "approval": float(approval),
         }
         inputs.update({f"threshold:{n}": float(t) for n, t in thresholds.items()})
+        inputs.update(rest.inputs())
         if approval:
             self.awaiting = "approve"
             return self._decide(
@@ -204,6 +288,45 @@ class DecisionMachine:
             {"end_utime": float(end_utime), "sent": float(sent)},
         )
 
+    def resend_switch(self, controller_id: int) -> Decision:
+        """STEP: the refused controller sent again under the new id ``controller_id``."""
+        self._expect("resend")
+        self.controller_id = int(controller_id)
+        return self._decide(
+            "switch_resent",
+            "waiting_start_check",
+            f"controller {controller_id}",
+            STEP,
+            self.tick,
+            {"controller_id": float(controller_id)},
+        )
+
+    def on_command(self, msg: Any) -> list[Decision]:
+        """ROBOT_COMMAND: the command applied at ``msg.utime``, kept for the rest checks."""
+        self.command_utime = int(msg.utime)
+        self._command = (list(msg.joint_name), list(msg.joint_velocity))
+        return []
+
+    def command_speed(self) -> tuple[float, str]:
+        """‖v‖∞ of the last command over the joints the rest checks read, and its joint."""
+        speed, joint = (0.0, "") if self.command_utime >= 0 else (float("inf"), "")
+        for name, v in zip(*self._command):
+            if name not in self.rest_excluded and abs(v) > speed:
+                speed, joint = abs(v), name
+        return speed, joint
+
+    def _at_rest(self, after_utime: int, bound: float) -> bool:
+        """The last command was applied after ``after_utime`` and is within ``bound``."""
+        return bound == float("inf") or (
+            self.command_utime > after_utime and self.command_speed()[0] <= bound
+        )
+
+    def _command_inputs(self) -> dict[str, float]:
+        return {
+            "command_utime": float(self.command_utime),
+            "command_speed": self.command_speed()[0],
+        }
+
     def timeout(self, event: str, detail: str) -> Decision:
         """TIMER: a wall-clock wait ran out (``switch_timeout``, ``approval_timeout``)."""
         if event not in FAILURES:
@@ -225,25 +348,25 @@ class DecisionMachine:
                     )
                 ]
             if tag in st.last_switch_result and not st.last_switch_result.startswith("accepted"):
-                return [
-                    self._status_decision(
-                        "switch_refused", "failed", st.last_switch_result, st, ins
-                    )
-                ]
+                return [self._refused(st.last_switch_result, st, ins)]
             if tag in st.last_rejection:
                 # A refused switch is also counted as a rejection ("CONTROLLER_SPEC: refused
                 # controller ... command jump"), which can reach a status before the switch result
                 # does (that one waits for the deciding tick): it is still a refused switch.
-                refused = "refused controller" in st.last_rejection
+                if "refused controller" in st.last_rejection:
+                    return [self._refused(st.last_rejection, st, ins)]
                 return [
-                    self._status_decision(
-                        "switch_refused" if refused else "spec_rejected",
-                        "failed",
-                        st.last_rejection,
-                        st,
-                        ins,
-                    )
+                    self._status_decision("spec_rejected", "failed", st.last_rejection, st, ins)
                 ]
+            return []
+        if s == "settling":
+            # The previous controller holds its last reference; resend once it is at rest.
+            settled = self._at_rest(self.refused_tick, self.switch_rest_speed)
+            if settled or self.tick >= self.refused_tick + self.settle_timeout_us:
+                ins.update(self._command_inputs())
+                ins["refused_tick"] = float(self.refused_tick)
+                how = "at rest" if settled else "settle timeout"
+                return [self._status_decision("switch_resend", "resend", how, st, ins)]
             return []
         if s not in ("running", "waiting_end_check"):
             return []
@@ -278,6 +401,11 @@ class DecisionMachine:
                 for n, thr in self.thresholds.items()
                 if errors.get(n, float("inf")) > thr
             }
+            if self.end_rest_speed != float("inf"):
+                ins.update(self._command_inputs())
+                if not self._at_rest(self.end_utime, self.end_rest_speed):
+                    speed, joint = self.command_speed()
+                    above[f"command {joint or '-'} [rad/s]"] = speed
             if not above:
                 out.append(self._status_decision("end_check_passed", "ended", "", st, ins))
             elif self.tick > self.end_utime + self.converge_timeout_us:
@@ -329,6 +457,16 @@ class DecisionMachine:
         return []
 
     # ---- helpers ----------------------------------------------------------------------------
+    def _refused(self, detail: str, st: Any, ins: dict[str, float]) -> Decision:
+        """A refused switch: retried while retries are left and the refusal was a command jump
+        (an estop latched is not a transient), failed otherwise."""
+        if self.switch_retries > 0 and "command jump" in detail:
+            self.switch_retries -= 1
+            self.refused_tick = self.tick
+            ins["retries_left"] = float(self.switch_retries)
+            return self._status_decision("switch_retry", "settling", detail, st, ins)
+        return self._status_decision("switch_refused", "failed", detail, st, ins)
+
     def _expect(self, status: str) -> None:
         if self.status != status:
             raise RuntimeError(f"decision machine: expected status {status!r}, in {self.status!r}")
@@ -384,7 +522,7 @@ def replay_decisions(recorded: list[Decision], inputs: Iterable[tuple[str, Any]]
     fed = [d for d in recorded if d.input_channel in FED_CHANNELS]
     machine = DecisionMachine()
     replayed: list[Decision] = []
-    counts = {STATUS: 0, EVENT: 0}
+    counts = {STATUS: 0, COMMAND: 0, EVENT: 0}
     k = 0
 
     def refeed(before_utime: int | None) -> None:
@@ -436,7 +574,10 @@ def _refeed(machine: DecisionMachine, d: Decision) -> Decision:
             thresholds,
             int(i["converge_timeout_us"]),
             bool(i.get("approval", 0.0)),
+            StepRest.from_inputs(i),
         )
+    if d.event == "switch_resent":
+        return machine.resend_switch(int(i["controller_id"]))
     if d.event == "reference_started":
         return machine.start_reference(int(i["start_utime"]), int(i["end_utime"]))
     if d.event == "reference_end":

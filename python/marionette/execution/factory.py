@@ -8,7 +8,14 @@ step of a plan, with the three task groups of §3.2.5.1, by priority:
    transition -> ``se3`` following its planned pose; a second gripper on the object another one
    already holds -> ``relative_se3`` to that gripper (the double-grasp task of §3.2.5.1, fig. 3.13
    steps 4-6; relative to the measured object once vision closes the loop, ch. 5);
-3. ``posture`` following the planned configuration (regularisation, lowest priority).
+3. ``posture`` following the planned configuration (regularisation, lowest priority) — except
+   where a gripper task leaves the posture nothing to act on: an arm whose gripper is moved by
+   no more joints than its se3 task has rows (a 6-DoF UR5 or UR10) has no null space below that
+   task, so a posture one level down never acts, and through an elbow or wrist singularity the
+   damped gripper task alone may take the other IK branch (the plan's branch is only in the
+   posture). There the posture joins the gripper task's level (:func:`posture_joins_grippers`):
+   stacked in one least-squares level, both follow the same planned motion, the posture rows keep
+   the level full-rank through the singularity and the arm on the planned branch.
 
 With ``gripper_admittance`` (opt-in, :func:`gripper_admittance_tasks`) group 2 also gets, for every
 gripper with a joint, a ``gripper_admittance`` task while it holds a handle (closing, then holding
@@ -332,14 +339,33 @@ def _posture_task(ctx: FactoryContext, admittance: list[TaskSpec]) -> TaskSpec:
     return TaskSpec("posture", "posture", 0, gain=GAINS["posture"], streamed=True, joints=joints)
 
 
+def chain_dof(model: pin.Model, frame: str) -> int:
+    """The 1-DoF joints that move ``frame`` (its parent joint's support, base excluded)."""
+    joint = model.frames[model.getFrameId(frame)].parentJoint
+    return sum(1 for j in model.supports[joint] if j > 0 and model.joints[j].nv == 1)
+
+
+def task_rows(task: TaskSpec) -> int:
+    full = {"se3": 6, "pbvs": 6, "relative_se3": 6, "position": 3, "com": 3}.get(task.kind, 0)
+    return sum(bool(m) for m in task.mask) if len(task.mask) else full
+
+
+def posture_joins_grippers(grasps: list[TaskSpec], ctx: FactoryContext) -> bool:
+    """True when a gripper follows its planned pose (``se3``: no vision correction to give way
+    to) with no more joints than the task has rows: no redundancy is left for a posture below it
+    (module doc, group 3)."""
+    return any(t.kind == "se3" and chain_dof(ctx.model, t.frame) <= task_rows(t) for t in grasps)
+
+
 def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None) -> ControllerSpec:
     """The controller of one step (levels numbered from 0 without gaps)."""
     admittance = gripper_admittance_tasks(step, ctx, 0)
-    levels = [
-        balance_tasks(ctx),
-        grasp_tasks(step, ctx, 0) + admittance,
-        [_posture_task(ctx, admittance)],
-    ]
+    grasps = grasp_tasks(step, ctx, 0)
+    posture = _posture_task(ctx, admittance)
+    if posture_joins_grippers(grasps, ctx):
+        levels = [balance_tasks(ctx), grasps + admittance + [posture]]
+    else:
+        levels = [balance_tasks(ctx), grasps + admittance, [posture]]
     tasks: list[TaskSpec] = []
     for priority, level in enumerate(lv for lv in levels if lv):
         for t in level:
@@ -408,10 +434,21 @@ def read_specs(path: str | Path) -> list[ControllerSpec]:
 
 
 def task_jacobian(
-    model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray
+    model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray, posture_rows: bool = False
 ) -> np.ndarray | None:
-    """The task's Jacobian (rows x nv) at q (kinematics already computed at q), None for the
-    posture task (a regularisation: it never loses rank)."""
+    """The task's Jacobian (rows x nv) at q (kinematics already computed at q). The posture's
+    (selection rows of its joints) only with ``posture_rows``: alone on its level it is a
+    regularisation, which never loses rank; None then, and for kinds without a Jacobian here."""
+    if task.kind == "posture":
+        if not posture_rows:
+            return None
+        names = list(task.joints) or [
+            model.names[j] for j in range(1, model.njoints) if model.joints[j].nv == 1
+        ]
+        J = np.zeros((len(names), model.nv))
+        for i, name in enumerate(names):
+            J[i, model.joints[model.getJointId(name)].idx_v] = 1.0
+        return J
     if task.kind in ("se3", "pbvs"):
         J = pin.getFrameJacobian(model, data, model.getFrameId(task.frame), pin.LOCAL)
     elif task.kind == "position":
@@ -431,6 +468,73 @@ def task_jacobian(
     if len(task.mask):
         J = J[[i for i, m in enumerate(task.mask) if m]]
     return J
+
+
+@dataclass(frozen=True)
+class LevelConditioning:
+    """One priority level of a controller at a configuration, the levels above projected out:
+    its tasks, the rows of its tasks (a stacked posture left out), the rank those rows get, and
+    the smallest singular value the level needs — of its task rows, or, with a posture stacked
+    in it, of the whole level over the DoF left to it that its rows move (0 when it needs more
+    DoF than are left)."""
+
+    priority: int
+    tasks: tuple[str, ...]
+    rows: int
+    rank: int
+    sigma_min: float
+
+
+def _svd_values(J: np.ndarray) -> np.ndarray:
+    return np.linalg.svd(J, compute_uv=False) if J.size else np.zeros(0)
+
+
+def level_conditioning(
+    model: pin.Model, data: pin.Data, spec: ControllerSpec, q: np.ndarray, tol: float = 1e-6
+) -> list[LevelConditioning]:
+    """Every level of ``spec`` with a Jacobian at ``q`` (nq), the levels above projected out (the
+    strict hierarchy the controller solves); a posture alone on its level is left out (a
+    regularisation)."""
+    pin.computeJointJacobians(model, data, q)
+    pin.framesForwardKinematics(model, data, q)
+    pin.centerOfMass(model, data, q)
+    out: list[LevelConditioning] = []
+    N = np.eye(model.nv)  # null-space basis of the levels above
+    for level in sorted({t.priority for t in spec.tasks}):
+        tasks = [t for t in spec.tasks if t.priority == level]
+        Js = [J for J in (task_jacobian(model, data, t, q) for t in tasks) if J is not None]
+        stacked = [
+            P
+            for P in (
+                task_jacobian(model, data, t, q, posture_rows=True)
+                for t in tasks
+                if t.kind == "posture" and Js
+            )
+            if P is not None
+        ]
+        if not Js:
+            continue
+        J = np.vstack(Js) @ N
+        s = _svd_values(J)
+        rank = int(np.sum(s > tol * max(1.0, s[0]))) if len(s) else 0
+        needed = J.shape[0]
+        if stacked:  # the level is the least squares of its tasks and the posture
+            raw = np.vstack([*Js, *stacked])
+            J = np.vstack([J, *(P @ N for P in stacked)])
+            s = _svd_values(J)
+            # over the DoF left to it that its rows move (a joint no row of the level touches,
+            # e.g. a finger another kind of task drives, is no lost rank)
+            touched = np.any(raw != 0.0, axis=0)
+            free = _svd_values(N[touched])
+            needed = min(needed, int(np.sum(free > tol)))
+        sigma = float(s[needed - 1]) if 0 < needed <= len(s) else 0.0
+        rows = sum(len(Ji) for Ji in Js)
+        out.append(LevelConditioning(level, tuple(t.name for t in tasks), rows, rank, sigma))
+        if N.shape[1]:
+            _, sv, Vt = np.linalg.svd(J)
+            used = int(np.sum(sv > tol * max(1.0, sv[0]))) if len(sv) else 0
+            N = N @ Vt[used:].T if used < Vt.shape[0] else np.zeros((model.nv, 0))
+    return out
 
 
 def check_specs(
@@ -453,26 +557,12 @@ def check_specs(
         if any(p.startswith(where) for p in problems):
             continue
         q = robot_map.robot_q(step.q[0])
-        pin.computeJointJacobians(model, data, q)
-        pin.framesForwardKinematics(model, data, q)
-        pin.centerOfMass(model, data, q)
-        N = np.eye(model.nv)  # null-space basis of the levels above
-        for level in sorted({t.priority for t in spec.tasks}):
-            Js = [task_jacobian(model, data, t, q) for t in spec.tasks if t.priority == level]
-            Js = [J for J in Js if J is not None]
-            if not Js:
-                continue
-            J = np.vstack(Js) @ N
-            s = np.linalg.svd(J, compute_uv=False)
-            rank = int(np.sum(s > tol * max(1.0, s[0])))
-            if rank < J.shape[0]:
-                names = [t.name for t in spec.tasks if t.priority == level]
+        for level in level_conditioning(model, data, spec, q, tol):
+            if level.rank < level.rows:
                 problems.append(
-                    f"{where}: priority {level} ({', '.join(names)}) loses rank at the "
-                    f"step's start configuration: {rank} < {J.shape[0]}"
+                    f"{where}: priority {level.priority} ({', '.join(level.tasks)}) loses rank "
+                    f"at the step's start configuration: {level.rank} < {level.rows}"
                 )
-            _, _, Vt = np.linalg.svd(J)
-            N = N @ Vt[rank:].T if rank < Vt.shape[0] else np.zeros((model.nv, 0))
     for a, b in zip(steps, steps[1:]):
         gap = np.linalg.norm(
             pin.difference(model, robot_map.robot_q(a.q[-1]), robot_map.robot_q(b.q[0]))

@@ -21,6 +21,7 @@ quintic is at rest).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +42,11 @@ class StepTrajectory:
     q: np.ndarray
     q_plan: np.ndarray
     references: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    # How much slower than its time law (and its declared slowdown) the step was re-timed for its
+    # rewritten references to respect the joints' bounds (1: not re-timed), and the joint that
+    # asked for it ("" when none).
+    retimed: float = 1.0
+    retimed_for: str = ""
 
     @property
     def num_samples(self) -> int:
@@ -65,13 +71,48 @@ def arc_length(model: pin.Model, q: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(seg)])
 
 
-def step_duration(
-    model: pin.Model, q: np.ndarray, max_joint_velocity: float, min_duration: float = 0.5
-) -> float:
-    """Duration [s] of the quintic time law along the polyline q (k x nq) such that no joint
-    (velocity-space component) exceeds ``max_joint_velocity``."""
+# Streamed velocities keep this fraction of a joint's own limit (the URDF's, which the
+# controller's safety filter clamps at): the rest is headroom for the feedback that catches up a
+# lag while the feed-forward runs.
+LIMIT_FRACTION = 0.8
+
+
+def velocity_limits(
+    model: pin.Model, max_joint_velocity: float, fraction: float = LIMIT_FRACTION
+) -> np.ndarray:
+    """(nv,) the velocity bound of every velocity component of ``model``: ``max_joint_velocity``
+    (the scenario's time law), lowered to ``fraction`` of a 1-DoF joint's velocity limit where
+    that is smaller (TALOS's head: 1 rad/s)."""
     if max_joint_velocity <= 0.0:
         raise ValueError(f"max_joint_velocity must be > 0, got {max_joint_velocity}")
+    limits = np.full(model.nv, float(max_joint_velocity))
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        if joint.nv != 1:
+            continue
+        own = float(model.velocityLimit[joint.idx_v])
+        if np.isfinite(own) and own > 0.0:
+            limits[joint.idx_v] = min(limits[joint.idx_v], fraction * own)
+    return limits
+
+
+def _bounds(model: pin.Model, max_joint_velocity: float | np.ndarray) -> np.ndarray:
+    limits = np.broadcast_to(np.asarray(max_joint_velocity, dtype=float), (model.nv,))
+    if not np.all(limits > 0.0):
+        raise ValueError(f"joint velocity bounds must be > 0, got {max_joint_velocity}")
+    return limits
+
+
+def step_duration(
+    model: pin.Model,
+    q: np.ndarray,
+    max_joint_velocity: float | np.ndarray,
+    min_duration: float = 0.5,
+) -> float:
+    """Duration [s] of the quintic time law along the polyline q (k x nq) such that no joint
+    (velocity-space component j) exceeds ``max_joint_velocity`` (a scalar, or (nv,) per
+    component: :func:`velocity_limits`)."""
+    limits = _bounds(model, max_joint_velocity)
     s = arc_length(model, q)
     length = s[-1]
     if length <= 0.0:
@@ -79,8 +120,8 @@ def step_duration(
     dq = np.array([pin.difference(model, a, b) for a, b in zip(q, q[1:])])  # (k-1) x nv
     ds = np.diff(s)
     ok = ds > 0
-    slope = np.max(np.abs(dq[ok]) / ds[ok, None])  # max_j |dq_j/ds| <= 1
-    sdot_max = max_joint_velocity / max(slope, 1e-9)
+    slope = np.max(np.abs(dq[ok]) / ds[ok, None] / limits)  # max_j |dq_j/ds| / bound_j
+    sdot_max = 1.0 / max(slope, 1e-9)
     return max(min_duration, 15.0 / 8.0 * length / sdot_max)
 
 
@@ -88,10 +129,11 @@ def sample_step(
     step: Step,
     robot_map: PlanRobotMap,
     dt: float = 1e-3,
-    max_joint_velocity: float = 0.5,
+    max_joint_velocity: float | np.ndarray = 0.5,
     min_duration: float = 0.5,
 ) -> StepTrajectory:
-    """The step's configurations every ``dt`` along its time law (both ends included)."""
+    """The step's configurations every ``dt`` along its time law (both ends included);
+    ``max_joint_velocity`` as in :func:`step_duration`."""
     model = robot_map.model
     q_robot = robot_map.robot_q(step.q)
     s = arc_length(model, q_robot)
@@ -204,3 +246,135 @@ def _task_reference(
             v[k] = pin.difference(model, traj.q[k - 1], traj.q[k + 1]) / (2 * traj.dt)
         return traj.q.copy(), v
     raise SpecError(f"task {task.name!r}: no planned reference for a {task.kind!r} task")
+
+
+# ---- feasibility: re-timing a rewritten step -----------------------------------------------
+
+
+def _quaternion_rows_to_matrices(quat_xyzw: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices of unit quaternions (N, 4) in Pinocchio's (x y z w) order."""
+    x, y, z, w = (quat_xyzw / np.linalg.norm(quat_xyzw, axis=1, keepdims=True)).T
+    return np.stack(
+        [
+            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=1,
+    )
+
+
+def configuration_velocities(model: pin.Model, q: np.ndarray, dt: float) -> np.ndarray:
+    """((N-1) x nv) forward differences of the configurations q (N x nq) sampled every ``dt``:
+    1-DoF joints by subtraction; a free flyer's linear velocity in its own frame (R₀ᵀ Δp) and
+    angular velocity from the rotation between samples (log₃, vectorised: the order of
+    ``pin.difference`` between samples 1 ms apart); other joints by ``pin.difference``."""
+    v = np.empty((max(len(q) - 1, 0), model.nv))
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        iq, iv = joint.idx_q, joint.idx_v
+        if joint.nq == joint.nv == 1:
+            v[:, iv] = np.diff(q[:, iq]) / dt
+        elif joint.shortname() == "JointModelFreeFlyer" and len(q) > 1:
+            R = _quaternion_rows_to_matrices(q[:, iq + 3 : iq + 7])
+            dp = np.diff(q[:, iq : iq + 3], axis=0)
+            v[:, iv : iv + 3] = np.einsum("kji,kj->ki", R[:-1], dp) / dt
+            dR = np.einsum("kji,kjl->kil", R[:-1], R[1:])  # R0^T R1
+            cos = np.clip((np.trace(dR, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+            angle = np.arccos(cos)
+            axis = np.stack(
+                [dR[:, 2, 1] - dR[:, 1, 2], dR[:, 0, 2] - dR[:, 2, 0], dR[:, 1, 0] - dR[:, 0, 1]],
+                -1,
+            )
+            scale = np.where(angle > 1e-9, angle / (2 * np.sin(np.maximum(angle, 1e-9))), 0.5)
+            v[:, iv + 3 : iv + 6] = axis * scale[:, None] / dt
+        else:
+            sl = slice(iv, iv + joint.nv)
+            for k in range(len(q) - 1):
+                v[k, sl] = pin.difference(model, q[k], q[k + 1])[sl] / dt
+    return v
+
+
+def speed_ratio(model: pin.Model, traj: StepTrajectory, limits: np.ndarray) -> tuple[float, int]:
+    """max_j |v_j| / bound_j over the step and the velocity component j where it is reached:
+    v the differences of the streamed posture reference (the configuration the controller is
+    asked to follow) and its feed-forward, and of ``traj.q`` (what the task references were
+    computed from). ≤ 1: every streamed reference respects ``limits`` (nv,)."""
+    rows = [configuration_velocities(model, traj.q, traj.dt)]
+    if "posture" in traj.references:
+        values, derivatives = traj.references["posture"]
+        rows += [configuration_velocities(model, values, traj.dt), derivatives]
+    v = np.abs(np.vstack(rows)) / limits
+    if not v.size:
+        return 0.0, 0
+    j = int(np.argmax(v.max(axis=0)))
+    return float(v[:, j].max()), j
+
+
+# A rewrite of a sampled step's references: (step, its trajectory, whether it is the first step
+# run), in place, as a function of the path and of the normalised time t / duration only (so
+# that the same rewrite of a re-timed step is as much slower as the step).
+Rewrite = Callable[[Step, StepTrajectory, bool], None]
+
+
+@dataclass(frozen=True)
+class StepTiming:
+    """How one step is played beyond its time law: ``slowdown`` times slower (a servoed step
+    waits for more camera frames), then ``dwell_s`` at rest on its last sample."""
+
+    slowdown: float = 1.0
+    dwell_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.slowdown < 1.0 or self.dwell_s < 0.0:
+            raise ValueError(f"need slowdown >= 1 and dwell_s >= 0, got {self}")
+
+
+def velocity_component_name(model: pin.Model, j: int) -> str:
+    """The joint of velocity component ``j`` (``root_joint[3]`` inside a multi-DoF joint)."""
+    for jid in range(1, model.njoints):
+        joint = model.joints[jid]
+        if joint.idx_v <= j < joint.idx_v + joint.nv:
+            return model.names[jid] + (f"[{j - joint.idx_v}]" if joint.nv > 1 else "")
+    return f"v[{j}]"
+
+
+def shaped_trajectory(
+    step: Step,
+    spec: ControllerSpec,
+    robot_map: PlanRobotMap,
+    limits: np.ndarray,
+    dt: float = 1e-3,
+    min_duration: float = 0.5,
+    timing: StepTiming = StepTiming(),
+    rewrites: Sequence[Rewrite] = (),
+    first: bool = False,
+    max_attempts: int = 6,
+) -> StepTrajectory:
+    """The step sampled along its time law (bounded by ``limits`` (nv,), ``timing.slowdown``
+    slower), its references computed for ``spec``, rewritten by ``rewrites``, re-timed until
+    every streamed reference respects ``limits`` (module doc), then held ``timing.dwell_s``.
+    ValueError when no re-timing brings it within (a rewrite that does not slow down with the
+    step)."""
+    model = robot_map.model
+    stretch = timing.slowdown
+    limiting = ""
+    for _ in range(max_attempts):
+        traj = sample_step(step, robot_map, dt, limits / stretch, min_duration * stretch)
+        compute_references(traj, spec, model)
+        for rewrite in rewrites:
+            rewrite(step, traj, first)
+        ratio, j = speed_ratio(model, traj, limits)
+        if ratio <= 1.0:
+            break
+        # 2 % beyond the excess: the rewrite is re-sampled on another grid
+        stretch *= ratio * 1.02
+        limiting = velocity_component_name(model, j)
+    else:
+        raise ValueError(
+            f"step {step.index} ({step.transition}): its references still ask {limiting} for "
+            f"{ratio:.2f} x its velocity bound after {max_attempts} re-timings"
+        )
+    traj.retimed, traj.retimed_for = stretch / timing.slowdown, limiting
+    dwell(traj, timing.dwell_s)
+    return traj

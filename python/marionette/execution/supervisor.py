@@ -4,13 +4,16 @@ one state per step (transition crossed), run against a live marionette-controlle
 Per step:
   start_check   grasps released at this step's start are opened (simulated: weld off); the
                 step's controller spec is sent; the controller swaps it in only if its command
-                does not jump (the start check, done at the tick of the swap), else it refuses
-                -> ``switch_refused``, failed;
+                does not jump (the start check, done at the tick of the swap), else it refuses:
+                the previous controller holds its last reference until its command is at rest,
+                and the spec is sent again (``switch_retry``, at most ``switch_retries`` times),
+                then ``switch_refused``, failed;
   running       the planned references are streamed ahead of the controller's clock; events:
                 ``force_threshold`` ends the reference early (the goal is already reached),
                 ``abort`` fails; the controller going to hold on its watchdog -> failed;
-  end_check     the whole reference has been played (``end_of_reference``) and every task
-                error is below its threshold (:data:`factory.END_THRESHOLDS`) within
+  end_check     the whole reference has been played (``end_of_reference``), every task error
+                is below its threshold (:data:`factory.END_THRESHOLDS`) and the command is at
+                rest enough for the next switch to be accepted (:mod:`.decisions`) within
                 ``converge_timeout_s`` of controller time, else ``end_check_failed``;
   grasps        grasps created at the step's end are closed (simulated: weld on);
   approval      with ``step_mode``, waits for an ``approve`` event (the operator of §3.4.2).
@@ -23,9 +26,14 @@ held by the controller within its ``--supervisor-timeout``, not playing the 4 s 
 State on SUPERVISOR_STATE (10 Hz and on change), events on SUPERVISOR_EVENT; events from other
 sources (``marionette fsm inject``) are read from SUPERVISOR_EVENT too.
 
+Before any of it, :meth:`Supervisor.prepare` samples every step's references within the joints'
+velocity bounds, re-timing the steps a rewrite (the gaze) made too fast
+(:func:`references.shaped_trajectory`).
+
 Every decision above is taken by :class:`decisions.DecisionMachine` from the received
-CONTROLLER_STATUS / SUPERVISOR_EVENT messages, fed one at a time in arrival order, at the tick of
-the last status (never the wall clock), and published on SUPERVISOR_DECISION with its inputs:
+CONTROLLER_STATUS / ROBOT_COMMAND / SUPERVISOR_EVENT messages, fed one at a time in arrival
+order, at the tick of the last status (never the wall clock), and published on
+SUPERVISOR_DECISION with its inputs:
 ``marionette replay LOG --supervisor`` re-takes them offline.
 """
 
@@ -34,22 +42,30 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from marionette import (
     channels,
     lcmt_controller_status,
+    lcmt_robot_command,
     lcmt_supervisor_event,
     lcmt_supervisor_state,
 )
 from marionette.control.client import ControllerClient
 from marionette.control.spec import ControllerSpec
 from marionette.execution import decisions
-from marionette.execution.decisions import Decision, DecisionMachine, event_message
+from marionette.execution.decisions import Decision, DecisionMachine, StepRest, event_message
 from marionette.execution.factory import END_THRESHOLDS
 from marionette.execution.plan_steps import PlanRobotMap, Step
-from marionette.execution.references import StepTrajectory, compute_references, sample_step
+from marionette.execution.references import (
+    Rewrite,
+    StepTiming,
+    StepTrajectory,
+    shaped_trajectory,
+    velocity_limits,
+)
 from marionette.execution.streamer import ReferenceStreamer
 
 SOURCE = "supervisor"
@@ -75,6 +91,11 @@ class SupervisorOptions:
     start_delay_us: int = 100_000  # first sample this far after the swap is seen
     accept_timeout_s: float = 20.0  # [s wall] waiting for the swap decision
     converge_timeout_s: float = 3.0  # [s controller time] end check
+    # The end check waits for a command at rest and a refused switch is retried (decisions.py);
+    # False: neither (the machine's behaviour before them).
+    rest_checks: bool = True
+    switch_retries: int = 3
+    settle_timeout_s: float = 3.0  # [s controller time] before a refused switch is sent again
     simulated_grasps: bool = True  # SIM_COMMAND attach/detach welds (MuJoCo backend)
     step_mode: bool = False  # wait for "approve" before each step
     approval_timeout_s: float = 600.0
@@ -95,6 +116,9 @@ class StepRecord:
     wall_s: float = 0.0
     duration_s: float = 0.0  # planned duration of the reference
     chunks: int = 0
+    switch_retries: int = 0  # refused switches sent again
+    retimed: float = 1.0  # the step slowed down for its references to respect the joints' bounds
+    retimed_for: str = ""
     min_lookahead_ms: float | None = None
     final_errors: dict[str, float] = field(default_factory=dict)
     max_errors: dict[str, float] = field(default_factory=dict)
@@ -110,6 +134,40 @@ class SupervisorResult:
     reason: str
     records: list[StepRecord]
     events: list[tuple[int, str, str]]
+
+
+def prepare_trajectories(
+    steps: list[Step],
+    specs: list[ControllerSpec],
+    robot_map: PlanRobotMap,
+    options: SupervisorOptions,
+    first: int = 0,
+    timing: Callable[[Step, ControllerSpec], StepTiming] | None = None,
+    rewrites: list[Rewrite] | tuple[Rewrite, ...] = (),
+    skip: set[int] | None = None,
+) -> dict[int, StepTrajectory]:
+    """The references the supervisor streams for the steps from ``first`` on (step index ->
+    trajectory): each step sampled within the joints' velocity bounds
+    (:func:`references.velocity_limits` of ``options.max_joint_velocity``), played as ``timing``
+    says, rewritten by ``rewrites`` (the first step run knows it is), re-timed where a rewrite
+    made it too fast (:func:`references.shaped_trajectory`)."""
+    limits = velocity_limits(robot_map.model, options.max_joint_velocity)
+    out: dict[int, StepTrajectory] = {}
+    for step, spec in zip(steps[first:], specs[first:]):
+        if skip and step.index in skip:
+            continue
+        out[step.index] = shaped_trajectory(
+            step,
+            spec,
+            robot_map,
+            limits,
+            options.dt_us * 1e-6,
+            options.min_step_duration,
+            timing(step, spec) if timing is not None else StepTiming(),
+            rewrites,
+            first=step.index == first,
+        )
+    return out
 
 
 class Supervisor:
@@ -136,6 +194,10 @@ class Supervisor:
         # Controller ids are never reused by one controller process: start from the clock.
         self._next_id = id_base if id_base is not None else int(time.time() * 10) % 1_000_000_000
         self.trajectories: dict[int, StepTrajectory] = {}
+        # How each step is played beyond its time law, and the rewrites of its references
+        # (the gaze): both applied by :meth:`prepare`.
+        self.timing: Callable[[Step, ControllerSpec], StepTiming] = lambda step, spec: StepTiming()
+        self.rewrites: list[Rewrite] = []
         self.servo: Any = None  # a visual_servo.VisualServo: corrects the pbvs tasks' references
         self.state = "idle"
         self.status = ""
@@ -150,20 +212,27 @@ class Supervisor:
         self._publish_stop = threading.Event()
         client.bus.subscribe(channels.SUPERVISOR_EVENT, lcmt_supervisor_event, self._on_event)
         client.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on_status)
+        if self.options.rest_checks:
+            client.bus.subscribe(channels.ROBOT_COMMAND, lcmt_robot_command, self._on_command)
 
     # ---- preparation ------------------------------------------------------------------------
     def prepare(self, first: int = 0) -> float:
-        """Samples every step's references from ``first`` on; returns the time it took [s]."""
+        """Samples every step's references from ``first`` on that :attr:`trajectories` lacks
+        (:func:`prepare_trajectories`, with :attr:`timing` and :attr:`rewrites`); returns the
+        time it took [s]."""
         t0 = time.perf_counter()
-        o = self.options
-        for step, spec in zip(self.steps[first:], self.specs[first:]):
-            if step.index in self.trajectories:
-                continue
-            traj = sample_step(
-                step, self.robot_map, o.dt_us * 1e-6, o.max_joint_velocity, o.min_step_duration
+        self.trajectories.update(
+            prepare_trajectories(
+                self.steps,
+                self.specs,
+                self.robot_map,
+                self.options,
+                first,
+                self.timing,
+                self.rewrites,
+                skip=set(self.trajectories),
             )
-            compute_references(traj, spec, self.robot_map.model)
-            self.trajectories[step.index] = traj
+        )
         return time.perf_counter() - t0
 
     # ---- LCM --------------------------------------------------------------------------------
@@ -175,6 +244,10 @@ class Supervisor:
     def _on_status(self, msg: Any) -> None:
         with self._lock:
             self._inputs.append((decisions.STATUS, msg))
+
+    def _on_command(self, msg: Any) -> None:
+        with self._lock:
+            self._inputs.append((decisions.COMMAND, msg))
 
     def _next_input(self) -> tuple[str, Any] | None:
         with self._lock:
@@ -258,6 +331,8 @@ class Supervisor:
         thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
         if self.servo is not None:
             thresholds = self.servo.end_thresholds(spec, thresholds)
+        traj = self.trajectories[step.index]
+        record.retimed, record.retimed_for = traj.retimed, traj.retimed_for
         self._decided(
             self.machine.begin_step(
                 step.index,
@@ -266,6 +341,7 @@ class Supervisor:
                 thresholds,
                 int(o.converge_timeout_s * 1e6),
                 o.step_mode,
+                self._rest(step, spec),
             )
         )
         if o.step_mode:
@@ -282,22 +358,32 @@ class Supervisor:
             self._weld("detach", gripper, handle)
             record.events.append(f"released {gripper}")
 
-        # Start check: the controller swaps the spec in only without a command jump.
+        # Start check: the controller swaps the spec in only without a command jump; a refused
+        # swap is sent again once the previous controller is at rest (decisions.py).
         self._set(status="waiting_start_check", detail=f"controller {cid}")
         self.client.send_spec(dataclasses.replace(spec, controller_id=cid))
-        self._drive(
-            record,
-            ("switch_accepted",),
-            None,
-            o.accept_timeout_s,
-            "switch_timeout",
-            f"no decision on the swap to controller {cid} within {{}} s",
-        )
+        while (
+            self._drive(
+                record,
+                ("switch_accepted", "switch_resend"),
+                None,
+                o.accept_timeout_s,
+                "switch_timeout",
+                f"no decision on the swap to controller {cid} within {{}} s",
+            ).event
+            == "switch_resend"
+        ):
+            cid = self._next_id
+            self._next_id += 1
+            record.controller_id = cid
+            record.switch_retries += 1
+            self._decided(self.machine.resend_switch(cid))
+            self._set(status="waiting_start_check", detail=f"controller {cid} (sent again)")
+            self.client.send_spec(dataclasses.replace(spec, controller_id=cid))
         record.utime_start = self.client.utime()
         self.emit("switch_accepted", f"controller {cid} {spec.name}")
 
         # Streaming.
-        traj = self.trajectories[step.index]
         start = self.client.utime() + o.start_delay_us
         # Visual servoing (execution.visual_servo): the streamer corrects the pbvs tasks and
         # re-sends what it already streamed of them when a measurement arrives.
@@ -339,6 +425,28 @@ class Supervisor:
         record.result = "ok"
         self.emit("step_done", f"{step.index} {step.transition}")
 
+    def _rest(self, step: Step, spec: ControllerSpec) -> StepRest:
+        """The command bounds of ``step``'s switch and end check (decisions.StepRest): its own
+        and the next controller's jump bounds, the joints an admittance task ramps in either."""
+        if not self.options.rest_checks:
+            return StepRest()
+        nxt = self.specs[step.index + 1] if step.index + 1 < len(self.specs) else None
+        ramped = {
+            j
+            for s in (spec, nxt)
+            if s is not None
+            for t in s.tasks
+            if t.kind == "gripper_admittance"
+            for j in t.joints
+        }
+        return StepRest(
+            spec.max_switch_velocity_jump,
+            float("inf") if nxt is None else nxt.max_switch_velocity_jump,
+            self.options.switch_retries,
+            int(self.options.settle_timeout_s * 1e6),
+            tuple(sorted(ramped)),
+        )
+
     def _drive(
         self,
         record: StepRecord,
@@ -373,7 +481,7 @@ class Supervisor:
                 channel, msg = item
                 if channel == decisions.STATUS:
                     self._fold_status(record, msg)
-                else:
+                elif channel == decisions.EVENT:
                     record.events.append(msg.name)
                 for d in self.machine.feed(channel, msg):
                     self._taken.append(d)
@@ -401,6 +509,9 @@ class Supervisor:
             record.final_errors = dict(zip(msg.task_name, msg.task_error_norm))
         if d.event in decisions.FAILURES:
             raise SupervisorFailure(d.event, d.detail)
+        if d.event == "switch_retry":
+            record.events.append(f"switch refused, retried: {d.detail}")
+            self.emit("switch_retry", d.detail)
         if d.event == "reference_stopped" and streamer is not None:
             streamer.stop_early(self.client.utime())
             self.emit("reference_stopped", d.detail, msg.value)

@@ -44,6 +44,8 @@ placement (the gripper still holds it there) and blended out in the next.
 Gaze: the posture references of every step turn the head (its two joints, nothing else) so
 that the camera's optical axis points at the planned position of the object, ramped in over the
 first step — the camera then keeps the object in view throughout (the head is free in the plan).
+It is a step rewrite (:func:`gaze_rewrite`): the supervisor re-times a step whose head would turn
+faster than the joint's bound (a short first step asked TALOS's head for 1.8 rad/s).
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ from marionette import channels, lcmt_object_poses
 from marionette.control.spec import ControllerSpec
 from marionette.execution.factory import approached_handle
 from marionette.execution.plan_steps import PlanRobotMap, Step
-from marionette.execution.references import StepTrajectory
+from marionette.execution.references import Rewrite, StepTrajectory
 from marionette.perception.pbvs import activation, interpolate
 
 
@@ -516,6 +518,24 @@ def planned_object_positions(traj: StepTrajectory, robot_map: PlanRobotMap, obj:
     return np.array([robot_map.object_pose(q, obj).translation for q in traj.q_plan])
 
 
+def gaze_rewrite(robot_map: PlanRobotMap, obj: str, camera_frame: str) -> Rewrite:
+    """A step rewrite (:func:`references.shaped_trajectory`): the head of the step's posture
+    reference looks at the planned ``obj``, ramped in over the first step run (so that its
+    controller starts where the robot is). The supervisor re-times a step whose head would then
+    turn faster than its bound."""
+
+    def rewrite(step: Step, traj: StepTrajectory, first: bool) -> None:
+        head_gaze_posture(
+            robot_map.model,
+            traj,
+            planned_object_positions(traj, robot_map, obj),
+            camera_frame,
+            ramp_in=first,
+        )
+
+    return rewrite
+
+
 def add_gaze(
     trajectories: dict[int, StepTrajectory],
     steps: list[Step],
@@ -523,14 +543,8 @@ def add_gaze(
     obj: str,
     camera_frame: str,
 ) -> None:
-    """The head of every step's posture reference looks at the planned ``obj`` (ramped in over
-    the first step, so the first controller starts where the robot is)."""
+    """:func:`gaze_rewrite` applied to already sampled ``trajectories`` of ``steps`` (the first
+    of them ramps the gaze in), without re-timing."""
+    rewrite = gaze_rewrite(robot_map, obj, camera_frame)
     for i, step in enumerate(steps):
-        traj = trajectories[step.index]
-        head_gaze_posture(
-            robot_map.model,
-            traj,
-            planned_object_positions(traj, robot_map, obj),
-            camera_frame,
-            ramp_in=(i == 0),
-        )
+        rewrite(step, trajectories[step.index], i == 0)

@@ -56,6 +56,9 @@ class RunOptions:
     perturbation: Perturbation | None = None  # --perturb (kinds that accept it)
     gripper_admittance: bool | None = None  # None: the scenario's (kinds that have it)
     cache_dir: Path | None = None  # plans (kinds that plan); None: plan_cache.default_cache_dir()
+    # Play the generated controllers on the plan before anything moves and refuse a plan that
+    # would fail (kinds that plan: marionette.execution.dry_run); False skips it.
+    dry_run: bool = True
 
 
 def repo_relative(path: Path) -> str:
@@ -149,6 +152,8 @@ class Scenario(abc.ABC):
             raise ScenarioError(f"{self.name} has its own perturbations (no --perturb)")
         if options.gripper_admittance is not None and "gripper_admittance" not in self.OPTIONS:
             raise ScenarioError(f"{self.name} has no gripper admittance option")
+        if not options.dry_run and "dry_run" not in self.OPTIONS:
+            raise ScenarioError(f"{self.name} has no dry run to skip (no --no-dry-run)")
 
     def run(self, seed: int, out_dir: Path, options: RunOptions | None = None) -> dict[str, Any]:
         """One trial with ``seed``: the report dictionary, also written to ``out_dir``

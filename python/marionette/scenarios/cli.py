@@ -57,12 +57,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--perturb",
-        choices=("none", "all", *PARTS),
         default="none",
-        help="seeded perturbations per trial (scenarios/perturbations.py): displacement = "
-        "object displaced <= 5 cm / 10 deg before execution; in-hand = slipping in the hand "
-        "during it (<= 1 cm / 5 deg) and 2 mm / 0.5 deg camera noise; joint-offsets = 7 deg "
-        "shoulder / 4 deg wrist encoder offsets; all = the three at once",
+        metavar="PRESET|KEY=VALUE,...|FILE.yaml",
+        help=f"seeded perturbations per trial (scenarios/perturbations.py; presets: none, all, "
+        f"{', '.join(PARTS)}): displacement = object displaced <= 5 cm / 10 deg before "
+        "execution; in-hand = slipping in the hand during it (<= 1 cm / 5 deg) and 2 mm / 0.5 "
+        "deg camera noise; joint-offsets = 7 deg shoulder / 4 deg wrist encoder offsets on both "
+        "arms; all = the three at once. Magnitudes replace or add to presets as key=value items "
+        "(all,displacement_m=0.08,joint_offsets_deg.arm_right_4_joint=6) or come from a YAML "
+        "file (python/marionette/schemas/perturbation.schema.json)",
+    )
+    p.add_argument(
+        "--dry-run",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="play the generated controllers on the plan (kinematic controller) before anything "
+        "moves and refuse a plan that would fail (plan-and-execute scenarios; default on)",
     )
     p.add_argument(
         "--speed",
@@ -145,24 +155,28 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as e:
         print(f"marionette demo: {e}", file=sys.stderr)
         return 2
+    from marionette.scenarios.perturbations import draw, settings_from_argument
+    from marionette.schemas import DataFileError
+
+    try:
+        perturb = settings_from_argument(args.perturb)
+    except (ValueError, DataFileError) as e:
+        print(f"marionette demo: {e}", file=sys.stderr)
+        return 2
     seed0 = scenario.seed if args.seed is None else args.seed
     root = args.out or (marionette.REPO_ROOT / "reports" / "demo")
     if args.trials > 1 or args.jobs != 1 or args.cluster or args.campaign:
-        return _campaign(args, scenario, seed0, root)
+        return _campaign(args, scenario, seed0, root, perturb)
     print(f"demo {scenario.name}: {scenario.description}")
     out = root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}-seed{seed0}"
-    perturbation = None
-    if args.perturb != "none":
-        from marionette.scenarios.perturbations import PRESETS, draw
-
-        perturbation = draw(PRESETS[args.perturb], seed0)
     options = RunOptions(
         speed=args.speed,
         controller_url=args.controller_url,
         view=args.view,
         log=lambda m: print(m, flush=True),
-        perturbation=perturbation,
+        perturbation=None if perturb is None else draw(perturb, seed0),
         gripper_admittance=args.gripper_admittance,
+        dry_run=args.dry_run,
     )
     try:
         report = scenario.run(seed0 if args.plan_seed is None else args.plan_seed, out, options)
@@ -176,10 +190,12 @@ def run(args: argparse.Namespace) -> int:
     return 0 if report["success"] else 1
 
 
-def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path) -> int:
-    """Several trials: a campaign (marionette.campaigns) on this machine or a Ray cluster."""
+def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path, perturb) -> int:
+    """Several trials: a campaign (marionette.campaigns) on this machine or a Ray cluster;
+    ``perturb``: the parsed --perturb settings (None: none)."""
     from marionette.campaigns import CampaignError, CampaignSettings, run_campaign
     from marionette.scenarios import RunOptions, ScenarioError
+    from marionette.scenarios.perturbations import draw
 
     problem = None
     if args.jobs < 1:
@@ -194,17 +210,13 @@ def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path) -> int
         problem = "--controller-url drives one controller: trials at once need their own"
     if problem is None:
         try:  # the options every trial takes, refused once here rather than in each trial
-            perturbation = None
-            if args.perturb != "none":
-                from marionette.scenarios.perturbations import PRESETS, draw
-
-                perturbation = draw(PRESETS[args.perturb], seed0)
             scenario.check_options(
                 RunOptions(
                     speed=args.speed,
                     controller_url=args.controller_url,
-                    perturbation=perturbation,
+                    perturbation=None if perturb is None else draw(perturb, seed0),
                     gripper_admittance=args.gripper_admittance,
+                    dry_run=args.dry_run,
                 )
             )
         except ScenarioError as e:
@@ -215,15 +227,19 @@ def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path) -> int
     scenario_arg = args.scenario
     if Path(scenario_arg).suffix in (".yaml", ".yml") and Path(scenario_arg).exists():
         scenario_arg = str(Path(scenario_arg).resolve())  # the trials run elsewhere
+    perturb_arg = args.perturb
+    if Path(perturb_arg).suffix in (".yaml", ".yml") and Path(perturb_arg).exists():
+        perturb_arg = str(Path(perturb_arg).resolve())
     settings = CampaignSettings(
         scenario_arg,
         seed0,
         args.trials,
         args.plan_seed,
-        args.perturb,
+        perturb_arg,
         args.speed,
         args.gripper_admittance,
         args.controller_url,
+        args.dry_run,
     )
     folder = args.campaign or root / f"{scenario.name}-campaign-{time.strftime('%Y%m%d-%H%M%S')}"
     try:

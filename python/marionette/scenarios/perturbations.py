@@ -13,6 +13,11 @@ ch. 4-5; ``docs/scenarios.md``).
   own error on the rendered images (:class:`visual_servo.ServoOptions`).
 
 Everything is drawn from ``numpy.random.default_rng(seed)``: a trial is reproducible from its seed.
+
+The magnitudes (:class:`PerturbationSettings`) come from ``marionette demo --perturb``
+(:func:`settings_from_argument`): a preset named by what it does (:data:`PRESETS`), a YAML file
+(``perturbation.schema.json``), or magnitudes on the command line, ``key=value`` items after or
+instead of presets (``--perturb all,displacement_m=0.08,joint_offsets_deg.arm_right_4_joint=6``).
 """
 
 from __future__ import annotations
@@ -62,9 +67,14 @@ PARTS: dict[str, PerturbationSettings] = {
     "in-hand": PerturbationSettings(
         slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5
     ),
-    # Encoder offsets of TALOS' left arm (ch. 4: 7° at the shoulder, 4° at the wrist).
+    # Encoder offsets of both TALOS arms (ch. 4: 7° at the shoulder, 4° at the wrist).
     "joint-offsets": PerturbationSettings(
-        joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+        joint_offsets_deg={
+            "arm_left_1_joint": 7.0,
+            "arm_left_7_joint": 4.0,
+            "arm_right_1_joint": 7.0,
+            "arm_right_7_joint": 4.0,
+        }
     ),
 }
 
@@ -86,6 +96,71 @@ def combined(parts: list[PerturbationSettings]) -> PerturbationSettings:
 
 
 PRESETS: dict[str, PerturbationSettings] = {"all": combined(list(PARTS.values())), **PARTS}
+
+
+def settings_from_document(doc: Any, source: str = "<perturbation>") -> PerturbationSettings:
+    """The magnitudes of a perturbation document (perturbation.schema.json; ``description``
+    ignored); :class:`marionette.schemas.DataFileError` naming the bad key otherwise."""
+    from marionette.schemas import validate
+
+    validate(doc, "perturbation", source)
+    values = {k: v for k, v in doc.items() if k != "description"}
+    if "joint_offsets_deg" in values:
+        values["joint_offsets_deg"] = {
+            str(j): float(m) for j, m in values["joint_offsets_deg"].items()
+        }
+    return PerturbationSettings(**values)
+
+
+def load_settings(path: str | Path) -> PerturbationSettings:
+    """The magnitudes of a perturbation YAML file (perturbation.schema.json)."""
+    from marionette.schemas import load_validated
+
+    return settings_from_document(load_validated(path, "perturbation") or {}, str(path))
+
+
+def _number(key: str, text: str) -> float | int:
+    try:
+        return int(text) if key == "slip_step" else float(text)
+    except ValueError:
+        raise ValueError(f"--perturb: {key}={text!r} is not a number") from None
+
+
+def settings_from_argument(text: str) -> PerturbationSettings | None:
+    """``--perturb``: ``none`` (None); a YAML file; or comma-separated items, each a preset of
+    :data:`PRESETS` (combined) or a magnitude ``key=value`` of perturbation.schema.json that
+    replaces the presets' (``joint_offsets_deg.JOINT=deg`` for one joint). ValueError, or
+    DataFileError for a file or a key, with one line naming the bad item."""
+    text = text.strip()
+    if text == "none":
+        return None
+    if text.endswith((".yaml", ".yml")) or Path(text).is_file():
+        return load_settings(text)
+    presets, values = [], {}
+    offsets: dict[str, float] = {}
+    for item in filter(None, (i.strip() for i in text.split(","))):
+        key, eq, value = item.partition("=")
+        if not eq:
+            if item not in PRESETS:
+                raise ValueError(
+                    f"--perturb: no preset {item!r} (presets: none, {', '.join(PRESETS)}; or "
+                    "key=value magnitudes, or a YAML file)"
+                )
+            presets.append(PRESETS[item])
+        elif key.startswith("joint_offsets_deg."):
+            offsets[key.split(".", 1)[1]] = _number(key, value)
+        else:
+            values[key] = _number(key, value)
+    base = combined(presets) if presets else PerturbationSettings()
+    doc: dict[str, Any] = {
+        f.name: getattr(base, f.name)
+        for f in fields(PerturbationSettings)
+        if getattr(base, f.name) != getattr(PerturbationSettings(), f.name)
+    }
+    doc.update(values)
+    if offsets:
+        doc["joint_offsets_deg"] = {**doc.get("joint_offsets_deg", {}), **offsets}
+    return settings_from_document(doc, "--perturb")
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ import yaml
 import marionette
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.execution.dry_run import dry_run
 from marionette.execution.estimation import (
     estimate_state,
     first_step_to_run,
@@ -51,10 +52,17 @@ from marionette.execution.grip_force import (
     settled_windows,
 )
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
-from marionette.execution.references import compute_references, dwell, sample_step
-from marionette.execution.supervisor import Supervisor, SupervisorOptions, SupervisorResult
+from marionette.execution.references import StepTiming
+from marionette.execution.supervisor import (
+    Supervisor,
+    SupervisorOptions,
+    SupervisorResult,
+    prepare_trajectories,
+)
+from marionette.execution.visual_servo import gaze_rewrite
 from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
-from marionette.planning.path import Plan
+from marionette.perception.calibration import CalibrationError
+from marionette.planning.path import Plan, load_plan
 from marionette.scenarios.base import (
     Criterion,
     RunOptions,
@@ -99,7 +107,12 @@ class PlanAndExecute(Scenario):
     against the plan's goal. ``robot`` defaults to the problem's (and must agree with it)."""
 
     KIND: ClassVar[str] = "plan-and-execute"
-    OPTIONS: ClassVar[tuple[str, ...]] = ("perturbation", "gripper_admittance", "cache_dir")
+    OPTIONS: ClassVar[tuple[str, ...]] = (
+        "perturbation",
+        "gripper_admittance",
+        "cache_dir",
+        "dry_run",
+    )
 
     robot: str = ""
     problem: Path
@@ -252,6 +265,8 @@ class PlanAndExecute(Scenario):
         return run_plan_and_execute(self, seed, out_dir, options, report)
 
     def summary(self, report: dict[str, Any], trial_seed: int) -> str:
+        if "criteria" not in report:  # stopped before execution (refused plan, calibration)
+            return f"FAILURE (seed {trial_seed}): {report.get('stopped', 'stopped')}"
         c = report["criteria"]
         return (
             f"{'SUCCESS' if report['success'] else 'FAILURE'} (seed {trial_seed}): "
@@ -265,6 +280,8 @@ class PlanAndExecute(Scenario):
         )
 
     def failure_reason(self, report: dict[str, Any]) -> str:
+        if "criteria" not in report:
+            return str(report.get("stopped", "stopped"))
         c = report["criteria"]
         if not c["fsm_done"]:
             return f"supervisor: {report['supervisor']['reason']}"
@@ -411,6 +428,49 @@ def run_plan_and_execute(
     timings["factory_s"] = time.perf_counter() - t1
     log(f"factory: {len(steps)} steps, {len(specs)} controllers -> {out_dir / 'controllers.yaml'}")
 
+    # The references the supervisor will stream, within the joints' bounds (re-timed where the
+    # gaze made a step too fast), and the dry run of the controllers on them.
+    t_ref = time.perf_counter()
+    supervisor_options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
+    timing = _servo_timing(scenario) if scenario.vision else None
+    rewrites = (
+        [gaze_rewrite(robot_map, scenario.object_name, robots.robot(robot).camera_frame)]
+        if scenario.vision
+        else []
+    )
+    trajectories = prepare_trajectories(
+        steps, specs, robot_map, supervisor_options, 0, timing, rewrites
+    )
+    timings["references_s"] = time.perf_counter() - t_ref
+    retimed = [(i, t) for i, t in trajectories.items() if t.retimed > 1.0]
+    if retimed:
+        log(
+            "references: re-timed "
+            + ", ".join(f"step {i} x{t.retimed:.2f} ({t.retimed_for})" for i, t in retimed)
+            + " to keep the streamed velocities within the joints' bounds"
+        )
+    if options.dry_run:
+        t_dry = time.perf_counter()
+        log("dry run: the controllers played on the plan (kinematic controller) ...")
+        verdict = dry_run(
+            robot,
+            steps,
+            specs,
+            robot_map,
+            trajectories,
+            supervisor_options,
+            log_dir=out_dir / "logs",
+        )
+        timings["dry_run_s"] = time.perf_counter() - t_dry
+        report["dry_run"] = verdict.to_dict()
+        log(
+            f"dry run: {'passed' if verdict.ok else 'REFUSED'} in {verdict.wall_s:.1f} s "
+            f"({verdict.controller_s:.1f} s of controller time)"
+            + ("" if verdict.ok else f": {verdict.reason}")
+        )
+        if not verdict.ok:
+            return _refused(report, out_dir, f"the dry run refused the plan: {verdict.reason}")
+
     from marionette.planning.graph_factory import graph_from_settings
     from marionette.planning.problem import load_problem
 
@@ -421,9 +481,13 @@ def run_plan_and_execute(
     encoder_offsets: dict[str, float] = {}
     if scenario.calibrate_arms and controller_url is None:
         t_cal = time.perf_counter()
-        report["calibration"] = calibrate_encoders(
-            scene, robot, scenario.calibrate_arms, perturbation, log
-        )
+        try:
+            report["calibration"] = calibrate_encoders(
+                scene, robot, scenario.calibrate_arms, perturbation, log
+            )
+        except CalibrationError as e:
+            timings["calibration_s"] = time.perf_counter() - t_cal
+            return _refused(report, out_dir, f"encoder calibration failed: {e}")
         encoder_offsets = report["calibration"]["encoder_offsets"]
         timings["calibration_s"] = time.perf_counter() - t_cal
     processes = Processes(
@@ -486,45 +550,17 @@ def run_plan_and_execute(
         )
 
         supervisor = Supervisor(
-            client,
-            steps,
-            specs,
-            robot_map,
-            SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity),
-            plan.doc["problem"]["name"],
+            client, steps, specs, robot_map, supervisor_options, plan.doc["problem"]["name"]
         )
-        timings["references_s"] = supervisor.prepare(first)
+        supervisor.timing = timing or supervisor.timing
+        supervisor.rewrites = rewrites
+        if first == 0:  # else the first step run ramps the gaze in: sampled again
+            supervisor.trajectories = trajectories
+        timings["references_s"] += supervisor.prepare(first)
         servo = None
         if scenario.vision:
-            from marionette.execution.visual_servo import ServoOptions, VisualServo, add_gaze
+            from marionette.execution.visual_servo import ServoOptions, VisualServo
 
-            t_gaze = time.perf_counter()
-            # The camera delivers ~2 frames/s of controller time here (software rendering on shared
-            # cores): the servoed steps are slowed down so that several measurements reach them.
-            o = supervisor.options
-            for step, spec in zip(steps[first:], specs[first:]):
-                if any(t.kind == "pbvs" for t in spec.tasks):
-                    traj = sample_step(
-                        step,
-                        robot_map,
-                        o.dt_us * 1e-6,
-                        o.max_joint_velocity / scenario.servo_slowdown,
-                        o.min_step_duration * scenario.servo_slowdown,
-                    )
-                    compute_references(traj, spec, model)
-                    if step.to_state.endswith(("_pregrasp", "_preplace")):
-                        # the correction (3 cm/s, 0.3 rad/s) converges at the waypoint, before
-                        # the gripper goes into contact
-                        dwell(traj, scenario.servo_dwell_s)
-                    supervisor.trajectories[step.index] = traj
-            add_gaze(
-                supervisor.trajectories,
-                steps[first:],
-                robot_map,
-                scenario.object_name,
-                robots.robot(robot).camera_frame,
-            )
-            timings["vision_setup_s"] = time.perf_counter() - t_gaze
             servo_options = (
                 ServoOptions()
                 if perturbation is None
@@ -596,6 +632,33 @@ def run_plan_and_execute(
         report["vision"] = servo.summary()
     write_report(out_dir, report, scenario, supervisor, result, recorder, model)
     return report
+
+
+def _refused(report: dict[str, Any], out_dir: Path, reason: str) -> dict[str, Any]:
+    """The trial fails before anything moves (a plan the dry run refuses, a calibration that
+    cannot see the wrists): its report says why, with what was measured until then."""
+    from marionette.scenarios.plan_and_execute_report import write_refusal
+
+    report["success"] = False
+    report["stopped"] = reason
+    write_refusal(out_dir, report)
+    return report
+
+
+def _servo_timing(scenario: PlanAndExecute) -> Callable[[Any, Any], StepTiming]:
+    """How the servoed steps are played: ``servo_slowdown`` slower than the plan's time law (the
+    camera delivers ~2 frames/s of controller time here, software rendering on shared cores:
+    several measurements must reach each servoed step), then, at a pre-grasp / pre-placement, a
+    ``servo_dwell_s`` wait for the correction (3 cm/s, 0.3 rad/s) to converge before the gripper
+    goes into contact."""
+
+    def timing(step: Any, spec: Any) -> StepTiming:
+        if not any(t.kind == "pbvs" for t in spec.tasks):
+            return StepTiming()
+        waypoint = step.to_state.endswith(("_pregrasp", "_preplace"))
+        return StepTiming(scenario.servo_slowdown, scenario.servo_dwell_s if waypoint else 0.0)
+
+    return timing
 
 
 def _grip_report(

@@ -18,6 +18,7 @@ from marionette.scenarios.report import (
     speed_text,
     timings_lines,
     title,
+    write_json,
     write_report_files,
 )
 from marionette.scenarios.task_error_plot import (
@@ -42,6 +43,9 @@ def _records(result) -> list[dict[str, Any]]:
                 "controller_time_s": (r.utime_end - r.utime_start) * 1e-6 if r.utime_end else None,
                 "wall_s": r.wall_s,
                 "chunks": r.chunks,
+                "retimed": r.retimed,
+                "retimed_for": r.retimed_for,
+                "switch_retries": r.switch_retries,
                 "min_lookahead_ms": r.min_lookahead_ms,
                 "max_task_errors": r.max_errors,
                 "final_task_errors": r.final_errors,
@@ -61,6 +65,83 @@ def write_report(
         lambda: _plots(out_dir, scenario, supervisor, result, recorder, model),
         _markdown,
     )
+
+
+def write_refusal(out_dir: Path, report: dict[str, Any]) -> None:
+    """report.json and report.md of a trial stopped before anything moved (``report["stopped"]``
+    says why): the dry run's verdict per step and the calibration, when they ran."""
+    write_json(out_dir / "report.json", report)
+    lines = [
+        f"# Demo `{report['scenario']}` — FAILURE (stopped before execution)",
+        "",
+        report.get("description", ""),
+        "",
+        f"seed {report['seed']}, robot {report['robot']}: {report['stopped']}",
+        "",
+    ]
+    lines += _dry_run_lines(report) + _calibration_lines(report)
+    if "timings" in report:
+        lines += timings_lines(report["timings"])
+    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+
+
+def _dry_run_lines(r: dict[str, Any]) -> list[str]:
+    """## Dry run: the verdict per step (marionette.execution.dry_run)."""
+    d = r.get("dry_run")
+    if d is None:
+        return []
+    lines = [
+        "## Dry run (before anything moved)",
+        "",
+        f"The generated controllers played on the plan on the {d['backend']} controller: "
+        f"{'passed' if d['ok'] else 'REFUSED: ' + d['reason']} ({d['wall_s']:.1f} s wall, "
+        f"{d['controller_s']:.1f} s of controller time; supervisor {d['supervisor']}). "
+        "Smallest singular value any level needs along the step (the controller damps below "
+        "0.02), the switch, the end check, and the largest distance of a joint from its streamed "
+        "reference (the IK branch).",
+        "",
+        "| # | transition | min singular value | switch | converged | joint deviation | verdict |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for s in d["steps"]:
+        sv = s["min_singular_value"]
+        sigma = "-" if sv is None else f"{sv:.3f} ({s['singular_level']})"
+        conv = {None: "-", True: f"yes, {s['controller_s']:.1f} s", False: "no"}[s["converged"]]
+        dev = f"{s['max_joint_deviation']:.3f} rad ({s['deviation_joint']})" if s["played"] else "-"
+        verdict = "ok" if s["ok"] else "; ".join(s["reasons"])
+        if s["ok"] and not s["played"]:
+            verdict = "not reached"
+        lines.append(
+            f"| {s['index']} | `{s['transition']}` | {sigma} | {s['switch'] or '-'} | {conv} | "
+            f"{dev} | {verdict} |"
+        )
+    return [*lines, ""]
+
+
+def _calibration_lines(r: dict[str, Any]) -> list[str]:
+    """## Encoder calibration: the arms' offsets from the head camera, before execution."""
+    if "calibration" not in r:
+        return []
+    lines = [
+        "## Encoder calibration (thesis 000 ch. 4.2)",
+        "",
+        "Wrist rings seen by the head camera; the controller runs with the offsets found. Error = "
+        "found − the perturbation's offset.",
+        "",
+        "| arm | views used | rounds | residual | offsets found | worst error |",
+        "|---|---|---|---|---|---|",
+    ]
+    for a in r["calibration"]["arms"]:
+        worst = max(a["error_deg"].items(), key=lambda kv: abs(kv[1]))
+        lines.append(
+            f"| {a['side']} | {a['views_used']}/{a['views_planned']} | {a.get('rounds', 1)} | "
+            f"{a['residual_position_mm']:.2f} mm / {a['residual_rotation_deg']:.2f}° | "
+            + ", ".join(
+                f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items()
+            )
+            + f" | {worst[1]:+.3f}° ({worst[0]}) |"
+        )
+    return [*lines, ""]
 
 
 def _markdown(r: dict[str, Any]) -> str:
@@ -118,27 +199,7 @@ def _markdown(r: dict[str, Any]) -> str:
             f"{np.degrees(p['camera_noise_rad']):.2f}°",
             "",
         ]
-    if "calibration" in r:  # the arms' encoder offsets from the head camera, before execution
-        lines += [
-            "## Encoder calibration (thesis 000 ch. 4.2)",
-            "",
-            "Wrist rings seen by the head camera; the controller runs with the offsets found. "
-            "Error = found − the perturbation's offset.",
-            "",
-            "| arm | views used | residual | offsets found | worst error |",
-            "|---|---|---|---|---|",
-        ]
-        for a in r["calibration"]["arms"]:
-            worst = max(a["error_deg"].items(), key=lambda kv: abs(kv[1]))
-            lines.append(
-                f"| {a['side']} | {a['views_used']}/{a['views_planned']} | "
-                f"{a['residual_position_mm']:.2f} mm / {a['residual_rotation_deg']:.2f}° | "
-                + ", ".join(
-                    f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items()
-                )
-                + f" | {worst[1]:+.3f}° ({worst[0]}) |"
-            )
-        lines += [""]
+    lines += _dry_run_lines(r) + _calibration_lines(r)
     if "vision" in r:
         v = r["vision"]
         lines += [
@@ -192,16 +253,21 @@ def _markdown(r: dict[str, Any]) -> str:
         "",
         "## Steps (one controller each)",
         "",
-        "| # | transition | kind | planned s | controller s | wall s | min look-ahead ms "
-        "| result |",
-        "|---|---|---|---|---|---|---|---|",
+        "Re-timed: how much slower than its time law a step was played for its rewritten "
+        "references (the gaze) to respect the joints' velocity bounds, and the joint that asked.",
+        "",
+        "| # | transition | kind | planned s | re-timed | controller s | wall s | switch retries "
+        "| min look-ahead ms | result |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in r["steps"]:
         ct = f"{s['controller_time_s']:.2f}" if s["controller_time_s"] is not None else "-"
         la = f"{s['min_lookahead_ms']:.0f}" if s["min_lookahead_ms"] is not None else "-"
+        rt = f"x{s['retimed']:.2f} ({s['retimed_for']})" if s.get("retimed", 1.0) > 1.0 else "-"
         lines.append(
             f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
-            f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |"
+            f"{rt} | {ct} | {s['wall_s']:.2f} | {s.get('switch_retries', 0)} | {la} | "
+            f"{s['result']} |"
         )
     lines += controller_and_plots_lines(r)
     lines += [

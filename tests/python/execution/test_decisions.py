@@ -5,13 +5,20 @@ from __future__ import annotations
 
 import pytest
 
-from marionette import lcmt_controller_status, lcmt_supervisor_decision, lcmt_supervisor_event
+from marionette import (
+    lcmt_controller_status,
+    lcmt_robot_command,
+    lcmt_supervisor_decision,
+    lcmt_supervisor_event,
+)
 from marionette.control.spec import HOLD_CONTROLLER_ID
 from marionette.execution.decisions import (
+    COMMAND,
     EVENT,
     STATUS,
     Decision,
     DecisionMachine,
+    StepRest,
     replay_decisions,
 )
 
@@ -205,3 +212,110 @@ def test_replay_names_the_first_diverging_tick():
 def test_feed_rejects_an_unknown_channel():
     with pytest.raises(ValueError, match="CONTROLLER_STATUS"):
         DecisionMachine().feed("ROBOT_STATE", object())
+
+
+# ---- the end check's command at rest, refused switches retried ---------------------------------
+
+
+def command(utime: int, velocities: dict[str, float]) -> lcmt_robot_command:
+    msg = lcmt_robot_command()
+    msg.utime, msg.tick = utime, utime // 1000
+    msg.num_joints = len(velocities)
+    msg.joint_name = list(velocities)
+    msg.joint_position = [0.0] * len(velocities)
+    msg.joint_velocity = list(velocities.values())
+    return msg
+
+
+REST = StepRest(
+    switch_jump=0.1,
+    next_switch_jump=0.1,
+    switch_retries=2,
+    settle_timeout_us=1_000_000,
+    excluded_joints=("gripper",),
+)
+
+
+def rest_step(machine: DecisionMachine, inputs, rest: StepRest = REST) -> list[Decision]:
+    out = [machine.begin_step(0, "t0", CID, THRESHOLDS, 300_000, rest=rest)]
+    for channel, msg in inputs:
+        for d in machine.feed(channel, msg):
+            out.append(d)
+            if d.event == "switch_accepted":
+                out.append(machine.start_reference(200_000, 1_000_000))
+            if d.event == "switch_resend":
+                out.append(machine.resend_switch(machine.controller_id + 1))
+    return out
+
+
+def test_the_end_check_waits_for_a_command_the_next_switch_accepts():
+    """Errors below their thresholds are not enough: the command applied after the last sample
+    must be within half the next controller's jump bound (0.05 rad/s here) on every joint but
+    those an admittance task ramps — what the next switch's start check will compare."""
+    inputs = [(STATUS, status(30_000))]
+    inputs += [(COMMAND, command(1_005_000, {"head": 0.18, "gripper": 0.3}))]
+    inputs += [(STATUS, status(1_010_000))]  # errors fine, head still moving: waits
+    inputs += [(COMMAND, command(1_020_000, {"head": 0.049, "gripper": 0.3}))]
+    inputs += [(STATUS, status(1_030_000))]
+    ds = rest_step(DecisionMachine(), inputs)
+    assert [d.event for d in ds][-2:] == ["end_of_reference", "end_check_passed"]
+    assert ds[-1].utime == 1_030_000 and ds[-1].inputs["command_speed"] == 0.049
+    # A command from before the end of the reference proves nothing: it must be newer.
+    stale = [(STATUS, status(30_000)), (COMMAND, command(900_000, {"head": 0.0}))]
+    stale += [(STATUS, status(t)) for t in range(1_010_000, 1_400_000, 100_000)]
+    ds = rest_step(DecisionMachine(), stale)
+    assert ds[-1].event == "end_check_failed" and "command" in ds[-1].detail
+
+
+def test_the_end_check_fails_on_a_command_that_never_settles():
+    inputs = [(STATUS, status(30_000))]
+    for t in range(1_010_000, 1_500_000, 100_000):
+        inputs += [(COMMAND, command(t - 5_000, {"head": 0.2})), (STATUS, status(t))]
+    ds = rest_step(DecisionMachine(), inputs)
+    assert ds[-1].event == "end_check_failed" and "head" in ds[-1].detail
+
+
+def test_a_refused_switch_is_resent_once_the_robot_is_at_rest():
+    jump = f"CONTROLLER_SPEC: refused controller 'step0' (id {CID}): command jump 0.19 rad/s > 0.1"
+    inputs = [(STATUS, status(10_000, active=3, rejection=jump))]
+    inputs += [(COMMAND, command(20_000, {"head": 0.15})), (STATUS, status(30_000, active=3))]
+    inputs += [(COMMAND, command(40_000, {"head": 0.04})), (STATUS, status(50_000, active=3))]
+    inputs += [(STATUS, status(60_000, active=CID + 1))]  # the resent id swapped in
+    ds = rest_step(DecisionMachine(), inputs)
+    assert [(d.event, d.to_status) for d in ds] == [
+        ("step_started", "waiting_start_check"),
+        ("switch_retry", "settling"),
+        ("switch_resend", "resend"),
+        ("switch_resent", "waiting_start_check"),
+        ("switch_accepted", "accepted"),
+        ("reference_started", "running"),
+    ]
+    assert ds[2].utime == 50_000 and ds[1].inputs["retries_left"] == 1
+    # the recorded decisions are re-taken from the same inputs (commands included)
+    r = replay_decisions(ds, inputs)
+    assert r.ok, r.first_divergence
+
+
+def test_refusals_beyond_the_retries_and_an_estop_fail_the_step():
+    def refused(cid: int, t: int):
+        text = f"refused controller 's' (id {cid}): command jump 0.3 rad/s > 0.1"
+        return (STATUS, status(t, active=3, switch=text))
+
+    inputs = [refused(CID, 10_000), (STATUS, status(1_100_000, active=3))]  # settle timeout
+    inputs += [refused(CID + 1, 1_200_000), (STATUS, status(2_300_000, active=3))]
+    inputs += [refused(CID + 2, 2_400_000)]
+    ds = rest_step(DecisionMachine(), inputs)
+    assert [d.event for d in ds].count("switch_retry") == 2
+    assert ds[-1].event == "switch_refused" and ds[-1].to_status == "failed"
+    estop = f"refused controller 's' (id {CID}): estop is latched"
+    ds = rest_step(DecisionMachine(), [(STATUS, status(10_000, active=3, switch=estop))])
+    assert ds[-1].event == "switch_refused"
+
+
+def test_without_rest_bounds_the_machine_decides_as_before():
+    """StepRest() (a log recorded before the rest checks): no command read, no retry."""
+    inputs = [(STATUS, status(30_000)), (COMMAND, command(1_005_000, {"head": 5.0}))]
+    inputs += [(STATUS, status(1_010_000))]
+    ds = rest_step(DecisionMachine(), inputs, rest=StepRest())
+    assert ds[-1].event == "end_check_passed" and "command_speed" not in ds[-1].inputs
+    assert StepRest().inputs() == {} and StepRest.from_inputs(REST.inputs()) == REST

@@ -71,17 +71,27 @@ def test_plan_runs_to_done_through_every_controller(ur10_kinematic, ur10_box):
 
 def test_discontinuous_switch_is_refused_and_the_robot_held(ur10_kinematic, ur10_box):
     """A controller whose first command jumps (a posture 0.5 rad away at gain 10: ~5 rad/s) is
-    refused by the controller's start check; the FSM fails with switch_refused and holds."""
+    refused by the controller's start check, sent again once the robot is at rest and refused
+    again (the jump is the controller's, not a lag): after its retries the FSM fails with
+    switch_refused and holds."""
     c = ur10_kinematic
     specs = copy.deepcopy(ur10_box.specs)
     q_far = ur10_box.robot_map.robot_q(ur10_box.steps[0].q[0]) + 0.5
     specs[0].tasks = [TaskSpec("posture", "posture", 0, gain=10.0, reference=list(q_far))]
-    result = _supervisor(c, ur10_box, specs=specs).run()
+    sup = _supervisor(c, ur10_box, specs=specs)
+    refused_before = c.status.num_refused_switches
+    result = sup.run()
     assert not result.success and result.state == "failed"
     assert result.reason.startswith("switch_refused")
-    assert "switch_refused" in [e[1] for e in result.events]
+    events = [e[1] for e in result.events]
+    assert "switch_refused" in events
+    retries = sup.options.switch_retries
+    assert events.count("switch_retry") == retries
     c.wait(
-        lambda c: c.status.num_refused_switches == 1 and c.status.mode == "holding",
+        lambda c: (
+            c.status.num_refused_switches == refused_before + 1 + retries
+            and c.status.mode == "holding"
+        ),
         10.0,
         "the hold",
     )

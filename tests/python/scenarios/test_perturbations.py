@@ -19,6 +19,10 @@ from marionette.scenarios.perturbations import (
     slipped,
 )
 
+# the encoder offsets of ``--perturb all``: both arms, shoulder and wrist
+BOTH_ARMS = {"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+BOTH_ARMS |= {"arm_right_1_joint": 7.0, "arm_right_7_joint": 4.0}
+
 
 def test_draws_are_reproducible_and_within_bounds():
     assert draw(PRESETS["all"], 7) == draw(PRESETS["all"], 7)
@@ -30,7 +34,7 @@ def test_draws_are_reproducible_and_within_bounds():
         assert 0.005 - 1e-12 <= np.linalg.norm(p.slip[:3]) <= 0.01 + 1e-12
         assert math.radians(2.5) - 1e-12 <= np.linalg.norm(p.slip[3:]) <= math.radians(5.0) + 1e-12
         assert {k: abs(math.degrees(v)) for k, v in p.joint_offsets.items()} == pytest.approx(
-            {"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+            BOTH_ARMS
         )
     assert not draw(PerturbationSettings(), 3).any
 
@@ -78,7 +82,8 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
 
 def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_under():
     """``--perturb all`` (plank-flip's trial set): 5 cm / 10° displacement, 1 cm / 5° slip, 7° / 4°
-    on TALOS' left shoulder and wrist, 2 mm / 0.5° camera noise; each part sets a subset of it."""
+    on both of TALOS' shoulders and wrists, 2 mm / 0.5° camera noise; each part sets a subset of
+    it."""
     from marionette.scenarios.perturbations import PARTS, PRESETS, PerturbationSettings
 
     assert PRESETS["all"] == PerturbationSettings(
@@ -86,7 +91,7 @@ def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_unde
         displacement_deg=10.0,
         slip_m=0.01,
         slip_deg=5.0,
-        joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0},
+        joint_offsets_deg=BOTH_ARMS,
         camera_noise_m=0.002,
         camera_noise_deg=0.5,
     )
