@@ -62,7 +62,7 @@ from marionette.execution.supervisor import (
 from marionette.execution.visual_servo import gaze_rewrite
 from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
 from marionette.perception.calibration import CalibrationError
-from marionette.planning.path import Plan, load_plan
+from marionette.planning.path import Plan
 from marionette.scenarios.base import (
     Criterion,
     RunOptions,
