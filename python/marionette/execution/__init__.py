@@ -11,11 +11,11 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `streamer.py` | chunks on TASK_REFERENCE, ahead of the controller's clock |
 | `supervisor.py` | the FSM: start check, streaming, end check, grasp welds, events, LCM state |
 | `estimation.py` | nearest graph state of a measured configuration, steps already done |
-| `monitor.py` | execution monitor: grasp / placement residuals from OBJECT_POSES -> `left_manifold` |
+| `monitor.py` | grasp / placement residuals from OBJECT_POSES -> `left_manifold` events |
 | `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
-| `grip_force.py` | the grip force a gripper holds: effort estimate (eq. 3.11-3.13) and MuJoCo contact forces on its jaws |
+| `grip_force.py` | a gripper's grip force: effort estimate (eq. 3.11-3.13), jaw contact forces |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
-| `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |
+| `visual_servo.py` | PBVS correction of a carried object's gripper task, head gaze (§5.3.1) |
 | `tool_task.py` | a tool held by an arm: one streamed SE3 task, corrected on its measured pose |
 | `walking.py` | the walking controller spec; ZMP in the support polygon; merged footstep plans |
 | `errors.py` | `ExecutionError` |

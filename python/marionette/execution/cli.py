@@ -13,8 +13,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "supervise",
         help="execute a plan on a running controller (one controller per transition)",
-        description="Generate the controllers of PLAN (written to --specs), estimate where the plan "
-        "stands from the robot's state, and run the supervisor FSM against the "
+        description="Generate the controllers of PLAN (written to --specs), estimate where the "
+        "plan stands from the robot's state, and run the supervisor FSM against the "
         "marionette-controller listening on the LCM URL.",
         epilog=(
             "example:\n"

@@ -16,7 +16,8 @@ Two parts, on the references the supervisor will stream (:meth:`Supervisor.prepa
    watchdog holds it — a streaming failure, not the plan's; a starved run is played again at real
    time) on a private LCM URL, driven by the same :class:`~.supervisor.Supervisor` with the same
    controllers and references (no camera: the visual corrections stay at identity). Refused
-   switches are the controller's own start check; an end check that fails within the converge timeout is a task
+   switches are the controller's own start check; an end check that fails within the converge
+   timeout is a task
    that does not converge; and every joint the posture follows is compared with its streamed
    reference at the same controller time: one farther than ``branch_tolerance`` left the planned
    IK branch (a 6-DoF arm flipping its elbow through a singularity, its gripper on its pose:

@@ -60,8 +60,8 @@ END_THRESHOLDS: dict[str, float] = {
     "com": 0.01,
     "posture": 0.1,
     "gaze": 0.05,
-    # ||e|| = K_a |f - f*| / lambda while holding: 0.01 is 1 N with ADMITTANCE's K_a and GAINS' lambda;
-    # in position control it is the lag behind the closing ramp [rad].
+    # ||e|| = K_a |f - f*| / lambda while holding: 0.01 is 1 N with ADMITTANCE's K_a and GAINS'
+    # lambda; in position control it is the lag behind the closing ramp [rad].
     "gripper_admittance": 0.01,
 }
 GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0, "gripper": 2.0}

@@ -33,7 +33,8 @@ DEFAULT_TORQUE_PER_EFFORT = 1.0  # k_τ k_gear
 def force_estimate(
     effort: float, closing_direction: float, torque_per_effort: float, lever_arm: float
 ) -> float:
-    """f = s k τ / d [N] of eq. 3.11-3.13 from a gripper joint's actuator effort τ (> 0 squeezes)."""
+    """f = s k τ / d [N] of eq. 3.11-3.13 from a gripper joint's actuator effort τ
+    (> 0 squeezes)."""
     return closing_direction * torque_per_effort * effort / lever_arm
 
 
@@ -56,7 +57,8 @@ class ForceEventDetector:
             )
         if self.closing_direction not in (-1.0, 1.0):
             raise ValueError(
-                f"ForceEventDetector: closing_direction must be +1 or -1, got {self.closing_direction}"
+                "ForceEventDetector: closing_direction must be +1 or -1, got "
+                f"{self.closing_direction}"
             )
         self.filtered: float | None = None
         self._last_utime: int | None = None

@@ -306,7 +306,8 @@ class VisualServo:
             else:
                 anchor = None  # a held object: right correction
                 if carried_anchor is not None:
-                    # a grasp's left correction L still on: the same reference at the start, P0 C = L P0
+                    # a grasp's left correction L still on: the same reference at the start, P0 C =
+                    # L P0
                     P0 = self._planned_pose(traj, task.frame, 0)
                     C0 = P0.inverse() * carried_anchor * C0 * carried_anchor.inverse() * P0
             releasing = any(g.split("/")[-1] == task.name for g in step.released)
@@ -455,7 +456,8 @@ def head_gaze_posture(
     ``extra_joints`` (e.g. the torso pitch) join in, only as far as bringing it ``tolerance`` from
     the centre (0.2 ≈ 11°). Not used by the plank demo: pitching the torso to centre the plank
     views its tagged face edge-on and behind the hand (rendered check), the head alone sees it
-    in the second half of the carry to the pre-placement and during the placement. ``ramp_in`` blends from the planned posture over
+    in the second half of the carry to the pre-placement and during the placement. ``ramp_in``
+    blends from the planned posture over
     the step with a C2 ramp. Velocities: central differences."""
     values, derivs = traj.references["posture"]
     names = tuple(joints) + tuple(extra_joints)

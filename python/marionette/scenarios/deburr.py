@@ -24,7 +24,8 @@ step 1 is optional there):
 * **Steps 4-7: execute.** One controller: an SE3 task on the tool (rotation about its axis
   masked, as the holes' handles mask it), the posture below it following the planned
   configurations (:meth:`ToolTask.follow`: the frame reference on the path's forward
-  kinematics). At each pre-grasp the tool's tags (ids 30-37 on the drill, 4 cm, two rings of four) and the part's
+  kinematics). At each pre-grasp the tool's tags (ids 30-37 on the drill, 4 cm, two rings of four)
+  and the part's
   are seen in the same frames: the tool's pose *relative to the part* (the camera's own pose
   cancels out), pooled over the hole's frames (:class:`ToolEstimate`), is servoed onto the hole's
   pre-grasp (:meth:`ToolTask.servo`), then the tool approaches the hole along its axis to
@@ -123,8 +124,8 @@ class DeburrSettings:
     max_holes: int = 0  # 0: every hole of the part; else the first N of the tour
     camera_rate_hz: float = 5.0
     camera_noise_grey: float = 2.0  # head camera's sensor noise (1 sigma) on the image; none on
-    # the depth: at 3 mm (a structured-light sensor at ~1 m) the RGB-D fusion tilts a 4 cm tool tag by
-    # 1.2 deg median (0.56 with the depth weighted as 1 cm) and seed 1 misses a hole by 1.04 deg
+    # the depth: at 3 mm (a structured-light sensor at ~1 m) the RGB-D fusion tilts a 4 cm tool tag
+    # by 1.2 deg median (0.56 with the depth weighted as 1 cm) and seed 1 misses a hole by 1.04 deg
     # (python/marionette/scenarios/README.md)
     depth_noise_m: float = 0.0
 
@@ -423,8 +424,8 @@ def plan_deburring(
     tour["planning_s"] = time.perf_counter() - t0
     log(
         f"deburr: planned {len(order)} holes in {tour['planning_s']:.1f} s; TSP order cost "
-        f"{tour['tsp_cost']:.2f} rad vs {tour['listed_order_cost']:.2f} in the part's listed order; "
-        f"{sum(p.transit_kind == 'rrt' for p in plans)} transits by RRT"
+        f"{tour['tsp_cost']:.2f} rad vs {tour['listed_order_cost']:.2f} in the part's listed "
+        f"order; {sum(p.transit_kind == 'rrt' for p in plans)} transits by RRT"
     )
     tour["layout"] = problem.configuration_layout()
     return plans, tour
@@ -542,10 +543,13 @@ def run_deburr(
     X_link_tool_true = T_tool * X_link_tool
     tool_tip_shift = np.linalg.norm(X_link_tool_true.translation - X_link_tool.translation)
     log(
-        f"deburr: part's hole pattern displaced {np.linalg.norm(X_WP_true * centre_P - X_WP_nom * centre_P) * 1e3:.1f} mm / "
-        f"{np.degrees(np.linalg.norm(pin.log3(X_WP_nom.rotation.T @ X_WP_true.rotation))):.2f} deg; tool off "
+        "deburr: part's hole pattern displaced "
+        f"{np.linalg.norm(X_WP_true * centre_P - X_WP_nom * centre_P) * 1e3:.1f} mm / "
+        f"{np.degrees(np.linalg.norm(pin.log3(X_WP_nom.rotation.T @ X_WP_true.rotation))):.2f} "
+        "deg; tool off "
         f"its nominal pose in the hand by {np.linalg.norm(T_tool.translation) * 1e3:.1f} mm / "
-        f"{np.degrees(np.linalg.norm(pin.log3(T_tool.rotation))):.2f} deg (tool tip {tool_tip_shift * 1e3:.1f} mm)"
+        f"{np.degrees(np.linalg.norm(pin.log3(T_tool.rotation))):.2f} deg (tool tip "
+        f"{tool_tip_shift * 1e3:.1f} mm)"
     )
     report.update(
         settings=asdict(st),
@@ -611,7 +615,8 @@ def run_deburr(
             float(np.degrees(np.linalg.norm(pin.log3(X_WP_cam.rotation.T @ X_WP_true.rotation)))),
         )
         log(
-            f"deburr: head camera measured the part {cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} deg from its true pose"
+            f"deburr: head camera measured the part {cam_err[0] * 1e3:.2f} mm / {cam_err[1]:.3f} "
+            "deg from its true pose"
         )
         report["camera"] = {
             "part_measured": pose_to_vector(X_WP_cam).tolist(),
@@ -698,7 +703,8 @@ def run_deburr(
             )
             log(
                 f"deburr: {plan.name:13s} axis {dist * 1e3:.2f} mm / {angle:.2f} deg "
-                f"(standoff {standoff * 1e3:.1f} mm, {k_pre}+{k_hole} corrections) {'ok' if ok else 'OUT'}"
+                f"(standoff {standoff * 1e3:.1f} mm, {k_pre}+{k_hole} corrections) "
+                f"{'ok' if ok else 'OUT'}"
             )
             correction = tool.reference_tool() * (tool.tool_of(q_grasp) * back_off).inverse()
             tool.move(correction * tool.tool_of(q_pre), st.move_duration_s, q=q_pre)
@@ -799,17 +805,19 @@ def _markdown(r: dict[str, Any]) -> str:
         f"{np.round(r['part_nominal'], 4).tolist()}, x y z qw qx qy qz); tool off in the hand by "
         f"{np.round(r['tool_offset'], 4).tolist()} (tip {r['tool_tip_offset_m'] * 1e3:.1f} mm)",
         f"- head camera (tags 20-23, {r['camera']['frames']} frames): part "
-        f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off; "
-        f"sensor noise {r['settings']['camera_noise_grey']:g} grey levels, depth "
+        f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} "
+        f"deg off; sensor noise {r['settings']['camera_noise_grey']:g} grey levels, depth "
         f"{r['settings']['depth_noise_m'] * 1e3:g} mm (1 sigma)",
-        f"- order: {r['tour']['solver']}, cost {r['tour']['tsp_cost']:.2f} vs {r['tour']['listed_order_cost']:.2f} "
+        f"- order: {r['tour']['solver']}, cost {r['tour']['tsp_cost']:.2f} vs "
+        f"{r['tour']['listed_order_cost']:.2f} "
         f"in the listed order ({r['tour']['cost']}); planning {r['tour']['planning_s']:.1f} s",
         "- timings [s wall]: " + ", ".join(f"{k} {v:.1f}" for k, v in r["timings"].items()),
         "",
         "Tool axis vs the true hole (ground truth), and what the plan alone (nominal tool, part "
         "from the camera) would have missed it by:",
         "",
-        "| hole | axis distance mm | axis angle deg | standoff mm | corrections | ok | plan alone mm / deg |",
+        "| hole | axis distance mm | axis angle deg | standoff mm | corrections | ok "
+        "| plan alone mm / deg |",
         "|---|---|---|---|---|---|---|",
     ]
     lines += [

@@ -29,10 +29,10 @@ The procedure of §6.3 (steps 1-6), on the ``ur10_drill`` scene:
    from the interpolation, its orientation is adjusted on the surface normal the tool sensor
    measures (§6.3 step 6, :meth:`HoleSensor.normal`).
 
-Every move ends with corrections on the measured tool pose (:meth:`tool_task.ToolTask.servo`): the joint
-servos of the MuJoCo arm sag under gravity by a few mm, which the controller's task does not see
-(it tracks its own integrated configuration); the corrections move the reference by the error
-measured from the joint encoders until it is below ``aligned_m`` / ``aligned_deg``.
+Every move ends with corrections on the measured tool pose (:meth:`tool_task.ToolTask.servo`): the
+joint servos of the MuJoCo arm sag under gravity by a few mm, which the controller's task does
+not see (it tracks its own integrated configuration); the corrections move the reference by the
+error measured from the joint encoders until it is below ``aligned_m`` / ``aligned_deg``.
 
 Verdict (``docs/scenarios.md``): every hole, R1 and R2 included, within 0.2 mm / 0.5 deg
 after alignment, judged in ground truth: the tool pose from MuJoCo's joint positions
@@ -323,7 +323,8 @@ def run_drill(
     X_WP_true = X_WP_nom * D
     scene = displaced_scene(X_WP_true, out_dir / "scene.xml")
     log(
-        f"drill: part displaced {np.linalg.norm(X_WP_true.translation - X_WP_nom.translation) * 1e3:.1f} mm / "
+        "drill: part displaced "
+        f"{np.linalg.norm(X_WP_true.translation - X_WP_nom.translation) * 1e3:.1f} mm / "
         f"{np.degrees(np.linalg.norm(pin.log3(D.rotation))):.2f} deg (hole pattern centre moved "
         f"{np.linalg.norm((X_WP_true * centre_P) - (X_WP_nom * centre_P)) * 1e3:.1f} mm)"
     )
@@ -448,7 +449,8 @@ def run_drill(
             if lost:
                 raise ScenarioError(
                     f"{name}: the tool sensor does not see the hole (more than "
-                    f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): alignment failed"
+                    f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): "
+                    "alignment failed"
                 )
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
             corrected[name] = pin.SE3(
@@ -477,7 +479,8 @@ def run_drill(
             float(np.degrees(np.linalg.norm(pin.log3(X_WP_est.rotation.T @ X_WP_true.rotation)))),
         )
         log(
-            f"drill: part from R1/R2 {est_err[0] * 1e3:.3f} mm / {est_err[1]:.4f} deg from its true pose"
+            f"drill: part from R1/R2 {est_err[0] * 1e3:.3f} mm / {est_err[1]:.4f} deg "
+            "from its true pose"
         )
         report["interpolation"] = {
             "part_estimated": pose_to_vector(X_WP_est).tolist(),
@@ -609,7 +612,8 @@ def _markdown(r: dict[str, Any]) -> str:
         f"- part displaced to {np.round(r['part_true'], 4).tolist()} (nominal "
         f"{np.round(r['part_nominal'], 4).tolist()}, x y z qw qx qy qz)",
         f"- scene camera (tags 20-23, `marionette perceive`, {r['camera']['frames']} frames): part "
-        f"{r['camera']['position_error_m'] * 1e3:.2f} mm / {r['camera']['angle_error_deg']:.3f} deg off",
+        f"{r['camera']['position_error_m'] * 1e3:.2f} mm / "
+        f"{r['camera']['angle_error_deg']:.3f} deg off",
         f"- part from the aligned R1/R2: {r['interpolation']['position_error_m'] * 1e3:.3f} mm / "
         f"{r['interpolation']['angle_error_deg']:.4f} deg off",
         f"- alignment corrections: {r['alignment_corrections']}",
@@ -618,7 +622,8 @@ def _markdown(r: dict[str, Any]) -> str:
         "Tool vs the true hole (ground truth), and what the nominal model (offline program) and "
         "the scene camera alone would have missed the hole by:",
         "",
-        "| hole | reference | position error mm | axis error deg | corrections | ok | nominal mm | camera mm |",
+        "| hole | reference | position error mm | axis error deg | corrections | ok | nominal mm "
+        "| camera mm |",
         "|---|---|---|---|---|---|---|---|",
     ]
     lines += [

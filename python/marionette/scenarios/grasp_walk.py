@@ -1,6 +1,7 @@
 """``grasp-walk`` (Dang 2012 ch. 6): TALOS walks to a ball that is moved while it walks.
 
-The footstep process (`marionette footsteps run`, posture frozen when replanning) plans the steps to a stance from which the right hand reaches the ball and publishes
+The footstep process (`marionette footsteps run`, posture frozen when replanning) plans the steps to
+a stance from which the right hand reaches the ball and publishes
 FOOTSTEP_PLAN; marionette-controller's walking stack (:func:`walking.walking_spec`) executes
 them; the ball is moved sideways during the walk, the footstep process replans and the
 controller's footstep manager applies the new steps to the steps not yet started.
@@ -73,7 +74,7 @@ class GraspWalkSettings:
     stance_yaw_tolerance_deg: float = 3.0
     max_base_drop: float = 0.05  # [m] fall criterion (base height)
     zmp_tolerance: float = 0.005  # [m] ZMP outside the soles' polygon allowed by
-    #                                             the sole poses (walk references, mm from the real ones)
+    # the sole poses (walk references, mm from the real ones)
     walk_timeout_s: float = 60.0  # controller time for the whole walk
     reach: bool = True  # then reach the ball with the hand (bonus)
     reach_duration_s: float = 3.0  # [s] minimum-jerk hand motion
@@ -449,7 +450,8 @@ def summary(report: dict[str, Any]) -> str:
         f"{'SUCCESS' if report['success'] else 'FAILURE'}: {c['steps_executed']} steps, "
         f"{c['footstep_recomputations']} footstep recomputations "
         f"({c['recomputations_after_move']} after the ball moved), final stance "
-        f"{c['final_stance_error_m'] * 1e3:.1f} mm from the plan, ball {c['ball_to_shoulder_m']:.2f} m "
+        f"{c['final_stance_error_m'] * 1e3:.1f} mm from the plan, ball "
+        f"{c['ball_to_shoulder_m']:.2f} m "
         f"from the shoulder (reach {c['arm_reach_m']:.2f} m), base drop "
         f"{c['base_max_drop_m'] * 1e3:.0f} mm, ZMP margin min "
         f"{_mm(c['zmp_margin_min_m'])} / median {_mm(c['zmp_margin_median_m'])}"
@@ -486,8 +488,10 @@ def _markdown(r: dict[str, Any]) -> str:
         f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | "
         f"{s['max_base_drop'] * 1e3:.0f} mm | {c['no_fall']} |",
         f"| measured ZMP in the loaded soles' polygon (min margin; p5, median) | "
-        f"{_mm(c['zmp_margin_min_m'])}; {_mm(c['zmp_margin_p5_m'])}, {_mm(c['zmp_margin_median_m'])} "
-        f"over {c['zmp_samples']}/{c['zmp_statuses']} statuses | > -{s['zmp_tolerance'] * 1e3:.0f} mm "
+        f"{_mm(c['zmp_margin_min_m'])}; {_mm(c['zmp_margin_p5_m'])}, "
+        f"{_mm(c['zmp_margin_median_m'])} "
+        f"over {c['zmp_samples']}/{c['zmp_statuses']} statuses | > "
+        f"-{s['zmp_tolerance'] * 1e3:.0f} mm "
         f"| {c['zmp_inside']} |",
         f"| steps in order | {c['steps_executed']} executed | - | {c['steps_in_order']} |",
         f"| replans after the ball moved | {c['recomputations_after_move']} | > 0 | "
@@ -525,8 +529,8 @@ def _reach_line(reach: dict[str, Any] | None, s: dict[str, Any]) -> str:
     return (
         f"after the walk, a reach controller (feet and CoM held, hand streamed at level 1) "
         f"brings the grasp point {reach['grasp_point_to_ball_m'] * 1e3:.1f} mm from the ball "
-        f"(limit {s['reach_tolerance'] * 1e3:.0f} mm, {'ok' if reach['ok'] else 'missed'}; per pass "
-        f"{passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm; "
+        f"(limit {s['reach_tolerance'] * 1e3:.0f} mm, {'ok' if reach['ok'] else 'missed'}; per "
+        f"pass {passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm; "
         f"{len(reach['refused_swaps'])} refused swaps). Not part of the success verdict; no "
         f"ball in the scene to close the gripper on."
     )

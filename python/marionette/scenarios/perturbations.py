@@ -355,7 +355,8 @@ def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) 
 def true_configuration(
     model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]
 ) -> np.ndarray:
-    """The robot's configuration from encoders that read q + offset (:func:`scene_with_joint_offsets`)."""
+    """The robot's configuration from encoders that read q + offset
+    (:func:`scene_with_joint_offsets`)."""
     q = q_encoders.copy()
     for joint, offset in joint_offsets.items():
         q[model.joints[model.getJointId(joint)].idx_q] -= offset

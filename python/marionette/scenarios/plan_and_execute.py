@@ -370,7 +370,8 @@ def calibrate_encoders(
         worst = max(summary["error_deg"].items(), key=lambda kv: abs(kv[1]))
         log(
             f"calibration: {side} arm from {arm.views_used} views, residual "
-            f"{summary['residual_position_mm']:.1f} mm / {summary['residual_rotation_deg']:.2f}°; offsets "
+            f"{summary['residual_position_mm']:.1f} mm / "
+            f"{summary['residual_rotation_deg']:.2f}°; offsets "
             + ", ".join(f"{j.split('_')[2]}:{np.degrees(v):+.2f}°" for j, v in offsets.items())
             + f" (worst error {worst[1]:+.2f}° at {worst[0]})"
         )

@@ -352,7 +352,8 @@ def summary(report: dict[str, Any]) -> str:
         f"soles over the bar: {c['loaded_sole_samples_over_bar']} loaded / "
         f"{c['sole_samples_inside_bar']} inside it, swing clearance to its cylinder "
         f"{'-' if clearance is None else f'{clearance * 1e3:.0f} mm'}, final stance "
-        f"{c['goal_error_m'] * 1e3:.0f} mm from the goal ({'beyond' if c['beyond_bar'] else 'NOT beyond'} "
+        f"{c['goal_error_m'] * 1e3:.0f} mm from the goal "
+        f"({'beyond' if c['beyond_bar'] else 'NOT beyond'} "
         f"the bar), base drop {c['base_max_drop_m'] * 1e3:.0f} mm"
     )
 
@@ -400,7 +401,8 @@ def _markdown(report: dict[str, Any]) -> str:
         f"{c['loaded_sole_samples_over_bar']} / {c['sole_samples_inside_bar']} of "
         f"{c['samples']} samples | {c['no_foot_on_bar']} |",
         f"| final stance in the goal zone beyond the bar | {c['goal_error_m'] * 1e3:.0f} mm "
-        f"(limit {s['goal_tolerance'] * 1e3:.0f} mm), beyond: {c['beyond_bar']} | {c['in_goal_zone']} |",
+        f"(limit {s['goal_tolerance'] * 1e3:.0f} mm), beyond: {c['beyond_bar']} | "
+        f"{c['in_goal_zone']} |",
         f"| base height drop | {c['base_max_drop_m'] * 1e3:.0f} mm (limit "
         f"{s['max_base_drop'] * 1e3:.0f}) | {c['no_fall']} |",
         f"| replans after the bar moved | {c['recomputations_after_move']} | "

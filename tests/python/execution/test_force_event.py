@@ -31,8 +31,8 @@ def _state(utime: int, effort: float) -> lcmt_robot_state:
 
 
 def test_filter_is_exact_and_fires_at_the_closed_form_crossing():
-    # A grip of 0.5 N m closing (s = -1) at d = 0.1 m is f = 5 N (eq. 3.13); y(t) = 5 (1 - e^{-2π 5 t})
-    # crosses 4 N at t* = -ln(1 - 4/5) / (2π 5) = 51.2 ms.
+    # A grip of 0.5 N m closing (s = -1) at d = 0.1 m is f = 5 N (eq. 3.13); y(t) = 5 (1 - e^{-2π 5
+    # t}) crosses 4 N at t* = -ln(1 - 4/5) / (2π 5) = 51.2 ms.
     det = ForceEventDetector("gripper_right_joint", threshold=4.0)
     rng = np.random.default_rng(3)
     assert det.feed(_state(1_000_000, 0.0)) is None  # primes at 0 N

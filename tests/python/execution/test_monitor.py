@@ -183,6 +183,7 @@ def test_box_pulled_out_of_the_gripper_fails_the_step_and_holds(ur10_box_mujoco,
     assert obj in result.reason and "mm" in result.reason  # the residual is reported
     assert node.events and node.events[0][1].position > 0.02
     print(
-        f"residuals before the perturbation (max per object, m, rad): {before}; reported: {result.reason}"
+        f"residuals before the perturbation (max per object, m, rad): {before}; reported: "
+        f"{result.reason}"
     )
     c.wait(lambda c: c.status.mode == "holding", 10.0, "the hold")

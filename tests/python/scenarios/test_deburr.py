@@ -28,7 +28,8 @@ def test_mocap_body_and_keyframe_both_moved():
     mjcf = (
         '<mujoco><worldbody><body name="a" pos="0 0 0" mocap="true"></body>'
         '<body name="part" pos="1 0 0" quat="1 0 0 0" mocap="true"></body></worldbody>'
-        '<keyframe><key name="k" qpos="0" mpos="0 0 0 1 0 0" mquat="1 0 0 0 1 0 0 0" /></keyframe></mujoco>'
+        '<keyframe><key name="k" qpos="0" mpos="0 0 0 1 0 0" mquat="1 0 0 0 1 0 0 0" '
+        "/></keyframe></mujoco>"
     )
     X = pin.SE3(pin.exp3(np.array([0.1, -0.2, 0.3])), np.array([0.9, 0.05, -0.02]))
     out = place_mocap_body(mjcf, "part", X)
@@ -92,7 +93,8 @@ def test_axis_offset_closed_form():
     )
     d, ang, standoff = axis_offset(tool, hole)
     assert ang == pytest.approx(0.5, abs=1e-9)
-    # hole centre 0.7 mm above a line through the tool origin tilted by 0.5 deg in the horizontal plane
+    # hole centre 0.7 mm above a line through the tool origin tilted by 0.5 deg in the
+    # horizontal plane
     assert d == pytest.approx(np.hypot(0.0007, 0.005 * np.sin(np.radians(0.5))), rel=1e-3)
     assert standoff == pytest.approx(0.005, abs=1e-9)
 

@@ -1,6 +1,6 @@
 """`marionette demo grasp-walk --speed 0` end to end (Dang 2012 ch. 6): MuJoCo
-controller, the real footstep process, the ball moved during the walk (seed 1: 0.29 m). The demo's own
-verdict is checked, then re-derived from its LCM log alone with independent code: plans merged
+controller, the real footstep process, the ball moved during the walk (seed 1: 0.29 m). The demo's
+own verdict is checked, then re-derived from its LCM log alone with independent code: plans merged
 by index, soles by a separate Pinocchio model, ZMP containment by hull areas."""
 
 from __future__ import annotations
@@ -151,7 +151,8 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     reach = np.linalg.norm(grasp_point - data.oMf[model.getFrameId("arm_right_1_link")].translation)
     assert np.linalg.norm(balls[-1] - shoulder) < reach
     print(
-        f"ball {np.linalg.norm(balls[-1] - shoulder):.3f} m from the shoulder, arm reach {reach:.3f} m"
+        f"ball {np.linalg.norm(balls[-1] - shoulder):.3f} m from the shoulder, arm reach "
+        f"{reach:.3f} m"
     )
 
     # Bonus: after the walk, the grasp point reaches the ball (final state, after the reach).
@@ -161,7 +162,8 @@ def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_en
     grasp = data.oMf[model.getFrameId("gripper_right_base_link")].act(TALOS_GRASP_POINT)
     assert np.linalg.norm(grasp - balls[-1]) < 0.03
     print(
-        f"grasp point {1e3 * np.linalg.norm(grasp - balls[-1]):.1f} mm from the ball after the reach"
+        f"grasp point {1e3 * np.linalg.norm(grasp - balls[-1]):.1f} mm from the ball "
+        "after the reach"
     )
 
     # No fall: the base never dropped 5 cm.

@@ -128,6 +128,6 @@ def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lc
     z = np.array([s.base_position[2] for s in states])
     assert z.min() > z[0] - 0.05
     print(
-        f"{c['footstep_plans']} plans, {checked} sole samples over the bar (all above it, unloaded), "
-        f"final stance {1e3 * c['goal_error_m']:.0f} mm from the goal"
+        f"{c['footstep_plans']} plans, {checked} sole samples over the bar (all above it, "
+        f"unloaded), final stance {1e3 * c['goal_error_m']:.0f} mm from the goal"
     )

@@ -177,7 +177,7 @@ def test_footstep_plan_is_drawn_as_soles(tmp_path):
 
     def patches(mask: np.ndarray) -> list[int]:
         """Pixel counts of the connected regions of at least 20 pixels (soles, not edges)."""
-        labels, n = ndimage.label(mask)
+        labels, _ = ndimage.label(mask)
         sizes = np.bincount(labels.ravel())[1:]
         return sorted(int(s) for s in sizes if s >= 20)
 

@@ -89,8 +89,8 @@ def test_minimum_jerk_derivatives_match_finite_differences():
 
 def test_seeded_floor_moves_cover_every_direction_within_their_distances():
     """Objects "moved by up to 0.3 m while walking": each trial's move is 0.1-0.3 m in any
-    direction, the same for the same seed, and over many seeds every quadrant and both ends of the range
-    are drawn."""
+    direction, the same for the same seed, and over many seeds every quadrant and both ends of the
+    range are drawn."""
     from marionette.scenarios.walking_scenario import draw_floor_move
 
     moves = np.array([draw_floor_move(seed) for seed in range(400)])
