@@ -38,6 +38,9 @@ if TYPE_CHECKING:
 # up to a micrometre), which also bounds the certified steps from below.
 CONTACT = 1e-6
 MAX_QUERIES = 20000  # evaluations of one segment before it is refused as grazing
+# A pair whose bounding spheres are this far apart [m] is certified from that lower bound of
+# its distance, without a GJK query (same in cpp/src/planning/path_validator.cc).
+SPHERE_MARGIN = 0.02
 
 
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
@@ -88,6 +91,11 @@ class CollisionChecker:
         objs = self.geom_model.geometryObjects
         self.geom_joint = [o.parentJoint for o in objs]
         self.geom_radius = [_radius(o) for o in objs]
+        self._sphere_centre, self._sphere_radius = [], []
+        for o in objs:
+            o.geometry.computeLocalAABB()
+            self._sphere_centre.append(np.array(o.geometry.aabb_center))
+            self._sphere_radius.append(float(o.geometry.aabb_radius))
         m = self.model
         # chain_r[g]: list of (joint, r_jg) for every joint j on g's kinematic chain.
         self.chains = [
@@ -97,6 +105,7 @@ class CollisionChecker:
         self.refused_grazing = 0
         self._motion_cache: dict[int, tuple] = {}
         self._grasp_pairs: dict[tuple, frozenset[int]] = {}
+        self._object_pairs: dict[str, np.ndarray] = {}
         self._joint_kinds = []  # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
         for j in range(1, m.njoints):
             jm = m.joints[j]
@@ -173,6 +182,34 @@ class CollisionChecker:
         finally:
             for k in allowed:
                 gd.activateCollisionPair(k)
+
+    def object_pairs(self, obj: str) -> np.ndarray:
+        """Pair indices between object ``obj`` and what is not a robot (other objects, the
+        environment): where an object can be put down does not depend on the robots."""
+        cached = self._object_pairs.get(obj)
+        if cached is None:
+            oj = self.problem.objects[obj].joint_id
+            robot = set(self.problem.robot_joint_ids)
+            cached = np.array(
+                [
+                    k
+                    for k, (a, b) in enumerate(self.pairs)
+                    if oj in (self.geom_joint[a], self.geom_joint[b])
+                    and self.geom_joint[a] not in robot
+                    and self.geom_joint[b] not in robot
+                ],
+                dtype=int,
+            )
+            self._object_pairs[obj] = cached
+        return cached
+
+    def objects_collide(self, q: np.ndarray, objects: list[str]) -> bool:
+        """Is one of ``objects`` in collision with another object or the environment at q?"""
+        pairs = np.unique(np.concatenate([self.object_pairs(o) for o in objects]))
+        if not len(pairs):
+            return False
+        self._update(q)
+        return any(pin.computeCollision(self.geom_model, self.geom_data, int(k)) for k in pairs)
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of the pairs in collision at q (for error messages)."""
@@ -258,6 +295,79 @@ class CollisionChecker:
                     return False, 0.0
         return self._certified(path, rigid, R, L, skip)
 
+    def _cpp_pair_motion(self, projector: Projector, allowed: frozenset[int]) -> tuple:
+        """(projector, C++ PairMotion, attached parts) of a transition, cached."""
+        from marionette.planning import collision_cpp
+
+        key = (id(projector), allowed)
+        cached = self._cpp_motion.get(key)
+        if cached is None or cached[0] is not projector:
+            rigid, R, L = self._motion(projector)
+            skip = np.zeros(len(self.pairs), dtype=bool)
+            skip[list(allowed)] = True
+            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
+            cached = (projector, motion, collision_cpp.attached(projector))
+            self._cpp_motion[key] = cached
+        return cached
+
+    # --------------------------------------------------------------------------- leaf planning
+    def leaf_free_joints(self, projector: Projector) -> np.ndarray | None:
+        """q indices of a leaf's free variables when the leaf is the space of its free 1-dof
+        joints (every constraint explicit: locked joints, attached objects), else None."""
+        if projector.implicit or self._cpp is None:
+            return None
+        m = self.model
+        out = []
+        for j in range(1, m.njoints):
+            iv, nv = m.idx_vs[j], m.joints[j].nv
+            if not projector.free[iv : iv + nv].any():
+                continue
+            if nv != 1 or m.joints[j].nq != 1:
+                return None
+            out.append(m.idx_qs[j])
+        return np.asarray(out, dtype=int) if out else None
+
+    def plan_in_leaf(
+        self,
+        projector: Projector,
+        allowed: frozenset[int],
+        q1: np.ndarray,
+        q2: np.ndarray,
+        seed: int,
+        max_iterations: int = 200,
+        max_time_s: float = 1.0,
+    ) -> np.ndarray | None:
+        """Waypoints (k x nq) of a collision-free polyline q1 -> q2 inside the leaf of
+        ``projector`` (right-hand sides already set from q1), by OMPL's RRT-Connect in C++
+        (cpp/include/marionette/planning/leaf_planner.h); None when not found or when the leaf
+        is not a space of free joints (:meth:`leaf_free_joints`)."""
+        from marionette.planning import collision_cpp
+
+        free = self.leaf_free_joints(projector)
+        if free is None:
+            return None
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        sub = collision_cpp._planning.Substitution(
+            [lk.idx_q for lk in projector.locked],
+            [lk.value.copy() for lk in projector.locked],
+            *attached,
+        )
+        solved, waypoints, _it, queries = self._cpp.plan_in_leaf(
+            motion,
+            np.asarray(q1, dtype=float),
+            np.asarray(q2, dtype=float),
+            [int(i) for i in free],
+            self.problem.lower[free],
+            self.problem.upper[free],
+            sub,
+            int(max_iterations),
+            float(max_time_s),
+            0.0,
+            int(seed) & 0xFFFFFFFF,
+        )
+        self.checks += queries
+        return np.asarray(waypoints) if solved else None
+
     def _validate_cpp(
         self,
         path: ConstrainedPath,
@@ -272,15 +382,7 @@ class CollisionChecker:
         from marionette.planning import collision_cpp
 
         projector = path.projector
-        key = (id(projector), allowed)
-        cached = self._cpp_motion.get(key)
-        if cached is None or cached[0] is not projector:
-            skip = np.zeros(len(self.pairs), dtype=bool)
-            skip[list(allowed)] = True
-            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
-            cached = (projector, motion, collision_cpp.attached(projector))
-            self._cpp_motion[key] = cached
-        _, motion, attached = cached
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
         ok, s, queries, grazing = self._cpp.validate(
             path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix
         )
@@ -332,6 +434,20 @@ class CollisionChecker:
     def _update(self, q: np.ndarray) -> None:
         pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, q)
 
+    def _sphere_bounds(self, pairs: np.ndarray) -> np.ndarray:
+        """Lower bounds of the distances of ``pairs`` at the last update: |c_a - c_b| - r_a - r_b
+        from the geometries' bounding spheres."""
+        oMg = self.geom_data.oMg
+        centres = {g: oMg[g].act(self._sphere_centre[g]) for k in pairs for g in self.pairs[int(k)]}
+        return np.array(
+            [
+                np.linalg.norm(centres[a] - centres[b])
+                - self._sphere_radius[a]
+                - self._sphere_radius[b]
+                for a, b in (self.pairs[int(k)] for k in pairs)
+            ]
+        )
+
     def _validate_segment(
         self, path, qa, qb, s0, s1, rigid, R, L, budget: np.ndarray
     ) -> tuple[bool, float]:
@@ -354,22 +470,15 @@ class CollisionChecker:
             due = np.flatnonzero(horizon <= t + 0.01)
             if due.size:
                 q = path.eval(s0 + t * length)
-                if due.size > 64:
-                    # Many pairs at once (a path start): one C++ call for all of them.
-                    self.checks += len(self.pairs)
-                    pin.computeDistances(self.model, self.data, gm, gd, q)
-                    d = np.array([r.min_distance for r in gd.distanceResults])[due]
-                    if (d <= CONTACT).any():
+                self._update(q)
+                # Pairs whose bounding spheres are far apart are certified by that bound.
+                d = self._sphere_bounds(due)
+                for i in np.flatnonzero(d <= SPHERE_MARGIN):
+                    self.checks += 1
+                    d[i] = pin.computeDistance(gm, gd, int(due[i])).min_distance
+                    if d[i] <= CONTACT:
                         return False, t
-                    horizon[due] = t + d / u[due]
-                else:
-                    self._update(q)
-                    for k in due:
-                        self.checks += 1
-                        d = pin.computeDistance(gm, gd, int(k)).min_distance
-                        if d <= CONTACT:
-                            return False, t
-                        horizon[k] = t + d / u[k]
+                horizon[due] = t + d / u[due]
             t_next = float(horizon.min())
             if t_next >= 1.0:
                 budget[moving] = (horizon[moving] - 1.0) * u[moving]
