@@ -271,6 +271,28 @@ class Projector:
                     c.placement.select_pair(self.kin)
                 c.rhs = c.rhs_from(self.kin)
 
+    def set_rhs_of(
+        self, constraints: Sequence[Constraint | ExplicitConstraint], q: np.ndarray
+    ) -> None:
+        """Right-hand sides of some parametrised ``constraints`` from q (the others unchanged): a
+        placement complement merged with its placement sets the locked object pose."""
+        wanted = {id(c) for c in constraints}
+        for lk, plc in self._merged:
+            comp = next((c for c in constraints if getattr(c, "placement", None) is plc), None)
+            if comp is not None:
+                lk.rhs_from_q(q)
+                wanted.discard(id(comp))
+        for lk in self.locked:
+            if id(lk) in wanted:
+                lk.rhs_from_q(q)
+        todo = [c for c in self.parametrised if id(c) in wanted]
+        if todo:
+            self.kin.update(q, jacobians=False)
+            for c in todo:
+                if isinstance(c, PlacementComplement):
+                    c.placement.select_pair(self.kin)
+                c.rhs = c.rhs_from(self.kin)
+
     def rhs_state(self) -> tuple:
         """Snapshot of every right-hand side (restore it with :meth:`restore_rhs`)."""
         return (
