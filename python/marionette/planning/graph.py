@@ -222,6 +222,8 @@ class WaypointEdge(Edge):
             e.parent = self
         self.waypoints = [e.to_state for e in self.sub_edges[:-1]]
         self.last_waypoint_configs: list[np.ndarray] = []
+        self._common: list[AnyConstraint] | None = None  # held by every sub-transition
+        self._common_projector: Projector | None = None
 
     @property
     def path_projector(self) -> Projector:
@@ -247,10 +249,25 @@ class WaypointEdge(Edge):
         return result
 
     def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
-        return self.sub_edges[0].path_projector is not None
+        """Do q1 and q2 agree on what every sub-transition keeps constant (the placements of
+        the objects the transition does not move)?  Necessary for a path q1 -> q2 in it."""
+        if self._common is None:
+            subs = self.sub_edges
+            self._common = [c for c in subs[0].constraints if all(c in e.constraints for e in subs)]
+            if self._common:
+                self._common_projector = self.graph.make_projector(
+                    self._common, f"common leaf {self.name}"
+                )
+        if not self._common:
+            return True
+        proj = self._common_projector
+        proj.set_rhs_from(q1)
+        return proj.is_satisfied(q2, self.graph.error_threshold)
 
     def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
         """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached."""
+        if not self.can_connect(q1, q2):
+            return None
         n = len(self.sub_edges)
         cached = self.last_waypoint_configs
         if (

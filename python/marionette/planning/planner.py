@@ -74,6 +74,17 @@ class PlanResult:
         return float(sum(p.length for p in self.paths))
 
 
+class _Reversed:
+    """The paths of a roadmap edge taken backwards, reversed only when a solution uses them."""
+
+    def __init__(self, paths: list[ConstrainedPath]) -> None:
+        self.paths = paths
+        self.length = float(sum(p.length for p in paths))
+
+    def build(self) -> list[ConstrainedPath]:
+        return [p.reverse() for p in reversed(self.paths)]
+
+
 class Roadmap:
     """Nodes (with their graph state), edges carrying paths, connected components.
 
@@ -84,10 +95,11 @@ class Roadmap:
     def __init__(self, nq: int) -> None:
         self.nodes: list[Node] = []
         self._q = np.zeros((64, nq))
-        self.adjacency: dict[int, list[tuple[int, list[ConstrainedPath]]]] = {}
+        self.adjacency: dict[int, list[tuple[int, list[ConstrainedPath] | _Reversed]]] = {}
         self._cc: list[int] = []  # union-find parents
         self._members: dict[int, list[int]] = {}  # root -> node indices
         self._by_state: dict[int, dict[int, list[int]]] = {}  # root -> id(state) -> indices
+        self._in_state: dict[int, list[int]] = {}  # id(state) -> indices
 
     def add_node(self, q: np.ndarray, state: State) -> Node:
         n = Node(q.copy(), state, len(self.nodes))
@@ -98,6 +110,7 @@ class Roadmap:
         self.adjacency[n.index] = []
         self._cc.append(n.index)
         self._members[n.index] = [n.index]
+        self._in_state.setdefault(id(state), []).append(n.index)
         self._by_state[n.index] = {id(state): [n.index]}
         return n
 
@@ -108,8 +121,9 @@ class Roadmap:
         return i
 
     def add_edge(self, a: Node, b: Node, paths: list[ConstrainedPath]) -> None:
+        """Paths a -> b; b -> a is the same motion backwards, built when a query uses it."""
         self.adjacency[a.index].append((b.index, paths))
-        self.adjacency[b.index].append((a.index, [p.reverse() for p in reversed(paths)]))
+        self.adjacency[b.index].append((a.index, _Reversed(paths)))
         ca, cb = self.component(a.index), self.component(b.index)
         if ca == cb:
             return
@@ -120,6 +134,10 @@ class Roadmap:
         into = self._by_state[ca]
         for sid, idx in self._by_state.pop(cb).items():
             into.setdefault(sid, []).extend(idx)
+
+    def nodes_in_state(self, state: State) -> list[int]:
+        """Every node of ``state`` (read only)."""
+        return self._in_state.get(id(state), [])
 
     def components(self) -> dict[int, list[int]]:
         """Root -> node indices of every connected component (read only)."""
@@ -152,11 +170,15 @@ class Roadmap:
                 out: list[ConstrainedPath] = []
                 while i != start:
                     j, paths = prev[i]
-                    out = paths + out
+                    out = (paths.build() if isinstance(paths, _Reversed) else paths) + out
                     i = j
                 return out
             for j, paths in self.adjacency[i]:
-                nd = d + sum(p.length for p in paths)
+                nd = (
+                    d + paths.length
+                    if isinstance(paths, _Reversed)
+                    else d + sum(p.length for p in paths)
+                )
                 if nd < dist.get(j, math.inf):
                     dist[j] = nd
                     prev[j] = (i, paths)
@@ -193,6 +215,7 @@ class ManipulationRRT:
         self._edge_tables: dict[int, tuple[list[Edge], np.ndarray]] = {}
         self._leaf_values: dict[tuple, tuple] = {}  # (objects, node) -> rounded poses
         self._leaf_free: dict[tuple, bool] = {}  # (objects, leaf, other objects) -> no collision
+        self.leaf_draws = 20  # rejection draws of a level-set leaf
         # id(state) -> (node indices, their leaf vectors (rows)): the leaf index of connections
         self._leaves: dict[int, tuple[list[int], np.ndarray]] = {}
         self._node_leaves: dict[int, np.ndarray | None] = {}
@@ -301,42 +324,34 @@ class ManipulationRRT:
         """A configuration in the level-set edge's leaf state from another connected component
         than near's, each leaf weighted by its number of such nodes (HPP's leaf histogram) --
         among the leaves where the objects the edge puts down do not collide with the other
-        objects as they are at near (a swap's goal spot stays taken until it is freed)."""
+        objects as they are at near (a swap's goal spot stays taken until it is freed).
+        Drawn by rejection: a uniform node of the state, redrawn while it is in near's
+        component or its leaf is blocked."""
         rm = self.roadmap
+        pool = rm.nodes_in_state(edge.leaf_state)
         comp = rm.component(near.index)
-        sid = id(edge.leaf_state)
         objs = tuple(edge.leaf_objects)
-        bins: dict[tuple, list[int]] = {}
-        for root in rm.components():
-            if root == comp:
+        others = tuple(o for o in self.problem.objects if o not in objs)
+        here = self._leaf_value(others, near.index) if objs else ()
+        for _ in range(self.leaf_draws):
+            if not pool:
+                return None
+            i = pool[int(self.rng.integers(len(pool)))]
+            if rm.component(i) == comp:
                 continue
-            for i in rm.members_by_state(root).get(sid, ()):
-                bins.setdefault(self._leaf_value(objs, i), []).append(i)
-        if objs and bins:
-            others = tuple(o for o in self.problem.objects if o not in objs)
-            here = self._leaf_value(others, near.index)
-            q = near.q.copy()
-            keep = {}
-            for key, idx in bins.items():
-                free = self._leaf_free.get((objs, key, here))
-                if free is None:
-                    q_leaf = rm.nodes[idx[0]].q
-                    for o in objs:
-                        i = self.problem.objects[o].idx_q
-                        q[i : i + 7] = q_leaf[i : i + 7]
-                    free = not self.checker.objects_collide(q, list(objs))
-                    self._leaf_free[(objs, key, here)] = free
-                if free:
-                    keep[key] = idx
-            bins = keep
-        n = sum(len(idx) for idx in bins.values())
-        if n == 0:
-            return None
-        k = int(self.rng.integers(n))
-        for idx in bins.values():
-            if k < len(idx):
-                return rm.nodes[idx[k]].q
-            k -= len(idx)
+            if not objs:
+                return rm.nodes[i].q
+            key = (objs, self._leaf_value(objs, i), here)
+            free = self._leaf_free.get(key)
+            if free is None:
+                q = near.q.copy()
+                for o in objs:
+                    k = self.problem.objects[o].idx_q
+                    q[k : k + 7] = rm.nodes[i].q[k : k + 7]
+                free = not self.checker.objects_collide(q, list(objs))
+                self._leaf_free[key] = free
+            if free:
+                return rm.nodes[i].q
         return None
 
     def _leaf_value(self, objects: tuple[str, ...], node: int) -> tuple:

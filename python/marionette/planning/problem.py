@@ -88,6 +88,22 @@ class ObjectInfo:
     contacts: tuple[str, ...]
 
 
+@dataclasses.dataclass(frozen=True)
+class ModelSource:
+    """One model of the problem as loaded: name (prefix), URDF file, root joint ("fixed" or
+    "freeflyer"), placement in the world, and its grippers / handles / contacts / disabled
+    collision pairs in link frames (what an HPP SRDF of it says; bench/hpp_side.py)."""
+
+    name: str
+    urdf: Path
+    root: str
+    pose: pin.SE3
+    grippers: tuple[tuple[str, str, pin.SE3, float], ...]
+    handles: tuple[tuple[str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]], ...]
+    contacts: tuple[tuple[str, str, np.ndarray], ...]
+    disabled: tuple[tuple[str, str], ...]
+
+
 @dataclasses.dataclass
 class ManipulationProblem:
     """Model + data layout of a manipulation problem; immutable after :func:`load_problem`.
@@ -115,6 +131,7 @@ class ManipulationProblem:
     robot_joint_ids: tuple[int, ...] = ()
     freeflyer_idx_q: tuple[int, ...] = ()
     fixed_rotation_idx_q: tuple[int, ...] = ()  # free-flyers sampled with their init rotation
+    models: tuple[ModelSource, ...] = ()  # what each model was built from, in q order
 
     @property
     def nq(self) -> int:
@@ -438,6 +455,7 @@ def build_problem(
     geom = pin.GeometryModel()
     disabled: set[frozenset[str]] = set()
     srdf_infos: list[tuple[str, _SrdfInfo]] = []
+    sources: list[ModelSource] = []
     robot_names = []
     robot_joint_ids: list[int] = []
     joint_bounds: dict[str, tuple[float, float]] = {}
@@ -489,6 +507,18 @@ def build_problem(
                 raise ProblemError(f"{name}.disable_collisions: pairs of link names, got {pair}")
             info.disabled.append((str(pair[0]), str(pair[1])))
         srdf_infos.append((name, info))
+        sources.append(
+            ModelSource(
+                name,
+                urdf,
+                root,
+                pose,
+                tuple(info.grippers),
+                tuple(info.handles),
+                tuple(info.contacts),
+                tuple(info.disabled),
+            )
+        )
 
     for r in desc["robots"]:
         name = r.get("name", r.get("robot"))
@@ -653,6 +683,7 @@ def build_problem(
         freeflyer_idx_q=tuple(
             model.idx_qs[j] for j in range(1, model.njoints) if model.joints[j].nq == 7
         ),
+        models=tuple(sources),
     )
     problem.fixed_rotation_idx_q = tuple(
         model.idx_qs[model.getJointId(f"{r.get('name', r.get('robot'))}/root_joint")]
