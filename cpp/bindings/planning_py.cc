@@ -35,13 +35,18 @@ void RegisterPlanning(py::module_& parent) {
   // std::invalid_argument -> ValueError (pybind11's default translation).
 
   py::class_<JointSpec>(m, "JointSpec",
-                        "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4)")
+                        "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4), "
+                        "body mass, lever (CoM in the joint frame), rotational inertia (3x3)")
       .def(py::init([](std::string name, int parent, std::string kind, Eigen::Vector3d axis,
-                       Eigen::Matrix4d placement) {
-             return JointSpec{std::move(name), parent, std::move(kind), axis, SE3From(placement)};
+                       Eigen::Matrix4d placement, double mass, Eigen::Vector3d lever,
+                       Eigen::Matrix3d rotational_inertia) {
+             return JointSpec{std::move(name),    parent, std::move(kind), axis,
+                              SE3From(placement), mass,   lever,           rotational_inertia};
            }),
            py::arg("name"), py::arg("parent"), py::arg("kind"), py::arg("axis"),
-           py::arg("placement"));
+           py::arg("placement"), py::arg("mass") = 0.0,
+           py::arg("lever") = Eigen::Vector3d::Zero().eval(),
+           py::arg("rotational_inertia") = Eigen::Matrix3d::Zero().eval());
 
   py::class_<GeometrySpec>(
       m, "GeometrySpec",

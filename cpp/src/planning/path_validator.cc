@@ -84,7 +84,10 @@ pinocchio::Model BuildKinematicModel(const std::vector<JointSpec>& joints) {
     if (j.parent < 0 || j.parent >= model.njoints)
       throw std::invalid_argument("joint " + j.name + ": parent " + std::to_string(j.parent) +
                                   " is not defined before it");
-    AddJoint(&model, j);
+    const pinocchio::JointIndex id = AddJoint(&model, j);
+    if (j.mass > 0.0)
+      model.appendBodyToJoint(
+          id, pinocchio::Inertia(j.mass, j.lever, pinocchio::Symmetric3(j.rotational_inertia)));
   }
   return model;
 }

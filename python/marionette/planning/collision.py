@@ -226,10 +226,12 @@ class CollisionChecker:
         """Per pair, how fast it can close its distance, as linear maps of joint speeds.
 
         Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints)) with
-        u_pair = R @ angular_speed + L @ linear_speed.  A geometry on an object attached by an
-        explicit relative pose moves with the parent joint; on a locked joint it is still.
-        Joints common to both chains move the pair rigidly and are left out (HPP's body-pair
-        bound); pairs attached to one (welded) joint are rigid.
+        u_pair = R @ angular_speed + L @ linear_speed.  A locked joint is welded to its parent:
+        its geometries move with the nearest joint above it that is not locked (an object
+        locked where it rests: with the universe, still; a locked finger: with the wrist).  A
+        geometry on an object attached by an explicit relative pose moves with the parent
+        joint.  Joints common to both chains move the pair rigidly and are left out (HPP's
+        body-pair bound); pairs attached to one (welded) joint are rigid.
         """
         key = id(projector)
         cached = self._motion_cache.get(key)
@@ -240,13 +242,23 @@ class CollisionChecker:
         rel = {e.output_joint: e for e in projector.relative}
         locked = {lk.output_joint for lk in projector.locked}
         rigid_map = _rigid_groups(self.model, projector)
+        m = self.model
+
+        def welded(j: int, r: float) -> tuple[int, float]:
+            """The joint that moves joint j's bodies, and the radius grown on the way up."""
+            while j in locked:
+                r += float(np.linalg.norm(m.jointPlacements[j].translation))
+                j = m.parents[j]
+            return j, r
+
         for g, j in enumerate(self.geom_joint):
-            if j in locked:
-                eff[g], chains[g] = 0, []
-            elif j in rel:
+            r = self.geom_radius[g]
+            if j in rel:
                 e = rel[j]
-                r = self.geom_radius[g] + float(np.linalg.norm(e.M_PO.translation))
-                eff[g], chains[g] = e.parent_joint, self._chain(e.parent_joint, r)
+                j, r = e.parent_joint, r + float(np.linalg.norm(e.M_PO.translation))
+            j, r = welded(j, r)
+            if j != self.geom_joint[g]:
+                eff[g], chains[g] = j, (self._chain(j, r) if j > 0 else [])
         n = len(self.pairs)
         nj = self.model.njoints
         rigid = np.zeros(n, dtype=bool)
@@ -336,13 +348,19 @@ class CollisionChecker:
         seed: int,
         max_iterations: int = 200,
         max_time_s: float = 1.0,
+        step: float = 0.1,
     ) -> np.ndarray | None:
         """Waypoints (k x nq) of a collision-free polyline q1 -> q2 inside the leaf of
-        ``projector`` (right-hand sides already set from q1), by OMPL's RRT-Connect in C++
-        (cpp/include/marionette/planning/leaf_planner.h); None when not found or when the leaf
-        is not a space of free joints (:meth:`leaf_free_joints`)."""
+        ``projector`` (right-hand sides already set from q1), by RRT-Connect in C++
+        (cpp/include/marionette/planning/leaf_planner.h): OMPL's in a space of free joints
+        (:meth:`leaf_free_joints`), a projecting one (nodes at most ``step`` apart) on a leaf
+        with implicit constraints; None when not found."""
         from marionette.planning import collision_cpp
 
+        if projector.implicit:
+            return self._plan_in_constrained_leaf(
+                projector, allowed, q1, q2, seed, max_iterations, max_time_s, step
+            )
         free = self.leaf_free_joints(projector)
         if free is None:
             return None
@@ -367,6 +385,59 @@ class CollisionChecker:
         )
         self.checks += queries
         return np.asarray(waypoints) if solved else None
+
+    def _plan_in_constrained_leaf(
+        self, projector, allowed, q1, q2, seed, max_iterations, max_time_s, step
+    ) -> np.ndarray | None:
+        from marionette.planning import collision_cpp
+
+        if projector._cpp is None or self._cpp is None:
+            return None
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        sub = collision_cpp._planning.Substitution(
+            [lk.idx_q for lk in projector.locked],
+            [lk.value.copy() for lk in projector.locked],
+            *attached,
+        )
+        # Samples: the free variables' q entries (1-dof joints, free-flyer translations), in
+        # the bounds and within one unit (rad, m) of the two ends: a connection is local.
+        m = self.model
+        idx = []
+        for j in range(1, m.njoints):
+            iv, nv = m.idx_vs[j], m.joints[j].nv
+            if not projector.free[iv : iv + nv].any():
+                continue
+            iq = m.idx_qs[j]
+            idx += [iq] if nv == 1 else list(range(iq, iq + 3)) if nv == 6 else []
+        idx = np.asarray(idx, dtype=int)
+        lo = np.maximum(self.problem.lower[idx], np.minimum(q1[idx], q2[idx]) - 1.0)
+        hi = np.minimum(self.problem.upper[idx], np.maximum(q1[idx], q2[idx]) + 1.0)
+        cpp = projector._cpp
+        solved, waypoints, _it, queries = collision_cpp._planning.plan_in_constrained_leaf(
+            self._cpp,
+            cpp.cpp,
+            motion,
+            np.asarray(q1, dtype=float),
+            np.asarray(q2, dtype=float),
+            cpp.rhs(),
+            cpp.pairs(),
+            [int(i) for i in idx],
+            lo,
+            hi,
+            sub,
+            float(step),
+            float(projector.error_threshold),
+            int(projector.max_iterations),
+            int(max_iterations),
+            float(max_time_s),
+            int(seed) & 0xFFFFFFFF,
+        )
+        self.checks += queries
+        if not solved:
+            return None
+        pts = np.asarray(waypoints)
+        keep = np.concatenate([[True], np.any(np.diff(pts, axis=0) != 0.0, axis=1)])
+        return pts[keep]
 
     def _validate_cpp(
         self,

@@ -253,9 +253,12 @@ class Projector:
             model.parents[e.output_joint] == 0 and e.output_joint not in children
             for e in self.relative
         )
-        # Locked joints (and the joints under them only) never move while projecting.
+        # Locked leaves under the universe (objects held still) never move while projecting;
+        # a locked joint deeper in a chain (a finger) still moves with its parent.
         self.kin.static = frozenset(
-            lk.output_joint for lk in self.locked if lk.output_joint not in children
+            lk.output_joint
+            for lk in self.locked
+            if lk.output_joint not in children and model.parents[lk.output_joint] == 0
         )
 
     # ----------------------------------------------------------------------------- rhs

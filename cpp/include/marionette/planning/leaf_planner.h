@@ -14,6 +14,7 @@
 #include <Eigen/Core>
 
 #include "marionette/planning/path_validator.h"
+#include "marionette/planning/projector.h"
 
 namespace marionette::planning {
 
@@ -46,5 +47,31 @@ struct LeafPlanResult {
 /// Throws std::invalid_argument on sizes that do not match the validator's model.
 LeafPlanResult PlanInLeaf(PathValidator* validator, const PairMotion& motion,
                           const LeafQuery& query, const LeafPlannerOptions& options);
+
+/// A leaf with implicit constraints (a humanoid's feet and centre of mass): its configurations
+/// are the projector's solutions with the right-hand sides rhs / surface pairs.  Samples draw
+/// the q entries sample_idx_q uniformly in [lower, upper] (the others, quaternions included,
+/// from q_start) and are projected; the trees grow by steps of at most `step` (the metric of
+/// pinocchio::difference), each new node projected, no farther than 2 step from its parent,
+/// and each segment certified -- exactly the polyline marionette.planning.path.ConstrainedPath
+/// builds by progressive projection, so the result is one such path.
+struct ConstrainedLeafQuery {
+  Eigen::VectorXd q_start, q_goal;  // (nq) both on the leaf
+  Eigen::VectorXd rhs;              // the projector's packed right-hand sides
+  std::vector<int> pairs;           // its surface pair per placement
+  std::vector<int> sample_idx_q;
+  Eigen::VectorXd lower, upper;  // (sample_idx_q)
+  Substitution sub;              // the explicit constraints, for the validator
+  double step = 0.1;
+  double error_threshold = 1e-4;
+  int projection_iterations = 40;
+};
+
+/// Bidirectional RRT-Connect on the leaf (CBiRRT's projection of every new node).  The
+/// validator and projector are borrowed (one per thread).  Throws std::invalid_argument on
+/// sizes that do not match the models.
+LeafPlanResult PlanInConstrainedLeaf(PathValidator* validator, Projector* projector,
+                                     const PairMotion& motion, const ConstrainedLeafQuery& query,
+                                     const LeafPlannerOptions& options);
 
 }  // namespace marionette::planning

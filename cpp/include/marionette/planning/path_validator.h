@@ -26,6 +26,11 @@ struct JointSpec {
   std::string kind;
   Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();
   pinocchio::SE3 placement = pinocchio::SE3::Identity();  // X_parent_joint (at q = neutral)
+  // Body attached to the joint (Pinocchio's model.inertias[joint]): what a centre of mass
+  // needs; the path validator ignores it.
+  double mass = 0.0;
+  Eigen::Vector3d lever = Eigen::Vector3d::Zero();               // CoM in the joint frame
+  Eigen::Matrix3d rotational_inertia = Eigen::Matrix3d::Zero();  // about the CoM [kg m^2]
 };
 
 /// One collision geometry.  kind: "convex" (points (n x 3), triangles (m x 3) of the hull),
