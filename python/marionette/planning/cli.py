@@ -1,4 +1,4 @@
-"""``marionette plan <problem.yaml>``: plan, optimise, time; write the plan and the graph picture."""
+"""``marionette plan <problem.yaml>``: plan, optimise, time; write the plan, draw the graph."""
 
 from __future__ import annotations
 
@@ -69,8 +69,8 @@ def _progress(stream, t0: float):
 def run(args: argparse.Namespace) -> int:
     from marionette import REPO_ROOT
     from marionette.planning.path import save_plan
-    from marionette.planning.planner import PlanningError
     from marionette.planning.problem import ProblemError, load_problem
+    from marionette.planning.query import PlanningError
     from marionette.planning.solve import plan_problem, planner_fingerprint
 
     err = sys.stderr

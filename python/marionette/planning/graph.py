@@ -15,7 +15,7 @@ how to build the straight, constrained path between two configurations of their 
 from __future__ import annotations
 
 import subprocess
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -181,11 +181,19 @@ class Edge:
             return None
         proj = self.path_projector  # right-hand sides from q1 (can_connect)
         pts = checker.plan_in_leaf(
-            proj, checker.grasp_contact_pairs(self.grasps), q1, q2, seed, max_iterations
+            proj,
+            checker.grasp_contact_pairs(self.grasps),
+            q1,
+            q2,
+            seed,
+            max_iterations,
+            step=self.graph.path_step,
         )
         if pts is None:
             return None
         rhs = proj.rhs_vector()
+        if proj.implicit:  # one progressively projected polyline
+            return [ConstrainedPath(self, pts, proj, rhs)]
         return [ConstrainedPath(self, np.array([a, b]), proj, rhs) for a, b in zip(pts, pts[1:])]
 
     def __repr__(self) -> str:
@@ -264,8 +272,12 @@ class WaypointEdge(Edge):
         proj.set_rhs_from(q1)
         return proj.is_satisfied(q2, self.graph.error_threshold)
 
-    def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
-        """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached."""
+    def build(
+        self, q1: np.ndarray, q2: np.ndarray, accept: Callable | None = None
+    ) -> list[ConstrainedPath] | None:
+        """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached.
+        ``accept(path) -> bool`` (a validity check) is applied to each sub-path as soon as it is
+        built: the first refused one ends the build (None) before the next is projected."""
         if not self.can_connect(q1, q2):
             return None
         n = len(self.sub_edges)
@@ -290,6 +302,8 @@ class WaypointEdge(Edge):
                 continue
             sub = e.build(a, b)
             if sub is None:
+                return None
+            if accept is not None and not all(accept(x) for x in sub):
                 return None
             paths += sub
         return paths
@@ -482,6 +496,8 @@ class ConstraintGraph:
         for s in self.states.values():
             _ = s.projector
         for e in self.edges.values():
+            if isinstance(e, WaypointEdge):
+                e.can_connect(self.problem.q_init, self.problem.q_init)  # its common leaf
             if isinstance(e, LevelSetEdge):
                 for sub in e.sub_edges[e.leaf_index :]:
                     _ = sub.target_projector

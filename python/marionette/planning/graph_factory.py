@@ -280,6 +280,7 @@ class GraphFactory:
         )
         self._states: dict[tuple[int | None, ...], _StateInfo] = {}
         self._transitions: set[str] = set()
+        self.level_sets = True  # level-set twins of the transitions (graph.LevelSetEdge)
 
     # ------------------------------------------------------------------------------ names
     def state_name(self, grasps: tuple[int | None, ...], abbrev: bool = False) -> str:
@@ -465,12 +466,14 @@ class GraphFactory:
             graph.add_edge(e)
         graph.add_edge(wf)
         graph.add_edge(wb)
-        # Level-set twins (HPP crossedFoliation): when both states have leaves, the leaf the
-        # transition lands on can be copied from another component (graph.LevelSetEdge) -- a
-        # grasp's free parameters (complement of a partial grasp), a release's placement.
-        if not (sf.foliation.empty() or st.foliation.empty()):
+        # Level-set twins: the leaf a transition lands on, where the transition does not fix
+        # it, can be copied from another component (graph.LevelSetEdge) -- a grasp's free
+        # parameters (complement of a partial grasp), a release's placement.  HPP creates them
+        # only when both states have leaves (crossedFoliation); a single object needs them as
+        # well: the goal's component then puts the object back exactly where the start's has it.
+        if self.level_sets:
             grasp_leaf = st.foliation - sf.foliation
-            if not grasp_leaf.empty():
+            if not sf.foliation.empty() and not grasp_leaf.empty():
                 graph.add_edge(LevelSetEdge(graph, wf, 0, grasp_leaf.items, st.state))
             place_leaf = sf.foliation - st.foliation
             if not no_place and not place_leaf.empty():

@@ -40,10 +40,9 @@ from marionette.planning.graph import (
 )
 from marionette.planning.path import ConstrainedPath
 from marionette.planning.problem import ManipulationProblem, sample_configuration
+from marionette.planning.query import PlanningError, collision_message, no_state_message
 
-
-class PlanningError(RuntimeError):
-    """A query that cannot be planned (start/goal in no state or in collision)."""
+__all__ = ["ManipulationRRT", "PlanResult", "PlanningError", "Roadmap"]
 
 
 @dataclasses.dataclass
@@ -200,6 +199,7 @@ class ManipulationRRT:
         local_rate: float = 0.5,
         local_step: float = 0.25,
         extend_planning: bool = False,
+        states: set[State] | None = None,
     ) -> None:
         self.problem = problem
         self.graph = graph
@@ -211,6 +211,8 @@ class ManipulationRRT:
         self.local_rate = local_rate
         self.local_step = local_step
         self.extend_planning = extend_planning
+        # Extensions only along transitions into these states (a guided leg's states); None: all.
+        self.states = states
         self.roadmap = Roadmap(problem.nq)
         self._edge_tables: dict[int, tuple[list[Edge], np.ndarray]] = {}
         self._leaf_values: dict[tuple, tuple] = {}  # (objects, node) -> rounded poses
@@ -226,14 +228,9 @@ class ManipulationRRT:
     def _add_query_node(self, q: np.ndarray, what: str) -> Node:
         state = self.graph.state_of(q)
         if state is None:
-            raise PlanningError(
-                f"{what} configuration is in no state of the graph "
-                f"(constraint errors above {self.graph.error_threshold})"
-            )
+            raise PlanningError(no_state_message(self.graph, q, what))
         if not self.checker.is_valid(q, self.checker.grasp_contact_pairs(state.grasps)):
-            raise PlanningError(
-                f"{what} configuration is in collision: {self.checker.colliding_pairs(q)}"
-            )
+            raise PlanningError(collision_message(self.checker, q, what))
         return self._add_node(q, state)
 
     def solve(
@@ -310,7 +307,11 @@ class ManipulationRRT:
         """An outgoing transition of ``state`` drawn with probability proportional to its weight."""
         table = self._edge_tables.get(id(state))
         if table is None:
-            edges = [e for e in state.outgoing if e.weight > 0]
+            edges = [
+                e
+                for e in state.outgoing
+                if e.weight > 0 and (self.states is None or e.to_state in self.states)
+            ]
             table = (edges, np.cumsum([e.weight for e in edges]))
             self._edge_tables[id(state)] = table
         edges, cum = table
@@ -488,11 +489,23 @@ class ManipulationRRT:
         return paths
 
     # ------------------------------------------------------------------------------ connect
-    def _connect(self, a: Node, b: Node) -> Edge | None:
+    def _connect(self, a: Node, b: Node, waypoints: bool = True) -> Edge | None:
         """Joins a and b by the straight path of a transition between their states; returns the
-        transition whose leaf holds both when that path collides (a planning candidate)."""
+        transition whose leaf holds both when that path collides (a planning candidate).
+        ``waypoints``: also through grasp / release transitions (their waypoints generated from
+        b, each sub-path validated as soon as it is built)."""
         blocked = None
         for edge in self.graph.edges_between(a.state, b.state):
+            if isinstance(edge, WaypointEdge):
+                if not waypoints:
+                    continue
+                paths = edge.build(a.q, b.q, self._valid_whole)
+                if not paths:
+                    continue
+                self.roadmap.add_edge(a, b, paths)
+                self.stats["connections"] += 1
+                self.stats["connections through waypoints"] += 1
+                return None
             paths = edge.build(a.q, b.q)
             if not paths:
                 continue
@@ -502,6 +515,9 @@ class ManipulationRRT:
                 return None
             blocked = blocked or edge
         return blocked
+
+    def _valid_whole(self, path: ConstrainedPath) -> bool:
+        return self.checker.validate(path, prefix=False)[0]
 
     def _plan_connect(self, a: Node, b: Node, edge: Edge) -> bool:
         """Joins a and b inside the leaf of ``edge`` by RRT-Connect (the per-transition planner)
@@ -554,9 +570,11 @@ class ManipulationRRT:
                     if j not in near:
                         near.append(j)
                         self.stats["same-leaf connection attempts"] += 1
-                for j in near:
+                for rank, j in enumerate(near):
                     b = rm.nodes[j]
-                    blocked = self._connect(a, b)
+                    # Through grasp / release waypoints only to the nearest two (each try
+                    # projects and validates a whole transition).
+                    blocked = self._connect(a, b, waypoints=rank < 2)
                     if self._connected(a, b):
                         joined = True
                         break

@@ -25,6 +25,12 @@ from marionette.planning.optimize import Limits, optimize_paths
 from marionette.planning.path import ConstrainedPath
 from marionette.planning.planner import ManipulationRRT, PlanResult
 from marionette.planning.problem import ManipulationProblem
+from marionette.planning.query import (
+    PlanningError,
+    check_reachable,
+    collision_message,
+    no_state_message,
+)
 
 
 @dataclasses.dataclass
@@ -61,13 +67,21 @@ def plan_problem(
 ) -> Solution:
     """Plan ``problem`` from its init to its goal (see the module docstring).  Iteration and time
     limits default to the problem file's ``planner:`` section; ``optimize_iterations`` = 0 keeps
-    the raw plan.  Raises :class:`marionette.planning.planner.PlanningError` on a start or goal
-    in no state or in collision, or a guide waypoint that cannot be built."""
+    the raw plan.  Raises :class:`marionette.planning.query.PlanningError` (one line) on a start
+    or goal in no state or in collision, an object that cannot be grasped where it is picked up
+    or put down, or a guide waypoint that cannot be built."""
     settings = problem.settings.get("planner", {})
     max_it = max_iterations or int(settings.get("max_iterations", 5000))
     timeout = timeout_s or float(settings.get("timeout_s", 60.0))
     graph = graph or graph_from_settings(problem)
     checker = checker or CollisionChecker(problem)
+    for q, what in ((problem.q_init, "initial"), (problem.q_goal, "goal")):
+        state = graph.state_of(q)
+        if state is None:
+            raise PlanningError(no_state_message(graph, q, what))
+        if not checker.is_valid(q, checker.grasp_contact_pairs(state.grasps)):
+            raise PlanningError(collision_message(checker, q, what))
+    check_reachable(problem, graph, checker, problem.q_init, problem.q_goal)
     if problem.settings.get("guide"):
         rng = np.random.default_rng(seed)
         waypoints = [
