@@ -20,14 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio
-from pinocchio import SE3, XYZQUATToSE3
-from pyhpp.constraints import (
-    ComparisonType,
-    Implicit,
-    LockedJoint,
-    RelativeCom,
-    Transformation,
-)
+from pinocchio import XYZQUATToSE3
+from pyhpp.constraints import ComparisonType, Implicit, LockedJoint, Transformation
 from pyhpp.core import Dichotomy, Straight
 from pyhpp.manipulation import (
     Device,
@@ -69,7 +63,7 @@ def build(spec: dict):
     for o in g["objects"]:
         factory.setPreplacementDistance(o[0], g["preplacement_distance"])
     factory.generate()
-    constraints = graph_constraints(robot, g["constraints"])
+    constraints = graph_constraints(robot, problem, g["constraints"])
     if constraints:
         graph.addNumericalConstraintsToGraph(constraints)
     for name, w in g["weights"].items():
@@ -82,9 +76,13 @@ def build(spec: dict):
     return robot, problem, graph
 
 
-def graph_constraints(robot, entries: list[dict]) -> list:
+def graph_constraints(robot, problem, entries: list[dict]) -> list:
+    """HPP constraints of marionette's graph constraints (values taken at marionette's init).
+    marionette's centre of mass is in the world frame; HPP's RelativeCom is in a joint frame:
+    the first fixed frame's joint (a foot, which the other constraints keep still)."""
     out = []
     model = robot.model()
+    fixed = [e for e in entries if e["type"] == "fixed_frame"]
     for e in entries:
         if e["type"] == "locked_joint":
             out.append(LockedJoint(robot, e["joint"], np.array(e["value"])))
@@ -93,12 +91,23 @@ def graph_constraints(robot, entries: list[dict]) -> list:
             M_JF = XYZQUATToSE3(np.array(e["M_JF"]))
             X_WF = XYZQUATToSE3(np.array(e["X_WF"]))
             f = Transformation(
-                f"{e['joint']} fixed", robot, jid, X_WF, M_JF, [bool(v) for v in e["mask"]]
+                f"{e['joint']} fixed", robot, jid, M_JF, X_WF, [bool(v) for v in e["mask"]]
             )
             out.append(Implicit(f, [ComparisonType.EqualToZero] * sum(e["mask"]), [True] * 6))
         elif e["type"] == "com":
-            f = RelativeCom("com", robot, 0, SE3.Identity(), np.array(e["com"]), e["mask"])
-            out.append(Implicit(f, [ComparisonType.EqualToZero] * sum(e["mask"]), [True] * 3))
+            if not fixed:
+                raise ValueError("a centre-of-mass constraint needs a fixed frame to refer to")
+            ref = fixed[0]
+            X_WJ = (
+                XYZQUATToSE3(np.array(ref["X_WF"])) * XYZQUATToSE3(np.array(ref["M_JF"])).inverse()
+            )
+            point = X_WJ.actInv(np.array(e["com"]))
+            # The feet are flat: the world's x y are the foot joint frame's x y.
+            out.append(
+                problem.createRelativeComConstraint(
+                    "com", "", ref["joint"], point, [bool(v) for v in e["mask"]]
+                )
+            )
         else:
             raise ValueError(f"unknown graph constraint {e['type']}")
     return out
