@@ -1,11 +1,13 @@
 #!/usr/bin/env python3
-"""Regenerate models/ (robots, objects, scenes, tag textures) from example-robot-data.
+"""Regenerate models/: the bundled robots' URDF/SRDF from example-robot-data, every robot's MJCF
+from its URDF + robot.yaml, the bundled objects, every scene's MJCF, the tag textures.
 
-    scripts/generate_models.py                 # rewrite the committed files in models/
+    scripts/generate_models.py                 # rewrite the generated files in models/
     scripts/generate_models.py --out DIR       # write them elsewhere (e.g. to compare)
     scripts/generate_models.py --link-meshes   # only (re)create models/<robot>/meshes links
 
-The logic lives in python/marionette/models (see models/README.md).
+The generic logic lives in python/marionette/models; the bundled robots' URDF edits in
+scripts/bundled_models.py (see models/README.md).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bundled_models
 
 import marionette
 from marionette.models import generate
@@ -36,7 +39,18 @@ def main(argv: list[str] | None = None) -> int:
         for link in generate.link_meshes(args.out):
             print(f"{link} -> {link.resolve()}")
         return 0
-    written = generate.write(args.out)
+    from bundled_models import SOURCES, derived_srdf, derived_urdf
+
+    written = []
+    for name in SOURCES:
+        urdf = derived_urdf(name)
+        for suffix, text in ((".urdf", urdf), (".srdf", derived_srdf(name, urdf))):
+            path = args.out / name / f"{name}{suffix}"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if not path.exists() or path.read_text() != text:
+                path.write_text(text)
+            written.append(path)
+    written += generate.write(args.out)
     generate.link_meshes(args.out)
     print(f"wrote {len(written)} files under {args.out}")
     return 0

@@ -1,4 +1,4 @@
-// Per-tick cost of walking (issue 9): the footstep manager + pattern generator tick while
+// Per-tick cost of walking: the footstep manager + pattern generator tick while
 // walking (1.6 s preview at 1 kHz), its two parts (ZMP window, preview law), the gains'
 // computation, and the TALOS reference stack's tick as the peer it runs beside.
 #include <benchmark/benchmark.h>

@@ -21,7 +21,8 @@ void OnSignal(int) {
 
 constexpr const char* kUsage = R"(usage: marionette-controller [options]
 
-  --robot NAME          talos | tiago | ur10                      (default talos)
+  --robot NAME|DIR      the robot: a name found in --models or $MARIONETTE_ROBOT_PATH, or a
+                        folder holding robot.yaml (required; docs/robots.md)
   --backend NAME        mujoco | kinematic                        (default mujoco)
   --scene FILE          MJCF scene (mujoco backend; default: the robot alone)
   --encoder-offsets J=X,...  encoder calibration (mujoco backend): joint J's encoder reads X
@@ -40,7 +41,7 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --timing-log FILE     write every tick's period, compute time and lateness (CSV) at exit
   --no-profiling        do not time every entity (CONTROLLER_TIMING, budgets) each tick
   --overrun-hold-ticks N  hold when an entity overruns its budget N ticks in a row (default 100)
-  --models DIR          the models/ folder (default: the repository's)
+  --models DIR          the models/ folder (robots, scenes; default: the repository's)
   --describe-robot      print what the controller knows of --robot as JSON and exit
   -v, --verbose         log every rejected input and controller switch
 
@@ -118,7 +119,7 @@ int main(int argc, char** argv) {
   try {
     options = mc::ParseOptions(argc, argv, &help, &describe);
   } catch (const std::exception& e) {
-    std::cerr << "marionette-controller: " << e.what() << "\n" << kUsage;
+    std::cerr << "marionette-controller: " << e.what() << " (see marionette-controller --help)\n";
     return 2;
   }
   if (help) {

@@ -24,3 +24,14 @@ if _compiled.is_dir():
         globals()[_name] = getattr(_importlib.import_module(f"{__name__}.{_name}"), _name)
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str):  # the generated types and extensions, when the build is missing
+    raise AttributeError(
+        f"module 'marionette' has no attribute {name!r}"
+        + (
+            f" (no C++ build in {BUILD_DIR}: run `make` or scripts/setup)"
+            if not _compiled.is_dir()
+            else ""
+        )
+    )

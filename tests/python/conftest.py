@@ -74,3 +74,10 @@ def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
     assert proc.returncode == 0, proc.stdout + proc.stderr
     (run,) = out.glob("ur10-box-*")
     return run
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """An area with no test of the selected kind (``-m slow`` where none is slow) passes: ctest
+    runs each area's quick and slow tests as two entries."""
+    if exitstatus == pytest.ExitCode.NO_TESTS_COLLECTED:
+        session.exitstatus = pytest.ExitCode.OK

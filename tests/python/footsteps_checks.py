@@ -6,10 +6,15 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from marionette import robots
 from marionette.footsteps.augmented_robot import rotation_2d
 from marionette.footsteps.robot_model import FootShape
 
 BALL = np.array([2.0, -0.2, 0.6])  # the grasp benchmark's ball: 2 m ahead, on a 0.6 m stand
+# TALOS' foot as its footstep optimiser sees it, and its grasp point in gripper_<side>_base_link
+# (the gripper frame's origin), both from models/talos/robot.yaml.
+TALOS_FOOT = FootShape(*robots.robot("talos").walking["planning_foot_size"])
+TALOS_GRASP_POINT = np.array(robots.semantics("talos").gripper("talos/right_gripper").pose.xyz)
 
 
 def sole_points(pose: np.ndarray, foot: FootShape, n: int = 30) -> np.ndarray:

@@ -73,7 +73,9 @@ def run_demo(
 ) -> tuple[Path, dict[str, Any]]:
     """Runs ``marionette demo <name> --speed <speed> --out <out_dir> <args>`` and checks what a
     user checks first: exit code 0, a single run folder whose report says success, and ``files``
-    of that folder not empty. Returns the run folder and its report.json."""
+    of that folder not empty; and that the report carries the scenario's declaration, a measure
+    of each of its criteria and the scene a replay draws. Returns the run folder and its
+    report.json."""
     proc = subprocess.run(
         [
             sys.executable,
@@ -99,6 +101,16 @@ def run_demo(
     assert report["success"], report["summary"]
     for file in files:
         assert (run / file).stat().st_size > 0, file
+    from marionette import REPO_ROOT
+    from marionette.scenarios import find
+
+    scenario = find(name)
+    assert report["declaration"] == json.loads(json.dumps(scenario.declaration()))
+    missing = [c.key for c in scenario.criteria() if c.key not in report["criteria"]]
+    assert not missing, f"criteria without a measure in report.json: {missing}"
+    assert (REPO_ROOT / report["scene"]).is_file() and (
+        REPO_ROOT / report["controller_scene"]
+    ).is_file()
     return run, report
 
 

@@ -578,7 +578,20 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else
-      throw std::invalid_argument("unknown argument '" + a + "' (see --help)");
+      throw std::invalid_argument("unknown argument '" + a + "'");
+  }
+  if (o.robot.empty() && !*help)
+    throw std::invalid_argument(
+        "--robot NAME|DIR is required (`marionette robot list` shows the robots; docs/robots.md)");
+  if (!o.lcm_url.empty()) {
+    bool known = false;
+    for (const char* scheme : {"udpm://", "file://", "memq://", "tcpq://"}) {
+      known = known || o.lcm_url.rfind(scheme, 0) == 0;
+    }
+    if (!known)
+      throw std::invalid_argument("--lcm-url '" + o.lcm_url +
+                                  "' is not an LCM URL; use udpm://239.255.76.67:7667?ttl=0 "
+                                  "(ttl=0: this machine only; ttl=1 across a network)");
   }
   if (o.state_rate <= 0.0 || o.state_rate > 1000.0)
     throw std::invalid_argument("--state-rate must be in (0, 1000]");

@@ -238,7 +238,7 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
       Fail(who, "reference has " + std::to_string(t.num_reference) + " values, a " + t.kind +
                     " task takes " + std::to_string(value_size));
     }
-    // A pose reference (xyz + quaternion) by kind, never by size: a 7-value posture (the UR10
+    // A pose reference (xyz + quaternion) by kind, never by size: a 7-value posture (a 6-DoF arm
     // with its gripper joint) is a vector.
     const bool se3 = IsPoseKind(t.kind);
     if (se3 && t.num_reference == 7) {

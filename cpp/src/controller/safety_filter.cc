@@ -17,7 +17,7 @@ SafetyFilter::SafetyFilter(std::string name, const pinocchio::Model& model, doub
     if (joint.nq() != 1 || joint.nv() != 1) continue;  // the base is not commanded
     const int iq = joint.idx_q(), iv = joint.idx_v();
     limits_.push_back(Limit{iq, iv, model.lowerPositionLimit[iq], model.upperPositionLimit[iq],
-                            velocity_scale * model.velocityLimit[iv]});
+                            velocity_scale * model.upperVelocityLimit[iv]});
   }
   velocity_in_ = &DeclareInput<Eigen::VectorXd>("velocity", Eigen::VectorXd::Zero(model.nv));
   q_ = &DeclareInput<Eigen::VectorXd>("q", Eigen::VectorXd::Zero(model.nq));

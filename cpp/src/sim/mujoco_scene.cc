@@ -152,7 +152,7 @@ void MujocoScene::WriteRobotState(const Eigen::VectorXd& q, const Eigen::VectorX
     qpos[j.qpos_adr] = q[j.idx_q] + j.encoder_offset;
     qvel[j.dof_adr] = v[j.idx_v];
   }
-  // Joints tied to another by an <equality><joint> (URDF mimics: the UR10 gripper's right
+  // Joints tied to another by an <equality><joint> (URDF mimics: a parallel gripper's second
   // finger, absent from the controller's model) follow it: q1 - q1_0 = Σ_k a_k (q2 - q2_0)^k, q̇1 =
   // dq1/dq2 q̇2.
   for (int e = 0; e < model_->neq; ++e) {

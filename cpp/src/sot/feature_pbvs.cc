@@ -21,7 +21,8 @@ void FeaturePbvs::ComputeFull(const graph::Tick& t, const Kinematics& kinematics
   const pinocchio::SE3 X_CGdes = measured_object_->Eval(t) * grasp_->Eval(t);
   const pinocchio::SE3 E = X_CGdes.actInv(measured_gripper_->Eval(t));
   full->error = pinocchio::log6(E).toVector();
-  Eigen::Matrix<double, 6, 6> Jlog;
+  // Zeroed: GCC cannot see that Jlog6 writes every coefficient (-Wmaybe-uninitialized).
+  Eigen::Matrix<double, 6, 6> Jlog = Eigen::Matrix<double, 6, 6>::Zero();
   pinocchio::Jlog6(E, Jlog);
   LocalFrameJacobian(kinematics, gripper_, J_G_);
   for (int c : gripper_.columns) full->jacobian.col(c).noalias() = Jlog * J_G_.col(c);

@@ -32,7 +32,8 @@ void FeatureRelativeSE3::ComputeFull(const graph::Tick& t, const Kinematics& kin
   const pinocchio::SE3& X_BD = reference_->Eval(t);
   const pinocchio::SE3 E = X_BD.actInv(X_BA);
   full->error = pinocchio::log6(E).toVector();
-  Eigen::Matrix<double, 6, 6> Jlog;
+  // Zeroed: GCC cannot see that Jlog6 writes every coefficient (-Wmaybe-uninitialized).
+  Eigen::Matrix<double, 6, 6> Jlog = Eigen::Matrix<double, 6, 6>::Zero();
   pinocchio::Jlog6(E, Jlog);
   LocalFrameJacobian(kinematics, frame_a_, J_A_);
   LocalFrameJacobian(kinematics, frame_b_, J_B_);

@@ -25,7 +25,8 @@ void FeatureSE3::ComputeFull(const graph::Tick& t, const Kinematics& kinematics,
   const pinocchio::SE3& X_WD = reference_->Eval(t);
   const pinocchio::SE3 X_DF = X_WD.actInv(kinematics.placement(frame_));
   full->error = pinocchio::log6(X_DF).toVector();
-  Eigen::Matrix<double, 6, 6> Jlog;
+  // Zeroed: GCC cannot see that Jlog6 writes every coefficient (-Wmaybe-uninitialized).
+  Eigen::Matrix<double, 6, 6> Jlog = Eigen::Matrix<double, 6, 6>::Zero();
   pinocchio::Jlog6(X_DF, Jlog);
   LocalFrameJacobian(kinematics, frame_, J_F_);
   for (int c : frame_.columns) full->jacobian.col(c).noalias() = Jlog * J_F_.col(c);

@@ -54,12 +54,6 @@ std::string ExampleRobotDataDir() {
   return MARIONETTE_EXAMPLE_ROBOT_DATA_DIR;
 }
 
-ModelPtr LoadTalos() {
-  const std::string dir = ExampleRobotDataDir() + "/talos_data/";
-  return LoadModel(dir + "robots/talos_reduced.urdf", BaseJoint::kFreeFlyer,
-                   dir + "srdf/talos.srdf");
-}
-
 FrameRef MakeFrameRef(const pinocchio::Model& model, const std::string& frame_name,
                       const std::string& who) {
   if (!model.existFrame(frame_name)) {

@@ -1,8 +1,10 @@
-"""bench/controller: marionette-controller's loop timing on long runs (issue 5's benchmark).
+"""bench/controller: marionette-controller's loop timing on long runs.
 
-TALOS in MuJoCo under the full stack — [feet, CoM] > [right gripper moving, left gripper relative
-to right] > [posture], with joint limits — with the head camera on (30 Hz, 640x480), with it off,
-and the same stack on the kinematic backend. Every tick's timing is logged by the controller
+A robot (``--robot``, in its ``--scene``) in MuJoCo under its full stack — [feet, CoM] > [first
+gripper moving, second gripper relative to the first] > [posture], with joint limits (the feet and
+the CoM for a robot with feet; the second gripper when it has one) — with the head camera on
+(30 Hz, 640x480), with it off, and the same stack on the kinematic backend. Every tick's timing is
+logged by the controller
 (--timing-log); the figures are computed over the whole run: compute time and lateness
 p50 / p99 / max, deadline misses (ticks starting more than one period late), and the real-time
 factor (controller time / wall time).
@@ -29,35 +31,34 @@ from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ProcessGroup
 
 
-def full_stack() -> ControllerSpec:
-    tasks = [
-        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=10.0),
-        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=10.0),
-        TaskSpec("com", "com", 0, gain=10.0),
-        TaskSpec(
-            "right_gripper", "se3", 1, frame="gripper_right_base_link", gain=5.0, streamed=True
-        ),
-        TaskSpec(
-            "left_gripper",
-            "relative_se3",
-            1,
-            frame="gripper_left_base_link",
-            frame_b="gripper_right_base_link",
-            gain=5.0,
-        ),
-        TaskSpec("posture", "posture", 2, gain=1.0),
-    ]
+def hand_links(robot: str) -> list[str]:
+    """The links of the robot's grippers, in robot.yaml's order, without repeats."""
+    return list(dict.fromkeys(g.link for g in robots.semantics(robot).grippers))
+
+
+def full_stack(robot: str) -> ControllerSpec:
+    desc = robots.robot(robot)
+    hands = hand_links(robot)
+    tasks = [TaskSpec(f"foot_{f.name}", "se3", 0, frame=f.frame, gain=10.0) for f in desc.feet]
+    if desc.feet:
+        tasks.append(TaskSpec("com", "com", 0, gain=10.0))
+    tasks.append(TaskSpec("hand", "se3", 1, frame=hands[0], gain=5.0, streamed=True))
+    if len(hands) > 1:
+        tasks.append(
+            TaskSpec("other_hand", "relative_se3", 1, frame=hands[1], frame_b=hands[0], gain=5.0)
+        )
+    tasks.append(TaskSpec("posture", "posture", 2, gain=1.0))
     return ControllerSpec(
         1, "full_stack", tasks, max_switch_velocity_jump=0.1, reference_timeout=0.5
     )
 
 
-def stream_circle(client: ControllerClient, model, duration_s: float) -> None:
-    """Streams the right gripper along a 5 cm circle (period 4 s), 1 s ahead, until the end."""
+def stream_circle(client: ControllerClient, model, hand: str, duration_s: float) -> None:
+    """Streams the ``hand`` link along a 5 cm circle (period 4 s), 1 s ahead, until the end."""
     data = model.createData()
     q = configuration_from_state(model, client.state)
     pin.framesForwardKinematics(model, data, q)
-    X0 = pin.SE3(data.oMf[model.getFrameId("gripper_right_base_link")])
+    X0 = pin.SE3(data.oMf[model.getFrameId(hand)])
     start = client.utime()
     sent_until = start
     while client.utime() < start + duration_s * 1e6 and client.process.alive():
@@ -68,18 +69,16 @@ def stream_circle(client: ControllerClient, model, duration_s: float) -> None:
             rates = 0.05 * w * np.stack([np.zeros_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
             values = [pose_to_vector(pin.SE3(X0.rotation, X0.translation + o)) for o in offsets]
             derivatives = np.hstack([rates, np.zeros((len(t), 3))])
-            client.send_reference(
-                reference_chunk(1, "right_gripper", sent_until, values, derivatives)
-            )
+            client.send_reference(reference_chunk(1, "hand", sent_until, values, derivatives))
             sent_until += 200_000
         time.sleep(0.05)
 
 
-def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
+def run(robot: str, name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
     url = private_lcm_url()
     binary = marionette.BUILD_DIR / "marionette-controller"
     timing_log = log_dir / f"{name}.csv"
-    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
     print(f"  {' '.join(map(str, args))}: {duration_s:.0f} s of controller time ...", flush=True)
     with ProcessGroup(url, log_dir / name) as group, ControllerClient(url) as client:
         proc = group.start(
@@ -87,7 +86,7 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
             [
                 binary,
                 "--robot",
-                "talos",
+                robot,
                 "--lcm-url",
                 url,
                 "--duration",
@@ -100,9 +99,9 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
         client.wait_ready(60)
         client.process = proc
         wall_start = time.monotonic()
-        client.send_spec(full_stack())
+        client.send_spec(full_stack(robot))
         client.wait(lambda c: c.status.active_controller_id == 1, 30, "the full stack")
-        stream_circle(client, model, duration_s)
+        stream_circle(client, model, hand_links(robot)[0], duration_s)
         proc.popen.wait(timeout=duration_s * 3 + 60)
         wall = time.monotonic() - wall_start
         errors = dict(zip(client.status.task_name, client.status.task_error_norm))
@@ -131,6 +130,8 @@ def run(name: str, args: list[str], duration_s: float, log_dir: Path) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--robot", required=True, help="robot name or folder")
+    parser.add_argument("--scene", type=Path, required=True, help="MJCF scene with the robot")
     parser.add_argument(
         "--duration", type=float, default=float(os.environ.get("MARIONETTE_BENCH_DURATION", 600))
     )
@@ -145,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         help="run only the cases whose name contains TEXT (repeatable)",
     )
     args = parser.parse_args(argv)
-    scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
+    scene = str(args.scene)
     realtime = ["--realtime"] if os.geteuid() == 0 else []
     cases = {
         "mujoco + camera 30 Hz": ["--scene", scene, "--camera-rate", "30", *realtime],
@@ -158,10 +159,11 @@ def main(argv: list[str] | None = None) -> int:
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for i, (name, extra) in enumerate(cases.items()):
-            results[name] = run(f"case{i}", extra, args.duration, Path(tmp))
+            results[name] = run(args.robot, f"case{i}", extra, args.duration, Path(tmp))
+    rt = "on" if realtime else "refused: not root"
     print(
-        f"\nTALOS full stack, {args.duration:.0f} s each, 1 kHz, this machine (2 cores), load "
-        f"{os.getloadavg()[0]:.1f}; --realtime (SCHED_FIFO + mlockall) {'on' if realtime else 'refused: not root'}"
+        f"\n{args.robot} full stack, {args.duration:.0f} s each, 1 kHz, this machine (2 cores), "
+        f"load {os.getloadavg()[0]:.1f}; --realtime (SCHED_FIFO + mlockall) {rt}"
     )
     print(
         f"{'case':24} {'compute p50/p99/max [us]':>28} {'lateness p50/p99/max [us]':>28} "

@@ -13,7 +13,18 @@ from marionette.control.introspection import GraphClient, IntrospectionError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    dg = sub.add_parser("dg", help="inspect and tune the running controller's graph")
+    dg = sub.add_parser(
+        "dg",
+        help="inspect and tune the running controller's graph",
+        epilog=(
+            "examples:\n"
+            "  marionette dg ls\n"
+            "  marionette dg get c1_posture.gain command.configuration\n"
+            "  marionette dg set c1_posture.gain 3.5\n"
+            "  marionette dg trace c1_solver.velocity --rate 1000 --duration 5 --out v.csv"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     dg.add_argument("--lcm-url", default=None, help="default: $MARIONETTE_LCM_URL")
     dg.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for a reply")
     cmds = dg.add_subparsers(dest="dg_command", required=True, metavar="DG_COMMAND")
@@ -42,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _format(name: str, value: np.ndarray) -> str:
     if value.ndim == 0:
         return f"{name} = {float(value):.9g}"
-    return f"{name} {value.shape} =\n{np.array2string(value, precision=6, suppress_small=True, max_line_width=120)}"
+    text = np.array2string(value, precision=6, suppress_small=True, max_line_width=120)
+    return f"{name} {value.shape} =\n{text}"
 
 
 def _run(args: argparse.Namespace) -> int:

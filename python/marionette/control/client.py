@@ -160,7 +160,7 @@ class ControllerClient:
         self.bus.publish(channels.SIM_COMMAND, msg)
 
     def attach(self, weld: str) -> None:
-        """Simulated grasp: activates the scene's weld (e.g. "grasp/talos/right_gripper/plank")
+        """Simulated grasp: activates the scene's weld ("grasp/<robot>/<gripper>/<object>")
         at the current relative pose of its bodies."""
         self._sim_command("attach", weld)
 

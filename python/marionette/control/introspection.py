@@ -114,8 +114,8 @@ class GraphClient:
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     raise IntrospectionError(
-                        f"no reply to {command!r} from marionette-controller within {self.timeout_s} s "
-                        f"(is it running on {self.bus.url}?)"
+                        f"no reply to {command!r} from marionette-controller within "
+                        f"{self.timeout_s} s (is it running on {self.bus.url}?)"
                     )
                 self._cond.wait(remaining)
             reply = self._replies.pop(msg.request_id)

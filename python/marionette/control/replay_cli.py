@@ -28,9 +28,10 @@ def controller_binary() -> Path:
 
 
 def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = None) -> dict:
-    """Replays ``log`` and returns the verdict as a dict (see cpp/include/marionette/controller/replay.h):
-    ok, ticks, inputs, commands_compared, max_difference, first_divergence_tick, first_divergence,
-    journal_mismatches, problems, plus ``output`` (what the replay printed)."""
+    """Replays ``log`` and returns the verdict as a dict (see
+    cpp/include/marionette/controller/replay.h): ok, ticks, inputs, commands_compared,
+    max_difference, first_divergence_tick, first_divergence, journal_mismatches, problems, plus
+    ``output`` (what the replay printed)."""
     if not Path(log).is_file():
         raise FileNotFoundError(f"no LCM log at {log}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -58,7 +59,15 @@ def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = No
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "replay", help="re-run a recorded run offline and check it reproduces the recording"
+        "replay",
+        help="re-run a recorded run offline and check it reproduces the recording",
+        epilog=(
+            "examples:\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --controller\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --supervisor\n"
+            "  marionette replay reports/demo/<run>/run.lcmlog --view"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "log",

@@ -15,8 +15,10 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
 | `grip_force.py` | the grip force a gripper holds: effort estimate (eq. 3.11-3.13) and MuJoCo contact forces on its jaws |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
-| `demo.py`, `report.py`, `demo_cli.py` | `marionette demo <scenario>` and its report |
 | `visual_servo.py` | vision in the loop: PBVS correction of the carried object's gripper task, head gaze (§5.3.1) |
-| `perturbations.py` | seeded trial perturbations: displacement, slip, encoder offsets, camera noise (issue #10) |
-| `drill.py` | `marionette demo drill`: align on reference holes R1, R2, interpolate the rest (§6.3) |
+| `tool_task.py` | a tool held by an arm: one streamed SE3 task, corrected on its measured pose |
+| `walking.py` | the walking controller spec; ZMP in the support polygon; merged footstep plans |
+| `errors.py` | `ExecutionError` |
+
+The experiments run on this runtime are in :mod:`marionette.scenarios`.
 """

@@ -16,6 +16,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Generate the controllers of PLAN (written to --specs), estimate where the plan "
         "stands from the robot's state, and run the supervisor FSM against the "
         "marionette-controller listening on the LCM URL.",
+        epilog=(
+            "example:\n"
+            "  marionette plan ur10_box --out /tmp/p\n"
+            "  marionette-controller --robot ur10 --scene models/scenes/ur10_box.xml &\n"
+            "  marionette supervise /tmp/p/plan.json"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("plan", type=Path, help="plan.json written by `marionette plan`")
     p.add_argument("--lcm-url", default=None)
@@ -49,7 +56,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.set_defaults(func=run_supervise)
 
-    f = subparsers.add_parser("fsm", help="supervisor FSM: state, events, inject an event")
+    f = subparsers.add_parser(
+        "fsm",
+        help="supervisor FSM: state, events, inject an event",
+        epilog=(
+            "examples:\n"
+            "  marionette fsm state\n"
+            "  marionette fsm events --count 10\n"
+            "  marionette fsm inject approve"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     f.add_argument("--lcm-url", default=None)
     f.add_argument("--timeout", type=float, default=5.0, help="[s] to wait for messages")
     sub = f.add_subparsers(dest="fsm_command", required=True, metavar="ACTION")
@@ -57,7 +74,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     ev = sub.add_parser("events", help="print events as they come (until --timeout)")
     ev.add_argument("--count", type=int, default=0, help="stop after this many (0: until timeout)")
     inj = sub.add_parser("inject", help="send an event to the supervisor")
-    inj.add_argument("event", help="abort | force_threshold | approve | left_manifold")
+    from marionette.execution.supervisor import INJECTABLE
+
+    inj.add_argument("event", choices=INJECTABLE, help="the event to send")
     inj.add_argument("--detail", default="")
     inj.add_argument("--value", type=float, default=0.0)
     f.set_defaults(func=run_fsm)

@@ -1,4 +1,4 @@
-"""The supervisor's decisions as a function of the messages it receives (issue #11).
+"""The supervisor's decisions as a function of the messages it receives.
 
 :class:`DecisionMachine` holds no clock, thread or I/O: it is fed, one at a time and in arrival
 order, the controller's statuses (CONTROLLER_STATUS, whose ``utime`` is the controller tick),

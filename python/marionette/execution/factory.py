@@ -67,7 +67,7 @@ ADMITTANCE: dict[str, float] = {"force_target": 5.0, "force_threshold": 4.0}
 @dataclass(frozen=True)
 class GripperJoint:
     """The actuated joint of a gripper, its open / closed positions and the admittance
-    parameters it sets over ADMITTANCE and the controller's defaults (grippers.yaml)."""
+    parameters it sets over ADMITTANCE and the controller's defaults (robot.yaml)."""
 
     joint: str
     open_position: float

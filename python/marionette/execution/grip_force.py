@@ -1,4 +1,4 @@
-"""The grip force a gripper holds, two ways (issue 7, thesis 000 §3.2.4.3):
+"""The grip force a gripper holds, two ways (thesis 000 §3.2.4.3):
 
 * **estimate** — what the ``gripper_admittance`` task regulates: the gripper joint's effort
   (ROBOT_STATE ``joint_effort``, MuJoCo's actuator force: the motor current's stand-in) through
@@ -7,8 +7,8 @@
 * **contact** — the independent measurement: the MuJoCo contact forces (``mj_contactForce``) on
   the gripper's jaw bodies, which marionette-controller publishes in ROBOT_STATE after the soles
   (``contact_frame`` = the body name, wrench on the robot, world axes; RobotInfo::grip_bodies).
-  A gripper's two jaws close along ±y of its base link (:data:`JAWS`): a squeezed object pushes
-  the +y jaw along +y and the −y jaw along −y. The grip force is the mean of the two pushes,
+  A gripper's two jaws close along ±y of its frame (robot.yaml ``grippers[].jaws``, the +y jaw
+  first): a squeezed object pushes the +y jaw along +y and the −y jaw along −y. The grip force is the mean of the two pushes,
   F = (F₊·y − F₋·y) / 2 (equal for an object the fingers alone hold; a grasp weld can take a share
   of either).
 """
@@ -29,33 +29,15 @@ from marionette.execution.force_event import (
     force_estimate,
 )
 
-# Gripper joint -> (base link, jaw links on +y, jaw links on -y of the base link).
-JAWS: dict[str, tuple[str, tuple[str, ...], tuple[str, ...]]] = {
-    # The UR10's parallel gripper: the driven left finger on +y, its mimic on -y.
-    "finger_joint": ("gripper_link", ("finger_left_link",), ("finger_right_link",)),
-    # TALOS: the "double" jaw (two fingertips) on +y, the "single" one on -y.
-    **{
-        f"gripper_{side}_joint": (
-            f"gripper_{side}_base_link",
-            tuple(
-                f"gripper_{side}_{n}_link"
-                for n in ("motor_double", "inner_double", "fingertip_1", "fingertip_2")
-            ),
-            tuple(
-                f"gripper_{side}_{n}_link" for n in ("motor_single", "inner_single", "fingertip_3")
-            ),
-        )
-        for side in ("left", "right")
-    },
-}
-
 
 @dataclass(frozen=True)
 class GripperGeometry:
-    """One gripper: its joint, base link, jaw links and the estimate's constants."""
+    """One gripper: its joint, the link carrying its frame and the frame's y axis in it (the
+    closing axis), its jaw links and the estimate's constants."""
 
     joint: str
     base_link: str
+    y_in_link: np.ndarray  # (3,) the gripper frame's y axis in base_link
     plus_jaw: tuple[str, ...]
     minus_jaw: tuple[str, ...]
     lever_arm: float  # d [m] of eq. 3.13 (the admittance task's `lever_arm`)
@@ -63,15 +45,24 @@ class GripperGeometry:
     torque_per_effort: float = DEFAULT_TORQUE_PER_EFFORT
 
     @staticmethod
-    def of(joint: str, parameters: dict[str, float], closing_direction: float) -> GripperGeometry:
-        """The geometry of the gripper driven by ``joint`` (:data:`JAWS`) with the estimate of an
-        admittance task with ``parameters``; KeyError for a joint without known jaws."""
-        base, plus, minus = JAWS[joint]
+    def of(
+        robot: str, gripper: str, parameters: dict[str, float], closing_direction: float
+    ) -> GripperGeometry | None:
+        """The geometry of ``robot``'s ``gripper`` (robot.yaml: its joint, frame and jaws) with
+        the estimate of an admittance task with ``parameters``; None for a gripper without a
+        joint or without declared jaws."""
+        from marionette import robots
+
+        g = robots.semantics(robot).gripper(gripper)
+        jaws = robots.robot(robot).jaws.get(gripper)
+        if g.joint is None or jaws is None:
+            return None
         return GripperGeometry(
-            joint,
-            base,
-            plus,
-            minus,
+            g.joint,
+            g.link,
+            g.pose.se3().rotation[:, 1].copy(),
+            jaws[0],
+            jaws[1],
             parameters.get("lever_arm", DEFAULT_LEVER_ARM),
             closing_direction,
             parameters.get("torque_per_effort", DEFAULT_TORQUE_PER_EFFORT),
@@ -93,7 +84,7 @@ def grip_forces(
         return estimate, float("nan"), float("nan")
     q = configuration_from_state(model, state)
     pin.framesForwardKinematics(model, data, q)
-    y_W = data.oMf[model.getFrameId(g.base_link)].rotation[:, 1]  # closing axis, world
+    y_W = data.oMf[model.getFrameId(g.base_link)].rotation @ g.y_in_link  # closing axis, world
     push_plus = sum(float(np.dot(wrenches[b][:3], y_W)) for b in g.plus_jaw)
     push_minus = -sum(float(np.dot(wrenches[b][:3], y_W)) for b in g.minus_jaw)
     return estimate, 0.5 * (push_plus + push_minus), push_plus - push_minus
@@ -194,12 +185,12 @@ class GripForceRecorder:
 
 def recorder_for(ctx: Any, model: pin.Model) -> GripForceRecorder | None:
     """A recorder for a factory context's admittance grippers (``ctx.gripper_joints``) whose jaws
-    are known (:data:`JAWS`) and in ``model``; None when there are none."""
+    are declared (robot.yaml) and in ``model``; None when there are none."""
     grippers = {}
     for name, gj in sorted(ctx.gripper_joints.items()):
-        if gj.joint not in JAWS:
+        g = GripperGeometry.of(ctx.robot, name, gj.parameters, gj.closing_direction)
+        if g is None:
             continue
-        g = GripperGeometry.of(gj.joint, gj.parameters, gj.closing_direction)
         if all(model.existFrame(b) for b in (g.base_link, *g.plus_jaw, *g.minus_jaw)):
             grippers[name] = g
     return GripForceRecorder(model, grippers) if grippers else None

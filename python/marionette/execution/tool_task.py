@@ -1,15 +1,14 @@
-"""A tool held by an arm, moved by one streamed SE3 task: what the drill (thesis 000 §6.3) and
-deburr (§5.3.3) demos share.
+"""A tool held by an arm, moved by one streamed SE3 task (what the drill, thesis 000 §6.3, and the
+deburring, §5.3.3, scenarios run on).
 
 * geometry of a tool on a hole: the tool's x axis along the hole axis (the x axis of the hole's
   handle frame, ``mask: [1, 1, 1, 0, 1, 1]``: the rotation about it is free), its origin a
   standoff before the hole (:func:`tool_target`, :func:`tool_error`, :func:`axis_offset`);
-* the seeded displacement of a workpiece (:func:`draw_displacement`);
 * :class:`ToolTask`: the controller spec (tool SE3 task, posture below it), minimum-jerk moves
   streamed on TASK_REFERENCE, and corrections on a measured tool pose (:meth:`ToolTask.servo`).
 
 Settings are duck-typed: any object with the attributes :class:`ToolTask` reads (the drill's and
-the deburr's settings dataclasses both have them).
+the deburring scenario's settings dataclasses both have them).
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ import pinocchio as pin
 from marionette import robots
 from marionette.control.client import ControllerClient, configuration_from_state, pose_to_vector
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.execution.demo import DemoError
+from marionette.execution.errors import ExecutionError
 from marionette.execution.references import minimum_jerk
 from marionette.execution.streamer import MAX_LOOKAHEAD_S, ReferenceStreamer
 
@@ -73,25 +72,6 @@ def axis_offset(X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> tuple[float, float, flo
     )
 
 
-def draw_displacement(
-    rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float, centre: np.ndarray
-) -> pin.SE3:
-    """Seeded displacement D of a workpiece, applied as X_true = X_nominal D: a rotation of at most
-    ``max_rotation_deg`` about a random axis through ``centre`` (workpiece frame) and a
-    translation of at most ``max_translation_m``; both magnitudes uniform in [1/2, 1] of their
-    bound."""
-
-    def unit():
-        v = rng.normal(size=3)
-        return v / np.linalg.norm(v)
-
-    angle = np.radians(max_rotation_deg) * rng.uniform(0.5, 1.0)
-    R = pin.exp3(angle * unit())
-    t = max_translation_m * rng.uniform(0.5, 1.0) * unit()
-    # rotation about the centre, then translation: p -> R (p - c) + c + t
-    return pin.SE3(R, centre - R @ centre + t)
-
-
 def actuator_limits(scene: Path) -> dict[str, float]:
     """Joint name -> |force limit| of the scene's MJCF actuators (``forcerange``)."""
     return {
@@ -135,7 +115,7 @@ class ToolTask:
         self.data = self.model.createData()
         for f in (frame, tool_link):
             if not self.model.existFrame(f):
-                raise DemoError(f"{robot} has no frame {f} for the tool task")
+                raise ExecutionError(f"{robot} has no frame {f} for the tool task")
         self.fid = self.model.getFrameId(frame)
         X_frame_link = self.model.frames[self.fid].placement.actInv(
             self.model.frames[self.model.getFrameId(tool_link)].placement
@@ -330,7 +310,7 @@ class ToolTask:
         aligned_m, aligned_deg = aligned or (st.aligned_m, st.aligned_deg)
         for k in range(st.max_corrections + 1):
             if self.client.status.mode != "running":
-                raise DemoError(
+                raise ExecutionError(
                     f"the controller stopped tracking the tool: {self.client.status.mode} "
                     f"({self.client.status.mode_reason})"
                 )

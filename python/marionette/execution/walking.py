@@ -18,36 +18,38 @@ FEET = ("left", "right")
 LOADED_FORCE_N = 10.0  # a sole carries load above this normal force [N]
 
 
-def walking_spec(controller_id: int = 1, name: str = "walk") -> ControllerSpec:
-    """The walking stack: feet (20/s) and CoM (5/s) from the controller's pattern generator and
-    the waist kept upright (roll, pitch; 20/s) at level 0, posture (2/s) at level 1. A CoM gain
-    above ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py)."""
+def walking_spec(robot: str, controller_id: int = 1, name: str = "walk") -> ControllerSpec:
+    """The walking stack of ``robot`` (its robot.yaml feet, left then right, and its root link
+    as the waist): feet (20/s) and CoM (5/s) from the controller's pattern generator and the
+    waist kept upright (roll, pitch; 20/s) at level 0, posture (2/s) at level 1. A CoM gain above
+    ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py)."""
+    from marionette import robots
+
+    desc = robots.robot(robot)
+    feet = {f.name: f.frame for f in desc.feet}
+    if set(feet) != set(FEET):
+        raise ValueError(f"{desc.semantics}: walking needs two feet named left and right")
     return ControllerSpec(
         controller_id,
         name,
         [
-            TaskSpec(
-                "left_foot",
-                "se3",
-                0,
-                frame="left_sole_link",
-                gain=20.0,
-                reference_channel="walk:left_foot",
-            ),
-            TaskSpec(
-                "right_foot",
-                "se3",
-                0,
-                frame="right_sole_link",
-                gain=20.0,
-                reference_channel="walk:right_foot",
+            *(
+                TaskSpec(
+                    f"{side}_foot",
+                    "se3",
+                    0,
+                    frame=feet[side],
+                    gain=20.0,
+                    reference_channel=f"walk:{side}_foot",
+                )
+                for side in FEET
             ),
             TaskSpec("com", "com", 0, gain=5.0, reference_channel="walk:com"),
             TaskSpec(
                 "waist",
                 "se3",
                 0,
-                frame="base_link",
+                frame=robots.root_link(robot),
                 mask=(False, False, False, True, True, False),
                 gain=20.0,
             ),

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 import pinocchio as pin
@@ -33,6 +34,14 @@ from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.robot_model import FootShape, RobotDescription
 
 SIDES = ("left", "right")
+
+
+class RobotKinematics(TypedDict):
+    """The robot's kinematics in the frame L of the last footprint (one configuration)."""
+
+    frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]  # name -> p (3,), R, J (6, nv)
+    com: np.ndarray  # (3,)
+    J_com: np.ndarray  # (3, nv)
 
 
 def rotation_2d(theta: np.ndarray) -> np.ndarray:
@@ -112,6 +121,12 @@ class AugmentedConfiguration:
             self.steps.copy(), None if self.q_robot is None else self.q_robot.copy()
         )
 
+    def require_q_robot(self) -> np.ndarray:
+        """``q_robot``; raises InvalidProblem for a footsteps-only configuration."""
+        if self.q_robot is None:
+            raise InvalidProblem("this configuration has no robot posture (footsteps only)")
+        return self.q_robot
+
 
 class AugmentedRobot:
     """Robot + virtual planar chain (see module doc). Immutable; evaluate() gives kinematics.
@@ -129,19 +144,20 @@ class AugmentedRobot:
     ) -> None:
         if first_side not in SIDES:
             raise InvalidProblem(f"first_side must be 'left' or 'right', got {first_side!r}")
-        if robot is None and foot is None:
-            raise InvalidProblem("a footsteps-only chain needs a FootShape")
+        if foot is None:
+            if robot is None:
+                raise InvalidProblem("a footsteps-only chain needs a FootShape")
+            foot = robot.foot
         self.robot = robot
         self.stance = stance
         self.first_side = first_side
         self.stance_side = "left" if first_side == "right" else "right"
-        self.foot = foot if foot is not None else robot.foot
+        self.foot = foot
         self.foot_corners = self.foot.corners()  # (4, 2) sole frame
         self.foot_corners.flags.writeable = False
         self.root = stance.foot(self.stance_side)  # P_0
         self.initial_moving = stance.foot(first_side)  # P_-1
-        self._robot_cache_key: bytes | None = None
-        self._robot_cache: dict | None = None
+        self._robot_cache: tuple[bytes, RobotKinematics] | None = None  # (q_robot bytes, ...)
         self._is_left_cache: dict[int, np.ndarray] = {}
 
     # -- sides and sizes ---------------------------------------------------------------------
@@ -163,6 +179,12 @@ class AugmentedRobot:
     def nv_robot(self) -> int:
         return 0 if self.robot is None else self.robot.model.nv
 
+    def require_robot(self) -> RobotDescription:
+        """The robot; raises InvalidProblem for a footsteps-only chain."""
+        if self.robot is None:
+            raise InvalidProblem("this augmented robot has no robot (footsteps only)")
+        return self.robot
+
     # -- configurations ----------------------------------------------------------------------
     def neutral_configuration(self, k: int = 0) -> AugmentedConfiguration:
         """k in-place steps (each foot lands where it stood) and the reference posture."""
@@ -175,7 +197,7 @@ class AugmentedRobot:
 
     def standing_configuration(self, last_side: str) -> np.ndarray:
         """Reference posture with the ``last_side`` sole on the origin of frame L (q_robot)."""
-        robot = self.robot
+        robot = self.require_robot()
         q = robot.reference_posture.copy()
         model, data = robot.model, robot.data
         pin.framesForwardKinematics(model, data, q)
@@ -195,7 +217,7 @@ class AugmentedRobot:
         steps = config.steps + dv[:k3].reshape(-1, 3)
         q_robot = config.q_robot
         if q_robot is not None and dv.shape[0] > k3:
-            q_robot = pin.integrate(self.robot.model, q_robot, dv[k3:])
+            q_robot = pin.integrate(self.require_robot().model, q_robot, dv[k3:])
         return AugmentedConfiguration(steps, q_robot)
 
     def footprints(self, steps: np.ndarray) -> np.ndarray:
@@ -248,7 +270,9 @@ class AugmentedRobot:
         q_robot = self._reattach(config.q_robot, fp[k + 1], fp[k])
         return AugmentedConfiguration(config.steps[:-1].copy(), q_robot)
 
-    def _reattach(self, q_robot: np.ndarray | None, old: np.ndarray, new: np.ndarray):
+    def _reattach(
+        self, q_robot: np.ndarray | None, old: np.ndarray, new: np.ndarray
+    ) -> np.ndarray | None:
         """q_robot re-expressed from footprint frame ``old`` to ``new`` (world unchanged)."""
         if q_robot is None:
             return None
@@ -276,18 +300,18 @@ class AugmentedRobot:
                 "q_robot must be given exactly when the augmented robot has a robot"
             )
         robot_data = None
-        if self.robot is not None:
+        if config.q_robot is not None:
             robot_data = self._robot_kinematics(config.q_robot)
         return AugmentedKinematics(self, config, robot_data, robot_free and self.robot is not None)
 
-    def _robot_kinematics(self, q_robot: np.ndarray) -> dict:
+    def _robot_kinematics(self, q_robot: np.ndarray) -> RobotKinematics:
         """Frame placements / Jacobians in frame L; cached while q_robot does not change."""
         key = q_robot.tobytes()
-        if key == self._robot_cache_key:
-            return self._robot_cache
-        if q_robot.shape != (self.robot.model.nq,) or not np.all(np.isfinite(q_robot)):
-            raise InvalidProblem(f"q_robot must be {self.robot.model.nq} finite numbers")
-        robot = self.robot
+        if self._robot_cache is not None and key == self._robot_cache[0]:
+            return self._robot_cache[1]
+        robot = self.require_robot()
+        if q_robot.shape != (robot.model.nq,) or not np.all(np.isfinite(q_robot)):
+            raise InvalidProblem(f"q_robot must be {robot.model.nq} finite numbers")
         model, data = robot.model, robot.data
         pin.computeJointJacobians(model, data, q_robot)
         pin.updateFramePlacements(model, data)
@@ -299,8 +323,8 @@ class AugmentedRobot:
             J = pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)
             frames[name] = (X.translation.copy(), X.rotation.copy(), J.copy())
         J_com = pin.jacobianCenterOfMass(model, data, q_robot, False)
-        out = {"frames": frames, "com": data.com[0].copy(), "J_com": J_com.copy()}
-        self._robot_cache_key, self._robot_cache = key, out
+        out = RobotKinematics(frames=frames, com=data.com[0].copy(), J_com=J_com.copy())
+        self._robot_cache = (key, out)
         return out
 
 
@@ -315,7 +339,7 @@ class AugmentedKinematics:
         self,
         augmented: AugmentedRobot,
         config: AugmentedConfiguration,
-        robot_data: dict | None,
+        robot_data: RobotKinematics | None,
         robot_free: bool,
     ) -> None:
         self.augmented = augmented
@@ -397,7 +421,7 @@ class AugmentedKinematics:
         return fp[:, None, :2] + np.einsum("mab,cb->mca", rot, self.augmented.foot_corners)
 
     # -- robot frames ------------------------------------------------------------------------
-    def _require_robot(self) -> dict:
+    def _require_robot(self) -> RobotKinematics:
         if self._robot is None:
             raise InvalidProblem("this augmented robot has no robot (footsteps only)")
         return self._robot

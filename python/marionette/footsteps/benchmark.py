@@ -1,6 +1,7 @@
 """Replanning-time benchmark of Dang's tables 6.1 and 6.2 (bench/footsteps_replanning).
 
-A ball-grasp task about 2 m ahead of TALOS is planned once (footsteps + posture); then, for
+A ball-grasp task about 2 m ahead of the walking robot is planned once (footsteps + posture); then,
+for
 each goal modification d ∈ {0.01, 0.02, 0.05, 0.1, 0.2, 0.5} m, the ball is moved by d in a
 random horizontal direction (it rolls on its support; a frozen posture cannot change the hand's
 height) and the plan is recomputed from the initial one, posture free ("full", table 6.1) and
@@ -54,7 +55,7 @@ class Row:
     converged: int = 0
     steps_added: int = 0
 
-    def stats(self) -> dict:
+    def stats(self) -> dict[str, float]:
         t = np.array(self.times_ms)
         return {
             "max": float(t.max()),
@@ -69,14 +70,18 @@ class Row:
         }
 
 
-def run(trials_frozen: int = 30, trials_full: int = 10, seed: int = 0, repeats: int = 3) -> dict:
-    """Plan once, replan for every modification; returns the figures (also printed)."""
+def run(
+    trials_frozen: int = 30, trials_full: int = 10, seed: int = 0, repeats: int = 3, robot: str = ""
+) -> dict:
+    """Plan once, replan for every modification; returns the figures (also printed).
+    ``robot``: the walking robot (default: the only robot with two feet)."""
     from marionette.footsteps.augmented_robot import Stance
+    from marionette.footsteps.node import resolve_walking_robot
     from marionette.footsteps.planner import GraspPlanner
-    from marionette.footsteps.robot_model import talos
+    from marionette.footsteps.robot_model import walking_robot
 
     stance = Stance(np.array([0.0, 0.085, 0.0]), np.array([0.0, -0.085, 0.0]))
-    planner = GraspPlanner(talos(), stance, BALL)
+    planner = GraspPlanner(walking_robot(resolve_walking_robot(robot)), stance, BALL)
     start = time.perf_counter()
     report = planner.plan()
     initial_ms = 1e3 * (time.perf_counter() - start)
@@ -84,7 +89,7 @@ def run(trials_frozen: int = 30, trials_full: int = 10, seed: int = 0, repeats: 
         raise RuntimeError(f"initial plan failed: {report}")
     initial = planner.config.copy()
     rng = np.random.default_rng(seed)
-    rows = {"frozen": {}, "full": {}}
+    rows: dict[str, dict[float, dict[str, float]]] = {"frozen": {}, "full": {}}
     for mode, trials in (("frozen", trials_frozen), ("full", trials_full)):
         for d in MODIFICATIONS:
             row = Row(d)

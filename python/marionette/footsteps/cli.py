@@ -24,6 +24,7 @@ def _options(args):
     from marionette.footsteps.node import NodeOptions
 
     return NodeOptions(
+        robot=args.robot,
         mode=args.mode,
         target=args.target,
         hand=args.hand,
@@ -44,35 +45,37 @@ def _run(args: argparse.Namespace) -> int:
 
 def _plan(args: argparse.Namespace) -> int:
     from marionette.footsteps.augmented_robot import Stance
-    from marionette.footsteps.obstacles import Bar
+    from marionette.footsteps.obstacles import Bar, Obstacle
     from marionette.footsteps.plot import plot_plan
 
     stance = _stance(args.stance) or Stance(
         np.array([0.0, 0.085, 0.0]), np.array([0.0, -0.085, 0.0])
     )
+    from marionette.footsteps.node import resolve_walking_robot
+    from marionette.footsteps.robot_model import walking_robot
+
+    robot = walking_robot(resolve_walking_robot(args.robot))
+    obstacles: list[Obstacle] = []
+    goal: np.ndarray | None = None  # step-over: the final stance
+    hand: np.ndarray | None = None  # grasp: the object
     if args.mode == "grasp":
         from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
-        from marionette.footsteps.robot_model import talos
 
-        target = np.array(args.object)
-        planner = GraspPlanner(talos(), stance, target, options=GraspPlannerOptions(hand=args.hand))
-        report = planner.plan()
-        obstacles, goal, hand = [], None, target
-        foot = planner.augmented.foot
+        hand = np.array(args.object)
+        grasp = GraspPlanner(robot, stance, hand, options=GraspPlannerOptions(hand=args.hand))
+        report = grasp.plan()
+        plan, foot = grasp.result(), grasp.augmented.foot
     else:
         from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
         bar = Bar(np.array(args.bar_pose[:2]), args.bar_pose[2], args.bar_radius, args.bar_length)
-        planner = StepOverPlanner(
-            stance,
-            np.array(args.goal),
-            bar,
-            options=StepOverOptions(swing_margin=args.swing_margin),
+        goal = np.array(args.goal)
+        step_over = StepOverPlanner(
+            stance, goal, bar, robot.foot, options=StepOverOptions(swing_margin=args.swing_margin)
         )
-        report = planner.plan()
-        obstacles, goal, hand = [bar], np.array(args.goal), None
-        foot = planner.foot
-    plan = planner.result()
+        report = step_over.plan()
+        plan, foot = step_over.result(), step_over.foot
+        obstacles.append(bar)
     print(
         f"converged={report.converged} iterations={report.iterations} "
         f"steps={len(plan.steps)} time={1e3 * report.time_s:.1f} ms"
@@ -98,6 +101,11 @@ def _plan(args: argparse.Namespace) -> int:
 
 
 def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--robot",
+        default="",
+        help="robot with two feet (name or folder; default: the only one found)",
+    )
     p.add_argument("--mode", choices=["grasp", "step-over"], default="grasp")
     p.add_argument("--hand", choices=["left", "right"], default="right")
     p.add_argument(
@@ -126,7 +134,16 @@ def _common(p: argparse.ArgumentParser) -> None:
 
 
 def register(subparsers) -> None:
-    parser = subparsers.add_parser("footsteps", help="footstep optimiser (Dang 2012)")
+    parser = subparsers.add_parser(
+        "footsteps",
+        help="footstep optimiser (Dang 2012)",
+        epilog=(
+            "examples:\n"
+            "  marionette footsteps plan --mode grasp --png steps.png\n"
+            "  marionette footsteps run --mode step-over --goal 1.8 0 0"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     sub = parser.add_subparsers(dest="footsteps_command", required=True)
 
     run = sub.add_parser("run", help="the LCM process: OBJECT_POSES, WALK_STATUS -> FOOTSTEP_PLAN")

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pinocchio as pin
+from numpy.typing import ArrayLike
 
 from marionette.footsteps.augmented_robot import AugmentedKinematics, rotation_2d, wrap_angle
 from marionette.footsteps.errors import InvalidProblem
@@ -136,9 +137,9 @@ class StepLimits:
             if with_final and i == k - 1 and self.final is not None:
                 b = self.final
             lo[i], hi[i] = b.lower_upper(bool(is_left[i]))
-        lo, hi = lo.reshape(-1), hi.reshape(-1)
-        lo.flags.writeable = hi.flags.writeable = False
-        return lo, hi
+        lower, upper = lo.reshape(-1), hi.reshape(-1)
+        lower.flags.writeable = upper.flags.writeable = False
+        return lower, upper
 
 
 FINAL_STANCE = StepBounds(
@@ -304,7 +305,8 @@ def sole_clearance(pose: np.ndarray, foot: FootShape, obstacle) -> tuple[np.ndar
     corners_local = foot.corners()
     corners_f = pose[:2] + corners_local @ R.T
     corners_o = o.corners()
-    best, best_gap = None, -np.inf
+    best: tuple[str, int, float] | None = None
+    best_gap = -np.inf
     for owner, axes in (("o", axes_o), ("f", axes_f)):
         for a in range(2):
             for sgn in (1.0, -1.0):
@@ -312,6 +314,8 @@ def sole_clearance(pose: np.ndarray, foot: FootShape, obstacle) -> tuple[np.ndar
                 gap = np.min(corners_f @ n) - np.max(corners_o @ n)
                 if gap > best_gap:
                     best, best_gap = (owner, a, sgn), gap
+    if best is None:  # every gap NaN
+        raise InvalidProblem(f"foot pose {pose} or obstacle {obstacle!r} is not finite")
     owner, a, sgn = best
     if owner == "o":
         n = sgn * axes_o[a]
@@ -381,7 +385,8 @@ def _convex_hull_ccw(points: np.ndarray) -> np.ndarray:
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
 
-    lower, upper = [], []
+    lower: list[int] = []
+    upper: list[int] = []
     for i in order:
         while len(lower) >= 2 and cross(points[lower[-2]], points[lower[-1]], points[i]) <= 1e-12:
             lower.pop()
@@ -438,6 +443,15 @@ class FeetOnFootprints(Task):
         return np.vstack(rows)
 
 
+def _finite_vector(value: ArrayLike, size: int, what: str) -> np.ndarray:
+    """``value`` as a (size,) array; raises InvalidProblem "<what>, got <value>" unless it is
+    ``size`` finite numbers."""
+    v = np.asarray(value, dtype=float).reshape(-1)
+    if v.shape != (size,) or not np.all(np.isfinite(v)):
+        raise InvalidProblem(f"{what}, got {value!r}")
+    return v
+
+
 def _rz(theta: float) -> np.ndarray:
     c, s = np.cos(theta), np.sin(theta)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -466,11 +480,8 @@ class FramePositionTask(Task):
         if name:
             self.name = name
 
-    def set_target(self, target) -> None:
-        t = np.asarray(target, dtype=float).reshape(-1)
-        if t.shape != (3,) or not np.all(np.isfinite(t)):
-            raise InvalidProblem(f"target must be 3 finite numbers, got {target!r}")
-        self.target = t
+    def set_target(self, target: ArrayLike) -> None:
+        self.target = _finite_vector(target, 3, "target must be 3 finite numbers")
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         return (kin.frame_placement(self.frame)[0] - self.target)[self.axes]
@@ -494,9 +505,10 @@ class GazeTask(Task):
         self.frame = camera_frame
         self.set_target(target)
 
-    set_target = FramePositionTask.set_target
+    def set_target(self, target: ArrayLike) -> None:
+        self.target = _finite_vector(target, 3, "target must be 3 finite numbers")
 
-    def _p_C(self, kin):
+    def _p_C(self, kin: AugmentedKinematics) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         p, R = kin.frame_placement(self.frame)
         return p, R, R.T @ (self.target - p)
 
@@ -526,7 +538,7 @@ class PostureTask(Task):
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         # Revolute joints after the free-flyer: q index = v index + 1.
-        q = kin.config.q_robot
+        q = kin.config.require_q_robot()
         return q[self.indices + 1] - self.reference[self.indices + 1]
 
     def compute_jacobian(self, kin: AugmentedKinematics) -> np.ndarray:
@@ -606,11 +618,8 @@ class FootprintPoseTask(Task):
         if name:
             self.name = name
 
-    def set_target(self, target) -> None:
-        t = np.asarray(target, dtype=float).reshape(-1)
-        if t.shape != (3,) or not np.all(np.isfinite(t)):
-            raise InvalidProblem(f"footprint target must be (x, y, yaw), got {target!r}")
-        self.target = t
+    def set_target(self, target: ArrayLike) -> None:
+        self.target = _finite_vector(target, 3, "footprint target must be (x, y, yaw)")
 
     def _index(self, kin) -> int:
         i = kin.k if self.index is None else self.index
@@ -640,7 +649,8 @@ class StanceGoalTask(Task):
         self.set_target(target)
         self.yaw_weight = yaw_weight
 
-    set_target = FootprintPoseTask.set_target
+    def set_target(self, target: ArrayLike) -> None:
+        self.target = _finite_vector(target, 3, "footprint target must be (x, y, yaw)")
 
     def compute_error(self, kin: AugmentedKinematics) -> np.ndarray:
         mid = 0.5 * (kin.footprint(kin.k)[:2] + kin.footprint(kin.k - 1)[:2])
@@ -696,8 +706,9 @@ class ReachTask(Task):
     """The object sits at ``offset`` (forward, left) [m] in the final stance frame (2 rows):
     the stance centre m = (p_k + p_(k-1)) / 2 with the yaw θ_k of the last footprint.
 
-    The reference posture alone would choose where to stand from the reference arm pose (TALOS's
-    half_sitting holds the grippers 0.43 m to the sides, so the robot stood half a metre beside
+    The reference posture alone would choose where to stand from the reference arm pose (a
+    humanoid's half-sitting posture may hold the grippers 0.43 m to the sides, so the robot stood
+    half a metre beside
     the object and reached across); this places the stance the way one approaches to grasp.
     e = R(θ_k)ᵀ (t − m) − offset,  de = −R(θ_k)ᵀ dm + S' R(θ_k)ᵀ (t − m) dθ_k, S' = [[0,1],[-1,0]].
     """

@@ -85,7 +85,8 @@ class HierarchySettings:
     damping: float = 1e-4  # μ of μ||x||² in every level
     rank_tolerance: float = 1e-7  # singular values below this (× max(1, σ_max)) span the null space
     feasibility_tolerance: float = 1e-7
-    qp_eps: float = 1e-7  # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
+    # proxsuite eps_abs: its residual was seen to floor at 1e-8..3e-9 on degenerate vertices
+    qp_eps: float = 1e-7
     qp_max_iter: int = 300
     # (Ruiz preconditioner, relaxation [m|rad]) tried in turn, see _Cascade._proxqp.
     qp_attempts: tuple[tuple[bool, float], ...] = (
@@ -202,7 +203,7 @@ class _Cascade:
             s2[: sv.shape[0]] = sv * sv
             z = vt.T @ ((vt @ g) / (s2 + mu))
         dx_ls = self._lift(z)
-        dx = dx_ls
+        dx: np.ndarray | None = dx_ls
         used_qp = False
         if not self._feasible(self.x0 + dx_ls):
             dx = self._active_set_qp(H, g)
@@ -328,7 +329,7 @@ class _Cascade:
             x = self.x0 + Zr @ sol[:r]
         else:
             return None
-        if nu is None:
+        if nu is None or held is None:
             return x - self.x0
         # Hz + Cᵀν = g: upper bounds and ≤ rows hold with ν ≥ 0, lower bounds with ν ≤ 0.
         sign = np.ones(nu.shape[0])

@@ -15,6 +15,7 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +23,11 @@ from marionette.footsteps.augmented_robot import Stance
 from marionette.footsteps.errors import FootstepError
 from marionette.footsteps.obstacles import Bar
 from marionette.footsteps.plan import FootstepPlan
+
+if TYPE_CHECKING:  # imported where used: they load Pinocchio
+    from marionette.footsteps.planner import GraspPlanner
+    from marionette.footsteps.robot_model import RobotDescription
+    from marionette.footsteps.step_over import StepOverPlanner
 
 
 def yaw_from_quaternion(wxyz) -> float:
@@ -32,6 +38,7 @@ def yaw_from_quaternion(wxyz) -> float:
 
 @dataclass
 class NodeOptions:
+    robot: str = ""  # a robot with two feet (robot.yaml); "" = the only such robot found
     mode: str = "grasp"  # "grasp" | "step-over"
     target: str = "ball"  # object whose pose is the hand/gaze target (grasp)
     hand: str = "right"
@@ -44,16 +51,36 @@ class NodeOptions:
     swing_margin: float = 0.03  # [m] eq. 5.1 clearance of the crossing swings (step-over)
 
 
+def resolve_walking_robot(name: str) -> str:
+    """``name``, or when empty the only robot with two feet found (FootstepError otherwise)."""
+    from marionette import robots
+
+    if name:
+        return name
+    walkers = [n for n in robots.robot_names() if len(robots.robot(n).feet) == 2]
+    if len(walkers) != 1:
+        raise FootstepError(
+            "give the walking robot with --robot (robots with two feet: "
+            f"{', '.join(walkers) or 'none'})"
+        )
+    return walkers[0]
+
+
 class FootstepNode:
     """Algorithm 4 on messages: replan when the target moves or the step counter advances."""
 
-    def __init__(self, options: NodeOptions, stance: Stance | None = None, robot=None) -> None:
+    def __init__(
+        self,
+        options: NodeOptions,
+        stance: Stance | None = None,
+        robot: RobotDescription | None = None,
+    ) -> None:
         if options.mode not in ("grasp", "step-over"):
             raise FootstepError(f"mode must be 'grasp' or 'step-over', got {options.mode!r}")
         self.options = options
         self.stance = stance
         self._robot = robot
-        self.planner = None
+        self.planner: GraspPlanner | StepOverPlanner | None = None
         self.plan_id = 0
         self.current_step = -1
         self.object_pose: np.ndarray | None = None  # (x, y, z, yaw) of target or bar
@@ -98,12 +125,15 @@ class FootstepNode:
         if pose is None or stance is None:
             return None
         start = time.perf_counter()
-        if self.planner is None:
-            self._initial_plan(stance, pose)
+        planner = self.planner
+        if planner is None:
+            planner = self.planner = self._initial_plan(stance, pose)
         else:
+            planned = self._planned_pose
             moved = (
-                np.linalg.norm(pose[:2] - self._planned_pose[:2]) > self.options.move_threshold
-                or abs(pose[3] - self._planned_pose[3]) > self.options.move_threshold
+                planned is None
+                or np.linalg.norm(pose[:2] - planned[:2]) > self.options.move_threshold
+                or abs(pose[3] - planned[3]) > self.options.move_threshold
             )
             if not moved and step == self._planned_step:
                 return None
@@ -114,43 +144,56 @@ class FootstepNode:
                 # the target where it was planned, a replan could only append two in-place steps
                 # (the planner's answer to a moved target) and the walk would never end.
                 return None
-            self._replan(pose, executed=step + 1)
+            self._replan(planner, pose, executed=step + 1)
         self.last_solve_ms = 1e3 * (time.perf_counter() - start)
         self._planned_pose, self._planned_step = pose, step
-        self.last_plan = self.planner.result()
+        self.last_plan = planner.result()
         self.plan_id += 1
         return self.last_plan.to_lcm(utime, self.plan_id, first_step_index=max(step + 1, 0))
 
-    def _initial_plan(self, stance: Stance, pose: np.ndarray) -> None:
+    def robot(self) -> RobotDescription:
+        """The walking robot (its description, loaded once)."""
+        if self._robot is None:
+            from marionette.footsteps.robot_model import walking_robot
+
+            self._robot = walking_robot(resolve_walking_robot(self.options.robot))
+        return self._robot
+
+    def _initial_plan(self, stance: Stance, pose: np.ndarray) -> GraspPlanner | StepOverPlanner:
+        robot = self.robot()
         if self.options.mode == "grasp":
             from marionette.footsteps.planner import GraspPlanner, GraspPlannerOptions
-            from marionette.footsteps.robot_model import talos
 
-            robot = self._robot or talos()
-            self.planner = GraspPlanner(
+            grasp = GraspPlanner(
                 robot, stance, pose[:3], options=GraspPlannerOptions(hand=self.options.hand)
             )
-            self.planner.plan()
-        else:
-            from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
+            grasp.plan()
+            return grasp
+        from marionette.footsteps.step_over import StepOverOptions, StepOverPlanner
 
-            bar = Bar(pose[:2], pose[3], self.options.bar_radius, self.options.bar_length)
-            self.planner = StepOverPlanner(
-                stance,
-                np.array(self.options.goal),
-                bar,
-                options=StepOverOptions(swing_margin=self.options.swing_margin),
-            )
-            self.planner.plan()
+        bar = Bar(pose[:2], pose[3], self.options.bar_radius, self.options.bar_length)
+        step_over = StepOverPlanner(
+            stance,
+            np.array(self.options.goal),
+            bar,
+            robot.foot,
+            options=StepOverOptions(swing_margin=self.options.swing_margin),
+        )
+        step_over.plan()
+        return step_over
 
-    def _replan(self, pose: np.ndarray, executed: int) -> None:
-        if self.options.mode == "grasp":
-            self.planner.replan(
+    def _replan(
+        self, planner: GraspPlanner | StepOverPlanner, pose: np.ndarray, executed: int
+    ) -> None:
+        from marionette.footsteps.planner import GraspPlanner
+
+        if isinstance(planner, GraspPlanner):
+            planner.replan(
                 pose[:3], executed_steps=executed, posture_frozen=self.options.posture_frozen
             )
         else:
-            bar = self.planner.bar.moved_to(pose[:2], pose[3])
-            self.planner.update_bar(bar, executed_steps=executed)
+            bar = planner.bar.moved_to(pose[:2], pose[3])
+            planner.update_bar(bar, executed_steps=executed)
 
 
 def run(

@@ -15,6 +15,7 @@ Frozen variables (Dang Algorithm 2 line 11, §6.2.2):
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -80,7 +81,7 @@ class FootstepOptimizer:
     def __init__(
         self,
         augmented: AugmentedRobot,
-        levels: list[Constraint | Task],
+        levels: Sequence[Constraint | Task],
         primary: Task,
         limits: StepLimits | None = None,
         settings: OptimizerSettings | None = None,
@@ -89,7 +90,7 @@ class FootstepOptimizer:
         if primary not in levels:
             raise InvalidProblem("the primary task must be one of the levels")
         self.augmented = augmented
-        self.levels = levels
+        self.levels = list(levels)
         self.primary = primary
         self.limits = limits or StepLimits()
         self.settings = settings or OptimizerSettings()
@@ -119,7 +120,9 @@ class FootstepOptimizer:
         lo, hi = lo_s - steps, hi_s - steps
         if robot_free:
             lo_r, hi_r = joint_limits(
-                self.augmented.robot.model, config.q_robot, self.posture_limits
+                self.augmented.require_robot().model,
+                config.require_q_robot(),
+                self.posture_limits,
             )
             lo, hi = np.concatenate([lo, lo_r]), np.concatenate([hi, hi_r])
         return lo[free], hi[free]
@@ -133,7 +136,8 @@ class FootstepOptimizer:
         k = config.num_steps
         tr = np.tile([s.trust_region_steps, s.trust_region_steps, s.trust_region_yaw], k)
         if robot_free:
-            tr = np.concatenate([tr, np.full(self.augmented.robot.model.nv, s.trust_region_robot)])
+            nv = self.augmented.require_robot().model.nv
+            tr = np.concatenate([tr, np.full(nv, s.trust_region_robot)])
         tr = tr[free]
         # Clip to the trust region; clipping both keeps lower ≤ upper, and a dof outside its
         # limits is pulled back by at most the trust region per iteration.
@@ -363,8 +367,8 @@ class FootstepOptimizer:
         start = self.levels.index(self.primary) + 1
         residuals = [
             solution.levels[i].residual ** 2
-            for i in range(start, len(self.levels))
-            if isinstance(self.levels[i], Task) and not self.levels[i].regularisation
+            for i, item in enumerate(self.levels[start:], start)
+            if isinstance(item, Task) and not item.regularisation
         ]
         return bool(
             np.all(below - np.array(residuals) < s.settle_ratio * below + s.settle_absolute)

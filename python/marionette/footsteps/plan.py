@@ -16,7 +16,7 @@ from marionette.footsteps.errors import InvalidProblem
 
 @dataclass(frozen=True)
 class StepTiming:
-    """Durations of every step [s] and swing apex [m] (TALOS-friendly defaults)."""
+    """Durations of every step [s] and swing apex [m] (defaults suited to a 1.7 m humanoid)."""
 
     single_support: float = 0.8
     double_support: float = 0.2

@@ -36,6 +36,7 @@ from marionette.footsteps.augmented_robot import (
 from marionette.footsteps.constraints import (
     FINAL_STANCE,
     ComInSupportPolygon,
+    Constraint,
     FacingTask,
     FeetOnFootprints,
     FootNonOverlap,
@@ -48,6 +49,7 @@ from marionette.footsteps.constraints import (
     StepBounds,
     StepLimits,
     StepPreferenceTask,
+    Task,
 )
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
 from marionette.footsteps.final_pose import solve_final_pose
@@ -87,7 +89,7 @@ class GraspPlannerOptions:
     gaze: bool = True
     non_overlap_margin: float = 0.02  # [m] between successive soles
     com_margin: float = 0.03  # [m] CoM inside the final support polygon
-    nominal_width: float = 0.17  # [m] preferred lateral distance of the soles (TALOS)
+    nominal_width: float = 0.17  # [m] preferred lateral distance of the soles (a 1.7 m humanoid)
     replan_settle_ratio: float = 0.02  # replans stop when lower levels improve less than this
     # Where the object sits in the final stance frame: forward, towards the hand's side [m].
     reach_offset: tuple[float, float] = (0.45, 0.25)
@@ -135,9 +137,9 @@ class GraspPlanner:
         self.hand = FramePositionTask(robot.hand_frames[self.options.hand], target)
         self.gaze = GazeTask(robot.camera_frame, target)
         self.facing = FacingTask(target, 0.5 * (stance.left[:2] + stance.right[:2]))
-        side = 1.0 if self.options.hand == "left" else -1.0
+        hand_sign = 1.0 if self.options.hand == "left" else -1.0
         self.reach = ReachTask(
-            target, (self.options.reach_offset[0], side * self.options.reach_offset[1])
+            target, (self.options.reach_offset[0], hand_sign * self.options.reach_offset[1])
         )
         joints = np.setdiff1d(np.arange(6, robot.model.nv), robot.frozen_velocity_indices())
         self.posture = PostureTask(robot.reference_posture, joints)
@@ -162,7 +164,7 @@ class GraspPlanner:
 
     def optimizer(self, posture_frozen: bool) -> FootstepOptimizer:
         first = self.frozen_steps + 1
-        levels = []
+        levels: list[Constraint | Task] = []
         if not posture_frozen:
             levels.append(FeetOnFootprints())
         levels.append(FootNonOverlap(self.options.non_overlap_margin, first_step=first))
@@ -220,7 +222,7 @@ class GraspPlanner:
         P_k only. Solve them over P_k's 3 dofs (:mod:`.final_pose`), then make the chain reach
         that stance (footsteps only, Dang §3.3) with the same constraints above it."""
         start = time.perf_counter()
-        robot_frames = self.augmented._robot_kinematics(self.config.q_robot)["frames"]
+        robot_frames = self.augmented._robot_kinematics(self.config.require_q_robot())["frames"]
         frames_L = {name: (p, R) for name, (p, R, _) in robot_frames.items()}
         self.hand.axes = np.array([0, 1])
         tasks = [self.hand] + ([self.gaze] if self.options.gaze else []) + [self.facing]
@@ -241,7 +243,9 @@ class GraspPlanner:
         goal = FootprintPoseTask(None, stance, weights=(1.0, 1.0, 1.0), name="robot_stance")
         goal.max_step = 0.6  # the chain is near its solution: larger Gauss–Newton steps
         first = self.frozen_steps + 1
-        levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
+        levels: list[Constraint | Task] = [
+            FootNonOverlap(self.options.non_overlap_margin, first_step=first)
+        ]
         if self.obstacles:
             levels.append(ObstacleAvoidance(self.obstacles, first_step=first))
         preference = StepPreferenceTask(self.options.nominal_width, first, -1)
@@ -300,12 +304,15 @@ class GraspPlanner:
         )
         sub = AugmentedRobot(self.robot, stance, self.augmented.side_of(k - 1))
         sub_config = AugmentedConfiguration(
-            self.config.steps[k - 2 :].copy(), self.config.q_robot.copy()
+            self.config.steps[k - 2 :].copy(), self.config.require_q_robot().copy()
         )
         free_step = StepBounds(-10.0, 10.0, -10.0, 10.0, np.pi, np.pi)  # P_(k-1) anywhere
         limits = StepLimits(default=free_step, final=self.limits.final)
         self.hand.axes = np.array([0, 1, 2])
-        levels = [FeetOnFootprints(), FootNonOverlap(self.options.non_overlap_margin, first_step=2)]
+        levels: list[Constraint | Task] = [
+            FeetOnFootprints(),
+            FootNonOverlap(self.options.non_overlap_margin, first_step=2),
+        ]
         if self.obstacles:
             levels.append(ObstacleAvoidance(self.obstacles, first_step=1))
         levels += [ComInSupportPolygon(self.options.com_margin), self.hand]

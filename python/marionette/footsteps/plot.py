@@ -3,6 +3,7 @@ hand target, and optionally earlier plans to show the deformation."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -48,10 +49,11 @@ def _draw_obstacle(ax, obstacle: Obstacle) -> None:
     import matplotlib.patches as patches
 
     if isinstance(obstacle, CircleObstacle):
-        ax.add_patch(patches.Circle(obstacle.center, obstacle.radius, color="0.3"))
+        center = (float(obstacle.center[0]), float(obstacle.center[1]))
+        ax.add_patch(patches.Circle(center, obstacle.radius, color="0.3"))
         ax.add_patch(
             patches.Circle(
-                obstacle.center, obstacle.radius + obstacle.buffer, fill=False, ls="--", color="0.3"
+                center, obstacle.radius + obstacle.buffer, fill=False, ls="--", color="0.3"
             )
         )
         return
@@ -74,10 +76,10 @@ def plot_plan(
     path: str | Path,
     plan: FootstepPlan,
     foot: FootShape,
-    obstacles: list[Obstacle] = (),
+    obstacles: Sequence[Obstacle] = (),
     goal: np.ndarray | None = None,
     hand_target: np.ndarray | None = None,
-    earlier: list[FootstepPlan] = (),
+    earlier: Sequence[FootstepPlan] = (),
     title: str = "",
 ) -> Path:
     """Write a PNG top view of ``plan`` (and faded ``earlier`` plans) to ``path``.

@@ -3,13 +3,12 @@
 Only the pieces the augmented robot needs: a Pinocchio model with a free-flyer root, the names
 of its two sole frames, the grasp points of its hands (added as Pinocchio frames), the camera
 frame, a reference posture, the foot rectangle and the dofs that never move in planning (the
-gripper fingers). :func:`talos` builds it for TALOS from example-robot-data.
+gripper fingers). :func:`walking_robot` builds it from a robot's robot.yaml.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -83,72 +82,50 @@ class RobotDescription:
         return np.array(sorted(idx), dtype=int)
 
 
-# TALOS ----------------------------------------------------------------------------------------
-# Grasp point of the TALOS gripper in gripper_<side>_base_link: between the fingertips, which
-# sit 0.12 m along -z of that frame (measured on the URDF in half_sitting).
-TALOS_GRASP_POINT = np.array([0.0, 0.0, -0.12])
-# Sole box of talos_reduced_box.urdf (0.21 x 0.13 m), centred on <side>_sole_link.
-TALOS_FOOT = FootShape(length=0.21, width=0.13)
+def walking_robot(name: str) -> RobotDescription:
+    """Robot ``name`` for footstep planning, from its robot.yaml: its two feet (``feet``, left
+    first), the grasp points of its hands (``walking.hands``: side -> gripper, a frame added at
+    the gripper frame's origin), its first camera, its reference posture, the foot rectangle
+    the optimiser keeps clear (``walking.planning_foot_size``, else the sole) and the joints it
+    never moves (``walking.frozen_joints``)."""
+    from marionette import robots
 
-
-def _talos_data_dir() -> Path:
-    # example-robot-data 6 ships data only, in the cmeel prefix that also holds pinocchio:
-    # <prefix>/lib/python3.X/site-packages/pinocchio -> <prefix>/share/example-robot-data.
-    prefix = Path(pin.__file__).resolve().parents[4]
-    candidate = prefix / "share/example-robot-data/robots/talos_data"
-    if not candidate.is_dir():
+    desc = robots.robot(name)
+    where = desc.semantics
+    if len(desc.feet) != 2 or desc.base != "free_flyer":
         raise InvalidProblem(
-            f"example-robot-data's talos_data not found at {candidate} (scripts/setup installs it)"
+            f"{where}: footstep planning needs a free_flyer base and two feet (left, right)"
         )
-    return candidate
-
-
-def _load_talos_model() -> tuple[pin.Model, np.ndarray]:
-    """TALOS (talos_reduced) with a free-flyer root and its half_sitting posture."""
-    try:  # the shared loader (marionette.robots), once its generated models exist
-        from marionette import robots
-
-        if not robots.robot("talos").urdf.is_file():
-            raise FileNotFoundError(robots.robot("talos").urdf)
-        model, _ = robots.load_pinocchio("talos", with_collision=False)
-        return model, robots.reference_configuration("talos", model)
-    except (ImportError, AttributeError, KeyError, TypeError, ValueError, OSError):
-        pass
-    directory = _talos_data_dir()
-    model = pin.buildModelFromUrdf(
-        str(directory / "robots/talos_reduced.urdf"), pin.JointModelFreeFlyer()
-    )
-    pin.loadReferenceConfigurations(model, str(directory / "srdf/talos.srdf"))
-    return model, model.referenceConfigurations["half_sitting"].copy()
-
-
-def talos() -> RobotDescription:
-    """TALOS for footstep planning: soles, grasp points, head camera, half_sitting posture."""
-    model, q_ref = _load_talos_model()
+    if desc.camera_frame is None:
+        raise InvalidProblem(f"{where}: footstep planning needs a camera (the gaze task)")
+    model, _ = robots.load_pinocchio(name, with_collision=False)
+    q_ref = robots.reference_configuration(name, model)
     model = pin.Model(model)  # own copy: we add frames
+    sem = robots.semantics(name)
     hand_frames = {}
-    for side in ("left", "right"):
-        parent = model.frames[model.getFrameId(f"gripper_{side}_base_link")]
-        name = f"{side}_grasp_point"
-        if not model.existFrame(name):
-            placement = parent.placement * pin.SE3(np.eye(3), TALOS_GRASP_POINT)
-            model.addFrame(
-                pin.Frame(
-                    name,
-                    parent.parentJoint,
-                    model.getFrameId(parent.name),
-                    placement,
-                    pin.FrameType.OP_FRAME,
-                )
+    for side, gripper_name in (desc.walking.get("hands") or {}).items():
+        gripper = sem.gripper(gripper_name)
+        parent = model.frames[model.getFrameId(gripper.link)]
+        frame = f"{side}_grasp_point"
+        placement = parent.placement * pin.SE3(np.eye(3), np.array(gripper.pose.xyz))
+        model.addFrame(
+            pin.Frame(
+                frame,
+                parent.parentJoint,
+                model.getFrameId(parent.name),
+                placement,
+                pin.FrameType.OP_FRAME,
             )
-        hand_frames[side] = name
+        )
+        hand_frames[side] = frame
+    size = desc.walking.get("planning_foot_size") or desc.feet[0].size
     return RobotDescription(
-        name="talos",
+        name=desc.name,
         model=model,
-        sole_frames={"left": "left_sole_link", "right": "right_sole_link"},
+        sole_frames={f.name: f.frame for f in desc.feet},
         hand_frames=hand_frames,
-        camera_frame="rgbd_rgb_optical_frame",
+        camera_frame=desc.camera_frame,
         reference_posture=q_ref,
-        foot=TALOS_FOOT,
-        frozen_joints=("gripper_left_joint", "gripper_right_joint"),
+        foot=FootShape(length=size[0], width=size[1]),
+        frozen_joints=tuple(desc.walking.get("frozen_joints", ())),
     )

@@ -36,6 +36,7 @@ from marionette.footsteps.augmented_robot import (
 )
 from marionette.footsteps.constraints import (
     FINAL_STANCE,
+    Constraint,
     FootNonOverlap,
     FootprintPoseTask,
     ObstacleAvoidance,
@@ -43,6 +44,7 @@ from marionette.footsteps.constraints import (
     StepBounds,
     StepLimits,
     StepPreferenceTask,
+    Task,
     sole_clearance,
 )
 from marionette.footsteps.errors import InvalidProblem, PlanningFailed
@@ -50,7 +52,7 @@ from marionette.footsteps.obstacles import Bar, Obstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings, SolveReport
 from marionette.footsteps.plan import FootstepPlan, StepTiming
 from marionette.footsteps.planner import default_first_side
-from marionette.footsteps.robot_model import TALOS_FOOT, FootShape
+from marionette.footsteps.robot_model import FootShape
 from marionette.footsteps.swing import crossing_via_points
 
 
@@ -90,7 +92,7 @@ class StepOverPlanner:
         stance: Stance,
         goal,
         bar: Bar,
-        foot: FootShape = TALOS_FOOT,
+        foot: FootShape,
         obstacles: list[Obstacle] | None = None,
         first_side: str | None = None,
         limits: StepLimits | None = None,
@@ -182,7 +184,7 @@ class StepOverPlanner:
 
     def update_bar(self, bar: Bar, executed_steps: int | None = None) -> SolveReport:
         """Algorithm 3: the bar moved; keep the crossing footprints fixed relative to it."""
-        if self._crossing_in_bar is None:
+        if self.crossing is None or self._crossing_in_bar is None:
             raise InvalidProblem("plan() first: there is no crossing to keep")
         if executed_steps is not None:
             self.frozen_steps = executed_steps
@@ -305,6 +307,8 @@ class StepOverPlanner:
         to it across it and in yaw, not along its axis — a bar sliding along its own axis
         leaves them where they were along it (fixed to it, they would be dragged sideways,
         measured: sideways steps and falls)."""
+        if self.crossing is None or self._crossing_in_bar is None:
+            return {}
         axis = np.array([np.cos(self.bar.yaw), np.sin(self.bar.yaw)])
         slide = float(axis @ (self.bar.center - self._crossing_bar_center))
         return {
@@ -355,12 +359,18 @@ class StepOverPlanner:
             return
         fp = self.augmented.footprints(self.config.steps)
         bar_pose = self.bar.pose()
-        self._crossing_in_bar = tuple(planar_relative(bar_pose, fp[i + 1]) for i in self.crossing)
+        before, after = self.crossing
+        self._crossing_in_bar = (
+            planar_relative(bar_pose, fp[before + 1]),
+            planar_relative(bar_pose, fp[after + 1]),
+        )
         self._crossing_bar_center = self.bar.center.copy()
 
-    def _levels(self, with_bar: bool, crossing_targets: bool):
+    def _levels(self, with_bar: bool, crossing_targets: bool) -> list[Constraint | Task]:
         first = self.frozen_steps + 1
-        levels = [FootNonOverlap(self.options.non_overlap_margin, first_step=first)]
+        levels: list[Constraint | Task] = [
+            FootNonOverlap(self.options.non_overlap_margin, first_step=first)
+        ]
         obstacles = self.obstacles + ([self.bar] if with_bar else [])
         if obstacles:
             levels.append(ObstacleAvoidance(obstacles, first_step=first))

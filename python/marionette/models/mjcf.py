@@ -25,31 +25,28 @@ stable at the 1 ms step.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from marionette.robots import mujoco_layout, pinocchio_to_mujoco, robot
+from marionette.robots import (
+    RobotDescription,
+    mujoco_layout,
+    pinocchio_to_mujoco,
+    robot,
+    semantics,
+)
 
 from . import apriltag
-from .objects import ObjectSpec
-from .robot_models import (
-    MOVING_MIMICS,
-    PLANAR_BASE,
-    SOLE_BOX_THICKNESS,
-    TALOS_SOLE,
-    hand_links,
-    parsed_urdf,
-    robot_semantics,
-    servo_gains,
-)
 from .semantics import Semantics
-from .urdf import mimic_equality, parse_urdf, urdf_to_mjcf
+from .urdf import Urdf, mimic_equality, parse_urdf, urdf_to_mjcf
 from .xml_util import fmt, fmt_vec, homogeneous, matrix_to_quat_wxyz, sub
 
 TIMESTEP = 0.001
 CAMERA_WIDTH, CAMERA_HEIGHT = 640, 480
-# Orbbec Astra (TALOS) and Asus Xtion (TIAGo) RGB: about 45 deg vertical field of view,
+# Orbbec Astra and Asus Xtion RGB: about 45 deg vertical field of view,
 # fy = 240 / tan(22.5 deg) = 579.4 px at 640 x 480.
 CAMERA_FOVY_DEG = 45.0
 TAG_THICKNESS = 0.001  # [m] the tag plate sinks this deep below its printed face
@@ -59,7 +56,7 @@ CLASSES = {
     "floor": dict(contype="1", conaffinity="20"),
     "robot_body": dict(contype="2", conaffinity="0"),
     # Stiffer than MuJoCo's default contact (time constant 4 ms instead of 20 ms, critically
-    # damped): TALOS' soles sink 0.3 mm instead of 0.65 mm into the floor.
+    # damped): a 95 kg humanoid's soles sink 0.3 mm instead of 0.65 mm into the floor.
     "robot_sole": dict(
         contype="4",
         conaffinity="49",
@@ -96,30 +93,48 @@ class Part:
 # --- robots ------------------------------------------------------------------------------------
 
 
-def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = None) -> Part:
-    """Robot ``name`` with its base at X_WB (fixed bases) or its reference configuration."""
-    desc = robot(name)
-    urdf = parsed_urdf(name)
-    hands = hand_links(name, urdf)
-    mesh_root = f"{robot(name).meshes}/"
+# Planar base (MuJoCo side): joint name, type, axis, force limit [N or N m].
+PLANAR_BASE = (
+    ("root_x", "slide", (1, 0, 0), 1000.0),
+    ("root_y", "slide", (0, 1, 0), 1000.0),
+    ("root_yaw", "hinge", (0, 0, 1), 500.0),
+)
 
-    def mesh_file(uri: str) -> str:
-        rel = uri.removeprefix("package://example-robot-data/robots/")
-        if not rel.startswith(mesh_root):
-            raise ValueError(f"{name}: mesh {uri} outside {mesh_root}")
-        return f"{name}/meshes/{rel.removeprefix(mesh_root)}"
+
+class RobotModelError(ValueError):
+    """A robot's files cannot make an MJCF; the message says what to fix in which file."""
+
+
+def robot_part(
+    name: str | Path, q_reference: np.ndarray, X_WB: np.ndarray | None = None, models_dir=None
+) -> Part:
+    """Robot ``name`` with its base at X_WB (fixed bases) or its reference configuration.
+    Mesh files are named relative to ``models_dir`` (the MJCF's meshdir; default: the parent of
+    the robot's folder)."""
+    desc = robot(name)
+    urdf = parse_urdf(desc.urdf.read_text())
+    hands: set[str] = set()
+    for link in desc.hand_links:
+        if link not in urdf.links:
+            raise RobotModelError(
+                f"{desc.semantics}: simulation/hand_links names {link!r}, not a link of "
+                f"{desc.urdf.name}"
+            )
+        hands |= set(urdf.subtree(link))
+    mesh_file = _mesh_namer(desc, models_dir)
 
     def geom_class(link: str) -> str:
         return "robot_hand" if link in hands else "robot_body"
 
-    def armature(joint) -> float:
-        return servo_gains(name, joint.name).armature
+    def armature(joint) -> float:  # a mimic's rotor is its driver's
+        return desc.actuator(joint.mimic.joint if joint.mimic else joint.name).armature
 
-    # The URDF's mimic joints (the UR10 gripper's second finger) move in MuJoCo, tied to their
+    # The URDF's mimic joints (a parallel gripper's second finger) move in MuJoCo, tied to their
     # driver by equalities, so a closing gripper really squeezes; the controller's model keeps
-    # them fixed (MOVING_MIMICS says why TALOS' stay fixed).
+    # them fixed. A robot whose moving fingers would wedge its objects keeps them fixed
+    # (simulation/moving_mimics: false).
     tree = urdf_to_mjcf(
-        urdf, mesh_file, f"{name}/", geom_class, armature, mimics=name in MOVING_MIMICS
+        urdf, mesh_file, f"{desc.name}/", geom_class, armature, mimics=desc.moving_mimics
     )
     part = Part(meshes=dict(tree.meshes), equalities=[mimic_equality(j) for j in tree.mimics])
     root = tree.root
@@ -127,7 +142,7 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
         root.insert(0, ET.Element("freejoint", name="root_joint"))
     elif desc.base == "planar":
         for i, (jname, kind, axis, _) in enumerate(PLANAR_BASE):
-            g = servo_gains(name, jname)
+            g = desc.actuator(jname)
             root.insert(
                 i,
                 ET.Element(
@@ -146,33 +161,40 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
             raise ValueError(f"{name} has a {desc.base} base: place it with its configuration")
         _set_pose(root, X_WB)
     part.bodies.append(root)
-    sem = robot_semantics(name)
+    sem = semantics(name)
+    _check_links(desc, tree.bodies, sem)
     _add_gripper_sites(tree.bodies, sem)
-    if name == "talos":
-        _talos_extras(tree.bodies, part)
-    if name in ("tiago", "ur10"):
-        _wrist_ft_sensor(tree.bodies, part, {"tiago": "wrist_ft_link", "ur10": "tool0"}[name])
+    _add_feet(desc, tree.bodies, part)
+    for sensor, link in desc.force_torque_sensors:
+        _add_force_torque_sensor(tree.bodies[link], sensor, part)
+    if desc.imu_link is not None:
+        _add_imu(tree.bodies[desc.imu_link], part)
     for tag in sem.tags:
         _add_tag(tree.bodies[tag.link], tag.id, tag.family, tag.size, tag.pose.matrix(), part)
-    if desc.camera_frame:
+    for camera in desc.cameras:
         cam = sub(
-            tree.bodies[desc.camera_frame],
+            tree.bodies[camera.frame],
             "camera",
-            name=desc.camera,
+            name=camera.name,
             mode="fixed",
-            fovy=fmt(CAMERA_FOVY_DEG),
+            fovy=fmt(camera.fovy_deg),
         )
         # Optical frame: z along the view, y down. MuJoCo camera: looks along -z, y up.
         cam.set("quat", "0 1 0 0")
     # Actuators: the planar base first, then every URDF joint in MJCF (= Pinocchio) order.
-    joints = (
+    joints: list[tuple[str, str, float | None, float | None, float | None]] = (
         [(j, "slide" if k == "slide" else "hinge", None, None, f) for j, k, _, f in PLANAR_BASE]
         if desc.base == "planar"
         else []
     )
     joints += [(j.name, j.type, j.lower, j.upper, j.effort) for j in tree.joints]
     for jname, _, lo, hi, effort in joints:
-        g = servo_gains(name, jname)
+        g = desc.actuator(jname)
+        if not effort or effort <= 0:
+            raise RobotModelError(
+                f"{desc.urdf}: joint {jname!r} has no positive <limit effort=...>: its servo "
+                f"needs a force limit; add one to the URDF"
+            )
         part.actuators.append(
             ET.Element(
                 "general",
@@ -185,7 +207,7 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
                     "biasprm": fmt_vec([0, -g.kp, -g.kv]),
                     **(
                         {"ctrllimited": "true", "ctrlrange": fmt_vec([lo, hi])}
-                        if lo is not None
+                        if lo is not None and hi is not None
                         else {"ctrllimited": "false"}
                     ),
                     "forcelimited": "true",
@@ -201,6 +223,72 @@ def robot_part(name: str, q_reference: np.ndarray, X_WB: np.ndarray | None = Non
     return part
 
 
+def _mesh_namer(desc: RobotDescription, models_dir) -> Callable[[str], str]:
+    """URDF mesh URI -> MJCF mesh file relative to ``models_dir``: a file under the robot's
+    ``meshes`` folder is named through the link ``<robot folder>/meshes``; a mesh MuJoCo 2.2
+    cannot read (DAE) is converted to STL once, into ``<robot folder>/converted_meshes``."""
+    import os
+
+    folder = desc.directory
+    base = Path(models_dir) if models_dir is not None else folder.parent
+    meshes_root = None
+    if desc.meshes is not None:
+        meshes_root = desc.meshes.rstrip("/") + "/"
+
+    def name(uri: str) -> str:
+        if meshes_root is not None and uri.startswith(meshes_root):
+            path = folder / "meshes" / uri.removeprefix(meshes_root)
+        elif not uri.startswith("package://"):
+            path = Path(uri) if Path(uri).is_absolute() else folder / uri
+        else:
+            raise RobotModelError(
+                f"{desc.urdf}: mesh {uri} is outside the robot's meshes folder "
+                f"({desc.meshes}); set 'meshes' in {desc.semantics} to the folder holding it"
+            )
+        if path.suffix.lower() not in (".stl", ".obj", ".msh"):
+            path = convert_mesh(path, folder / "converted_meshes" / path.relative_to(folder))
+        return Path(os.path.relpath(path, base)).as_posix()
+
+    return name
+
+
+def convert_mesh(source: Path, target_stem: Path) -> Path:
+    """``source`` (any format trimesh reads: DAE, PLY, ...) written as ``target_stem``.stl, the
+    format MuJoCo 2.2 reads; done once (the target is kept while it is newer than the source)."""
+    target = target_stem.with_suffix(".stl")
+    src = source.resolve()
+    if target.exists() and target.stat().st_mtime >= src.stat().st_mtime:
+        return target
+    import trimesh
+
+    mesh = trimesh.load(src, force="mesh")
+    if mesh.is_empty:
+        raise RobotModelError(f"{source}: no triangles to convert for MuJoCo")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    mesh.export(target)
+    return target
+
+
+def _check_links(desc: RobotDescription, bodies: dict[str, ET.Element], sem: Semantics) -> None:
+    """Every link robot.yaml names exists in the URDF (a one-line error otherwise)."""
+    named = [
+        *(("grippers", g.link) for g in sem.grippers),
+        *(("tags", t.link) for t in sem.tags),
+        *(("contacts", c.link) for c in sem.contacts),
+        *(("feet", f.frame) for f in desc.feet),
+        *(("cameras", c.frame) for c in desc.cameras),
+        *(("force_torque_sensors", link) for _, link in desc.force_torque_sensors),
+        *((("imu", desc.imu_link),) if desc.imu_link else ()),
+        *(("grippers/jaws", b) for bs in desc.grip_bodies.values() for b in bs),
+    ]
+    for key, link in named:
+        if link not in bodies:
+            raise RobotModelError(
+                f"{desc.semantics}: {key} names {link!r}, which is not a link of "
+                f"{desc.urdf.name} (frames must be links for MuJoCo: add a link with a fixed joint)"
+            )
+
+
 def _add_gripper_sites(bodies: dict[str, ET.Element], sem: Semantics) -> None:
     for g in sem.grippers:
         site = sub(
@@ -209,41 +297,39 @@ def _add_gripper_sites(bodies: dict[str, ET.Element], sem: Semantics) -> None:
         _set_pose(site, g.pose.matrix())
 
 
-def _talos_extras(bodies: dict[str, ET.Element], part: Part) -> None:
-    lx, ly = TALOS_SOLE[0] / 2, TALOS_SOLE[1] / 2
-    h = SOLE_BOX_THICKNESS / 2
-    for side in ("left", "right"):
-        body = bodies[f"{side}_sole_link"]
-        # Bottom face on the sole plane z = 0 of the sole link.
+def _add_feet(desc: RobotDescription, bodies: dict[str, ET.Element], part: Part) -> None:
+    """A contact box under each sole (bottom face on the sole plane) and its F/T sensor."""
+    for foot in desc.feet:
+        lx, ly, h = foot.size[0] / 2, foot.size[1] / 2, foot.thickness / 2
+        body = bodies[foot.frame]
         sub(
             body,
             "geom",
             {
-                "name": f"{side}_sole",
+                "name": f"{foot.name}_sole",
                 "class": "robot_sole",
                 "type": "box",
                 "size": fmt_vec([lx, ly, h]),
                 "pos": fmt_vec([0, 0, h]),
             },
         )
-        sub(body, "site", name=f"{side}_sole", size="0.01", group=SITE_GROUP)
-        part.sensors.append(ET.Element("force", name=f"{side}_sole_force", site=f"{side}_sole"))
-        part.sensors.append(ET.Element("torque", name=f"{side}_sole_torque", site=f"{side}_sole"))
-    for side in ("left", "right"):
-        sub(
-            bodies[f"wrist_{side}_ft_link"],
-            "site",
-            name=f"{side}_wrist_ft",
-            size="0.01",
-            group=SITE_GROUP,
+        sub(body, "site", name=f"{foot.name}_sole", size="0.01", group=SITE_GROUP)
+        part.sensors.append(
+            ET.Element("force", name=f"{foot.name}_sole_force", site=f"{foot.name}_sole")
         )
         part.sensors.append(
-            ET.Element("force", name=f"{side}_wrist_force", site=f"{side}_wrist_ft")
+            ET.Element("torque", name=f"{foot.name}_sole_torque", site=f"{foot.name}_sole")
         )
-        part.sensors.append(
-            ET.Element("torque", name=f"{side}_wrist_torque", site=f"{side}_wrist_ft")
-        )
-    sub(bodies["imu_link"], "site", name="imu", size="0.01", group=SITE_GROUP)
+
+
+def _add_force_torque_sensor(body: ET.Element, name: str, part: Part) -> None:
+    sub(body, "site", name=f"{name}_ft", size="0.01", group=SITE_GROUP)
+    part.sensors.append(ET.Element("force", name=f"{name}_force", site=f"{name}_ft"))
+    part.sensors.append(ET.Element("torque", name=f"{name}_torque", site=f"{name}_ft"))
+
+
+def _add_imu(body: ET.Element, part: Part) -> None:
+    sub(body, "site", name="imu", size="0.01", group=SITE_GROUP)
     part.sensors += [
         ET.Element("gyro", name="imu_gyro", site="imu"),
         ET.Element("accelerometer", name="imu_accelerometer", site="imu"),
@@ -251,27 +337,19 @@ def _talos_extras(bodies: dict[str, ET.Element], part: Part) -> None:
     ]
 
 
-def _wrist_ft_sensor(bodies: dict[str, ET.Element], part: Part, link: str) -> None:
-    sub(bodies[link], "site", name="wrist_ft", size="0.01", group=SITE_GROUP)
-    part.sensors += [
-        ET.Element("force", name="wrist_force", site="wrist_ft"),
-        ET.Element("torque", name="wrist_torque", site="wrist_ft"),
-    ]
-
-
 # --- objects -----------------------------------------------------------------------------------
 
 
-def object_part(spec: ObjectSpec, instance: str, X_WO: np.ndarray) -> Part:
-    """Object ``spec`` as body ``instance`` at X_WO: a free body or a mocap body."""
-    urdf = parse_urdf(spec.urdf())
-    cls = "object" if spec.sim == "free" else "fixture"
+def object_part(urdf: Urdf, sem: Semantics, sim: str, instance: str, X_WO: np.ndarray) -> Part:
+    """The object of ``urdf`` with its declarations ``sem`` as body ``instance`` at X_WO: a
+    free body (``sim`` = "free") or a mocap body ("mocap", a fixture moved by the scenario)."""
+    cls = "object" if sim == "free" else "fixture"
     tree = urdf_to_mjcf(urdf, lambda uri: uri, f"{instance}/", lambda link: cls, visuals=True)
     body = tree.root
     body.set("name", instance)
     _set_pose(body, X_WO)
     part = Part()
-    if spec.sim == "free":
+    if sim == "free":
         body.insert(0, ET.Element("freejoint", name=instance))
         q = matrix_to_quat_wxyz(X_WO[:3, :3])
         part.qpos = [*X_WO[:3, 3], *q]
@@ -279,7 +357,6 @@ def object_part(spec: ObjectSpec, instance: str, X_WO: np.ndarray) -> Part:
         body.set("mocap", "true")
         part.mocap_pos = list(X_WO[:3, 3])
         part.mocap_quat = list(matrix_to_quat_wxyz(X_WO[:3, :3]))
-    sem = spec.semantics()
     for h in sem.handles:
         site = sub(body, "site", name=h.name, size="0.008", group=SITE_GROUP, rgba="0.8 0 0 1")
         _set_pose(site, h.pose.matrix())
@@ -362,7 +439,7 @@ def assemble(
     model: str,
     parts: list[Part],
     comment: str,
-    extra_world: list[ET.Element] = (),
+    extra_world: Sequence[ET.Element] = (),
     floor: bool = True,
     keyframe: str = "reference",
 ) -> ET.Element:
@@ -379,8 +456,8 @@ def assemble(
         inertiafromgeom="false",
         balanceinertia="true",
     )
-    # Elliptic friction cones with impratio 10: feet and held objects creep 5x less (TALOS
-    # standing: 0.1 mm in 5 s instead of 0.5 mm).
+    # Elliptic friction cones with impratio 10: feet and held objects creep 5x less (the
+    # bundled humanoid standing: 0.1 mm in 5 s instead of 0.5 mm).
     sub(m, "option", timestep=fmt(TIMESTEP), integrator="implicit", cone="elliptic", impratio="10")
     sub(m, "size", njmax="4000", nconmax="1000")
     vis = sub(m, "visual")

@@ -111,7 +111,7 @@ class ObjectSpec:
 
 @dataclass
 class Plank(ObjectSpec):
-    """The wooden plank of the TALOS experiment (Nicolin 2022, §3.4, fig. 3.2).
+    """The wooden plank of the plank-flip experiment (Nicolin 2022, §3.4, fig. 3.2).
 
     Dimensions, handle and tag layout of Agimus' ``plank_of_wood1`` (LAAS gerard_bauzil
     package): a 203 x 116 x 43 mm board standing on one end face; tags 10, 11 on the +z face and
@@ -124,7 +124,7 @@ class Plank(ObjectSpec):
 
     name: str = "plank"
     sim: SimKind = "free"
-    description: str = "TALOS plank, Nicolin 2022 fig. 3.2"
+    description: str = "plank, Nicolin 2022 fig. 3.2"
     size: tuple[float, float, float] = (0.203, 0.116, 0.043)
     mass_kg: float = 0.5
     handle_offset: float = 0.06  # [m] handles at x = +/- this
@@ -178,7 +178,8 @@ class Plank(ObjectSpec):
 @dataclass
 class Table(ObjectSpec):
     """A 1.40 x 0.70 m table, top at 0.73 m (Agimus ``table_140_70_73``), tags 4 and 5 on its
-    top, 20 cm behind the front edge and 0.5 m apart. Frame: origin on the floor under the centre, x from the front edge
+    top, 20 cm behind the front edge and 0.5 m apart. Frame: origin on the floor under the centre, x
+    from the front edge
     (robot side) to the back, z up."""
 
     name: str = "table"
@@ -496,7 +497,8 @@ class Drill(ObjectSpec):
     object carrying a gripper, fig. 5.9); ``drill/grip`` is the handle a hand takes. Tags from 30
     on plates around the housing: ``tag_faces`` faces (2: its +-x sides, 4: +-x and +-y) at each
     height of ``tag_heights`` (fractions of the housing length). With ``grip`` False the same tool
-    is a spindle mounted on a wrist (robot_models uses it for TIAGo and UR10)."""
+    is a spindle mounted on a wrist (scripts/bundled_models.py mounts it on two of the bundled
+    robots)."""
 
     name: str = "drill"
     sim: SimKind = "free"
@@ -638,7 +640,7 @@ class Drill(ObjectSpec):
 
 @dataclass
 class Box(ObjectSpec):
-    """The 12 cm box of the UR10 pick-and-place scene; handle ``box/top`` approached from
+    """The 12 cm box of the arm pick-and-place scenes; handle ``box/top`` approached from
     above by the two-finger gripper, which closes on the ±x faces ``grasp_depth`` below the top
     (its pads span 1-4 cm down), tags 40-43 on its sides (40 and 42 half hidden by the
     fingers once grasped)."""

@@ -1,40 +1,40 @@
-"""The demo scenes: a robot, objects placed around it, a floor, lights, cameras.
+"""Scenes are data: ``models/scenes/<scene>.yaml`` (format: ``schemas/scene.schema.json``) places
+a robot, objects and fixed cameras; :func:`scene_mjcf` turns it into the MuJoCo model
+``<scene>.xml`` beside it (keyframe ``reference``: the robot in its reference posture, objects at
+rest). Planners and perception read the YAML for where things start.
 
-Each scene is written as one MJCF file (``models/scenes/<scene>.xml``, keyframe
-``reference``: the robot in its reference posture, objects at rest) and a YAML file that
-tells planners and perception where things start (``models/scenes/<scene>.yaml``): the
-robot's base placement and every object's type, simulation kind and pose X_WO.
-
-Moving things during a run: free objects (plank, ball, box, drill) are teleported by writing
-their ``qpos`` (x y z qw qx qy qz) and zeroing their ``qvel``; fixtures (table, part,
-pedestal, bar) are mocap bodies, moved with ``mocap_pos``/``mocap_quat``. Grasps are weld
-equality constraints ``grasp/<gripper>/<object>``, inactive at start: activate one by setting
-its ``eq_active`` and writing the current gripper-to-object pose into ``eq_data[3:10]``
-(MuJoCo 2.2 weld data: anchor (3), relpose pos (3) + quat wxyz (4), torquescale).
+Moving things during a run: free objects are teleported by writing their ``qpos``
+(x y z qw qx qy qz) and zeroing their ``qvel``; fixtures (``sim: mocap``) are mocap bodies, moved
+with ``mocap_pos``/``mocap_quat``. Grasps are weld equality constraints
+``grasp/<gripper>/<object>`` for every gripper of the robot and every ``graspable`` object,
+inactive at start: activate one by setting its ``eq_active`` and writing the current
+gripper-to-object pose into ``eq_data[3:10]`` (MuJoCo 2.2 weld data: anchor (3), relpose pos (3)
++ quat wxyz (4), torquescale).
 """
 
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from marionette.robots import robot
+from marionette.robots import OBJECTS_DIR, object_urdf, robot, semantics
+from marionette.schemas import load_validated
 
-from .mjcf import assemble, object_part, placement, robot_part
-from .objects import AircraftPart, Ball, Bar, Box, ObjectSpec, Pedestal, Plank, Table
-from .robot_models import robot_semantics
-from .semantics import Placement
-from .xml_util import fmt, fmt_vec, homogeneous, indent_and_serialize, sub
+from .mjcf import Part, assemble, object_part, robot_part
+from .semantics import Placement, Semantics, load_semantics
+from .urdf import Urdf, parse_urdf
+from .xml_util import child, fmt, fmt_vec, indent_and_serialize, sub
 
 
 @dataclass
 class SceneObject:
     instance: str
-    spec: ObjectSpec
+    object: str  # models/objects/<object>.urdf + .yaml
+    sim: str  # "free" | "mocap"
     X_WO: np.ndarray
 
 
@@ -57,93 +57,70 @@ class Scene:
     X_WB: np.ndarray | None = None  # fixed-base robots: base placement
     cameras: list[SceneCamera] = field(default_factory=list)
     graspable: tuple[str, ...] = ()  # object instances the robot's grippers may weld
+    path: Path | None = None
 
 
-def scenes() -> list[Scene]:
-    """Every scene, in a fixed order."""
-    table, plank, part, ball, pedestal, bar, box = (
-        Table(),
-        Plank(),
-        AircraftPart(),
-        Ball(),
-        Pedestal(),
-        Bar(),
-        Box(),
+def load_scene(path: str | Path) -> Scene:
+    """The scene declared by ``path`` (validated against its schema)."""
+    path = Path(path)
+    d = load_validated(path, "scene")
+    instances = [o["name"] for o in d["objects"]]
+    if len(set(instances)) != len(instances):
+        raise ValueError(f"{path}: objects: duplicate instance names in {instances}")
+    unknown = sorted(set(d.get("graspable", ())) - set(instances))
+    if unknown:
+        raise ValueError(f"{path}: graspable names {unknown}, not objects of the scene")
+    return Scene(
+        name=d["name"],
+        description=d.get("description", ""),
+        robot=d["robot"],
+        objects=[
+            SceneObject(o["name"], o["object"], o["sim"], _pose(o["pose"])) for o in d["objects"]
+        ],
+        X_WB=_pose(d["base"]) if "base" in d else None,
+        cameras=[
+            SceneCamera(c["name"], tuple(c["eye"]), tuple(c["target"]), c.get("fovy_deg", 45.0))
+            for c in d.get("cameras", ())
+        ],
+        graspable=tuple(d.get("graspable", ())),
+        path=path,
     )
-    # Plank standing on its rear face (x up), tag faces (z) towards TALOS (-x of the world).
-    R_plank = np.column_stack([[0, 0, 1], [0, 1, 0], [-1, 0, 0]])
-    # Table front edge 25 cm ahead of TALOS' base (clear of its knees), plank 21 cm behind it:
-    # every handle is within reach of a gripper with the feet in place, and the tags are in the
-    # head camera's view once TALOS looks down (tests/python/models/test_model_scenes.py).
-    table_x = 0.60
-    plank_X = homogeneous(
-        R_plank, [table_x - table.depth / 2 + 0.21, 0.0, table.top_z() + plank.size[0] / 2]
-    )
-    out = [
-        Scene(
-            "talos_plank",
-            "TALOS in half-sitting before a table with the plank standing on it "
-            "(Nicolin 2022, sec. 3.4)",
-            "talos",
-            [SceneObject("table", table, placement(table_x)), SceneObject("plank", plank, plank_X)],
-            graspable=("plank",),
-        ),
-        Scene(
-            "talos_walk",
-            "TALOS on a flat floor, a bar to step over 1 m ahead and a ball on a "
-            "pedestal 2.2 m ahead (Dang 2012, ch. 5 and 6)",
-            "talos",
-            [
-                SceneObject("bar", bar, placement(1.0)),
-                SceneObject("pedestal", pedestal, placement(2.2)),
-                SceneObject("ball", ball, placement(2.2, 0, pedestal.ball_rest_z(ball.radius))),
-            ],
-            graspable=("ball",),
-        ),
-        Scene(
-            "tiago_deburr",
-            "TIAGo with its deburring drill before the aircraft part (Nicolin 2022, sec. 5.3.3)",
-            "tiago",
-            # 10 cm into the floor (its stand's foot hidden): holes at 0.78-0.92 m, where the
-            # head camera sees the held tool's side tags within 60 deg from every pre-grasp
-            # of 20 seeded displacements; at 0.88-1.02 m the top row had none in 2 of 10
-            [SceneObject("part", part, placement(0.95, 0.0, -0.10, np.pi))],
-        ),
-        Scene(
-            "ur10_drill",
-            "UR10 on its stand with the drilling spindle before the aircraft part "
-            "(the drilling robot of Nicolin 2022, ch. 6)",
-            "ur10",
-            [SceneObject("part", part, placement(1.05, 0.0, 0.0, np.pi))],
-            X_WB=np.eye(4),
-            cameras=[SceneCamera("scene_rgbd", (0.40, -0.30, 1.35), (1.05, 0.0, 0.95))],
-        ),
-        Scene(
-            "ur10_box",
-            "UR10 on its stand, a table and a box to pick and place",
-            "ur10",
-            [
-                SceneObject("table", table, placement(0.95)),
-                SceneObject("box", box, placement(0.75, 0.25, table.top_z() + box.side / 2)),
-            ],
-            X_WB=np.eye(4),
-            cameras=[SceneCamera("scene_rgbd", (0.2, -0.9, 1.6), (0.9, 0.0, 0.75))],
-            graspable=("box",),
-        ),
-    ]
-    return out
 
 
-def scene_mjcf(scene: Scene, q_reference: np.ndarray) -> str:
-    parts = [robot_part(scene.robot, q_reference, scene.X_WB)]
+def scene_files(models_dir: str | Path) -> list[Path]:
+    """The scene declarations under ``models_dir``/scenes, sorted."""
+    return sorted((Path(models_dir) / "scenes").glob("*.yaml"))
+
+
+ObjectFiles = Callable[[str], tuple[Urdf, Semantics]]
+
+
+def object_files(name: str) -> tuple[Urdf, Semantics]:
+    """Object ``name``'s URDF and declarations from models/objects/."""
+    return parse_urdf(object_urdf(name).read_text()), load_semantics(OBJECTS_DIR / f"{name}.yaml")
+
+
+def scene_mjcf(
+    scene: Scene, q_reference: np.ndarray, objects: ObjectFiles = object_files, models_dir=None
+) -> str:
+    """The MJCF text of ``scene`` (the robot at ``q_reference``), meshes named relative to
+    ``models_dir`` (default: the scene file's parent's parent, i.e. models/)."""
+    if models_dir is None and scene.path is not None:
+        models_dir = scene.path.resolve().parent.parent
+    parts: list[Part] = [robot_part(scene.robot, q_reference, scene.X_WB, models_dir)]
+    desc = robot(scene.robot)
+    if scene.X_WB is None and desc.base == "fixed":
+        raise ValueError(
+            f"{scene.name}: robot {desc.name} has a fixed base: give the scene a base pose"
+        )
     for o in scene.objects:
-        parts.append(object_part(o.spec, o.instance, o.X_WO))
+        urdf, sem = objects(o.object)
+        parts.append(object_part(urdf, sem, o.sim, o.instance, o.X_WO))
     extra = [_camera(c) for c in scene.cameras]
     root = assemble(
         scene.name, parts, f"GENERATED by scripts/generate_models.py: {scene.description}.", extra
     )
-    grippers = robot_semantics(scene.robot).grippers
-    links = {g.name: g.link for g in grippers}
+    grippers = semantics(scene.robot).grippers
     if scene.graspable:
         eq = ET.Element("equality")
         for g in grippers:
@@ -152,57 +129,29 @@ def scene_mjcf(scene: Scene, q_reference: np.ndarray) -> str:
                     eq,
                     "weld",
                     name=f"grasp/{g.name}/{inst}",
-                    body1=links[g.name],
+                    body1=g.link,
                     body2=inst,
                     active="false",
                 )
-        root.insert(list(root).index(root.find("worldbody")) + 1, eq)
+        worldbody = child(root, "worldbody", f"scene {scene.name}")
+        root.insert(list(root).index(worldbody) + 1, eq)
     return indent_and_serialize(root)
 
 
 def scene_object_pose(scene_mjcf: Path, name: str):
-    """X_WO (pin.SE3) of object instance ``name`` as the scene's YAML (written by
-    :func:`scene_yaml` beside the MJCF ``scene_mjcf``) places it; ValueError when it has none."""
-    path = Path(scene_mjcf).with_suffix(".yaml")
-    objects = {o["name"]: o for o in (yaml.safe_load(path.read_text()) or {}).get("objects", [])}
-    if name not in objects:
-        raise ValueError(f"{path}: no object {name!r} (objects: {sorted(objects)})")
-    pose = objects[name]["pose"]
-    return Placement(tuple(pose["xyz"]), tuple(pose["xyzw"])).se3()
-
-
-def scene_yaml(scene: Scene) -> str:
-    desc = robot(scene.robot)
-    data = {
-        "name": scene.name,
-        "description": scene.description,
-        "robot": scene.robot,
-        "base": (
-            Placement.from_matrix(scene.X_WB).to_dict()
-            if scene.X_WB is not None
-            else f"{desc.base} root joint, at the {desc.reference} configuration"
-        ),
-        "keyframe": "reference",
-        "cameras": ([desc.camera] if desc.camera else []) + [c.name for c in scene.cameras],
-        "objects": [
-            {
-                "name": o.instance,
-                "object": o.spec.name,
-                "sim": o.spec.sim,
-                "pose": Placement.from_matrix(o.X_WO).to_dict(),
-            }
-            for o in scene.objects
-        ],
-        "grasp_welds": [
-            f"grasp/{g.name}/{inst}"
-            for g in robot_semantics(scene.robot).grippers
-            for inst in scene.graspable
-        ],
-    }
-    return (
-        "# GENERATED by scripts/generate_models.py (python/marionette/models/scenes.py)\n"
-        + yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100)
+    """X_WO (pin.SE3) of object instance ``name`` as the scene's YAML (beside the MJCF
+    ``scene_mjcf``) places it; ValueError when it has none."""
+    scene = load_scene(Path(scene_mjcf).with_suffix(".yaml"))
+    for o in scene.objects:
+        if o.instance == name:
+            return Placement.from_matrix(o.X_WO).se3()
+    raise ValueError(
+        f"{scene.path}: no object {name!r} (objects: {sorted(o.instance for o in scene.objects)})"
     )
+
+
+def _pose(d: dict) -> np.ndarray:
+    return Placement(tuple(d["xyz"]), tuple(d["xyzw"])).matrix()
 
 
 def _camera(c: SceneCamera) -> ET.Element:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 import yaml
@@ -34,7 +34,8 @@ class SemanticsError(ValueError):
     """A YAML declaration is malformed; the message names the file and the entry."""
 
 
-# Parameters of a gripper_admittance task (cpp/include/marionette/controller/gripper_admittance_spec.h;
+# Parameters of a gripper_admittance task
+# (cpp/include/marionette/controller/gripper_admittance_spec.h;
 # marionette.control.spec checks task specs against it).
 GRIPPER_ADMITTANCE_PARAMETERS = (
     "force_target",
@@ -81,7 +82,9 @@ class Placement:
         q = v[3:] / np.linalg.norm(v[3:])
         if q[3] < 0:  # one representative of q ~ -q, so files are deterministic
             q = -q
-        return Placement(tuple(float(a) for a in v[:3]), tuple(float(a) for a in q))
+        x, y, z = (float(a) for a in v[:3])
+        qx, qy, qz, qw = (float(a) for a in q)
+        return Placement((x, y, z), (qx, qy, qz, qw))
 
     def matrix(self) -> np.ndarray:
         """The 4 x 4 homogeneous matrix X_PF."""
@@ -199,7 +202,12 @@ class Semantics:
 
     def links(self) -> set[str]:
         """Every link named by a declaration (each must exist in the URDF)."""
-        items = [*self.grippers, *self.handles, *self.contacts, *self.tags]
+        items: list[Gripper | Handle | ContactSurface | Tag] = [
+            *self.grippers,
+            *self.handles,
+            *self.contacts,
+            *self.tags,
+        ]
         return {item.link for item in items}
 
     def to_dict(self) -> dict[str, Any]:
@@ -286,9 +294,7 @@ def semantics_from_dict(data: Any, source: str = "<dict>") -> Semantics:
                 joint=joint,
                 open_position=_opt_float(g, "open_position", where),
                 closed_position=_opt_float(g, "closed_position", where),
-                admittance={
-                    k: _opt_float(admittance, k, f"{where}: admittance") for k in admittance
-                },
+                admittance={k: _float(admittance, k, f"{where}: admittance") for k in admittance},
             )
         )
     for i, h in enumerate(data.get("handles") or []):
@@ -357,6 +363,10 @@ def _gripper_dict(g: Gripper) -> dict[str, Any]:
         "clearance": _clean(g.clearance),
     }
     if g.joint is not None:
+        if g.open_position is None or g.closed_position is None:
+            raise SemanticsError(
+                f"gripper {g.name}: joint {g.joint} needs open_position and closed_position"
+            )
         d.update(
             joint=g.joint,
             open_position=_clean(g.open_position),
@@ -384,7 +394,15 @@ def _clean(x: float) -> float:
     return 0.0 if v == 0.0 else v
 
 
-def _by_name(items, name, kind, owner):
+class _Named(Protocol):
+    @property
+    def name(self) -> str: ...
+
+
+_NamedT = TypeVar("_NamedT", bound=_Named)
+
+
+def _by_name(items: list[_NamedT], name: str, kind: str, owner: str) -> _NamedT:
     for item in items:
         if item.name == name:
             return item
@@ -417,8 +435,10 @@ def _nonneg(d: dict, key: str, where: str) -> float:
 
 
 def _opt_float(d: dict, key: str, where: str) -> float | None:
-    if key not in d:
-        return None
+    return _float(d, key, where) if key in d else None
+
+
+def _float(d: dict, key: str, where: str) -> float:
     v = d[key]
     if not isinstance(v, (int, float)) or not np.isfinite(v):
         raise SemanticsError(f"{where}: {key} must be a finite number, got {v!r}")
@@ -428,11 +448,14 @@ def _opt_float(d: dict, key: str, where: str) -> float | None:
 def _placement(d: Any, where: str) -> Placement:
     _keys(d, f"{where}.pose", {"xyz", "xyzw"}, set())
     try:
-        xyz = tuple(float(a) for a in d["xyz"])
-        xyzw = tuple(float(a) for a in d["xyzw"])
+        x, y, z = (float(a) for a in d["xyz"])
+        qx, qy, qz, qw = (float(a) for a in d["xyzw"])
     except (TypeError, ValueError):
-        raise SemanticsError(f"{where}.pose: xyz and xyzw must be lists of numbers") from None
+        raise SemanticsError(
+            f"{where}.pose: xyz and xyzw must be lists of 3 and 4 numbers, got {d['xyz']!r} "
+            f"and {d['xyzw']!r}"
+        ) from None
     try:
-        return Placement(xyz, xyzw)
+        return Placement((x, y, z), (qx, qy, qz, qw))
     except SemanticsError as e:
         raise SemanticsError(f"{where}.pose: {e}") from None

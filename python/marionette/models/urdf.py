@@ -16,7 +16,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .xml_util import fmt, fmt_vec, homogeneous, matrix_to_quat_wxyz, rpy_to_matrix, sub
+from .xml_util import (
+    attribute,
+    child,
+    fmt,
+    fmt_vec,
+    homogeneous,
+    matrix_to_quat_wxyz,
+    numbers,
+    rpy_to_matrix,
+    sub,
+)
 
 
 class UrdfError(ValueError):
@@ -111,53 +121,61 @@ class Urdf:
 
 
 def parse_urdf(text: str) -> Urdf:
-    """Parse URDF text (no xacro)."""
+    """Parse URDF text (no xacro); raises UrdfError naming the element that lacks a required
+    attribute or child."""
     root = ET.fromstring(text)
     if root.tag != "robot":
         raise UrdfError(f"not a URDF: root element is <{root.tag}>")
-    materials = {}
+    robot_name = attribute(root, "name", "URDF", UrdfError)
+    materials: dict[str, tuple[float, float, float, float]] = {}
     for m in root.findall("material"):
         c = m.find("color")
         if c is not None:
-            materials[m.get("name")] = tuple(float(a) for a in c.get("rgba").split())
+            name = attribute(m, "name", robot_name, UrdfError)
+            materials[name] = _rgba(c, f"{robot_name}: material {name}")
     links: dict[str, Link] = {}
     for le in root.findall("link"):
-        link = Link(le.get("name"))
+        link = Link(attribute(le, "name", robot_name, UrdfError))
+        where = f"{robot_name}: link {link.name}"
         ie = le.find("inertial")
         if ie is not None:
-            inertia = ie.find("inertia")
+            inertia = child(ie, "inertia", where, UrdfError)
             ixx, iyy, izz, ixy, ixz, iyz = (
                 float(inertia.get(k, "0")) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")
             )
+            mass = attribute(child(ie, "mass", where, UrdfError), "value", where, UrdfError)
             link.inertial = Inertial(
-                mass=float(ie.find("mass").get("value")),
-                X_LI=_origin(ie),
+                mass=float(mass),
+                X_LI=_origin(ie, where),
                 inertia=np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]),
             )
         for tag, out in (("collision", link.collisions), ("visual", link.visuals)):
             for ge in le.findall(tag):
-                g = _geometry(ge, materials, link.name)
+                g = _geometry(ge, materials, where)
                 if g is not None:
                     out.append(g)
         links[link.name] = link
     joints: dict[str, Joint] = {}
     for je in root.findall("joint"):
+        name = attribute(je, "name", robot_name, UrdfError)
+        where = f"{robot_name}: joint {name}"
+        kind = attribute(je, "type", where, UrdfError)
         axis_e = je.find("axis")
         axis = (
-            np.array([float(a) for a in axis_e.get("xyz").split()])
+            np.array(numbers(axis_e.get("xyz", "1 0 0"), f"{where}: axis", 3, UrdfError))
             if axis_e is not None
             else np.array([1.0, 0.0, 0.0])
         )
-        if je.get("type") in MOVABLE:
+        if kind in MOVABLE:
             if np.linalg.norm(axis) < 1e-12:
-                raise UrdfError(f"joint {je.get('name')}: zero axis")
+                raise UrdfError(f"{where}: zero axis")
             axis = axis / np.linalg.norm(axis)
         j = Joint(
-            name=je.get("name"),
-            type=je.get("type"),
-            parent=je.find("parent").get("link"),
-            child=je.find("child").get("link"),
-            X_PJ=_origin(je),
+            name=name,
+            type=kind,
+            parent=attribute(child(je, "parent", where, UrdfError), "link", where, UrdfError),
+            child=attribute(child(je, "child", where, UrdfError), "link", where, UrdfError),
+            X_PJ=_origin(je, where),
             axis=axis,
         )
         lim = je.find("limit")
@@ -173,12 +191,12 @@ def parse_urdf(text: str) -> Urdf:
         mimic = je.find("mimic")
         if mimic is not None:
             j.mimic = Mimic(
-                mimic.get("joint"),
+                attribute(mimic, "joint", where, UrdfError),
                 float(mimic.get("multiplier", "1")),
                 float(mimic.get("offset", "0")),
             )
         joints[j.name] = j
-    return Urdf(root.get("name"), links, joints, text)
+    return Urdf(robot_name, links, joints, text)
 
 
 def pinocchio_link_order(urdf: Urdf) -> list[str]:
@@ -223,9 +241,12 @@ def urdf_to_mjcf(
     the default class of the link's collision geoms. Collision geoms are also what MuJoCo
     renders; with ``visuals``, visual elements that differ from every collision element are
     added in class "visual". A DAE collision mesh (MuJoCo 2.2 reads STL/OBJ/MSH only) is
-    replaced by the link's first STL visual mesh. With ``mimics``, a joint that carries a
+    replaced by the link's first STL visual mesh when it has one (else ``mesh_file`` must convert
+    it). A root link named ``world`` (a URDF that fixes its base to the world) is MuJoCo's
+    reserved world body: its body is named ``<robot>_world`` instead. With ``mimics``, a joint that
+    carries a
     ``<mimic>`` of a movable joint becomes an unactuated MJCF joint (listed in ``tree.mimics``)
-    even when the URDF fixes it (TALOS' reduced URDF fixes its grippers' fingers).
+    even when the URDF fixes it (a reduced humanoid URDF may fix its grippers' fingers).
     """
     order = {name: i for i, name in enumerate(pinocchio_link_order(urdf))}
     tree = MjcfTree(root=ET.Element("body"), meshes={}, joints=[], bodies={})
@@ -236,10 +257,11 @@ def urdf_to_mjcf(
         if link.inertial is not None and link.inertial.mass > 0:
             _add_inertial(body, link.inertial)
         joint = urdf.parent_joint(link_name)
-        if mimics and joint is not None and _is_mimic(urdf, joint):
+        driver = _mimic_driver(urdf, joint) if mimics and joint is not None else None
+        if joint is not None and driver is not None:
             # A mimic moves as its driver does (a slide for a prismatic driver), whatever type
             # the URDF gives it (fixed, for Pinocchio).
-            _add_joint(body, joint, armature(joint), mimic=urdf.joints[joint.mimic.joint].type)
+            _add_joint(body, joint, armature(joint), mimic=driver.type)
             tree.mimics.append(joint)
         elif joint is not None and joint.type in MOVABLE:
             _add_joint(body, joint, armature(joint))
@@ -257,14 +279,16 @@ def urdf_to_mjcf(
             _set_pose(child, j.X_PJ)
             add_link(child, j.child)
 
-    tree.root.set("name", urdf.root)
+    tree.root.set("name", f"{urdf.name}_world" if urdf.root == "world" else urdf.root)
     add_link(tree.root, urdf.root)
     return tree
 
 
-def _is_mimic(urdf: Urdf, joint: Joint) -> bool:
+def _mimic_driver(urdf: Urdf, joint: Joint) -> Joint | None:
+    """The joint ``joint`` mimics (None: it is not a mimic); raises UrdfError when that driver
+    is not a movable joint or is itself a mimic."""
     if joint.mimic is None:
-        return False
+        return None
     driver = urdf.joints.get(joint.mimic.joint)
     if driver is None or driver.type not in MOVABLE:
         raise UrdfError(
@@ -273,7 +297,7 @@ def _is_mimic(urdf: Urdf, joint: Joint) -> bool:
         )
     if driver.mimic is not None:
         raise UrdfError(f"{urdf.name}: joint {joint.name} mimics {driver.name}, itself a mimic")
-    return True
+    return driver
 
 
 def mimic_equality(joint: Joint) -> ET.Element:
@@ -282,6 +306,8 @@ def mimic_equality(joint: Joint) -> ET.Element:
     a1 = multiplier. Stiffer than MuJoCo's default (time constant 5 ms instead of 20 ms, critically
     damped), so a finger pressed by a contact lags its driver by little."""
     m = joint.mimic
+    if m is None:
+        raise UrdfError(f"joint {joint.name} has no <mimic>: it follows no joint")
     return ET.Element(
         "joint",
         name=f"{joint.name}_mimic",
@@ -299,10 +325,11 @@ def _collision_geometries(link: Link) -> list[Geometry]:
             stl = [
                 v for v in link.visuals if v.kind == "mesh" and v.filename.lower().endswith(".stl")
             ]
-            if stl and stl[0] not in out:
-                out.append(stl[0])
-            continue
-        out.append(g)
+            if stl:
+                if stl[0] not in out:
+                    out.append(stl[0])
+                continue
+        out.append(g)  # a DAE with no STL twin: the mesh namer converts it
     return out
 
 
@@ -359,14 +386,12 @@ def _add_joint(body: ET.Element, joint: Joint, armature: float, mimic: str | Non
     """``mimic``: the URDF type of the joint this one follows (None: not a mimic)."""
     kind = "slide" if (mimic or joint.type) == "prismatic" else "hinge"
     # A mimic joint is bounded through its driver: its own limit would only fight the equality.
-    limited = (
-        not mimic
-        and joint.type != "continuous"
-        and joint.lower is not None
-        and joint.upper is not None
-    )
-    # Dry friction as in the URDF, but at most 10 % of the effort limit: TALOS' URDF gives its
-    # grippers 1 N m of friction for 1 N m of effort, which would lock them.
+    limits = None
+    if not mimic and joint.type != "continuous":
+        if joint.lower is not None and joint.upper is not None:
+            limits = fmt_vec([joint.lower, joint.upper])
+    # Dry friction as in the URDF, but at most 10 % of the effort limit: a URDF may give a
+    # gripper 1 N m of friction for 1 N m of effort, which would lock it.
     friction = joint.friction
     if joint.effort:
         friction = min(friction, 0.1 * joint.effort)
@@ -376,15 +401,22 @@ def _add_joint(body: ET.Element, joint: Joint, armature: float, mimic: str | Non
         name=joint.name,
         type=kind,
         axis=fmt_vec(joint.axis),
-        range=fmt_vec([joint.lower, joint.upper]) if limited else None,
-        limited="true" if limited else "false",
+        range=limits,
+        limited="false" if limits is None else "true",
         damping=fmt(joint.damping) if joint.damping else None,
         frictionloss=fmt(friction) if friction else None,
         armature=fmt(armature) if armature else None,
     )
 
 
-def _add_geom(body, g: Geometry, cls: str, mesh_file, mesh_prefix: str, meshes: dict) -> None:
+def _add_geom(
+    body: ET.Element,
+    g: Geometry,
+    cls: str,
+    mesh_file: Callable[[str], str],
+    mesh_prefix: str,
+    meshes: dict[str, tuple[str, tuple[float, float, float]]],
+) -> None:
     attrs: dict[str, str | None] = {"class": cls}
     if g.name:
         attrs["name"] = g.name
@@ -404,7 +436,7 @@ def _add_geom(body, g: Geometry, cls: str, mesh_file, mesh_prefix: str, meshes: 
         attrs.update(type="sphere", size=fmt(g.size[0]))
     if g.rgba is not None:
         attrs["rgba"] = fmt_vec(g.rgba)
-    geom = sub(body, "geom", **attrs)
+    geom = sub(body, "geom", attrs)
     _set_pose(geom, g.X_LG)
 
 
@@ -416,45 +448,57 @@ def _set_pose(el: ET.Element, X: np.ndarray) -> None:
         el.set("quat", fmt_vec(q))
 
 
-def _origin(e: ET.Element) -> np.ndarray:
+def _origin(e: ET.Element, where: str) -> np.ndarray:
     o = e.find("origin")
     if o is None:
         return np.eye(4)
-    xyz = [float(a) for a in o.get("xyz", "0 0 0").split()]
-    rpy = [float(a) for a in o.get("rpy", "0 0 0").split()]
+    xyz = numbers(o.get("xyz", "0 0 0"), f"{where}: origin xyz", 3, UrdfError)
+    rpy = numbers(o.get("rpy", "0 0 0"), f"{where}: origin rpy", 3, UrdfError)
     return homogeneous(rpy_to_matrix(rpy), xyz)
 
 
-def _geometry(ge: ET.Element, materials: dict, link: str) -> Geometry | None:
+def _rgba(color: ET.Element, where: str) -> tuple[float, float, float, float]:
+    r, g, b, a = numbers(attribute(color, "rgba", where, UrdfError), where, 4, UrdfError)
+    return r, g, b, a
+
+
+def _geometry(
+    ge: ET.Element, materials: dict[str, tuple[float, float, float, float]], where: str
+) -> Geometry | None:
+    """The shape of a ``<collision>`` or ``<visual>`` of link ``where``, or None when empty."""
     shape = ge.find("geometry")
     if shape is None or len(shape) == 0:
         return None
     s = shape[0]
-    X = _origin(ge)
+    where = f"{where}: {ge.tag} <{s.tag}>"
+    X = _origin(ge, where)
     rgba = None
     m = ge.find("material")
     if m is not None:
         c = m.find("color")
         rgba = (
-            tuple(float(a) for a in c.get("rgba").split())
+            _rgba(c, where)
             if c is not None
-            else materials.get(m.get("name"))
+            else materials.get(attribute(m, "name", where, UrdfError))
         )
     name = ge.get("name")
+
+    def number(key: str) -> float:
+        (value,) = numbers(attribute(s, key, where, UrdfError), f"{where} {key}", 1, UrdfError)
+        return value
+
     if s.tag == "box":
-        return Geometry(
-            "box", X, tuple(float(a) for a in s.get("size").split()), rgba=rgba, name=name
-        )
+        size = numbers(attribute(s, "size", where, UrdfError), f"{where} size", 3, UrdfError)
+        return Geometry("box", X, size, rgba=rgba, name=name)
     if s.tag == "cylinder":
-        return Geometry(
-            "cylinder", X, (float(s.get("radius")), float(s.get("length"))), rgba=rgba, name=name
-        )
+        return Geometry("cylinder", X, (number("radius"), number("length")), rgba=rgba, name=name)
     if s.tag == "sphere":
-        return Geometry("sphere", X, (float(s.get("radius")),), rgba=rgba, name=name)
+        return Geometry("sphere", X, (number("radius"),), rgba=rgba, name=name)
     if s.tag == "mesh":
-        scale = tuple(float(a) for a in s.get("scale", "1 1 1").split())
-        return Geometry("mesh", X, filename=s.get("filename"), scale=scale, rgba=rgba, name=name)
-    raise UrdfError(f"link {link}: unsupported geometry <{s.tag}>")
+        sx, sy, sz = numbers(s.get("scale", "1 1 1"), f"{where} scale", 3, UrdfError)
+        filename = attribute(s, "filename", where, UrdfError)
+        return Geometry("mesh", X, filename=filename, scale=(sx, sy, sz), rgba=rgba, name=name)
+    raise UrdfError(f"{where}: unsupported geometry")
 
 
 def _opt(v: str | None) -> float | None:

@@ -51,7 +51,10 @@ def rigid_inertia(shapes: list[Shape], density: float) -> tuple[float, np.ndarra
     solid = [s for s in shapes if s.collision]
     masses = [density * s.volume() for s in solid]
     mass = float(sum(masses))
-    com = sum(m * s.X[:3, 3] for m, s in zip(masses, solid)) / mass
+    com = np.zeros(3)
+    for m, s in zip(masses, solid):
+        com = com + m * s.X[:3, 3]
+    com /= mass
     inertia = np.zeros((3, 3))
     for m, s in zip(masses, solid):
         R = s.X[:3, :3]
@@ -77,10 +80,9 @@ class UrdfBuilder:
     ) -> None:
         """A link of ``shapes``; inertia from ``density`` (or ``mass`` spread uniformly)."""
         link = sub(self.root, "link", name=name)
-        if shapes and (mass or density):
-            if density is None:
-                total = sum(s.volume() for s in shapes if s.collision)
-                density = mass / total
+        if shapes and density is None and mass:
+            density = mass / sum(s.volume() for s in shapes if s.collision)
+        if shapes and density:
             m, com, inertia = rigid_inertia(shapes, density)
             ie = sub(link, "inertial")
             sub(ie, "origin", xyz=fmt_vec(com), rpy="0 0 0")
@@ -110,13 +112,15 @@ class UrdfBuilder:
         axis: tuple[float, float, float] | None = None,
     ) -> None:
         """A fixed joint; ``mimic`` names the joint it follows (multiplier 1, offset 0) along
-        ``axis`` where the simulation moves it (TALOS' reduced URDF declares its fingers the
-        same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
+        ``axis`` where the simulation moves it (reduced humanoid URDFs declare their fingers
+        the same way: Pinocchio keeps them fixed, the MJCF ties them to their driver)."""
         j = sub(self.root, "joint", name=name, type="fixed")
         sub(j, "parent", link=parent)
         sub(j, "child", link=child)
         _origin(j, X)
         if mimic is not None:
+            if axis is None:
+                raise ValueError(f"fixed joint {name} mimics {mimic}: give the axis it moves along")
             sub(j, "axis", xyz=fmt_vec(axis))
             sub(j, "mimic", joint=mimic, multiplier="1", offset="0")
 

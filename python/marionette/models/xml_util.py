@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 
@@ -41,17 +41,17 @@ def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
     t = np.trace(R)
     if t > 0:
         s = 2.0 * np.sqrt(1.0 + t)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+        c = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
     elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
         s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
+        c = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
     elif R[1, 1] > R[2, 2]:
         s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
+        c = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
     else:
         s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
+        c = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
+    q = np.array(c)
     q /= np.linalg.norm(q)
     return -q if q[0] < 0 else q
 
@@ -113,8 +113,44 @@ def indent_and_serialize(root: ET.Element, header_comment: str | None = None) ->
     return out + body + "\n"
 
 
-def sub(parent: ET.Element, tag: str, attrib: dict | None = None, **attrs: str) -> ET.Element:
+def sub(
+    parent: ET.Element,
+    tag: str,
+    attrib: Mapping[str, str | None] | None = None,
+    **attrs: str | None,
+) -> ET.Element:
     """ET.SubElement with attributes in the given order (``attrib`` first, for names that are
     Python keywords such as ``class``), skipping None values."""
     merged = {**(attrib or {}), **attrs}
     return ET.SubElement(parent, tag, {k: v for k, v in merged.items() if v is not None})
+
+
+def attribute(e: ET.Element, name: str, where: str, error: type[Exception] = ValueError) -> str:
+    """Attribute ``name`` of ``e``; raises ``error`` naming ``where`` and the element when the
+    file lacks it."""
+    value = e.get(name)
+    if value is None:
+        raise error(f"{where}: <{e.tag}> has no {name!r} attribute")
+    return value
+
+
+def child(e: ET.Element, tag: str, where: str, error: type[Exception] = ValueError) -> ET.Element:
+    """The first ``<tag>`` child of ``e``; raises ``error`` naming ``where`` when there is none."""
+    found = e.find(tag)
+    if found is None:
+        raise error(f"{where}: <{e.tag}> has no <{tag}> element")
+    return found
+
+
+def numbers(
+    text: str, where: str, count: int | None = None, error: type[Exception] = ValueError
+) -> tuple[float, ...]:
+    """The whitespace-separated numbers of an attribute's ``text`` (exactly ``count`` of them
+    when given); raises ``error`` naming ``where`` and the text otherwise."""
+    try:
+        values = tuple(float(a) for a in text.split())
+    except ValueError:
+        raise error(f"{where}: {text!r} is not a list of numbers") from None
+    if count is not None and len(values) != count:
+        raise error(f"{where}: {text!r} has {len(values)} numbers, expected {count}")
+    return values

@@ -3,7 +3,8 @@
 Chapter 4 calibrates the encoder offsets that put the hand centimetres from where the model says
 (7° at the shoulder, 4° at the wrist): markers on the hand are measured in many configurations
 and all of them are projected at once. Here the marker is the ring of tags around the wrist
-(``models``: ``talos_wrist_tags``) and the head camera measures its full pose, so every joint of
+(declared in the robot's robot.yaml, ``tags`` and ``calibration``) and the head camera measures its
+full pose, so every joint of
 the arm is observable (:func:`calibration.calibrate_joint_offsets_from_poses`).
 
 1. **Views** (:func:`plan_views`): arm configurations sampled in a box in front of the robot,
@@ -42,49 +43,41 @@ from marionette.perception.calibration import (
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.objects import TaggedBody, tagged_bodies_from_semantics
 
-# The arm's joints, the link it hangs from, the tagged link (TALOS).
-BASE_FRAME = "torso_2_link"
 ROTATION_WEIGHT = 0.1  # [m/rad]: 1° of tag orientation counts as 1.7 mm
 
 
-def arm_joints(side: str) -> tuple[str, ...]:
-    return tuple(f"arm_{side}_{i}_joint" for i in range(1, 8))
+def calibrated_arm(robot: str, side: str) -> robots.CalibratedArm:
+    """The arm ``side`` of ``robot``'s robot.yaml ``calibration`` section: its joints, the
+    tagged link, where its views are sampled, the head postures that look at it."""
+    desc = robots.robot(robot)
+    for arm in desc.calibrated_arms:
+        if arm.side == side:
+            return arm
+    sides = [a.side for a in desc.calibrated_arms]
+    raise CalibrationError(
+        f"{desc.semantics}: calibration declares no arm {side!r}"
+        + (f" (arms: {', '.join(sides)})" if sides else " (no calibration section)")
+    )
 
 
-def tagged_link(side: str) -> str:
-    return f"arm_{side}_7_link"
+def calibration_frames(robot: str) -> tuple[str, str]:
+    """(base frame of the arm poses, camera optical frame) of ``robot``'s robot.yaml; raises
+    :class:`CalibrationError` naming the file when either is missing."""
+    desc = robots.robot(robot)
+    if desc.calibration_base_frame is None:
+        raise CalibrationError(f"{desc.semantics}: calibration declares no base_frame")
+    if desc.camera_frame is None:
+        raise CalibrationError(f"{desc.semantics}: no camera to calibrate with (cameras)")
+    return desc.calibration_base_frame, desc.camera_frame
 
 
-# Sampling box of the arm joints (rad) that brings the hand in front of the chest; the right arm
-# mirrors the left (joints 1, 2, 3, 5, 6 turn the other way). Head: looks down and to that side.
-_LEFT_BOX = (
-    (-1.4, 0.3),
-    (0.05, 1.0),
-    (-1.4, 1.4),
-    (-2.2, -0.5),
-    (-1.8, 1.8),
-    (-1.2, 1.2),
-    (-0.6, 0.6),
-)
-_MIRRORED = (0, 1, 2, 4, 5)
-_HEAD_POSTURES = (
-    (0.45, 0.25),
-    (0.6, 0.0),
-    (0.3, 0.45),
-    (0.7, 0.35),
-)  # (head_1 pitch, head_2 yaw) left
-
-
-def _box(side: str) -> list[tuple[float, float]]:
-    box = list(_LEFT_BOX)
-    if side == "right":
-        box = [(-hi, -lo) if i in _MIRRORED else (lo, hi) for i, (lo, hi) in enumerate(box)]
-    return box
+def arm_joints(robot: str, side: str) -> tuple[str, ...]:
+    return calibrated_arm(robot, side).joints
 
 
 def wrist_ring(robot: str, side: str) -> TaggedBody:
-    """The tags on ``side``'s wrist as the robot's model declares them (grippers.yaml)."""
-    link = tagged_link(side)
+    """The tags on ``side``'s wrist as the robot's model declares them (robot.yaml)."""
+    link = calibrated_arm(robot, side).tagged_link
     for body in tagged_bodies_from_semantics(robots.semantics(robot)):
         if body.link == link:
             return body
@@ -125,6 +118,7 @@ def plan_views(
     model: pin.Model,
     geom: pin.GeometryModel,
     q_stand: np.ndarray,
+    robot: str,
     side: str,
     ring: TaggedBody,
     intrinsics: CameraIntrinsics,
@@ -134,19 +128,20 @@ def plan_views(
     seed: int = 0,
 ) -> list[np.ndarray]:
     """``count`` configurations (nq,) of the standing robot ``q_stand`` with ``side``'s arm and
-    the head moved so that the camera sees the wrist ``ring`` (module doc, step 1). Raises
-    :class:`CalibrationError` when fewer than ``count`` candidates qualify."""
+    the head moved so that the camera sees the wrist ``ring`` (module doc, step 1): arm joints
+    drawn in the arm's ``sampling_box``, the head in one of its ``head_postures`` (robot.yaml).
+    Raises :class:`CalibrationError` when fewer than ``count`` candidates qualify."""
     rng = np.random.default_rng(seed)
     data, gdata = model.createData(), pin.GeometryData(geom)
-    iq = [model.joints[model.getJointId(j)].idx_q for j in arm_joints(side)]
-    ih = [model.joints[model.getJointId(j)].idx_q for j in ("head_1_joint", "head_2_joint")]
-    lo, hi = np.array(_box(side)).T
+    desc, arm = robots.robot(robot), calibrated_arm(robot, side)
+    iq = [model.joints[model.getJointId(j)].idx_q for j in arm.joints]
+    ih = [model.joints[model.getJointId(j)].idx_q for j in desc.calibration_head_joints]
+    lo, hi = np.array(arm.sampling_box).T
     keep: list[np.ndarray] = []
     for _ in range(candidates):
         q = q_stand.copy()
         q[iq] = lo + rng.random(len(iq)) * (hi - lo)
-        pitch, yaw = _HEAD_POSTURES[rng.integers(len(_HEAD_POSTURES))]
-        q[ih] = (pitch, yaw if side == "left" else -yaw)
+        q[ih] = arm.head_postures[rng.integers(len(arm.head_postures))]
         if ring_visibility(model, data, q, ring, intrinsics, camera_frame) < 2:
             continue
         if pin.computeCollisions(model, data, geom, gdata, q, True):
@@ -158,14 +153,12 @@ def plan_views(
             f"wrist ring to the camera clear of the body; {count} needed"
         )
     # Greedy D-optimal choice: each view adds J_i^T J_i of its pose residual w.r.t. the offsets.
-    problem = JointOffsetProblem(model, BASE_FRAME, tagged_link(side), arm_joints(side))
+    base, _ = calibration_frames(robot)
+    problem = JointOffsetProblem(model, base, arm.tagged_link, arm.joints)
     infos = []
     for q in keep:
         pin.framesForwardKinematics(model, data, q)
-        X = (
-            data.oMf[model.getFrameId(BASE_FRAME)].inverse()
-            * data.oMf[model.getFrameId(tagged_link(side))]
-        )
+        X = data.oMf[model.getFrameId(base)].inverse() * data.oMf[model.getFrameId(arm.tagged_link)]
         _, J = pose_residuals_and_jacobian(
             problem, q[None], [X], np.zeros(len(iq)), ROTATION_WEIGHT
         )
@@ -212,7 +205,7 @@ def measure_views(
     from marionette.perception.objects import estimate_body_pose, tag_sizes
 
     data = model.createData()
-    camera_frame = robots.robot(robot).camera_frame
+    base_frame, camera_frame = calibration_frames(robot)
     K = _intrinsics(renderer)
     detector = AprilTagDetector(
         DetectorConfig(tag_sizes=tag_sizes([ring]), quad_decimate=quad_decimate)
@@ -239,7 +232,7 @@ def measure_views(
             )
             continue
         pin.framesForwardKinematics(model, data, q)
-        X_BC = data.oMf[model.getFrameId(BASE_FRAME)].actInv(
+        X_BC = data.oMf[model.getFrameId(base_frame)].actInv(
             data.oMf[model.getFrameId(camera_frame)]
         )
         out.append(WristView(q, X_BC * pose.X_CB, pose.tag_ids, pose.reprojection_rms))
@@ -289,7 +282,7 @@ def encoder_offsets_argument(offsets: dict[str, float]) -> str:
 def calibrate_arm(
     scene_path: Path,
     side: str,
-    robot: str = "talos",
+    robot: str,
     count: int = 12,
     seed: int = 0,
     log: Callable[[str], None] = print,
@@ -301,6 +294,7 @@ def calibrate_arm(
     model, geom = robots.load_pinocchio(robot, with_collision=True)
     desc = robots.robot(robot)
     ring = wrist_ring(robot, side)
+    base_frame, camera_frame = calibration_frames(robot)
     scene = sim.MjScene(str(scene_path))
     scene.reset_keyframe("reference")
     renderer = sim.RgbdRenderer(scene, desc.camera, 640, 480)
@@ -311,10 +305,11 @@ def calibrate_arm(
         model,
         geom,
         q_stand,
+        robot,
         side,
         ring,
         _intrinsics(renderer),
-        desc.camera_frame,
+        camera_frame,
         count=count,
         seed=seed,
     )
@@ -328,8 +323,9 @@ def calibrate_arm(
         raise CalibrationError(
             f"only {len(measured)} of {len(views)} views saw the {side} wrist ring (4 needed)"
         )
-    problem = JointOffsetProblem(model, BASE_FRAME, tagged_link(side), arm_joints(side))
+    arm = calibrated_arm(robot, side)
+    problem = JointOffsetProblem(model, base_frame, arm.tagged_link, arm.joints)
     result = calibrate_joint_offsets_from_poses(
         problem, np.array([v.q for v in measured]), [v.X_BE for v in measured], ROTATION_WEIGHT
     )
-    return ArmCalibration(side, arm_joints(side), result, len(views), len(measured))
+    return ArmCalibration(side, arm.joints, result, len(views), len(measured))

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 import pinocchio as pin
@@ -133,6 +134,22 @@ def _pack(offsets, p_EM, p_BA) -> np.ndarray:
     )
 
 
+@overload
+def _residuals(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    x: np.ndarray,
+    with_jacobian: Literal[True] = True,
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def _residuals(
+    problem: JointOffsetProblem,
+    Q: np.ndarray,
+    measured: np.ndarray,
+    x: np.ndarray,
+    with_jacobian: Literal[False],
+) -> tuple[np.ndarray, None]: ...
 def _residuals(
     problem: JointOffsetProblem,
     Q: np.ndarray,
@@ -159,7 +176,7 @@ def _residuals(
         R_WB = X_WB.rotation
         p_WM = X_WE.act(p_EM)
         r[3 * i : 3 * i + 3] = R_WB.T @ (p_WM - X_WB.translation) - p_BA - measured[i]
-        if not with_jacobian:
+        if J is None:
             continue
         pin.computeJointJacobians(model, data, q)
         J_E = pin.getFrameJacobian(model, data, e, pin.LOCAL_WORLD_ALIGNED)
@@ -182,7 +199,7 @@ def residuals_and_jacobian(
     offsets: np.ndarray,
     p_EM: np.ndarray,
     p_BA: np.ndarray,
-):
+) -> tuple[np.ndarray, np.ndarray]:
     """Stacked residuals (3N,) and their Jacobian (3N, k + 6) w.r.t. (offsets, p_EM, p_BA)."""
     return _residuals(
         problem, np.asarray(Q, float), np.asarray(measured, float), _pack(offsets, p_EM, p_BA)
@@ -294,7 +311,7 @@ def calibrate_joint_offsets(
 #
 # §4.2 with a camera instead of MoCap: a tag body on the end link E gives its full pose in the
 # camera, and the camera's pose in the base link B comes from joints the calibration does not
-# touch (TALOS' head above the arms), so each view i measures M_i = X_BE directly and the
+# touch (a humanoid's head above its arms), so each view i measures M_i = X_BE directly and the
 # marker's placement in E is known (the model's tags). The residual is the pose error
 #
 #     r_i(delta) = W log6( M_i^-1 X_BE(q_i + S delta) ),   W = diag(1, 1, 1, w, w, w)
@@ -368,7 +385,8 @@ def calibrate_joint_offsets_from_poses(
 
     def solve(views: np.ndarray, x0: np.ndarray, loss: str) -> np.ndarray:
         Qv, Mv = Q[views], [measured[i] for i in views]
-        last: dict = {}  # residuals and Jacobian come from one kinematics pass: evaluated once per x
+        # residuals and Jacobian come from one kinematics pass: evaluated once per x
+        last: dict = {}
 
         def evaluate(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             if last.get("x") is None or not np.array_equal(last["x"], x):

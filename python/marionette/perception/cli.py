@@ -35,6 +35,12 @@ def register(subparsers) -> None:
         help="detect AprilTags in camera frames, publish tag detections and object poses",
         description="Subscribes CAMERA_HEAD (and ROBOT_STATE); publishes APRILTAG_DETECTIONS and "
         "OBJECT_POSES at camera rate.",
+        epilog=(
+            "examples:\n"
+            "  marionette perceive --robot talos\n"
+            "  marionette perceive --robot none --camera-pose-source message"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--lcm-url", default=None, help="LCM URL (default: $MARIONETTE_LCM_URL)")
     p.add_argument(
@@ -46,8 +52,8 @@ def register(subparsers) -> None:
     )
     p.add_argument(
         "--robot",
-        default="talos",
-        help="robot whose kinematics place the camera (talos, tiago, ur10) or 'none'",
+        required=True,
+        help="robot (name or folder) whose kinematics place the camera, or 'none'",
     )
     p.add_argument("--camera-frame", default=None, help="optical frame (default: the robot's)")
     p.add_argument("--camera-channel", default=None, help="image channel (default CAMERA_HEAD)")
@@ -82,8 +88,15 @@ def register(subparsers) -> None:
     c = subparsers.add_parser(
         "calibrate",
         help="hand-eye, joint-offset or arm-encoder calibration",
-        description="Prints the calibration as JSON: from recorded measurements (hand-eye, joint-offsets) "
-        "or from the head camera in a MuJoCo scene (arm-encoders).",
+        description="Prints the calibration as JSON: from recorded measurements (hand-eye, "
+        "joint-offsets) or from the head camera in a MuJoCo scene (arm-encoders).",
+        epilog=(
+            "examples:\n"
+            "  marionette calibrate arm-encoders --scene models/scenes/talos_plank.xml"
+            " --side left\n"
+            "  marionette calibrate hand-eye measurements.json"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = c.add_subparsers(dest="calibration", required=True, metavar="KIND")
     he = sub.add_parser("hand-eye", help="camera mount from (robot pose, target pose) pairs")
@@ -100,23 +113,27 @@ def register(subparsers) -> None:
     jo.add_argument(
         "measurements",
         type=Path,
-        help='JSON {"robot": "talos", "base_frame": ..., "marker_frame": ..., '
+        help='JSON {"robot": NAME, "base_frame": ..., "marker_frame": ..., '
         '"joints": [...], "configurations": [[q...]], "positions": [[x,y,z]...]}',
     )
     jo.set_defaults(func=_calibrate_joint_offsets)
     ae = sub.add_parser(
         "arm-encoders",
-        help="TALOS' arm encoder offsets from its wrist tags seen by the head "
-        "camera in a MuJoCo scene (ch. 4.2)",
+        help="a robot's arm encoder offsets from its wrist tags seen by the head "
+        "camera in a MuJoCo scene (ch. 4.2; the arms of robot.yaml's calibration section)",
     )
     ae.add_argument(
         "--scene", type=Path, required=True, help="MJCF scene with the robot (and its encoders)"
     )
     ae.add_argument(
+        "--robot",
+        default=None,
+        help="robot name or folder (default: the robot of the scene's YAML beside it)",
+    )
+    ae.add_argument(
         "--side",
-        choices=("left", "right"),
         action="append",
-        help="arm to calibrate (repeatable; default both)",
+        help="arm to calibrate (repeatable; default every arm of the calibration section)",
     )
     ae.add_argument("--seed", type=int, default=0, help="seed of the view sampling and image noise")
     ae.set_defaults(func=_calibrate_arm_encoders)
@@ -223,17 +240,31 @@ def _calibrate_hand_eye(args: argparse.Namespace) -> int:
 
 
 def _calibrate_arm_encoders(args: argparse.Namespace) -> int:
+    from marionette import robots
     from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
     from marionette.perception.calibration import CalibrationError
 
     if not args.scene.is_file():
         raise SystemExit(f"calibrate: no scene file {args.scene}")
+    robot = args.robot
+    if robot is None:
+        from marionette.models.scenes import load_scene
+
+        declaration = args.scene.with_suffix(".yaml")
+        if not declaration.is_file():
+            raise SystemExit(f"calibrate: no {declaration} to name the robot: give --robot")
+        robot = load_scene(declaration).robot
+    sides = args.side or [a.side for a in robots.robot(robot).calibrated_arms]
     try:
         arms = [
             calibrate_arm(
-                args.scene, side, seed=args.seed, log=lambda line: print(line, file=sys.stderr)
+                args.scene,
+                side,
+                robot,
+                seed=args.seed,
+                log=lambda line: print(line, file=sys.stderr),
             )
-            for side in args.side or ("left", "right")
+            for side in sides
         ]
     except CalibrationError as exc:
         raise SystemExit(f"calibrate: {exc}") from None

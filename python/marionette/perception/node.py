@@ -25,6 +25,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pinocchio as pin
@@ -34,6 +35,9 @@ from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.detector import AprilTagDetector, DetectorConfig, TagDetection
 from marionette.perception.kinematics import CameraKinematics, StateError
 from marionette.perception.objects import BodyPose, TaggedBody, estimate_body_poses, up_axis_prior
+
+if TYPE_CHECKING:
+    from marionette.lcm_bus import LcmBus
 
 log = logging.getLogger("marionette.perceive")
 
@@ -94,10 +98,10 @@ def decode_frame(msg) -> Frame:
         depth = np.where(raw > 0, raw.astype(np.float32) * np.float32(scale), np.float32(0.0))
     X_WC = None
     p = np.asarray(msg.camera_position, dtype=float)
-    w, x, y, z = (float(a) for a in msg.camera_quaternion)
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    qw, qx, qy, qz = (float(a) for a in msg.camera_quaternion)
+    norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     if np.all(np.isfinite(p)) and math.isfinite(norm) and abs(norm - 1.0) < 1e-3:
-        X_WC = pin.SE3(pin.Quaternion(w / norm, x / norm, y / norm, z / norm).matrix(), p)
+        X_WC = pin.SE3(pin.Quaternion(qw / norm, qx / norm, qy / norm, qz / norm).matrix(), p)
     return Frame(int(msg.utime), str(msg.camera_name), intrinsics, gray, depth, X_WC)
 
 
@@ -229,13 +233,14 @@ class PerceptionNode:
         self.counters: Counter = Counter()
         self.rejected: Counter = Counter()
         self.latency = LatencyWindow()
-        self._pending = None  # (message, receive time)
+        self._pending: tuple[object, float] | None = None  # (message, receive time)
         self._cond = threading.Condition()
-        self._bus = None
+        self._bus: LcmBus | None = None
 
     # ---- processing ------------------------------------------------------------------------
     def camera_pose(self, frame: Frame) -> pin.SE3 | None:
-        if self.config.camera_pose_source == "message":
+        # The constructor refuses camera_pose_source "kinematics" without kinematics.
+        if self.config.camera_pose_source == "message" or self.kinematics is None:
             return frame.X_WC_message
         found = self.kinematics.camera_pose(frame.utime)
         return None if found is None else found[0]
@@ -271,7 +276,7 @@ class PerceptionNode:
         )
 
     # ---- transport -------------------------------------------------------------------------
-    def attach(self, bus) -> None:
+    def attach(self, bus: LcmBus) -> None:
         """Subscribes the camera channel and, for kinematics, ROBOT_STATE on ``bus``."""
         from marionette import lcmt_camera_image, lcmt_robot_state
 
@@ -289,6 +294,8 @@ class PerceptionNode:
             self._cond.notify()
 
     def _on_state(self, msg) -> None:
+        if self.kinematics is None:  # attach() subscribes ROBOT_STATE only with kinematics
+            return
         try:
             self.kinematics.add_state(msg)
         except StateError as exc:
@@ -298,6 +305,8 @@ class PerceptionNode:
 
     def step(self, timeout_s: float) -> bool:
         """Processes the newest waiting frame (waits up to ``timeout_s``); True if one was."""
+        if self._bus is None:
+            raise RuntimeError("attach() the perception node to a bus before step()")
         with self._cond:
             if self._pending is None:
                 self._cond.wait(timeout_s)

@@ -48,6 +48,13 @@ class TaggedBody:
     def tag(self, tag_id: int) -> TagOnBody | None:
         return next((t for t in self.tags if t.tag_id == tag_id), None)
 
+    def require_tag(self, tag_id: int) -> TagOnBody:
+        """Tag ``tag_id`` of this body; raises KeyError naming the body when it has none."""
+        t = self.tag(tag_id)
+        if t is None:
+            raise KeyError(f"{self.name} has no tag {tag_id}")
+        return t
+
     def tag_sizes(self) -> dict[int, float]:
         return {t.tag_id: t.size for t in self.tags}
 
@@ -55,9 +62,7 @@ class TaggedBody:
         """(4, 3) corners of the tag's black square in the body frame, detection order."""
         from marionette import _visp
 
-        t = self.tag(tag_id)
-        if t is None:
-            raise KeyError(f"{self.name} has no tag {tag_id}")
+        t = self.require_tag(tag_id)
         return (t.X_BT.homogeneous @ np.c_[_visp.tag_corners(t.size), np.ones(4)].T).T[:, :3]
 
 
@@ -160,7 +165,7 @@ def estimate_body_pose(
     # (error, X_CB, reached from a retained hypothesis)
     minima: list[tuple[float, pin.SE3, bool]] = []
     for d in mine:
-        X_TB = body.tag(d.tag_id).X_BT.inverse()
+        X_TB = body.require_tag(d.tag_id).X_BT.inverse()
         for k, X_CT in enumerate(d.hypotheses[: 2 if d.has_second else 1]):
             est = _visp.refine_pose(p_B, uv, intrinsics.native, (X_CT * X_TB).homogeneous)
             if not est.ok:
@@ -196,7 +201,7 @@ def estimate_body_pose(
     if depth is not None:
         planes = []
         for d in mine:
-            X_BT = body.tag(d.tag_id).X_BT
+            X_BT = body.require_tag(d.tag_id).X_BT
             n_B = X_BT.rotation[:, 2]
             planes.append((d.corners, n_B, float(n_B @ X_BT.translation)))
         fused = _visp.refine_pose_rgbd(

@@ -120,7 +120,7 @@ class PbvsReference:
         self, t: float, g_fk: pin.SE3, planned: pin.SE3, measurement: VisualMeasurement | None
     ) -> PbvsOutput:
         visible = measurement is not None and t - measurement.t <= self.timeout
-        if visible:
+        if measurement is not None and visible:
             target = visual_reference(g_fk, measurement.X_CG, measurement.X_CH, self.X_HG)
             self._offset = target * planned.inverse()
             mode, gain = "visual", self.visual_gain

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
+from numpy.typing import ArrayLike
 
 from marionette.models.apriltag import printed_size, tag_cells
 from marionette.perception.camera import CameraIntrinsics
@@ -164,10 +165,11 @@ def render(
 
 
 def look_at(
-    p_CT: np.ndarray, tilt_deg: float = 0.0, tilt_axis=(1.0, 0.0, 0.0), roll_deg: float = 0.0
+    p_CT: ArrayLike, tilt_deg: float = 0.0, tilt_axis=(1.0, 0.0, 0.0), roll_deg: float = 0.0
 ) -> pin.SE3:
     """X_CT of a tag at ``p_CT`` facing the camera (z_T towards it, upright: y_T up in the image),
-    then tilted by ``tilt_deg`` about ``tilt_axis`` (tag frame) and rolled by ``roll_deg`` about z_T."""
+    then tilted by ``tilt_deg`` about ``tilt_axis`` (tag frame) and rolled by ``roll_deg`` about
+    z_T."""
     R_facing = np.diag([1.0, -1.0, -1.0])  # x_T = x_C, y_T = -y_C (up), z_T = -z_C
     axis = np.asarray(tilt_axis, dtype=float)
     axis = axis / np.linalg.norm(axis)

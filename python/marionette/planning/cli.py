@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import difflib
 import sys
 import time
 from pathlib import Path
@@ -14,6 +15,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="plan a manipulation problem with Manipulation-RRT over its constraint graph",
         description="Plan a manipulation problem (YAML) and write the plan (<out>/plan.json + "
         "plan.npz, format marionette-plan/1) and the constraint graph (graph.png).",
+        epilog="examples:\n"
+        "  marionette plan ur10_box                      # a bundled problem, by name\n"
+        "  marionette plan my_problem.yaml --seed 3 --out plans/mine\n"
+        "  marionette plan talos_plank --timeout 120 --quiet",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument(
         "problem",
@@ -74,9 +80,20 @@ def run(args: argparse.Namespace) -> int:
     from marionette.planning.solve import plan_problem, planner_fingerprint
 
     err = sys.stderr
-    bundled = Path(__file__).parent / "problems" / f"{args.problem}.yaml"
+    problems_dir = Path(__file__).parent / "problems"
+    bundled = problems_dir / f"{args.problem}.yaml"
     if not args.problem.exists() and bundled.exists():
         args.problem = bundled
+    elif not args.problem.exists():
+        names = sorted(f.stem for f in problems_dir.glob("*.yaml"))
+        close = difflib.get_close_matches(str(args.problem), names, n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        print(
+            f"marionette plan: no problem file or bundled problem {str(args.problem)!r}; "
+            f"{hint}bundled: {', '.join(names)}",
+            file=err,
+        )
+        return 2
     try:
         problem = load_problem(args.problem)
     except (ProblemError, OSError) as e:

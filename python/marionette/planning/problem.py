@@ -478,11 +478,10 @@ def _load_yaml(path: Path) -> dict[str, Any]:
             data = yaml.safe_load(f)
     except OSError as e:
         raise ProblemError(f"cannot read problem file {path}: {e}") from e
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f"{path}:{mark.line + 1}:{mark.column + 1}" if mark is not None else str(path)
-        what = getattr(e, "problem", None) or str(e).splitlines()[0]
-        raise ProblemError(f"{where}: YAML syntax error: {what}") from None
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
+        raise ProblemError(f"{where}: not valid YAML: {e.problem or e.context}") from None
     if not isinstance(data, dict):
         raise ProblemError(f"{path}: a problem file is a YAML mapping")
     return data
@@ -822,7 +821,7 @@ def _configuration(
 
 def _reference_of(problem: ManipulationProblem, name: str, model_name: str) -> np.ndarray:
     """Robot ``name``'s part of a configuration at its model's reference posture, joint by joint:
-    the problem may root the robot differently (``root_joint: fixed`` for TIAGo's planar base),
+    the problem may root the robot differently (``root_joint: fixed`` for a planar base held still),
     so the reference's base coordinates are dropped then."""
     from marionette import robots
 

@@ -87,8 +87,8 @@ class LineSearch:
     ``alpha_min`` far from the manifold to 1 (pure Newton) close to it.  ``constant``: alpha = 1.
     ``max_step`` bounds |dq| of one iteration (a trust region; inf = none).
 
-    The default (full Newton steps within a 1-rad trust region) is the fastest on the UR5
-    benchmark: 6-D pre-grasp IK from uniform samples succeeds 40 % of the time in a median of
+    The default (full Newton steps within a 1-rad trust region) is the fastest on the arm
+    pick-and-place benchmark (bench/ur5_box): 6-D pre-grasp IK from uniform samples succeeds 40 % of the time in a median of
     9 iterations, against 23 % in 11 for Algorithm 1's schedule (tests/python/planning).
     """
 

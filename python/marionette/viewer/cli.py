@@ -11,10 +11,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "view",
         help="serve a browser 3D view (meshcat) of the run on the LCM URL",
-        description="Draws ROBOT_STATE, SIM_OBJECT_POSES/OBJECT_POSES, FOOTSTEP_PLAN and SUPERVISOR_STATE "
-        "in a meshcat page; prints its URL. Stops on Ctrl-C.",
+        description="Draws ROBOT_STATE, SIM_OBJECT_POSES/OBJECT_POSES, FOOTSTEP_PLAN and "
+        "SUPERVISOR_STATE in a meshcat page; prints its URL. Stops on Ctrl-C.",
+        epilog=("example:\n  marionette view --robot ur10 --scene models/scenes/ur10_box.xml"),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--robot", required=True, help="talos | tiago | ur10")
+    p.add_argument("--robot", required=True, help="robot name or folder (docs/robots.md)")
     p.add_argument(
         "--scene",
         type=Path,
@@ -36,6 +38,9 @@ def run(args: argparse.Namespace) -> int:
     if args.rate <= 0:
         print("marionette view: --rate must be > 0", file=sys.stderr)
         return 2
+    if args.scene is not None and not args.scene.is_file():
+        print(f"marionette view: no scene file {args.scene} (models/scenes/*.xml)", file=sys.stderr)
+        return 1
     try:
         return serve(args.robot, args.scene, args.lcm_url, args.url_file, args.rate)
     except ViewerError as e:

@@ -40,10 +40,12 @@ class MeshcatServer:
             stderr=subprocess.STDOUT,
             text=True,
         )
+        assert self.proc.stdout is not None  # stdout=PIPE: Popen made the pipe
+        self.output = self.proc.stdout
         self.zmq_url = self.web_url = ""
         deadline = time.monotonic() + timeout_s
         while not self.zmq_url and time.monotonic() < deadline:
-            line = self.proc.stdout.readline()
+            line = self.output.readline()
             if not line and self.proc.poll() is not None:
                 raise RuntimeError(f"meshcat server exited with code {self.proc.returncode}")
             m = re.search(r"zmq_url=(\S+)", line)
@@ -56,12 +58,12 @@ class MeshcatServer:
             self.close()
             raise RuntimeError(f"meshcat server gave no zmq_url within {timeout_s} s")
         if not self.web_url:  # printed on the same or the next line
-            m = re.search(r"web_url=(\S+)", self.proc.stdout.readline())
+            m = re.search(r"web_url=(\S+)", self.output.readline())
             self.web_url = m.group(1) if m else ""
         threading.Thread(target=self._drain, daemon=True).start()
 
     def _drain(self) -> None:
-        for _ in self.proc.stdout:  # keep the pipe from filling up
+        for _ in self.output:  # keep the pipe from filling up
             pass
 
     def visualizer(self):
@@ -88,6 +90,32 @@ class ViewerNode:
         self._last_draw = 0.0
         self._pending_state: Any = None
         self._lock = threading.Lock()
+        self._last_utime = -1
+        self._clock_reversals = 0
+        self.warnings: list[str] = []
+
+    def _warn(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings.append(text)
+            print(f"marionette view: warning: {text}", file=sys.stderr, flush=True)
+
+    def _check_source(self, msg: Any) -> None:
+        """Warns (once each) when ROBOT_STATE comes from another robot than the one drawn, or from
+        two controllers at once (their clocks interleave)."""
+        drawn = getattr(self.scene, "robot_name", None)
+        if drawn is not None and msg.robot_name and msg.robot_name != drawn:
+            self._warn(
+                f"ROBOT_STATE comes from robot {msg.robot_name!r}, the view draws {drawn!r}: "
+                f"restart it with --robot {msg.robot_name}"
+            )
+        if msg.utime < self._last_utime:
+            self._clock_reversals += 1
+            if self._clock_reversals >= 3:
+                self._warn(
+                    "two controllers publish ROBOT_STATE on this LCM URL "
+                    "(their clocks interleave): give each run its own URL"
+                )
+        self._last_utime = msg.utime
 
     def subscribe(self, bus: LcmBus) -> None:
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
@@ -114,6 +142,7 @@ class ViewerNode:
         return handler
 
     def _on_state(self, msg: Any) -> None:
+        self._check_source(msg)
         now = time.monotonic()
         self._pending_state = msg
         if now - self._last_draw >= self.min_period_s:

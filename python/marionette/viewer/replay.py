@@ -2,11 +2,13 @@
 re-plotted from the log.
 
 The LCM log (lcm-logger, e.g. a demo's ``run.lcmlog``) is played in log order at ``speed`` times
-the recorded pace (0: as fast as possible) into a :class:`.scene.ViewerScene`; the robot is
-redrawn at most ``rate_hz`` times per second of playback. The report's task-error plot
-(:func:`marionette.execution.report._plots`) is rebuilt from the log alone: the steps from the
-supervisor's decisions (SUPERVISOR_DECISION: controller id, swap and reference-start ticks), the
-error traces from CONTROLLER_STATUS, the executed motion from ROBOT_STATE and SIM_OBJECT_POSES.
+the recorded pace (0: as fast as possible) into a :class:`.scene.ViewerScene` (its scene: the one
+the ``report.json`` beside the log names); the robot is redrawn at most ``rate_hz`` times per
+second of playback. The report's task-error plot
+(:func:`marionette.scenarios.plan_and_execute_report._plots`) is rebuilt from the log alone: the
+steps from the supervisor's decisions (SUPERVISOR_DECISION: controller id, swap and
+reference-start ticks), the error traces from CONTROLLER_STATUS, the executed motion from
+ROBOT_STATE and SIM_OBJECT_POSES.
 """
 
 from __future__ import annotations
@@ -63,15 +65,17 @@ def log_robot(log: Path) -> str:
 
 
 def run_scene(log: Path) -> Path | None:
-    """The MJCF scene of a demo's recorded run, from the report.json beside its log (None if
-    there is none)."""
+    """The MJCF scene of a demo's recorded run: the ``scene`` its report.json beside the log
+    names (relative to the repository, or absolute); None without a report or a scene in it."""
     report = Path(log).parent / "report.json"
     if not report.is_file():
         return None
-    from marionette.execution.demo import SCENARIOS
+    import marionette
 
-    name = json.loads(report.read_text()).get("scenario")
-    return SCENARIOS[name].scene if name in SCENARIOS else None
+    scene = json.loads(report.read_text()).get("scene")
+    if not scene:
+        return None
+    return Path(scene) if Path(scene).is_absolute() else marionette.REPO_ROOT / scene
 
 
 def play(
@@ -143,7 +147,7 @@ def replot_report(log: Path, out_dir: Path, every: int = 5) -> list[Path]:
     (task errors per step; CoM for humanoids); returns the files written."""
     from marionette import robots
     from marionette.control.client import configuration_from_state
-    from marionette.execution import report
+    from marionette.scenarios import plan_and_execute_report as report
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,8 @@
 """What the browser viewer draws, from the run's LCM messages, into a meshcat scene.
 
 :class:`ViewerScene` turns one message at a time into meshcat commands: the robot's visual meshes
-(its URDF's collision meshes through Pinocchio's MeshcatVisualizer) posed from ROBOT_STATE, the scene's objects (their
+(its URDF's collision meshes through Pinocchio's MeshcatVisualizer) posed from ROBOT_STATE, the
+scene's objects (their
 URDF) posed from SIM_OBJECT_POSES / OBJECT_POSES, triads at the grippers and handles, the
 FOOTSTEP_PLAN's soles, and a text panel with the supervisor's state (SUPERVISOR_STATE). It does no
 I/O of its own: the viewer process (:mod:`.node`) and the log replay (:mod:`.replay`) feed it.
@@ -22,13 +23,8 @@ import yaml
 from marionette import robots
 from marionette.control.client import configuration_from_state
 
-SOLE = (0.21, 0.13, 0.01)  # [m] TALOS sole box drawn for a footstep (length, width, height)
+SOLE_HEIGHT = 0.01  # [m] of the sole box drawn for a footstep
 LEFT_RGB, RIGHT_RGB = 0x2060E0, 0xE06020
-ROBOT_CAMERA = {
-    "talos": ((0.0, 0.0, 0.9), (3.0, -2.0, 1.8)),
-    "tiago": ((0.5, 0.0, 0.8), (3.0, -2.5, 2.0)),
-    "ur10": ((0.6, 0.0, 0.9), (2.6, -2.6, 2.0)),
-}  # (target, eye) in world [m]
 
 
 class ViewerError(ValueError):
@@ -61,8 +57,21 @@ def _X(position, quaternion_wxyz) -> np.ndarray:
     ).homogeneous
 
 
+def default_view(model: pin.Model, data: pin.Data, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(target, eye) [m] of a camera that frames the robot at ``q``: aimed at the middle of its
+    joints, from the front-right and above, as far as its size asks."""
+    pin.forwardKinematics(model, data, q)
+    points = np.array([data.oMi[j].translation for j in range(model.njoints)])
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    target = 0.5 * (lo + hi)
+    size = max(float(np.linalg.norm(hi - lo)), 0.5)
+    eye = target + size * np.array([1.6, -1.4, 0.7])
+    return target, eye
+
+
 class ViewerScene:
-    """Draws the run of ``robot`` (with the objects of ``scene``) into meshcat visualizer ``vis``."""
+    """Draws the run of ``robot`` (with the objects of ``scene``) into meshcat visualizer
+    ``vis``."""
 
     def __init__(self, vis: Any, robot: str, scene: Path | None = None) -> None:
         from pinocchio.visualize import MeshcatVisualizer
@@ -73,10 +82,11 @@ class ViewerScene:
             raise ViewerError(e.args[0]) from None
         self.vis = vis
         self.robot = robot
+        self.robot_name = desc.name
         self.model, _ = robots.load_pinocchio(robot, with_collision=False)
         self.data = self.model.createData()
         # The collision meshes (STL, the ones our MJCF models use): the visual Collada meshes
-        # (UR10: 9 MB) stall the page's loader in a headless browser without a GPU.
+        # (9 MB for an arm) stall the page's loader in a headless browser without a GPU.
         visual = pin.buildGeomFromUrdf(
             self.model,
             str(desc.urdf),
@@ -97,8 +107,11 @@ class ViewerScene:
         self.robot_states = 0
         self.fsm_text = ""
         self.footsteps = 0
-        target, eye = ROBOT_CAMERA.get(robot, ((0.0, 0.0, 0.8), (3.0, -2.5, 2.0)))
-        self.set_camera(target, eye)
+        length, width = desc.feet[0].size if desc.feet else (0.2, 0.12)
+        self.sole = (length, width, SOLE_HEIGHT)
+        q_reference = robots.reference_configuration(robot, self.model)
+        self.view_target, eye = default_view(self.model, self.data, q_reference)
+        self.set_camera(self.view_target, eye)
         self._draw_fsm("waiting for the supervisor")
 
     # ---- camera ---------------------------------------------------------------------------------
@@ -145,13 +158,13 @@ class ViewerScene:
         for s in msg.steps:
             node = self.vis[f"footsteps/{s.index}"]
             node.set_object(
-                g.Box(SOLE),
+                g.Box(self.sole),
                 g.MeshLambertMaterial(
                     color=LEFT_RGB if s.is_left else RIGHT_RGB, opacity=0.6, transparent=True
                 ),
             )
             R = pin.rpy.rpyToMatrix(0.0, 0.0, s.yaw)
-            node.set_transform(pin.SE3(R, np.array([s.x, s.y, s.z + SOLE[2] / 2])).homogeneous)
+            node.set_transform(pin.SE3(R, np.array([s.x, s.y, s.z + self.sole[2] / 2])).homogeneous)
         self.footsteps = len(msg.steps)
 
     def on_supervisor_state(self, msg: Any) -> None:
@@ -198,7 +211,7 @@ class ViewerScene:
         import meshcat.geometry as g
 
         self.fsm_text = text
-        target, _ = ROBOT_CAMERA.get(self.robot, ((0.0, 0.0, 0.8), None))
+        target = self.view_target
         # In the x-z plane behind the robot, facing the default eye (which looks from -y).
         centre = np.array([target[0], target[1] + 0.8, target[2] + 1.2])
         panel = self.vis["fsm/panel"]

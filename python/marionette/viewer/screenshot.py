@@ -48,7 +48,8 @@ def screenshot(
 ) -> np.ndarray:
     """Loads ``url`` headless, waits ``settle_ms`` of page time (meshes load over the websocket),
     writes the PNG ``out`` and returns it as an (H, W, 3) uint8 array. The page's virtual time
-    does not wait for the websocket: a heavy scene (TALOS' meshes) may not be applied yet, so the
+    does not wait for the websocket: a heavy scene (a humanoid's meshes) may not be applied yet, so
+    the
     page is loaded again (up to ``attempts`` times, settling longer) until ``ready(image)``."""
     img = _screenshot(url, Path(out), size, settle_ms, timeout_s)
     for k in range(1, attempts):

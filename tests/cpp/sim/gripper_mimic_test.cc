@@ -1,9 +1,9 @@
-// The UR10 gripper's right finger in MuJoCo follows finger_joint as the URDF's <mimic> says
-// (issue 7): the generated models/ur10/ur10.xml ties finger_mimic_joint to it by an
+// The UR10 gripper's right finger in MuJoCo follows finger_joint as the URDF's <mimic> says:
+// the generated models/ur10/ur10.xml ties finger_mimic_joint to it by an
 // <equality><joint>. Reference: Pinocchio on the full URDF — models/ur10/ur10.urdf with the mimic
 // joint made prismatic (the URDF fixes it for the controller's model) and set to multiplier q +
 // offset as read from the URDF text. Then the physics the grip-force estimate relies on
-// (grippers.yaml: torque_per_effort 0.5, lever_arm 1): a free box closed on by the servo is
+// (robot.yaml: torque_per_effort 0.5, lever_arm 1): a free box closed on by the servo is
 // squeezed by each finger with half the motor force (virtual work: tau dq = F dq + F dq).
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>

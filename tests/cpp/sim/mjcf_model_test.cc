@@ -3,8 +3,14 @@
 // agree; at random configurations within the limits every MuJoCo body sits where Pinocchio puts
 // the frame of the link of the same name (1e-6); masses and centres of mass agree; servos,
 // cameras, soles and keyframes follow the conventions of models/README.md.
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <filesystem>
+
 #include <gtest/gtest.h>
 #include <mujoco/mujoco.h>
+#include "marionette/controller/robots.h"
 
 #include <Eigen/Geometry>
 #include <pinocchio/algorithm/center-of-mass.hpp>
@@ -34,12 +40,40 @@ enum class Base { kFreeFlyer, kPlanar, kFixed };
 struct RobotCase {
   std::string name;
   Base base;
+  std::string camera;         ///< "" if none
+  std::string camera_frame;   ///< "" if none
+  bool moving_mimics = true;  ///< robot.yaml simulation/moving_mimics
+  int urdf_mimics = 0;        ///< joints with a <mimic> in the URDF
 };
 
 std::ostream& operator<<(std::ostream& os, const RobotCase& c) { return os << c.name; }
 
-const std::vector<RobotCase> kRobots = {
-    {"talos", Base::kFreeFlyer}, {"tiago", Base::kPlanar}, {"ur10", Base::kFixed}};
+// Every robot of models/ (robot.yaml read by the controller's loader).
+RobotCase Robot(const std::string& name) {
+  const marionette::controller::RobotInfo r = marionette::controller::FindRobot(name, kModels);
+  const Base base = r.base == "free_flyer" ? Base::kFreeFlyer
+                    : r.base == "planar"   ? Base::kPlanar
+                                           : Base::kFixed;
+  const YAML::Node sim = YAML::LoadFile(r.directory + "/robot.yaml")["simulation"];
+  const bool moving = !(sim && sim["moving_mimics"]) || sim["moving_mimics"].as<bool>();
+  std::ifstream urdf(r.urdf);
+  const std::string text((std::istreambuf_iterator<char>(urdf)), std::istreambuf_iterator<char>());
+  int mimics = 0;
+  for (size_t at = text.find("<mimic"); at != std::string::npos; at = text.find("<mimic", at + 1)) {
+    ++mimics;
+  }
+  return {r.name, base, r.camera, r.camera_frame, moving, mimics};
+}
+
+std::vector<RobotCase> AllRobots() {
+  std::vector<RobotCase> out;
+  for (const std::string& name : marionette::controller::RobotNames(kModels)) {
+    out.push_back(Robot(name));
+  }
+  return out;
+}
+
+const std::vector<RobotCase> kRobots = AllRobots();
 
 struct MjModelDeleter {
   void operator()(mjModel* m) const { mj_deleteModel(m); }
@@ -195,12 +229,31 @@ bool BelowMimic(const mjModel* m, int b) {
 
 // With `skip_mimic`, bodies moved by mimic joints are left out (where their qpos is not 0:
 // Pinocchio keeps them fixed at 0).
+// The URDF link of a MuJoCo body: its name, except a root link named "world", whose body is
+// "<robot>_world" (MuJoCo reserves "world").
+std::string LinkOfBody(const mjModel* m, int b, const pin::Model& model) {
+  const char* name = mj_id2name(m, mjOBJ_BODY, b);
+  if (name == nullptr) return "";
+  const std::string s(name);
+  if (!model.existBodyName(s) && s == model.name + "_world" && model.existBodyName("world")) {
+    return "world";
+  }
+  return s;
+}
+
+// The MuJoCo body of a URDF link (the inverse of LinkOfBody).
+int BodyOfLink(const mjModel* m, const pin::Model& model, const std::string& link) {
+  const int b = mj_name2id(m, mjOBJ_BODY, link.c_str());
+  if (b >= 0 || link != "world") return b;
+  return mj_name2id(m, mjOBJ_BODY, (model.name + "_world").c_str());
+}
+
 PoseErrors CompareBodies(const mjModel* m, const mjData* d, const pin::Model& model,
                          const pin::Data& data, const pin::SE3& X_WB, bool skip_mimic = false) {
   PoseErrors e;
   for (int b = 1; b < m->nbody; ++b) {
-    const char* name = mj_id2name(m, mjOBJ_BODY, b);
-    if (name == nullptr || !model.existBodyName(name)) continue;
+    const std::string name = LinkOfBody(m, b, model);
+    if (name.empty() || !model.existBodyName(name)) continue;
     if (skip_mimic && BelowMimic(m, b)) continue;
     const pin::SE3 X_WF = X_WB * data.oMf[model.getBodyId(name)];
     const Eigen::Vector3d p(d->xpos[3 * b], d->xpos[3 * b + 1], d->xpos[3 * b + 2]);
@@ -240,8 +293,8 @@ TEST_P(RobotMjcfTest, JointNamesAndOrderMatchPinocchio) {
   EXPECT_EQ(joints, expected);
   const int base_nq = GetParam().base == Base::kPlanar ? -1 : 0;  // planar: 4 (Pinocchio) vs 3
   const int mimics = CountMimics(m_.get());
-  EXPECT_EQ(mimics, GetParam().name == "ur10" ? 1 : 0)
-      << "the UR10 gripper's right finger (TALOS' stay fixed)";
+  EXPECT_EQ(mimics, GetParam().moving_mimics ? GetParam().urdf_mimics : 0)
+      << "the URDF's mimic joints move in MuJoCo unless robot.yaml keeps them fixed";
   EXPECT_EQ(m_->nq, model_.nq + base_nq + mimics);
   EXPECT_EQ(m_->nv, model_.nv + mimics);
 }
@@ -343,12 +396,17 @@ TEST_P(RobotMjcfTest, MimicJointsFollowTheUrdfMimicInTheKeyframe) {
     ASSERT_NE(at, std::string::npos) << j1;
     const size_t mimic = urdf.find("<mimic", at);
     ASSERT_LT(mimic, urdf.find("</joint>", at)) << j1 << " has no <mimic> in the URDF";
-    const auto attr = [&](const std::string& name) {
-      const size_t a = urdf.find(name + "=\"", mimic) + name.size() + 2;
-      return urdf.substr(a, urdf.find('"', a) - a);
+    // An attribute of the <mimic> element, or `fallback` (URDF: multiplier 1, offset 0).
+    const auto attr = [&](const std::string& name, const std::string& fallback) {
+      const size_t end = urdf.find('>', mimic);
+      const size_t a = urdf.find(" " + name + "=\"", mimic);
+      if (a == std::string::npos || a > end) return fallback;
+      const size_t v = a + name.size() + 3;
+      return urdf.substr(v, urdf.find('"', v) - v);
     };
-    EXPECT_EQ(attr("joint"), j2);
-    const double multiplier = std::stod(attr("multiplier")), offset = std::stod(attr("offset"));
+    EXPECT_EQ(attr("joint", ""), j2);
+    const double multiplier = std::stod(attr("multiplier", "1"));
+    const double offset = std::stod(attr("offset", "0"));
     EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 0], offset) << j1;
     EXPECT_DOUBLE_EQ(m_->eq_data[e * mjNEQDATA + 1], multiplier) << j1;
     EXPECT_NEAR(qpos[m_->jnt_qposadr[m_->eq_obj1id[e]]],
@@ -365,16 +423,18 @@ INSTANTIATE_TEST_SUITE_P(Robots, RobotMjcfTest, ::testing::ValuesIn(kRobots),
 // A camera on an optical frame (z along the view, y down) looks along its -z with y up:
 // R_camera = R_optical * diag(1, -1, -1).
 TEST(CameraTest, HeadCamerasLookAlongTheOpticalAxis) {
-  const std::vector<std::pair<RobotCase, std::string>> cases = {
-      {kRobots[0], "rgbd_optical_frame"}, {kRobots[1], "xtion_rgb_optical_frame"}};
-  for (const auto& [robot, frame] : cases) {
+  int cameras = 0;
+  for (const RobotCase& robot : kRobots) {
+    if (robot.camera.empty()) continue;
+    ++cameras;
+    const std::string& frame = robot.camera_frame;
     MjModelPtr m = LoadMjcf(kModels + "/" + robot.name + "/" + robot.name + ".xml");
     ASSERT_NE(m, nullptr);
     MjDataPtr d(mj_makeData(m.get()));
     mj_resetDataKeyframe(m.get(), d.get(), 0);
     mj_kinematics(m.get(), d.get());
     mj_camlight(m.get(), d.get());
-    const int cam = mj_name2id(m.get(), mjOBJ_CAMERA, "head_rgbd");
+    const int cam = mj_name2id(m.get(), mjOBJ_CAMERA, robot.camera.c_str());
     ASSERT_GE(cam, 0) << robot.name;
     const int body = mj_name2id(m.get(), mjOBJ_BODY, frame.c_str());
     ASSERT_GE(body, 0);
@@ -389,6 +449,7 @@ TEST(CameraTest, HeadCamerasLookAlongTheOpticalAxis) {
     EXPECT_EQ(m->vis.global.offwidth, 640);
     EXPECT_EQ(m->vis.global.offheight, 480);
   }
+  EXPECT_GE(cameras, 2) << "the bundled humanoid and mobile manipulator have head cameras";
 }
 
 // TALOS' sole boxes: 0.205 x 0.122 m under the sole frames, bottom on the floor in half-sitting;
@@ -475,7 +536,7 @@ TEST_P(SceneTest, LoadsAndPlacesTheRobotAsPinocchio) {
   // Fixed bases: the robot's root body placement in the scene.
   pin::SE3 X_WB = pin::SE3::Identity();
   if (c.robot.base == Base::kFixed) {
-    const int root = mj_name2id(m.get(), mjOBJ_BODY, model.frames[1].name.c_str());
+    const int root = BodyOfLink(m.get(), model, model.frames[1].name);
     ASSERT_GE(root, 0);
     X_WB =
         pin::SE3(BodyRotation(d.get(), root),
@@ -516,12 +577,22 @@ TEST_P(SceneTest, FreeObjectsRestOnTheirSupports) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(Scenes, SceneTest,
-                         ::testing::Values(SceneCase{"talos_plank", kRobots[0]},
-                                           SceneCase{"talos_walk", kRobots[0]},
-                                           SceneCase{"tiago_deburr", kRobots[1]},
-                                           SceneCase{"ur10_drill", kRobots[2]},
-                                           SceneCase{"ur10_box", kRobots[2]}),
+// Every scene of models/scenes (its robot read from the scene's YAML).
+std::vector<SceneCase> AllScenes() {
+  std::vector<SceneCase> out;
+  std::vector<std::filesystem::path> files;
+  for (const auto& e : std::filesystem::directory_iterator(kModels + "/scenes")) {
+    if (e.path().extension() == ".yaml") files.push_back(e.path());
+  }
+  std::sort(files.begin(), files.end());
+  for (const auto& f : files) {
+    out.push_back(
+        {f.stem().string(), Robot(YAML::LoadFile(f.string())["robot"].as<std::string>())});
+  }
+  return out;
+}
+
+INSTANTIATE_TEST_SUITE_P(Scenes, SceneTest, ::testing::ValuesIn(AllScenes()),
                          [](const auto& info) { return info.param.scene; });
 
 TEST(ObjectTest, EveryObjectFileLoads) {

@@ -78,7 +78,7 @@ TEST(MujocoSceneTest, EncoderOffsetsGiveTheControllerTheTrueJointPositions) {
   const int jnt = mj_name2id(&scene.model(), mjOBJ_JOINT, joint.c_str());
   const int adr = scene.model().jnt_qposadr[jnt];
   // MuJoCo turns a hinge by qpos - qpos0: this is <joint ref="0.12">, the offset scenes'
-  // encoder error (marionette.execution.perturbations.scene_with_joint_offsets).
+  // encoder error (marionette.scenarios.perturbations.scene_with_joint_offsets).
   const_cast<mjModel&>(scene.model()).qpos0[adr] = delta;
   const Eigen::VectorXd q = StandingConfiguration(model);
   const int iq = model.joints[model.getJointId(joint)].idx_q();

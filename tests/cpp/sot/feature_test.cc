@@ -9,6 +9,7 @@
 #include <pinocchio/algorithm/center-of-mass.hpp>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 
+#include "example_robots.h"
 #include "marionette/sot/feature_com.h"
 #include "marionette/sot/feature_gaze.h"
 #include "marionette/sot/feature_pbvs.h"

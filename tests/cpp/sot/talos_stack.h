@@ -10,6 +10,7 @@
 
 #include <pinocchio/algorithm/joint-configuration.hpp>
 
+#include "example_robots.h"
 #include "marionette/graph/graph.h"
 #include "marionette/sot/feature_com.h"
 #include "marionette/sot/feature_posture.h"

@@ -9,6 +9,7 @@
 #include <memory>
 #include <string>
 
+#include "example_robots.h"
 #include "marionette/controller/measured_base.h"
 #include "marionette/graph/graph.h"
 #include "marionette/sim/mujoco_device.h"

@@ -1,4 +1,4 @@
-// TALOS walks in MuJoCo (issue 9): the footstep manager and the preview-control pattern
+// TALOS walks in MuJoCo: the footstep manager and the preview-control pattern
 // generator drive the feet and CoM tasks of the stack; the robot walks 10 steps forward, walks
 // a turn, and stops, without falling; the feet land where planned; the ZMP measured from the
 // soles' contact wrenches stays inside the support polygon.
@@ -176,8 +176,15 @@ void Report(const char* name, const WalkRecord& r) {
       1e3 * r.MarginQuantile(0.5), r.edge_samples, r.zmp_samples, r.outside_samples);
 }
 
+// The rig's options for the robot alone on the floor, every other option at its default.
+testing::WalkRigOptions TalosAlone() {
+  testing::WalkRigOptions options;
+  options.scene = kModels + "/talos/talos.xml";
+  return options;
+}
+
 TEST(TalosWalkTest, TenStepsForwardAndStops) {
-  testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
+  testing::WalkRig rig = testing::BuildWalkRig(TalosAlone());
   const double base0 = rig.q0[2];
   const FootstepPlan plan = StraightPlan(rig.SolePlacement(0), rig.SolePlacement(1), 10, 0.15);
   const WalkRecord r = Walk(rig, plan);
@@ -195,7 +202,7 @@ TEST(TalosWalkTest, TenStepsForwardAndStops) {
 }
 
 TEST(TalosWalkTest, TurnsByNinetyDegrees) {
-  testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
+  testing::WalkRig rig = testing::BuildWalkRig(TalosAlone());
   const double base0 = rig.q0[2];
   const FootstepPlan plan =
       TurnPlan(rig.SolePlacement(0), rig.SolePlacement(1), 10, M_PI / 10.0, 0.05);
@@ -215,7 +222,7 @@ TEST(TalosWalkTest, TurnsByNinetyDegrees) {
 // The whole walking tick (MuJoCo device, measured base, kinematics, walk entities, 6 tasks, the
 // solver) allocates nothing and takes no lock once walking (STYLE.md rule 4), plans included.
 TEST(TalosWalkTest, WalkingTickAllocatesNothing) {
-  testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
+  testing::WalkRig rig = testing::BuildWalkRig(TalosAlone());
   FootstepPlan plan = StraightPlan(rig.SolePlacement(0), rig.SolePlacement(1), 6, 0.1);
   rig.steps->Post(plan);
   while (rig.steps->phase_output().value() != static_cast<int>(WalkPhase::kRightSwing)) rig.Step();
@@ -237,7 +244,7 @@ TEST(TalosWalkTest, WalkingTickAllocatesNothing) {
 // A replan during the walk that ends it two steps later: the step in progress is kept, the robot
 // closes its stance on the new last step and stops there.
 TEST(TalosWalkTest, StopsEarlyWhenThePlanIsShortened) {
-  testing::WalkRig rig = testing::BuildWalkRig({kModels + "/talos/talos.xml"});
+  testing::WalkRig rig = testing::BuildWalkRig(TalosAlone());
   const FootstepPlan plan = StraightPlan(rig.SolePlacement(0), rig.SolePlacement(1), 10, 0.15);
   FootstepPlan stop;  // step 3 is in progress when 3 are completed; step 4 closes the stance
   stop.plan_id = 2;

@@ -23,7 +23,8 @@ def test_camera_frames_rate_intrinsics_and_depth(run_controller):
     # Rate, in controller time: frames 1/15 s apart (every 67 ticks), none skipped.
     assert set(np.diff(utimes)) == {67_000}, np.diff(utimes)
     assert image.width == 640 and image.height == 480
-    assert image.frame_name == "rgbd_rgb_optical_frame"
+    # The frame the images are stamped with is the one the robot's description names.
+    assert image.frame_name == robots.robot("talos").camera_frame
     # Intrinsics of a 45° vertical field of view (models/README.md): fy = (h/2) / tan(fovy/2).
     assert math.isclose(image.fy, 240.0 / math.tan(math.radians(22.5)), rel_tol=1e-9)
     assert image.fx == image.fy and image.cx == 319.5 and image.cy == 239.5

@@ -11,7 +11,7 @@ import numpy as np
 
 from marionette import robots
 from marionette.control.client import configuration_from_state
-from marionette.execution.perturbations import scene_with_joint_offsets
+from marionette.scenarios.perturbations import scene_with_joint_offsets
 
 OFFSET = math.radians(7.0)
 

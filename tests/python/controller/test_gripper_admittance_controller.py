@@ -1,4 +1,4 @@
-"""The gripper_admittance task kind in marionette-controller (issue 7, thesis 000 §3.2.4.3): TALOS in
+"""The gripper_admittance task kind in marionette-controller (thesis 000 §3.2.4.3): TALOS in
 MuJoCo closes its right gripper with nothing between the fingers — it reaches its closed position
 in position control and never reports a contact (the TALOS MJCF moves the driven link only, so
 its fingertips never touch anything: the contact case is tests/cpp/sot/gripper_admittance_test.cc

@@ -1,4 +1,4 @@
-"""Repeated time-budget overruns engage the automatic hold controller (issue 11): posture for an
+"""Repeated time-budget overruns engage the automatic hold controller: posture for an
 arm, balance + posture for a humanoid. TALOS stopped in the middle of a step by an overrunning
 solver shifts its CoM over the stance foot and stands on it, the swing foot held in the air,
 instead of freezing with the CoM between its feet; the engagement is journaled and the run
@@ -125,7 +125,7 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
         ):
             c.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, statuses.append)
             c.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, states.append)
-            c.send_spec(walking_spec())
+            c.send_spec(walking_spec("talos"))
             c.wait(
                 lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
                 30.0,
@@ -203,12 +203,15 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
     )
     rpy = pin.rpy.matrixToRpy(pin.Quaternion(q_e[6], *q_e[3:6]).toRotationMatrix())
     landed = plan.steps[1]
+    miss = np.hypot(
+        soles_e[swing].translation[0] - landed.x, soles_e[swing].translation[1] - landed.y
+    )
     print(
         f"hold at {held_at * 1e-6:.2f} s ({swing} swing, step 1): {swing} sole landed "
-        f"{1e3 * np.hypot(soles_e[swing].translation[0] - landed.x, soles_e[swing].translation[1] - landed.y):.1f} mm "
-        f"from its planned place; CoM {1e3 * polygon_margin(com_e[:2], corners):.0f} mm inside the feet; "
-        f"load {fz_e['left']:.0f} / {fz_e['right']:.0f} N; trunk roll {np.degrees(rpy[0]):.1f} pitch "
-        f"{np.degrees(rpy[1]):.1f} deg; base height {base0[2]:.3f} -> {q_e[2]:.3f} m"
+        f"{1e3 * miss:.1f} mm from its planned place; CoM "
+        f"{1e3 * polygon_margin(com_e[:2], corners):.0f} mm inside the feet; "
+        f"load {fz_e['left']:.0f} / {fz_e['right']:.0f} N; trunk roll {np.degrees(rpy[0]):.1f} "
+        f"pitch {np.degrees(rpy[1]):.1f} deg; base height {base0[2]:.3f} -> {q_e[2]:.3f} m"
     )
     assert last_walk.current_step_index == -1 and last_walk.num_steps == 0, "the walk ended"
     assert abs(q_e[2] - base0[2]) < 0.03, "the base kept its height (no fall)"
@@ -317,10 +320,11 @@ def test_a_standing_humanoid_over_budget_holds_its_feet_and_aims_its_com_between
     )
     rpy = pin.rpy.matrixToRpy(pin.Quaternion(q[6], *q[3:6]).toRotationMatrix())
     print(
-        f"CoM {1e3 * (leaning[1] - middle[1]):.1f} mm left of the middle of the feet when the solver overran, "
-        f"{1e3 * (com[1] - middle[1]):.1f} mm 3 s into the hold ({1e3 * polygon_margin(com[:2], corners):.0f} mm "
-        f"inside the feet); load left/right {load['left']:.0f}/{load['right']:.0f} N; trunk roll "
-        f"{np.degrees(rpy[0]):.1f} pitch {np.degrees(rpy[1]):.1f} deg"
+        f"CoM {1e3 * (leaning[1] - middle[1]):.1f} mm left of the middle of the feet when the "
+        f"solver overran, {1e3 * (com[1] - middle[1]):.1f} mm 3 s into the hold "
+        f"({1e3 * polygon_margin(com[:2], corners):.0f} mm inside the feet); load left/right "
+        f"{load['left']:.0f}/{load['right']:.0f} N; trunk roll {np.degrees(rpy[0]):.1f} pitch "
+        f"{np.degrees(rpy[1]):.1f} deg"
     )
     assert leaning[1] - middle[1] > 0.04, "leaning towards the left foot when the solver overran"
     np.testing.assert_allclose(target[:2], 0.5 * (held[0][:2] + held[1][:2]), atol=1e-9)

@@ -119,7 +119,8 @@ def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, l
         v = np.array([s.values["c1_solver.velocity"] for s in samples])
         np.testing.assert_allclose(q[1:], q[:-1] + 1e-3 * v[:-1], atol=1e-12)
         # Tracing costs the loop a few copies: its timing is unchanged (noisy machines: loose). The
-        # grant is read from the log now, seconds after start-up, not as the process may still print it.
+        # grant is read from the log now, seconds after start-up, not as the process may still print
+        # it.
         realtime = "loop thread real-time: SCHED_FIFO priority 80 granted" in c.process.log_tail(50)
         if not realtime:
             pytest.skip(

@@ -1,4 +1,4 @@
-"""Deterministic replay (issue 11): a 30 s TALOS run in MuJoCo driven over LCM (a controller spec,
+"""Deterministic replay: a 30 s TALOS run in MuJoCo driven over LCM (a controller spec,
 streamed gripper references, hold/resume, a gain set through introspection, an object moved in
 the simulator) is recorded with lcm-logger; `marionette replay LOG --controller` re-runs the
 graph offline from the journal and must reproduce every recorded command to 1e-9. A log whose

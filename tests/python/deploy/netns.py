@@ -18,7 +18,8 @@ LCM_GROUP_ROUTE = "239.255.76.0/24"
 
 
 class NetnsUnavailable(RuntimeError):
-    """Namespaces cannot be made here (not root, no `ip`, no veth support): the reason says which."""
+    """Namespaces cannot be made here (not root, no `ip`, no veth support): the reason says
+    which."""
 
 
 @dataclass(frozen=True)

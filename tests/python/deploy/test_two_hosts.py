@@ -1,4 +1,4 @@
-"""Two-host deployment (issue 11): marionette-controller runs in one network namespace, the
+"""Two-host deployment: marionette-controller runs in one network namespace, the
 user's Python side in another, joined only by a veth link with a multicast route — as two
 computers on one Ethernet segment. Skipped, with the reason, where namespaces cannot be made."""
 
@@ -102,7 +102,8 @@ def test_ttl_0_keeps_lcm_on_its_host(hosts, build_dir):
                     "-c",
                     "import sys; from marionette.control.client import ControllerClient\n"
                     f"c = ControllerClient('{URL}')\n"
-                    "try:\n    c.wait_ready(4.0)\n    print('seen')\nexcept TimeoutError:\n    print('unseen')\n"
+                    "try:\n    c.wait_ready(4.0)\n    print('seen')\n"
+                    "except TimeoutError:\n    print('unseen')\n"
                     "c.close()",
                 ]
             ),

@@ -1,4 +1,4 @@
-"""`marionette replay LOG --supervisor` on a recorded ur10-box run (issue #11): the decisions
+"""`marionette replay LOG --supervisor` on a recorded ur10-box run: the decisions
 re-taken offline from the recorded statuses are the recorded ones, tick for tick; a log whose
 inputs were altered diverges at the first tick the alteration changes."""
 

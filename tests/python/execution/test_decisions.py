@@ -1,4 +1,4 @@
-"""The supervisor's decision function (issue #11): decisions are a function of the messages fed,
+"""The supervisor's decision function: decisions are a function of the messages fed,
 taken at the tick of the last status, and re-taken identically by the offline replay."""
 
 from __future__ import annotations

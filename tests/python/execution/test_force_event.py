@@ -1,4 +1,4 @@
-"""Force-threshold events (issue 7; thesis 000 §3.2.4.3 eq. 3.11-3.13, §3.2.5.2): the detector's
+"""Force-threshold events (thesis 000 §3.2.4.3 eq. 3.11-3.13, §3.2.5.2): the detector's
 filter against the continuous first-order step response (exact at every sample, even at an
 irregular state rate) and the tick it fires at against the closed-form crossing time; then the
 event on the bus against the real controller and supervisor: the reference is cut at the event's

@@ -1,6 +1,6 @@
 """grip_force: the grip force from the jaw contact wrenches of one ROBOT_STATE and the estimate of
 eq. 3.11-3.13, on synthetic states whose answer is known in closed form (the UR10's parallel
-gripper with its grippers.yaml parameters, TALOS' two-jaw gripper); the holding windows from step
+gripper with its robot.yaml parameters, TALOS' two-jaw gripper); the holding windows from step
 records."""
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def _random_q(model, seed):
 
 def test_parallel_gripper_reads_the_squeeze_and_half_the_motor_force(ur10):
     (gripper,) = [g for g in robots.semantics("ur10").grippers if g.joint]
-    g = GripperGeometry.of(gripper.joint, gripper.admittance, closing_direction=1.0)
+    g = GripperGeometry.of("ur10", gripper.name, gripper.admittance, closing_direction=1.0)
     assert (g.lever_arm, g.torque_per_effort) == (1.0, 0.5)
     q = _random_q(ur10, 3)
     data = ur10.createData()
@@ -84,7 +84,9 @@ def test_parallel_gripper_reads_the_squeeze_and_half_the_motor_force(ur10):
 
 
 def test_talos_jaws_read_their_squeeze(talos):
-    g = GripperGeometry.of("gripper_right_joint", {"lever_arm": 0.085}, closing_direction=-1.0)
+    g = GripperGeometry.of(
+        "talos", "talos/right_gripper", {"lever_arm": 0.085}, closing_direction=-1.0
+    )
     q = _random_q(talos, 1)
     data = talos.createData()
     pin.framesForwardKinematics(talos, data, q)
@@ -102,7 +104,7 @@ def test_talos_jaws_read_their_squeeze(talos):
 
 
 def test_without_jaw_wrenches_the_contact_is_unknown(ur10):
-    g = GripperGeometry.of("finger_joint", {}, closing_direction=1.0)
+    g = GripperGeometry.of("ur10", "ur10/gripper", {}, closing_direction=1.0)
     est, grip, _ = grip_forces(
         _state(ur10, pin.neutral(ur10), {}, {g.joint: 0.0}), ur10, ur10.createData(), g
     )
@@ -123,7 +125,7 @@ def test_holding_windows_run_from_the_first_holding_step_to_the_release():
 
 
 def test_settled_windows_start_a_second_after_the_estimate_reaches_the_threshold(ur10):
-    rec = GripForceRecorder(ur10, {"g": GripperGeometry.of("finger_joint", {}, 1.0)})
+    rec = GripForceRecorder(ur10, {"g": GripperGeometry.of("ur10", "ur10/gripper", {}, 1.0)})
     rec.t = list(np.arange(0.0, 10.0, 0.1))
     rec.estimate["g"] = [0.0 if t < 3.05 else 5.0 for t in rec.t]
     rec.contact["g"] = [0.0 if t < 3.05 else 5.5 for t in rec.t]

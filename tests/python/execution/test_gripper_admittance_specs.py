@@ -1,4 +1,4 @@
-"""The factory's gripper admittance (issue 7, thesis 000 §3.2.5.1: the transition that closes a
+"""The factory's gripper admittance (thesis 000 §3.2.5.1: the transition that closes a
 gripper adds the admittance task, kept while the grasp holds; release in reverse) on the TALOS
 plank-flip plan, checked against the plan's own grasp bookkeeping, and the spec's wire format."""
 

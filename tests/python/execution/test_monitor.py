@@ -1,4 +1,4 @@
-"""Execution monitor (issue 7, thesis 000 §3.4.4.1): residuals of the ur10-box plan's own grasp
+"""Execution monitor (thesis 000 §3.4.4.1): residuals of the ur10-box plan's own grasp
 and placement constraints. Along the planned path the grasp holds by construction (the planner
 projected every sample on it), so the residual there must stay ~0; a box displaced in the gripper
 by a known offset must give that offset back and fire after `consecutive` messages; a single
@@ -131,7 +131,7 @@ MUJOCO = (
 
 @pytest.fixture
 def ur10_box_mujoco(build_dir, lcm_url, tmp_path):
-    from marionette.execution.demo import SCENARIOS
+    from marionette.scenarios import SCENARIOS
 
     with controller_running(
         build_dir, lcm_url, tmp_path / "logs", *MUJOCO, "--scene", str(SCENARIOS["ur10-box"].scene)

@@ -150,7 +150,7 @@ def test_abort_event_fails_and_holds(ur10_kinematic, ur10_box):
 @pytest.mark.slow
 def test_demo_ur10_box_end_to_end_in_mujoco(tmp_path, lcm_env):
     """`marionette demo ur10-box --speed 3`: MuJoCo, real processes, report; box within 1 cm, and
-    the two-finger gripper holds it with 5 ± 1 N all along the carry (issue 7): the contact forces
+    the two-finger gripper holds it with 5 ± 1 N all along the carry: the contact forces
     MuJoCo computes on the fingers, independent of the effort estimate the admittance regulates.
     (3x real time, not unpaced: the references are streamed 4 s of controller time ahead, which
     unpaced at ~18x is ~0.2 s of wall time, less than a loaded CI machine may stall Python.)"""

@@ -351,13 +351,13 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
 
     import marionette
     from marionette._core import sim
-    from marionette.execution.demo import SCENARIOS
     from marionette.execution.factory import build_specs
     from marionette.execution.references import compute_references, sample_step
     from marionette.execution.visual_servo import add_gaze
     from marionette.perception.camera import CameraIntrinsics
     from marionette.perception.detector import AprilTagDetector, DetectorConfig
     from marionette.perception.objects import estimate_body_pose, load_tagged_bodies, tag_sizes
+    from marionette.scenarios import SCENARIOS
 
     p = talos_plank
     specs = build_specs(p.steps, dataclasses.replace(p.ctx, visual_servoing=True))

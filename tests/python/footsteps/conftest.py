@@ -1,4 +1,5 @@
-"""Shared fixtures of the footstep tests: TALOS once per session, one initial grasp plan."""
+"""Shared fixtures of the footstep tests: the walking robot once per session, one initial grasp
+plan."""
 
 from __future__ import annotations
 
@@ -7,12 +8,12 @@ import pytest
 
 from footsteps_checks import BALL
 from marionette.footsteps.augmented_robot import Stance
-from marionette.footsteps.robot_model import talos
+from marionette.footsteps.robot_model import walking_robot
 
 
 @pytest.fixture(scope="session")
 def robot():
-    return talos()
+    return walking_robot("talos")
 
 
 @pytest.fixture(scope="session")

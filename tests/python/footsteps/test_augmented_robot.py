@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from footsteps_checks import TALOS_FOOT
 from marionette.footsteps.augmented_robot import (
     AugmentedConfiguration,
     AugmentedRobot,
@@ -14,7 +15,6 @@ from marionette.footsteps.augmented_robot import (
     planar_relative,
 )
 from marionette.footsteps.errors import InvalidProblem
-from marionette.footsteps.robot_model import TALOS_FOOT
 
 
 def _planar_chain_model(k: int, root: np.ndarray) -> pin.Model:

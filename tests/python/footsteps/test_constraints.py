@@ -7,6 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from footsteps_checks import TALOS_FOOT
 from marionette.footsteps.augmented_robot import AugmentedRobot, Stance, rotation_2d
 from marionette.footsteps.constraints import (
     ComInSupportPolygon,
@@ -28,7 +29,6 @@ from marionette.footsteps.constraints import (
 from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.final_pose import RigidStanceKinematics
 from marionette.footsteps.obstacles import Bar, CircleObstacle, RectangleObstacle
-from marionette.footsteps.robot_model import TALOS_FOOT
 
 OBSTACLES = [
     CircleObstacle([0.3, 0.2], 0.1),

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from footsteps_checks import sole_points, soles_overlap, step_variables_within
+from footsteps_checks import TALOS_FOOT, sole_points, soles_overlap, step_variables_within
 from marionette.footsteps.augmented_robot import (
     AugmentedConfiguration,
     AugmentedRobot,
@@ -23,7 +23,6 @@ from marionette.footsteps.constraints import (
 )
 from marionette.footsteps.obstacles import CircleObstacle
 from marionette.footsteps.optimizer import FootstepOptimizer, OptimizerSettings
-from marionette.footsteps.robot_model import TALOS_FOOT
 
 
 def _plan(stance, goal, obstacles=(), config=None):

@@ -75,6 +75,20 @@ def test_grasp_node_plans_then_replans_only_unstarted_steps(build_dir, robot):
     assert third.first_step_index == 3 and third.steps[0].index == 3
 
 
+def test_a_failed_first_plan_is_tried_again_when_the_object_moves(build_dir, robot):
+    from marionette.footsteps.errors import PlanningFailed
+    from marionette.footsteps.node import FootstepNode, NodeOptions
+
+    node = FootstepNode(NodeOptions(mode="step-over"), robot=robot)
+    node.on_walk_status(_walk_status(-1))
+    node.on_object_poses(_object_poses("bar", [-0.5, 0.0, 0.0], yaw=np.pi / 2))  # behind
+    with pytest.raises(PlanningFailed):
+        node.update(1)
+    node.on_object_poses(_object_poses("bar", [1.0, 0.0, 0.0], yaw=np.pi / 2))
+    plan = node.update(2)
+    assert plan is not None and plan.plan_id == 1 and plan.first_step_index == 0
+
+
 def test_malformed_object_poses_are_ignored(build_dir, robot):
     from marionette.footsteps.node import FootstepNode, NodeOptions
 

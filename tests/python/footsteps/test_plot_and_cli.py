@@ -8,13 +8,14 @@ import sys
 import matplotlib.image as mpimg
 import numpy as np
 
+from footsteps_checks import TALOS_FOOT
 from marionette.footsteps.obstacles import Bar, CircleObstacle
 from marionette.footsteps.step_over import StepOverPlanner
 
 
 def test_plot_writes_a_top_view_with_the_plan_drawn(tmp_path, stance):
     bar = Bar([1.0, 0.0], np.pi / 2, 0.02, 1.0)
-    planner = StepOverPlanner(stance, [2.0, 0.0, 0.0], bar)
+    planner = StepOverPlanner(stance, [2.0, 0.0, 0.0], bar, TALOS_FOOT)
     planner.plan()
     earlier = planner.result()
     planner.update_bar(bar.moved_to([1.05, 0.03], np.pi / 2 + 0.1))

@@ -8,7 +8,7 @@ import time
 import numpy as np
 import pytest
 
-from footsteps_checks import sole_points, soles_overlap
+from footsteps_checks import TALOS_FOOT, sole_points, soles_overlap
 from marionette.footsteps.augmented_robot import planar_relative, rotation_2d
 from marionette.footsteps.obstacles import Bar
 from marionette.footsteps.step_over import StepOverPlanner
@@ -20,7 +20,7 @@ GOAL = np.array([2.0, 0.0, 0.0])
 @pytest.fixture
 def planner(stance):
     bar = Bar([1.0, 0.0], np.pi / 2, 0.02, 2.0, buffer=0.03)
-    p = StepOverPlanner(stance, GOAL, bar)
+    p = StepOverPlanner(stance, GOAL, bar, TALOS_FOOT)
     report = p.plan()
     assert report.converged
     return p
@@ -104,13 +104,13 @@ def test_bar_moved_beyond_the_free_steps_reach_is_crossed_by_a_fresh_sequence(st
     cross it, the goal is reached."""
     bar = Bar([1.0, 0.0], np.pi / 2, 0.02, 2.0, buffer=0.03)
     moved = bar.moved_to(bar.center + np.array([away, 0.0]), bar.yaw)
-    lone = StepOverPlanner(stance, GOAL, bar)
+    lone = StepOverPlanner(stance, GOAL, bar, TALOS_FOOT)
     assert lone.plan().converged
     lone.options = dataclasses.replace(lone.options, fresh_shifts=())  # Algorithm 3 alone
     lone.update_bar(moved, executed_steps=1)
     assert lone._crossing_short(), "the bar was meant to be out of Algorithm 3's reach"
 
-    p = StepOverPlanner(stance, GOAL, bar)
+    p = StepOverPlanner(stance, GOAL, bar, TALOS_FOOT)
     assert p.plan().converged
     taken = p.augmented.footprints(p.config.steps)[2].copy()
     t0 = time.perf_counter()
@@ -127,18 +127,18 @@ def test_bar_moved_beyond_the_free_steps_reach_is_crossed_by_a_fresh_sequence(st
 
 @pytest.mark.parametrize("x0", [1.1, 1.25])
 def test_bar_come_nearer_is_replanned_with_the_steps_it_needs(stance, x0):
-    """A bar first seen 10-25 cm farther slides to 1 m while the first step is taken (issue #10's
-    moved bar). Algorithm 3 alone keeps the step count planned for the far bar (a surplus step
+    """A bar first seen 10-25 cm farther slides to 1 m while the first step is taken (a moved
+    bar). Algorithm 3 alone keeps the step count planned for the far bar (a surplus step
     that ends the walk shuffling, measured: falls at the goal); once the bar has moved more than
     ``fresh_after_move`` the free steps are planned afresh and end with as many steps as a plan
     made for the bar at 1 m, every sole clear of it."""
     far = Bar([x0, 0.0], np.pi / 2, 0.02, 2.0, buffer=0.03)
     near = far.moved_to(np.array([1.0, 0.0]), far.yaw)
-    reference = StepOverPlanner(stance, GOAL, near)
+    reference = StepOverPlanner(stance, GOAL, near, TALOS_FOOT)
     assert reference.plan().converged
     counts = {}
     for name, after in (("algorithm 3 alone", np.inf), ("with fresh sequences", 0.05)):
-        p = StepOverPlanner(stance, GOAL, far)
+        p = StepOverPlanner(stance, GOAL, far, TALOS_FOOT)
         p.options = dataclasses.replace(p.options, fresh_after_move=after)
         assert p.plan().converged
         for x in np.linspace(x0, 1.0, 21)[1:]:

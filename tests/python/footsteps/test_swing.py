@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from footsteps_checks import TALOS_FOOT
 from marionette.footsteps.errors import InvalidProblem
 from marionette.footsteps.obstacles import Bar
-from marionette.footsteps.robot_model import TALOS_FOOT
 from marionette.footsteps.swing import bar_clearance, crossing_via_points
 
 R, D1, D2 = 0.03, 0.08, 0.13  # bar radius, heel and toe distances of the sole point O

@@ -23,8 +23,16 @@ def _pose(d) -> pin.SE3:
     return Placement(tuple(d["xyz"]), tuple(d["xyzw"])).se3()
 
 
-def test_there_are_the_five_demo_scenes():
-    assert SCENES == ["talos_plank", "talos_walk", "tiago_deburr", "ur10_box", "ur10_drill"]
+def test_the_scenes_of_the_demos_are_there():
+    assert {"talos_plank", "talos_walk", "tiago_deburr", "ur10_box", "ur10_drill"} <= set(SCENES)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_every_scene_declaration_loads(name):
+    from marionette.models.scenes import load_scene
+
+    scene = load_scene(MODELS_DIR / "scenes" / f"{name}.yaml")
+    assert scene.name == name
 
 
 @pytest.mark.parametrize("name", SCENES)

@@ -55,13 +55,12 @@ def _link_placement(model, link: str) -> pin.SE3:
 
 
 def test_every_yaml_parses():
-    files = sorted((MODELS_DIR / "objects").glob("*.yaml")) + [
-        robots.robot(n).semantics for n in robots.robot_names()
-    ]
-    assert len(files) == len(OBJECTS) + 3
+    files = sorted((MODELS_DIR / "objects").glob("*.yaml"))
+    assert len(files) == len(OBJECTS)
     for path in files:
-        s = load_semantics(path)
-        assert s.name == Path(path).stem or path.name == "grippers.yaml"
+        assert load_semantics(path).name == Path(path).stem
+    for name in robots.robot_names():
+        assert robots.semantics(name).name == name
 
 
 @pytest.mark.parametrize("name", robots.robot_names())
@@ -268,7 +267,8 @@ GOOD = {
                     }
                 ]
             ),
-            r"grippers\[0\]: admittance must map parameters among \['acceleration'.*got .*stiffness",
+            r"grippers\[0\]: admittance must map parameters among "
+            r"\['acceleration'.*got .*stiffness",
         ),
         (
             lambda d: d.update(

@@ -3,30 +3,48 @@ objects."""
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from marionette import robots
 
-EXPECTED = {  # robot: (root joint, nq, nv)
-    "talos": (pin.JointModelFreeFlyer().shortname(), 39, 38),
-    "tiago": (pin.JointModelPlanar().shortname(), 14, 13),
-    "ur10": (None, 7, 7),  # 6 arm joints + the gripper's finger_joint
+ROOTS = {  # base kind: (root joint, its nq, its nv)
+    "free_flyer": (pin.JointModelFreeFlyer().shortname(), 7, 6),
+    "planar": (pin.JointModelPlanar().shortname(), 4, 3),
+    "fixed": (None, 0, 0),
 }
+
+
+def urdf_joints(name: str) -> tuple[int, int, int]:
+    """(nq, nv, mimics) of the URDF's movable joints, counted from its XML: a continuous joint
+    is (cos, sin) in q; a joint with <mimic> is not in Pinocchio's model (fixed or mimic)."""
+    nq = nv = mimics = 0
+    for j in ET.parse(robots.robot(name).urdf).getroot().iter("joint"):
+        if j.find("mimic") is not None:
+            mimics += 1
+        elif j.get("type") in ("revolute", "prismatic"):
+            nq, nv = nq + 1, nv + 1
+        elif j.get("type") == "continuous":
+            nq, nv = nq + 2, nv + 1
+    return nq, nv, mimics
 
 
 @pytest.mark.parametrize("name", robots.robot_names())
 def test_pinocchio_model_has_the_documented_base(name):
     model, geom = robots.load_pinocchio(name)
-    root, nq, nv = EXPECTED[name]
-    assert (model.nq, model.nv) == (nq, nv)
+    root, base_nq, base_nv = ROOTS[robots.robot(name).base]
+    nq, nv, _ = urdf_joints(name)
+    assert (model.nq, model.nv) == (base_nq + nq, base_nv + nv)
     if root is None:
         assert model.names[1] != "root_joint"
     else:
         assert model.names[1] == "root_joint"
         assert model.joints[1].shortname() == root
-    assert len(geom.geometryObjects) > 10
+    collisions = ET.parse(robots.robot(name).urdf).getroot().findall("link/collision")
+    assert len(geom.geometryObjects) == len(collisions) > 0
     assert 0 < len(geom.collisionPairs) < len(geom.geometryObjects) ** 2 / 2
 
 
@@ -79,7 +97,8 @@ def test_mujoco_configuration_round_trip(name):
         hi = np.minimum(model.upperPositionLimit, 3)
         q = pin.normalize(model, lo + rng.random(model.nq) * (hi - lo))
         qpos = robots.pinocchio_to_mujoco(name, q)
-        mimics = 1 if name == "ur10" else 0  # the UR10 gripper's right finger (MuJoCo only)
+        # mimic fingers move in MuJoCo only
+        mimics = urdf_joints(name)[2] if robots.robot(name).moving_mimics else 0
         assert qpos.size == model.nq - (1 if robots.robot(name).base == "planar" else 0) + mimics
         assert qpos.size == robots.mujoco_nq(name)
         assert np.allclose(robots.mujoco_to_pinocchio(name, qpos), q, atol=1e-12)
@@ -90,20 +109,22 @@ def test_mujoco_configuration_round_trip(name):
 
 @pytest.mark.parametrize("name", robots.object_names())
 def test_objects_load_with_collision_geometry_and_their_mass(name):
-    from marionette.models.objects import object_spec
-
     obj = robots.load_object(name)
     assert obj.model.names[1] == "root_joint" and obj.model.nq == 7
-    assert len(obj.collision_model.geometryObjects) >= 1
-    assert pin.computeTotalMass(obj.model) == pytest.approx(object_spec(name).mass())
+    urdf = ET.parse(robots.object_urdf(name)).getroot()
+    assert len(obj.collision_model.geometryObjects) == len(urdf.findall("link/collision")) >= 1
+    masses = [float(m.get("value")) for m in urdf.iter("mass")]
+    assert pin.computeTotalMass(obj.model) == pytest.approx(sum(masses))
     assert obj.semantics.name == name
     fixed = robots.load_object(name, root="fixed")
     assert fixed.model.nq == 0
 
 
 def test_unknown_names_list_the_known_ones():
-    with pytest.raises(robots.UnknownModel, match=r"unknown robot 'pr2'; known robots: \['talos'"):
+    with pytest.raises(robots.UnknownModel, match=r"unknown robot 'pr2'; known robots: .*talos"):
         robots.robot("pr2")
+    with pytest.raises(robots.UnknownModel, match=r"did you mean 'talos'"):
+        robots.robot("tallos")
     with pytest.raises(robots.UnknownModel, match=r"unknown object 'chair'; known objects: \["):
         robots.load_object("chair")
     with pytest.raises(ValueError, match="root must be"):

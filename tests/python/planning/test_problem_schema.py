@@ -135,7 +135,7 @@ def test_yaml_syntax_error_is_one_line_with_file_and_line(tmp_path):
     with pytest.raises(ProblemError) as e:
         load_problem(bad)
     msg = str(e.value)
-    assert "\n" not in msg and f"{bad}:" in msg and "YAML syntax error" in msg
+    assert "\n" not in msg and f"{bad}:" in msg and "not valid YAML" in msg
     line = int(msg.split(f"{bad}:")[1].split(":")[0])
     assert 3 <= line <= 5
     r = run_plan(bad)

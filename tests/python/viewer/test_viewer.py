@@ -1,4 +1,4 @@
-"""The browser viewer (issue #10), loaded in headless Chromium: the page shows the robot, changes
+"""The browser viewer, loaded in headless Chromium: the page shows the robot, changes
 as the robot moves, shows the FSM text; `marionette demo --view` served it during a run;
 `marionette replay LOG --view` plays a recorded run and re-plots its report from the log."""
 
@@ -17,7 +17,7 @@ from marionette.execution.decision_replay import read_decision_log
 from marionette.lcm_bus import LcmBus
 from marionette.processes import ProcessGroup
 from marionette.viewer.node import MeshcatServer, start_viewer
-from marionette.viewer.replay import play, replot_report
+from marionette.viewer.replay import play, replot_report, run_scene
 from marionette.viewer.scene import ViewerScene
 from marionette.viewer.screenshot import screenshot
 
@@ -95,9 +95,10 @@ def test_demo_view_served_the_run_and_stopped_with_it(ur10_box_run):
 def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_path):
     log = ur10_box_run / "run.lcmlog"
     report = json.loads((ur10_box_run / "report.json").read_text())
+    assert run_scene(log) == SCENE  # from report.json: no scenario registry needed
     server = MeshcatServer()
     try:
-        scene = ViewerScene(server.visualizer(), "ur10", SCENE)
+        scene = ViewerScene(server.visualizer(), "ur10", run_scene(log))
         early = play(log, scene, speed=0.0, until_s=2.0)
         shot_early = screenshot(server.web_url, tmp_path / "early.png")
         full = play(log, scene, speed=0.0)
@@ -116,6 +117,25 @@ def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_pat
     decisions, _ = read_decision_log(log)
     ids = [int(d.inputs["controller_id"]) for d in decisions if d.event == "step_started"]
     assert ids == [s["controller_id"] for s in report["steps"]]
+
+
+def test_the_scene_of_a_recorded_run_comes_from_its_report_alone(tmp_path, monkeypatch):
+    """``scene`` in report.json, relative to the repository or absolute; no report or no scene:
+    None. The scenario registry is never imported (a report is read without the code that ran
+    it)."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "marionette.scenarios", None)  # importing it would fail
+    log = tmp_path / "run.lcmlog"
+    assert run_scene(log) is None
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps({"scenario": "gone-since", "scene": "models/scenes/ur10_box.xml"}))
+    assert run_scene(log) == SCENE
+    elsewhere = tmp_path / "scene.xml"
+    report.write_text(json.dumps({"scenario": "gone-since", "scene": str(elsewhere)}))
+    assert run_scene(log) == elsewhere
+    report.write_text(json.dumps({"scenario": "ur10-box"}))  # a report from before the scene
+    assert run_scene(log) is None
 
 
 def test_replay_view_rejects_bad_input(tmp_path):
@@ -141,12 +161,25 @@ def test_replay_view_rejects_bad_input(tmp_path):
 
 
 def test_footstep_plan_is_drawn_as_soles(tmp_path):
-    """FOOTSTEP_PLAN -> one sole box per step, right feet orange (no orange elsewhere)."""
+    """FOOTSTEP_PLAN -> one sole box per step: the two right feet appear as two orange patches,
+    the left foot as one blue patch (counted as connected regions of new pixels)."""
+    from scipy import ndimage
+
     from marionette import lcmt_footstep, lcmt_footstep_plan
 
     def orange(img: np.ndarray) -> np.ndarray:
         r, g, b = (img[..., k].astype(int) for k in range(3))
         return (r > 150) & (r - b > 80) & (g < r - 30)
+
+    def blue(img: np.ndarray) -> np.ndarray:
+        r, g, b = (img[..., k].astype(int) for k in range(3))
+        return (b > 150) & (b - r > 100) & (b - g > 60)
+
+    def patches(mask: np.ndarray) -> list[int]:
+        """Pixel counts of the connected regions of at least 20 pixels (soles, not edges)."""
+        labels, n = ndimage.label(mask)
+        sizes = np.bincount(labels.ravel())[1:]
+        return sorted(int(s) for s in sizes if s >= 20)
 
     server = MeshcatServer()
     try:
@@ -163,5 +196,6 @@ def test_footstep_plan_is_drawn_as_soles(tmp_path):
     finally:
         server.close()
     assert scene.footsteps == 3
-    # (the world triad's red x axis has a few orange-ish pixels already)
-    assert (orange(after) & ~orange(before)).sum() > 300
+    # (the world triad's red x axis has a few orange-ish pixels already: only new pixels count)
+    assert len(patches(orange(after) & ~orange(before))) == 2
+    assert len(patches(blue(after) & ~blue(before))) == 1

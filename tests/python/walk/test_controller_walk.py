@@ -1,4 +1,4 @@
-"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM (issue 9): a
+"""marionette-controller walks TALOS in MuJoCo from a footstep plan sent over LCM: a
 controller spec whose feet and CoM tasks take their references from the pattern generator
 ("walk:" reference channels), FOOTSTEP_PLAN in, WALK_STATUS out; the robot walks the steps,
 stops, and the ZMP it reports from the soles' contact wrenches stays under its feet. The run is
@@ -21,34 +21,11 @@ from marionette import (
     robots,
 )
 from marionette.control.replay_cli import replay_controller
-from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.execution.walking import walking_spec
 from tests_support import controller_running
 
 TALOS = robots.robot("talos")
 SOLE_HALF = (0.1025, 0.061)  # TALOS sole box half length, half width [m] (models/talos/talos.xml)
-
-
-def walking_spec(controller_id: int = 1):
-    """Feet and CoM from the walk (level 0 after the joint limits), waist upright, posture."""
-    tasks = [
-        TaskSpec("left_foot", "se3", 0, frame="left_sole_link", gain=20.0),
-        TaskSpec("right_foot", "se3", 0, frame="right_sole_link", gain=20.0),
-        TaskSpec("com", "com", 0, gain=5.0),
-        TaskSpec(
-            "waist",
-            "se3",
-            0,
-            frame="base_link",
-            mask=(False, False, False, True, True, False),
-            gain=20.0,
-        ),
-        TaskSpec("posture", "posture", 1, gain=2.0),
-    ]
-    msg = ControllerSpec(controller_id, "walk", tasks).to_lcm()
-    for task in msg.tasks:
-        if task.name in ("left_foot", "right_foot", "com"):
-            task.reference_channel = "walk:" + task.name
-    return msg
 
 
 def forward_plan(left, right, count: int, length: float, plan_id: int = 1):
@@ -126,7 +103,7 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
                     continue
             assert "has no walk: tasks" in client.status.last_rejection
 
-            client.bus.publish(channels.CONTROLLER_SPEC, walking_spec())
+            client.bus.publish(channels.CONTROLLER_SPEC, walking_spec("talos").to_lcm())
             client.wait(
                 lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
                 30.0,

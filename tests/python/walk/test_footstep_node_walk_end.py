@@ -12,9 +12,9 @@ BALL = np.array([1.3, -0.1, 0.842])  # the grasp-walk demo's ball (6 steps ahead
 
 @pytest.fixture(scope="module")
 def robot():
-    from marionette.footsteps.robot_model import talos
+    from marionette.footsteps.robot_model import walking_robot
 
-    return talos()
+    return walking_robot("talos")
 
 
 def _status(step: int):

@@ -1,4 +1,4 @@
-"""TaskSpec.reference_channel (issue 10): the walk's references name the controller's pattern
+"""TaskSpec.reference_channel: the walk's references name the controller's pattern
 generator; they round-trip through lcmt_task_spec and bad values are refused with their reason
 before the controller sees them (the controller's own refusals: controller_factory.cc)."""
 

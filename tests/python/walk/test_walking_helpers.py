@@ -88,10 +88,10 @@ def test_minimum_jerk_derivatives_match_finite_differences():
 
 
 def test_seeded_floor_moves_cover_every_direction_within_their_distances():
-    """Issue #10's "moved by up to 0.3 m": each trial's move is 0.1-0.3 m in any direction,
-    the same for the same seed, and over many seeds every quadrant and both ends of the range
+    """Objects "moved by up to 0.3 m while walking": each trial's move is 0.1-0.3 m in any
+    direction, the same for the same seed, and over many seeds every quadrant and both ends of the range
     are drawn."""
-    from marionette.execution.walking_scenario import draw_floor_move
+    from marionette.scenarios.walking_scenario import draw_floor_move
 
     moves = np.array([draw_floor_move(seed) for seed in range(400)])
     distance = np.linalg.norm(moves, axis=1)
@@ -108,7 +108,7 @@ def test_bar_height_under_a_sole_is_the_cylinder_or_an_end_block():
     """The step-over verdict's bar height under a horizontal sole, against the closed form of a
     cylinder of radius R lying on the floor: 2R over the axis, R + sqrt(R² − u²) at u from it, 0
     beyond R; the 7 cm end blocks beyond the cylinder's ends."""
-    from marionette.execution.step_over import cylinder_height_under
+    from marionette.scenarios.step_over import cylinder_height_under
 
     R, length, block = 0.025, 1.34, 0.07
     bar = (1.0, 0.0, np.pi / 2)  # axis along y

@@ -31,7 +31,7 @@
 namespace marionette::controller {
 
 struct ControllerOptions {
-  std::string robot = "talos";
+  std::string robot;  ///< name on the robot search path, or a folder holding robot.yaml
   std::string backend = "mujoco";  ///< "mujoco" | "kinematic"
   std::string scene;               ///< MJCF (mujoco backend); default: the robot alone
   /// Encoder calibration (mujoco backend): joint -> offset its encoder reads above the truth.

@@ -2,7 +2,7 @@
 /// The `gripper_admittance` task kind of a controller spec (thesis 000 §3.2.4.3, §3.2.5: "the
 /// transition where the robot closes its gripper ... adds the position and admittance tasks"):
 /// how an lcmt_task_spec declares a sot::FeatureGripperAdmittance.
-///   joint_name   exactly one: the gripper joint (TALOS gripper_left_joint / gripper_right_joint)
+///   joint_name   exactly one: the gripper joint (robot.yaml grippers[].joint)
 ///   reference    1 value: the position-control target [rad] (closed position when closing,
 ///                open position when releasing); required
 ///   gain         λ of the task (constant: gain_slope must be 0); 0 = the factory's default

@@ -12,10 +12,10 @@
 /// Why a walking robot finishes its step: mid-step its CoM is on its way to the next support
 /// foot, accelerated by gravity about the ZMP under the stance foot (Dang 2012 §2.4, eq. 2.47);
 /// its capture point is past the stance foot's edge, so no motion on that foot stops it — measured
-/// by hand on TALOS in MuJoCo: with its joints frozen it fell, with its feet and CoM held (with or
-/// without the waist) it fell within 1.5 s. Landing the swing foot where the plan put it gives the
-/// support the CoM is heading for. Standing: "over the support" is the centre of the soles on the
-/// ground (those within kSupportHeight of the lowest), at the CoM's current height.
+/// by hand on the bundled humanoid in MuJoCo: with its joints frozen it fell, with its feet and CoM
+/// held (with or without the waist) it fell within 1.5 s. Landing the swing foot where the plan put
+/// it gives the support the CoM is heading for. Standing: "over the support" is the centre of the
+/// soles on the ground (those within kSupportHeight of the lowest), at the CoM's current height.
 ///
 /// It is a controller like any other: a spec built by the ControllerFactory off the loop against
 /// the running controller, so the loop engages it with one Graph::Apply. Its references are the

@@ -1,5 +1,5 @@
 #pragma once
-/// Deterministic replay of a recorded controller run (issue 11).
+/// Deterministic replay of a recorded controller run.
 ///
 /// The live controller journals every input its loop consumed with the tick that consumed it
 /// (CONTROLLER_JOURNAL: channel + FNV-1a hash of the message bytes), plus the one decision it

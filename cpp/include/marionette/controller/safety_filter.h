@@ -23,7 +23,7 @@ enum class ControlMode : int { kRun = 0, kHold = 1, kEstop = 2 };
 
 class SafetyFilter final : public graph::Entity {
  public:
-  /// Limits from `model` (position limits and velocityLimit of its 1-dof joints), scaled by
+  /// Limits from `model` (position limits and upperVelocityLimit of its 1-dof joints), scaled by
   /// `velocity_scale` (<= 1), for the control period `dt`.
   SafetyFilter(std::string name, const pinocchio::Model& model, double dt,
                double velocity_scale = 1.0);

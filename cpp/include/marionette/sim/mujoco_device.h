@@ -22,7 +22,7 @@ namespace marionette::sim {
 class MujocoDevice final : public graph::Entity {
  public:
   /// `scene` must outlive the device; `contact_bodies` are the robot bodies whose contact
-  /// wrenches are measured (TALOS: the sole links); `dt` is the control period.
+  /// wrenches are measured (a humanoid: its sole links); `dt` is the control period.
   MujocoDevice(std::string name, MujocoScene* scene, std::vector<std::string> contact_bodies,
                double dt);
   const char* type_name() const override { return "MujocoDevice"; }

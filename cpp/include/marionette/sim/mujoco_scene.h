@@ -88,12 +88,12 @@ class MujocoScene {
   void SetFreeBodyPose(const std::string& body, const pinocchio::SE3& X_WB);
 
   /// The simulated grasp (Agimus simulated it too, §3.3.6: physics engines hold objects badly):
-  /// activates the weld equality `weld` (e.g. "grasp/talos/left_gripper/plank") at the current
+  /// activates the weld equality `weld` ("grasp/<robot>/<gripper>/<object>") at the current
   /// relative pose of its two bodies, or releases it. Throws SimError on an unknown weld.
   ///
   /// A release also opens the hand: the geoms of body1's subtree (the gripper and its fingers)
   /// stop colliding until none of them is within reach of body2's geoms (bounding spheres apart),
-  /// checked after every step. A real gripper opens before it backs off; TALOS' reduced model
+  /// checked after every step. A real gripper opens before it backs off; a reduced humanoid model
   /// has rigid fingers whose convex hulls fill the jaw, so without this the retreating hand
   /// drags the released object along (6-55 mm in plank-flip trials).
   void SetWeld(int weld_id, bool active);

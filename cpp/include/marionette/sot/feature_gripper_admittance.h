@@ -48,7 +48,7 @@ struct GripperAdmittanceOptions {
   double speed = 0.1;  ///< [rad/s] position ramp speed ("slowly", §3.2.4.3: the friction and
                        ///< damping it costs read as force)
   double acceleration = 1.0;  ///< [rad/s²] of the ramp (starts and stops without a velocity step)
-  double closing_direction = -1.0;  ///< s: sign of q̇ when closing (TALOS: −1, closed < open)
+  double closing_direction = -1.0;  ///< s: sign of q̇ when closing (−1 when closed < open)
   double task_gain = 2.0;           ///< λ [1/s] of the Task that reads this feature
   double dt = 1e-3;                 ///< control period [s]
   /// Throws SotError naming `who` when a value is out of range.

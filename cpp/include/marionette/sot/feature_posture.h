@@ -42,7 +42,8 @@ class FeaturePosture final : public Feature {
   graph::InputSignal<Eigen::VectorXd>* reference_velocity_{};
 };
 
-/// Every 1-DoF joint of `model` (the actuated joints of TALOS, UR10, TIAGo's arm and wheels...).
+/// Every 1-DoF joint of `model` (the actuated joints of a humanoid, an arm, a mobile base's
+/// arm...).
 std::vector<std::string> OneDofJoints(const pinocchio::Model& model);
 
 }  // namespace marionette::sot

@@ -22,7 +22,8 @@ struct JointLimitsOptions {
   double margin = 0.0;           ///< [rad or m] kept away from each position limit
 };
 
-/// 1-DoF joints with finite position limits (all TALOS, UR10 joints; not continuous wheels).
+/// 1-DoF joints with finite position limits (a humanoid's and an arm's joints; not continuous
+/// wheels).
 std::vector<std::string> LimitedJoints(const pinocchio::Model& model);
 
 /// The bounds of the joint-limit task over `feature` (a posture feature whose reference is the
@@ -37,7 +38,7 @@ Task& AddJointLimits(graph::GraphBuilder& builder, const std::string& name, Mode
                      const JointLimitsOptions& options = {});
 
 /// Velocity components held at zero: degrees of freedom the model has but no device executes
-/// (TIAGo's planar base: the simulated wheels do not exist, and a differential drive could not
+/// (a planar base: the simulated wheels do not exist, and a differential drive could not
 /// follow a sideways base velocity anyway). e = 0, J = unit rows on `v_indices`; as an inequality
 /// task with rates bounded to [0, 0] at level 0 (HeldVelocityBounds) it is a hard box: no level may
 /// reach a task through these velocities, which would integrate into a command nobody executes.

@@ -34,25 +34,22 @@ using Matrix6Xd = Eigen::Matrix<double, 6, Eigen::Dynamic>;
 
 /// How the robot is attached to the world.
 enum class BaseJoint {
-  kFixed,      ///< industrial arm (UR10): q = joint angles
-  kFreeFlyer,  ///< humanoid (TALOS): q = (x y z qx qy qz qw, joints), v = (v_B, w_B, joints)
-  kPlanar,     ///< mobile base (TIAGo): q = (x y cos(yaw) sin(yaw), joints)
+  kFixed,      ///< industrial arm: q = joint angles
+  kFreeFlyer,  ///< humanoid: q = (x y z qx qy qz qw, joints), v = (v_B, w_B, joints)
+  kPlanar,     ///< mobile base: q = (x y cos(yaw) sin(yaw), joints)
 };
 
 /// Parses "fixed" | "free_flyer" | "planar" (the names of marionette.robots); throws SotError.
 BaseJoint ParseBaseJoint(const std::string& name);
 
 /// Loads a URDF with the given base. When `srdf_path` is not empty, its reference configurations
-/// (e.g. TALOS "half_sitting") are loaded into model->referenceConfigurations. Throws SotError
-/// when a file cannot be read.
+/// (e.g. a humanoid's "half_sitting") are loaded into model->referenceConfigurations. Throws
+/// SotError when a file cannot be read.
 ModelPtr LoadModel(const std::string& urdf_path, BaseJoint base, const std::string& srdf_path = "");
 
 /// The example-robot-data `robots/` folder: $MARIONETTE_ROBOT_DATA_DIR if set, else the folder of
 /// the example-robot-data package found at build time.
 std::string ExampleRobotDataDir();
-
-/// TALOS (talos_reduced.urdf, free-flyer, 38 DoF) with its SRDF reference configurations.
-ModelPtr LoadTalos();
 
 /// A frame a feature controls, resolved once at construction.
 struct FrameRef {

@@ -12,7 +12,7 @@ namespace marionette::sot {
 
 class RobotModel final : public graph::Entity {
  public:
-  /// Works for free-flyer (TALOS), planar (TIAGo) and fixed (UR10) robots alike.
+  /// Works for free-flyer, planar and fixed-base robots alike.
   RobotModel(std::string name, ModelPtr model);
   const char* type_name() const override { return "RobotModel"; }
 

@@ -25,7 +25,7 @@ bool MeasuredZmp(const SoleWrench* wrenches, int count, double ground_z, Eigen::
                  double min_force = 10.0);
 
 /// A rectangular sole centred on its frame: half length along the sole x axis, half width
-/// along y [m] (TALOS: 0.1025 x 0.061, models/talos/talos.xml).
+/// along y [m] (robot.yaml feet[].size / 2).
 struct SoleShape {
   double half_length = 0.1025;
   double half_width = 0.061;

@@ -1,0 +1,412 @@
+"""``marionette robot import URDF --name NAME``: a robot folder to start from (docs/robots.md).
+
+It writes ``<out>/<name>.urdf``, ``<name>.srdf`` and a ``robot.yaml`` whose every value is a
+guess the user then checks, and prints what to review. What it changes in the URDF, and why:
+
+* a movable joint with ``<mimic>`` becomes ``type="fixed"`` (its ``<mimic>`` and ``<axis>``
+  kept): marionette drives the joint it follows, MuJoCo moves both;
+* a continuous joint becomes revolute within two turns each way (the controller maps 1-DoF
+  joints by angle);
+* mesh URIs that are plain paths are made absolute, so that the folder can live anywhere; the
+  folder they share becomes robot.yaml's ``meshes`` (package:// URIs are kept as they are).
+
+The SRDF is the given one (a reference ``group_state`` added if it has none), else a new one:
+the reference posture is every joint at 0 clipped into its limits, and the disabled collision
+pairs are those of adjacent links and of pairs in collision in >= 95 % of random postures.
+The servo of each joint (``simulation.actuators``) gets kp = 50 x its effort limit per radian or
+metre and kv = kp / 50: stiff enough to follow a 1 kHz controller, damped by MuJoCo's implicit
+integrator. The gripper is the SRDF's ``end_effector`` parent link (or ``--gripper-link``), with
+its first finger joint below it; its frame's pose is left at the link's origin for the user to
+set (x along the approach, out of the palm).
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .srdf import disabled_collision_pairs, srdf_text
+from .urdf import MOVABLE, Joint, Urdf, UrdfError, parse_urdf
+from .xml_util import attribute, indent_and_serialize, sub
+
+SERVO_STIFFNESS_PER_EFFORT = 50.0  # kp / effort limit [1/rad or 1/m]
+SERVO_TIME_CONSTANT = 0.02  # kv / kp [s]
+REFERENCE_STATE = "home"
+CONTINUOUS_RANGE = 4 * np.pi  # [rad] limits given to a continuous joint
+GRIPPER_LIMIT_MARGIN = 0.025  # open/closed positions this fraction of the range inside the limits
+
+
+class RobotImportError(ValueError):
+    """The source files cannot make a robot folder; the message says why."""
+
+
+def import_robot(
+    urdf_path: str | Path,
+    name: str,
+    out_dir: str | Path,
+    srdf_path: str | Path | None = None,
+    base: str = "fixed",
+    gripper_link: str | None = None,
+) -> list[str]:
+    """Writes the robot folder ``out_dir``; returns what the user should review (one line each)."""
+    urdf_path, out_dir = Path(urdf_path), Path(out_dir)
+    if not urdf_path.is_file():
+        raise RobotImportError(f"{urdf_path}: no such file")
+    if urdf_path.suffix == ".xacro" or "<xacro:" in urdf_path.read_text():
+        raise RobotImportError(
+            f"{urdf_path}: a xacro file; expand it first (`xacro FILE > OUT.urdf`)"
+        )
+    if (out_dir / "robot.yaml").exists():
+        raise RobotImportError(f"{out_dir / 'robot.yaml'} exists: import into a new folder")
+    try:
+        root = ET.fromstring(urdf_path.read_text())
+    except ET.ParseError as e:
+        raise RobotImportError(f"{urdf_path}: not XML ({e})") from None
+    notes: list[str] = []
+    notes += _fix_mimics(root)
+    notes += _fix_continuous(root)
+    meshes = _mesh_folder(root, urdf_path.parent)
+    source = _as_package_uri(urdf_path)
+    urdf_text = indent_and_serialize(root, f"imported from {source} by `marionette robot import`")
+    try:
+        urdf = parse_urdf(urdf_text)
+    except UrdfError as e:
+        raise RobotImportError(f"{urdf_path}: {e}") from None
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / f"{name}.urdf").write_text(urdf_text)
+    srdf, state, end_effector = _srdf(urdf_text, urdf, name, srdf_path, base, notes)
+    (out_dir / f"{name}.srdf").write_text(srdf)
+    gripper_link = gripper_link or end_effector or _deepest_link(urdf)
+    if gripper_link not in urdf.links:
+        raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
+    finger = _finger_joint(urdf, gripper_link)
+    gripper: dict[str, object] = {
+        "name": f"{name}/gripper",
+        "link": gripper_link,
+        "pose": {"xyz": [0.0, 0.0, 0.0], "xyzw": [0.0, 0.0, 0.0, 1.0]},
+        "clearance": 0.05,
+    }
+    if finger is not None:
+        lower, upper = finger.lower, finger.upper
+        if lower is None or upper is None:
+            raise RobotImportError(
+                f"{urdf_path}: finger joint {finger.name} (below {gripper_link}) has no "
+                "<limit lower upper>: add its limits, or name another --gripper-link"
+            )
+        gripper.update(
+            joint=finger.name,
+            open_position=round(upper - GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
+            closed_position=round(lower + GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
+        )
+        notes.append(
+            f"grippers[0]: finger joint {finger.name}, open near its upper limit {upper:g}, "
+            f"closed near its lower limit {lower:g}: swap them if it closes the other way"
+        )
+    notes.append(
+        f"grippers[0]/pose: the gripper frame sits at {gripper_link}'s origin; place it between "
+        "the fingertips, x along the approach (out of the palm), y along which the fingers close"
+    )
+    description = {
+        "format": "marionette-robot 1",
+        "name": name,
+        "description": f"{urdf.name}, imported from {urdf_path.name}",
+        "source": source,
+        "urdf": f"{name}.urdf",
+        "srdf": f"{name}.srdf",
+        "mjcf": f"{name}.xml",
+        **({"meshes": meshes} if meshes else {}),
+        "base": base,
+        "reference_posture": state,
+        "grippers": [gripper],
+        "simulation": {"actuators": _actuators(urdf)},
+    }
+    header = (
+        f"# {name}: imported by `marionette robot import`; review it (docs/robots.md), then run\n"
+        f"# `marionette robot check {_shown(out_dir)}`. Format: "
+        "python/marionette/schemas/robot.schema.json\n"
+    )
+    (out_dir / "robot.yaml").write_text(
+        header + yaml.safe_dump(description, sort_keys=False, default_flow_style=None, width=100)
+    )
+    return notes
+
+
+def _as_package_uri(path: Path) -> str:
+    """``path`` as a ``package://`` URI when it lies in a package folder, else as given."""
+    from marionette.robots import package_dirs
+
+    resolved = path.resolve()
+    for d in package_dirs():
+        try:
+            return f"package://{resolved.relative_to(Path(d).resolve()).as_posix()}"
+        except ValueError:
+            continue
+    return str(path)
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the working directory when it is below it."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _fix_mimics(root: ET.Element) -> list[str]:
+    notes = []
+    for j in root.findall("joint"):
+        mimic = j.find("mimic")
+        if mimic is not None and j.get("type") in MOVABLE:
+            name = attribute(j, "name", "URDF", RobotImportError)
+            driver = attribute(mimic, "joint", f"joint {name}", RobotImportError)
+            notes.append(
+                f"{name}: made fixed (it mimics {driver}; MuJoCo moves it with its driver)"
+            )
+            j.set("type", "fixed")
+    return notes
+
+
+def _fix_continuous(root: ET.Element) -> list[str]:
+    """Continuous joints become revolute joints of two turns each way: the controller and MuJoCo
+    map 1-DoF joints with an angle, not Pinocchio's (cos, sin) of a continuous joint."""
+    notes = []
+    for j in root.findall("joint"):
+        if j.get("type") != "continuous":
+            continue
+        j.set("type", "revolute")
+        limit = j.find("limit")
+        if limit is None:
+            limit = ET.SubElement(j, "limit", effort="1", velocity="1")
+        limit.set("lower", f"{-CONTINUOUS_RANGE:.6f}")
+        limit.set("upper", f"{CONTINUOUS_RANGE:.6f}")
+        notes.append(
+            f"{j.get('name')}: continuous, made revolute within +-{CONTINUOUS_RANGE:.4f} rad "
+            "(two turns each way)"
+        )
+    return notes
+
+
+def _mesh_folder(root: ET.Element, urdf_dir: Path) -> str | None:
+    """Make plain mesh paths absolute; return the folder every mesh URI shares (None: no mesh)."""
+    uris = []
+    for mesh in root.iter("mesh"):
+        uri = mesh.get("filename", "")
+        if uri and not uri.startswith("package://"):
+            path = Path(uri.removeprefix("file://"))
+            uri = str(path if path.is_absolute() else (urdf_dir / path).resolve())
+            mesh.set("filename", uri)
+        uris.append(uri)
+    if not uris:
+        return None
+    packaged = [u.startswith("package://") for u in uris]
+    if any(packaged) and not all(packaged):
+        raise RobotImportError("the URDF mixes package:// mesh URIs and plain paths: use one kind")
+    common = os.path.commonpath([os.path.dirname(u.removeprefix("package://")) for u in uris])
+    return f"package://{common}" if packaged[0] else common
+
+
+def _srdf(
+    urdf_text: str,
+    urdf: Urdf,
+    name: str,
+    srdf_path: str | Path | None,
+    base: str,
+    notes: list[str],
+) -> tuple[str, str, str | None]:
+    """(SRDF text, reference state name, end-effector parent link or None)."""
+    end_effector = None
+    if srdf_path is not None:
+        srdf_path = Path(srdf_path)
+        if not srdf_path.is_file():
+            raise RobotImportError(f"{srdf_path}: no such file")
+        text = srdf_path.read_text()
+        try:
+            sroot = ET.fromstring(text)
+        except ET.ParseError as e:
+            raise RobotImportError(f"{srdf_path}: not XML ({e})") from None
+        where = str(srdf_path)
+        ee = sroot.find("end_effector")
+        end_effector = ee.get("parent_link") if ee is not None else None
+        states = [
+            attribute(g, "name", where, RobotImportError) for g in sroot.findall("group_state")
+        ]
+        refused = {}
+        for state in states:
+            problem = _state_problem(urdf_text, text, state)
+            if problem is None:
+                notes.append(f"reference posture: the SRDF's group_state {state!r}")
+                return text, state, end_effector
+            refused[state] = problem
+        pairs = [
+            (
+                attribute(d, "link1", where, RobotImportError),
+                attribute(d, "link2", where, RobotImportError),
+                d.get("reason") or "",
+            )
+            for d in sroot.findall("disable_collisions")
+        ]
+        known = {tuple(sorted(p[:2])) for p in pairs}
+        missing = [
+            p for p in disabled_collision_pairs(urdf_text) if tuple(sorted(p[:2])) not in known
+        ]
+        for a, b, reason in missing:  # adjacent or always touching: the SRDF forgot them
+            sub(sroot, "disable_collisions", link1=a, link2=b, reason=reason)
+        if missing:
+            notes.append(
+                f"SRDF: {len(missing)} collision pairs it lacked (adjacent or always in contact) "
+                "disabled"
+            )
+        posture, _ = _collision_free_posture(urdf_text, _zero_posture(urdf), pairs + missing)
+        gs = sub(sroot, "group_state", name=REFERENCE_STATE, group="all")
+        for joint, value in posture.items():
+            sub(gs, "joint", name=joint, value=f"{value:.12g}")
+        why = "; ".join(f"{s}: {p}" for s, p in refused.items()) or "it has none"
+        notes.append(
+            f"reference posture: added {REFERENCE_STATE!r} (collision-free, around every joint at "
+            f"0) because no SRDF group_state fits ({why})"
+        )
+        text = indent_and_serialize(sroot, "with a reference group_state added")
+        return text, REFERENCE_STATE, end_effector
+    pairs = disabled_collision_pairs(urdf_text)
+    posture, tries = _collision_free_posture(urdf_text, _zero_posture(urdf), pairs)
+    how = (
+        "every joint at 0 within its limits"
+        if tries == 0
+        else f"the first collision-free of {tries + 1} postures drawn around every joint at 0"
+    )
+    notes.append(
+        f"SRDF: written with the reference posture {REFERENCE_STATE!r} ({how}) and "
+        f"{len(pairs)} disabled collision pairs; edit the posture to a natural one"
+    )
+    text = srdf_text(
+        name,
+        REFERENCE_STATE,
+        posture,
+        pairs,
+        "written by `marionette robot import`",
+        root_joint="0 0 1 0" if base == "planar" else None,
+    )
+    return text, REFERENCE_STATE, end_effector
+
+
+def _collision_free_posture(
+    urdf_text: str,
+    posture: dict[str, float],
+    pairs: list[tuple[str, str, str]],
+    draws: int = 400,
+    seed: int = 0,
+) -> tuple[dict[str, float], int]:
+    """``posture`` when the robot is free of self-collision there (the ``pairs`` skipped), else
+    the first collision-free posture drawn around it, farther and farther (up to the joint
+    limits); (posture, draws it took). Raises RobotImportError when none is found."""
+    import pinocchio as pin
+
+    from marionette.robots import package_dirs
+
+    model = pin.buildModelFromXML(urdf_text)
+    geom = pin.buildGeomFromUrdfString(
+        model, urdf_text, pin.GeometryType.COLLISION, None, package_dirs()
+    )
+    geom.addAllCollisionPairs()
+    link_of = [model.frames[g.parentFrame].name for g in geom.geometryObjects]
+    skip = {tuple(sorted(p[:2])) for p in pairs}
+    for k in reversed(range(len(geom.collisionPairs))):
+        cp = geom.collisionPairs[k]
+        if tuple(sorted((link_of[cp.first], link_of[cp.second]))) in skip:
+            geom.removeCollisionPair(cp)
+    data, gdata = model.createData(), pin.GeometryData(geom)
+    names = [n for n in posture if model.existJointName(n)]
+    idx = [model.joints[model.getJointId(n)].idx_q for n in names]
+    lo, hi = model.lowerPositionLimit[idx], model.upperPositionLimit[idx]
+    lo, hi = np.where(np.isfinite(lo), lo, -np.pi), np.where(np.isfinite(hi), hi, np.pi)
+    center = np.array([posture[n] for n in names])
+    rng = np.random.default_rng(seed)
+    for k in range(draws + 1):
+        spread = k / draws
+        values = (
+            np.clip(center + spread * (rng.random(len(idx)) * (hi - lo) - (center - lo)), lo, hi)
+            if k
+            else center
+        )
+        q = pin.neutral(model)
+        q[idx] = values
+        if not pin.computeCollisions(model, data, geom, gdata, q, True):
+            return dict(zip(names, (float(v) for v in values))), k
+    raise RobotImportError(
+        f"no posture free of self-collision found in {draws} draws: give an SRDF with a group_state"
+    )
+
+
+def _state_problem(urdf_text: str, srdf: str, state: str) -> str | None:
+    """Why ``state`` cannot be the reference posture (a joint unknown or outside its limits),
+    or None."""
+    import pinocchio as pin
+
+    from marionette.models.semantics import Semantics
+    from marionette.robots import configuration_from_srdf
+
+    model = pin.buildModelFromXML(urdf_text)
+    try:
+        configuration_from_srdf(model, srdf, state, Semantics(model.name))
+    except (KeyError, ValueError) as e:
+        return str(e.args[0] if e.args else e).split(": ", 1)[-1]
+    return None
+
+
+def _zero_posture(urdf: Urdf) -> dict[str, float]:
+    out = {}
+    for j in urdf.joints.values():
+        if j.type in ("revolute", "prismatic") and j.mimic is None:
+            lo = -np.inf if j.lower is None else j.lower
+            hi = np.inf if j.upper is None else j.upper
+            out[j.name] = float(np.clip(0.0, lo, hi))
+    return out
+
+
+def _finger_joint(urdf: Urdf, gripper_link: str) -> Joint | None:
+    """The first movable joint (not a mimic) off the chain from the root to ``gripper_link``, in
+    the subtree of that chain's last two links (a hand's fingers beside its tool frame), or None."""
+    chain: list[Joint] = []
+    link = gripper_link
+    while (j := urdf.parent_joint(link)) is not None:
+        chain.append(j)
+        link = j.parent
+    on_chain = {j.name for j in chain}
+    for j in chain[:3]:  # the gripper link, its parent, its grandparent
+        for other in urdf.subtree(j.parent):
+            for k in urdf.child_joints(other):
+                if k.type in MOVABLE and k.mimic is None and k.name not in on_chain:
+                    return k
+    return None
+
+
+def _deepest_link(urdf: Urdf) -> str:
+    depth = {urdf.root: 0}
+    order = [urdf.root]
+    for link in order:
+        for j in urdf.child_joints(link):
+            depth[j.child] = depth[link] + 1
+            order.append(j.child)
+    return max(order, key=lambda link: depth[link])
+
+
+def _actuators(urdf: Urdf) -> list[dict[str, object]]:
+    out = []
+    for j in urdf.joints.values():
+        if j.type not in MOVABLE or j.mimic is not None:
+            continue
+        effort = j.effort if j.effort and j.effort > 0 else 1.0
+        kp = SERVO_STIFFNESS_PER_EFFORT * effort
+        out.append(
+            {
+                "joints": j.name,
+                "kp": round(kp, 3),
+                "kv": round(kp * SERVO_TIME_CONSTANT, 3),
+                "armature": 0.01,
+            }
+        )
+    return out

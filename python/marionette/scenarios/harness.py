@@ -1,0 +1,144 @@
+"""The one start-up, run and teardown sequence of a scenario's trial.
+
+:func:`harness` opens a private LCM URL (or the ``--controller-url`` of a running controller)
+and starts, in one process group whose outputs go to ``<report folder>/logs/``:
+
+1. ``lcm-logger`` recording every message to ``run.lcmlog`` (camera frames left out when the
+   controller renders cameras: 1.5 MB each, the poses measured in them are logged);
+2. ``marionette-controller`` on the trial's scene (unless a running one is driven);
+3. ``marionette perceive`` when the scenario measures objects with a camera;
+
+waits for the controller's first state, serves the browser 3D view on ``--view``, and yields a
+:class:`Run`. Further processes (the footstep planner) start from :meth:`Run.start_cli`. On a
+normal exit it records the controller's summary in ``report["controller"]`` and checks that
+every process still runs; in every case it stops the processes (Ctrl-C included: the partial
+report is then written by :meth:`.base.Scenario.run`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import marionette
+from marionette.control.client import ControllerClient
+from marionette.lcm_bus import private_lcm_url
+from marionette.processes import ManagedProcess, ProcessError, ProcessGroup
+from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
+from marionette.scenarios.report import controller_summary
+
+READY_TIMEOUT_S = 60.0  # the controller's first state (MuJoCo scene load, camera set-up)
+
+
+@dataclass(frozen=True)
+class Processes:
+    """What a trial runs beside itself. ``scene``: the MJCF the controller loads (a perturbed copy
+    of the scenario's); ``view_scene``: the one the browser view draws (default ``scene``);
+    ``perceive``: the arguments of ``marionette perceive`` after ``--lcm-url`` (None: no
+    perception process); ``controller_args``: further controller options."""
+
+    robot: str
+    scene: Path
+    camera_rate: float = 0.0  # [Hz of controller time] camera frames the controller renders
+    status_rate: int = 100  # [Hz] CONTROLLER_STATUS
+    controller_args: tuple[str, ...] = ()
+    perceive: tuple[str, ...] | None = None
+    view_scene: Path | None = None
+
+
+def controller_command(processes: Processes, url: str, speed: float) -> list[Any]:
+    """The marionette-controller command line of a trial."""
+    return [
+        marionette.BUILD_DIR / "marionette-controller",
+        "--lcm-url",
+        url,
+        "--robot",
+        processes.robot,
+        "--scene",
+        processes.scene,
+        "--speed",
+        str(speed),
+        "--camera-rate",
+        str(processes.camera_rate),
+        "--status-rate",
+        str(processes.status_rate),
+        *processes.controller_args,
+    ]
+
+
+class Run:
+    """A running trial: its process group, controller client, LCM URL, report and timings."""
+
+    def __init__(
+        self,
+        group: ProcessGroup,
+        client: ControllerClient,
+        url: str,
+        report: dict[str, Any],
+        log: Callable[[str], None],
+    ) -> None:
+        self.group, self.client, self.url, self.report, self.log = group, client, url, report, log
+
+    def start_cli(self, name: str, args: list[str]) -> ManagedProcess:
+        """Starts ``marionette <args>`` (this interpreter) as process ``name`` of the group."""
+        return self.group.start(name, [sys.executable, "-m", "marionette.cli", *args])
+
+    def wait(
+        self, condition: Callable[[ControllerClient], bool], timeout_s: float, what: str
+    ) -> None:
+        """``client.wait`` in 1 s slices, checking that every process still runs: a process that
+        died fails the trial with its log at once, not after the timeout. ScenarioError."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                self.client.wait(condition, min(1.0, max(0.01, deadline - time.monotonic())), what)
+                return
+            except TimeoutError as e:
+                try:
+                    self.group.check_alive()
+                except ProcessError as dead:
+                    raise ScenarioError(f"waiting for {what}: {dead}") from dead
+                if time.monotonic() >= deadline:
+                    raise ScenarioError(str(e)) from e
+
+
+@contextlib.contextmanager
+def harness(
+    out_dir: Path, processes: Processes, options: RunOptions, report: dict[str, Any]
+) -> Iterator[Run]:
+    """Starts the trial's processes, yields the :class:`Run` once the controller is ready, stops
+    them (module docstring). Records in ``report``: ``lcm_url``; ``scene``, the scene a viewer
+    draws (``marionette replay --view``); ``controller_scene``, the one the controller loads
+    (unless a running controller is driven); with ``--view``, ``viewer_url``."""
+    url = options.controller_url or private_lcm_url()
+    report["lcm_url"] = url
+    report["scene"] = repo_relative(processes.view_scene or processes.scene)
+    if options.controller_url is None:
+        report["controller_scene"] = repo_relative(processes.scene)
+    cameras = processes.camera_rate > 0
+    with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
+        group.start(
+            "lcm-logger",
+            ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
+            + (["--channel=^CAMERA_.*", "--invert-channels"] if cameras else []),
+        )
+        if options.controller_url is None:
+            group.start("controller", controller_command(processes, url, options.speed))
+        run = Run(group, client, url, report, options.log)
+        if processes.perceive is not None:
+            run.start_cli("perceive", ["perceive", "--lcm-url", url, *processes.perceive])
+        client.wait_ready(READY_TIMEOUT_S, processes=group)
+        if options.view:  # the browser 3D view of the run, stopped with the group
+            from marionette.viewer.node import start_viewer
+
+            report["viewer_url"] = start_viewer(
+                group, processes.robot, processes.view_scene or processes.scene, options.log
+            )
+        yield run
+        report["controller"] = controller_summary(client.status)
+        group.check_alive()

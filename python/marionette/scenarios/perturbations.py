@@ -1,0 +1,287 @@
+"""Seeded perturbations of a scenario's trial: what vision and calibration must close (thesis 000
+ch. 4-5; ``docs/scenarios.md``).
+
+* **displacement before execution** — the object is moved on the table between planning and
+  execution (uniform in a disc of ``displacement_m`` and a yaw within ``displacement_deg``);
+* **slip during execution** — while carried, the object turns and shifts in the hand
+  (``slip_m`` / ``slip_deg``): the weld is released, the object moved, the weld closed again,
+  at the start of step ``slip_step`` (the carry after the hand-over in plank-flip);
+* **joint offsets** in the controller's model (ch. 4: encoder offsets, 7° shoulder, 4° wrist):
+  the MuJoCo joint's ``ref`` is set to the offset, so the simulator reports q + offset for the
+  true angle q and the controller's Pinocchio model places the links off by it;
+* **camera noise** — Gaussian noise on each measured object pose, on top of the detection's
+  own error on the rendered images (:class:`visual_servo.ServoOptions`).
+
+Everything is drawn from ``numpy.random.default_rng(seed)``: a trial is reproducible from its seed.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+
+@dataclass(frozen=True)
+class PerturbationSettings:
+    """Magnitudes (maxima for uniform draws, sigmas for noise); zero disables a perturbation."""
+
+    displacement_m: float = 0.0
+    displacement_deg: float = 0.0
+    slip_m: float = 0.0
+    slip_deg: float = 0.0
+    slip_step: int = 10
+    joint_offsets_deg: dict[str, float] = field(default_factory=dict)  # joint -> |offset|
+    camera_noise_m: float = 0.0
+    camera_noise_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in (
+            "displacement_m",
+            "displacement_deg",
+            "slip_m",
+            "slip_deg",
+            "camera_noise_m",
+            "camera_noise_deg",
+        ):
+            if getattr(self, name) < 0:
+                raise ValueError(f"perturbation {name} must be >= 0, got {getattr(self, name)}")
+
+
+# `marionette demo --perturb NAME`: each part alone, and all of them (the set plank-flip's trials
+# are judged under: docs/scenarios.md).
+PARTS: dict[str, PerturbationSettings] = {
+    # The object moved on the table between planning and execution.
+    "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
+    # What the placement servo alone is built to close: the object slipping in the hand, noise.
+    "in-hand": PerturbationSettings(
+        slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5
+    ),
+    # Encoder offsets of TALOS' left arm (ch. 4: 7° at the shoulder, 4° at the wrist).
+    "joint-offsets": PerturbationSettings(
+        joint_offsets_deg={"arm_left_1_joint": 7.0, "arm_left_7_joint": 4.0}
+    ),
+}
+
+
+def combined(parts: list[PerturbationSettings]) -> PerturbationSettings:
+    """The perturbations of every part at once: each magnitude from the part that sets it
+    (ValueError when two parts set the same one differently)."""
+    out: dict[str, Any] = {}
+    default = PerturbationSettings()
+    for part in parts:
+        for f in fields(PerturbationSettings):
+            value = getattr(part, f.name)
+            if value == getattr(default, f.name):
+                continue
+            if f.name in out and out[f.name] != value:
+                raise ValueError(f"perturbation parts disagree on {f.name}: {out[f.name]}, {value}")
+            out[f.name] = value
+    return PerturbationSettings(**out)
+
+
+PRESETS: dict[str, PerturbationSettings] = {"all": combined(list(PARTS.values())), **PARTS}
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """One trial's draw: table displacement (dx, dy [m], dyaw [rad]), slip in the hand (a twist
+    of the object frame, (v, w) [m, rad]), joint offsets [rad], camera noise sigmas."""
+
+    seed: int
+    displacement: tuple[float, float, float]
+    slip: tuple[float, ...]
+    slip_step: int
+    joint_offsets: dict[str, float]
+    camera_noise_m: float
+    camera_noise_rad: float
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["displacement_mm_deg"] = [
+            1e3 * self.displacement[0],
+            1e3 * self.displacement[1],
+            math.degrees(self.displacement[2]),
+        ]
+        d["joint_offsets_deg"] = {k: math.degrees(v) for k, v in self.joint_offsets.items()}
+        return d
+
+    @property
+    def any(self) -> bool:
+        return bool(
+            any(self.displacement)
+            or any(self.slip)
+            or self.joint_offsets
+            or self.camera_noise_m
+            or self.camera_noise_rad
+        )
+
+
+def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
+    """The perturbation of the trial with ``seed``."""
+    rng = np.random.default_rng(seed)
+    r = settings.displacement_m * math.sqrt(rng.uniform())  # uniform in the disc
+    a = rng.uniform(0.0, 2 * math.pi)
+    yaw = math.radians(settings.displacement_deg) * rng.uniform(-1.0, 1.0)
+    v = rng.normal(size=3)
+    w = rng.normal(size=3)
+    v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(np.linalg.norm(v), 1e-12)
+    w *= math.radians(settings.slip_deg) * rng.uniform(0.5, 1.0) / max(np.linalg.norm(w), 1e-12)
+    offsets = draw_joint_offsets(rng, settings.joint_offsets_deg)
+    return Perturbation(
+        seed,
+        (r * math.cos(a), r * math.sin(a), yaw),
+        tuple(map(float, [*v, *w])),
+        settings.slip_step,
+        offsets,
+        settings.camera_noise_m,
+        math.radians(settings.camera_noise_deg),
+    )
+
+
+def draw_joint_offsets(rng: np.random.Generator, offsets_deg: dict[str, float]) -> dict[str, float]:
+    """Joint -> encoder offset [rad]: each nonzero magnitude of ``offsets_deg`` [deg] with a sign
+    drawn from ``rng`` (joints in name order)."""
+    return {
+        j: math.radians(m) * float(rng.choice([-1.0, 1.0]))
+        for j, m in sorted(offsets_deg.items())
+        if m
+    }
+
+
+def draw_displacement(
+    rng: np.random.Generator, max_translation_m: float, max_rotation_deg: float, centre: np.ndarray
+) -> pin.SE3:
+    """Seeded displacement D of a workpiece, applied as X_true = X_nominal D: a rotation of at most
+    ``max_rotation_deg`` about a random axis through ``centre`` (workpiece frame) and a
+    translation of at most ``max_translation_m``; both magnitudes uniform in [1/2, 1] of their
+    bound."""
+
+    def unit():
+        v = rng.normal(size=3)
+        return v / np.linalg.norm(v)
+
+    angle = np.radians(max_rotation_deg) * rng.uniform(0.5, 1.0)
+    R = pin.exp3(angle * unit())
+    t = max_translation_m * rng.uniform(0.5, 1.0) * unit()
+    # rotation about the centre, then translation: p -> R (p - c) + c + t
+    return pin.SE3(R, centre - R @ centre + t)
+
+
+def displaced(X_WO: pin.SE3, displacement: tuple[float, float, float]) -> pin.SE3:
+    """The object moved on the table: translated in x, y and turned about the world z through
+    its own origin (it stays on its face)."""
+    dx, dy, dyaw = displacement
+    R = pin.rpy.rpyToMatrix(0.0, 0.0, dyaw)
+    return pin.SE3(R @ X_WO.rotation, X_WO.translation + np.array([dx, dy, 0.0]))
+
+
+def slipped(X_WO: pin.SE3, slip: tuple[float, ...]) -> pin.SE3:
+    """The object after slipping in the hand by the twist ``slip`` in its own frame."""
+    return X_WO * pin.exp6(np.asarray(slip, dtype=float))
+
+
+def mjcf_pose_attributes(X: pin.SE3) -> str:
+    """``pos="..." quat="..."`` of an MJCF body at ``X`` (MuJoCo's quaternion order w x y z)."""
+    q = pin.Quaternion(X.rotation)
+    return (
+        f'pos="{" ".join(f"{v:.12g}" for v in X.translation)}" '
+        f'quat="{q.w:.12g} {q.x:.12g} {q.y:.12g} {q.z:.12g}"'
+    )
+
+
+def mjcf_pose(attributes: str) -> pin.SE3:
+    """The pose in the ``pos``/``quat`` attributes of an MJCF element (identity for the missing
+    ones): the inverse of :func:`mjcf_pose_attributes`."""
+    pos = re.search(r'pos="([^"]+)"', attributes)
+    quat = re.search(r'quat="([^"]+)"', attributes)
+    w, x, y, z = (float(v) for v in quat.group(1).split()) if quat else (1.0, 0.0, 0.0, 0.0)
+    return pin.SE3(
+        pin.Quaternion(w, x, y, z).normalized().matrix(),
+        np.array(pos.group(1).split(), dtype=float) if pos else np.zeros(3),
+    )
+
+
+def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
+    """MJCF text with mocap body ``name`` at ``X``: its ``pos``/``quat`` and its entries of every
+    keyframe's ``mpos``/``mquat`` (MuJoCo resets mocap bodies to the keyframe's values: changing
+    the body alone leaves the simulated workpiece at its nominal pose). ValueError when the
+    scene has no such mocap body."""
+    mocaps = re.findall(r'<body name="([^"]+)"[^>]*mocap="true"', mjcf)
+    if name not in mocaps:
+        raise ValueError(f"no mocap body {name!r} in the scene (mocap bodies: {mocaps})")
+    i = mocaps.index(name)
+    q = pin.Quaternion(X.rotation)
+    pos, quat = list(X.translation), [q.w, q.x, q.y, q.z]
+    mjcf = re.sub(
+        rf'<body name="{re.escape(name)}" [^>]*mocap="true">',
+        f'<body name="{name}" {mjcf_pose_attributes(X)} mocap="true">',
+        mjcf,
+    )
+
+    def key(m: re.Match) -> str:
+        text = m.group(0)
+        for attr, values in (("mpos", pos), ("mquat", quat)):
+            a = re.search(rf'{attr}="([^"]+)"', text)
+            if a is None:
+                continue
+            v = a.group(1).split()
+            n = len(values)
+            v[n * i : n * (i + 1)] = [f"{x:.12g}" for x in values]
+            text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
+        return text
+
+    return re.sub(r"<key [^>]*/>", key, mjcf)
+
+
+def write_scene(text: str, source: Path, out: Path) -> Path:
+    """Writes the MJCF ``text`` of scene ``source`` to ``out``, its asset folders (``meshdir``,
+    ``texturedir``, relative to ``source``) made absolute so that it loads from anywhere."""
+    base = source.resolve().parent
+    text = re.sub(
+        r'(meshdir|texturedir)="([^"]*)"',
+        lambda m: f'{m.group(1)}="{(base / m.group(2)).resolve()}"',
+        text,
+    )
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    return out
+
+
+def _joint_pattern(joint: str) -> re.Pattern:
+    return re.compile(r'(<joint name="' + re.escape(joint) + r'"[^>]*?)(\s*/>)')
+
+
+def missing_joints(scene: Path, joints: list[str]) -> list[str]:
+    """The ``joints`` the MJCF ``scene`` has no joint element of (none can be offset)."""
+    text = Path(scene).read_text()
+    return [j for j in joints if not _joint_pattern(j).search(text)]
+
+
+def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) -> Path:
+    """A copy of the MJCF ``scene`` in which each joint of ``offsets`` has ``ref`` = offset [rad]
+    (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
+    text = scene.read_text()
+    for joint, offset in offsets.items():
+        pattern = _joint_pattern(joint)
+        text, n = pattern.subn(
+            lambda m, offset=offset: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1
+        )
+        if n != 1:
+            raise ValueError(f"{scene}: no joint {joint!r} to offset")
+    return write_scene(text, scene, out)
+
+
+def true_configuration(
+    model: pin.Model, q_encoders: np.ndarray, joint_offsets: dict[str, float]
+) -> np.ndarray:
+    """The robot's configuration from encoders that read q + offset (:func:`scene_with_joint_offsets`)."""
+    q = q_encoders.copy()
+    for joint, offset in joint_offsets.items():
+        q[model.joints[model.getJointId(joint)].idx_q] -= offset
+    return q

@@ -1,0 +1,316 @@
+"""The report folder of a plan-and-execute trial: report.json (success, criteria with measured
+values, timings, per-step records), report.md (the same for people) and PNG plots: task errors per
+step (the decay of fig. 5.4), planned vs executed joints and object path, CoM vs support polygon
+(humanoids)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from marionette import robots
+from marionette.scenarios.report import (
+    controller_and_plots_lines,
+    save_figure,
+    timings_lines,
+    title,
+    write_report_files,
+)
+
+
+def _records(result) -> list[dict[str, Any]]:
+    out = []
+    for r in result.records:
+        out.append(
+            {
+                "index": r.index,
+                "transition": r.transition,
+                "kind": r.kind,
+                "result": r.result,
+                "controller_id": r.controller_id,
+                "planned_duration_s": r.duration_s,
+                "controller_time_s": (r.utime_end - r.utime_start) * 1e-6 if r.utime_end else None,
+                "wall_s": r.wall_s,
+                "chunks": r.chunks,
+                "min_lookahead_ms": r.min_lookahead_ms,
+                "max_task_errors": r.max_errors,
+                "final_task_errors": r.final_errors,
+                "events": r.events,
+            }
+        )
+    return out
+
+
+def write_report(
+    out_dir: Path, report: dict[str, Any], scenario, supervisor, result, recorder, model: pin.Model
+) -> None:
+    report["steps"] = _records(result)
+    write_report_files(
+        out_dir,
+        report,
+        lambda: _plots(out_dir, scenario, supervisor, result, recorder, model),
+        _markdown,
+    )
+
+
+def _markdown(r: dict[str, Any]) -> str:
+    c = r["criteria"]
+    lines = [
+        title(r),
+        "",
+        r.get("description", ""),
+        "",
+        f"seed {r['seed']}, robot {r['robot']}, controller speed {r['speed']} "
+        f"(0 = as fast as possible), supervisor: {r['supervisor']['state']}"
+        + (f" ({r['supervisor']['reason']})" if r["supervisor"]["reason"] else ""),
+        "",
+        "## Success criteria (docs/scenarios.md)",
+        "",
+        "| criterion | measured | limit | ok |",
+        "|---|---|---|---|",
+        f"| object position error | {c['object_position_error_m'] * 1e3:.1f} mm | "
+        f"{c['limits']['position_m'] * 1e3:.0f} mm | {c['object_within_tolerance']} |",
+        f"| object angle error | {c['object_angle_error_deg']:.2f}° | {c['limits']['angle_deg']}° | "
+        f"{c['object_within_tolerance']} |",
+    ]
+    if "feet_max_displacement_m" in c:
+        lines += [
+            f"| feet displacement (max) | {c['feet_max_displacement_m'] * 1e3:.2f} mm | "
+            f"{c['limits']['feet_m'] * 1e3:.0f} mm | {c['feet_never_moved']} |",
+            f"| base height drop (max) | {c['base_max_drop_m'] * 1e3:.1f} mm | planned "
+            f"{c.get('base_planned_drop_m', 0.0) * 1e3:.1f} + 50 mm | {c['no_fall']} |",
+        ]
+    if "grip_within_tolerance" in c:
+        medians = [
+            h.get("contact_median_n") for g in r["grip"]["grippers"].values() for h in g["held"]
+        ]
+        shown = (
+            ", ".join("never switched" if m is None else f"{m:.2f} N" for m in medians) or "no hold"
+        )
+        lines += [
+            f"| grip force on the jaws (median per hold) | {shown} | "
+            f"{r['grip']['target_n']:.0f} ± {c['limits']['grip_n']:.0f} N | {c['grip_within_tolerance']} |"
+        ]
+    lines += [f"| FSM reached `done` | {r['supervisor']['state']} | done | {c['fsm_done']} |", ""]
+    if "perturbation" in r:
+        p = r["perturbation"]
+        lines += [
+            "## Perturbations (seeded)",
+            "",
+            f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
+            f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); slip in the hand "
+            f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
+            f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
+            + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
+            + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / {np.degrees(p['camera_noise_rad']):.2f}°",
+            "",
+        ]
+    if "calibration" in r:  # the arms' encoder offsets from the head camera, before execution
+        lines += [
+            "## Encoder calibration (thesis 000 ch. 4.2)",
+            "",
+            "Wrist rings seen by the head camera; the controller runs with the offsets found. Error = "
+            "found − the perturbation's offset.",
+            "",
+            "| arm | views used | residual | offsets found | worst error |",
+            "|---|---|---|---|---|",
+        ]
+        for a in r["calibration"]["arms"]:
+            worst = max(a["error_deg"].items(), key=lambda kv: abs(kv[1]))
+            lines.append(
+                f"| {a['side']} | {a['views_used']}/{a['views_planned']} | {a['residual_position_mm']:.2f} mm / "
+                f"{a['residual_rotation_deg']:.2f}° | "
+                + ", ".join(
+                    f"{j.split('_')[2]}: {v:+.2f}°" for j, v in a["encoder_offsets_deg"].items()
+                )
+                + f" | {worst[1]:+.3f}° ({worst[0]}) |"
+            )
+        lines += [""]
+    if "vision" in r:
+        v = r["vision"]
+        lines += [
+            "## Vision in the loop (thesis 000 §5.3.1)",
+            "",
+            f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected.",
+            "",
+            "| step | last measured object error | correction |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {k} | {t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
+            f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
+            for k, t in v["last_per_step"].items()
+        ]
+        lines += [""]
+    if "grip" in r:  # the grip force the admittance holds, measured on the contacts
+        g = r["grip"]
+        lines += [
+            "## Gripper admittance (thesis 000 §3.2.4.3)",
+            "",
+            f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, estimate = "
+            "joint effort through eq. 3.11-3.13; from 1 s after the switch to admittance to the release.",
+            "",
+            "| gripper | window [s] | contact median (min-max) | estimate mean |",
+            "|---|---|---|---|",
+        ]
+        for name, d in g["grippers"].items():
+            for h in d["held"] or [{"never_switched": True}]:
+                if "contact_median_n" not in h:
+                    lines.append(
+                        f"| {name} | - | never switched to admittance or no contact measured | - |"
+                    )
+                    continue
+                lines.append(
+                    f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | {h['contact_median_n']:.2f} N "
+                    f"({h['contact_min_n']:.2f}-{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |"
+                )
+        lines += ["", f"![{g['plot']}]({g['plot']})", ""]
+    lines += [
+        "## Estimation (§3.2.2)",
+        "",
+        f"state `{r['estimation']['state']}`, projection residual {r['estimation']['residual']:.2e}, "
+        f"started at step {r['estimation']['first_step']}",
+        "",
+        *timings_lines(r["timings"]),
+    ]
+    lines += [
+        "",
+        "## Steps (one controller each)",
+        "",
+        "| # | transition | kind | planned s | controller s | wall s | min look-ahead ms | result |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for s in r["steps"]:
+        ct = f"{s['controller_time_s']:.2f}" if s["controller_time_s"] is not None else "-"
+        la = f"{s['min_lookahead_ms']:.0f}" if s["min_lookahead_ms"] is not None else "-"
+        lines.append(
+            f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
+            f"{ct} | {s['wall_s']:.2f} | {la} | {s['result']} |"
+        )
+    lines += controller_and_plots_lines(r)
+    lines += [
+        "",
+        "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
+        "message of the run; `marionette replay run.lcmlog`), `logs/` (process outputs).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _plots(out_dir: Path, scenario, supervisor, result, recorder, model: pin.Model) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths: list[Path] = []
+    t_rec = np.array(recorder.utimes) * 1e-6
+    q_rec = np.array(recorder.q) if recorder.q else np.zeros((0, model.nq))
+
+    # 1. Task errors per step (fig. 5.4-like decay), step boundaries marked.
+    fig, ax = plt.subplots(figsize=(11, 4.5))
+    names: dict[str, Any] = {}
+    for r in result.records:
+        if not r.error_trace:
+            continue
+        t = np.array([u for u, _ in r.error_trace]) * 1e-6
+        for name in r.error_trace[0][1]:
+            e = np.array([errs.get(name, np.nan) for _, errs in r.error_trace])
+            line = names.get(name)
+            kw = {"color": line.get_color()} if line is not None else {"label": name}
+            (h,) = ax.semilogy(t, np.maximum(e, 1e-7), lw=1, **kw)
+            names.setdefault(name, h)
+        ax.axvline(r.utime_start * 1e-6, color="0.85", lw=0.8)
+    ax.set_xlabel("controller time [s]")
+    ax.set_ylabel("task error ||e||")
+    ax.set_title(f"{scenario.name}: task errors, one controller per step (grey lines: switches)")
+    ax.legend(fontsize=7, ncol=4)
+    paths.append(save_figure(fig, out_dir / "task_errors.png"))
+
+    # 2. Planned vs executed joints (the 6 that move most) and object path.
+    plan_t, plan_q, plan_obj = [], [], []
+    for r in result.records:
+        traj = supervisor.trajectories.get(r.index)
+        if traj is None or not r.utime_reference_start:
+            continue
+        plan_t.append(traj.t + r.utime_reference_start * 1e-6)
+        plan_q.append(traj.q)
+        plan_obj.append(
+            np.array(
+                [
+                    supervisor.robot_map.object_pose(q, scenario.object_name).translation
+                    for q in traj.q_plan[::20]
+                ]
+            )
+        )
+        plan_obj[-1] = (plan_t[-1][::20], plan_obj[-1])
+    if plan_t:
+        pt, pq = np.concatenate(plan_t), np.vstack(plan_q)
+        first_joint = 7 if model.joints[1].nq == 7 else 0
+        motion = np.ptp(pq[:, first_joint:], axis=0)
+        top = first_joint + np.argsort(motion)[::-1][:6]
+        fig, axes = plt.subplots(2, 3, figsize=(12, 6), sharex=True)
+        labels = [n for j in range(1, model.njoints) for n in [model.names[j]] * model.joints[j].nq]
+        for ax, k in zip(axes.flat, top):
+            ax.plot(pt, pq[:, k], "k--", lw=1, label="planned")
+            if len(q_rec):
+                ax.plot(t_rec, q_rec[:, k], lw=1, label="executed")
+            ax.set_title(labels[k] if k < len(labels) else f"q[{k}]", fontsize=8)
+        axes.flat[0].legend(fontsize=7)
+        fig.suptitle(f"{scenario.name}: planned vs executed joints [rad]")
+        paths.append(save_figure(fig, out_dir / "joints.png"))
+
+        fig, axes = plt.subplots(3, 1, figsize=(10, 6), sharex=True)
+        ot = np.concatenate([t for t, _ in plan_obj])
+        op = np.vstack([p for _, p in plan_obj])
+        ex = (
+            np.array(
+                [
+                    o[scenario.object_name][:3] if scenario.object_name in o else [np.nan] * 3
+                    for o in recorder.objects
+                ]
+            )
+            if recorder.objects
+            else np.zeros((0, 3))
+        )
+        for i, ax in enumerate(axes):
+            ax.plot(ot, op[:, i], "k--", lw=1, label="planned")
+            if len(ex):
+                ax.plot(t_rec, ex[:, i], lw=1, label="executed (simulator)")
+            ax.set_ylabel(f"{'xyz'[i]} [m]")
+        axes[0].legend(fontsize=7)
+        axes[-1].set_xlabel("controller time [s]")
+        fig.suptitle(f"{scenario.name}: {scenario.object_name} position, planned vs executed")
+        paths.append(save_figure(fig, out_dir / "object_path.png"))
+
+    # 3. CoM vs support polygon (humanoid).
+    if scenario.feet and len(q_rec):
+        data = model.createData()
+        com = np.array([pin.centerOfMass(model, data, q)[:2] for q in q_rec[::4]])
+        pin.framesForwardKinematics(model, data, q_rec[0])
+        sem = robots.semantics(supervisor.robot_map.robot)
+        pts = []
+        for c in sem.contacts:
+            X = data.oMf[model.getFrameId(c.link)]
+            pts += [X.act(np.asarray(p, dtype=float))[:2] for p in c.points]
+        pts = np.array(pts)
+        fig, ax = plt.subplots(figsize=(6, 6))
+        if len(pts) >= 3:
+            from scipy.spatial import ConvexHull
+
+            hull = pts[ConvexHull(pts).vertices]
+            ax.fill(hull[:, 0], hull[:, 1], alpha=0.2, label="support polygon")
+        if plan_t:
+            data2 = model.createData()
+            pcom = np.array([pin.centerOfMass(model, data2, q)[:2] for q in pq[::50]])
+            ax.plot(pcom[:, 0], pcom[:, 1], "k--", lw=1, label="planned CoM")
+        ax.plot(com[:, 0], com[:, 1], lw=1, label="executed CoM")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.legend(fontsize=7)
+        ax.set_title(f"{scenario.name}: CoM over the support polygon")
+        paths.append(save_figure(fig, out_dir / "com_support.png"))
+    return paths

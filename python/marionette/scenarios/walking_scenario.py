@@ -1,0 +1,432 @@
+"""What the walking scenarios (``grasp-walk``, Dang 2012 ch. 6; ``step-over``, ch. 5) share: a
+humanoid on marionette-controller's walking stack, the footstep process planning towards an
+object published on OBJECT_POSES, and that object moved during the walk so that the footstep
+process replans (the ball carried by hand, the bar pushed).
+
+* :class:`MovingObjectPublisher` — the object's pose at 20 Hz, sliding to a new pose at constant
+  speed over a duration of controller time;
+* :class:`WalkRecorder` — WALK_STATUS, ROBOT_STATE and FOOTSTEP_PLAN as the verdicts and plots
+  need them (plans merged as the footstep manager applies them);
+* :func:`walking_run` — the trial's processes (:mod:`.harness`), the walking stack, the standing
+  stance and the timings;
+* :func:`walk_while_object_moves` — footstep process start, first plan, the move at a given step,
+  the wait for the robot standing at the end of the last plan;
+* measures and report pieces both verdicts use (:func:`sole_poses`, :func:`landings`,
+  :func:`step_counts`, :func:`replan_criteria`, :func:`plot_footsteps`,
+  :func:`finish_footsteps_axes`).
+
+The scenario modules keep what differs: the object, the footstep process's arguments, the
+criteria, the report text and the plots beyond the footsteps.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from marionette import (
+    channels,
+    lcmt_footstep_plan,
+    lcmt_object_pose,
+    lcmt_object_poses,
+    lcmt_robot_state,
+    lcmt_walk_status,
+)
+from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking_spec
+from marionette.scenarios.base import RunOptions
+from marionette.scenarios.harness import Processes, Run, harness
+
+PUBLISH_PERIOD_S = 0.05  # OBJECT_POSES at 20 Hz, the footstep process's input
+MIN_REPLAN_HZ = 20.0  # footstep replanning at 20 Hz or more (median replan < 50 ms)
+SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
+
+
+def object_poses_message(
+    utime: int,
+    name: str,
+    position_W: Sequence[float],
+    quaternion_W: Sequence[float],
+    camera_name: str,
+) -> lcmt_object_poses:
+    """OBJECT_POSES with one object ``name`` at a world pose (quaternion w, x, y, z) and no
+    camera-frame measure (no tags: the pose is given, not detected)."""
+    o = lcmt_object_pose()
+    o.utime = int(utime)
+    o.object_name = name
+    o.position_camera, o.quaternion_camera = [0.0] * 3, [1.0, 0.0, 0.0, 0.0]
+    o.position_world = [float(v) for v in position_W]
+    o.quaternion_world = [float(v) for v in quaternion_W]
+    o.num_tags, o.tag_id, o.reprojection_error, o.ambiguous = 0, [], 0.0, False
+    msg = lcmt_object_poses()
+    msg.utime, msg.camera_name, msg.latency_us = int(utime), camera_name, 0.0
+    msg.objects, msg.num_objects = [o], 1
+    return msg
+
+
+class MovingObjectPublisher(threading.Thread):
+    """Publishes an object's pose on OBJECT_POSES at 20 Hz (the footstep process's input). After
+    :meth:`move` the pose slides to its new value at constant speed over ``duration_s`` of
+    controller time (Dang ch. 5 and 6: the bar is pushed, the ball carried, while the robot
+    walks). ``message(utime, pose)`` builds the message of a pose vector (any parametrisation
+    that interpolates linearly: a position, or x, y, yaw). Keeps the history (controller utime,
+    pose) for the verdict and the plots."""
+
+    def __init__(
+        self,
+        client: ControllerClient,
+        name: str,
+        pose: np.ndarray,
+        message: Callable[[int, np.ndarray], lcmt_object_poses],
+    ) -> None:
+        super().__init__(daemon=True)
+        self.client, self.name, self.message, self.stop = client, name, message, threading.Event()
+        self.p0 = self.p1 = np.array(pose, dtype=float)
+        self.utime_move, self.duration_us = 0, 1
+        self.history: list[tuple[int, np.ndarray]] = []
+
+    def move(self, pose: np.ndarray, duration_s: float) -> int:
+        """Starts the move now; returns its controller utime."""
+        self.utime_move, self.duration_us = self.client.utime(), max(1, int(duration_s * 1e6))
+        self.p1 = np.array(pose, dtype=float)
+        return self.utime_move
+
+    def pose(self, utime: int) -> np.ndarray:
+        """The published pose at controller time ``utime``: p0 + s (p1 − p0), s in [0, 1]."""
+        s = float(np.clip((utime - self.utime_move) / self.duration_us, 0.0, 1.0))
+        return self.p0 + s * (self.p1 - self.p0)
+
+    def run(self) -> None:
+        while not self.stop.wait(PUBLISH_PERIOD_S):
+            utime = self.client.utime()
+            pose = self.pose(utime)
+            self.history.append((utime, pose))
+            self.client.bus.publish(channels.OBJECT_POSES, self.message(utime, pose))
+
+
+class WalkRecorder:
+    """Everything the judgement and the plots need, filled by LCM handlers (background thread):
+    every WALK_STATUS, the loaded soles of every ROBOT_STATE, configurations at 50 Hz, each
+    FOOTSTEP_PLAN with the controller utime at its reception, and the plans merged."""
+
+    def __init__(self, client: ControllerClient, model: pin.Model) -> None:
+        self.model = model
+        self.statuses: list[Any] = []
+        self.loaded: dict[int, list[str]] = {}
+        self.utimes: list[int] = []
+        self.q: list[np.ndarray] = []
+        self.plans: list[tuple[int, Any]] = []  # (controller utime at reception, plan)
+        self.merged = MergedPlan()
+        self._lock = threading.Lock()
+        client.bus.subscribe(channels.WALK_STATUS, lcmt_walk_status, self._on_status)
+        client.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
+        client.bus.subscribe(channels.FOOTSTEP_PLAN, lcmt_footstep_plan, self._on_plan)
+        self._last_utime = 0
+
+    def _on_status(self, msg) -> None:
+        with self._lock:
+            self.statuses.append(msg)
+
+    def _on_state(self, msg) -> None:
+        with self._lock:
+            self._last_utime = msg.utime
+            self.loaded[msg.utime] = loaded_soles(msg)
+            if len(self.q) == 0 or msg.utime - self.utimes[-1] >= 20000:  # 50 Hz for plots
+                self.utimes.append(msg.utime)
+                self.q.append(configuration_from_state(self.model, msg))
+
+    def _on_plan(self, msg) -> None:
+        with self._lock:
+            self.plans.append((self._last_utime, msg))
+            current = self.statuses[-1].current_step_index if self.statuses else -1
+            self.merged.apply(msg, current)
+
+    def last_status(self):
+        """The latest WALK_STATUS, None before the first."""
+        with self._lock:
+            return self.statuses[-1] if self.statuses else None
+
+
+def walk_done(rec: WalkRecorder, settle_s: float) -> bool:
+    """Standing on the latest plan, at least one step walked, for ``settle_s`` of controller time
+    with no plan since (a walk starts 1.6 s after its plan arrives, so a later plan would show)."""
+    with rec._lock:
+        if not rec.plans or not rec.statuses:
+            return False
+        last_plan_utime = rec.plans[-1][0]
+        latest = rec.statuses[-1]
+        walked = any(s.current_step_index >= 0 for s in rec.statuses)
+        since = [s for s in rec.statuses if s.utime >= latest.utime - settle_s * 1e6]
+    return (
+        walked
+        and latest.utime - last_plan_utime > 2.0e6
+        and latest.utime - since[0].utime >= 0.9 * settle_s * 1e6
+        and all(s.phase == "standing" for s in since)
+    )
+
+
+def sole_poses(model: pin.Model, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Sole (x, y, z, yaw) of each foot at configuration ``q`` (``<side>_sole_link`` frames)."""
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    out = {}
+    for side in FEET:
+        X = data.oMf[model.getFrameId(f"{side}_sole_link")]
+        out[side] = np.array([*X.translation, np.arctan2(X.rotation[1, 0], X.rotation[0, 0])])
+    return out
+
+
+def landings(rec: WalkRecorder, model: pin.Model) -> list[tuple[str, np.ndarray]]:
+    """Measured sole (x, y, z, yaw) of each swing foot 0.1 s after its swing phase ends."""
+    out = []
+    utimes = np.array(rec.utimes)
+    for a, b in zip(rec.statuses, rec.statuses[1:]):
+        if a.phase.endswith("_swing") and a.phase != b.phase:
+            side = a.phase.split("_")[0]
+            k = int(np.searchsorted(utimes, b.utime + 100000))
+            if k < len(rec.q):
+                out.append((side, sole_poses(model, rec.q[k])[side]))
+    return out
+
+
+def replan_solve_ms(footsteps_log: list[str]) -> dict[str, float | None]:
+    """Solve times of the footstep process from its log lines ``footsteps: plan ... (<t> ms)``:
+    the first plan's, and the median and max of the replans (None without replans)."""
+    solve_ms = [
+        float(line.rsplit("(", 1)[1].split(" ms")[0])
+        for line in footsteps_log
+        if line.startswith("footsteps: plan ") and " ms)" in line
+    ]
+    return {
+        "median": float(np.median(solve_ms[1:])) if len(solve_ms) > 1 else None,
+        "max": float(np.max(solve_ms[1:])) if len(solve_ms) > 1 else None,
+        "first_plan": solve_ms[0] if solve_ms else None,
+    }
+
+
+def replan_rates(
+    rec: WalkRecorder,
+    solve_ms: dict[str, float | None],
+    utime_move: int | None,
+    move_duration_s: float,
+) -> dict[str, float | None]:
+    """Footstep replanning rates (the target: replanning at 20 Hz or more): ``capacity_hz``,
+    1 / the median replan time (the rate the process sustains, whatever the input rate);
+    ``slowest_hz``, 1 / the slowest replan (step-over's fallback to a fresh sequence when the bar
+    moves beyond the strides' reach takes up to ~0.5 s); ``during_move_hz``, the plans received
+    while the object moved per second of controller time (the process replans on every pose
+    update, 20 Hz of wall time: at ``--speed 0`` controller time runs faster than the wall clock
+    and the figure is lower)."""
+    during = None
+    if utime_move is not None and move_duration_s > 0:
+        end = utime_move + move_duration_s * 1e6
+        during = sum(utime_move <= u <= end for u, _ in rec.plans) / move_duration_s
+    median, slowest = solve_ms.get("median"), solve_ms.get("max")
+    return {
+        "capacity_hz": None if not median else 1e3 / median,
+        "slowest_hz": None if not slowest else 1e3 / slowest,
+        "during_move_hz": during,
+    }
+
+
+def replan_criteria(
+    rec: WalkRecorder, footsteps_log: list[str], utime_move: int | None, move_duration_s: float
+) -> dict[str, Any]:
+    """The replanning entries of a walking demo's criteria: solve times
+    (:func:`replan_solve_ms`), rates (:func:`replan_rates`) and ``replan_fast_enough`` (1 / the
+    median replan at least :data:`MIN_REPLAN_HZ`)."""
+    solve_ms = replan_solve_ms(footsteps_log)
+    rates = replan_rates(rec, solve_ms, utime_move, move_duration_s)
+    return {
+        "replan_solve_ms": solve_ms,
+        "replan_rate_hz": rates,
+        "replan_fast_enough": bool(
+            rates["capacity_hz"] is not None and rates["capacity_hz"] >= MIN_REPLAN_HZ
+        ),
+    }
+
+
+def replan_rate_row(c: dict[str, Any], moved: str) -> str:
+    """The report.md criteria row of :func:`replan_rates`."""
+    r = c["replan_rate_hz"]
+
+    def hz(v):
+        return "-" if v is None else f"{v:.0f} Hz"
+
+    return (
+        f"| footstep replanning: 1 / median replan (1 / slowest; plans per controller second "
+        f"while the {moved} moved) | {hz(r['capacity_hz'])} ({hz(r['slowest_hz'])}; "
+        f"{hz(r['during_move_hz'])}) | >= {MIN_REPLAN_HZ:.0f} Hz | {c['replan_fast_enough']} |"
+    )
+
+
+def step_counts(rec: WalkRecorder, statuses: list[Any]) -> dict[str, Any]:
+    """The steps of a walk: planned by the first plan, executed (the highest step index the
+    ``statuses`` show, + 1), executed in order (indices never go back), and the plans received."""
+    indices = [s.current_step_index for s in statuses if s.current_step_index >= 0]
+    return {
+        "steps_planned_first": int(rec.plans[0][1].num_steps),
+        "steps_executed": int(max(indices) + 1) if indices else 0,
+        "steps_in_order": bool(indices == sorted(indices)),
+        "footstep_plans": len(rec.plans),
+    }
+
+
+def draw_floor_move(seed: int, max_distance: float = 0.3, min_distance: float = 0.1) -> np.ndarray:
+    """A seeded move of an object on the floor (moved by up to 0.3 m while the robot walks):
+    direction uniform, distance uniform in [``min_distance``, ``max_distance``] [m];
+    returns (dx, dy). Every trial moves the object by a distance that matters to the planner."""
+    if not 0.0 <= min_distance <= max_distance:
+        raise ValueError(
+            f"need 0 <= min_distance <= max_distance, got {min_distance}, {max_distance}"
+        )
+    rng = np.random.default_rng(seed)
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    distance = rng.uniform(min_distance, max_distance)
+    return distance * np.array([np.cos(angle), np.sin(angle)])
+
+
+class WalkingRun:
+    """One walking trial's live run (:func:`walking_run`): the harness's :class:`~.harness.Run`
+    (processes, controller client), the recorder, the stance the robot stands in before it walks
+    and the report's timings."""
+
+    def __init__(
+        self, run: Run, rec: WalkRecorder, model: pin.Model, timings: dict[str, float]
+    ) -> None:
+        self.run, self.rec, self.model, self.timings = run, rec, model, timings
+        self.client, self.group, self.url = run.client, run.group, run.url
+        standing = rec.last_status()
+        self.start = {side: np.array(getattr(standing, f"{side}_foot")) for side in FEET}
+        self.mid = 0.5 * (self.start["left"][:2] + self.start["right"][:2])  # stance centre (x, y)
+        self.q_start = rec.q[-1].copy()
+        self.utime_start = self.client.utime()
+        self.q_final: np.ndarray | None = None  # set by walk_while_object_moves
+        self.footsteps_log: list[str] = []  # the footstep process's log, at the end
+
+
+@contextlib.contextmanager
+def walking_run(
+    robot: str,
+    model: pin.Model,
+    scene: Path,
+    out_dir: Path,
+    options: RunOptions,
+    report: dict[str, Any],
+) -> Iterator[WalkingRun]:
+    """Starts the trial's processes on ``scene`` (:func:`.harness.harness`), sends the walking
+    stack (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says
+    standing. Afterwards ``report["timings"]`` has ``total_wall_s`` and
+    :attr:`WalkingRun.footsteps_log` is read from ``logs/footsteps.log``."""
+    timings: dict[str, float] = {}
+    report["timings"] = timings
+    t0 = time.perf_counter()
+    with harness(out_dir, Processes(robot, scene), options, report) as run:
+        client = run.client
+        rec = WalkRecorder(client, model)
+        client.send_spec(walking_spec(robot, 1))
+        run.wait(
+            lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
+            30.0,
+            "the walking controller",
+        )
+        run.wait(
+            lambda c: rec.last_status() is not None and rec.last_status().phase == "standing",
+            10.0,
+            "WALK_STATUS standing",
+        )
+        walking = WalkingRun(run, rec, model, timings)
+        yield walking
+    timings["total_wall_s"] = time.perf_counter() - t0
+    walking.footsteps_log = (out_dir / "logs" / "footsteps.log").read_text().splitlines()
+
+
+def walk_while_object_moves(
+    run: WalkingRun,
+    publisher: MovingObjectPublisher,
+    footsteps_args: list[str],
+    move_to: np.ndarray,
+    move_at_step: int,
+    move_duration_s: float,
+    walk_timeout_s: float,
+    started: str,
+    tag: str,
+    log: Callable[[str], None] = print,
+) -> int:
+    """The walk: starts ``publisher`` and the footstep process (``marionette footsteps run
+    --lcm-url <url> <footsteps_args>``), logs ``started``, waits for the first plan, moves the
+    object to ``move_to`` in ``move_duration_s`` when step ``move_at_step`` starts, and waits for
+    the robot standing at the end of the last plan (:func:`walk_done`); the publisher stops in
+    any case. Fills ``first_plan_wall_s``, ``walk_controller_s`` and :attr:`WalkingRun.q_final`;
+    returns the controller utime of the move. Log lines start with ``tag``."""
+    client, rec = run.client, run.rec
+    publisher.start()
+    run.run.start_cli("footsteps", ["footsteps", "run", "--lcm-url", run.url, *footsteps_args])
+    log(started)
+    t1 = time.perf_counter()
+    try:
+        run.run.wait(lambda c: len(rec.plans) > 0, 120.0, "the first footstep plan")
+        run.timings["first_plan_wall_s"] = time.perf_counter() - t1
+        log(f"{tag}: plan 1, {rec.plans[0][1].num_steps} steps")
+        run.run.wait(
+            lambda c: rec.last_status().current_step_index >= move_at_step,
+            walk_timeout_s * 2,
+            f"step {move_at_step}",
+        )
+        utime_move = publisher.move(move_to, move_duration_s)
+        log(
+            f"{tag}: {publisher.name} moving to {np.round(move_to, 3).tolist()} from step "
+            f"{rec.last_status().current_step_index} on, in {move_duration_s} s"
+        )
+        run.run.wait(
+            lambda c: walk_done(rec, SETTLE_S),
+            walk_timeout_s * 2,
+            "the robot standing at the end of the last plan",
+        )
+    finally:
+        publisher.stop.set()
+    run.timings["walk_controller_s"] = (client.utime() - run.utime_start) * 1e-6
+    run.q_final = configuration_from_state(run.model, client.state)
+    return utime_move
+
+
+def plot_footsteps(ax, rec: WalkRecorder, model: pin.Model, foot) -> None:
+    """Top view of the steps: the first plan dotted (faded), the executed plan (plans merged,
+    numbered) and the measured soles at each landing dashed. ``foot``: FootShape of the soles."""
+    from marionette.footsteps.plot import LEFT_COLOR, RIGHT_COLOR, _sole_outline
+
+    first = MergedPlan()
+    first.apply(rec.plans[0][1], -1)
+    for _, is_left, pose in first.rows():
+        o = _sole_outline(pose, foot)
+        ax.plot(
+            o[:, 0], o[:, 1], ":", color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1, alpha=0.6
+        )
+    for i, is_left, pose in rec.merged.rows():
+        o = _sole_outline(pose, foot)
+        ax.plot(o[:, 0], o[:, 1], color=LEFT_COLOR if is_left else RIGHT_COLOR, lw=1.3)
+        ax.annotate(str(i), pose[:2], ha="center", va="center", fontsize=7)
+    for k, (_, pose) in enumerate(landings(rec, model)):
+        o = _sole_outline(pose, foot)
+        ax.plot(
+            o[:, 0], o[:, 1], "k--", lw=0.8, label="measured soles at landing" if k == 0 else None
+        )
+
+
+def finish_footsteps_axes(ax) -> None:
+    """The legend entries of :func:`plot_footsteps`' plans (after the scenario's own entries),
+    equal axes, grid, axis labels and the legend outside the axes."""
+    ax.plot([], [], ":", color="0.3", label="first plan")
+    ax.plot([], [], "-", color="0.3", label="executed plan (after replans)")
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
