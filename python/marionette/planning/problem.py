@@ -489,7 +489,7 @@ def _load_yaml(path: Path) -> dict[str, Any]:
 
 def load_problem(path: str | Path) -> ManipulationProblem:
     """Build a :class:`ManipulationProblem` from a YAML problem file (validated against
-    ``problem.schema.yaml`` first: unknown keys and wrong types are refused)."""
+    ``marionette/schemas/problem.schema.json`` first: unknown keys and wrong types are refused)."""
     path = Path(path).resolve()
     desc = _load_yaml(path)
     try:

@@ -1,5 +1,5 @@
-"""Strict validation of problem files against ``problem.schema.yaml`` (JSON Schema, checked by
-the ``jsonschema`` library): one line per bad file, naming the key by its path.
+"""Strict validation of problem files against ``marionette/schemas/problem.schema.json`` (JSON
+Schema, checked by the ``jsonschema`` library): one line per bad file, naming the key by its path.
 
 An unknown key is refused with the nearest known key at that place ("did you mean"), a value of
 the wrong type or range with the path of the key and what was expected.
@@ -9,19 +9,16 @@ from __future__ import annotations
 
 import difflib
 from functools import cache
-from pathlib import Path
 from typing import Any
 
 import jsonschema
-import yaml
 
-SCHEMA_FILE = Path(__file__).with_name("problem.schema.yaml")
+from marionette import schemas
 
 
-@cache
 def schema() -> dict[str, Any]:
     """The problem file schema (a dict)."""
-    return yaml.safe_load(SCHEMA_FILE.read_text())
+    return schemas.schema("problem")
 
 
 @cache

@@ -1,5 +1,5 @@
-"""Problem files: strict validation (problem.schema.yaml through jsonschema), one-line errors,
-HPP's SRDF syntax (true/false masks) and package:// URIs through a search path."""
+"""Problem files: strict validation (schemas/problem.schema.json through jsonschema), one-line
+errors, HPP's SRDF syntax (true/false masks) and package:// URIs through a search path."""
 
 from __future__ import annotations
 

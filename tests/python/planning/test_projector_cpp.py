@@ -109,8 +109,9 @@ def assert_agree(total: dict, fraction: float = 0.02) -> None:
     ill-conditioned iterates (far from the manifold, joints saturated and their columns
     removed: the damped Gram matrix J J^T + 1e-8 I has a condition number near 1e8) where
     the ulp-level differences of BLAS vs Eigen sums grow, iteration after iteration (traced:
-    1e-16, 1e-14, 1e-11, 1e-8, ...), until they change where or whether the run ends.  Algorithm 1's short steps and the
-    44-dof humanoid spend more iterations there than the default schedule on the UR arms."""
+    1e-16, 1e-14, 1e-11, 1e-8, ...), until they change where or whether the run ends.
+    Algorithm 1's short steps and the 44-dof humanoid spend more iterations there than the
+    default schedule on the UR arms."""
     n = sum(total.values())
     assert total["disagree"] <= fraction * n, total
     assert total["success 1e-6"] <= fraction * n, total
