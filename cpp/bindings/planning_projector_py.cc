@@ -9,6 +9,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "marionette/planning/leaf_planner.h"
 #include "marionette/planning/path_validator.h"
 #include "marionette/planning/projector.h"
 
@@ -35,8 +36,9 @@ planning::ImplicitSpec::Kind ImplicitKind(const std::string& k) {
   if (k == "placement") return K::kPlacement;
   if (k == "complement") return K::kComplement;
   if (k == "locked") return K::kLocked;
+  if (k == "com") return K::kCom;
   throw std::invalid_argument("implicit constraint kind '" + k +
-                              "' is not supported (relative placement complement locked)");
+                              "' is not supported (relative placement complement locked com)");
 }
 
 planning::LineSearchSpec::Kind LineSearchKind(const std::string& k) {
@@ -56,7 +58,8 @@ void RegisterPlanningProjector(py::module_& m) {
   py::class_<ImplicitSpec>(
       m, "ImplicitSpec",
       "One implicit constraint: kind relative (joint1, M1, joint2, M2, mask) | placement | "
-      "complement (placement index) | locked (idx_q, idx_v, nq); level (0 = highest)")
+      "complement (placement index) | locked (idx_q, idx_v, nq) | com (joint1, M1, mask x y z); "
+      "level (0 = highest)")
       .def(py::init([](const std::string& kind, int level, int joint1, const Eigen::Matrix4d& M1,
                        int joint2, const Eigen::Matrix4d& M2, const std::vector<bool>& mask,
                        int placement, int idx_q, int idx_v, int nq) {
@@ -187,6 +190,33 @@ void RegisterPlanningProjector(py::module_& m) {
       .def_property_readonly("size", &Projector::size)
       .def_property_readonly("num_placements", &Projector::num_placements)
       .def_property_readonly("nq", [](const Projector& p) { return p.model().nq; });
+
+  m.def(
+      "plan_in_constrained_leaf",
+      [](PathValidator& validator, Projector& projector, const PairMotion& motion,
+         const Eigen::VectorXd& q_start, const Eigen::VectorXd& q_goal, const Eigen::VectorXd& rhs,
+         std::vector<int> pairs, std::vector<int> sample_idx_q, const Eigen::VectorXd& lower,
+         const Eigen::VectorXd& upper, const Substitution& sub, double step, double error_threshold,
+         int projection_iterations, int max_iterations, double max_time_s, std::uint32_t seed) {
+        ConstrainedLeafQuery query{
+            q_start, q_goal, rhs,  std::move(pairs), std::move(sample_idx_q), lower,
+            upper,   sub,    step, error_threshold,  projection_iterations};
+        const LeafPlannerOptions options{max_iterations, max_time_s, 0.0, seed};
+        LeafPlanResult r;
+        {
+          py::gil_scoped_release release;
+          r = PlanInConstrainedLeaf(&validator, &projector, motion, query, options);
+        }
+        return py::make_tuple(r.solved, r.waypoints, r.iterations, r.queries);
+      },
+      py::arg("validator"), py::arg("projector"), py::arg("motion"), py::arg("q_start"),
+      py::arg("q_goal"), py::arg("rhs"), py::arg("pairs"), py::arg("sample_idx_q"),
+      py::arg("lower"), py::arg("upper"), py::arg("substitution"), py::arg("step"),
+      py::arg("error_threshold"), py::arg("projection_iterations"), py::arg("max_iterations"),
+      py::arg("max_time_s"), py::arg("seed"),
+      "RRT-Connect on a leaf with implicit constraints "
+      "(cpp/include/marionette/planning/leaf_planner.h): (solved, waypoints (k x nq), "
+      "iterations, pair queries)");
 }
 
 }  // namespace marionette::bindings

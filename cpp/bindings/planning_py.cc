@@ -8,6 +8,7 @@
 #include <memory>
 #include <stdexcept>
 
+#include "marionette/planning/leaf_planner.h"
 #include "marionette/planning/path_validator.h"
 
 namespace py = pybind11;
@@ -34,13 +35,18 @@ void RegisterPlanning(py::module_& parent) {
   // std::invalid_argument -> ValueError (pybind11's default translation).
 
   py::class_<JointSpec>(m, "JointSpec",
-                        "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4)")
+                        "One joint: name, parent, kind (RX ... FreeFlyer), axis, placement (4x4), "
+                        "body mass, lever (CoM in the joint frame), rotational inertia (3x3)")
       .def(py::init([](std::string name, int parent, std::string kind, Eigen::Vector3d axis,
-                       Eigen::Matrix4d placement) {
-             return JointSpec{std::move(name), parent, std::move(kind), axis, SE3From(placement)};
+                       Eigen::Matrix4d placement, double mass, Eigen::Vector3d lever,
+                       Eigen::Matrix3d rotational_inertia) {
+             return JointSpec{std::move(name),    parent, std::move(kind), axis,
+                              SE3From(placement), mass,   lever,           rotational_inertia};
            }),
            py::arg("name"), py::arg("parent"), py::arg("kind"), py::arg("axis"),
-           py::arg("placement"));
+           py::arg("placement"), py::arg("mass") = 0.0,
+           py::arg("lever") = Eigen::Vector3d::Zero().eval(),
+           py::arg("rotational_inertia") = Eigen::Matrix3d::Zero().eval());
 
   py::class_<GeometrySpec>(
       m, "GeometrySpec",
@@ -143,6 +149,26 @@ void RegisterPlanning(py::module_& parent) {
           },
           py::arg("qa"), py::arg("qb"), py::arg("motion"),
           "Bound on how fast each pair closes its distance along qa -> qb (npairs) [m per unit t]")
+      .def(
+          "plan_in_leaf",
+          [](PathValidator& v, const PairMotion& motion, const Eigen::VectorXd& q_start,
+             const Eigen::VectorXd& q_goal, std::vector<int> free_idx_q,
+             const Eigen::VectorXd& lower, const Eigen::VectorXd& upper, const Substitution& sub,
+             int max_iterations, double max_time_s, double range, std::uint32_t seed) {
+            const LeafQuery query{q_start, q_goal, std::move(free_idx_q), lower, upper, sub};
+            const LeafPlannerOptions options{max_iterations, max_time_s, range, seed};
+            LeafPlanResult r;
+            {
+              py::gil_scoped_release release;
+              r = PlanInLeaf(&v, motion, query, options);
+            }
+            return py::make_tuple(r.solved, r.waypoints, r.iterations, r.queries);
+          },
+          py::arg("motion"), py::arg("q_start"), py::arg("q_goal"), py::arg("free_idx_q"),
+          py::arg("lower"), py::arg("upper"), py::arg("substitution"), py::arg("max_iterations"),
+          py::arg("max_time_s"), py::arg("range"), py::arg("seed"),
+          "RRT-Connect in one leaf (cpp/include/marionette/planning/leaf_planner.h): (solved, "
+          "waypoints (k x nq), iterations, pair queries)")
       .def("is_valid", &PathValidator::IsValid, py::arg("q"), py::arg("skip"))
       .def("distances", &PathValidator::Distances, py::arg("q"))
       .def_property_readonly("nq", [](const PathValidator& v) { return v.model().nq; })

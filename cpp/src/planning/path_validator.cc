@@ -19,6 +19,9 @@ namespace marionette::planning {
 namespace {
 
 constexpr double kInf = std::numeric_limits<double>::infinity();
+// A pair whose bounding spheres are this far apart [m] is certified from that bound alone (a
+// lower bound of its distance); closer ones get the exact distance (GJK on the hulls).
+constexpr double kSphereMargin = 0.02;
 
 pinocchio::JointIndex AddJoint(pinocchio::Model* model, const JointSpec& j) {
   const auto parent = static_cast<pinocchio::JointIndex>(j.parent);
@@ -81,7 +84,10 @@ pinocchio::Model BuildKinematicModel(const std::vector<JointSpec>& joints) {
     if (j.parent < 0 || j.parent >= model.njoints)
       throw std::invalid_argument("joint " + j.name + ": parent " + std::to_string(j.parent) +
                                   " is not defined before it");
-    AddJoint(&model, j);
+    const pinocchio::JointIndex id = AddJoint(&model, j);
+    if (j.mass > 0.0)
+      model.appendBodyToJoint(
+          id, pinocchio::Inertia(j.mass, j.lever, pinocchio::Symmetric3(j.rotational_inertia)));
   }
   return model;
 }
@@ -132,6 +138,11 @@ PathValidator::PathValidator(pinocchio::Model model, pinocchio::GeometryModel ge
     } else {
       throw std::invalid_argument("joint " + model_.names[j] + " (" + name + ") is not supported");
     }
+  }
+  for (auto& g : geom_model_.geometryObjects) {
+    g.geometry->computeLocalAABB();
+    sphere_center_.push_back(g.geometry->aabb_center);
+    sphere_radius_.push_back(g.geometry->aabb_radius);
   }
   q_.resize(model_.nq);
   qa_.resize(model_.nq);
@@ -200,6 +211,10 @@ void PathValidator::Eval(const Polyline& path, const Substitution& sub, double s
     eb_ = path.points.row(i + 1).transpose();
     pinocchio::interpolate(model_, ea_, eb_, u, *q);
   }
+  Substitute(sub, q);
+}
+
+void PathValidator::Substitute(const Substitution& sub, Eigen::VectorXd* q) {
   // Substitution (projector.apply_explicit): locked values, then attached objects from one
   // forward kinematics (their parents are never outputs of another substitution).
   for (size_t j = 0; j < sub.locked_idx_q.size(); ++j)
@@ -219,13 +234,23 @@ void PathValidator::Update(const Eigen::VectorXd& q) {
   pinocchio::updateGeometryPlacements(model_, data_, geom_model_, geom_data_, q);
 }
 
+double PathValidator::SphereBound(int p) const {
+  const pinocchio::CollisionPair& cp = geom_model_.collisionPairs[p];
+  const pinocchio::SE3& Xa = geom_data_.oMg[cp.first];
+  const pinocchio::SE3& Xb = geom_data_.oMg[cp.second];
+  return (Xa.act(sphere_center_[cp.first]) - Xb.act(sphere_center_[cp.second])).norm() -
+         sphere_radius_[cp.first] - sphere_radius_[cp.second];
+}
+
 bool PathValidator::IsValid(const Eigen::VectorXd& q,
                             const Eigen::Array<bool, Eigen::Dynamic, 1>& skip) {
   if (q.size() != model_.nq) throw std::invalid_argument("q must have nq entries");
   if (skip.size() != num_pairs()) throw std::invalid_argument("skip must have npairs entries");
   Update(q);
   for (int k = 0; k < num_pairs(); ++k)
-    if (!skip[k] && pinocchio::computeCollision(geom_model_, geom_data_, k)) return false;
+    if (!skip[k] && SphereBound(k) <= contact_ &&
+        pinocchio::computeCollision(geom_model_, geom_data_, k))
+      return false;
   return true;
 }
 
@@ -257,7 +282,8 @@ ValidationResult PathValidator::Validate(const Polyline& path, const Substitutio
   for (int p = 0; p < num_pairs(); ++p) {
     if (motion.rigid[p] && !motion.skip[p]) {
       ++out.queries;
-      if (pinocchio::computeCollision(geom_model_, geom_data_, p)) return out;
+      if (SphereBound(p) <= contact_ && pinocchio::computeCollision(geom_model_, geom_data_, p))
+        return out;
     }
   }
   // Certified displacement left to each pair, carried from segment to segment.
@@ -332,8 +358,12 @@ bool PathValidator::ValidateSegment(const Polyline& path, const Substitution& su
         Update(q_);
         updated = true;
       }
-      ++out->queries;
-      const double d = pinocchio::computeDistance(geom_model_, geom_data_, p).min_distance;
+      const double bound = SphereBound(p);
+      double d = bound;
+      if (bound <= kSphereMargin) {
+        ++out->queries;
+        d = pinocchio::computeDistance(geom_model_, geom_data_, p).min_distance;
+      }
       if (d <= contact_) {
         *t_fail = t;
         return false;

@@ -8,6 +8,7 @@
 
 #include <Eigen/Cholesky>
 #include <Eigen/SVD>
+#include <pinocchio/algorithm/center-of-mass.hpp>
 #include <pinocchio/algorithm/jacobian.hpp>
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/algorithm/kinematics.hpp>
@@ -99,7 +100,7 @@ void Require(bool ok, const std::string& what) {
 }  // namespace
 
 Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
-    : model_(std::move(model)), data_(model_), spec_(std::move(spec)) {
+    : model_(std::move(model)), data_(model_), com_data_(model_), spec_(std::move(spec)) {
   const int nq = model_.nq, nv = model_.nv, nj = model_.njoints;
   auto joint_ok = [nj](int j) { return j >= 0 && j < nj; };
   int offset = 0;
@@ -130,6 +131,11 @@ Projector::Projector(pinocchio::Model model, ProjectorSpec spec)
                     s.idx_v + (s.nq == 7 ? 6 : 1) <= nv,
                 "implicit locked joint indices out of the configuration");
         rows = s.nq == 7 ? 6 : 1;
+        break;
+      case ImplicitSpec::Kind::kCom:
+        Require(joint_ok(s.joint1), "centre of mass frame joint out of the model");
+        Require(s.mask.head<3>().any(), "a centre-of-mass mask selects at least one of x y z");
+        rows = static_cast<int>(s.mask.head<3>().count());
         break;
     }
     Require(s.level >= level, "implicit constraints must come in level order");
@@ -257,6 +263,23 @@ void Projector::UpdateAndSubstitute(Eigen::Ref<Eigen::VectorXd> q) {
   }
   q_cur_ = q;
   std::fill(jac_valid_.begin(), jac_valid_.end(), 0);
+  com_valid_ = com_jacobian_valid_ = false;
+}
+
+const Eigen::Vector3d& Projector::Com() {
+  if (!com_valid_) {
+    pinocchio::centerOfMass(model_, com_data_, q_cur_, false);
+    com_valid_ = true;
+  }
+  return com_data_.com[0];
+}
+
+const Eigen::Matrix3Xd& Projector::ComJacobian() {
+  if (!com_jacobian_valid_) {
+    pinocchio::jacobianCenterOfMass(model_, com_data_, q_cur_, false);
+    com_valid_ = com_jacobian_valid_ = true;
+  }
+  return com_data_.Jcom;
 }
 
 const Matrix6x& Projector::JointJacobian(int joint) {
@@ -383,6 +406,16 @@ void Projector::Errors(int level, Eigen::VectorXd* e) {
         }
         break;
       }
+      case ImplicitSpec::Kind::kCom: {
+        const pinocchio::SE3 X_WF = data_.oMi[s.joint1] * s.M1;
+        const Eigen::Vector3d c_F = X_WF.actInv(Com());
+        for (int i = 0, k = 0; i < 3; ++i) {
+          if (!s.mask[i]) continue;
+          (*e)[row + k] = c_F[i] - rhs[k];
+          ++k;
+        }
+        break;
+      }
     }
     row += sizes_[c];
   }
@@ -440,6 +473,21 @@ void Projector::Jacobians(int level, Eigen::MatrixXd* Jout) {
         } else {
           J(row, s.idx_v) = 1.0;
         }
+        break;
+      }
+      case ImplicitSpec::Kind::kCom: {
+        // c_F = R^T (c - p): d c_F = R^T (J_c - J_p) dq - [w_F]x c_F, with J_F LOCAL in F
+        // (linear part R^T J_p, angular part w_F): J = R^T J_c - J_F,lin + [c_F]x J_F,ang.
+        const pinocchio::SE3 X_WF = data_.oMi[s.joint1] * s.M1;
+        const Eigen::Vector3d c_F = X_WF.actInv(Com());
+        Eigen::Matrix3Xd Jc = X_WF.rotation().transpose() * ComJacobian();
+        if (s.joint1 != 0) {
+          J6.noalias() = s.M1.inverse().toActionMatrix() * JointJacobian(s.joint1);
+          Jc -= J6.topRows<3>();
+          for (int col = 0; col < nv; ++col) Jc.col(col) += c_F.cross(J6.col(col).tail<3>());
+        }
+        for (int i = 0, k = 0; i < 3; ++i)
+          if (s.mask[i]) J.row(row + k++) = Jc.row(i);
         break;
       }
     }
@@ -653,6 +701,7 @@ bool Projector::IsSatisfied(const Eigen::Ref<const Eigen::VectorXd>& q, const Ei
   pinocchio::forwardKinematics(model_, data_, q);
   q_cur_ = q;
   std::fill(jac_valid_.begin(), jac_valid_.end(), 0);  // data_.J is not that of q
+  com_valid_ = com_jacobian_valid_ = false;
   SelectPairs();
   *pairs = pair_;
   double n2 = 0.0;
@@ -670,6 +719,7 @@ Eigen::VectorXd Projector::Error(Eigen::Ref<Eigen::VectorXd> q, const Eigen::Vec
   pinocchio::computeJointJacobians(model_, data_, q);
   q_cur_ = q;
   std::fill(jac_valid_.begin(), jac_valid_.end(), 0);
+  com_valid_ = com_jacobian_valid_ = false;
   SelectPairs();
   *pairs = pair_;
   Eigen::VectorXd out(size_);

@@ -1,4 +1,4 @@
-"""``marionette plan <problem.yaml>``: build the graph, plan, shorten, write plan + graph picture."""
+"""``marionette plan <problem.yaml>``: plan, optimise, time; write the plan, draw the graph."""
 
 from __future__ import annotations
 
@@ -7,8 +7,6 @@ import difflib
 import sys
 import time
 from pathlib import Path
-
-import numpy as np
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -38,7 +36,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-iterations", type=int, default=None)
     p.add_argument("--timeout", type=float, default=None, help="seconds")
-    p.add_argument("--shortcut", type=int, default=60, help="random shortcut iterations (0: none)")
+    p.add_argument(
+        "--optimize",
+        type=int,
+        default=60,
+        metavar="N",
+        help="path optimisation: N shortcut attempts per kind and round (0: keep the raw plan)",
+    )
+    p.add_argument(
+        "--untimed",
+        action="store_true",
+        help="no time parameterisation in the plan file (samples by arc length only)",
+    )
     p.add_argument("--step", type=float, default=0.01, help="sampling step of the saved paths")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=run)
@@ -65,17 +74,10 @@ def _progress(stream, t0: float):
 
 def run(args: argparse.Namespace) -> int:
     from marionette import REPO_ROOT
-    from marionette.planning.collision import CollisionChecker
-    from marionette.planning.graph_factory import graph_from_settings
-    from marionette.planning.guide import guide_configuration, plan_through
     from marionette.planning.path import save_plan
-    from marionette.planning.planner import (
-        ManipulationRRT,
-        PlanningError,
-        graph_shortcut,
-        random_shortcut,
-    )
     from marionette.planning.problem import ProblemError, load_problem
+    from marionette.planning.query import PlanningError
+    from marionette.planning.solve import plan_problem, planner_fingerprint
 
     err = sys.stderr
     problems_dir = Path(__file__).parent / "problems"
@@ -102,73 +104,60 @@ def run(args: argparse.Namespace) -> int:
         return 2
     out = args.out or (REPO_ROOT / "reports" / "plans" / problem.name)
     out.mkdir(parents=True, exist_ok=True)
-    settings = problem.settings.get("planner", {})
-    max_it = args.max_iterations or int(settings.get("max_iterations", 5000))
-    timeout = args.timeout or float(settings.get("timeout_s", 60.0))
+    from marionette.planning.graph_factory import graph_from_settings
 
     graph = graph_from_settings(problem)
     picture = graph.write_picture(out / "graph.png")
     print(
-        f"{problem.name}: {len(graph.main_states())} states, {len(graph.states) - len(graph.main_states())} "
-        f"waypoint states, {len(graph.top_edges())} transitions -> {picture}"
+        f"{problem.name}: {len(graph.main_states())} states, "
+        f"{len(graph.states) - len(graph.main_states())} waypoint states, "
+        f"{len(graph.top_edges())} transitions -> {picture}"
     )
-    checker = CollisionChecker(problem)
     t0 = time.perf_counter()
     show = None if args.quiet else _progress(err, t0)
     try:
-        if problem.settings.get("guide"):
-            rng = np.random.default_rng(args.seed)
-            waypoints = [
-                guide_configuration(problem, graph, checker, entry, problem.q_init, rng)
-                for entry in problem.settings["guide"]
-            ]
-            print(f"guided through {len(waypoints)} user waypoint(s)")
-            result = plan_through(
-                problem,
-                graph,
-                checker,
-                [problem.q_init, *waypoints, problem.q_goal],
-                args.seed,
-                max_it,
-                timeout,
-                show,
-            )
-        else:
-            planner = ManipulationRRT(problem, graph, checker, seed=args.seed)
-            result = planner.solve(problem.q_init, [problem.q_goal], max_it, timeout, show)
+        solution = plan_problem(
+            problem,
+            seed=args.seed,
+            max_iterations=args.max_iterations,
+            timeout_s=args.timeout,
+            optimize_iterations=args.optimize,
+            progress=show,
+            graph=graph,
+        )
     except PlanningError as e:
         print(f"\nmarionette plan: {e}", file=err)
         return 1
     if not args.quiet and err.isatty():
         err.write("\n")
+    result = solution.result
     if not result.success:
-        print(f"no plan: {result.reason}; failures: {result.statistics}", file=err)
+        print(f"marionette plan: no plan: {result.reason}; failures: {result.statistics}", file=err)
         return 1
     print(
         f"planned in {result.time_s * 1e3:.1f} ms, {result.iterations} iterations, "
         f"{result.nodes} nodes, {len(result.paths)} paths, length {result.length:.3f}"
     )
-    paths = result.paths
-    if args.shortcut > 0:
-        t1 = time.perf_counter()
-        rng = np.random.default_rng(args.seed)
-        paths = graph_shortcut(paths, graph, checker, rng, args.shortcut)
-        paths = random_shortcut(paths, checker, rng, args.shortcut)
+    paths = solution.paths
+    if args.optimize > 0:
         print(
-            f"shortcut: length {result.length:.3f} -> {sum(p.length for p in paths):.3f} "
-            f"in {(time.perf_counter() - t1) * 1e3:.0f} ms"
+            f"optimised: length {result.length:.3f} -> {solution.length:.3f} "
+            f"in {solution.optimize_s * 1e3:.0f} ms"
         )
     json_path, npz_path = save_plan(
         out / "plan",
         graph,
         paths,
         step=args.step,
+        limits=None if args.untimed else solution.limits,
         metadata={
             "seed": args.seed,
             "planning_time_s": result.time_s,
             "iterations": result.iterations,
             "nodes": result.nodes,
             "raw_length": result.length,
+            "optimize_iterations": args.optimize,
+            "planner": planner_fingerprint(),
         },
     )
     previous = None

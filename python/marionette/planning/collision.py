@@ -38,6 +38,9 @@ if TYPE_CHECKING:
 # up to a micrometre), which also bounds the certified steps from below.
 CONTACT = 1e-6
 MAX_QUERIES = 20000  # evaluations of one segment before it is refused as grazing
+# A pair whose bounding spheres are this far apart [m] is certified from that lower bound of
+# its distance, without a GJK query (same in cpp/src/planning/path_validator.cc).
+SPHERE_MARGIN = 0.02
 
 
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
@@ -88,6 +91,11 @@ class CollisionChecker:
         objs = self.geom_model.geometryObjects
         self.geom_joint = [o.parentJoint for o in objs]
         self.geom_radius = [_radius(o) for o in objs]
+        self._sphere_centre, self._sphere_radius = [], []
+        for o in objs:
+            o.geometry.computeLocalAABB()
+            self._sphere_centre.append(np.array(o.geometry.aabb_center))
+            self._sphere_radius.append(float(o.geometry.aabb_radius))
         m = self.model
         # chain_r[g]: list of (joint, r_jg) for every joint j on g's kinematic chain.
         self.chains = [
@@ -97,6 +105,7 @@ class CollisionChecker:
         self.refused_grazing = 0
         self._motion_cache: dict[int, tuple] = {}
         self._grasp_pairs: dict[tuple, frozenset[int]] = {}
+        self._object_pairs: dict[str, np.ndarray] = {}
         self._joint_kinds = []  # (joint, idx_v, 0 revolute-like | 1 prismatic | 2 free-flyer)
         for j in range(1, m.njoints):
             jm = m.joints[j]
@@ -174,6 +183,34 @@ class CollisionChecker:
             for k in allowed:
                 gd.activateCollisionPair(k)
 
+    def object_pairs(self, obj: str) -> np.ndarray:
+        """Pair indices between object ``obj`` and what is not a robot (other objects, the
+        environment): where an object can be put down does not depend on the robots."""
+        cached = self._object_pairs.get(obj)
+        if cached is None:
+            oj = self.problem.objects[obj].joint_id
+            robot = set(self.problem.robot_joint_ids)
+            cached = np.array(
+                [
+                    k
+                    for k, (a, b) in enumerate(self.pairs)
+                    if oj in (self.geom_joint[a], self.geom_joint[b])
+                    and self.geom_joint[a] not in robot
+                    and self.geom_joint[b] not in robot
+                ],
+                dtype=int,
+            )
+            self._object_pairs[obj] = cached
+        return cached
+
+    def objects_collide(self, q: np.ndarray, objects: list[str]) -> bool:
+        """Is one of ``objects`` in collision with another object or the environment at q?"""
+        pairs = np.unique(np.concatenate([self.object_pairs(o) for o in objects]))
+        if not len(pairs):
+            return False
+        self._update(q)
+        return any(pin.computeCollision(self.geom_model, self.geom_data, int(k)) for k in pairs)
+
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of the pairs in collision at q (for error messages)."""
         pin.computeCollisions(self.model, self.data, self.geom_model, self.geom_data, q, False)
@@ -189,10 +226,12 @@ class CollisionChecker:
         """Per pair, how fast it can close its distance, as linear maps of joint speeds.
 
         Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints)) with
-        u_pair = R @ angular_speed + L @ linear_speed.  A geometry on an object attached by an
-        explicit relative pose moves with the parent joint; on a locked joint it is still.
-        Joints common to both chains move the pair rigidly and are left out (HPP's body-pair
-        bound); pairs attached to one (welded) joint are rigid.
+        u_pair = R @ angular_speed + L @ linear_speed.  A locked joint is welded to its parent:
+        its geometries move with the nearest joint above it that is not locked (an object
+        locked where it rests: with the universe, still; a locked finger: with the wrist).  A
+        geometry on an object attached by an explicit relative pose moves with the parent
+        joint.  Joints common to both chains move the pair rigidly and are left out (HPP's
+        body-pair bound); pairs attached to one (welded) joint are rigid.
         """
         key = id(projector)
         cached = self._motion_cache.get(key)
@@ -203,13 +242,23 @@ class CollisionChecker:
         rel = {e.output_joint: e for e in projector.relative}
         locked = {lk.output_joint for lk in projector.locked}
         rigid_map = _rigid_groups(self.model, projector)
+        m = self.model
+
+        def welded(j: int, r: float) -> tuple[int, float]:
+            """The joint that moves joint j's bodies, and the radius grown on the way up."""
+            while j in locked:
+                r += float(np.linalg.norm(m.jointPlacements[j].translation))
+                j = m.parents[j]
+            return j, r
+
         for g, j in enumerate(self.geom_joint):
-            if j in locked:
-                eff[g], chains[g] = 0, []
-            elif j in rel:
+            r = self.geom_radius[g]
+            if j in rel:
                 e = rel[j]
-                r = self.geom_radius[g] + float(np.linalg.norm(e.M_PO.translation))
-                eff[g], chains[g] = e.parent_joint, self._chain(e.parent_joint, r)
+                j, r = e.parent_joint, r + float(np.linalg.norm(e.M_PO.translation))
+            j, r = welded(j, r)
+            if j != self.geom_joint[g]:
+                eff[g], chains[g] = j, (self._chain(j, r) if j > 0 else [])
         n = len(self.pairs)
         nj = self.model.njoints
         rigid = np.zeros(n, dtype=bool)
@@ -258,6 +307,138 @@ class CollisionChecker:
                     return False, 0.0
         return self._certified(path, rigid, R, L, skip)
 
+    def _cpp_pair_motion(self, projector: Projector, allowed: frozenset[int]) -> tuple:
+        """(projector, C++ PairMotion, attached parts) of a transition, cached."""
+        from marionette.planning import collision_cpp
+
+        key = (id(projector), allowed)
+        cached = self._cpp_motion.get(key)
+        if cached is None or cached[0] is not projector:
+            rigid, R, L = self._motion(projector)
+            skip = np.zeros(len(self.pairs), dtype=bool)
+            skip[list(allowed)] = True
+            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
+            cached = (projector, motion, collision_cpp.attached(projector))
+            self._cpp_motion[key] = cached
+        return cached
+
+    # --------------------------------------------------------------------------- leaf planning
+    def leaf_free_joints(self, projector: Projector) -> np.ndarray | None:
+        """q indices of a leaf's free variables when the leaf is the space of its free 1-dof
+        joints (every constraint explicit: locked joints, attached objects), else None."""
+        if projector.implicit or self._cpp is None:
+            return None
+        m = self.model
+        out = []
+        for j in range(1, m.njoints):
+            iv, nv = m.idx_vs[j], m.joints[j].nv
+            if not projector.free[iv : iv + nv].any():
+                continue
+            if nv != 1 or m.joints[j].nq != 1:
+                return None
+            out.append(m.idx_qs[j])
+        return np.asarray(out, dtype=int) if out else None
+
+    def plan_in_leaf(
+        self,
+        projector: Projector,
+        allowed: frozenset[int],
+        q1: np.ndarray,
+        q2: np.ndarray,
+        seed: int,
+        max_iterations: int = 200,
+        max_time_s: float = 1.0,
+        step: float = 0.1,
+    ) -> np.ndarray | None:
+        """Waypoints (k x nq) of a collision-free polyline q1 -> q2 inside the leaf of
+        ``projector`` (right-hand sides already set from q1), by RRT-Connect in C++
+        (cpp/include/marionette/planning/leaf_planner.h): OMPL's in a space of free joints
+        (:meth:`leaf_free_joints`), a projecting one (nodes at most ``step`` apart) on a leaf
+        with implicit constraints; None when not found."""
+        from marionette.planning import collision_cpp
+
+        if projector.implicit:
+            return self._plan_in_constrained_leaf(
+                projector, allowed, q1, q2, seed, max_iterations, max_time_s, step
+            )
+        free = self.leaf_free_joints(projector)
+        if free is None:
+            return None
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        sub = collision_cpp._planning.Substitution(
+            [lk.idx_q for lk in projector.locked],
+            [lk.value.copy() for lk in projector.locked],
+            *attached,
+        )
+        solved, waypoints, _it, queries = self._cpp.plan_in_leaf(
+            motion,
+            np.asarray(q1, dtype=float),
+            np.asarray(q2, dtype=float),
+            [int(i) for i in free],
+            self.problem.lower[free],
+            self.problem.upper[free],
+            sub,
+            int(max_iterations),
+            float(max_time_s),
+            0.0,
+            int(seed) & 0xFFFFFFFF,
+        )
+        self.checks += queries
+        return np.asarray(waypoints) if solved else None
+
+    def _plan_in_constrained_leaf(
+        self, projector, allowed, q1, q2, seed, max_iterations, max_time_s, step
+    ) -> np.ndarray | None:
+        from marionette.planning import collision_cpp
+
+        if projector._cpp is None or self._cpp is None:
+            return None
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        sub = collision_cpp._planning.Substitution(
+            [lk.idx_q for lk in projector.locked],
+            [lk.value.copy() for lk in projector.locked],
+            *attached,
+        )
+        # Samples: the free variables' q entries (1-dof joints, free-flyer translations), in
+        # the bounds and within one unit (rad, m) of the two ends: a connection is local.
+        m = self.model
+        idx = []
+        for j in range(1, m.njoints):
+            iv, nv = m.idx_vs[j], m.joints[j].nv
+            if not projector.free[iv : iv + nv].any():
+                continue
+            iq = m.idx_qs[j]
+            idx += [iq] if nv == 1 else list(range(iq, iq + 3)) if nv == 6 else []
+        idx = np.asarray(idx, dtype=int)
+        lo = np.maximum(self.problem.lower[idx], np.minimum(q1[idx], q2[idx]) - 1.0)
+        hi = np.minimum(self.problem.upper[idx], np.maximum(q1[idx], q2[idx]) + 1.0)
+        cpp = projector._cpp
+        solved, waypoints, _it, queries = collision_cpp._planning.plan_in_constrained_leaf(
+            self._cpp,
+            cpp.cpp,
+            motion,
+            np.asarray(q1, dtype=float),
+            np.asarray(q2, dtype=float),
+            cpp.rhs(),
+            cpp.pairs(),
+            [int(i) for i in idx],
+            lo,
+            hi,
+            sub,
+            float(step),
+            float(projector.error_threshold),
+            int(projector.max_iterations),
+            int(max_iterations),
+            float(max_time_s),
+            int(seed) & 0xFFFFFFFF,
+        )
+        self.checks += queries
+        if not solved:
+            return None
+        pts = np.asarray(waypoints)
+        keep = np.concatenate([[True], np.any(np.diff(pts, axis=0) != 0.0, axis=1)])
+        return pts[keep]
+
     def _validate_cpp(
         self,
         path: ConstrainedPath,
@@ -272,15 +453,7 @@ class CollisionChecker:
         from marionette.planning import collision_cpp
 
         projector = path.projector
-        key = (id(projector), allowed)
-        cached = self._cpp_motion.get(key)
-        if cached is None or cached[0] is not projector:
-            skip = np.zeros(len(self.pairs), dtype=bool)
-            skip[list(allowed)] = True
-            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
-            cached = (projector, motion, collision_cpp.attached(projector))
-            self._cpp_motion[key] = cached
-        _, motion, attached = cached
+        _, motion, attached = self._cpp_pair_motion(projector, allowed)
         ok, s, queries, grazing = self._cpp.validate(
             path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix
         )
@@ -332,6 +505,20 @@ class CollisionChecker:
     def _update(self, q: np.ndarray) -> None:
         pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, q)
 
+    def _sphere_bounds(self, pairs: np.ndarray) -> np.ndarray:
+        """Lower bounds of the distances of ``pairs`` at the last update: |c_a - c_b| - r_a - r_b
+        from the geometries' bounding spheres."""
+        oMg = self.geom_data.oMg
+        centres = {g: oMg[g].act(self._sphere_centre[g]) for k in pairs for g in self.pairs[int(k)]}
+        return np.array(
+            [
+                np.linalg.norm(centres[a] - centres[b])
+                - self._sphere_radius[a]
+                - self._sphere_radius[b]
+                for a, b in (self.pairs[int(k)] for k in pairs)
+            ]
+        )
+
     def _validate_segment(
         self, path, qa, qb, s0, s1, rigid, R, L, budget: np.ndarray
     ) -> tuple[bool, float]:
@@ -354,22 +541,15 @@ class CollisionChecker:
             due = np.flatnonzero(horizon <= t + 0.01)
             if due.size:
                 q = path.eval(s0 + t * length)
-                if due.size > 64:
-                    # Many pairs at once (a path start): one C++ call for all of them.
-                    self.checks += len(self.pairs)
-                    pin.computeDistances(self.model, self.data, gm, gd, q)
-                    d = np.array([r.min_distance for r in gd.distanceResults])[due]
-                    if (d <= CONTACT).any():
+                self._update(q)
+                # Pairs whose bounding spheres are far apart are certified by that bound.
+                d = self._sphere_bounds(due)
+                for i in np.flatnonzero(d <= SPHERE_MARGIN):
+                    self.checks += 1
+                    d[i] = pin.computeDistance(gm, gd, int(due[i])).min_distance
+                    if d[i] <= CONTACT:
                         return False, t
-                    horizon[due] = t + d / u[due]
-                else:
-                    self._update(q)
-                    for k in due:
-                        self.checks += 1
-                        d = pin.computeDistance(gm, gd, int(k)).min_distance
-                        if d <= CONTACT:
-                            return False, t
-                        horizon[k] = t + d / u[k]
+                horizon[due] = t + d / u[due]
             t_next = float(horizon.min())
             if t_next >= 1.0:
                 budget[moving] = (horizon[moving] - 1.0) * u[moving]

@@ -54,8 +54,16 @@ def _joint_spec(model: pin.Model, j: int) -> _planning.JointSpec:
         if kind.endswith("Unaligned")
         else np.array([0.0, 0, 1])
     )
+    body = model.inertias[j]
     return _planning.JointSpec(
-        model.names[j], int(model.parents[j]), kind, axis, model.jointPlacements[j].homogeneous
+        model.names[j],
+        int(model.parents[j]),
+        kind,
+        axis,
+        model.jointPlacements[j].homogeneous,
+        mass=float(body.mass),
+        lever=np.asarray(body.lever, dtype=float),
+        rotational_inertia=np.asarray(body.inertia, dtype=float),
     )
 
 

@@ -15,12 +15,12 @@ how to build the straight, constrained path between two configurations of their 
 from __future__ import annotations
 
 import subprocess
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from marionette.planning.constraints import Constraint, ExplicitConstraint
+from marionette.planning.constraints import Constraint, ExplicitConstraint, PlacementComplement
 from marionette.planning.path import ConstrainedPath, PathError
 from marionette.planning.problem import ManipulationProblem
 from marionette.planning.projector import LineSearch, ProjectionResult, Projector
@@ -171,6 +171,31 @@ class Edge:
         except PathError:
             return None
 
+    def plan(
+        self, q1: np.ndarray, q2: np.ndarray, checker, seed: int, max_iterations: int = 200
+    ) -> list[ConstrainedPath] | None:
+        """Collision-free straight pieces q1 -> q2 in this edge's leaf found by RRT-Connect
+        (``checker``: a :class:`marionette.planning.collision.CollisionChecker`), or None (not
+        one leaf, a leaf with implicit constraints, or no path found within the iterations)."""
+        if not self.can_connect(q1, q2):
+            return None
+        proj = self.path_projector  # right-hand sides from q1 (can_connect)
+        pts = checker.plan_in_leaf(
+            proj,
+            checker.grasp_contact_pairs(self.grasps),
+            q1,
+            q2,
+            seed,
+            max_iterations,
+            step=self.graph.path_step,
+        )
+        if pts is None:
+            return None
+        rhs = proj.rhs_vector()
+        if proj.implicit:  # one progressively projected polyline
+            return [ConstrainedPath(self, pts, proj, rhs)]
+        return [ConstrainedPath(self, np.array([a, b]), proj, rhs) for a, b in zip(pts, pts[1:])]
+
     def __repr__(self) -> str:
         return f"Edge({self.name!r}: {self.from_state.name} -> {self.to_state.name})"
 
@@ -205,6 +230,8 @@ class WaypointEdge(Edge):
             e.parent = self
         self.waypoints = [e.to_state for e in self.sub_edges[:-1]]
         self.last_waypoint_configs: list[np.ndarray] = []
+        self._common: list[AnyConstraint] | None = None  # held by every sub-transition
+        self._common_projector: Projector | None = None
 
     @property
     def path_projector(self) -> Projector:
@@ -230,10 +257,29 @@ class WaypointEdge(Edge):
         return result
 
     def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
-        return self.sub_edges[0].path_projector is not None
+        """Do q1 and q2 agree on what every sub-transition keeps constant (the placements of
+        the objects the transition does not move)?  Necessary for a path q1 -> q2 in it."""
+        if self._common is None:
+            subs = self.sub_edges
+            self._common = [c for c in subs[0].constraints if all(c in e.constraints for e in subs)]
+            if self._common:
+                self._common_projector = self.graph.make_projector(
+                    self._common, f"common leaf {self.name}"
+                )
+        if not self._common:
+            return True
+        proj = self._common_projector
+        proj.set_rhs_from(q1)
+        return proj.is_satisfied(q2, self.graph.error_threshold)
 
-    def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
-        """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached."""
+    def build(
+        self, q1: np.ndarray, q2: np.ndarray, accept: Callable | None = None
+    ) -> list[ConstrainedPath] | None:
+        """Sub-paths q1 -> w1 -> ... -> q2; waypoints generated from q2 unless cached.
+        ``accept(path) -> bool`` (a validity check) is applied to each sub-path as soon as it is
+        built: the first refused one ends the build (None) before the next is projected."""
+        if not self.can_connect(q1, q2):
+            return None
         n = len(self.sub_edges)
         cached = self.last_waypoint_configs
         if (
@@ -257,8 +303,125 @@ class WaypointEdge(Edge):
             sub = e.build(a, b)
             if sub is None:
                 return None
+            if accept is not None and not all(accept(x) for x in sub):
+                return None
             paths += sub
         return paths
+
+
+class LeafEdge(Edge):
+    """A sub-transition whose target also takes the right-hand sides of ``leaf`` constraints from a
+    configuration ``q_leaf`` (HPP ``LevelSetEdge``'s parametrisation): the destination leaf is the
+    one a configuration of another connected component lies on, instead of a random one.
+
+    Its paths are those of ``base`` (same path constraints, same name in plans): only the target
+    generation differs.
+    """
+
+    def __init__(self, base: Edge, leaf: Sequence[AnyConstraint]) -> None:
+        super().__init__(
+            base.graph,
+            base.name + "_ls",
+            base.from_state,
+            base.to_state,
+            base.containing,
+            base.constraints,
+            weight=base.weight,
+            short=base.short,
+        )
+        self.base = base
+        self.leaf = list(leaf)
+        self.reverse_edge = base.reverse_edge
+
+    def target_constraints(self) -> list[AnyConstraint]:
+        return _unique(self.base.target_constraints() + self.leaf)
+
+    @property
+    def path_projector(self) -> Projector:
+        return self.base.path_projector
+
+    def generate_target(
+        self, q_start: np.ndarray, q: np.ndarray, q_leaf: np.ndarray | None = None
+    ) -> ProjectionResult:
+        """Project q onto the destination with the edge's rhs from q_start and the leaf
+        constraints' rhs from q_leaf (q_start's when None)."""
+        proj = self.target_projector
+        proj.set_rhs_from(q_start)
+        if q_leaf is not None:
+            proj.set_rhs_of(self.leaf, q_leaf)
+        if self.short:
+            q[:] = q_start
+        return proj.project(q)
+
+    def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        return self.base.can_connect(q1, q2)
+
+    def build(self, q1: np.ndarray, q2: np.ndarray) -> list[ConstrainedPath] | None:
+        return self.base.build(q1, q2)
+
+    def plan(self, q1, q2, checker, seed: int, max_iterations: int = 200):
+        return self.base.plan(q1, q2, checker, seed, max_iterations)
+
+
+class LevelSetEdge(WaypointEdge):
+    """HPP's level-set transition: the same motion as a (waypoint) transition, whose destination
+    leaf is copied from a roadmap configuration in ``leaf_state`` of another connected component.
+
+    A release that puts an object down exactly where another component has it (a swap's goal
+    leaf, the pose under a stack) makes the two components share a leaf, so a transition of that
+    leaf can join them; random placements never hit it (a leaf has measure zero).  ``leaf``: the
+    parametrised constraints whose rhs is copied (a placement complement, a grasp complement).
+    Never used to connect nodes (the regular transition does that).
+    """
+
+    def __init__(
+        self,
+        graph: ConstraintGraph,
+        base: WaypointEdge,
+        leaf_index: int,
+        leaf: Sequence[AnyConstraint],
+        leaf_state: State,
+        weight: float = 10.0,
+    ) -> None:
+        # The leaf sub-transition and every later one: the waypoints after it (lowering the
+        # object onto its surface) would otherwise drift off the copied leaf.
+        subs = [e if i < leaf_index else LeafEdge(e, leaf) for i, e in enumerate(base.sub_edges)]
+        parents = [e.parent for e in base.sub_edges]
+        super().__init__(
+            graph, base.name + "_ls", base.from_state, base.to_state, base.containing, subs, weight
+        )
+        for e, parent in zip(base.sub_edges, parents):
+            e.parent = parent  # shared sub-edges stay the regular transition's
+        self.base = base
+        self.leaf_index = leaf_index
+        self.leaf = list(leaf)
+        self.leaf_state = leaf_state
+        self.reverse_edge = base.reverse_edge
+        # Objects whose pose the leaf sets (placement complements): a leaf where they collide
+        # with the other objects as they are cannot be reached from there.
+        self.leaf_objects = sorted(
+            {c.placement.object for c in self.leaf if isinstance(c, PlacementComplement)}
+        )
+
+    def generate_target(
+        self, q_start: np.ndarray, q: np.ndarray, q_leaf: np.ndarray | None = None
+    ) -> ProjectionResult:
+        q_prev = q_start
+        configs = [q_start]
+        result = None
+        for e in self.sub_edges:
+            q_next = q.copy()
+            if isinstance(e, LeafEdge):
+                result = e.generate_target(q_prev, q_next, q_leaf)
+            else:
+                result = e.generate_target(q_prev, q_next)
+            if not result:
+                return result
+            configs.append(q_next)
+            q_prev = q_next
+        q[:] = q_prev
+        self.last_waypoint_configs = configs
+        return result
 
 
 class ConstraintGraph:
@@ -333,7 +496,12 @@ class ConstraintGraph:
         for s in self.states.values():
             _ = s.projector
         for e in self.edges.values():
-            if not isinstance(e, WaypointEdge):
+            if isinstance(e, WaypointEdge):
+                e.can_connect(self.problem.q_init, self.problem.q_init)  # its common leaf
+            if isinstance(e, LevelSetEdge):
+                for sub in e.sub_edges[e.leaf_index :]:
+                    _ = sub.target_projector
+            elif not isinstance(e, WaypointEdge):
                 _ = e.path_projector, e.target_projector
 
     def top_edges(self) -> list[Edge]:
@@ -351,7 +519,9 @@ class ConstraintGraph:
         return None
 
     def edges_between(self, a: State, b: State) -> list[Edge]:
-        return [e for e in a.outgoing if e.to_state is b]
+        """Transitions from a to b that connect configurations (level-set twins excluded: they
+        build the same paths as their regular transition)."""
+        return [e for e in a.outgoing if e.to_state is b and not isinstance(e, LevelSetEdge)]
 
     # ------------------------------------------------------------------------------ export
     def to_dot(self) -> str:
@@ -437,6 +607,7 @@ class ConstraintGraph:
                     "waypoint_edges": [x.name for x in e.sub_edges]
                     if isinstance(e, WaypointEdge)
                     else [],
+                    "level_set": isinstance(e, LevelSetEdge),
                 }
                 for e in self.edges.values()
             ],

@@ -37,7 +37,14 @@ from marionette.planning.constraints import (
     PlacementComplement,
     RelativeTransformation,
 )
-from marionette.planning.graph import ConstraintGraph, Edge, GraphError, State, WaypointEdge
+from marionette.planning.graph import (
+    ConstraintGraph,
+    Edge,
+    GraphError,
+    LevelSetEdge,
+    State,
+    WaypointEdge,
+)
 from marionette.planning.problem import ManipulationProblem
 from marionette.planning.projector import LineSearch
 
@@ -192,7 +199,10 @@ class ConstraintFactory:
         if obj not in self._place:
             p = self.problem
             contacts = self.object_contacts.get(obj, [])
-            if not contacts or not self.env_contacts:
+            # Surfaces an object can rest on: the environment's and the other objects' (a
+            # stack), never its own.
+            env = [c for c in self.env_contacts if p.contacts[c].owner != obj]
+            if not contacts or not env:
                 lock = LockedJoint(f"{obj}/root_joint", p.model, p.objects[obj].joint_id)
                 self._place[obj] = {
                     "placement": _Constraints(),
@@ -200,14 +210,14 @@ class ConstraintFactory:
                     "preplacement": _Constraints(),
                 }
             else:
-                place = Placement(f"place_{obj}", p, obj, contacts, self.env_contacts, self.margin)
+                place = Placement(f"place_{obj}", p, obj, contacts, env, self.margin)
                 comp = PlacementComplement(f"place_{obj}/complement", place)
                 pre = Placement(
                     f"preplace_{obj}",
                     p,
                     obj,
                     contacts,
-                    self.env_contacts,
+                    env,
                     self.margin + self.preplace,
                 )
                 self._place[obj] = {
@@ -270,6 +280,7 @@ class GraphFactory:
         )
         self._states: dict[tuple[int | None, ...], _StateInfo] = {}
         self._transitions: set[str] = set()
+        self.level_sets = True  # level-set twins of the transitions (graph.LevelSetEdge)
 
     # ------------------------------------------------------------------------------ names
     def state_name(self, grasps: tuple[int | None, ...], abbrev: bool = False) -> str:
@@ -455,6 +466,18 @@ class GraphFactory:
             graph.add_edge(e)
         graph.add_edge(wf)
         graph.add_edge(wb)
+        # Level-set twins: the leaf a transition lands on, where the transition does not fix
+        # it, can be copied from another component (graph.LevelSetEdge) -- a grasp's free
+        # parameters (complement of a partial grasp), a release's placement.  HPP creates them
+        # only when both states have leaves (crossedFoliation); a single object needs them as
+        # well: the goal's component then puts the object back exactly where the start's has it.
+        if self.level_sets:
+            grasp_leaf = st.foliation - sf.foliation
+            if not sf.foliation.empty() and not grasp_leaf.empty():
+                graph.add_edge(LevelSetEdge(graph, wf, 0, grasp_leaf.items, st.state))
+            place_leaf = sf.foliation - st.foliation
+            if not no_place and not place_leaf.empty():
+                graph.add_edge(LevelSetEdge(graph, wb, 0, place_leaf.items, sf.state))
 
 
 def graph_constraints_from_settings(

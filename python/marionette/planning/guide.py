@@ -18,9 +18,10 @@ import pinocchio as pin
 
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.constraints import LockedJoint
-from marionette.planning.graph import ConstraintGraph
-from marionette.planning.planner import ManipulationRRT, PlanningError, PlanResult
+from marionette.planning.graph import ConstraintGraph, State
+from marionette.planning.planner import ManipulationRRT, PlanResult
 from marionette.planning.problem import ManipulationProblem, _pose7
+from marionette.planning.query import PlanningError, no_state_message
 
 
 def guide_configuration(
@@ -70,6 +71,37 @@ def guide_configuration(
     )
 
 
+def leg_states(graph: ConstraintGraph, q_a: np.ndarray, q_b: np.ndarray) -> set[State]:
+    """States of the shortest transition sequences from q_a's state to q_b's (breadth first
+    over the transitions between main states): the states a leg between two waypoints goes
+    through -- the leg's planner extends along no other transition."""
+    a, b = graph.state_of(q_a), graph.state_of(q_b)
+    for q, s, what in ((q_a, a, "start"), (q_b, b, "end")):
+        if s is None:
+            raise PlanningError(no_state_message(graph, q, f"leg {what}"))
+    dist_a, dist_b = _distances(graph, a, forward=True), _distances(graph, b, forward=False)
+    if b not in dist_a:
+        raise PlanningError(f"guide: no sequence of transitions from '{a.name}' to '{b.name}'")
+    total = dist_a[b]
+    return {s for s in dist_a if s in dist_b and dist_a[s] + dist_b[s] == total}
+
+
+def _distances(graph: ConstraintGraph, start: State, forward: bool) -> dict[State, int]:
+    edges = [e for e in graph.top_edges() if e.from_state is not e.to_state]
+    dist = {start: 0}
+    frontier = [start]
+    while frontier:
+        nxt = []
+        for s in frontier:
+            for e in edges:
+                src, dst = (e.from_state, e.to_state) if forward else (e.to_state, e.from_state)
+                if src is s and dst not in dist:
+                    dist[dst] = dist[s] + 1
+                    nxt.append(dst)
+        frontier = nxt
+    return dist
+
+
 def plan_through(
     problem: ManipulationProblem,
     graph: ConstraintGraph,
@@ -80,12 +112,16 @@ def plan_through(
     timeout_s: float = 600.0,
     progress: Callable[[int, int, int], None] | None = None,
 ) -> PlanResult:
-    """Plan configurations[0] -> [1] -> ... -> [-1], one query per leg, paths concatenated."""
+    """Plan configurations[0] -> [1] -> ... -> [-1], one query per leg, paths concatenated;
+    each leg extends only along the transitions of its shortest state sequences
+    (:func:`leg_states`)."""
     t0 = time.perf_counter()
     paths, iterations, nodes, stats = [], 0, 0, {}
     for leg, (a, b) in enumerate(zip(configurations, configurations[1:])):
         left = timeout_s - (time.perf_counter() - t0)
-        planner = ManipulationRRT(problem, graph, checker, seed=seed + 1000 * leg)
+        planner = ManipulationRRT(
+            problem, graph, checker, seed=seed + 1000 * leg, states=leg_states(graph, a, b)
+        )
         r = planner.solve(a, [b], max_iterations, max(left, 0.0), progress)
         iterations += r.iterations
         nodes += r.nodes

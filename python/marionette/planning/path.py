@@ -13,7 +13,8 @@ The plan file (format ``marionette-plan/1``, :func:`save_plan` / :func:`load_pla
 document (problem, graph, one entry per elementary path with its transition, end states,
 grasps and constraint right-hand sides) plus an ``.npz`` with, per path, the sampled
 configurations ``path_<i>`` (k x nq) at parameters ``s_<i>`` (k,) (arc length in the metric
-|v|, resample at any rate by interpolating on the manifold).
+|v|, resample at any rate by interpolating on the manifold) and, in a timed plan (``timed``:
+true), their times ``t_<i>`` (k,) [s] under the robots' velocity and acceleration limits.
 """
 
 from __future__ import annotations
@@ -177,16 +178,26 @@ def save_plan(
     paths: Sequence[ConstrainedPath],
     metadata: dict[str, Any] | None = None,
     step: float = 0.01,
+    limits: Any = None,
 ) -> tuple[Path, Path]:
-    """Write ``<path>.json`` and ``<path>.npz`` (see the module docstring for the format)."""
+    """Write ``<path>.json`` and ``<path>.npz`` (see the module docstring for the format).
+    ``limits`` (:class:`marionette.planning.optimize.Limits`): also time every sample."""
     path = Path(path)
     base = path.with_suffix("") if path.suffix in (".json", ".npz") else path
     json_path, npz_path = base.with_suffix(".json"), base.with_suffix(".npz")
     problem = graph.problem
     arrays: dict[str, np.ndarray] = {}
     entries = []
+    sampled = [p.sample(step) for p in paths]
+    durations: list[float] = []
+    if limits is not None:
+        from marionette.planning.optimize import time_parameterize
+
+        times, durations = time_parameterize(paths, limits, [s for s, _ in sampled])
+        for i, t in enumerate(times):
+            arrays[f"t_{i}"] = t
     for i, p in enumerate(paths):
-        s, qs = p.sample(step)
+        s, qs = sampled[i]
         arrays[f"s_{i}"] = s
         arrays[f"path_{i}"] = qs
         e = p.edge
@@ -212,6 +223,8 @@ def save_plan(
                 "q_end": p.end.tolist(),
             }
         )
+        if durations:
+            entries[-1]["duration"] = durations[i]
     doc = {
         "format": PLAN_FORMAT,
         "problem": {
@@ -233,6 +246,7 @@ def save_plan(
         },
         "graph": graph.describe(),
         "sampling_step": step,
+        "timed": bool(durations),
         "arrays": npz_path.name,
         "paths": entries,
         "metadata": metadata or {},
@@ -243,11 +257,18 @@ def save_plan(
 
 
 class Plan:
-    """A loaded plan: ``doc`` (the JSON), ``paths`` (list of (s, q) arrays, one per path)."""
+    """A loaded plan: ``doc`` (the JSON), ``paths`` (list of (s, q) arrays, one per path) and,
+    for a timed plan, ``times`` (one t array per path, absolute, in seconds; else None)."""
 
-    def __init__(self, doc: dict[str, Any], arrays: list[tuple[np.ndarray, np.ndarray]]) -> None:
+    def __init__(
+        self,
+        doc: dict[str, Any],
+        arrays: list[tuple[np.ndarray, np.ndarray]],
+        times: list[np.ndarray] | None = None,
+    ) -> None:
         self.doc = doc
         self.paths = arrays
+        self.times = times
 
     @property
     def transitions(self) -> list[str]:
@@ -266,5 +287,7 @@ def load_plan(path: str | Path) -> Plan:
     if doc.get("format") != PLAN_FORMAT:
         raise ValueError(f"{json_path}: not a {PLAN_FORMAT} file (format={doc.get('format')!r})")
     npz = np.load(json_path.parent / doc["arrays"])
-    arrays = [(npz[f"s_{i}"], npz[f"path_{i}"]) for i in range(len(doc["paths"]))]
-    return Plan(doc, arrays)
+    n = len(doc["paths"])
+    arrays = [(npz[f"s_{i}"], npz[f"path_{i}"]) for i in range(n)]
+    times = [npz[f"t_{i}"] for i in range(n)] if doc.get("timed") else None
+    return Plan(doc, arrays, times)

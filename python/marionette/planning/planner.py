@@ -7,12 +7,14 @@ right-hand side taken from the node, build the constrained path, keep its collis
 prefix); then try to connect the new nodes to each other and to the other components through a
 transition joining their states.  The query is solved when the initial and a goal
 configuration share a component; the result is the roadmap path between them, a sequence of
-elementary paths, each in one transition.
+elementary paths, each in one transition (``optimize.py`` shortens it).
 
-:func:`graph_shortcut` shortens it across transitions (two points joined by a transition
-between their states, as HPP's graph steering method), which removes release / re-grasp
-detours; :func:`random_shortcut` then shortens runs of paths within one transition leaf.  Both
-keep the pre-grasp approaches and the placements.
+Two mechanisms beyond HPP 9's planner.  Level-set transitions (``graph.LevelSetEdge``, HPP's
+``LevelSetEdge``) put an object down exactly where another component holds it, so components
+come to share a leaf.  And when two nodes of different components share a leaf but the straight
+path between them collides, they are joined by RRT-Connect inside that leaf (OMPL, in C++:
+``CollisionChecker.plan_in_leaf``) -- HPP only tries straight paths there, and a cluttered leaf
+then keeps its components apart until a lucky straight line appears.
 """
 
 from __future__ import annotations
@@ -25,15 +27,22 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 
 import numpy as np
+import pinocchio as pin
 
 from marionette.planning.collision import CollisionChecker
-from marionette.planning.graph import ConstraintGraph, Edge, State, WaypointEdge
+from marionette.planning.graph import (
+    ConstraintGraph,
+    Edge,
+    LeafEdge,
+    LevelSetEdge,
+    State,
+    WaypointEdge,
+)
 from marionette.planning.path import ConstrainedPath
 from marionette.planning.problem import ManipulationProblem, sample_configuration
+from marionette.planning.query import PlanningError, collision_message, no_state_message
 
-
-class PlanningError(RuntimeError):
-    """A query that cannot be planned (start/goal in no state or in collision)."""
+__all__ = ["ManipulationRRT", "PlanResult", "PlanningError", "Roadmap"]
 
 
 @dataclasses.dataclass
@@ -64,14 +73,32 @@ class PlanResult:
         return float(sum(p.length for p in self.paths))
 
 
+class _Reversed:
+    """The paths of a roadmap edge taken backwards, reversed only when a solution uses them."""
+
+    def __init__(self, paths: list[ConstrainedPath]) -> None:
+        self.paths = paths
+        self.length = float(sum(p.length for p in paths))
+
+    def build(self) -> list[ConstrainedPath]:
+        return [p.reverse() for p in reversed(self.paths)]
+
+
 class Roadmap:
-    """Nodes (with their graph state), edges carrying paths, connected components."""
+    """Nodes (with their graph state), edges carrying paths, connected components.
+
+    Components are kept up to date as edges join them (members and members per state, the
+    smaller merged into the larger), so that each planning step reads them in O(components).
+    """
 
     def __init__(self, nq: int) -> None:
         self.nodes: list[Node] = []
         self._q = np.zeros((64, nq))
-        self.adjacency: dict[int, list[tuple[int, list[ConstrainedPath]]]] = {}
+        self.adjacency: dict[int, list[tuple[int, list[ConstrainedPath] | _Reversed]]] = {}
         self._cc: list[int] = []  # union-find parents
+        self._members: dict[int, list[int]] = {}  # root -> node indices
+        self._by_state: dict[int, dict[int, list[int]]] = {}  # root -> id(state) -> indices
+        self._in_state: dict[int, list[int]] = {}  # id(state) -> indices
 
     def add_node(self, q: np.ndarray, state: State) -> Node:
         n = Node(q.copy(), state, len(self.nodes))
@@ -81,6 +108,9 @@ class Roadmap:
         self.nodes.append(n)
         self.adjacency[n.index] = []
         self._cc.append(n.index)
+        self._members[n.index] = [n.index]
+        self._in_state.setdefault(id(state), []).append(n.index)
+        self._by_state[n.index] = {id(state): [n.index]}
         return n
 
     def component(self, i: int) -> int:
@@ -90,17 +120,31 @@ class Roadmap:
         return i
 
     def add_edge(self, a: Node, b: Node, paths: list[ConstrainedPath]) -> None:
+        """Paths a -> b; b -> a is the same motion backwards, built when a query uses it."""
         self.adjacency[a.index].append((b.index, paths))
-        self.adjacency[b.index].append((a.index, [p.reverse() for p in reversed(paths)]))
+        self.adjacency[b.index].append((a.index, _Reversed(paths)))
         ca, cb = self.component(a.index), self.component(b.index)
-        if ca != cb:
-            self._cc[max(ca, cb)] = min(ca, cb)
+        if ca == cb:
+            return
+        if len(self._members[ca]) < len(self._members[cb]):
+            ca, cb = cb, ca
+        self._cc[cb] = ca
+        self._members[ca] += self._members.pop(cb)
+        into = self._by_state[ca]
+        for sid, idx in self._by_state.pop(cb).items():
+            into.setdefault(sid, []).extend(idx)
+
+    def nodes_in_state(self, state: State) -> list[int]:
+        """Every node of ``state`` (read only)."""
+        return self._in_state.get(id(state), [])
 
     def components(self) -> dict[int, list[int]]:
-        out: dict[int, list[int]] = {}
-        for n in self.nodes:
-            out.setdefault(self.component(n.index), []).append(n.index)
-        return out
+        """Root -> node indices of every connected component (read only)."""
+        return self._members
+
+    def members_by_state(self, root: int) -> dict[int, list[int]]:
+        """id(state) -> node indices of the component ``root`` (read only)."""
+        return self._by_state[root]
 
     def nearest(self, q: np.ndarray, indices: Sequence[int], k: int = 1) -> list[int]:
         """The k nodes among ``indices`` nearest to q (Euclidean in q; brute force is the fastest
@@ -125,11 +169,15 @@ class Roadmap:
                 out: list[ConstrainedPath] = []
                 while i != start:
                     j, paths = prev[i]
-                    out = paths + out
+                    out = (paths.build() if isinstance(paths, _Reversed) else paths) + out
                     i = j
                 return out
             for j, paths in self.adjacency[i]:
-                nd = d + sum(p.length for p in paths)
+                nd = (
+                    d + paths.length
+                    if isinstance(paths, _Reversed)
+                    else d + sum(p.length for p in paths)
+                )
                 if nd < dist.get(j, math.inf):
                     dist[j] = nd
                     prev[j] = (i, paths)
@@ -147,13 +195,32 @@ class ManipulationRRT:
         checker: CollisionChecker | None = None,
         seed: int = 0,
         connect_k: int = 7,
+        leaf_iterations: int = 100,
+        local_rate: float = 0.5,
+        local_step: float = 0.25,
+        extend_planning: bool = False,
+        states: set[State] | None = None,
     ) -> None:
         self.problem = problem
         self.graph = graph
         self.checker = checker or CollisionChecker(problem)
         self.rng = np.random.default_rng(seed)
         self.connect_k = connect_k
+        # RRT-Connect iterations of a connection planned inside a leaf (0: straight paths only).
+        self.leaf_iterations = leaf_iterations
+        self.local_rate = local_rate
+        self.local_step = local_step
+        self.extend_planning = extend_planning
+        # Extensions only along transitions into these states (a guided leg's states); None: all.
+        self.states = states
         self.roadmap = Roadmap(problem.nq)
+        self._edge_tables: dict[int, tuple[list[Edge], np.ndarray]] = {}
+        self._leaf_values: dict[tuple, tuple] = {}  # (objects, node) -> rounded poses
+        self._leaf_free: dict[tuple, bool] = {}  # (objects, leaf, other objects) -> no collision
+        self.leaf_draws = 20  # rejection draws of a level-set leaf
+        # id(state) -> (node indices, their leaf vectors (rows)): the leaf index of connections
+        self._leaves: dict[int, tuple[list[int], np.ndarray]] = {}
+        self._node_leaves: dict[int, np.ndarray | None] = {}
         self.stats: Counter = Counter()
         self._q_rand = np.zeros(problem.nq)
 
@@ -161,15 +228,10 @@ class ManipulationRRT:
     def _add_query_node(self, q: np.ndarray, what: str) -> Node:
         state = self.graph.state_of(q)
         if state is None:
-            raise PlanningError(
-                f"{what} configuration is in no state of the graph "
-                f"(constraint errors above {self.graph.error_threshold})"
-            )
+            raise PlanningError(no_state_message(self.graph, q, what))
         if not self.checker.is_valid(q, self.checker.grasp_contact_pairs(state.grasps)):
-            raise PlanningError(
-                f"{what} configuration is in collision: {self.checker.colliding_pairs(q)}"
-            )
-        return self.roadmap.add_node(q, state)
+            raise PlanningError(collision_message(self.checker, q, what))
+        return self._add_node(q, state)
 
     def solve(
         self,
@@ -185,7 +247,9 @@ class ManipulationRRT:
         goals = [self._add_query_node(np.asarray(q, dtype=float), "goal") for q in q_goals]
         goal_idx = {g.index for g in goals}
         for g in goals:
-            self._connect(init, g)
+            blocked = self._connect(init, g)
+            if not self._connected(init, g) and blocked is not None:
+                self._plan_connect(init, g, blocked)
         it = 0
         reason = ""
         while not self._solved(init, goal_idx):
@@ -216,35 +280,111 @@ class ManipulationRRT:
         rm = self.roadmap
         q_rand = sample_configuration(self.problem, self.rng, self._q_rand)
         new: list[tuple[Node, list[ConstrainedPath], np.ndarray, State]] = []
-        for _comp, members in rm.components().items():
-            by_state: dict[int, list[int]] = {}
-            for i in members:
-                by_state.setdefault(id(rm.nodes[i].state), []).append(i)
-            for idx in by_state.values():
+        for comp in list(rm.components()):
+            for idx in list(rm.members_by_state(comp).values()):
                 near = rm.nodes[rm.nearest(q_rand, idx)[0]]
-                out = self.extend(near, q_rand)
+                target = q_rand
+                if self.local_rate > 0 and self.rng.random() < self.local_rate:
+                    # A sample near q_near on its way to q_rand: projections started there give
+                    # the nearby solutions (the IK branch the arm is on), whose straight paths
+                    # are short and mostly collision-free; the other extensions keep reaching
+                    # anywhere (probabilistic completeness).
+                    target = pin.interpolate(
+                        self.problem.model, near.q, q_rand, self.local_step * self.rng.random()
+                    )
+                out = self.extend(near, target)
                 if out is not None:
                     new.append((near, *out))
         new_nodes = []
         for near, paths, q_new, state in new:
-            n = rm.add_node(q_new, state)
+            n = self._add_node(q_new, state)
             rm.add_edge(near, n, paths)
             new_nodes.append(n)
         if self._connect_new_nodes(new_nodes) == 0:
             self._connect_to_roadmap(new_nodes)
 
     def choose_edge(self, state: State) -> Edge | None:
-        edges = [e for e in state.outgoing if e.weight > 0]
+        """An outgoing transition of ``state`` drawn with probability proportional to its weight."""
+        table = self._edge_tables.get(id(state))
+        if table is None:
+            edges = [
+                e
+                for e in state.outgoing
+                if e.weight > 0 and (self.states is None or e.to_state in self.states)
+            ]
+            table = (edges, np.cumsum([e.weight for e in edges]))
+            self._edge_tables[id(state)] = table
+        edges, cum = table
         if not edges:
             return None
-        w = np.array([e.weight for e in edges])
-        return edges[int(self.rng.choice(len(edges), p=w / w.sum()))]
+        return edges[
+            min(int(np.searchsorted(cum, self.rng.random() * cum[-1], "right")), len(edges) - 1)
+        ]
+
+    def leaf_configuration(self, near: Node, edge: LevelSetEdge) -> np.ndarray | None:
+        """A configuration in the level-set edge's leaf state from another connected component
+        than near's, each leaf weighted by its number of such nodes (HPP's leaf histogram) --
+        among the leaves where the objects the edge puts down do not collide with the other
+        objects as they are at near (a swap's goal spot stays taken until it is freed).
+        Drawn by rejection: a uniform node of the state, redrawn while it is in near's
+        component or its leaf is blocked."""
+        rm = self.roadmap
+        pool = rm.nodes_in_state(edge.leaf_state)
+        comp = rm.component(near.index)
+        objs = tuple(edge.leaf_objects)
+        others = tuple(o for o in self.problem.objects if o not in objs)
+        here = self._leaf_value(others, near.index) if objs else ()
+        for _ in range(self.leaf_draws):
+            if not pool:
+                return None
+            i = pool[int(self.rng.integers(len(pool)))]
+            if rm.component(i) == comp:
+                continue
+            if not objs:
+                return rm.nodes[i].q
+            key = (objs, self._leaf_value(objs, i), here)
+            free = self._leaf_free.get(key)
+            if free is None:
+                q = near.q.copy()
+                for o in objs:
+                    k = self.problem.objects[o].idx_q
+                    q[k : k + 7] = rm.nodes[i].q[k : k + 7]
+                free = not self.checker.objects_collide(q, list(objs))
+                self._leaf_free[key] = free
+            if free:
+                return rm.nodes[i].q
+        return None
+
+    def _leaf_value(self, objects: tuple[str, ...], node: int) -> tuple:
+        """Poses of ``objects`` at a node, rounded to the error threshold (a leaf histogram bin;
+        cached per node)."""
+        if not objects:
+            return ()
+        key = (objects, node)
+        value = self._leaf_values.get(key)
+        if value is None:
+            q = self.roadmap.nodes[node].q
+            idx = np.concatenate(
+                [
+                    np.arange(self.problem.objects[o].idx_q, self.problem.objects[o].idx_q + 7)
+                    for o in objects
+                ]
+            )
+            value = tuple(np.round(q[idx] / self.graph.error_threshold).astype(np.int64).tolist())
+            self._leaf_values[key] = value
+        return value
 
     def extend(self, near: Node, q_rand: np.ndarray):
         """(paths, q_new, state) of the collision-free part of an extension, or None."""
         edge = self.choose_edge(near.state)
         if edge is None:
             return None
+        if isinstance(edge, LevelSetEdge):
+            q_leaf = self.leaf_configuration(near, edge)
+            if q_leaf is None:
+                self.stats["level set: no leaf in another component"] += 1
+                return None
+            return self._extend_waypoints(near, edge, q_rand, q_leaf)
         if isinstance(edge, WaypointEdge):
             return self._extend_waypoints(near, edge, q_rand)
         q = q_rand.copy()
@@ -280,15 +420,25 @@ class ManipulationRRT:
             return None
         return valid, q_new.copy(), state
 
-    def _extend_waypoints(self, near: Node, edge: WaypointEdge, q_rand: np.ndarray):
+    def _extend_waypoints(
+        self,
+        near: Node,
+        edge: WaypointEdge,
+        q_rand: np.ndarray,
+        q_leaf: np.ndarray | None = None,
+    ):
         """Extension through waypoint states, one sub-transition at a time: each waypoint is
         generated only once the path to the previous one is known collision-free (HPP generates
-        them all first; the collision-free prefix kept is the same, fewer projections wasted)."""
+        them all first; the collision-free prefix kept is the same, fewer projections wasted).
+        ``q_leaf``: where a level-set sub-transition takes its leaf."""
         q_prev = near.q
         valid: list[ConstrainedPath] = []
         for sub in edge.sub_edges:
             q = q_rand.copy()
-            res = sub.generate_target(q_prev, q)
+            if isinstance(sub, LeafEdge):
+                res = sub.generate_target(q_prev, q, q_leaf)
+            else:
+                res = sub.generate_target(q_prev, q)
             if not res:
                 self.stats[f"projection failed: {res.status.name}"] += 1
                 break
@@ -300,6 +450,11 @@ class ManipulationRRT:
                 break
             ok, s = self.checker.validate(paths[0])
             if not ok:
+                planned = self._plan_extension(sub, q_prev, q)
+                if planned is not None:
+                    valid += planned
+                    q_prev = q
+                    continue
                 if s > 0:
                     valid.append(paths[0].extract(0.0, s * 0.999))
                 self.stats["extension stopped by a collision"] += 1
@@ -317,176 +472,166 @@ class ManipulationRRT:
             return None
         return valid, q_new.copy(), state
 
+    def _plan_extension(
+        self, sub: Edge, q_prev: np.ndarray, q: np.ndarray
+    ) -> list[ConstrainedPath] | None:
+        """The free motion of a grasp or release (its first sub-transition: transit to the
+        pre-grasp, transfer to the pre-placement) planned by RRT-Connect in its leaf when the
+        straight one collides and its target is collision-free; approaches stay straight."""
+        if not self.extend_planning or self.leaf_iterations <= 0 or sub.short:
+            return None
+        if not self.checker.is_valid(q, self.checker.grasp_contact_pairs(sub.grasps)):
+            return None
+        paths = sub.plan(
+            q_prev, q, self.checker, int(self.rng.integers(2**31)), self.leaf_iterations
+        )
+        self.stats["extension planned in a leaf" if paths else "leaf planning failed"] += 1
+        return paths
+
     # ------------------------------------------------------------------------------ connect
-    def _connect(self, a: Node, b: Node) -> bool:
+    def _connect(self, a: Node, b: Node, waypoints: bool = True) -> Edge | None:
+        """Joins a and b by the straight path of a transition between their states; returns the
+        transition whose leaf holds both when that path collides (a planning candidate).
+        ``waypoints``: also through grasp / release transitions (their waypoints generated from
+        b, each sub-path validated as soon as it is built)."""
+        blocked = None
         for edge in self.graph.edges_between(a.state, b.state):
+            if isinstance(edge, WaypointEdge):
+                if not waypoints:
+                    continue
+                paths = edge.build(a.q, b.q, self._valid_whole)
+                if not paths:
+                    continue
+                self.roadmap.add_edge(a, b, paths)
+                self.stats["connections"] += 1
+                self.stats["connections through waypoints"] += 1
+                return None
             paths = edge.build(a.q, b.q)
             if not paths:
                 continue
             if all(self.checker.validate(p, prefix=False)[0] for p in paths):
                 self.roadmap.add_edge(a, b, paths)
                 self.stats["connections"] += 1
-                return True
-        return False
+                return None
+            blocked = blocked or edge
+        return blocked
+
+    def _valid_whole(self, path: ConstrainedPath) -> bool:
+        return self.checker.validate(path, prefix=False)[0]
+
+    def _plan_connect(self, a: Node, b: Node, edge: Edge) -> bool:
+        """Joins a and b inside the leaf of ``edge`` by RRT-Connect (the per-transition planner)
+        when the straight path collides."""
+        if self.leaf_iterations <= 0 or isinstance(edge, WaypointEdge):
+            return False
+        paths = edge.plan(
+            a.q, b.q, self.checker, int(self.rng.integers(2**31)), self.leaf_iterations
+        )
+        if not paths:
+            self.stats["leaf planning failed"] += 1
+            return False
+        self.roadmap.add_edge(a, b, paths)
+        self.stats["connections planned in a leaf"] += 1
+        return True
+
+    def _connected(self, a: Node, b: Node) -> bool:
+        return self.roadmap.component(a.index) == self.roadmap.component(b.index)
 
     def _connect_new_nodes(self, nodes: list[Node]) -> int:
         count = 0
-        rm = self.roadmap
         for i, a in enumerate(nodes):
             for b in nodes[i + 1 :]:
-                if rm.component(a.index) == rm.component(b.index):
+                if self._connected(a, b):
                     continue
-                if self._connect(a, b):  # one direction, as HPP: every transition has its reverse
+                # One direction, as HPP: every transition has its reverse.
+                blocked = self._connect(a, b)
+                if self._connected(a, b) or (blocked and self._plan_connect(a, b, blocked)):
                     count += 1
         return count
 
     def _connect_to_roadmap(self, nodes: list[Node]) -> int:
+        """Each new node to the k nearest nodes of every other component (straight paths, as
+        HPP), and to the nearest node of that component in its own leaf (same state, same
+        right-hand sides: what a level-set transition produces); when all of those straight
+        paths collide, RRT-Connect in the leaf shared with the nearest candidate."""
         count = 0
         rm = self.roadmap
         for a in nodes:
-            for comp, members in rm.components().items():
-                if comp == rm.component(a.index):
+            same_leaf = self._leaf_mates(a)
+            for comp, members in list(rm.components().items()):
+                if comp not in rm.components() or comp == rm.component(a.index):
                     continue
-                done = False
-                for j in rm.nearest(a.q, members, self.connect_k):
+                candidate = None
+                joined = False
+                near = rm.nearest(a.q, members, self.connect_k)
+                leaf_mates = [i for i in same_leaf if rm.component(i) == comp]
+                if leaf_mates:
+                    j = rm.nearest(a.q, leaf_mates)[0]
+                    if j not in near:
+                        near.append(j)
+                        self.stats["same-leaf connection attempts"] += 1
+                for rank, j in enumerate(near):
                     b = rm.nodes[j]
-                    if self._connect(
-                        a, b
-                    ):  # one direction, as HPP: every transition has its reverse
-                        count += 1
-                        done = True
+                    # Through grasp / release waypoints only to the nearest two (each try
+                    # projects and validates a whole transition).
+                    blocked = self._connect(a, b, waypoints=rank < 2)
+                    if self._connected(a, b):
+                        joined = True
                         break
-                if done:
+                    if blocked is not None and candidate is None:
+                        candidate = (b, blocked)
+                if not joined and candidate is not None:
+                    joined = self._plan_connect(a, *candidate)
+                if joined:  # as HPP: one connection per new node
+                    count += 1
                     break
         return count
 
+    def _add_node(self, q: np.ndarray, state: State) -> Node:
+        """A roadmap node, indexed by its leaf (:meth:`_leaf_vector`)."""
+        n = self.roadmap.add_node(q, state)
+        v = self._leaf_vector(n)
+        if v is not None:
+            idx, rows = self._leaves.get(id(state), ([], np.zeros((0, len(v)))))
+            idx.append(n.index)
+            if len(idx) > len(rows):
+                rows = np.vstack([rows, np.zeros((max(len(rows), 16), len(v)))])
+            rows[len(idx) - 1] = v
+            self._leaves[id(state)] = (idx, rows)
+        return n
 
-# ---------------------------------------------------------------------------------- shortcut
-def _leaf_key(p: ConstrainedPath) -> tuple:
-    return (
-        p.edge.name,
-        tuple(
-            np.round(
-                np.concatenate([np.ravel(x) for group in p.rhs_state[:2] for x in group])
-                if p.rhs_state[0] or p.rhs_state[1]
-                else np.zeros(0),
-                9,
-            )
-        ),
-    )
+    def _leaf_mates(self, a: Node) -> list[int]:
+        """Nodes of a's state whose leaf is a's within 10 error thresholds (the connection's
+        can_connect then decides exactly)."""
+        entry = self._leaves.get(id(a.state))
+        v = self._leaf_vector(a)
+        if entry is None or v is None:
+            return []
+        idx, rows = entry
+        d = np.max(np.abs(rows[: len(idx)] - v), axis=1)
+        return [idx[k] for k in np.flatnonzero(d < 10 * self.graph.error_threshold)]
 
-
-def random_shortcut(
-    paths: list[ConstrainedPath],
-    checker: CollisionChecker,
-    rng: np.random.Generator,
-    iterations: int = 40,
-) -> list[ConstrainedPath]:
-    """Random shortcut within transition leaves (see the module docstring).
-
-    Consecutive paths of one leaf form a run; a shortcut picks a run and two arc lengths in it
-    and replaces the part between them by the straight constrained path of that transition
-    when it is collision-free and shorter."""
-    paths = list(paths)
-    for _ in range(iterations):
-        runs = _runs(paths)
-        candidates = [r for r in runs if sum(p.length for p in paths[r[0] : r[1]]) > 1e-6]
-        if not candidates:
-            break
-        i0, i1 = candidates[int(rng.integers(len(candidates)))]
-        run = paths[i0:i1]
-        cum = np.concatenate([[0.0], np.cumsum([p.length for p in run])])
-        total = cum[-1]
-        a, b = sorted(rng.random(2) * total)
-        if b - a < 1e-3 * max(total, 1e-9):
-            continue
-        head = _cut_run(run, cum, 0.0, a)
-        tail = _cut_run(run, cum, b, total)
-        qa = head[-1].end if head else run[0].start
-        qb = tail[0].start if tail else run[-1].end
-        edge = run[0].edge
-        new = edge.build(qa, qb)
-        if not new or len(new) != 1:
-            continue
-        sc = new[0]
-        if sc.length >= (b - a) - 1e-9:
-            continue
-        if not checker.validate(sc, prefix=False)[0]:
-            continue
-        paths = paths[:i0] + head + [sc] + tail + paths[i1:]
-    return [p for p in paths if p.length > 0.0 or len(paths) == 1]
-
-
-def graph_shortcut(
-    paths: list[ConstrainedPath],
-    graph: ConstraintGraph,
-    checker: CollisionChecker,
-    rng: np.random.Generator,
-    iterations: int = 40,
-) -> list[ConstrainedPath]:
-    """Random shortcut across transitions (HPP's graph steering method): two random points of
-    the plan, in the graph states s1 and s2, are joined by a transition from s1 to s2 whose leaf
-    holds both (a loop keeps the grasps and placements, a grasp transition regenerates its
-    pre-grasp waypoints); it replaces the part in between when it is valid and shorter, which
-    also removes useless release / re-grasp detours.  Points are only drawn on free motions
-    (loops and first sub-transitions), never on approaches, so approach axes are kept."""
-    paths = list(paths)
-    for _ in range(iterations):
-        cand = [i for i, p in enumerate(paths) if not p.edge.short and p.length > 1e-9]
-        if len(cand) < 1:
-            break
-        cum = np.concatenate([[0.0], np.cumsum([p.length for p in paths])])
-        picks = sorted(
-            (int(i), float(rng.random()) * paths[i].length) for i in rng.choice(cand, size=2)
-        )
-        (ia, sa), (ib, sb) = picks
-        a, b = cum[ia] + sa, cum[ib] + sb
-        if b - a < 1e-6:
-            continue
-        head, tail = _cut_run(paths, cum, 0.0, a), _cut_run(paths, cum, b, cum[-1])
-        # The ends of the cut pieces are the shortcut's ends: the plan stays continuous.
-        qa = head[-1].end if head else paths[0].start
-        qb = tail[0].start if tail else paths[-1].end
-        s1, s2 = graph.state_of(qa), graph.state_of(qb)
-        if s1 is None or s2 is None:
-            continue
-        for edge in graph.edges_between(s1, s2):
-            new = edge.build(qa, qb)
-            if not new:
-                continue
-            if sum(p.length for p in new) >= b - a - 1e-9:
-                continue
-            if all(checker.validate(p, prefix=False)[0] for p in new):
-                paths = head + new + tail
-                break
-    return [p for p in paths if p.length > 0.0 or len(paths) == 1]
-
-
-def _runs(paths: list[ConstrainedPath]) -> list[tuple[int, int]]:
-    runs = []
-    i = 0
-    while i < len(paths):
-        j = i + 1
-        k = _leaf_key(paths[i])
-        while j < len(paths) and _leaf_key(paths[j]) == k:
-            j += 1
-        runs.append((i, j))
-        i = j
-    return runs
-
-
-def _eval_run(run, cum, s) -> np.ndarray:
-    i = min(int(np.searchsorted(cum, s, side="right") - 1), len(run) - 1)
-    return run[i].eval(s - cum[i])
-
-
-def _cut_run(run, cum, a, b) -> list[ConstrainedPath]:
-    out = []
-    for i, p in enumerate(run):
-        lo, hi = max(a, cum[i]), min(b, cum[i + 1])
-        if hi - lo > 1e-12:
-            # Snap to the path's own ends (cumulated sums round): its ends are exact.
-            lo_s = 0.0 if lo - cum[i] < 1e-9 else lo - cum[i]
-            hi_s = p.length if cum[i + 1] - hi < 1e-9 else hi - cum[i]
-            out.append(p if (lo_s == 0.0 and hi_s == p.length) else p.extract(lo_s, hi_s))
-    return out
+    def _leaf_vector(self, a: Node) -> np.ndarray | None:
+        """Right-hand sides of a's state loop at a (locked values with quaternions of positive
+        w, parametrised constraints), None for a state without leaves; cached per node."""
+        if a.index in self._node_leaves:
+            return self._node_leaves[a.index]
+        loops = [
+            e for e in self.graph.edges_between(a.state, a.state) if e.from_state is e.to_state
+        ]
+        v = None
+        if loops:
+            proj = loops[0].path_projector
+            proj.set_rhs_from(a.q)
+            parts = []
+            for lk in proj.locked:
+                x = lk.value.copy()
+                if lk.nq == 7 and x[6] < 0:
+                    x[3:] = -x[3:]
+                parts.append(x)
+            parts += [c.rhs for c in proj.parametrised]
+            parts += [np.array([float(p.pair)]) for p in proj.placements]
+            if parts:
+                v = np.concatenate(parts)
+        self._node_leaves[a.index] = v
+        return v

@@ -88,6 +88,22 @@ class ObjectInfo:
     contacts: tuple[str, ...]
 
 
+@dataclasses.dataclass(frozen=True)
+class ModelSource:
+    """One model of the problem as loaded: name (prefix), URDF file, root joint ("fixed" or
+    "freeflyer"), placement in the world, and its grippers / handles / contacts / disabled
+    collision pairs in link frames (what an HPP SRDF of it says; bench/hpp_side.py)."""
+
+    name: str
+    urdf: Path
+    root: str
+    pose: pin.SE3
+    grippers: tuple[tuple[str, str, pin.SE3, float], ...]
+    handles: tuple[tuple[str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]], ...]
+    contacts: tuple[tuple[str, str, np.ndarray], ...]
+    disabled: tuple[tuple[str, str], ...]
+
+
 @dataclasses.dataclass
 class ManipulationProblem:
     """Model + data layout of a manipulation problem; immutable after :func:`load_problem`.
@@ -115,6 +131,7 @@ class ManipulationProblem:
     robot_joint_ids: tuple[int, ...] = ()
     freeflyer_idx_q: tuple[int, ...] = ()
     fixed_rotation_idx_q: tuple[int, ...] = ()  # free-flyers sampled with their init rotation
+    models: tuple[ModelSource, ...] = ()  # what each model was built from, in q order
 
     @property
     def nq(self) -> int:
@@ -160,14 +177,19 @@ def _layout(model: pin.Model) -> list[str]:
 
 
 def _resolve(path: str, base: Path) -> Path:
-    """``package://example-robot-data/...`` or a path relative to the problem file."""
+    """``package://<package>/<file>`` through the package search path (:func:`_package_dirs`),
+    or a path relative to the problem file."""
     if path.startswith("package://"):
         rest = path[len("package://") :]
-        for share in _package_dirs():
-            candidate = Path(share) / rest
+        package = rest.partition("/")[0]
+        for root in _package_dirs():
+            candidate = Path(root) / rest
             if candidate.exists():
                 return candidate
-        raise ProblemError(f"cannot resolve {path} in {_package_dirs()}")
+        raise ProblemError(
+            f"cannot resolve {path}: package '{package}' not found in the package search path "
+            f"{_package_dirs()} (add its parent folder to ROS_PACKAGE_PATH)"
+        )
     p = Path(path)
     if not p.is_absolute():
         p = base / p
@@ -177,12 +199,29 @@ def _resolve(path: str, base: Path) -> Path:
 
 
 def _package_dirs() -> list[str]:
+    """Folders where ``package://<package>/...`` URIs resolve (as ``<folder>/<package>/...``), in
+    order: every folder of ``ROS_PACKAGE_PATH`` (a package folder, with its package.xml, counts
+    as its parent), then the share folder of the installed example-robot-data."""
+    import os
+
+    dirs: list[str] = []
+    for d in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep):
+        if not d:
+            continue
+        # A package folder (it holds package.xml) resolves as its parent: <parent>/<package>/...
+        p = Path(d)
+        dirs.append(str(p.parent if (p / "package.xml").exists() else p))
     prefix = Path(pin.__file__).resolve()
     for parent in prefix.parents:
         share = parent / "share"
         if (share / "example-robot-data").is_dir():
-            return [str(share)]
-    raise ProblemError("example-robot-data share folder not found")
+            dirs.append(str(share))
+            break
+    if not dirs:
+        raise ProblemError(
+            "no package search path: set ROS_PACKAGE_PATH (example-robot-data not found either)"
+        )
+    return dirs
 
 
 def _prefixed_urdf(urdf: Path, prefix: str) -> str:
@@ -233,8 +272,40 @@ class _SrdfInfo:
     disabled: list[tuple[str, str]]
 
 
+_TRUE = {"1", "true"}
+_FALSE = {"0", "false"}
+
+
+def _mask(text: str | None, what: str) -> tuple[bool, ...]:
+    """An HPP ``<mask>``: six entries, each 1 / 0 or true / false (any case)."""
+    words = (text or "").split()
+    out = []
+    for w in words:
+        if w.lower() in _TRUE:
+            out.append(True)
+        elif w.lower() in _FALSE:
+            out.append(False)
+        else:
+            raise ProblemError(f"{what}: mask entry {w!r} is not 1 / 0 or true / false")
+    if len(out) != 6:
+        raise ProblemError(f"{what}: a mask has 6 entries (x y z rx ry rz), got {len(out)}")
+    return tuple(out)
+
+
 def _parse_srdf(path: Path) -> _SrdfInfo:
-    root = ET.parse(path).getroot()
+    """Grippers, handles, contacts and disabled pairs of an HPP SRDF; a malformed tag is one
+    :class:`ProblemError` naming the file, the tag and what is wrong."""
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as e:
+        raise ProblemError(f"{path}: XML syntax error: {e}") from None
+    try:
+        return _srdf_info(root, path)
+    except (AttributeError, KeyError, ValueError) as e:
+        raise ProblemError(f"{path}: malformed SRDF ({type(e).__name__}: {e})") from None
+
+
+def _srdf_info(root: ET.Element, path: Path) -> _SrdfInfo:
     info = _SrdfInfo([], [], [], [])
     for g in root.iter("gripper"):
         link = g.find("link").attrib["name"]
@@ -251,7 +322,7 @@ def _parse_srdf(path: Path) -> _SrdfInfo:
         mask = tuple(True for _ in range(6))
         m = h.find("mask")
         if m is not None:
-            mask = tuple(bool(int(v)) for v in m.text.split())
+            mask = _mask(m.text, f"{path}: handle {h.attrib.get('name')}")
         approach = (1.0, 0.0, 0.0)
         a = h.find("approaching_direction")
         if a is not None:
@@ -417,9 +488,14 @@ def _load_yaml(path: Path) -> dict[str, Any]:
 
 
 def load_problem(path: str | Path) -> ManipulationProblem:
-    """Build a :class:`ManipulationProblem` from a YAML problem file."""
+    """Build a :class:`ManipulationProblem` from a YAML problem file (validated against
+    ``marionette/schemas/problem.schema.json`` first: unknown keys and wrong types are refused)."""
     path = Path(path).resolve()
-    return build_problem(_load_yaml(path), base=path.parent, source=path)
+    desc = _load_yaml(path)
+    try:
+        return build_problem(desc, base=path.parent, source=path)
+    except ProblemError as e:
+        raise ProblemError(f"{path}: {e}") from None
 
 
 def _pose7(v: Any, what: str) -> pin.SE3:
@@ -435,13 +511,16 @@ def build_problem(
     desc: dict[str, Any], base: Path, source: Path | None = None
 ) -> ManipulationProblem:
     """Build the problem from an already parsed description (see :func:`load_problem`)."""
-    for key in ("name", "robots"):
-        if key not in desc:
-            raise ProblemError(f"problem description misses '{key}'")
+    from marionette.planning.problem_schema import validate_problem
+
+    bad = validate_problem(desc)
+    if bad is not None:
+        raise ProblemError(bad)
     model = pin.Model()
     geom = pin.GeometryModel()
     disabled: set[frozenset[str]] = set()
     srdf_infos: list[tuple[str, _SrdfInfo]] = []
+    sources: list[ModelSource] = []
     robot_names = []
     robot_joint_ids: list[int] = []
     joint_bounds: dict[str, tuple[float, float]] = {}
@@ -454,16 +533,25 @@ def build_problem(
                 f"{name}: give 'urdf' (and 'srdf'), 'robot: <name>' or 'object: <name>'"
             )
         urdf = _resolve(entry["urdf"], base)
-        xml = _prefixed_urdf(urdf, name)
-        if root == "freeflyer":
-            sub = pin.buildModelFromXML(xml, pin.JointModelFreeFlyer(), f"{name}/root_joint")
-        elif root == "fixed":
-            sub = pin.buildModelFromXML(xml)
-        else:
-            raise ProblemError(f"{name}: root_joint must be 'fixed' or 'freeflyer', got {root}")
-        sub_geom = pin.buildGeomFromUrdfString(
-            sub, xml, pin.GeometryType.COLLISION, package_dirs=_package_dirs()
-        )
+        try:
+            xml = _prefixed_urdf(urdf, name)
+        except ET.ParseError as e:
+            raise ProblemError(f"{urdf}: XML syntax error: {e}") from None
+        try:
+            if root == "freeflyer":
+                sub = pin.buildModelFromXML(xml, pin.JointModelFreeFlyer(), f"{name}/root_joint")
+            elif root == "fixed":
+                sub = pin.buildModelFromXML(xml)
+            else:
+                raise ProblemError(f"{name}: root_joint must be 'fixed' or 'freeflyer', got {root}")
+        except (ValueError, RuntimeError) as e:
+            raise ProblemError(f"{urdf}: not a URDF Pinocchio can read: {e}") from None
+        try:
+            sub_geom = pin.buildGeomFromUrdfString(
+                sub, xml, pin.GeometryType.COLLISION, package_dirs=_package_dirs()
+            )
+        except (ValueError, RuntimeError) as e:
+            raise ProblemError(f"{name}: collision meshes of {urdf}: {e}") from None
         pose = _pose7(entry.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{name}.pose")
         if model.njoints == 1 and model.nframes <= 1:
             # First model: keep it as is (frame 0 = universe), placed at `pose`.
@@ -493,6 +581,18 @@ def build_problem(
                 raise ProblemError(f"{name}.disable_collisions: pairs of link names, got {pair}")
             info.disabled.append((str(pair[0]), str(pair[1])))
         srdf_infos.append((name, info))
+        sources.append(
+            ModelSource(
+                name,
+                urdf,
+                root,
+                pose,
+                tuple(info.grippers),
+                tuple(info.handles),
+                tuple(info.contacts),
+                tuple(info.disabled),
+            )
+        )
 
     for r in desc["robots"]:
         name = r.get("name", r.get("robot"))
@@ -657,6 +757,7 @@ def build_problem(
         freeflyer_idx_q=tuple(
             model.idx_qs[j] for j in range(1, model.njoints) if model.joints[j].nq == 7
         ),
+        models=tuple(sources),
     )
     problem.fixed_rotation_idx_q = tuple(
         model.idx_qs[model.getJointId(f"{r.get('name', r.get('robot'))}/root_joint")]

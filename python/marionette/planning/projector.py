@@ -253,9 +253,12 @@ class Projector:
             model.parents[e.output_joint] == 0 and e.output_joint not in children
             for e in self.relative
         )
-        # Locked joints (and the joints under them only) never move while projecting.
+        # Locked leaves under the universe (objects held still) never move while projecting;
+        # a locked joint deeper in a chain (a finger) still moves with its parent.
         self.kin.static = frozenset(
-            lk.output_joint for lk in self.locked if lk.output_joint not in children
+            lk.output_joint
+            for lk in self.locked
+            if lk.output_joint not in children and model.parents[lk.output_joint] == 0
         )
 
     # ----------------------------------------------------------------------------- rhs
@@ -267,6 +270,28 @@ class Projector:
         if self.parametrised or self._merged:
             self.kin.update(q, jacobians=False)
             for c in self.parametrised:
+                if isinstance(c, PlacementComplement):
+                    c.placement.select_pair(self.kin)
+                c.rhs = c.rhs_from(self.kin)
+
+    def set_rhs_of(
+        self, constraints: Sequence[Constraint | ExplicitConstraint], q: np.ndarray
+    ) -> None:
+        """Right-hand sides of some parametrised ``constraints`` from q (the others unchanged): a
+        placement complement merged with its placement sets the locked object pose."""
+        wanted = {id(c) for c in constraints}
+        for lk, plc in self._merged:
+            comp = next((c for c in constraints if getattr(c, "placement", None) is plc), None)
+            if comp is not None:
+                lk.rhs_from_q(q)
+                wanted.discard(id(comp))
+        for lk in self.locked:
+            if id(lk) in wanted:
+                lk.rhs_from_q(q)
+        todo = [c for c in self.parametrised if id(c) in wanted]
+        if todo:
+            self.kin.update(q, jacobians=False)
+            for c in todo:
                 if isinstance(c, PlacementComplement):
                     c.placement.select_pair(self.kin)
                 c.rhs = c.rhs_from(self.kin)

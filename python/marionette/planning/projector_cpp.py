@@ -10,8 +10,9 @@ unchanged.  The C++ side (``cpp/src/planning/projector.cc``) runs the same Newto
 failure reasons.
 
 Constraint kinds the C++ side implements: relative transformation (mask), placement and its
-complement, implicit locked joint; explicit locked joints and relative poses.  Any other kind
-(centre of mass, ...) keeps the whole projector in Python (:func:`unsupported` says why).
+complement, implicit locked joint, centre of mass (the joints' bodies travel in the joint
+specs); explicit locked joints and relative poses.  Any other kind keeps the whole projector in
+Python (:func:`unsupported` says why).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ import numpy as np
 from marionette import _core
 from marionette.planning.collision_cpp import _joint_spec
 from marionette.planning.constraints import (
+    ComPosition,
     Placement,
     PlacementComplement,
     RelativeTransformation,
@@ -35,7 +37,13 @@ if TYPE_CHECKING:
 _planning = _core.planning
 
 _EMPTY = np.zeros(0)
-SUPPORTED = (RelativeTransformation, Placement, PlacementComplement, _ImplicitLockedJoint)
+SUPPORTED = (
+    RelativeTransformation,
+    Placement,
+    PlacementComplement,
+    _ImplicitLockedJoint,
+    ComPosition,
+)
 
 
 def unsupported(projector: Projector) -> str | None:
@@ -88,6 +96,16 @@ class CppProjector:
                 elif isinstance(c, Placement):
                     implicit.append(
                         _planning.ImplicitSpec("placement", level, placement=index[id(c)])
+                    )
+                elif isinstance(c, ComPosition):
+                    implicit.append(
+                        _planning.ImplicitSpec(
+                            "com",
+                            level,
+                            joint1=int(c.joint),
+                            M1=c.M_JF.homogeneous,
+                            mask=[bool(v) for v in c.mask] + [False] * 3,
+                        )
                     )
                 elif isinstance(c, PlacementComplement):
                     implicit.append(
@@ -169,7 +187,8 @@ class CppProjector:
     def project(
         self, q: np.ndarray, error_threshold: float, max_iterations: int
     ) -> tuple[int, int, float]:
-        """(status code, iterations, |e|); q (nq) projected in place, selected pairs written back."""
+        """(status code, iterations, |e|); q (nq) projected in place, selected pairs written
+        back."""
         rhs, pairs = self.rhs(), self.pairs()
         try:
             # In place: pybind11 refuses (TypeError) an array it cannot write without a copy.

@@ -6,6 +6,7 @@ is one line that names the file, the line, the key and what to do.
     models/scenes/<scene>.yaml    scene.schema.json      (docs/robots.md)
     scenario declarations         scenario.schema.json   (docs/scenarios.md)
     trial perturbations           perturbation.schema.json (docs/scenarios.md)
+    planning problem files        problem.schema.json    (python/marionette/planning/README.md)
 
 A YAML syntax error, an unknown key (with the closest known one: "did you mean"), a wrong type or
 a value out of range are all refused the same way, before anything reads the data.

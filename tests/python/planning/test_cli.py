@@ -5,6 +5,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 import marionette
 from marionette.planning.path import load_plan
 
@@ -42,3 +44,21 @@ def test_plan_reports_an_unknown_robot(tmp_path):
     r = run_cli(bad)
     assert r.returncode == 2
     assert "unknown robot 'nao'" in r.stderr and "Traceback" not in r.stderr
+
+
+BUNDLED = sorted(
+    p.stem for p in (marionette.REPO_ROOT / "python/marionette/planning/problems").glob("*.yaml")
+)
+
+
+@pytest.mark.parametrize("name", BUNDLED)
+def test_a_misspelt_bundled_problem_gets_one_line_with_its_name(name, capsys):
+    """Every bundled problem's name with one letter dropped is answered by one line suggesting
+    it, exit 2 (a usage error), before anything is loaded."""
+    from marionette.cli import main
+
+    cut = len(name) // 2
+    typo = name[:cut] + name[cut + 1 :]
+    assert main(["plan", typo]) == 2
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"did you mean '{name}'" in lines[0], lines

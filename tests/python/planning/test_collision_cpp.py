@@ -37,8 +37,10 @@ def _recorded_paths(problem, seeds):
 
     checker.validate = record
     for s in seeds:
+        # Extensions toward uniform samples only (HPP's): long straight paths, many of them in
+        # collision, so that both verdicts are exercised.
         assert (
-            ManipulationRRT(problem, graph, checker, seed=s)
+            ManipulationRRT(problem, graph, checker, seed=s, local_rate=0.0)
             .solve(problem.q_init, [problem.q_goal], 2000, 60)
             .success
         )

@@ -10,13 +10,9 @@ import pytest
 import marionette
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
+from marionette.planning.optimize import graph_shortcut, random_shortcut
 from marionette.planning.path import load_plan, save_plan
-from marionette.planning.planner import (
-    ManipulationRRT,
-    PlanningError,
-    graph_shortcut,
-    random_shortcut,
-)
+from marionette.planning.planner import ManipulationRRT, PlanningError
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,13 @@ import pinocchio as pin
 import pytest
 
 import marionette
-from marionette.planning.constraints import ComPosition, LockedJoint, Placement, Transformation
+from marionette.planning.constraints import (
+    ComPosition,
+    Constraint,
+    LockedJoint,
+    Placement,
+    Transformation,
+)
 from marionette.planning.graph import WaypointEdge
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.problem import load_problem, random_configuration
@@ -99,12 +105,13 @@ def add(total: dict, counts: dict) -> None:
 
 
 def assert_agree(total: dict, fraction: float = 0.02) -> None:
-    """Disagreements, and successes more than 1e-9 apart, stay rare.  They are runs through ill-conditioned iterates (far from the
-    manifold, joints saturated and their columns removed: the damped Gram matrix
-    J J^T + 1e-8 I has a condition number near 1e8) where the ulp-level differences of BLAS
-    vs Eigen sums grow, iteration after iteration (traced: 1e-16, 1e-14, 1e-11, 1e-8, ...),
-    until they change where or whether the run ends.  Algorithm 1's short steps and the
-    44-dof humanoid spend more iterations there than the default schedule on the UR arms."""
+    """Disagreements, and successes more than 1e-9 apart, stay rare.  They are runs through
+    ill-conditioned iterates (far from the manifold, joints saturated and their columns
+    removed: the damped Gram matrix J J^T + 1e-8 I has a condition number near 1e8) where
+    the ulp-level differences of BLAS vs Eigen sums grow, iteration after iteration (traced:
+    1e-16, 1e-14, 1e-11, 1e-8, ...), until they change where or whether the run ends.
+    Algorithm 1's short steps and the 44-dof humanoid spend more iterations there than the
+    default schedule on the UR arms."""
     n = sum(total.values())
     assert total["disagree"] <= fraction * n, total
     assert total["success 1e-6"] <= fraction * n, total
@@ -195,10 +202,10 @@ def test_same_saturation_at_joint_bounds(ur5_box):
         np.testing.assert_allclose(q_c, q_p, atol=1e-12)
 
 
-def test_talos_plank_states_without_com_agree_with_python():
-    """TALOS (free-flyer root, two-hand grasps turned implicit, feet fixed, locked joints):
-    the states' constraints except the centre of mass, which stays in Python, from
-    perturbations of the start (uniform samples of 44 dof are too far to converge)."""
+def test_talos_plank_states_agree_with_python():
+    """TALOS (free-flyer root, two-hand grasps turned implicit, feet fixed, centre of mass over
+    them, locked joints): every state in C++, with the same outcomes as the Python reference,
+    from perturbations of the start (uniform samples of 44 dof are too far to converge)."""
     problem = load_problem(PROBLEMS / "talos_plank.yaml")
     graph = graph_from_settings(problem)
     rng = np.random.default_rng(4)
@@ -209,17 +216,9 @@ def test_talos_plank_states_without_com_agree_with_python():
         q0[:] = pin.integrate(problem.model, problem.q_init, 0.1 * rng.standard_normal(problem.nv))
 
     for _name, s in graph.states.items():
-        full = s.projector
-        assert full.backend == "python" and "ComPosition" in full.fallback_reason
-        kept = [c for c in full.constraints if not isinstance(c, ComPosition)]
-        cpp = Projector(
-            problem,
-            kept,
-            error_threshold=full.error_threshold,
-            max_iterations=full.max_iterations,
-            line_search=full.line_search,
-        )
+        cpp = s.projector
         assert cpp.backend == "cpp", cpp.fallback_reason
+        assert any(isinstance(c, ComPosition) for c in cpp.implicit)
         add(
             total,
             compare(problem, cpp, python_twin(cpp), rng, 3, [problem.q_init], tweak=near_start),
@@ -228,6 +227,84 @@ def test_talos_plank_states_without_com_agree_with_python():
     assert checked == len(graph.states)
     assert total["success"] >= 10, total
     assert_agree(total, 0.1)
+
+
+@pytest.fixture(scope="module")
+def talos_plank():
+    return load_problem(PROBLEMS / "talos_plank.yaml")
+
+
+@pytest.mark.parametrize("frame", ["world", "left_sole"])
+@pytest.mark.parametrize("mask", [(True, True, False), (True, True, True), (False, True, True)])
+def test_cpp_com_matches_python_and_finite_differences(talos_plank, frame, mask):
+    """The C++ centre-of-mass constraint (the whole model's CoM -- robot and plank -- in a
+    frame: the world, or a foot frame on the moving leg chain) against the Python reference
+    ``ComPosition`` (value and Jacobian, 1e-12) and against central finite differences of its
+    own error, at random whole-body configurations."""
+    p = talos_plank
+    if frame == "world":
+        joint, M = 0, pin.SE3.Identity()
+    else:
+        f = p.model.frames[p.frame_id("talos/left_sole_link")]
+        joint, M = f.parentJoint, f.placement
+    com = ComPosition("com", joint, M, target=np.array([0.01, -0.02, 0.8]), mask=mask)
+    proj = Projector(p, [com])
+    assert proj.backend == "cpp", proj.fallback_reason
+    py = python_twin(proj)
+    cpp = proj._cpp
+    rng = np.random.default_rng(11)
+    for _ in range(4):
+        q = random_configuration(p, rng)
+        rhs, pairs = cpp.rhs(), cpp.pairs()
+        e = cpp.cpp.error(q, rhs, pairs)
+        np.testing.assert_allclose(e, py.error(q), atol=1e-12)
+        J = cpp.cpp.jacobian(q, rhs, pairs)
+        py.kin.update(q)
+        np.testing.assert_allclose(J, com.compute_jacobian(py.kin), atol=1e-12)
+        J_fd = np.zeros_like(J)
+        for i in range(p.nv):
+            dv = np.zeros(p.nv)
+            dv[i] = 1e-6
+            ep = cpp.cpp.error(pin.integrate(p.model, q, dv), rhs, pairs)
+            em = cpp.cpp.error(pin.integrate(p.model, q, -dv), rhs, pairs)
+            J_fd[:, i] = (ep - em) / 2e-6
+        np.testing.assert_allclose(J, J_fd, atol=2e-7, rtol=1e-5)
+
+
+def test_cpp_com_projection_balances_the_humanoid(talos_plank):
+    """Projected onto feet fixed + CoM over them, from perturbed postures: the result satisfies
+    both by an independent measure (Pinocchio's centerOfMass and frame placements), and the
+    same start gives the Python reference's configuration."""
+    p = talos_plank
+    graph = graph_from_settings(p)
+    proj = graph.states["free"].projector
+    assert proj.backend == "cpp"
+    py = python_twin(proj)
+    data = p.model.createData()
+    pin.framesForwardKinematics(p.model, data, p.q_init)
+    feet = ["talos/left_sole_link", "talos/right_sole_link"]
+    X0 = [data.oMf[p.frame_id(f)].copy() for f in feet]
+    c0 = pin.centerOfMass(p.model, data, p.q_init).copy()
+    rng = np.random.default_rng(5)
+    converged = 0
+    for _ in range(8):
+        q = pin.integrate(p.model, p.q_init, 0.15 * rng.standard_normal(p.nv))
+        q_py = q.copy()
+        proj.set_rhs_from(p.q_init)
+        py.set_rhs_from(p.q_init)
+        r = proj.project(q)
+        r_py = py.project(q_py)
+        assert r.status is r_py.status
+        if not r:
+            continue
+        converged += 1
+        assert np.abs(pin.difference(p.model, q, q_py)).max() < 1e-6
+        pin.framesForwardKinematics(p.model, data, q)
+        for f, X in zip(feet, X0):
+            assert np.linalg.norm(pin.log6(X.actInv(data.oMf[p.frame_id(f)])).vector) < 2e-4
+        c = pin.centerOfMass(p.model, data, q)
+        assert np.linalg.norm(c[:2] - c0[:2]) < 2e-4
+    assert converged >= 4
 
 
 @pytest.mark.parametrize(
@@ -269,11 +346,24 @@ def test_cpp_errors_match_python_and_jacobians_match_finite_differences(ur5_box,
         np.testing.assert_allclose(J, J_fd, atol=2e-6, rtol=1e-5, err_msg=which)
 
 
-def test_projector_with_com_falls_back_to_python_once(ur5_box):
-    com = ComPosition("com", 0, pin.SE3.Identity(), mask=(True, True, False))
-    proj = Projector(ur5_box, [com])
+class _Height(Constraint):
+    """A constraint kind the C++ projector does not know: the z of joint 6's origin."""
+
+    def __init__(self):
+        super().__init__("height of joint 6", 1)
+
+    def value(self, kin):
+        return kin.oMi[6].translation[2:3]
+
+    def compute_jacobian(self, kin):
+        J = pin.getJointJacobian(kin.model, kin.data, 6, pin.LOCAL_WORLD_ALIGNED)
+        return J[2:3]
+
+
+def test_projector_with_an_unknown_kind_falls_back_to_python_once(ur5_box):
+    proj = Projector(ur5_box, [_Height()])
     assert proj.backend == "python"
-    assert "ComPosition" in proj.fallback_reason and "no C++ implementation" in proj.fallback_reason
+    assert "_Height" in proj.fallback_reason and "no C++ implementation" in proj.fallback_reason
     q = ur5_box.q_init.copy()
     proj.set_rhs_from(q)
     q2 = random_configuration(ur5_box, np.random.default_rng(0))

@@ -26,6 +26,11 @@ struct JointSpec {
   std::string kind;
   Eigen::Vector3d axis = Eigen::Vector3d::UnitZ();
   pinocchio::SE3 placement = pinocchio::SE3::Identity();  // X_parent_joint (at q = neutral)
+  // Body attached to the joint (Pinocchio's model.inertias[joint]): what a centre of mass
+  // needs; the path validator ignores it.
+  double mass = 0.0;
+  Eigen::Vector3d lever = Eigen::Vector3d::Zero();               // CoM in the joint frame
+  Eigen::Matrix3d rotational_inertia = Eigen::Matrix3d::Zero();  // about the CoM [kg m^2]
 };
 
 /// One collision geometry.  kind: "convex" (points (n x 3), triangles (m x 3) of the hull),
@@ -107,6 +112,10 @@ class PathValidator {
   /// Configuration at arc length s (nq), exactly as marionette.planning.path.ConstrainedPath.eval.
   void Eval(const Polyline& path, const Substitution& sub, double s, Eigen::VectorXd* q);
 
+  /// Writes the explicit constraints of sub into q (nq): locked values, then attached objects
+  /// from one forward kinematics (projector.apply_explicit).
+  void Substitute(const Substitution& sub, Eigen::VectorXd* q);
+
   /// Bound on how fast each pair closes its distance along qa -> qb, per unit of the segment
   /// parameter (npairs) [m]; 0 for rigid and skipped pairs.
   void PairSpeeds(const Eigen::VectorXd& qa, const Eigen::VectorXd& qb, const PairMotion& motion,
@@ -123,6 +132,9 @@ class PathValidator {
 
  private:
   enum class Kind { kRevolute, kPrismatic, kFreeFlyer };
+  // Lower bound of pair p's distance from the geometries' bounding spheres (placements as last
+  // updated): |c_a - c_b| - r_a - r_b.  Far pairs are certified with it, no GJK query.
+  double SphereBound(int p) const;
   bool ValidateSegment(const Polyline& path, const Substitution& sub, int i,
                        const PairMotion& motion, ValidationResult* out, double* t_fail);
   void Update(const Eigen::VectorXd& q);
@@ -134,7 +146,9 @@ class PathValidator {
   pinocchio::GeometryData geom_data_;
   double contact_;
   int max_queries_;
-  std::vector<Kind> kinds_;  // per joint (index 0 unused)
+  std::vector<Kind> kinds_;                     // per joint (index 0 unused)
+  std::vector<Eigen::Vector3d> sphere_center_;  // per geometry, in its own frame
+  std::vector<double> sphere_radius_;
   Eigen::VectorXd q_, qa_, qb_, ea_, eb_, dv_, ang_, lin_, u_, horizon_, budget_;
 };
 

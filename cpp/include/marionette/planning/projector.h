@@ -43,9 +43,11 @@ struct PlacementSpec {
 
 /// One implicit constraint.  kind: kRelative (joint1, M1, joint2, M2, mask), kPlacement and
 /// kComplement (placement: index in the placement list), kLocked (implicit locked joint:
-/// idx_q, idx_v, nq of the joint; its value is passed with the right-hand sides).
+/// idx_q, idx_v, nq of the joint; its value is passed with the right-hand sides), kCom (centre
+/// of mass of the whole model expressed in the frame F = oMi[joint1] M1, on the rows x y z
+/// selected by mask[0..2]: e = (X_WF^-1 c)[mask] - rhs; Python constraints.ComPosition).
 struct ImplicitSpec {
-  enum class Kind { kRelative, kPlacement, kComplement, kLocked };
+  enum class Kind { kRelative, kPlacement, kComplement, kLocked, kCom };
   Kind kind = Kind::kRelative;
   int level = 0;
   int joint1 = 0, joint2 = 0;
@@ -133,8 +135,15 @@ class Projector {
   void Jacobians(int level, Eigen::MatrixXd* J);
   void Descent(const Eigen::Ref<const Eigen::VectorXd>& q, Eigen::VectorXd* step);
 
+  // Centre of mass (and its Jacobian, world frame, 3 x nv) at q_cur_, computed on first use
+  // after each update in their own Pinocchio data.
+  const Eigen::Vector3d& Com();
+  const Eigen::Matrix3Xd& ComJacobian();
+
   pinocchio::Model model_;
   pinocchio::Data data_;
+  pinocchio::Data com_data_;
+  bool com_valid_ = false, com_jacobian_valid_ = false;
   ProjectorSpec spec_;
   int rhs_size_ = 0, size_ = 0;
   std::vector<int> level_begin_;  // constraint index range of each level

@@ -1,0 +1,427 @@
+"""Path optimisation that keeps transition semantics, then time parameterisation.
+
+A plan is a sequence of elementary paths, each in one transition leaf (same transition, same
+right-hand sides: the grasp held, the objects' placements).  Every operation here replaces a
+stretch of the plan by paths of the same kind, each re-validated with the certified continuous
+validation of ``collision.py``, so what a controller will execute (which transition, holding
+what, where) is unchanged:
+
+* :func:`vertex_shortcut` (HPP's SimpleShortcut): the shortest chain of transitions between
+  the plan's vertices; removes the roadmap's detours;
+* :func:`graph_shortcut` (HPP's RandomShortcut with the graph steering method): two random
+  points joined by a transition between their states; removes release / re-grasp detours.
+  Points are drawn on free motions only, never on approaches, so approach axes are kept;
+* :func:`random_shortcut`: two random points of a run of paths in one leaf joined by that
+  leaf's straight constrained path;
+* :func:`partial_shortcut` (HPP's PartialShortcut): in a leaf of free joints (explicit
+  constraints only), one random joint made linear between two random points, the others kept;
+* :func:`optimize_paths`: the first once, then the three others in rounds until no progress.
+
+:func:`time_parameterize` then gives every sample a time under per-joint velocity and
+acceleration limits: along each elementary path a trapezoidal (or triangular) speed profile of
+its arc length, at rest at both ends (a transition ends where the controller switches).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pinocchio as pin
+
+from marionette.planning.collision import CollisionChecker
+from marionette.planning.graph import ConstraintGraph
+from marionette.planning.path import ConstrainedPath
+
+
+def _leaf_key(p: ConstrainedPath) -> tuple:
+    return (
+        p.edge.name,
+        tuple(
+            np.round(
+                np.concatenate([np.ravel(x) for group in p.rhs_state[:2] for x in group])
+                if p.rhs_state[0] or p.rhs_state[1]
+                else np.zeros(0),
+                9,
+            )
+        ),
+    )
+
+
+def _runs(paths: list[ConstrainedPath]) -> list[tuple[int, int]]:
+    """[i, j) ranges of consecutive paths in one leaf."""
+    runs = []
+    i = 0
+    while i < len(paths):
+        j = i + 1
+        k = _leaf_key(paths[i])
+        while j < len(paths) and _leaf_key(paths[j]) == k:
+            j += 1
+        runs.append((i, j))
+        i = j
+    return runs
+
+
+def _cut_run(run, cum, a, b) -> list[ConstrainedPath]:
+    out = []
+    for i, p in enumerate(run):
+        lo, hi = max(a, cum[i]), min(b, cum[i + 1])
+        if hi - lo > 1e-12:
+            # Snap to the path's own ends (cumulated sums round): its ends are exact.
+            lo_s = 0.0 if lo - cum[i] < 1e-9 else lo - cum[i]
+            hi_s = p.length if cum[i + 1] - hi < 1e-9 else hi - cum[i]
+            out.append(p if (lo_s == 0.0 and hi_s == p.length) else p.extract(lo_s, hi_s))
+    return out
+
+
+def _drop_empty(paths: list[ConstrainedPath]) -> list[ConstrainedPath]:
+    """Paths of no length dropped (the plan stays continuous: their ends coincide)."""
+    out = [p for p in paths if p.length > 1e-9]
+    return out or list(paths[:1])
+
+
+def vertex_shortcut(
+    paths: list[ConstrainedPath],
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+) -> list[ConstrainedPath]:
+    """HPP's SimpleShortcut over the plan's vertices: every pair of vertices (starts of paths
+    that are not approaches, and the goal) is joined, when possible, by a transition between
+    their states (``graph.edges_between``: a loop, or a grasp / release with its waypoints
+    regenerated), and the shortest chain from start to goal is kept (Dijkstra).  Removes the
+    detours a roadmap leaves (an approach abandoned then resumed, a transit there and back)."""
+    if len(paths) < 3:
+        return list(paths)
+    starts = [i for i, p in enumerate(paths) if not p.edge.short] + [len(paths)]
+    if starts[0] != 0:
+        starts.insert(0, 0)
+    qs = [paths[i].start if i < len(paths) else paths[-1].end for i in starts]
+    states = [graph.state_of(q) for q in qs]
+    cum = np.concatenate([[0.0], np.cumsum([p.length for p in paths])])
+    n = len(starts)
+    # best[k]: (length, chain of paths) from vertex 0 to vertex k; vertices are in plan order,
+    # so one forward pass is Dijkstra on this acyclic graph.
+    best: list[tuple[float, list[ConstrainedPath]]] = [(0.0, [])] + [(math.inf, [])] * (n - 1)
+    for k in range(n - 1):
+        lk, chain = best[k]
+        if not math.isfinite(lk):
+            continue
+        # the plan's own pieces to the next vertex
+        nxt = (lk + cum[starts[k + 1]] - cum[starts[k]], chain + paths[starts[k] : starts[k + 1]])
+        if nxt[0] < best[k + 1][0]:
+            best[k + 1] = nxt
+        for m in range(k + 2, n):
+            original = cum[starts[m]] - cum[starts[k]]
+            if states[k] is None or states[m] is None:
+                continue
+            for edge in graph.edges_between(states[k], states[m]):
+                new = edge.build(qs[k], qs[m])
+                if not new:
+                    continue
+                length = sum(p.length for p in new)
+                if length >= original - 1e-9 or lk + length >= best[m][0]:
+                    continue
+                if all(checker.validate(p, prefix=False)[0] for p in new):
+                    best[m] = (lk + length, chain + new)
+                    break
+    return _drop_empty(best[-1][1]) if math.isfinite(best[-1][0]) else list(paths)
+
+
+def random_shortcut(
+    paths: list[ConstrainedPath],
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 40,
+) -> list[ConstrainedPath]:
+    """Random shortcut within transition leaves (see the module docstring): a run of paths of
+    one leaf, two arc lengths in it, the part between them replaced by the leaf's straight
+    constrained path when it is collision-free and shorter."""
+    paths = list(paths)
+    for _ in range(iterations):
+        runs = _runs(paths)
+        candidates = [r for r in runs if sum(p.length for p in paths[r[0] : r[1]]) > 1e-6]
+        if not candidates:
+            break
+        i0, i1 = candidates[int(rng.integers(len(candidates)))]
+        run = paths[i0:i1]
+        cum = np.concatenate([[0.0], np.cumsum([p.length for p in run])])
+        total = cum[-1]
+        a, b = sorted(rng.random(2) * total)
+        if b - a < 1e-3 * max(total, 1e-9):
+            continue
+        head = _cut_run(run, cum, 0.0, a)
+        tail = _cut_run(run, cum, b, total)
+        qa = head[-1].end if head else run[0].start
+        qb = tail[0].start if tail else run[-1].end
+        new = run[0].edge.build(qa, qb)
+        if not new or len(new) != 1:
+            continue
+        sc = new[0]
+        if sc.length >= (b - a) - 1e-9:
+            continue
+        if not checker.validate(sc, prefix=False)[0]:
+            continue
+        paths = paths[:i0] + head + [sc] + tail + paths[i1:]
+    return _drop_empty(paths)
+
+
+def graph_shortcut(
+    paths: list[ConstrainedPath],
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 40,
+) -> list[ConstrainedPath]:
+    """Random shortcut across transitions (HPP's graph steering method): two random points of
+    the plan, in the graph states s1 and s2, are joined by a transition from s1 to s2 whose leaf
+    holds both (a loop keeps the grasps and placements, a grasp transition regenerates its
+    pre-grasp waypoints); it replaces the part in between when it is valid and shorter."""
+    paths = list(paths)
+    for _ in range(iterations):
+        cand = [i for i, p in enumerate(paths) if not p.edge.short and p.length > 1e-9]
+        if len(cand) < 1:
+            break
+        cum = np.concatenate([[0.0], np.cumsum([p.length for p in paths])])
+        picks = sorted(
+            (int(i), float(rng.random()) * paths[i].length) for i in rng.choice(cand, size=2)
+        )
+        (ia, sa), (ib, sb) = picks
+        a, b = cum[ia] + sa, cum[ib] + sb
+        if b - a < 1e-6:
+            continue
+        head, tail = _cut_run(paths, cum, 0.0, a), _cut_run(paths, cum, b, cum[-1])
+        # The ends of the cut pieces are the shortcut's ends: the plan stays continuous.
+        qa = head[-1].end if head else paths[0].start
+        qb = tail[0].start if tail else paths[-1].end
+        s1, s2 = graph.state_of(qa), graph.state_of(qb)
+        if s1 is None or s2 is None:
+            continue
+        for edge in graph.edges_between(s1, s2):
+            new = edge.build(qa, qb)
+            if not new:
+                continue
+            if sum(p.length for p in new) >= b - a - 1e-9:
+                continue
+            if all(checker.validate(p, prefix=False)[0] for p in new):
+                paths = head + new + tail
+                break
+    return _drop_empty(paths)
+
+
+def partial_shortcut(
+    paths: list[ConstrainedPath],
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 40,
+) -> list[ConstrainedPath]:
+    """HPP's PartialShortcut within leaves of free joints: a run of paths of one such leaf, a
+    random joint and two arc lengths a < b; that joint moves linearly (in the run's arc length)
+    from its value at a to its value at b while the others keep their motion; the explicit
+    constraints are substituted at every vertex.  Kept when every new piece is collision-free
+    and the run gets shorter.  Joints that wander while the others need the whole run are what
+    a full shortcut cannot straighten."""
+    paths = list(paths)
+    for _ in range(iterations):
+        runs = [
+            r
+            for r in _runs(paths)
+            if checker.leaf_free_joints(paths[r[0]].projector) is not None
+            and all(len(p.points) == 2 for p in paths[r[0] : r[1]])
+            and sum(p.length for p in paths[r[0] : r[1]]) > 1e-6
+        ]
+        if not runs:
+            break
+        i0, i1 = runs[int(rng.integers(len(runs)))]
+        run = paths[i0:i1]
+        projector = run[0].projector
+        free = checker.leaf_free_joints(projector)
+        joint = int(free[int(rng.integers(len(free)))])
+        cum = np.concatenate([[0.0], np.cumsum([p.length for p in run])])
+        a, b = sorted(rng.random(2) * cum[-1])
+        if b - a < 1e-3 * cum[-1]:
+            continue
+        head = _cut_run(run, cum, 0.0, a)
+        tail = _cut_run(run, cum, b, cum[-1])
+        middle = _cut_run(run, cum, a, b)
+        if not middle:
+            continue
+        verts = [middle[0].start] + [p.end for p in middle]
+        s = np.concatenate([[0.0], np.cumsum([p.length for p in middle])])
+        x0, x1 = verts[0][joint], verts[-1][joint]
+        new_verts = [verts[0]]
+        projector.restore_rhs(run[0].rhs_state)
+        for v, si in zip(verts[1:-1], s[1:-1]):
+            q = v.copy()
+            q[joint] = x0 + (x1 - x0) * si / s[-1]
+            projector.apply_explicit(q)
+            new_verts.append(q)
+        new_verts.append(verts[-1])
+        rhs = run[0].rhs
+        new = [
+            ConstrainedPath(run[0].edge, np.array([u, w]), projector, rhs)
+            for u, w in zip(new_verts, new_verts[1:])
+        ]
+        if sum(p.length for p in new) >= s[-1] - 1e-9:
+            continue
+        if not all(checker.validate(p, prefix=False)[0] for p in new):
+            continue
+        paths = paths[:i0] + head + new + tail + paths[i1:]
+    return _merge_collinear(_drop_empty(paths))
+
+
+def _merge_collinear(paths: list[ConstrainedPath]) -> list[ConstrainedPath]:
+    """Consecutive straight paths of one leaf that continue in the same direction become one
+    (fewer stops in the time parameterisation, same geometry)."""
+    out: list[ConstrainedPath] = []
+    for p in paths:
+        if out and len(p.points) == 2 and len(out[-1].points) == 2:
+            prev = out[-1]
+            if _leaf_key(prev) == _leaf_key(p) and prev.edge is p.edge:
+                model = p.model
+                free = p.projector.free_idx
+                d1 = pin.difference(model, prev.start, prev.end)[free]
+                d2 = pin.difference(model, p.start, p.end)[free]
+                n1, n2 = np.linalg.norm(d1), np.linalg.norm(d2)
+                if n1 > 0 and n2 > 0 and d1.dot(d2) > (1 - 1e-9) * n1 * n2:
+                    prev.projector.restore_rhs(prev.rhs_state)
+                    out[-1] = ConstrainedPath(
+                        prev.edge, np.array([prev.start, p.end]), prev.projector, prev.rhs
+                    )
+                    continue
+        out.append(p)
+    return out
+
+
+def optimize_paths(
+    paths: list[ConstrainedPath],
+    graph: ConstraintGraph,
+    checker: CollisionChecker,
+    rng: np.random.Generator,
+    iterations: int = 60,
+) -> list[ConstrainedPath]:
+    """Shortcut across transitions, then within leaves (full and partial shortcuts), in rounds
+    of ``iterations`` attempts each, until a round gains less than 1 % (at most 4 rounds)."""
+    if iterations <= 0 or not paths:
+        return list(paths)
+    paths = vertex_shortcut(paths, graph, checker)
+    length = sum(p.length for p in paths)
+    for _ in range(4):
+        paths = graph_shortcut(paths, graph, checker, rng, iterations)
+        paths = random_shortcut(paths, checker, rng, iterations)
+        paths = partial_shortcut(paths, checker, rng, iterations)
+        new = sum(p.length for p in paths)
+        if new > 0.99 * length:
+            break
+        length = new
+    return paths
+
+
+# ---------------------------------------------------------------------------------- timing
+@dataclasses.dataclass(frozen=True)
+class Limits:
+    """Per velocity-space coordinate bounds: ``velocity`` (nv) [rad/s or m/s] and
+    ``acceleration`` (nv) [rad/s^2 or m/s^2]; inf where a coordinate is not limited."""
+
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+    @classmethod
+    def of_robots(cls, problem, acceleration: float = 2.0, velocity_scale: float = 1.0) -> Limits:
+        """The robots' joint velocity limits (URDF) times ``velocity_scale`` and one
+        ``acceleration`` for every robot joint; objects are not limited (they are carried)."""
+        model = problem.model
+        v = np.full(model.nv, np.inf)
+        a = np.full(model.nv, np.inf)
+        for j in problem.robot_joint_ids:
+            iv, nv = model.idx_vs[j], model.joints[j].nv
+            lim = np.asarray(model.velocityLimit[iv : iv + nv], dtype=float)
+            lim = np.where((lim > 0) & np.isfinite(lim), lim, np.inf)
+            v[iv : iv + nv] = lim * velocity_scale
+            a[iv : iv + nv] = acceleration
+        if not np.isfinite(v).any() and not np.isfinite(a).any():
+            raise ValueError("no robot joint has a velocity or acceleration limit")
+        return cls(v, a)
+
+
+def _profile_time(s: np.ndarray, length: float, v: float, a: float) -> np.ndarray:
+    """Times at arc lengths s of a rest-to-rest trapezoidal profile (cruise speed v, acceleration
+    a) over [0, length]; triangular when the length is too short to reach v."""
+    if length <= 0.0:
+        return np.zeros_like(s)
+    if not math.isfinite(v) and not math.isfinite(a):
+        raise ValueError("a profile needs a finite speed or acceleration")
+    if not math.isfinite(a):  # constant speed
+        return s / v
+    d_acc = v * v / (2 * a) if math.isfinite(v) else math.inf
+    if 2 * d_acc >= length:  # triangle: accelerate to the middle, then brake
+        half = length / 2
+        t_half = math.sqrt(2 * half / a)
+        return np.where(
+            s <= half,
+            np.sqrt(2 * np.maximum(s, 0.0) / a),
+            2 * t_half - np.sqrt(2 * np.maximum(length - s, 0.0) / a),
+        )
+    t_acc = v / a
+    t_cruise = (length - 2 * d_acc) / v
+    total = 2 * t_acc + t_cruise
+    return np.where(
+        s <= d_acc,
+        np.sqrt(2 * np.maximum(s, 0.0) / a),
+        np.where(
+            s <= length - d_acc,
+            t_acc + (s - d_acc) / v,
+            total - np.sqrt(2 * np.maximum(length - s, 0.0) / a),
+        ),
+    )
+
+
+def path_speed_limits(path: ConstrainedPath, limits: Limits) -> tuple[float, float]:
+    """(largest arc-length speed, largest arc-length acceleration) that keep every joint of the
+    path within ``limits``: |dq_j/ds| |ds/dt| <= v_j, |dq_j/ds| |d2s/dt2| <= a_j, taken over
+    every segment of the path's polyline (arc length = the path's |v| metric over its free
+    variables; substituted objects move with their parents)."""
+    model = path.model
+    v_s, a_s = math.inf, math.inf
+    for a, b, ds in zip(path.points, path.points[1:], np.diff(path.cum)):
+        if ds <= 0.0:
+            continue
+        tangent = np.abs(pin.difference(model, a, b)) / ds  # |dq/ds| per coordinate
+        with np.errstate(divide="ignore"):
+            v_s = min(v_s, float(np.min(limits.velocity / tangent)))
+            a_s = min(a_s, float(np.min(limits.acceleration / tangent)))
+    return v_s, a_s
+
+
+def time_parameterize(
+    paths: Sequence[ConstrainedPath], limits: Limits, samples: Sequence[np.ndarray]
+) -> tuple[list[np.ndarray], list[float]]:
+    """Times of the given arc-length samples of each path (``samples[i]``: increasing, in
+    [0, paths[i].length]) under ``limits``, each path at rest at its ends, and the durations.
+    Times are absolute: each path starts when the previous one ends."""
+    times, durations = [], []
+    t0 = 0.0
+    for p, s in zip(paths, samples):
+        v_s, a_s = path_speed_limits(p, limits)
+        if p.length <= 0.0:
+            t = np.zeros(len(s))
+            duration = 0.0
+        else:
+            t = _profile_time(np.asarray(s, dtype=float), p.length, v_s, a_s)
+            duration = float(_profile_time(np.array([p.length]), p.length, v_s, a_s)[0])
+        times.append(t0 + t)
+        durations.append(duration)
+        t0 += duration
+    return times, durations
+
+
+def arm_path_length(paths: Sequence[ConstrainedPath], arm_q: Sequence[int], step: float = 0.01):
+    """Sum of |delta q| over the arm joints (q indices ``arm_q``), sampled every ``step`` of arc
+    length (bench_hpp measures HPP's paths the same way)."""
+    total = 0.0
+    idx = list(arm_q)
+    for p in paths:
+        _, qs = p.sample(step)
+        total += float(np.linalg.norm(np.diff(qs[:, idx], axis=0), axis=1).sum())
+    return total
