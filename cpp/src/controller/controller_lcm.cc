@@ -45,9 +45,9 @@ void Controller::Impl::LcmThread() {
       ServeDg();
       PublishTiming();
       PostNextSpec();
-      // Building a TALOS hold controller keeps this thread off the socket for 20-50 ms: not while
-      // messages come in, nor in the first second (controller time) after a swap, when a step's
-      // first chunks arrive just ahead of their start (a late chunk makes the stream skip
+      // Building a humanoid's hold controller keeps this thread off the socket for 20-50 ms: not
+      // while messages come in, nor in the first second (controller time) after a swap, when a
+      // step's first chunks arrive just ahead of their start (a late chunk makes the stream skip
       // samples).
       if (idle && loop_utime() > last_decision_utime + 1'000'000) ArmHoldController();
     } catch (const std::exception& e) {  // counted, and the thread goes on serving

@@ -286,7 +286,7 @@ int PivotedQr(Eigen::Ref<Eigen::MatrixXd> mt, std::vector<int>& perm, Eigen::Vec
 // With a group (rho1 > 0, the first level: Z_blk = P, see FirstLevelStructure), the first ρ_1
 // reflectors touch the s first coordinates only, i.e. columns [0, s) of P = [e_order[0] ...]:
 // they are accumulated on the s x s identity (B1) and scattered into the rows order[0..s) —
-// O(s² ρ_1) instead of O(n r ρ_1) (TALOS: the feet touch 18 of 38 coordinates).
+// O(s² ρ_1) instead of O(n r ρ_1) (a 38-DoF humanoid: its feet touch 18 coordinates).
 void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
                  const Eigen::Ref<const Eigen::MatrixXd>& mt, int rho, int rho1, int s) {
   const int r = static_cast<int>(Z_blk.cols());
@@ -368,7 +368,7 @@ bool LevelFeasible(const Impl& w, int mi, const Eigen::VectorXd& x, double tol) 
   return true;
 }
 
-// A level whose rows outnumber the remaining DoF (m >= r; TALOS's posture: 32 rows on 11 DoF)
+// A level whose rows outnumber the remaining DoF (m >= r; a humanoid's posture: 32 rows on 11 DoF)
 // and use them all: M = A Z_blk (m x r, mt = M^T) then has full column rank r, its
 // least-squares step needs no rank-revealing factorization, and nothing remains to rotate:
 //   u = (M^T M)^-1 M^T c,  v += Z_blk u,  ρ = r,
@@ -407,7 +407,7 @@ bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, doub
 // Least squares min ||R1^T y - cperm||² + μ²||y||² with R1 = upper part of mt's first ρ rows
 // (ρ x m). Plain triangular solve when full row rank and undamped. Otherwise, when the system
 // is well conditioned, its normal equations (R1 R1^T + μ² I) y = R1 cperm by Cholesky (half the
-// cost of the QR of [R1^T; μ I] for TALOS's posture level, m = 32 rows on ρ = 11 DoF): their
+// cost of the QR of [R1^T; μ I] for a humanoid's posture level, m = 32 rows on ρ = 11 DoF): their
 // relative error is ~ε κ², κ² = (σ_max² + μ²) / (σ_min² + μ²), estimated from the pivoted
 // QR's diagonal (|R_00| ~ σ_max, |R_ρ-1,ρ-1| ~ σ_min); accepted up to 1e4 (error ~1e-12,
 // allowing for the estimate's looseness), else the QR below.

@@ -58,12 +58,12 @@ struct HierarchyOptions {
   double constraint_tolerance = 1e-9;
   /// Weight ε of ½ε||ũ_2||² added to a QP level, ũ_2 being the level's coordinates that its
   /// equality rows do not see (its null space within Z, rad/s). Without it the dual active-set
-  /// method has no positive definite Hessian; with it tiny (1e-10, the exact cascade) the TALOS
+  /// method has no positive definite Hessian; with it tiny (1e-10, the exact cascade) the humanoid
   /// command chattered in closed loop once bounds bound under an unachievable level (±3.7 rad/s
   /// from tick to tick when a reach was inserted too fast, ±1 rad/s on a stretched arm); with
   /// 1e-4 the first case was smooth but not the second; with 1e-2 both were. The price: when a
   /// QP level's optimum needs motion along ũ_2 to satisfy an inequality, it moves by O(ε) (a
-  /// level-1 velocity error of ~1e-7..1e-5 m/s with the feet of TALOS). The objective
+  /// level-1 velocity error of ~1e-7..1e-5 m/s with the feet of a humanoid). The objective
   /// directions are not regularized, and levels solved without a QP are exact. Set ~1e-10 for
   /// an exact cascade (the brute-force comparison does).
   double qp_regularization = 1e-2;
