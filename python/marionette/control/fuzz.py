@@ -108,7 +108,7 @@ def valid_inputs(now_us: int) -> dict[str, bytes]:
 def _foreign_types() -> list[bytes]:
     """Valid messages of the controller's output types (type confusion across channels)."""
     state, status = lcmt_robot_state(), lcmt_controller_status()
-    state.robot_name, status.mode = "ur10", "running"
+    state.robot_name, status.mode = "some_robot", "running"
     return [state.encode(), status.encode()]
 
 
