@@ -24,12 +24,12 @@ import threading
 import time
 from collections import defaultdict
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import lcm
 from marionette import channels
 from marionette import lcm_signing as signing
-from marionette.lcm_validate import validate
+from marionette.lcm_validate import LcmType, validate
 
 HEARTBEAT_PERIOD_S = 0.02  # five per 100 ms, the controller's default --supervisor-timeout
 
@@ -57,12 +57,12 @@ class LcmBus:
     messages (default: ``$MARIONETTE_KEY``'s, None for none; ``False`` forces none).
     """
 
-    def __init__(self, url: str | None = None, key: bytes | bool | None = None) -> None:
+    def __init__(self, url: str | None = None, key: bytes | Literal[False] | None = None) -> None:
         self.url = lcm_url(url)
         self.lcm = lcm.LCM(self.url)
         if key is None:
             key = signing.key_from_environment()
-        self.key = key or None
+        self.key: bytes | None = key or None
         self._signer = signing.Signer(self.key) if self.key else None
         self._verifier = signing.Verifier(self.key) if self.key else None
         self.decode_errors: dict[str, int] = defaultdict(int)
@@ -81,15 +81,16 @@ class LcmBus:
         if channel == channels.CONTROLLER_SPEC:
             self._start_heartbeat()
 
-    def subscribe(self, channel: str, lcm_type: type, handler: Callable[[Any], None]):
-        signed = self._verifier is not None and channel in signing.SIGNED_CHANNELS
+    def subscribe(self, channel: str, lcm_type: LcmType, handler: Callable[[Any], None]):
+        verifier = self._verifier if channel in signing.SIGNED_CHANNELS else None
 
         def _on_message(_channel: str, data: bytes) -> None:
-            if signed:
-                data, reason, detail = self._verifier.verify(channel, data)
-                if data is None:
+            if verifier is not None:
+                verified, reason, detail = verifier.verify(channel, data)
+                if verified is None:
                     self._refuse(channel, reason, detail)
                     return
+                data = verified
             refusal = validate(lcm_type, data)
             if refusal is not None and refusal.reason == "trailing bytes":
                 if signing.has_trailer(data):
@@ -181,7 +182,7 @@ class LcmBus:
 class MessageLog:
     """Collects the messages of one channel (thread-safe); ``wait_for`` blocks until a condition."""
 
-    def __init__(self, bus: LcmBus, channel: str, lcm_type: type) -> None:
+    def __init__(self, bus: LcmBus, channel: str, lcm_type: LcmType) -> None:
         self.messages: list[Any] = []
         self._cond = threading.Condition()
         bus.subscribe(channel, lcm_type, self._append)

@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import random
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from marionette.lcm_schema import INTEGERS, PRIMITIVE_SIZES, Field, Schemas
-from marionette.lcm_validate import schemas
+from marionette.lcm_validate import LcmType, schemas
 
 KINDS = (
     "length_lie",
@@ -64,7 +65,7 @@ class Slot:
     value: int | float = 0
 
 
-def layout(lcm_type: type, data: bytes, schema: Schemas | None = None) -> list[Slot]:
+def layout(lcm_type: LcmType, data: bytes, schema: Schemas | None = None) -> list[Slot]:
     """Every value of the valid message ``data`` (an ``lcm_type`` encoding) and its place."""
     schema = schema or schemas()
     slots: list[Slot] = []
@@ -77,7 +78,7 @@ def layout(lcm_type: type, data: bytes, schema: Schemas | None = None) -> list[S
             where = f"{path}.{f.name}" if path else f.name
             count = 1
             for d in f.dims:
-                count *= d.size if d.fixed else integers[d.field]
+                count *= d.fixed_size if d.fixed else integers[d.sizer]
             for e in range(count):
                 at = where + (f"[{e}]" if f.dims else "")
                 if f.type == "string":
@@ -121,7 +122,7 @@ class Fuzzer:
         self.schema = schema or schemas()
         self._layouts: dict[tuple[str, bytes], dict[str, list[Slot]]] = {}
 
-    def _roles(self, lcm_type: type, data: bytes) -> dict[str, list[Slot]]:
+    def _roles(self, lcm_type: LcmType, data: bytes) -> dict[str, list[Slot]]:
         """The message's slots by role ("real": the ranged floating-point numbers)."""
         key = (lcm_type.__name__, data)
         if key not in self._layouts:
@@ -137,9 +138,9 @@ class Fuzzer:
 
     def mutate(
         self,
-        lcm_type: type,
+        lcm_type: LcmType,
         data: bytes,
-        others: list[bytes] = (),
+        others: Sequence[bytes] = (),
         now_us: int = 0,
         kind: str | None = None,
     ) -> tuple[bytes, str]:
@@ -161,9 +162,11 @@ class Fuzzer:
         out = bytearray(data)
         if kind == "length_lie":
             s = rng.choice(by_role["count"])
+            top = s.field.max
+            assert top is not None  # a "count" slot is a field with its @max
             lo, hi = _int_limits(s.field.type)
             lie = rng.choice(
-                [-1, -2, lo, 1 << 30, hi, s.field.max + 1, s.value + 1, 2 * s.value + 7]
+                [-1, -2, lo, 1 << 30, hi, top + 1, s.value + 1, 2 * s.value + 7]
                 + ([0, s.value - 1] if s.value > 0 else [])
             )
             lie = max(lo, min(hi, lie))
@@ -211,11 +214,11 @@ class Fuzzer:
         rng = self.rng
         f = s.field
         if f.clock is not None:
-            lo, hi = _int_limits(f.type)
+            tlo, thi = _int_limits(f.type)
             return rng.choice(
                 [
-                    lo,
-                    hi,
+                    tlo,
+                    thi,
                     -1,
                     now_us - 1_000_000_000_000_000,
                     now_us + 1_000_000_000_000_000,
@@ -223,6 +226,7 @@ class Fuzzer:
                     now_us + int(2e6 * f.clock[0]) - 1_000_000,
                 ]
             )
+        assert f.range is not None  # a "number" slot has a @range or a @clock
         lo, hi = f.range
         if f.type in INTEGERS:  # the type's limits, and just outside the range (as a double is)
             tlo, thi = _int_limits(f.type)
@@ -235,7 +239,7 @@ class Fuzzer:
         )
 
 
-def random_message(lcm_type: type, rng: random.Random, max_count: int = 3, now_us: int = 0):
+def random_message(lcm_type: LcmType, rng: random.Random, max_count: int = 3, now_us: int = 0):
     """A valid ``lcm_type`` message with random content within its declared bounds (arrays of at
     most ``max_count`` elements, strings of at most 12 characters, time stamps around
     ``now_us``): what the validator must pass and lcm-gen's decoder return unchanged."""
@@ -261,11 +265,10 @@ def random_message(lcm_type: type, rng: random.Random, max_count: int = 3, now_u
         if f.type in ("double", "float"):
             if f.range is None:
                 return rng.gauss(0.0, 1e3)
-            lo, hi = (max(f.range[0], -1e12), min(f.range[1], 1e12))
-            return rng.uniform(lo, hi)
+            return rng.uniform(max(f.range[0], -1e12), min(f.range[1], 1e12))
         return build(getattr(marionette, f.type))
 
-    def build(t: type):
+    def build(t: LcmType):
         msg = t()
         counts: dict[str, int] = {}
         for f in schema[t.__name__].fields:
@@ -273,7 +276,7 @@ def random_message(lcm_type: type, rng: random.Random, max_count: int = 3, now_u
                 counts[f.name] = rng.randint(0, min(f.max, max_count))
                 setattr(msg, f.name, counts[f.name])
                 continue
-            dims = [d.size if d.fixed else counts[d.field] for d in f.dims]
+            dims = [d.fixed_size if d.fixed else counts[d.sizer] for d in f.dims]
 
             def fill(level: int, f=f, dims=dims):
                 if level == len(dims):

@@ -57,6 +57,20 @@ class Dim:
     def fixed(self) -> bool:
         return self.field is None
 
+    @property
+    def fixed_size(self) -> int:
+        """The size of a fixed dimension."""
+        if self.size is None:
+            raise SchemaError(f"{self}: sized by the field {self.field!r}, not fixed")
+        return self.size
+
+    @property
+    def sizer(self) -> str:
+        """The integer field that sizes a variable dimension."""
+        if self.field is None:
+            raise SchemaError(f"{self}: a fixed dimension, sized by no field")
+        return self.field
+
 
 @dataclass(frozen=True)
 class Field:
@@ -127,7 +141,7 @@ class Schemas:
     def _field_size(self, f: Field, smallest: bool) -> int:
         count = 1
         for d in f.dims:
-            count *= d.size if d.fixed else (0 if smallest else d.max)
+            count *= d.fixed_size if d.fixed else (0 if smallest else d.max)
         if f.type in PRIMITIVE_SIZES:
             element = PRIMITIVE_SIZES[f.type]
         elif f.type == "string":

@@ -149,6 +149,6 @@ class Verifier:
             if last is not None and sequence <= last:
                 return None, REPLAYED, f"sequence {sequence} after {last} from the same sender"
             if last is None and len(self._last) >= MAX_SENDERS:
-                del self._last[min(self._last, key=self._last.get)]
+                del self._last[min(self._last, key=self._last.__getitem__)]
             self._last[(sender, channel)] = sequence
         return message, "", ""

@@ -15,6 +15,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from functools import cache
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -52,6 +53,18 @@ _FORMATS = {
     "boolean": "b",
     "byte": "B",
 }
+
+
+class LcmType(Protocol):
+    """An lcm-gen message class (``marionette.lcmt_*``): what this module and its users call."""
+
+    __name__: str
+
+    def __call__(self) -> Any: ...  # a message, every field zero
+
+    def decode(self, data: bytes) -> Any: ...
+
+    def _get_packed_fingerprint(self) -> bytes: ...
 
 
 @dataclass(frozen=True)
@@ -104,7 +117,7 @@ class _Op:
     type: str
     codec: struct.Struct | None
     size: int  # primitives; the smallest element otherwise
-    dims: tuple[tuple[int | None, int], ...]  # (fixed size, or None and the sizing field's index)
+    dims: tuple[tuple[int, int], ...]  # (fixed size, -1), or (0, the sizing field's index)
     read: bool  # primitives: each value is read (counts, booleans, ranges, clocks)
     integer: bool
     boolean: bool
@@ -138,7 +151,7 @@ def _plan(name: str) -> tuple[_Op, ...]:
                 f.type,
                 struct.Struct(">" + _FORMATS[f.type]) if primitive else None,
                 size,
-                tuple((d.size, -1) if d.fixed else (None, index[d.field]) for d in f.dims),
+                tuple((d.fixed_size, -1) if d.fixed else (0, index[d.sizer]) for d in f.dims),
                 primitive
                 and (boolean or f.max is not None or f.range is not None or f.clock is not None),
                 f.type not in ("float", "double") and primitive,
@@ -166,7 +179,7 @@ class _Walker:
             if not op.dims:
                 value = self.element(op, (path, op.name, None, None))
                 if op.integer:
-                    integers[i] = value
+                    integers[i] = cast(int, value)  # an integer format unpacks to an int
                 continue
             dims = [fixed if sizer < 0 else integers[sizer] for fixed, sizer in op.dims]
             if 0 in dims:
@@ -184,7 +197,7 @@ class _Walker:
             if op.kind == "number" and not op.read:
                 self.pos += count * op.size  # nobody bounds them: skipped whole
                 continue
-            if op.type == "double" and op.clock is None and count > 8:
+            if op.type == "double" and op.clock is None and op.range is not None and count > 8:
                 # Many doubles: the range check in numpy, the first offender named as C++ does.
                 values = np.frombuffer(self.data, dtype=">f8", count=count, offset=self.pos)
                 lo, hi = op.range
@@ -202,7 +215,7 @@ class _Walker:
             for e in range(count):
                 self.element(op, (path, op.name, e, dims))
 
-    def element(self, op: _Op, where: Where) -> int | float | None:
+    def element(self, op: _Op, where: tuple) -> int | float | None:
         if op.kind == "string":
             self.string(op, where[0], where[2], where[3])
             return None
@@ -212,6 +225,7 @@ class _Walker:
         left = self.size - self.pos
         if left < op.size:
             raise _Refused(PAST_THE_END, where, f"{op.size} bytes needed, {left} left")
+        assert op.codec is not None  # every "number" op has its codec (_plan)
         (value,) = op.codec.unpack_from(self.data, self.pos)
         self.pos += op.size
         if not op.read:
@@ -271,7 +285,7 @@ def _index(e: int, dims: list[int]) -> str:
     return "".join(f"[{i}]" for i in reversed(out))
 
 
-def validate(lcm_type: type, data: bytes, now_us: int | None = None) -> Refusal | None:
+def validate(lcm_type: LcmType, data: bytes, now_us: int | None = None) -> Refusal | None:
     """Why ``data`` is not one ``lcm_type`` message within its declared bounds, or None.
     ``@clock`` fields must be >= 0 and, with ``now_us`` (controller time), lie in their window
     around it."""

@@ -59,15 +59,20 @@ def stream_circle(client: ControllerClient, model, hand: str, duration_s: float)
     q = configuration_from_state(model, client.state)
     pin.framesForwardKinematics(model, data, q)
     X0 = pin.SE3(data.oMf[model.getFrameId(hand)])
+    proc = client.process
+    if proc is None:
+        raise ValueError("stream_circle: client.process is not set (the controller's process)")
     start = client.utime()
     sent_until = start
-    while client.utime() < start + duration_s * 1e6 and client.process.alive():
+    while client.utime() < start + duration_s * 1e6 and proc.alive():
         while sent_until < client.utime() + 1_000_000:
             t = (sent_until - start) * 1e-6 + 1e-3 * np.arange(200)
             w = 2 * np.pi / 4.0
             offsets = 0.05 * np.stack([np.zeros_like(t), np.sin(w * t), 1 - np.cos(w * t)], axis=1)
             rates = 0.05 * w * np.stack([np.zeros_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
-            values = [pose_to_vector(pin.SE3(X0.rotation, X0.translation + o)) for o in offsets]
+            values = np.array(
+                [pose_to_vector(pin.SE3(X0.rotation, X0.translation + o)) for o in offsets]
+            )
             derivatives = np.hstack([rates, np.zeros((len(t), 3))])
             client.send_reference(reference_chunk(1, "hand", sent_until, values, derivatives))
             sent_until += 200_000
@@ -84,7 +89,7 @@ def run(robot: str, name: str, args: list[str], duration_s: float, log_dir: Path
         proc = group.start(
             "controller",
             [
-                binary,
+                str(binary),
                 "--robot",
                 robot,
                 "--lcm-url",
@@ -92,7 +97,7 @@ def run(robot: str, name: str, args: list[str], duration_s: float, log_dir: Path
                 "--duration",
                 str(duration_s),
                 "--timing-log",
-                timing_log,
+                str(timing_log),
                 *args,
             ],
         )

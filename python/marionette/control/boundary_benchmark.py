@@ -27,6 +27,7 @@ import sys
 import tempfile
 import time
 import timeit
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,7 @@ UR10 = ["--robot", "ur10", "--backend", "kinematic", "--camera-rate", "0"]
 
 
 def _controller(group: ProcessGroup, url: str, binary: Path, *args: str) -> ControllerClient:
-    proc = group.start("controller", [binary, "--lcm-url", url, *UR10, *args])
+    proc = group.start("controller", [str(binary), "--lcm-url", url, *UR10, *args])
     client = ControllerClient(url)
     client.wait_ready(120.0, processes=group)
     client.process = proc
@@ -98,7 +99,7 @@ def micro() -> dict:
         t = INPUTS[channel]
         n = 2000
         py[f"validate {channel}"] = (
-            1e6 * timeit.timeit(lambda t=t, data=data: validate(t, data, now), number=n) / n
+            1e6 * timeit.timeit(partial(validate, t, data, now), number=n) / n
         )
     # What the Python processes receive most: TALOS's state (1 kHz in tests), the status (10 Hz).
     rng = random.Random(0)
@@ -110,11 +111,9 @@ def micro() -> dict:
             msg.joint_position = msg.joint_velocity = msg.joint_effort = [0.1] * 32
         data = msg.encode()
         n = 2000
-        py[f"validate {t.__name__}"] = (
-            1e6 * timeit.timeit(lambda t=t, data=data: validate(t, data), number=n) / n
-        )
+        py[f"validate {t.__name__}"] = 1e6 * timeit.timeit(partial(validate, t, data), number=n) / n
         py[f"lcm-gen decode {t.__name__}"] = (
-            1e6 * timeit.timeit(lambda t=t, data=data: t.decode(data), number=n) / n
+            1e6 * timeit.timeit(partial(t.decode, data), number=n) / n
         )
     message = valid_inputs(now)[channels.TASK_REFERENCE]
     signed = [Signer(b"k" * 32).sign(channels.TASK_REFERENCE, message) for _ in range(2000)]
@@ -154,7 +153,9 @@ def fuzz(messages: int, idle_s: float, binary: Path, seed: int = 0, log=print) -
             idle0 = c.state.tick
             c.wait_time(idle_s, timeout_s=3 * idle_s + 30)
             idle1 = c.state.tick
-            pid = c.process.popen.pid
+            proc = c.process
+            assert proc is not None  # _controller sets it
+            pid = proc.popen.pid
             rss0 = _rss_mb(pid)
             fuzz0 = c.state.tick
 
@@ -166,7 +167,7 @@ def fuzz(messages: int, idle_s: float, binary: Path, seed: int = 0, log=print) -
             report = fuzz_controller(c, messages, random.Random(seed), progress=progress)
             fuzz1 = c.state.tick
             rss1 = _rss_mb(pid)
-            alive = c.process.alive()
+            alive = proc.alive()
         finally:
             c.close()
         code = group.stop("controller", timeout_s=20.0)
@@ -262,7 +263,11 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
                 t_kill = time.monotonic()
                 os.kill(driver.popen.pid, signal.SIGKILL)
                 driver.popen.wait(10)
-                c.wait(lambda c, n=n_before: len(holds) > n, 10, "the hold")
+
+                def held(_c: ControllerClient, n: int = n_before) -> bool:
+                    return len(holds) > n
+
+                c.wait(held, 10, "the hold")
                 c.wait_time(1.5)
                 hold_us = holds[-1] * 1000
                 snapshot = list(commands)  # the handler thread goes on appending
@@ -297,14 +302,20 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
                 log(f"  kill {trial}: {rows[-1]}")
         finally:
             c.close()
-    k = np.array([r["kill_to_hold_ms"] for r in rows])
-    m = np.array([r["motion_kill_to_hold_mrad"] for r in rows])
-    v = np.array([r["velocity_at_kill_rad_s"] for r in rows])
+    to_hold = np.array([r["kill_to_hold_ms"] for r in rows])
+    motion = np.array([r["motion_kill_to_hold_mrad"] for r in rows])
+    velocity = np.array([r["velocity_at_kill_rad_s"] for r in rows])
     return {
         "trials": rows,
-        "kill_to_hold_ms": {"median": float(np.median(k)), "max": float(k.max())},
-        "motion_kill_to_hold_mrad": {"median": float(np.median(m)), "max": float(m.max())},
-        "velocity_at_kill_rad_s": {"median": float(np.median(v)), "max": float(v.max())},
+        "kill_to_hold_ms": {"median": float(np.median(to_hold)), "max": float(to_hold.max())},
+        "motion_kill_to_hold_mrad": {
+            "median": float(np.median(motion)),
+            "max": float(motion.max()),
+        },
+        "velocity_at_kill_rad_s": {
+            "median": float(np.median(velocity)),
+            "max": float(velocity.max()),
+        },
         "motion_after_hold_mrad": {"max": float(max(r["motion_after_hold_mrad"] for r in rows))},
     }
 
@@ -314,12 +325,15 @@ def carry_kill(binary: Path, log=print) -> dict:
     2 s into the carry, the box in the gripper; then a new `marionette supervise` resumes."""
     from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
     from marionette.scenarios import SCENARIOS
-    from marionette.scenarios.plan_and_execute import cached_plan
+    from marionette.scenarios.plan_and_execute import PlanAndExecute
+    from marionette.scenarios.plan_cache import cached_plan, plan_folder
 
     scenario = SCENARIOS["ur10-box"]
+    assert isinstance(scenario, PlanAndExecute)  # ur10-box plans, then executes
+    problem = Path(scenario.problem)
     cache = marionette.REPO_ROOT / "reports" / "plans" / "cache"
-    plan = cached_plan(scenario, scenario.seed, cache, log)
-    plan_json = cache / f"{Path(scenario.problem).stem}-seed{scenario.seed}" / "plan.json"
+    plan = cached_plan(problem, scenario.seed, cache, log)
+    plan_json = plan_folder(problem, scenario.seed, cache) / "plan.json"
     robot = plan_robot(plan)
     model, _ = marionette.robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
@@ -332,7 +346,7 @@ def carry_kill(binary: Path, log=print) -> dict:
         c = ControllerClient(url)
         proc = group.start(
             "controller",
-            [binary, "--lcm-url", url, "--robot", "ur10", "--scene", str(scenario.scene)]
+            [str(binary), "--lcm-url", url, "--robot", "ur10", "--scene", str(scenario.scene)]
             + ["--camera-rate", "0", "--state-rate", "1000", "--status-rate", "100"],
         )
         c.wait_ready(60.0, processes=group)
@@ -366,10 +380,10 @@ def carry_kill(binary: Path, log=print) -> dict:
             for name in robot_map.objects:
                 c.move_object(name, robot_map.object_pose(q0, name))
             c.wait_time(0.5)
-            first = group.start("supervise1", [*supervise, "--specs", log_dir / "c1.yaml"])
+            first = group.start("supervise1", [*supervise, "--specs", str(log_dir / "c1.yaml")])
             c.wait(
                 lambda c: (
-                    states
+                    bool(states)
                     and states[-1].step_index == carry.index
                     and states[-1].status == "running"
                 ),
@@ -380,7 +394,7 @@ def carry_kill(binary: Path, log=print) -> dict:
             t_kill = time.monotonic()
             first.popen.send_signal(signal.SIGKILL)
             first.popen.wait(10)
-            c.wait(lambda c: holds, 10.0, "the hold")
+            c.wait(lambda c: bool(holds), 10.0, "the hold")
             c.wait_time(3.0)
             reason = c.status.mode_reason
             snapshot = list(commands)
@@ -398,7 +412,7 @@ def carry_kill(binary: Path, log=print) -> dict:
             kb = int(np.argmin(np.abs(box_u - kill_us)))
             later = box_p[(box_u >= kill_us) & (box_u <= hold_us + 3_000_000)]
             t0 = time.monotonic()
-            second = group.start("supervise2", [*supervise, "--specs", log_dir / "c2.yaml"])
+            second = group.start("supervise2", [*supervise, "--specs", str(log_dir / "c2.yaml")])
             code = second.popen.wait(900)
             resumed = second.log_path.read_text()
         finally:

@@ -108,9 +108,10 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _trace(client: GraphClient, args: argparse.Namespace) -> int:
-    rows, header = [], None
+    rows: list[list[float]] = []
+    header: list[str] = []  # set with the first sample
     for sample in client.trace(args.signals, args.rate, args.duration):
-        if header is None:
+        if not header:
             header = ["tick", "time"]
             for name in args.signals:
                 size = sample.values[name].size

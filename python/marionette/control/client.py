@@ -22,6 +22,7 @@ from marionette import (
 )
 from marionette.control.spec import ControllerSpec
 from marionette.lcm_bus import LcmBus
+from marionette.processes import ManagedProcess
 
 
 def pose_to_vector(X) -> np.ndarray:
@@ -57,6 +58,8 @@ class ControllerClient:
         self.num_states = 0
         self.num_images = 0
         self.image_utimes: list[int] = []  # controller time of every frame received
+        # The controller's process, set by whoever started it (benchmarks, tests): None otherwise.
+        self.process: ManagedProcess | None = None
         self.bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on("state"))
         self.bus.subscribe(channels.ROBOT_COMMAND, lcmt_robot_command, self._on("command"))
         self.bus.subscribe(channels.CONTROLLER_STATUS, lcmt_controller_status, self._on("status"))

@@ -35,7 +35,7 @@ from marionette.control.introspection import rejections_by_channel
 from marionette.control.spec import ControllerSpec, TaskSpec, reference_chunk
 from marionette.lcm_fuzz import Fuzzer
 from marionette.lcm_signing import SIGNED_NO_KEY, has_trailer
-from marionette.lcm_validate import TRAILING_BYTES, validate
+from marionette.lcm_validate import TRAILING_BYTES, LcmType, validate
 
 # What marionette-controller subscribes to, and the type of each.
 INPUTS = {
@@ -112,7 +112,7 @@ def _foreign_types() -> list[bytes]:
     return [state.encode(), status.encode()]
 
 
-def predict(lcm_type: type, data: bytes, now_us: int) -> str | None:
+def predict(lcm_type: LcmType, data: bytes, now_us: int) -> str | None:
     """The reason the controller (without a key) refuses ``data`` at its boundary, None if it
     passes there."""
     refusal = validate(lcm_type, data, now_us)

@@ -16,8 +16,9 @@ import itertools
 import os
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -58,8 +59,8 @@ class GraphClient:
         self.client = f"{os.uname().nodename}:{os.getpid()}:{id(self):x}"
         self._ids = itertools.count(int(time.time() * 1000) % 1_000_000 * 1000)
         self._cond = threading.Condition()
-        self._replies: dict[int, object] = {}
-        self._trace: list[object] = []
+        self._replies: dict[int, Any] = {}  # lcmt_dg_reply by request id
+        self._trace: list[Any] = []  # lcmt_dg_reply
         self.bus.subscribe(channels.DG_REPLY, lcmt_dg_reply, self._on_reply)
         # LCM drops a subscription's messages beyond its queue (30 by default) while the handling
         # thread is off the CPU: 10 s of a 1 kHz trace may wait here.
@@ -95,7 +96,7 @@ class GraphClient:
         self,
         command: str,
         signals: Sequence[str] = (),
-        values: Sequence[float] = (),
+        values: Iterable[float] = (),
         rate: float = 0.0,
     ):
         """Sends a request and waits for its reply; raises IntrospectionError on refusal."""
