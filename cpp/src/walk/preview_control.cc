@@ -49,7 +49,7 @@ AugmentedSystem MakeAugmentedSystem(const PreviewControlParams& p) {
   s.A(0, 0) = 1.0;
   s.A.block<1, 3>(0, 1) = C * A;
   s.A.block<3, 3>(1, 1) = A;
-  s.B << C * B, B;
+  s.B << C.dot(B), B;  // C B is 1x1: a scalar (GCC 12 misreads the 1x1 temporary's bounds)
   s.Q.setZero();
   s.Q(0, 0) = p.qe;  // Qx = 0 (Kajita's choice)
   s.R = p.EffectiveR();
