@@ -6,7 +6,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -171,6 +173,11 @@ def run_supervise(args: argparse.Namespace) -> int:
     return 0 if result.success else 1
 
 
+def _more_than(n: int) -> Callable[[list[Any]], bool]:
+    """A wait condition: more than ``n`` messages received."""
+    return lambda messages: len(messages) > n
+
+
 def run_fsm(args: argparse.Namespace) -> int:
     from marionette import channels, lcmt_supervisor_event, lcmt_supervisor_state
     from marionette.execution.decisions import event_message
@@ -191,6 +198,7 @@ def run_fsm(args: argparse.Namespace) -> int:
                 print(f"no SUPERVISOR_STATE within {args.timeout} s", file=sys.stderr)
                 return 1
             s = states.latest()
+            assert s is not None  # wait_for saw one, and the log only grows
             print(
                 f"{s.plan_name}: step {s.step_index + 1}/{s.num_steps} {s.state!r} "
                 f"[{s.status}] {s.detail}"
@@ -201,10 +209,7 @@ def run_fsm(args: argparse.Namespace) -> int:
         shown = 0
         deadline = time.monotonic() + args.timeout
         while time.monotonic() < deadline and (args.count == 0 or shown < args.count):
-            seen = shown
-            events.wait_for(
-                lambda m, seen=seen: len(m) > seen, max(0.0, deadline - time.monotonic())
-            )
+            events.wait_for(_more_than(shown), max(0.0, deadline - time.monotonic()))
             for e in events.messages[shown:]:
                 print(f"{e.utime * 1e-6:10.3f}  {e.source:10s} {e.name:20s} {e.detail}")
                 shown += 1

@@ -52,19 +52,21 @@ def measured_configuration(
 def estimate_state(graph, q_measured: np.ndarray) -> StateEstimate:
     """Projects ``q_measured`` onto every main state of ``graph`` (a planning ConstraintGraph)."""
     model = graph.problem.model
-    results: list[tuple[str, float | None, np.ndarray | None]] = []
+    projected: list[tuple[str, float, np.ndarray]] = []  # (state, residual, q_projected)
+    failed: list[str] = []
     for state in graph.main_states():
         q = np.array(q_measured, dtype=float)
         if state.project(q).success:
-            results.append(
+            projected.append(
                 (state.name, float(np.linalg.norm(pin.difference(model, q_measured, q))), q)
             )
         else:
-            results.append((state.name, None, None))
-    ok = sorted((r for r in results if r[1] is not None), key=lambda r: r[1])
+            failed.append(state.name)
+    ok = sorted(projected, key=lambda r: r[1])
     if not ok:
         raise RuntimeError("the measured configuration projects onto no state of the graph")
-    ranking = [(n, r) for n, r, _ in ok] + [(n, None) for n, r, _ in results if r is None]
+    ranking: list[tuple[str, float | None]] = [(n, r) for n, r, _ in ok]
+    ranking += [(n, None) for n in failed]
     name, residual, q_proj = ok[0]
     return StateEstimate(name, residual, np.asarray(q_measured, dtype=float), q_proj, ranking)
 

@@ -47,6 +47,7 @@ import yaml
 from marionette import robots
 from marionette.control.spec import ControllerSpec, SpecError, TaskSpec
 from marionette.execution.plan_steps import PlanRobotMap, Step
+from marionette.models.semantics import Gripper, SemanticsError
 
 SPECS_FORMAT = "marionette-controllers/1"
 
@@ -111,6 +112,15 @@ class FactoryContext:
         return name[len(prefix) :] if name.startswith(prefix) else name
 
 
+def _gripper_joint(g: Gripper) -> GripperJoint:
+    """The actuated joint of ``g``, which must have one with its open and closed positions."""
+    if g.joint is None or g.open_position is None or g.closed_position is None:
+        raise SemanticsError(
+            f"gripper {g.name}: joint {g.joint} needs open_position and closed_position"
+        )
+    return GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
+
+
 def context_from_plan(
     doc: dict[str, Any], robot: str, model: pin.Model, gripper_admittance: bool = False
 ) -> FactoryContext:
@@ -120,7 +130,7 @@ def context_from_plan(
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
     joints = {
-        g.name: GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
+        g.name: _gripper_joint(g)
         for g in semantics
         if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]
     }
@@ -240,14 +250,19 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
             or step.grasps_from.get(gripper)
             or step.grasps_to.get(gripper)
         )
+        assert handle is not None  # an active gripper is a key of one of these grasp maps
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
         name = _task_name(gripper)
-        if ctx.visual_servoing and gripper in step.grasps and visual_task_kind(step) is not None:
+        if (
+            ctx.visual_servoing
+            and gripper in step.grasps
+            and (kind := visual_task_kind(step)) is not None
+        ):
             tasks.append(
                 TaskSpec(
                     name,
-                    visual_task_kind(step),
+                    kind,
                     priority,
                     frame=frame,
                     gain=GAINS["grasp"],
@@ -259,12 +274,12 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
             ctx.visual_servoing
             and obj not in holder_of
             and obj not in step_holders(step, ctx)
-            and visual_approach_kind(step, gripper) is not None
+            and (kind := visual_approach_kind(step, gripper)) is not None
         ):
             tasks.append(
                 TaskSpec(
                     name,
-                    visual_approach_kind(step, gripper),
+                    kind,
                     priority,
                     frame=frame,
                     gain=GAINS["grasp"],

@@ -249,6 +249,10 @@ class Supervisor:
         with self._lock:
             self._inputs.append((decisions.COMMAND, msg))
 
+    def _later_or_input(self, utime: int) -> Callable[[ControllerClient], bool]:
+        """A wait condition: the controller's clock past ``utime``, or a message to feed."""
+        return lambda c: c.utime() > utime or bool(self._inputs)
+
     def _next_input(self) -> tuple[str, Any] | None:
         with self._lock:
             return self._inputs.pop(0) if self._inputs else None
@@ -496,7 +500,7 @@ class Supervisor:
                 )
                 raise SupervisorFailure(d.event, d.detail)
             self.client.wait(
-                lambda c, n=now: c.utime() > n or bool(self._inputs),
+                self._later_or_input(now),
                 5.0,
                 "controller time to advance",
             )

@@ -136,7 +136,7 @@ class ToolTask:
                     "se3",
                     0,
                     frame=self.frame,
-                    mask=(1, 1, 1, 1, 1, 0),
+                    mask=(True, True, True, True, True, False),
                     gain=10.0,
                     streamed=True,
                 ),

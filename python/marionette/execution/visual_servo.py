@@ -113,11 +113,11 @@ def step_toward(
     ``max_dp`` and the rotation at most ``max_dtheta``."""
     xi = pin.log6(C.actInv(C_target)).vector
     s = alpha
-    dp, dth = np.linalg.norm(xi[:3]) * s, np.linalg.norm(xi[3:]) * s
+    dp, dth = float(np.linalg.norm(xi[:3])) * s, float(np.linalg.norm(xi[3:])) * s
     if dp > max_dp:
         s *= max_dp / dp
     if dth * (s / alpha) > max_dtheta:
-        s = min(s, max_dtheta / np.linalg.norm(xi[3:]))
+        s = min(s, max_dtheta / float(np.linalg.norm(xi[3:])))
     return C * pin.exp6(s * xi)
 
 
@@ -330,12 +330,9 @@ class VisualServo:
                 anchor=anchor,
             )
             corrections.append(c)
-            if (
-                task.kind == "pbvs"
-                and gripper is not None
-                and (task.name in holds or approach is not None)
-            ):
-                obj = (holds[task.name] if task.name in holds else approach).split("/")[0]
+            handle = holds[task.name] if task.name in holds else approach
+            if task.kind == "pbvs" and gripper is not None and handle is not None:
+                obj = handle.split("/")[0]
                 X_GO = self._planned_grasp(traj, task.frame, obj)
                 self._current.append((c, step, obj, X_GO, approach is not None))
             self._carried[task.frame] = (pin.SE3.Identity(), None) if blend else (C0, anchor)
@@ -393,7 +390,7 @@ class VisualServo:
                 P = pin.SE3(
                     pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3]
                 )
-                if approach:
+                if traj is not None:  # approaching
                     X_WO_plan = self.robot_map.object_pose(
                         traj.q_plan[min(k, len(traj.q_plan) - 1)], obj
                     )
@@ -482,7 +479,11 @@ def head_gaze_posture(
         for _ in range(5):
             q[idx] = x
             p = image_point(q, target)
-            e = p * max(0.0, 1.0 - radius / max(np.linalg.norm(p), 1e-12)) if radius > 0.0 else p
+            e = (
+                p * max(0.0, 1.0 - radius / max(float(np.linalg.norm(p)), 1e-12))
+                if radius > 0.0
+                else p
+            )
             J = np.empty((2, len(active)))
             for c, j in enumerate(active):
                 qd = q.copy()

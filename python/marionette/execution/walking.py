@@ -8,6 +8,7 @@ from __future__ import annotations
 import xml.etree.ElementTree as ET
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial import ConvexHull
@@ -119,7 +120,7 @@ class MergedPlan:
     never changes a started step, Dang §2.6.3; FootstepManager::ApplyPlan)."""
 
     def __init__(self) -> None:
-        self.steps: dict[int, object] = {}  # global index -> lcmt_footstep
+        self.steps: dict[int, Any] = {}  # global index -> lcmt_footstep
 
     def apply(self, plan, current_step: int) -> None:
         """``current_step``: WALK_STATUS.current_step_index when the plan arrived (-1 standing)."""

@@ -258,6 +258,8 @@ class ToolEstimate:
         """One circle of the head about the streamed posture's aim, the tool's reference held."""
         st, tool = self.tool.settings, self.tool
         aim = tool.posture
+        if aim is None:
+            raise RuntimeError("the head scan circles the streamed posture: move the tool first")
         knots = []
         for angle in np.linspace(0.0, 2.0 * np.pi, 9)[1:]:
             q = aim.copy()
@@ -294,6 +296,7 @@ def plan_deburring(
     ``q_robot``, joint name -> value), and the transits between them."""
     from marionette import robots
     from marionette.planning.collision import CollisionChecker
+    from marionette.planning.graph import WaypointEdge
     from marionette.planning.graph_factory import graph_from_settings
     from marionette.planning.planner import ManipulationRRT
     from marionette.planning.problem import load_problem
@@ -301,6 +304,8 @@ def plan_deburring(
 
     t0 = time.perf_counter()
     problem = load_problem(PROBLEM)
+    if problem.q_init is None:
+        raise ScenarioError(f"{PROBLEM}: no initial configuration (q_init) to start from")
     q0 = problem.q_init.copy()
     model = problem.model
     for jid in range(1, model.njoints):
@@ -349,6 +354,8 @@ def plan_deburring(
     unreachable = []
     for hole in holes:
         edge = edges[f"{TOOL} > {hole} | f"]
+        if not isinstance(edge, WaypointEdge):
+            raise ScenarioError(f"{edge.name}: not a transition through a pre-grasp waypoint")
         best = None
         rejected = {
             "no projection": 0,
@@ -594,6 +601,8 @@ def run_deburr(
         )
         model = tool.model
         camera = robots.robot(scenario.robot).camera_frame
+        if camera is None:
+            raise ScenarioError(f"robot {scenario.robot} has no camera to aim its head")
         q_home = aim_head(model, tool.configuration(), camera, X_WP_nom * centre_P)
         client.send_spec(tool.spec())
         tool.move(tool.tool_of(q_home), 0.05, q=tool.configuration())

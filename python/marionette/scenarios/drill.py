@@ -422,8 +422,12 @@ def run_drill(
             X_hole_true = X_WP_true * holes[name]
             X_cam_target = tool_target(X_WP_cam * holes[name], tool.pose().rotation, st.standoff_m)
             tool.move(X_cam_target, st.move_duration_s)
+
             # the arm's sag out first (encoders): the sensor needs the hole in its view only
-            X, _, _ = tool.servo(lambda X, target=X_cam_target: target)
+            def camera_target(X: pin.SE3, target: pin.SE3 = X_cam_target) -> pin.SE3:
+                return target
+
+            X, _, _ = tool.servo(camera_target)
             if tool_error(X, X_cam_target)[0] > 0.5 * st.sensor_range_m:
                 raise ScenarioError(
                     f"{name}: the arm does not hold the pose before the hole: tool "

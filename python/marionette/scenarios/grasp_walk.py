@@ -263,6 +263,21 @@ def reach_spec(controller_id: int, hand: str, walk_status) -> ControllerSpec:
     )
 
 
+def _swap_decided(cid: int) -> Callable[[ControllerClient], bool]:
+    """A wait condition: the controller took the swap to controller ``cid``, or refused it."""
+    tag = f"(id {cid})"
+    return lambda c: (
+        c.status.active_controller_id == cid
+        or tag in c.status.last_switch_result
+        or tag in c.status.last_rejection
+    )
+
+
+def _later_than(utime: int) -> Callable[[ControllerClient], bool]:
+    """A wait condition: the controller's clock past ``utime``."""
+    return lambda c: c.utime() > utime
+
+
 def _reach(
     client: ControllerClient,
     model: pin.Model,
@@ -287,20 +302,11 @@ def _reach(
     target = ball - np.linalg.norm(grasp_point) * u
     # The controller refuses a swap whose command jumps (the walk's last sway): retry once the
     # robot has settled a little more, with a new controller id each time.
-    refusals = []
+    refusals: list[str] = []
     for cid in range(2, 7):
         client.send_spec(reach_spec(cid, hand, walk_status))
-        tag = f"(id {cid})"
         try:
-            client.wait(
-                lambda c, cid=cid, tag=tag: (
-                    c.status.active_controller_id == cid
-                    or tag in c.status.last_switch_result
-                    or tag in c.status.last_rejection
-                ),
-                10.0,
-                "the swap to the reach controller",
-            )
+            client.wait(_swap_decided(cid), 10.0, "the swap to the reach controller")
         except TimeoutError as e:
             return {"done": False, "reason": str(e), "refusals": refusals}
         if client.status.active_controller_id == cid:
@@ -327,7 +333,7 @@ def _reach(
         while not (streamer.done and client.utime() >= streamer.end_utime):
             now = client.utime()
             streamer.pump(now)
-            client.wait(lambda c, n=now: c.utime() > n, 5.0, "controller time to advance")
+            client.wait(_later_than(now), 5.0, "controller time to advance")
         client.wait_time(0.5)
         chunks += streamer.chunks_sent
         if streamer.min_margin_us is not None:

@@ -205,8 +205,12 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
     yaw = math.radians(settings.displacement_deg) * rng.uniform(-1.0, 1.0)
     v = rng.normal(size=3)
     w = rng.normal(size=3)
-    v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(np.linalg.norm(v), 1e-12)
-    w *= math.radians(settings.slip_deg) * rng.uniform(0.5, 1.0) / max(np.linalg.norm(w), 1e-12)
+    v *= settings.slip_m * rng.uniform(0.5, 1.0) / max(float(np.linalg.norm(v)), 1e-12)
+    w *= (
+        math.radians(settings.slip_deg)
+        * rng.uniform(0.5, 1.0)
+        / max(float(np.linalg.norm(w)), 1e-12)
+    )
     offsets = draw_joint_offsets(rng, settings.joint_offsets_deg)
     return Perturbation(
         seed,
@@ -343,10 +347,11 @@ def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) 
     (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
     text = scene.read_text()
     for joint, offset in offsets.items():
-        pattern = _joint_pattern(joint)
-        text, n = pattern.subn(
-            lambda m, offset=offset: f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}', text, count=1
-        )
+
+        def with_ref(m: re.Match[str], offset: float = offset) -> str:
+            return f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}'
+
+        text, n = _joint_pattern(joint).subn(with_ref, text, count=1)
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
     return write_scene(text, scene, out)

@@ -434,11 +434,12 @@ def run_plan_and_execute(
     t_ref = time.perf_counter()
     supervisor_options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
     timing = _servo_timing(scenario) if scenario.vision else None
-    rewrites = (
-        [gaze_rewrite(robot_map, scenario.object_name, robots.robot(robot).camera_frame)]
-        if scenario.vision
-        else []
-    )
+    rewrites = []
+    if scenario.vision:
+        camera = robots.robot(robot).camera_frame
+        if camera is None:
+            raise ScenarioError(f"{scenario.name}: vision needs a camera; robot {robot} has none")
+        rewrites.append(gaze_rewrite(robot_map, scenario.object_name, camera))
     trajectories = prepare_trajectories(
         steps, specs, robot_map, supervisor_options, 0, timing, rewrites
     )

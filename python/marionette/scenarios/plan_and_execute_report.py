@@ -327,22 +327,22 @@ def _plots(
     paths.append(save_figure(fig, out_dir / "task_errors.png"))
 
     # 2. Planned vs executed joints (the 6 that move most) and object path.
-    plan_t, plan_q, plan_obj = [], [], []
+    plan_t: list[np.ndarray] = []
+    plan_q: list[np.ndarray] = []
+    plan_obj: list[tuple[np.ndarray, np.ndarray]] = []  # (times, object positions)
     for r in result.records:
         traj = supervisor.trajectories.get(r.index)
         if traj is None or not r.utime_reference_start:
             continue
         plan_t.append(traj.t + r.utime_reference_start * 1e-6)
         plan_q.append(traj.q)
-        plan_obj.append(
-            np.array(
-                [
-                    supervisor.robot_map.object_pose(q, scenario.object_name).translation
-                    for q in traj.q_plan[::20]
-                ]
-            )
+        positions = np.array(
+            [
+                supervisor.robot_map.object_pose(q, scenario.object_name).translation
+                for q in traj.q_plan[::20]
+            ]
         )
-        plan_obj[-1] = (plan_t[-1][::20], plan_obj[-1])
+        plan_obj.append((plan_t[-1][::20], positions))
     if plan_t:
         pt, pq = np.concatenate(plan_t), np.vstack(plan_q)
         first_joint = 7 if model.joints[1].nq == 7 else 0
@@ -391,11 +391,11 @@ def _plots(
         com = np.array([pin.centerOfMass(model, data, q)[:2] for q in q_rec[::4]])
         pin.framesForwardKinematics(model, data, q_rec[0])
         sem = robots.semantics(supervisor.robot_map.robot)
-        pts = []
+        corners: list[np.ndarray] = []
         for c in sem.contacts:
             X = data.oMf[model.getFrameId(c.link)]
-            pts += [X.act(np.asarray(p, dtype=float))[:2] for p in c.points]
-        pts = np.array(pts)
+            corners += [X.act(np.asarray(p, dtype=float))[:2] for p in c.points]
+        pts = np.array(corners)
         fig, ax = plt.subplots(figsize=(6, 6))
         if len(pts) >= 3:
             from scipy.spatial import ConvexHull

@@ -442,12 +442,12 @@ def _plots(
     com = np.array([pin.centerOfMass(model, data, q) for q in rec.q])
     fig, ax = plt.subplots(figsize=(9, 5))
     plot_footsteps(ax, rec, model, foot)
-    for pose, style, label in (
-        (bar_seen, dict(color="0.6", alpha=0.5), "bar as first perceived"),
-        (bar_real, dict(color="tab:brown", alpha=0.8), "bar (real, last perceived)"),
+    for pose, color, alpha, label in (
+        (bar_seen, "0.6", 0.5, "bar as first perceived"),
+        (bar_real, "tab:brown", 0.8, "bar (real, last perceived)"),
     ):
         b = bar_corners(pose, settings.bar_radius, settings.bar_length)
-        ax.fill(b[:, 0], b[:, 1], label=label, **style)
+        ax.fill(b[:, 0], b[:, 1], label=label, color=color, alpha=alpha)
     ax.plot(com[:, 0], com[:, 1], color="tab:green", lw=1, label="CoM (measured)")
     circle = plt.Circle(
         goal[:2], settings.goal_tolerance, fill=False, color="tab:purple", label="goal zone"
@@ -461,11 +461,11 @@ def _plots(
     # Sole heights along x: the crossing swings over the bar.
     fig, ax = plt.subplots(figsize=(9, 3))
     for side in FEET:
-        pts = []
+        soles: list[np.ndarray] = []
         for q in rec.q:
             pin.framesForwardKinematics(model, data, q)
-            pts.append(data.oMf[model.getFrameId(f"{side}_sole_link")].translation.copy())
-        pts = np.array(pts)
+            soles.append(data.oMf[model.getFrameId(f"{side}_sole_link")].translation.copy())
+        pts = np.array(soles)
         ax.plot(
             pts[:, 0],
             1e3 * pts[:, 2],

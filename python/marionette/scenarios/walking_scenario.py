@@ -24,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -52,8 +52,8 @@ SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
 def object_poses_message(
     utime: int,
     name: str,
-    position_W: Sequence[float],
-    quaternion_W: Sequence[float],
+    position_W: Iterable[float],
+    quaternion_W: Iterable[float],
     camera_name: str,
 ) -> lcmt_object_poses:
     """OBJECT_POSES with one object ``name`` at a world pose (quaternion w, x, y, z) and no
