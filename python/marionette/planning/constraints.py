@@ -643,7 +643,7 @@ class LockedJoint(ExplicitConstraint):
 
 
 class _ImplicitLockedJoint(Constraint):
-    """Implicit form of a locked joint: e = log(q_locked^-1 q_joint) on the joint's tangent space."""
+    """Implicit form of a locked joint: e = log(q_locked^-1 q_joint) in the joint's tangent."""
 
     def __init__(self, locked: LockedJoint) -> None:
         super().__init__(locked.name, locked.nv)

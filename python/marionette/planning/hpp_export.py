@@ -31,7 +31,7 @@ def _pose_attrs(M: pin.SE3) -> dict[str, str]:
 
 
 def srdf_text(source: ModelSource) -> str:
-    """HPP SRDF of one model: ``<gripper>``, ``<handle>``, ``<contact>``, ``<disable_collisions>``."""
+    """HPP SRDF of one model: its gripper, handle, contact and disable_collisions elements."""
     root = ET.Element("robot", name=source.name)
     for name, link, M, clearance in source.grippers:
         g = ET.SubElement(root, "gripper", name=name, clearance=f"{clearance:.12g}")

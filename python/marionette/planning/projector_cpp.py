@@ -1,4 +1,4 @@
-"""The C++ Newton-Raphson projector (``marionette._core.planning.Projector``) of a :class:`Projector`.
+"""The C++ Newton-Raphson projector (``_core.planning.Projector``) of a :class:`Projector`.
 
 :class:`Projector` (``projector.py``) compiles its constraints (substitution order, placement +
 complement merged into a locked object, free variables, bounds, saturation); this module only
