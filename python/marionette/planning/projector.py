@@ -204,7 +204,15 @@ class Projector:
                 implicit.append((e.as_implicit(), 0))
                 continue
             determined.add(e.output_joint)
-            (self.locked if isinstance(e, LockedJoint) else self.relative).append(e)
+            if isinstance(e, LockedJoint):
+                self.locked.append(e)
+            elif isinstance(e, ExplicitRelativePose):
+                self.relative.append(e)
+            else:
+                raise TypeError(
+                    f"explicit constraint {e.name}: {type(e).__name__} is neither a LockedJoint "
+                    "nor an ExplicitRelativePose, the two kinds the projector substitutes"
+                )
 
         self.implicit = [c for c, _ in implicit]
         lv = sorted({lv for _, lv in implicit})
