@@ -45,8 +45,9 @@ def legs(problem: ManipulationProblem, graph, checker) -> list[tuple[np.ndarray,
     every seed and for both planners)."""
     guide = problem.settings.get("guide") or []
     rng = np.random.default_rng(0)
-    points = [guide_configuration(problem, graph, checker, e, problem.q_init, rng) for e in guide]
-    chain = [problem.q_init, *points, problem.q_goal]
+    q_init, q_goal = problem.require_init(), problem.require_goal()
+    points = [guide_configuration(problem, graph, checker, e, q_init, rng) for e in guide]
+    chain = [q_init, *points, q_goal]
     return list(zip(chain, chain[1:]))
 
 

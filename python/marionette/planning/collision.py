@@ -18,7 +18,7 @@ the transition keeps rigid (both bodies attached to the same joint through expli
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import coal
 import numpy as np
@@ -291,7 +291,7 @@ class CollisionChecker:
         if allowed is None:
             allowed = self.grasp_contact_pairs(path.edge.grasps)
         if self._cpp is not None:
-            return self._validate_cpp(path, rigid, R, L, allowed, prefix)
+            return self._validate_cpp(self._cpp, path, rigid, R, L, allowed, prefix)
         if allowed:
             rigid = rigid.copy()
             rigid[list(allowed)] = True  # treated as never moving...
@@ -362,7 +362,7 @@ class CollisionChecker:
                 projector, allowed, q1, q2, seed, max_iterations, max_time_s, step
             )
         free = self.leaf_free_joints(projector)
-        if free is None:
+        if free is None or self._cpp is None:  # (no free joints without the C++ backend)
             return None
         _, motion, attached = self._cpp_pair_motion(projector, allowed)
         sub = collision_cpp._planning.Substitution(
@@ -402,14 +402,14 @@ class CollisionChecker:
         # Samples: the free variables' q entries (1-dof joints, free-flyer translations), in
         # the bounds and within one unit (rad, m) of the two ends: a connection is local.
         m = self.model
-        idx = []
+        free_q: list[int] = []
         for j in range(1, m.njoints):
             iv, nv = m.idx_vs[j], m.joints[j].nv
             if not projector.free[iv : iv + nv].any():
                 continue
             iq = m.idx_qs[j]
-            idx += [iq] if nv == 1 else list(range(iq, iq + 3)) if nv == 6 else []
-        idx = np.asarray(idx, dtype=int)
+            free_q += [iq] if nv == 1 else list(range(iq, iq + 3)) if nv == 6 else []
+        idx = np.asarray(free_q, dtype=int)
         lo = np.maximum(self.problem.lower[idx], np.minimum(q1[idx], q2[idx]) - 1.0)
         hi = np.minimum(self.problem.upper[idx], np.maximum(q1[idx], q2[idx]) + 1.0)
         cpp = projector._cpp
@@ -441,6 +441,7 @@ class CollisionChecker:
 
     def _validate_cpp(
         self,
+        validator: Any,
         path: ConstrainedPath,
         rigid: np.ndarray,
         R: np.ndarray,
@@ -449,12 +450,13 @@ class CollisionChecker:
         prefix: bool,
     ) -> tuple[bool, float]:
         """:meth:`validate` in C++: the pair bounds and explicit constraints handed over once per
-        (transition projector, allowed pairs), the locked values once per path."""
+        (transition projector, allowed pairs), the locked values once per path; ``validator``:
+        the C++ path validator (``self._cpp``)."""
         from marionette.planning import collision_cpp
 
         projector = path.projector
         _, motion, attached = self._cpp_pair_motion(projector, allowed)
-        ok, s, queries, grazing = self._cpp.validate(
+        ok, s, queries, grazing = validator.validate(
             path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix
         )
         self.checks += queries

@@ -16,13 +16,12 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from marionette import _core
+from marionette._core import planning as _planning
 
 if TYPE_CHECKING:
     from marionette.planning.path import ConstrainedPath
     from marionette.planning.projector import Projector
 
-_planning = _core.planning
 
 # Pinocchio short names (without "JointModel") the C++ model builder knows.
 _JOINT_KINDS = {

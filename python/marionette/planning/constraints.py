@@ -109,7 +109,11 @@ def _pose_list(M: pin.SE3) -> list[float]:
     return [float(v) for v in pin.SE3ToXYZQUAT(M)]
 
 
-def _check_mask(mask: Sequence[bool]) -> np.ndarray:
+# Which rows a constraint keeps: booleans, as a sequence or a bool array.
+Mask = Sequence[bool] | np.ndarray
+
+
+def _check_mask(mask: Mask) -> np.ndarray:
     m = np.asarray(mask, dtype=bool)
     if m.shape != (6,):
         raise ConstraintError(f"a mask has 6 entries (x y z rx ry rz), got {list(mask)}")
@@ -179,7 +183,7 @@ class RelativeTransformation(Constraint):
         M1: pin.SE3,
         joint2: int,
         M2: pin.SE3,
-        mask: Sequence[bool] = (True,) * 6,
+        mask: Mask = (True,) * 6,
         rhs: np.ndarray | None = None,
         parametrised: bool = False,
     ) -> None:
@@ -264,7 +268,7 @@ class RelativeTransformation(Constraint):
 
 
 def Transformation(
-    name: str, joint: int, M_JF: pin.SE3, X_WT: pin.SE3, mask: Sequence[bool] = (True,) * 6
+    name: str, joint: int, M_JF: pin.SE3, X_WT: pin.SE3, mask: Mask = (True,) * 6
 ) -> RelativeTransformation:
     """Absolute pose of frame F (on ``joint``) equal to the target ``X_WT`` on the mask rows."""
     return RelativeTransformation(name, 0, X_WT, joint, M_JF, mask)
@@ -317,8 +321,8 @@ class Placement(Constraint):
             for i, (o, e) in enumerate(self.pairs)
         ]
         self._polygons = [_Polygon(e.polygon_S) for _, e in self.pairs]
-        self._offset_key = None
-        self._offset_val = (np.zeros(2), None)
+        self._offset_key: tuple[int, int, int] | None = None
+        self._offset_val: tuple[np.ndarray, np.ndarray | None] = (np.zeros(2), None)
 
     def joints(self) -> set[int]:
         return set().union(*(r.joints() for r in self._rel))
@@ -352,7 +356,7 @@ class Placement(Constraint):
             self.pair = best
         return self.pair
 
-    def _offset(self, kin: Kinematics, v6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _offset(self, kin: Kinematics, v6: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         key = (kin.version, id(kin), self.pair)
         if key != self._offset_key:
             self._offset_val = self._polygons[self.pair].offset(v6[0], v6[1])
@@ -471,7 +475,7 @@ class ComPosition(Constraint):
         joint: int,
         M_JF: pin.SE3,
         target: np.ndarray | None = None,
-        mask: Sequence[bool] = (True, True, True),
+        mask: Mask = (True, True, True),
         parametrised: bool = False,
     ) -> None:
         m = np.asarray(mask, dtype=bool)
@@ -643,7 +647,7 @@ class LockedJoint(ExplicitConstraint):
 
 
 class _ImplicitLockedJoint(Constraint):
-    """Implicit form of a locked joint: e = log(q_locked^-1 q_joint) on the joint's tangent space."""
+    """Implicit form of a locked joint: e = log(q_locked^-1 q_joint) in the joint's tangent."""
 
     def __init__(self, locked: LockedJoint) -> None:
         super().__init__(locked.name, locked.nv)

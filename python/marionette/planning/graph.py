@@ -254,11 +254,12 @@ class WaypointEdge(Edge):
             q_prev = q_next
         q[:] = q_prev
         self.last_waypoint_configs = configs
+        assert result is not None  # __init__ refuses a waypoint edge without sub-edges
         return result
 
-    def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
-        """Do q1 and q2 agree on what every sub-transition keeps constant (the placements of
-        the objects the transition does not move)?  Necessary for a path q1 -> q2 in it."""
+    def common_leaf_projector(self) -> Projector | None:
+        """The projector of the constraints every sub-transition holds (compiled on first use),
+        None when they hold none in common."""
         if self._common is None:
             subs = self.sub_edges
             self._common = [c for c in subs[0].constraints if all(c in e.constraints for e in subs)]
@@ -266,9 +267,14 @@ class WaypointEdge(Edge):
                 self._common_projector = self.graph.make_projector(
                     self._common, f"common leaf {self.name}"
                 )
-        if not self._common:
+        return self._common_projector
+
+    def can_connect(self, q1: np.ndarray, q2: np.ndarray) -> bool:
+        """Do q1 and q2 agree on what every sub-transition keeps constant (the placements of
+        the objects the transition does not move)?  Necessary for a path q1 -> q2 in it."""
+        proj = self.common_leaf_projector()
+        if proj is None:
             return True
-        proj = self._common_projector
         proj.set_rhs_from(q1)
         return proj.is_satisfied(q2, self.graph.error_threshold)
 
@@ -421,6 +427,7 @@ class LevelSetEdge(WaypointEdge):
             q_prev = q_next
         q[:] = q_prev
         self.last_waypoint_configs = configs
+        assert result is not None  # __init__ refuses a waypoint edge without sub-edges
         return result
 
 
@@ -497,7 +504,7 @@ class ConstraintGraph:
             _ = s.projector
         for e in self.edges.values():
             if isinstance(e, WaypointEdge):
-                e.can_connect(self.problem.q_init, self.problem.q_init)  # its common leaf
+                e.common_leaf_projector()
             if isinstance(e, LevelSetEdge):
                 for sub in e.sub_edges[e.leaf_index :]:
                     _ = sub.target_projector

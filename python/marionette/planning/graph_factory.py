@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -83,12 +83,15 @@ class GraspRules:
                         per_gripper[i] = re.compile(hp if hp else "^$")
             self.rules.append((per_gripper, r.link))
 
+    def _handle_name(self, handle: int | None) -> str:
+        return "" if handle is None else self.handles[handle]
+
     def __call__(self, grasps: tuple[int | None, ...]) -> bool:
         if not self.rules:
             return True
         for per_gripper, link in self.rules:
             if all(
-                p is None or p.fullmatch("" if grasps[i] is None else self.handles[grasps[i]])
+                p is None or p.fullmatch(self._handle_name(grasps[i]))
                 for i, p in enumerate(per_gripper)
             ):
                 return link
@@ -121,7 +124,7 @@ class ConstraintFactory:
         problem: ManipulationProblem,
         placement_margin: float = 0.0,
         preplacement_distance: float = 0.05,
-        object_contacts: dict[str, Sequence[str]] | None = None,
+        object_contacts: Mapping[str, Sequence[str]] | None = None,
         environment_contacts: Sequence[str] | None = None,
     ) -> None:
         self.problem = problem
@@ -247,7 +250,7 @@ class GraphFactory:
         self,
         problem: ManipulationProblem,
         grippers: Sequence[str],
-        objects: dict[str, Sequence[str]],
+        objects: Mapping[str, Sequence[str]],
         rules: Sequence[Rule] = (),
         constraint_factory: ConstraintFactory | None = None,
         graph_constraints: Sequence[AnyConstraint] = (),
@@ -369,6 +372,7 @@ class GraphFactory:
 
     def _make_transition(self, sf: _StateInfo, st: _StateInfo, ig: int) -> None:
         ih = st.grasps[ig]
+        assert ih is not None  # st is sf with gripper ig grasping (see _recurse)
         g, h = self.grippers[ig], self.handles[ih]
         fwd = f"{g} > {h} | {self.state_name(sf.grasps, True)}"
         bwd = f"{g} < {h} | {self.state_name(st.grasps, True)}"

@@ -11,17 +11,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pinocchio as pin
 
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.constraints import LockedJoint
-from marionette.planning.graph import ConstraintGraph, State
+from marionette.planning.graph import AnyConstraint, ConstraintGraph, State
 from marionette.planning.planner import ManipulationRRT, PlanResult
 from marionette.planning.problem import ManipulationProblem, _pose7
 from marionette.planning.query import PlanningError, no_state_message
+
+if TYPE_CHECKING:
+    from marionette.planning.path import ConstrainedPath
 
 
 def guide_configuration(
@@ -39,7 +42,7 @@ def guide_configuration(
     if name not in graph.states:
         raise PlanningError(f"guide: unknown state {name!r}")
     state = graph.states[name]
-    locks = []
+    locks: list[AnyConstraint] = []
     q0 = np.asarray(q_ref, dtype=float).copy()
     for obj, pose in entry.items():
         if obj == "state":
@@ -76,9 +79,10 @@ def leg_states(graph: ConstraintGraph, q_a: np.ndarray, q_b: np.ndarray) -> set[
     over the transitions between main states): the states a leg between two waypoints goes
     through -- the leg's planner extends along no other transition."""
     a, b = graph.state_of(q_a), graph.state_of(q_b)
-    for q, s, what in ((q_a, a, "start"), (q_b, b, "end")):
-        if s is None:
-            raise PlanningError(no_state_message(graph, q, f"leg {what}"))
+    if a is None:
+        raise PlanningError(no_state_message(graph, q_a, "leg start"))
+    if b is None:
+        raise PlanningError(no_state_message(graph, q_b, "leg end"))
     dist_a, dist_b = _distances(graph, a, forward=True), _distances(graph, b, forward=False)
     if b not in dist_a:
         raise PlanningError(f"guide: no sequence of transitions from '{a.name}' to '{b.name}'")
@@ -116,7 +120,9 @@ def plan_through(
     each leg extends only along the transitions of its shortest state sequences
     (:func:`leg_states`)."""
     t0 = time.perf_counter()
-    paths, iterations, nodes, stats = [], 0, 0, {}
+    paths: list[ConstrainedPath] = []
+    stats: dict[str, int] = {}
+    iterations, nodes = 0, 0
     for leg, (a, b) in enumerate(zip(configurations, configurations[1:])):
         left = timeout_s - (time.perf_counter() - t0)
         planner = ManipulationRRT(

@@ -31,7 +31,7 @@ def _pose_attrs(M: pin.SE3) -> dict[str, str]:
 
 
 def srdf_text(source: ModelSource) -> str:
-    """HPP SRDF of one model: ``<gripper>``, ``<handle>``, ``<contact>``, ``<disable_collisions>``."""
+    """HPP SRDF of one model: its gripper, handle, contact and disable_collisions elements."""
     root = ET.Element("robot", name=source.name)
     for name, link, M, clearance in source.grippers:
         g = ET.SubElement(root, "gripper", name=name, clearance=f"{clearance:.12g}")
@@ -79,12 +79,13 @@ def _graph_constraints(problem: ManipulationProblem) -> list[dict[str, Any]]:
     """The graph constraints of the problem file with marionette's values (taken at init)."""
     from marionette.planning.constraints import Kinematics
 
-    out = []
+    out: list[dict[str, Any]] = []
     entries = problem.settings.get("constraints", []) or []
     if not entries:
         return out
+    q_init = problem.require_init()
     kin = Kinematics(problem.model)
-    kin.update(problem.q_init, jacobians=False)
+    kin.update(q_init, jacobians=False)
     model = problem.model
     for e in entries:
         if "fixed_frame" in e:
@@ -115,7 +116,7 @@ def _graph_constraints(problem: ManipulationProblem) -> list[dict[str, Any]]:
                 {
                     "type": "locked_joint",
                     "joint": e["locked_joint"],
-                    "value": problem.q_init[i : i + n].tolist(),
+                    "value": q_init[i : i + n].tolist(),
                 }
             )
     return out
@@ -144,7 +145,7 @@ def hpp_description(
         for o, i in problem.objects.items()
     }
     if legs is None:
-        legs = [(problem.q_init, problem.q_goal)]
+        legs = [(problem.require_init(), problem.require_goal())]
     return {
         "name": problem.name,
         "models": [

@@ -103,7 +103,9 @@ def vertex_shortcut(
     n = len(starts)
     # best[k]: (length, chain of paths) from vertex 0 to vertex k; vertices are in plan order,
     # so one forward pass is Dijkstra on this acyclic graph.
-    best: list[tuple[float, list[ConstrainedPath]]] = [(0.0, [])] + [(math.inf, [])] * (n - 1)
+    best: list[tuple[float, list[ConstrainedPath]]] = [
+        (0.0 if k == 0 else math.inf, []) for k in range(n)
+    ]
     for k in range(n - 1):
         lk, chain = best[k]
         if not math.isfinite(lk):
@@ -114,9 +116,10 @@ def vertex_shortcut(
             best[k + 1] = nxt
         for m in range(k + 2, n):
             original = cum[starts[m]] - cum[starts[k]]
-            if states[k] is None or states[m] is None:
+            state_k, state_m = states[k], states[m]
+            if state_k is None or state_m is None:
                 continue
-            for edge in graph.edges_between(states[k], states[m]):
+            for edge in graph.edges_between(state_k, state_m):
                 new = edge.build(qs[k], qs[m])
                 if not new:
                     continue
@@ -237,6 +240,7 @@ def partial_shortcut(
         run = paths[i0:i1]
         projector = run[0].projector
         free = checker.leaf_free_joints(projector)
+        assert free is not None  # runs keep only leaves of free joints
         joint = int(free[int(rng.integers(len(free)))])
         cum = np.concatenate([[0.0], np.cumsum([p.length for p in run])])
         a, b = sorted(rng.random(2) * cum[-1])

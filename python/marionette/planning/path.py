@@ -252,7 +252,8 @@ def save_plan(
         "metadata": metadata or {},
     }
     json_path.write_text(json.dumps(doc, indent=1))
-    np.savez_compressed(npz_path, **arrays)
+    # allow_pickle spelled out (numpy's default) so that **arrays cannot be read as filling it.
+    np.savez_compressed(npz_path, allow_pickle=True, **arrays)
     return json_path, npz_path
 
 

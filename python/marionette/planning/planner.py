@@ -159,7 +159,7 @@ class Roadmap:
     def shortest_path(self, start: int, goals: set[int]) -> list[ConstrainedPath] | None:
         """Dijkstra on path lengths."""
         dist = {start: 0.0}
-        prev: dict[int, tuple[int, list[ConstrainedPath]]] = {}
+        prev: dict[int, tuple[int, list[ConstrainedPath] | _Reversed]] = {}
         heap = [(0.0, start)]
         while heap:
             d, i = heapq.heappop(heap)

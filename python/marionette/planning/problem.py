@@ -141,6 +141,18 @@ class ManipulationProblem:
     def nv(self) -> int:
         return self.model.nv
 
+    def require_init(self) -> np.ndarray:
+        """``q_init``; raises ProblemError when the problem file gives no ``init``."""
+        if self.q_init is None:
+            raise ProblemError(f"problem '{self.name}' needs an 'init' configuration")
+        return self.q_init
+
+    def require_goal(self) -> np.ndarray:
+        """``q_goal``; raises ProblemError when the problem file gives no ``goal``."""
+        if self.q_goal is None:
+            raise ProblemError(f"problem '{self.name}' needs a 'goal' configuration")
+        return self.q_goal
+
     def create_data(self) -> tuple[pin.Data, pin.GeometryData]:
         """Fresh (Data, GeometryData) for one thread of computation (Model/Data split)."""
         return self.model.createData(), pin.GeometryData(self.geom_model)
@@ -305,20 +317,36 @@ def _parse_srdf(path: Path) -> _SrdfInfo:
         raise ProblemError(f"{path}: malformed SRDF ({type(e).__name__}: {e})") from None
 
 
+def _approach(values: Any, what: str) -> tuple[float, float, float]:
+    """A handle's approach axis: three numbers."""
+    xyz = tuple(float(v) for v in values)
+    if len(xyz) != 3:
+        raise ProblemError(f"{what}: the approach axis needs 3 numbers (x y z), got {len(xyz)}")
+    return xyz[0], xyz[1], xyz[2]
+
+
+def _child(el: ET.Element, tag: str, path: Path) -> ET.Element:
+    """The ``<tag>`` child of an SRDF element; its absence is a :class:`ProblemError`."""
+    child = el.find(tag)
+    if child is None:
+        raise ProblemError(f"{path}: <{el.tag} name={el.attrib.get('name')!r}> has no <{tag}>")
+    return child
+
+
 def _srdf_info(root: ET.Element, path: Path) -> _SrdfInfo:
     info = _SrdfInfo([], [], [], [])
     for g in root.iter("gripper"):
-        link = g.find("link").attrib["name"]
+        link = _child(g, "link", path).attrib["name"]
         info.grippers.append(
             (
                 g.attrib["name"],
                 link,
-                _pose_from_xml(g.find("position")),
+                _pose_from_xml(_child(g, "position", path)),
                 float(g.attrib.get("clearance", 0.0)),
             )
         )
     for h in root.iter("handle"):
-        link = h.find("link").attrib["name"]
+        link = _child(h, "link", path).attrib["name"]
         mask = tuple(True for _ in range(6))
         m = h.find("mask")
         if m is not None:
@@ -326,23 +354,26 @@ def _srdf_info(root: ET.Element, path: Path) -> _SrdfInfo:
         approach = (1.0, 0.0, 0.0)
         a = h.find("approaching_direction")
         if a is not None:
-            approach = tuple(float(v) for v in a.attrib["xyz"].split())
+            approach = _approach(a.attrib["xyz"].split(), f"{path}: handle {h.attrib.get('name')}")
         info.handles.append(
             (
                 h.attrib["name"],
                 link,
-                _pose_from_xml(h.find("position")),
+                _pose_from_xml(_child(h, "position", path)),
                 float(h.attrib.get("clearance", 0.0)),
                 mask,
                 approach,
             )
         )
     for c in root.iter("contact"):
-        link = c.find("link").attrib["name"]
-        pts = np.array([float(v) for v in c.find("point").text.split()]).reshape(-1, 3)
+        link = _child(c, "link", path).attrib["name"]
+        point_text = _child(c, "point", path).text or ""
+        pts = np.array([float(v) for v in point_text.split()]).reshape(-1, 3)
         shape = c.find("shape")
         if shape is not None:
-            idx = [int(v) for v in shape.text.split()]
+            idx = [int(v) for v in (shape.text or "").split()]
+            if not idx:
+                raise ProblemError(f"{path}: contact {c.attrib.get('name')!r} has an empty <shape>")
             pts = pts[idx[1 : 1 + idx[0]]]
         info.contacts.append((c.attrib["name"], link, pts))
     for d in root.iter("disable_collisions"):
@@ -431,7 +462,7 @@ def _add_semantics(sem: Any, info: _SrdfInfo, owner: str) -> None:
                 h.pose.se3(),
                 float(h.clearance),
                 tuple(bool(v) for v in h.mask),
-                tuple(float(v) for v in h.approach),
+                _approach(h.approach, f"{owner}/{local(h.name)}"),
             )
         )
     for c in sem.contacts:
@@ -463,7 +494,7 @@ def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
                     _pose7(h.get("pose", [0, 0, 0, 0, 0, 0, 1]), f"{owner}/{h['name']}.pose"),
                     float(h.get("clearance", 0.0)),
                     tuple(bool(v) for v in h.get("mask", [1] * 6)),
-                    tuple(float(v) for v in h.get("approach", [1, 0, 0])),
+                    _approach(h.get("approach", [1, 0, 0]), f"{owner}/{h['name']}.approach"),
                 )
             )
         for c in entry.get("contacts", []) or []:
@@ -613,7 +644,7 @@ def build_problem(
     # Grippers, handles, contacts become frames / surfaces of the combined model.
     grippers: dict[str, Gripper] = {}
     handles_raw: list[
-        tuple[str, str, str, pin.SE3, float, tuple[bool, ...], tuple[float, ...]]
+        tuple[str, str, str, pin.SE3, float, tuple[bool, ...], tuple[float, float, float]]
     ] = []
     contacts: dict[str, ContactSurface] = {}
     for owner, info in srdf_infos:

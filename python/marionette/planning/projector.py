@@ -88,8 +88,9 @@ class LineSearch:
     ``max_step`` bounds |dq| of one iteration (a trust region; inf = none).
 
     The default (full Newton steps within a 1-rad trust region) is the fastest on the arm
-    pick-and-place benchmark (bench/ur5_box): 6-D pre-grasp IK from uniform samples succeeds 40 % of the time in a median of
-    9 iterations, against 23 % in 11 for Algorithm 1's schedule (tests/python/planning).
+    pick-and-place benchmark (bench/ur5_box): 6-D pre-grasp IK from uniform samples succeeds
+    40 % of the time in a median of 9 iterations, against 23 % in 11 for Algorithm 1's schedule
+    (tests/python/planning).
     """
 
     kind: str = "constant"
@@ -203,7 +204,15 @@ class Projector:
                 implicit.append((e.as_implicit(), 0))
                 continue
             determined.add(e.output_joint)
-            (self.locked if isinstance(e, LockedJoint) else self.relative).append(e)
+            if isinstance(e, LockedJoint):
+                self.locked.append(e)
+            elif isinstance(e, ExplicitRelativePose):
+                self.relative.append(e)
+            else:
+                raise TypeError(
+                    f"explicit constraint {e.name}: {type(e).__name__} is neither a LockedJoint "
+                    "nor an ExplicitRelativePose, the two kinds the projector substitutes"
+                )
 
         self.implicit = [c for c, _ in implicit]
         lv = sorted({lv for _, lv in implicit})
@@ -345,7 +354,7 @@ class Projector:
             p.select_pair(self.kin)
 
     def explicit_error(self, q: np.ndarray) -> float:
-        """How far q is from satisfying the explicit constraints (0 after :meth:`apply_explicit`)."""
+        """How far q is from the explicit constraints (0 after :meth:`apply_explicit`)."""
         err = 0.0
         for lk in self.locked:
             err = max(err, lk.error(q))

@@ -1,4 +1,4 @@
-"""The C++ Newton-Raphson projector (``marionette._core.planning.Projector``) of a :class:`Projector`.
+"""The C++ Newton-Raphson projector (``_core.planning.Projector``) of a :class:`Projector`.
 
 :class:`Projector` (``projector.py``) compiles its constraints (substitution order, placement +
 complement merged into a locked object, free variables, bounds, saturation); this module only
@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from marionette import _core
+from marionette._core import planning as _planning
 from marionette.planning.collision_cpp import _joint_spec
 from marionette.planning.constraints import (
     ComPosition,
@@ -34,7 +34,6 @@ from marionette.planning.constraints import (
 if TYPE_CHECKING:
     from marionette.planning.projector import Projector
 
-_planning = _core.planning
 
 _EMPTY = np.zeros(0)
 SUPPORTED = (
@@ -113,13 +112,15 @@ class CppProjector:
                             "complement", level, placement=index[id(c.placement)]
                         )
                     )
-                else:
+                elif isinstance(c, _ImplicitLockedJoint):
                     lk = c.locked
                     implicit.append(
                         _planning.ImplicitSpec(
                             "locked", level, idx_q=int(lk.idx_q), idx_v=int(lk.idx_v), nq=int(lk.nq)
                         )
                     )
+                else:  # build() asks unsupported() first
+                    raise TypeError(f"constraint {c.name} ({type(c).__name__}) has no C++ twin")
         specs = []
         for plc in placements:
             rels = plc._rel

@@ -73,26 +73,29 @@ def plan_problem(
     settings = problem.settings.get("planner", {})
     max_it = max_iterations or int(settings.get("max_iterations", 5000))
     timeout = timeout_s or float(settings.get("timeout_s", 60.0))
+    q_init, q_goal = problem.q_init, problem.q_goal
+    if q_init is None or q_goal is None:
+        raise PlanningError(f"problem '{problem.name}' needs 'init' and 'goal' configurations")
     graph = graph or graph_from_settings(problem)
     checker = checker or CollisionChecker(problem)
-    for q, what in ((problem.q_init, "initial"), (problem.q_goal, "goal")):
+    for q, what in ((q_init, "initial"), (q_goal, "goal")):
         state = graph.state_of(q)
         if state is None:
             raise PlanningError(no_state_message(graph, q, what))
         if not checker.is_valid(q, checker.grasp_contact_pairs(state.grasps)):
             raise PlanningError(collision_message(checker, q, what))
-    check_reachable(problem, graph, checker, problem.q_init, problem.q_goal)
+    check_reachable(problem, graph, checker, q_init, q_goal)
     if problem.settings.get("guide"):
         rng = np.random.default_rng(seed)
         waypoints = [
-            guide_configuration(problem, graph, checker, entry, problem.q_init, rng)
+            guide_configuration(problem, graph, checker, entry, q_init, rng)
             for entry in problem.settings["guide"]
         ]
         result = plan_through(
             problem,
             graph,
             checker,
-            [problem.q_init, *waypoints, problem.q_goal],
+            [q_init, *waypoints, q_goal],
             seed,
             max_it,
             timeout,
@@ -100,7 +103,7 @@ def plan_problem(
         )
     else:
         planner = ManipulationRRT(problem, graph, checker, seed=seed)
-        result = planner.solve(problem.q_init, [problem.q_goal], max_it, timeout, progress)
+        result = planner.solve(q_init, [q_goal], max_it, timeout, progress)
     limits = Limits.of_robots(
         problem,
         acceleration=float(settings.get("acceleration_limit", 2.0)),

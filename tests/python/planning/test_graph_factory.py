@@ -13,8 +13,8 @@ from marionette.planning.problem import load_problem
 
 TALOS_PLANK = marionette.REPO_ROOT / "tests" / "data" / "planning" / "talos_plank" / "problem.yaml"
 
-# HPP 9.0.2's ConstraintGraphFactory on the same UR5 box problem (../shared/bench/ur5_box/
-# problem.json, "graph" section).
+# HPP 9.0.2's ConstraintGraphFactory on the same UR5 box problem (the "graph" section of
+# bench/ur5_box/problem.yaml, as bench/hpp_side.py poses it to HPP).
 HPP_UR5_STATES = {
     "free",
     "ur5/gripper > box/handle | f_intersec",

@@ -4,6 +4,7 @@ errors, HPP's SRDF syntax (true/false masks) and package:// URIs through a searc
 from __future__ import annotations
 
 import copy
+import re
 import subprocess
 import sys
 
@@ -193,6 +194,50 @@ def test_a_bad_srdf_mask_is_one_line(tmp_path, mask, fragment):
     with pytest.raises(ProblemError) as e:
         load_problem(f)
     assert fragment in str(e.value) and "handle handle" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def _srdf_without_each_required_child():
+    """BOX_SRDF with one of its required children (<link>, <position>, <point>) removed, for
+    every such child of every tag: (srdf text, parent tag, missing tag)."""
+    lines = BOX_SRDF.format(mask="1 1 1 1 1 1").splitlines()
+    parent = None
+    for i, line in enumerate(lines):
+        opening = re.match(r"\s*<(\w+)", line)
+        tag = opening.group(1) if opening else ""
+        if tag in ("handle", "contact"):
+            parent = tag
+        elif tag in ("link", "position", "point"):
+            yield "\n".join(lines[:i] + lines[i + 1 :]), parent, tag
+
+
+@pytest.mark.parametrize("srdf, parent, missing", list(_srdf_without_each_required_child()))
+def test_an_srdf_tag_missing_a_child_is_one_line(tmp_path, srdf, parent, missing):
+    with pytest.raises(ProblemError) as e:
+        load_problem(ur5_box_with(tmp_path, srdf))
+    assert f"<{parent} name=" in str(e.value) and f"has no <{missing}>" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize(
+    "child, fragment",
+    [
+        ('<approaching_direction xyz="1 0"/>', "approach axis needs 3 numbers"),
+        ('<approaching_direction xyz="1 0 0 0"/>', "approach axis needs 3 numbers"),
+    ],
+)
+def test_a_bad_srdf_approach_is_one_line(tmp_path, child, fragment):
+    srdf = BOX_SRDF.format(mask="1 1 1 1 1 1").replace("</handle>", f"  {child}\n  </handle>")
+    with pytest.raises(ProblemError) as e:
+        load_problem(ur5_box_with(tmp_path, srdf))
+    assert fragment in str(e.value) and "handle handle" in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_an_empty_srdf_shape_is_one_line(tmp_path):
+    srdf = BOX_SRDF.format(mask="1 1 1 1 1 1").replace("<shape>4 0 1 2 3</shape>", "<shape/>")
+    with pytest.raises(ProblemError, match="contact 'bottom' has an empty <shape>") as e:
+        load_problem(ur5_box_with(tmp_path, srdf))
     assert "\n" not in str(e.value)
 
 
