@@ -25,7 +25,7 @@ import time
 
 HERE = pathlib.Path(__file__).resolve().parent
 PEER_SCENARIOS = ("nominal", "bounds_binding")  # the scenarios with joint limits
-# Issue 4's targets for our whole tick (kinematics + solve) with the joint bounds.
+# The targets for our whole tick (kinematics + solve) with the joint bounds.
 TARGET_MEDIAN_US, TARGET_P99_US, TARGET_RATIO_TSID = 50.0, 100.0, 0.4
 
 
@@ -161,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         "met_ratio": (ratios["nominal"]["tsid"]["median"] or 1e9) <= TARGET_RATIO_TSID,
     }
     print(
-        f"\n  issue 4 targets (nominal): median <= {TARGET_MEDIAN_US:g} µs "
+        f"\n  targets (nominal): median <= {TARGET_MEDIAN_US:g} µs "
         f"{'met' if targets['met_median'] else 'MISSED'}, p99 <= {TARGET_P99_US:g} µs "
         f"{'met' if targets['met_p99'] else 'MISSED'}, <= {TARGET_RATIO_TSID:g}x TSID "
         f"{'met' if targets['met_ratio'] else 'MISSED'}"

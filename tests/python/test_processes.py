@@ -1,6 +1,6 @@
 """ProcessGroup never leaves a process behind, even when the Python process that opened it is
 ended by SIGTERM (`timeout`, `kill`, a cancelled CI job): the children run in their own sessions,
-so nothing else would stop them (issue-10 trials left a controller, perceive and lcm-logger
+so nothing else would stop them (demo trials once left a controller, perceive and lcm-logger
 running after the demo was killed)."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 #pragma once
-// The reference TALOS stack of the sot tests and benchmark (issue 4):
+// The reference TALOS stack of the sot tests and benchmark:
 //   level 0  joint position/velocity limits (inequality)
 //   level 1  left foot 6D, right foot 6D, CoM 3D          (held where they are)
 //   level 2  right gripper 6D (reach target), left gripper relative to right 6D (held)

@@ -1,4 +1,4 @@
-"""Strict priority (issue 4, Nicolin 2022 eq. 3.5–3.10, Dang 2012 eq. 2.77–2.81): for random
+"""Strict priority (Nicolin 2022 eq. 3.5–3.10, Dang 2012 eq. 2.77–2.81): for random
 stacks built from TALOS Jacobians (feet, CoM, grippers, relative grippers, posture rows, CoM
 box inequalities, joint-velocity bounds at the top), marionette's hierarchy solve gives every
 level the same achieved velocity as an independent brute-force cascade of constrained least
@@ -221,7 +221,7 @@ def test_binding_bounds_hold_and_lower_levels_never_alter_higher_ones(talos, see
 @pytest.mark.parametrize("damping", [0.0, 0.02])
 @pytest.mark.parametrize("seed", range(6))
 def test_posture_under_feet_and_hands_matches_the_textbook_cascade(talos, seed, damping):
-    """Issue 4's stack: the posture of all 32 joints below feet + CoM and both grippers has more
+    """The reference stack: the posture of all 32 joints below feet + CoM and both grippers has more
     rows than the 11 DoF left, which it uses all: solved on its Gram matrix (no QR, no basis
     rotation) when well conditioned, it gives the pseudo-inverse recursion's velocity within
     1e-8 per level; the first level (feet factored on the 18 coordinates they touch, then the
