@@ -7,7 +7,7 @@ import itertools
 import pytest
 
 import marionette
-from marionette.planning.graph import GraphError, WaypointEdge
+from marionette.planning.graph import GraphError, LevelSetEdge, WaypointEdge
 from marionette.planning.graph_factory import GraphFactory, GraspRules, Rule, graph_from_settings
 from marionette.planning.problem import load_problem
 
@@ -41,7 +41,12 @@ HPP_UR5_TRANSITIONS = {
 def test_ur5_box_graph_is_hpps(ur5_box):
     g = graph_from_settings(ur5_box)
     assert set(g.states) == HPP_UR5_STATES
-    assert set(g.edges) == HPP_UR5_TRANSITIONS
+    # HPP's transitions, plus level-set twins: HPP makes them only between two foliated states;
+    # marionette also for one object (graph_factory), each the twin of a transition of HPP's.
+    level_sets = {n for n, e in g.edges.items() if isinstance(e, LevelSetEdge)}
+    assert set(g.edges) - level_sets == HPP_UR5_TRANSITIONS
+    assert level_sets == {"ur5/gripper < box/handle | 0-0_ls"}
+    assert all(n.removesuffix("_ls") in HPP_UR5_TRANSITIONS for n in level_sets)
     grasp = g.edges["ur5/gripper > box/handle | f"]
     assert isinstance(grasp, WaypointEdge)
     assert [s.name.split("_")[-1] for s in grasp.waypoints] == ["pregrasp", "intersec", "preplace"]
@@ -85,8 +90,14 @@ def test_plank_graph_transitions(plank_graph):
     main = g.main_states()
     loops = [e for e in g.top_edges() if e.from_state is e.to_state]
     assert len(loops) == 17 and all(e.weight == 0 for e in loops)
-    grasps = [e for e in g.top_edges() if " > " in e.name]
-    releases = [e for e in g.top_edges() if " < " in e.name]
+    real = [e for e in g.top_edges() if not isinstance(e, LevelSetEdge)]
+    grasps = [e for e in real if " > " in e.name]
+    releases = [e for e in real if " < " in e.name]
+    # Level-set twins (graph_factory): each named after, and moving like, a real transition.
+    for e in g.top_edges():
+        if isinstance(e, LevelSetEdge):
+            twin = g.edges[e.name.removesuffix("_ls")]
+            assert (e.from_state, e.to_state) == (twin.from_state, twin.to_state)
     # 8 one-grasp states reached from free, 8 two-grasp states each reached from 2 one-grasp
     # states: 24 grasp transitions, each with its release.
     assert len(grasps) == 24 and len(releases) == 24
