@@ -72,10 +72,18 @@ def compare(
     problem, cpp: Projector, py: Projector, rng, starts: int, rhs_configs, tweak=None
 ) -> dict:
     """Project the same starts with both backends and count the outcomes (:func:`outcome`);
-    at every start, the first Newton step of both must agree (1e-10): same logic everywhere.
+    at every start, the first Newton step of both must agree: within 1e-6 always (same logic
+    everywhere: a different formula would be off by the step itself), within 1e-10 but at
+    rare ill-conditioned starts (counted as "first step 1e-6", :func:`assert_agree`).
     ``tweak(q0)`` edits the starts in place."""
     model = problem.model
-    counts = {"success": 0, "success 1e-6": 0, "same failure": 0, "disagree": 0}
+    counts = {
+        "success": 0,
+        "success 1e-6": 0,
+        "same failure": 0,
+        "disagree": 0,
+        "first step 1e-6": 0,
+    }
     for k in range(starts):
         q_rhs = rhs_configs[k % len(rhs_configs)]
         py.set_rhs_from(q_rhs)
@@ -95,7 +103,9 @@ def compare(
         py.project(q_p)
         cpp.project(q_c)
         py.max_iterations, cpp.max_iterations = its
-        assert np.abs(pin.difference(model, q_p, q_c)).max() < 1e-10, f"start {k}: first step"
+        step_apart = np.abs(pin.difference(model, q_p, q_c)).max()
+        assert step_apart < 1e-6, f"start {k}: first steps {step_apart:.1e} apart"
+        counts["first step 1e-6"] += int(step_apart >= 1e-10)
     return counts
 
 
@@ -105,16 +115,18 @@ def add(total: dict, counts: dict) -> None:
 
 
 def assert_agree(total: dict, fraction: float = 0.02) -> None:
-    """Disagreements, and successes more than 1e-9 apart, stay rare.  They are runs through
+    """Disagreements, successes more than 1e-9 apart and first steps more than 1e-10 apart stay
+    rare.  They are runs through
     ill-conditioned iterates (far from the manifold, joints saturated and their columns
     removed: the damped Gram matrix J J^T + 1e-8 I has a condition number near 1e8) where
     the ulp-level differences of BLAS vs Eigen sums grow, iteration after iteration (traced:
     1e-16, 1e-14, 1e-11, 1e-8, ...), until they change where or whether the run ends.
     Algorithm 1's short steps and the 44-dof humanoid spend more iterations there than the
     default schedule on the UR arms."""
-    n = sum(total.values())
+    n = sum(v for k, v in total.items() if k != "first step 1e-6")  # one outcome per start
     assert total["disagree"] <= fraction * n, total
     assert total["success 1e-6"] <= fraction * n, total
+    assert total["first step 1e-6"] <= fraction * n, total
 
 
 @pytest.mark.parametrize("problem_file", ["ur5_box", "ur10_box"])
