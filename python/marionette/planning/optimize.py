@@ -77,9 +77,39 @@ def _cut_run(run, cum, a, b) -> list[ConstrainedPath]:
 
 
 def _drop_empty(paths: list[ConstrainedPath]) -> list[ConstrainedPath]:
-    """Paths of no length dropped (the plan stays continuous: their ends coincide)."""
-    out = [p for p in paths if p.length > 1e-9]
-    return out or list(paths[:1])
+    """Paths of no length dropped, the plan kept continuous to the bit. The length counts the
+    free coordinates only: a dropped path may still move explicit ones (an object's pose
+    substituted anew, ~1e-10), so the next kept path starts where the dropped one did (the last
+    one ends where the plan ends)."""
+    if not paths:
+        return []
+    out: list[ConstrainedPath] = []
+    anchor = paths[0].start
+    for p in paths:
+        if p.length <= 1e-9:
+            continue
+        if not np.array_equal(p.start, anchor) and np.abs(p.start - anchor).max() < 1e-8:
+            p = _with_ends(p, anchor, p.end)
+        out.append(p)
+        anchor = p.end
+    if not out:
+        return list(paths[:1])
+    last = out[-1]
+    if (
+        not np.array_equal(last.end, paths[-1].end)
+        and np.abs(last.end - paths[-1].end).max() < 1e-8
+    ):
+        out[-1] = _with_ends(last, last.start, paths[-1].end)
+    return out
+
+
+def _with_ends(p: ConstrainedPath, start: np.ndarray, end: np.ndarray) -> ConstrainedPath:
+    """``p`` with its first and last points replaced (by configurations within rounding of
+    them), under the same right-hand sides."""
+    points = p.points.copy()
+    points[0], points[-1] = start, end
+    p.projector.restore_rhs(p.rhs_state)
+    return ConstrainedPath(p.edge, points, p.projector, p.rhs)
 
 
 def vertex_shortcut(
