@@ -68,7 +68,6 @@ class PyHierarchy {
     report["ranks"] = r.ranks;
     report["num_qp"] = r.num_qp;
     report["num_active_set"] = r.num_active_set;
-    report["num_repaired"] = r.num_repaired;
     report["qp_levels"] = r.qp_levels;
     report["active_set_levels"] = r.active_set_levels;
     report["gram_levels"] = r.gram_levels;

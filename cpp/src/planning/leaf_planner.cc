@@ -212,7 +212,11 @@ class ConstrainedLeaf {
  public:
   ConstrainedLeaf(PathValidator* validator, Projector* projector, const PairMotion& motion,
                   const ConstrainedLeafQuery& query)
-      : validator_(validator), projector_(projector), motion_(motion), query_(query) {}
+      : validator_(validator),
+        projector_(projector),
+        motion_(motion),
+        query_(query),
+        dv_(validator->model().nv) {}
 
   // Projects q in place onto the leaf; false when the projection fails.
   bool Project(Eigen::VectorXd* q) {

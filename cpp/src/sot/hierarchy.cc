@@ -1011,10 +1011,10 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
 }
 
 // Solves the level's QP (after PrepareRows / PrepareObjective) into w.x; records the working
-// set as the next tick's first guess. Returns how: 0 active set (warm guess or primal
-// iterations), 1 eiquadprog (its working set verified), 2 eiquadprog's point not verified and the
-// primal method's taken (shortcut off), -1 none verified (w.x = the primal method's last iterate:
-// feasible, not proven optimal).
+// set as the next tick's first guess. Returns how: 0 the active-set shortcut (warm guess or primal
+// iterations), 1 eiquadprog (its working set verified; with the shortcut off, an unverified
+// eiquadprog point is repaired by the primal iterations, still not the shortcut), -1 none
+// verified (w.x = the primal method's last iterate: feasible, not proven optimal).
 int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, const QpShape& q,
             bool shortcut, double tol, HierarchyReport* report) {
   auto accept = [&]() {
@@ -1054,9 +1054,9 @@ int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, 
       accept();
       return 1;
     }
-    if (primal()) {
+    if (primal()) {  // eiquadprog's point not verified: repaired by the primal iterations
       accept();
-      return 2;
+      return 1;
     }
   }
   // Nothing verified: the primal method's last iterate, feasible whatever its outcome.
@@ -1101,7 +1101,6 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   const double tol = options.constraint_tolerance;
   report.num_qp = 0;
   report.num_active_set = 0;
-  report.num_repaired = 0;
   report.qp_failures = 0;
   w.Z.setIdentity();
   w.x.setZero();
@@ -1249,8 +1248,6 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
         if (how == 0) {
           report.active_set_levels[l] = true;
           ++report.num_active_set;
-        } else if (how == 2) {
-          ++report.num_repaired;
         } else if (how < 0) {
           ++report.qp_failures;
         }

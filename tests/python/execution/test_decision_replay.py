@@ -29,8 +29,8 @@ def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     # Independent reference: the report's per-step records, written by the live supervisor.
     events = [d.event for d in recorded]
     assert (
-        events.count("switch_accepted") == events.count("end_check_passed") == steps == 9
-    )  # the seed-0 plan
+        events.count("switch_accepted") == events.count("end_check_passed") == steps >= 3
+    )  # every step of the plan (at least reach, carry, release) switched to and ended
     accepted = [d for d in recorded if d.event == "switch_accepted"]
     assert [int(d.inputs["active_controller_id"]) for d in accepted] == [
         s["controller_id"] for s in report["steps"]

@@ -17,6 +17,7 @@ from marionette.control.client import ControllerClient
 from marionette.lcm_bus import MessageLog
 from marionette.processes import ProcessGroup
 from marionette.scenarios import SCENARIOS
+from marionette.scenarios.plan_cache import plan_folder
 
 pytestmark = pytest.mark.slow
 
@@ -26,7 +27,7 @@ def test_a_supervisor_killed_mid_carry_holds_and_a_new_one_finishes(
 ):
     p = ur10_box
     scenario = SCENARIOS["ur10-box"]
-    plan_json = plan_cache / f"{Path(scenario.problem).stem}-seed{scenario.seed}" / "plan.json"
+    plan_json = plan_folder(Path(scenario.problem), scenario.seed, plan_cache) / "plan.json"
     assert plan_json.exists()
     carry = next(s for s in p.steps if s.transition.endswith("_34"))
     supervise = [sys.executable, "-m", "marionette.cli", "supervise", str(plan_json)]

@@ -116,8 +116,6 @@ struct HierarchyReport {
   std::vector<double> dampings;   ///< μ used at each level (0 = undamped)
   int num_qp = 0;                 ///< QP levels in the last solve (eiquadprog or the shortcut)
   int num_active_set = 0;         ///< of which solved by the active-set shortcut
-  int num_repaired = 0;     ///< of which eiquadprog's point failed the KKT certificate and the
-                            ///< primal active-set method's replaced it (shortcut off)
   int qp_failures = 0;      ///< QPs that did not converge (their level kept the unconstrained step)
   int remaining_dof = 0;    ///< r after the last level
   int last_qp_status = -1;  ///< eiquadprog status of the last QP (0 = optimal)
