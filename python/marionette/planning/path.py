@@ -181,7 +181,7 @@ def save_plan(
     limits: Any = None,
 ) -> tuple[Path, Path]:
     """Write ``<path>.json`` and ``<path>.npz`` (see the module docstring for the format).
-    ``limits`` (:class:`marionette.planning.optimize.Limits`): also time every sample."""
+    ``limits`` (:class:`marionette.planning.timing.Limits`): also time every sample."""
     path = Path(path)
     base = path.with_suffix("") if path.suffix in (".json", ".npz") else path
     json_path, npz_path = base.with_suffix(".json"), base.with_suffix(".npz")
@@ -191,7 +191,7 @@ def save_plan(
     sampled = [p.sample(step) for p in paths]
     durations: list[float] = []
     if limits is not None:
-        from marionette.planning.optimize import time_parameterize
+        from marionette.planning.timing import time_parameterize
 
         times, durations = time_parameterize(paths, limits, [s for s, _ in sampled])
         for i, t in enumerate(times):

@@ -21,7 +21,7 @@ from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph import ConstraintGraph
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.guide import guide_configuration, plan_through
-from marionette.planning.optimize import Limits, optimize_paths
+from marionette.planning.optimize import optimize_paths
 from marionette.planning.path import ConstrainedPath
 from marionette.planning.planner import ManipulationRRT, PlanResult
 from marionette.planning.problem import ManipulationProblem
@@ -31,13 +31,14 @@ from marionette.planning.query import (
     collision_message,
     no_state_message,
 )
+from marionette.planning.timing import Limits
 
 
 @dataclasses.dataclass
 class Solution:
     """``result``: the planner's outcome (raw paths); ``paths``: the optimised plan (the raw one
     when optimisation is off or planning failed); ``limits``: velocity and acceleration limits
-    for timing it (plan files, :func:`marionette.planning.optimize.time_parameterize`)."""
+    for timing it (plan files, :func:`marionette.planning.timing.time_parameterize`)."""
 
     result: PlanResult
     paths: list[ConstrainedPath]

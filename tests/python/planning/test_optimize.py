@@ -13,15 +13,13 @@ from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.hpp_export import arm_indices
 from marionette.planning.optimize import (
-    Limits,
-    _profile_time,
     arm_path_length,
     optimize_paths,
     partial_shortcut,
-    time_parameterize,
 )
 from marionette.planning.planner import ManipulationRRT
 from marionette.planning.problem import load_problem
+from marionette.planning.timing import Limits, _profile_time, time_parameterize
 
 PROBLEMS = marionette.REPO_ROOT / "python" / "marionette" / "planning" / "problems"
 
