@@ -51,6 +51,14 @@ class Processes:
     view_scene: Path | None = None
 
 
+# The silence after which a trial's controller holds the robot. A trial's Python process runs
+# perception, the camera loop and its reports beside the supervisor's heartbeat thread, and that
+# thread can wait for the interpreter's lock longer than the controller's default 100 ms (a
+# dedicated supervisor's budget): deburr and plank-flip trials were held as "silent" at 100 ms on
+# a 2-core machine while their process was alive. A dead trial still stops the robot within this.
+TRIAL_SUPERVISOR_TIMEOUT_S = 0.5
+
+
 def controller_command(processes: Processes, url: str, speed: float) -> list[Any]:
     """The marionette-controller command line of a trial."""
     return [
@@ -67,6 +75,8 @@ def controller_command(processes: Processes, url: str, speed: float) -> list[Any
         str(processes.camera_rate),
         "--status-rate",
         str(processes.status_rate),
+        "--supervisor-timeout",
+        str(TRIAL_SUPERVISOR_TIMEOUT_S),
         *processes.controller_args,
     ]
 
