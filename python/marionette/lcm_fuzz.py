@@ -27,7 +27,7 @@ import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from marionette.lcm_schema import INTEGERS, PRIMITIVE_SIZES, Field, Schemas
+from marionette.lcm_schema import INTEGERS, PRIMITIVE_SIZES, STRUCT_FORMATS, Field, Schemas
 from marionette.lcm_validate import LcmType, schemas
 
 KINDS = (
@@ -41,16 +41,6 @@ KINDS = (
     "extreme",
     "bad_boolean",
 )
-_FORMATS = {
-    "int8_t": "b",
-    "int16_t": "h",
-    "int32_t": "i",
-    "int64_t": "q",
-    "float": "f",
-    "double": "d",
-    "boolean": "b",
-    "byte": "B",
-}
 
 
 @dataclass(frozen=True)
@@ -87,7 +77,7 @@ def layout(lcm_type: LcmType, data: bytes, schema: Schemas | None = None) -> lis
                     pos += 4 + length
                 elif f.type in PRIMITIVE_SIZES:
                     size = PRIMITIVE_SIZES[f.type]
-                    (value,) = struct.unpack_from(">" + _FORMATS[f.type], data, pos)
+                    (value,) = struct.unpack_from(">" + STRUCT_FORMATS[f.type], data, pos)
                     if f.max is not None:
                         role = "count"
                     elif f.type == "boolean":
@@ -172,7 +162,7 @@ class Fuzzer:
             lie = max(lo, min(hi, lie))
             if lie == s.value:
                 lie = s.value + 1
-            struct.pack_into(">" + _FORMATS[s.field.type], out, s.offset, lie)
+            struct.pack_into(">" + STRUCT_FORMATS[s.field.type], out, s.offset, lie)
         elif kind == "string_lie":
             s = rng.choice(by_role["string"])
             lie = rng.choice([0, -1, -(1 << 31), 1 << 30, (1 << 31) - 1, s.value + 1, s.value - 1])
@@ -204,7 +194,9 @@ class Fuzzer:
                 struct.pack_into(">f", out, s.offset, struct.unpack(">d", bits.to_bytes(8))[0])
         elif kind == "extreme":
             s = rng.choice(by_role["number"])
-            struct.pack_into(">" + _FORMATS[s.field.type], out, s.offset, self._extreme(s, now_us))
+            struct.pack_into(
+                ">" + STRUCT_FORMATS[s.field.type], out, s.offset, self._extreme(s, now_us)
+            )
         elif kind == "bad_boolean":
             s = rng.choice(by_role["boolean"])
             out[s.offset] = rng.randrange(2, 256)

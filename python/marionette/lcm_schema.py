@@ -31,6 +31,17 @@ PRIMITIVE_SIZES = {
     "boolean": 1,
     "byte": 1,
 }
+# Python ``struct`` codes of the primitives (big-endian, as LCM encodes them: prefix ">").
+STRUCT_FORMATS = {
+    "int8_t": "b",
+    "int16_t": "h",
+    "int32_t": "i",
+    "int64_t": "q",
+    "float": "f",
+    "double": "d",
+    "boolean": "b",
+    "byte": "B",
+}
 INTEGERS = ("int8_t", "int16_t", "int32_t", "int64_t")
 NUMBERS = (*INTEGERS, "float", "double")
 MIN_STRING_SIZE = 5  # length prefix + NUL

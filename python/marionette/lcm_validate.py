@@ -19,7 +19,7 @@ from typing import Any, Protocol, cast
 
 import numpy as np
 
-from marionette.lcm_schema import MIN_STRING_SIZE, PRIMITIVE_SIZES, Schemas
+from marionette.lcm_schema import MIN_STRING_SIZE, PRIMITIVE_SIZES, STRUCT_FORMATS, Schemas
 
 # The reasons, as the controller counts them (wire::ToString).
 WRONG_TYPE = "wrong type"
@@ -42,17 +42,6 @@ REASONS = (
     TIME_OUT_OF_RANGE,
     TRAILING_BYTES,
 )
-
-_FORMATS = {
-    "int8_t": "b",
-    "int16_t": "h",
-    "int32_t": "i",
-    "int64_t": "q",
-    "float": "f",
-    "double": "d",
-    "boolean": "b",
-    "byte": "B",
-}
 
 
 class LcmType(Protocol):
@@ -149,7 +138,7 @@ def _plan(name: str) -> tuple[_Op, ...]:
                 f.name,
                 kind,
                 f.type,
-                struct.Struct(">" + _FORMATS[f.type]) if primitive else None,
+                struct.Struct(">" + STRUCT_FORMATS[f.type]) if primitive else None,
                 size,
                 tuple((d.fixed_size, -1) if d.fixed else (0, index[d.sizer]) for d in f.dims),
                 primitive
