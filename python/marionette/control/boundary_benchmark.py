@@ -54,6 +54,25 @@ from marionette.processes import ProcessGroup
 UR10 = ["--robot", "ur10", "--backend", "kinematic", "--camera-rate", "0"]
 
 
+def _record_commands_and_holds(
+    c: ControllerClient, commands: list[tuple[float, int, np.ndarray]], holds: list[int]
+) -> None:
+    """Appends every ROBOT_COMMAND (wall time, controller time, joint positions) to ``commands``
+    and the tick of every silence hold the controller journals to ``holds``."""
+    c.bus.subscribe(
+        channels.ROBOT_COMMAND,
+        lcmt_robot_command,
+        lambda m: commands.append((time.monotonic(), m.utime, np.array(m.joint_position))),
+    )
+    c.bus.subscribe(
+        channels.CONTROLLER_JOURNAL,
+        lcmt_controller_journal,
+        lambda j: holds.extend(
+            t for t, ch in zip(j.tick, j.channel) if ch == "CONTROLLER_SILENCE_HOLD"
+        ),
+    )
+
+
 def _controller(group: ProcessGroup, url: str, binary: Path, *args: str) -> ControllerClient:
     proc = group.start("controller", [str(binary), "--lcm-url", url, *UR10, *args])
     client = ControllerClient(url)
@@ -239,18 +258,7 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
         c = _controller(group, url, binary, "--state-rate", "1000", "--status-rate", "100")
         commands: list[tuple[float, int, np.ndarray]] = []
         holds: list[int] = []
-        c.bus.subscribe(
-            channels.ROBOT_COMMAND,
-            lcmt_robot_command,
-            lambda m: commands.append((time.monotonic(), m.utime, np.array(m.joint_position))),
-        )
-        c.bus.subscribe(
-            channels.CONTROLLER_JOURNAL,
-            lcmt_controller_journal,
-            lambda j: holds.extend(
-                t for t, ch in zip(j.tick, j.channel) if ch == "CONTROLLER_SILENCE_HOLD"
-            ),
-        )
+        _record_commands_and_holds(c, commands, holds)
         try:
             for trial in range(trials):
                 driver = group.start(
@@ -355,18 +363,7 @@ def carry_kill(binary: Path, log=print) -> dict:
         holds: list[int] = []
         boxes: list[tuple[int, np.ndarray]] = []
         states: list = []
-        c.bus.subscribe(
-            channels.ROBOT_COMMAND,
-            lcmt_robot_command,
-            lambda m: commands.append((time.monotonic(), m.utime, np.array(m.joint_position))),
-        )
-        c.bus.subscribe(
-            channels.CONTROLLER_JOURNAL,
-            lcmt_controller_journal,
-            lambda j: holds.extend(
-                t for t, ch in zip(j.tick, j.channel) if ch == "CONTROLLER_SILENCE_HOLD"
-            ),
-        )
+        _record_commands_and_holds(c, commands, holds)
         c.bus.subscribe(
             channels.SIM_OBJECT_POSES,
             lcmt_object_poses,
