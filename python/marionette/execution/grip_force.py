@@ -150,6 +150,9 @@ class GripForceRecorder:
             "contact_min_n": float(np.nanmin(c)),
             "contact_max_n": float(np.nanmax(c)),
             "estimate_mean_n": float(np.mean(e)),
+            # Sample by sample: how far the estimate the admittance regulates is from the force
+            # the jaws actually press with (eq. 3.11-3.13 hold when this is near 0).
+            "estimate_minus_contact_median_n": float(np.nanmedian(e - c)),
             "contact_within_tolerance": float(np.mean(np.abs(c - target) <= tolerance)),
         }
 

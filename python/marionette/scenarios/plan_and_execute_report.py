@@ -225,20 +225,22 @@ def _markdown(r: dict[str, Any]) -> str:
             "estimate = joint effort through eq. 3.11-3.13; from 1 s after the switch to "
             "admittance to the release.",
             "",
-            "| gripper | window [s] | contact median (min-max) | estimate mean |",
-            "|---|---|---|---|",
+            "| gripper | window [s] | contact median (min-max) | estimate mean | "
+            "estimate - contact, median |",
+            "|---|---|---|---|---|",
         ]
         for name, d in g["grippers"].items():
             for h in d["held"] or [{"never_switched": True}]:
                 if "contact_median_n" not in h:
                     lines.append(
-                        f"| {name} | - | never switched to admittance or no contact measured | - |"
+                        f"| {name} | - | never switched to admittance or no contact measured | - | - |"
                     )
                     continue
                 lines.append(
                     f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | "
                     f"{h['contact_median_n']:.2f} N ({h['contact_min_n']:.2f}-"
-                    f"{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N |"
+                    f"{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N | "
+                    f"{h['estimate_minus_contact_median_n']:+.2f} N |"
                 )
         lines += ["", f"![{g['plot']}]({g['plot']})", ""]
     lines += [

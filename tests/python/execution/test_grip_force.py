@@ -133,3 +133,4 @@ def test_settled_windows_start_a_second_after_the_estimate_reaches_the_threshold
     assert a == pytest.approx(4.1) and b == 8.0
     s = rec.holding_summary("g", a, b, target=5.0)
     assert s["contact_median_n"] == pytest.approx(5.5) and s["contact_within_tolerance"] == 1.0
+    assert s["estimate_minus_contact_median_n"] == pytest.approx(-0.5)

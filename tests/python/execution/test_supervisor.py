@@ -204,9 +204,10 @@ def test_demo_ur10_box_end_to_end_in_mujoco(tmp_path, lcm_env):
     # is short (~12 samples after the settling second).
     outside = round((1.0 - held["contact_within_tolerance"]) * held["samples"])
     assert outside <= max(1, int(0.05 * held["samples"])), held
-    assert abs(held["estimate_mean_n"] - held["contact_median_n"]) < 0.5, (
-        held
-    )  # eq. 3.11-3.13 holds
+    # Eq. 3.11-3.13 hold: sample by sample, the estimate the admittance regulates is the force the
+    # jaws press with (a mean against a median would count the carry's one transient sample on
+    # one side only).
+    assert abs(held["estimate_minus_contact_median_n"]) < 0.5, held
     assert report["criteria"]["grip_within_tolerance"]
     for name in (
         "report.md",
