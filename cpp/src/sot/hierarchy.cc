@@ -98,6 +98,7 @@ struct HierarchyWorkspace::Impl {
     for (Eigen::VectorXd* e : {&row_val, &row_lo, &row_hi}) e->resize(mc);
     row_live.resize(mc);
     in_W.assign(mc, 0);
+    implied.assign(mc, 0);
     s_eqp.resize(mi);
     s_cur.resize(mi);
     W_rows.reserve(mc);
@@ -178,6 +179,8 @@ struct HierarchyWorkspace::Impl {
   Eigen::VectorXd g1, row_val, row_lo, row_hi;
   double qp_scale = 0.0;  // the largest curvature or squared row norm of the QP
   std::vector<char> row_live;
+  // The primal method's rows found dependent on W's when they joined it (see PrimalActiveSet).
+  std::vector<char> implied;
   // The working set: rows (t), sides (+1 upper, -1 lower), in_W per row. Its equality QP: K
   // (r x r, H plus the own rows of W, factored), hig = K^-1 g_W (r), for its kc carried rows
   // AW (r x kc) their directions, HiA = K^-1 AW, S = AW^T HiA (kc x kc), beta their targets,
@@ -897,8 +900,23 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
   }
   const double dual_tol = DualTolerance(w, q);
   const int max_iterations = 3 * (r + nt) + 10;
+  // A carried row that blocked the last step but is a combination of W's carried rows up to
+  // rounding (its slope along the step above the slope test's rounding, yet its direction
+  // within 1e-10 of span(W): repeated or dependent tasks at a degenerate vertex) makes W
+  // dependent. The rows it depends on hold it where it is in exact arithmetic, so it leaves W
+  // and is not tried again until a row leaves W (Verify checks it at the end either way).
+  std::fill(w.implied.begin(), w.implied.begin() + nt, 0);
+  int joined = -1;
   for (int iteration = 0; iteration < max_iterations; ++iteration) {
-    if (!SolveWorkingSet(w, q)) {
+    const bool solved = SolveWorkingSet(w, q);
+    if (!solved && joined >= 0 && joined < q.nc) {
+      RemoveFromWorkingSet(w, static_cast<int>(w.W_rows.size()) - 1);
+      w.implied[joined] = 1;
+      joined = -1;
+      continue;
+    }
+    joined = -1;
+    if (!solved) {
       return false;
     }
     auto p = w.dx.head(r);  // the step in ũ; in s: s_eqp - s
@@ -910,7 +928,7 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
     double alpha = 1.0;
     int blocking = -1, blocking_side = 0;
     for (int t = 0; moves && t < nt; ++t) {
-      if (!w.row_live[t] || w.in_W[t]) continue;
+      if (!w.row_live[t] || w.in_W[t] || w.implied[t]) continue;
       const auto d = w.D.col(t).head(r);
       double value = w.row_val[t] + d.dot(u), slope = d.dot(p);
       double scale = d.cwiseAbs().maxCoeff() * p_norm;
@@ -943,6 +961,7 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
       u.noalias() += alpha * p;
       s += alpha * (w.s_eqp.head(q.mi) - s);
       AddToWorkingSet(w, blocking, blocking_side);
+      joined = blocking;
       continue;
     }
     u = w.ut.head(r);
@@ -951,6 +970,7 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
     if (wrong == -1) return true;
     if (wrong == -2) return false;
     RemoveFromWorkingSet(w, wrong);
+    std::fill(w.implied.begin(), w.implied.begin() + nt, 0);  // W's span shrank
   }
   return false;
 }
@@ -1008,6 +1028,24 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
     }
   }
   return true;
+}
+
+// A row PrepareRows left out as fixed (its direction in the remaining freedom below the rank
+// tolerance) still moves by that direction times the step, and a QP step along a direction of
+// no curvature can be long enough (1e10 on a near-singular arm) to move it by O(1): a carried
+// row then breaks a level above, an own row changes its slack unseen. Such rows, moved by more
+// than the tolerance at the QP's point w.x, are put back (row_live); true if any was.
+bool ReviveMovedRows(Impl& w, int mi, double tol) {
+  bool revived = false;
+  for (int t = 0; t < w.num_carried + mi; ++t) {
+    if (w.row_live[t]) continue;
+    const bool own = t >= w.num_carried;
+    const int i = own ? t - w.num_carried : t;
+    const int col = own ? w.c_col[i] : w.g_col[i];
+    const double value = col >= 0 ? w.x[col] : (own ? w.C.row(i) : w.G.row(i)).dot(w.x);
+    if (std::abs(value - w.row_val[t]) > tol) w.row_live[t] = revived = true;
+  }
+  return revived;
 }
 
 // Solves the level's QP (after PrepareRows / PrepareObjective) into w.x; records the working
@@ -1242,9 +1280,12 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
         ++report.num_qp;
         const QpShape q{r, rho, w.num_carried, mi, options.qp_regularization};
         PrepareRows(w, Z_blk, mi, options.rank_tolerance);
-        const int how = PrepareObjective(w, r, m, rho, report.dampings[l], q.eps)
-                            ? SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report)
-                            : -1;
+        int how = PrepareObjective(w, r, m, rho, report.dampings[l], q.eps)
+                      ? SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report)
+                      : -1;
+        if (how >= 0 && ReviveMovedRows(w, mi, tol)) {
+          how = SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report);
+        }
         if (how == 0) {
           report.active_set_levels[l] = true;
           ++report.num_active_set;

@@ -233,7 +233,8 @@ def _markdown(r: dict[str, Any]) -> str:
             for h in d["held"] or [{"never_switched": True}]:
                 if "contact_median_n" not in h:
                     lines.append(
-                        f"| {name} | - | never switched to admittance or no contact measured | - | - |"
+                        f"| {name} | - | never switched to admittance or no contact measured "
+                        "| - | - |"
                     )
                     continue
                 lines.append(
