@@ -12,7 +12,9 @@ With a shared key (``MARIONETTE_KEY``, :mod:`marionette.lcm_signing`) the comman
 messages are signed when sent and must be signed when received. A bus that sent a controller spec
 drives the controller: from then on it sends the supervisor's heartbeat (COMMAND ``heartbeat``
 every :data:`HEARTBEAT_PERIOD_S`) until it stops — the controller holds the robot when its
-supervisor falls silent.
+supervisor falls silent. The beats come from a C++ thread that never needs the interpreter's lock
+(a Python thread starved by a long call elsewhere would silence a live supervisor), fed by a
+Python thread: they stop :data:`HEARTBEAT_HANG_S` after this process's Python stops running.
 """
 
 from __future__ import annotations
@@ -32,6 +34,10 @@ from marionette import lcm_signing as signing
 from marionette.lcm_validate import LcmType, validate
 
 HEARTBEAT_PERIOD_S = 0.02  # five per 100 ms, the controller's default --supervisor-timeout
+# The heartbeat is sent by a C++ thread (marionette._wire), heard even while another Python
+# thread keeps the interpreter's lock, as long as this process's Python ran within this long: a
+# supervisor that hangs falls silent after it (one that dies, at once).
+HEARTBEAT_HANG_S = 1.0
 
 DEFAULT_LCM_URL = "udpm://239.255.76.67:7667?ttl=0"
 
@@ -71,6 +77,8 @@ class LcmBus:
         self._running = False
         self._heartbeat: threading.Thread | None = None
         self._heartbeat_stop = threading.Event()
+        # The supervisor's heartbeat once this bus sent a spec (marionette._wire.Heartbeat).
+        self.heartbeat: Any = None
         self.source = f"{os.path.basename(sys.argv[0]) or 'python'}:{os.getpid()}"
 
     def publish(self, channel: str, message: Any) -> None:
@@ -129,21 +137,20 @@ class LcmBus:
     def _start_heartbeat(self) -> None:
         if self._heartbeat is not None:
             return
+        from marionette._wire import Heartbeat
+
+        self.heartbeat = Heartbeat(
+            self.url, self.source, self.key or b"", HEARTBEAT_PERIOD_S, HEARTBEAT_HANG_S
+        )
         self._heartbeat_stop.clear()
-        self._heartbeat = threading.Thread(target=self._beat, name="lcm-heartbeat", daemon=True)
+        self._heartbeat = threading.Thread(target=self._feed, name="lcm-heartbeat", daemon=True)
         self._heartbeat.start()
 
-    def _beat(self) -> None:
-        from marionette import lcmt_command
-
-        msg = lcmt_command()
-        msg.command, msg.source = "heartbeat", self.source
+    def _feed(self) -> None:
+        """Shows the C++ heartbeat thread that this process still runs Python."""
+        assert self.heartbeat is not None
         while not self._heartbeat_stop.wait(HEARTBEAT_PERIOD_S):
-            msg.utime = int(time.time() * 1e6)
-            data = msg.encode()
-            if self._signer is not None:
-                data = self._signer.sign(channels.COMMAND, data)
-            self.lcm.publish(channels.COMMAND, data)
+            self.heartbeat.feed()
 
     def handle(self, timeout_s: float) -> bool:
         """Handle at most one message, waiting up to ``timeout_s``; True if one was handled."""
@@ -167,6 +174,8 @@ class LcmBus:
         if self._heartbeat is not None:
             self._heartbeat.join(timeout=1.0)
             self._heartbeat = None
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
 
     def _loop(self) -> None:
         while self._running:

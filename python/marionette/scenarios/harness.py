@@ -30,7 +30,7 @@ from marionette.control.client import ControllerClient
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ManagedProcess, ProcessError, ProcessGroup
 from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
-from marionette.scenarios.report import controller_summary
+from marionette.scenarios.report import controller_summary, heartbeat_summary
 
 READY_TIMEOUT_S = 60.0  # the controller's first state (MuJoCo scene load, camera set-up)
 
@@ -51,14 +51,6 @@ class Processes:
     view_scene: Path | None = None
 
 
-# The silence after which a trial's controller holds the robot. A trial's Python process runs
-# perception, the camera loop and its reports beside the supervisor's heartbeat thread, and that
-# thread can wait for the interpreter's lock longer than the controller's default 100 ms (a
-# dedicated supervisor's budget): deburr and plank-flip trials were held as "silent" at 100 ms on
-# a 2-core machine while their process was alive. A dead trial still stops the robot within this.
-TRIAL_SUPERVISOR_TIMEOUT_S = 0.5
-
-
 def controller_command(processes: Processes, url: str, speed: float) -> list[Any]:
     """The marionette-controller command line of a trial."""
     return [
@@ -75,8 +67,6 @@ def controller_command(processes: Processes, url: str, speed: float) -> list[Any
         str(processes.camera_rate),
         "--status-rate",
         str(processes.status_rate),
-        "--supervisor-timeout",
-        str(TRIAL_SUPERVISOR_TIMEOUT_S),
         *processes.controller_args,
     ]
 
@@ -151,4 +141,6 @@ def harness(
             )
         yield run
         report["controller"] = controller_summary(client.status)
+        if client.bus.heartbeat is not None:
+            report["heartbeat"] = heartbeat_summary(client.bus.heartbeat)
         group.check_alive()

@@ -79,6 +79,17 @@ def controller_summary(status: Any) -> dict[str, Any]:
     }
 
 
+def heartbeat_summary(heartbeat: Any) -> dict[str, Any]:
+    """The supervisor's heartbeat at the end of a run (marionette._wire.Heartbeat):
+    ``report["heartbeat"]``. ``longest_python_stall_s``: the longest time the trial's Python was
+    kept from running — what a heartbeat sent from Python would have been silent for."""
+    return {
+        "beats": heartbeat.beats,
+        "withheld": heartbeat.withheld,
+        "longest_python_stall_s": heartbeat.longest_feed_gap_s,
+    }
+
+
 def speed_text(speed: float) -> str:
     """How fast the trial's controller ran, for its report.md (report.json: ``speed``)."""
     if speed == 0:
@@ -104,6 +115,15 @@ def controller_and_plots_lines(report: dict[str, Any]) -> list[str]:
         "",
         ", ".join(f"{k}: {v}" for k, v in report.get("controller", {}).items()),
         "",
+        *(
+            [
+                "supervisor heartbeat (sent from C++, fed from Python): "
+                + ", ".join(f"{k}: {v}" for k, v in report["heartbeat"].items()),
+                "",
+            ]
+            if "heartbeat" in report
+            else []
+        ),
         "## Plots",
         "",
     ] + [f"![{p}]({p})" for p in report.get("plots", [])]

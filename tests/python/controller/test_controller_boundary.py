@@ -28,7 +28,7 @@ from marionette import (
 from marionette.control.introspection import rejections_by_channel
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.lcm_bus import LcmBus, MessageLog
+from marionette.lcm_bus import HEARTBEAT_HANG_S, LcmBus, MessageLog
 from marionette.lcm_signing import Signer, load_key
 from tests_support import controller_running, wait_for_line
 
@@ -275,6 +275,70 @@ def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(build_dir, lcm_
         )
         c.wait_time(0.5)
         assert c.status.mode == "running", c.status.mode_reason  # its heartbeat keeps it
+
+
+# A supervisor whose Python is kept from running: one call that keeps the interpreter's lock for
+# argv[2] s (ctypes.PyDLL calls do not release it), then the longest gap between two feeds of its
+# heartbeat thread.
+STALLED = """
+import ctypes, sys, time
+from marionette.control.client import ControllerClient
+from marionette.control.spec import ControllerSpec, TaskSpec
+
+c = ControllerClient(sys.argv[1])
+c.wait_ready(30)
+c.send_spec(ControllerSpec(10, "driven", [TaskSpec("posture", "posture", 0)]))
+c.wait(lambda c: c.status.active_controller_id == 10, 30)
+print("driving", flush=True)
+time.sleep(0.5)
+ctypes.PyDLL(None).usleep(int(float(sys.argv[2]) * 1e6))
+time.sleep(0.1)  # the feeding thread's first feed after the stall measures it
+print(f"stalled {c.bus.heartbeat.longest_feed_gap_s:.3f}", flush=True)
+time.sleep(60)
+"""
+
+
+def _stalled_supervisor(c, lcm_url: str, stall_s: float) -> tuple[list[str], float]:
+    """Runs STALLED for ``stall_s`` next to controller ``c``: the controller's modes seen from
+    the stall's start to 1 s after it, and the supervisor's longest feed gap [s]."""
+    driver = subprocess.Popen(
+        [sys.executable, "-c", STALLED, lcm_url, str(stall_s)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert wait_for_line(driver.stdout, "driving", 60.0) is not None
+        c.wait(lambda c: c.status.mode == "running", 20, "the driven controller")
+        modes = []
+        end = time.monotonic() + 0.5 + stall_s + 1.0
+        while time.monotonic() < end:
+            modes.append(c.status.mode)
+            time.sleep(0.01)
+        line = wait_for_line(driver.stdout, "stalled", 10.0)
+        assert line is not None
+        return modes, float(line.split()[1])
+    finally:
+        driver.kill()
+        driver.wait(10)
+
+
+def test_a_supervisor_kept_from_running_python_stays_heard(build_dir, lcm_url, tmp_path):
+    """The heartbeat comes from a C++ thread: a supervisor whose interpreter is held for 0.5 s
+    (five times the controller's 100 ms timeout; a heartbeat sent from Python would be silent
+    that long) does not make the controller hold."""
+    with controller_running(build_dir, lcm_url, tmp_path / "logs", *UR10) as c:
+        modes, gap = _stalled_supervisor(c, lcm_url, 0.5)
+        assert gap >= 0.45, gap  # the stall happened: Python fed nothing for that long
+        assert set(modes) == {"running"}, (set(modes), c.status.mode_reason)
+
+
+def test_a_supervisor_whose_python_hangs_falls_silent(build_dir, lcm_url, tmp_path):
+    """...but only while its Python runs within the heartbeat's hang window (1 s): held for
+    1.6 s, the beats stop and the controller holds, the silence measured from the last beat."""
+    with controller_running(build_dir, lcm_url, tmp_path / "logs", *UR10) as c:
+        modes, gap = _stalled_supervisor(c, lcm_url, HEARTBEAT_HANG_S + 0.6)
+        assert gap >= HEARTBEAT_HANG_S + 0.5, gap
+        assert "holding" in modes, set(modes)
+        reason = c.status.mode_reason
+        assert reason.startswith("supervisor silent: nothing heard for "), reason
 
 
 def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
