@@ -1,6 +1,6 @@
 #pragma once
 /// GraphService: the running graph seen and poked from another process (DG_REQUEST), without
-/// ever blocking or delaying the tick (issue "operating without ROS").
+/// ever blocking or delaying the tick.
 ///
 ///   LCM thread                               loop thread (end of each tick)
 ///   ----------                               ------------------------------

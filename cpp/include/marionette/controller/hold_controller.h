@@ -1,5 +1,5 @@
 #pragma once
-/// The automatic hold controller (issue "time budgets"): what the loop swaps in when an entity
+/// The automatic hold controller: what the loop swaps in when an entity
 /// of the running controller overruns its compute-time budget too many ticks in a row.
 ///
 ///   walking humanoid   [its balance tasks: the walk's feet and CoM, the waist...] > [posture

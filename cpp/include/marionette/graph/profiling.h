@@ -1,5 +1,5 @@
 #pragma once
-/// Per-entity compute time (issue "time budgets"): when a graph's profiling is on, every Calc,
+/// Per-entity compute time: when a graph's profiling is on, every Calc,
 /// state update, update hook and poll hook is timed and charged to its entity as *self* time
 /// (the time of the outputs it pulls from other entities is charged to them). At the end of each
 /// tick the graph folds every entity's tick total into a histogram and checks its budget.
