@@ -28,5 +28,7 @@ the last hang_s: a hung owner falls silent hang_s later, a dead process at once.
       .def_property_readonly("withheld", &Heartbeat::withheld,
                              "Beats not sent because feed() was not called within hang_s.")
       .def_property_readonly("longest_feed_gap_s", &Heartbeat::longest_feed_gap_s,
-                             "The longest time between two feed() calls so far [s].");
+                             "The longest time between two feed() calls so far [s].")
+      .def_property_readonly("longest_beat_gap_s", &Heartbeat::longest_beat_gap_s,
+                             "The longest time between two beats sent so far [s].");
 }

@@ -64,6 +64,7 @@ void Heartbeat::Run() {
   msg.command = "heartbeat";
   msg.source = source_;
   std::vector<uint8_t> buffer;
+  int64_t last_beat_us = 0;
   const auto period = std::chrono::duration<double>(options_.period_s);
   auto next = std::chrono::steady_clock::now();
   std::unique_lock<std::mutex> lock(mutex_);
@@ -88,6 +89,11 @@ void Heartbeat::Run() {
       lcm_->publish(channels::kCommand, buffer.data(), static_cast<unsigned int>(buffer.size()));
     }
     beats_.fetch_add(1, std::memory_order_relaxed);
+    if (last_beat_us > 0 &&
+        now_us - last_beat_us > longest_beat_gap_us_.load(std::memory_order_relaxed)) {
+      longest_beat_gap_us_.store(now_us - last_beat_us, std::memory_order_relaxed);
+    }
+    last_beat_us = now_us;
   }
 }
 

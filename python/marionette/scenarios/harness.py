@@ -51,6 +51,15 @@ class Processes:
     view_scene: Path | None = None
 
 
+# The silence after which a trial's controller holds the robot. A trial runs the simulated robot,
+# the controller, perception and the supervisor on one shared machine, and under load that
+# machine stops a whole process for longer than the controller's default 100 ms: a plank-flip
+# trial at load 3.7 on 2 cores left 250 ms between two beats of its heartbeat thread (C++, which
+# the interpreter's lock cannot hold back) and was held as silent. A robot's supervisor on a
+# machine of its own keeps the default; a dead trial still stops the robot within this.
+TRIAL_SUPERVISOR_TIMEOUT_S = 0.5
+
+
 def controller_command(processes: Processes, url: str, speed: float) -> list[Any]:
     """The marionette-controller command line of a trial."""
     return [
@@ -67,6 +76,8 @@ def controller_command(processes: Processes, url: str, speed: float) -> list[Any
         str(processes.camera_rate),
         "--status-rate",
         str(processes.status_rate),
+        "--supervisor-timeout",
+        str(TRIAL_SUPERVISOR_TIMEOUT_S),
         *processes.controller_args,
     ]
 

@@ -82,11 +82,13 @@ def controller_summary(status: Any) -> dict[str, Any]:
 def heartbeat_summary(heartbeat: Any) -> dict[str, Any]:
     """The supervisor's heartbeat at the end of a run (marionette._wire.Heartbeat):
     ``report["heartbeat"]``. ``longest_python_stall_s``: the longest time the trial's Python was
-    kept from running — what a heartbeat sent from Python would have been silent for."""
+    kept from running — what a heartbeat sent from Python would have been silent for;
+    ``longest_beat_gap_s``: the longest silence the heartbeat itself left (the machine's load)."""
     return {
         "beats": heartbeat.beats,
         "withheld": heartbeat.withheld,
         "longest_python_stall_s": heartbeat.longest_feed_gap_s,
+        "longest_beat_gap_s": heartbeat.longest_beat_gap_s,
     }
 
 

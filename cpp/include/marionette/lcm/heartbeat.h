@@ -56,6 +56,11 @@ class Heartbeat {
   double longest_feed_gap_s() const {
     return 1e-6 * static_cast<double>(longest_gap_us_.load(std::memory_order_relaxed));
   }
+  /// The longest time between two beats sent so far [s] (period_s when the machine keeps up;
+  /// more when the thread waited for a CPU or was withheld).
+  double longest_beat_gap_s() const {
+    return 1e-6 * static_cast<double>(longest_beat_gap_us_.load(std::memory_order_relaxed));
+  }
 
  private:
   void Run();
@@ -68,6 +73,7 @@ class Heartbeat {
   std::atomic<int64_t> beats_{0};
   std::atomic<int64_t> withheld_{0};
   std::atomic<int64_t> longest_gap_us_{0};
+  std::atomic<int64_t> longest_beat_gap_us_{0};
   std::mutex mutex_;
   std::condition_variable wake_;
   bool stop_ = false;
