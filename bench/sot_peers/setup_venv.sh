@@ -12,6 +12,10 @@ PY=${PYTHON:-python3}
 say() { printf '\033[1m[bench venv]\033[0m %s\n' "$*" >&2; }
 [ -x "$VENV/bin/python" ] || { say "creating $VENV"; "$PY" -m venv "$VENV"; }
 pip=("$VENV/bin/python" -m pip install -q --disable-pip-version-check)
+# (a compiler cache, when there is one, makes a rebuild of the sdists cheap: CMake reads these)
+if command -v ccache >/dev/null; then
+  export CMAKE_CXX_COMPILER_LAUNCHER=ccache CMAKE_C_COMPILER_LAUNCHER=ccache
+fi
 if ! "$VENV/bin/python" -c "import pink, daqp" 2>/dev/null; then
   say "installing pink + daqp"
   "${pip[@]}" -r bench/sot_peers/requirements.txt
