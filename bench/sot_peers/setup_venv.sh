@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Creates or completes .venv-bench with the peers of bench/sot: pink (+ daqp) and TSID 1.10.0.
-# TSID: libtsid has no cp311 wheel and the binary tsid wheel crashed with heap corruption here
-# (ARCHITECTURE.md), so both are compiled from their sdists (several minutes, once). cmeel builds
-# against the venv's cmeel prefix, which is why eiquadprog is installed first.
+# TSID: libtsid has no cp311 wheel, so it is compiled from its sdist (~17 min on one core, once);
+# the benchmark links the C++ library (bench/sot_peers/CMakeLists.txt), TSID's Python bindings
+# are not needed. cmeel builds against the venv's cmeel prefix, which is why eiquadprog is
+# installed first.
 # Idempotent: does nothing when everything is there. Shared with other benchmarks (HPP): only
 # adds packages, with the product's pin version.
 set -euo pipefail
@@ -20,9 +21,7 @@ if ! "$VENV/bin/python" -c "import pink, daqp" 2>/dev/null; then
   say "installing pink + daqp"
   "${pip[@]}" -r bench/sot_peers/requirements.txt
 fi
-# libtsid first: cmeel builds the tsid bindings against the venv's prefix, so libtsid's CMake
-# config must be installed before tsid's metadata is prepared (one pip command fails).
-# Both sdists are built without build isolation, against the build requirements installed here
+# The sdist is built without build isolation, against the build requirements installed here
 # from PyPI: an isolated build lacks jrl-cmakemodules and clones it from its repository, which a
 # machine reaching only the package registries cannot; found in the venv's cmeel prefix, it is
 # used as is ("JRL cmakemodules found on system").
@@ -31,10 +30,5 @@ if [ ! -f "$VENV/lib/python3.11/site-packages/cmeel.prefix/lib/cmake/tsid/tsidCo
   "${pip[@]}" -r bench/sot_peers/build-requirements.txt
   say "compiling libtsid 1.10.0 from its PyPI sdist (several minutes, once)"
   CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-build-isolation --no-binary libtsid "libtsid==1.10.0" \
-    -c bench/sot_peers/requirements.txt
-fi
-if ! "$VENV/bin/python" -c "import tsid" 2>/dev/null; then
-  say "compiling the tsid 1.10.0 bindings from their PyPI sdist (a few minutes, once)"
-  CMEEL_JOBS=${JOBS:-1} "${pip[@]}" --no-build-isolation --no-binary tsid "tsid==1.10.0" \
     -c bench/sot_peers/requirements.txt
 fi
