@@ -6,12 +6,14 @@ that a user bringing a robot (docs/robots.md) fixes them in one pass. The checks
 1. ``robot.yaml`` follows its schema (unknown keys with a "did you mean", types, ranges);
 2. the URDF and the SRDF load in Pinocchio, the URDF through the robot's ``package://``
    search path (its meshes exist);
-3. joints the URDF declares ``<mimic>`` are fixed (marionette drives their driver; MuJoCo moves
-   them), and every actuated joint has an effort limit (its servo's force limit) and a servo
-   entry in ``simulation.actuators``;
+3. no joint has a link's name (Pinocchio frames are looked up by name); joints the URDF
+   declares ``<mimic>`` are fixed (marionette drives their driver; MuJoCo moves them), and every
+   actuated joint has an effort limit (its servo's force limit) and a servo entry in
+   ``simulation.actuators``;
 4. every link, frame and joint robot.yaml names exists (grippers, contact bodies, tags, feet,
    cameras, sensors, calibration, walking);
-5. gripper joints: open and closed positions within the joint's limits;
+5. gripper joints: open and closed positions within the joint's limits, the gripper's link not
+   moved by its own finger joint;
 6. the reference posture exists in the SRDF, lies within the joint limits and is free of
    self-collision (the SRDF's disabled pairs apart);
 7. the MJCF is generated (``<robot>.xml``, meshes linked or converted) and MuJoCo compiles it.
@@ -92,7 +94,7 @@ def check_robot(folder: str | Path, build: bool = True) -> list[Finding]:
     except (KeyError, ValueError, RuntimeError, OSError) as e:
         return [*out, Finding("error", str(desc.srdf), _one_line(e))]
     out += _name_findings(desc, model)
-    out += _gripper_findings(desc, model)
+    out += _gripper_findings(desc, model, urdf)
     if any(f.level == "error" for f in out):
         return out
     out += _reference_findings(desc, model, geom)
@@ -128,6 +130,16 @@ def _joint_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
     out = []
     where = str(desc.urdf)
     for j in urdf.joints.values():
+        if j.name in urdf.links:
+            out.append(
+                Finding(
+                    "error",
+                    where,
+                    f"joint {j.name!r} has the name of a link: rename the joint (Pinocchio makes "
+                    "a frame of both, so a frame looked up by that name is ambiguous; `marionette "
+                    "robot import` renames fixed ones)",
+                )
+            )
         if j.mimic is not None and j.type in MOVABLE:
             out.append(
                 Finding(
@@ -240,11 +252,23 @@ def _name_findings(desc: robots.RobotDescription, model) -> list[Finding]:
     return out
 
 
-def _gripper_findings(desc: robots.RobotDescription, model) -> list[Finding]:
+def _gripper_findings(desc: robots.RobotDescription, model, urdf) -> list[Finding]:
     out = []
     for g in robots.semantics(desc.directory).grippers:
         if g.joint is None or not model.existJointName(g.joint):
             continue
+        finger = model.getJointId(g.joint)
+        link = next((f for f in model.frames if f.name == g.link), None)
+        if link is not None and finger in model.supports[link.parentJoint]:
+            out.append(
+                Finding(
+                    "error",
+                    f"{desc.semantics}: grippers/{g.name}/link",
+                    f"{g.link!r} moves with the finger joint {g.joint!r}: the gripper frame would "
+                    f"move as the gripper closes; put it in the link the fingers are mounted on "
+                    f"({urdf.joints[g.joint].parent!r}) and set its pose there",
+                )
+            )
         i = model.joints[model.getJointId(g.joint)].idx_q
         lo, hi = model.lowerPositionLimit[i], model.upperPositionLimit[i]
         for key, value in (

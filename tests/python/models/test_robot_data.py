@@ -11,7 +11,7 @@ import pytest
 
 from marionette import robots
 from marionette.models.robot_check import check_robot
-from marionette.models.robot_import import import_robot
+from marionette.models.robot_import import RobotImportError, import_robot
 from marionette.schemas import DataFileError
 
 ERD = robots.example_robot_data_dir()
@@ -90,6 +90,7 @@ def _edit(folder: Path, old: str, new: str) -> None:
         ("link: gripper_link", "link: gripper_lnk", "'gripper_lnk' is not a link"),
         ("joint: finger_joint", "joint: finger_jiont", "'finger_jiont' is not a movable joint"),
         ("closed_position: 0.04", "closed_position: 0.4", "outside finger_joint's limits"),
+        ("link: gripper_link", "link: finger_left_link", "moves with the finger joint"),
         ("reference_posture: home", "reference_posture: away", "no group_state 'away'"),
         ("- {joints: finger_", "- {joints: fingerless_", "no entry matches joint 'finger_joint'"),
     ],
@@ -127,3 +128,86 @@ def test_a_movable_mimic_joint_is_refused_with_the_fix(on_path):
     )
     (error,) = _errors(check_robot(folder, build=False))
     assert "panda_finger_joint2" in error and 'make it type="fixed"' in error
+
+
+def _erd_described_robots() -> list[tuple[str, str]]:
+    """(URDF, SRDF) of example-robot-data's robots whose SRDF names an end effector and whose
+    URDF, beside it, has at most 10 movable joints (arms and small robots): what a user brings
+    with ``marionette robot import URDF --srdf SRDF``."""
+    out = []
+    for srdf in sorted(ERD.glob("*/srdf/*.srdf")):
+        urdfs = sorted(srdf.parents[1].glob(f"*/{srdf.stem}.urdf"))
+        if not urdfs or "<end_effector" not in srdf.read_text():
+            continue
+        urdf = ET.parse(urdfs[0]).getroot()
+        movable = [j for j in urdf.iter("joint") if j.get("type") in ("revolute", "prismatic")]
+        if len(movable) <= 10:
+            out.append((str(urdfs[0].relative_to(ERD)), str(srdf.relative_to(ERD))))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("urdf", "srdf"), _erd_described_robots())
+def test_an_imported_srdf_gives_a_reference_posture_free_of_self_collision(on_path, urdf, srdf):
+    """The import keeps an SRDF's own postures only when they pass the check (limits and
+    self-collision, the adjacent links it lacks disabled), whatever the SRDF declares."""
+    name = Path(urdf).stem.replace("-", "_")
+    folder = on_path / name
+    import_robot(ERD / urdf, name, folder, ERD / srdf)
+    assert not _errors(check_robot(folder, build=False))
+
+
+@pytest.mark.slow
+def test_a_fixed_joint_named_as_a_link_is_renamed_by_the_import_and_refused_by_the_check(
+    on_path, tmp_path
+):
+    """Every fixed joint of an arm in turn takes its child link's name (a URDF may do so): the
+    check refuses it in one line, the import renames it and the folder then checks."""
+    source = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+    fixed = [j.get("name") for j in source.iter("joint") if j.get("type") == "fixed"]
+    assert fixed
+    for k, joint in enumerate(fixed):
+        root = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+        j = next(j for j in root.iter("joint") if j.get("name") == joint)
+        link = j.find("child").get("link")
+        j.set("name", link)
+        urdf = tmp_path / f"panda{k}.urdf"
+        ET.ElementTree(root).write(urdf)
+        folder = on_path / f"arm{k}"
+        notes = import_robot(urdf, f"arm{k}", folder)
+        assert any(f"renamed {link}_joint" in n for n in notes), notes
+        assert not _errors(check_robot(folder, build=False))
+        imported = folder / f"arm{k}.urdf"
+        imported.write_text(imported.read_text().replace(f'"{link}_joint"', f'"{link}"'))
+        (error,) = _errors(check_robot(folder, build=False))
+        assert f"joint {link!r} has the name of a link" in error
+
+
+@pytest.mark.parametrize(
+    ("insert", "refused"),
+    [
+        ('<xacro:property name="d" value="0.1"/>', True),
+        (
+            '<link name="extra"><visual><geometry><box size="${d} 1 1"/></geometry>'
+            "</visual></link>",
+            True,
+        ),
+        ('<!-- <xacro:property name="d" value="0.1"/> -->', False),
+    ],
+)
+def test_only_xacro_left_outside_comments_is_refused(on_path, tmp_path, insert, refused):
+    """Expanded URDFs often keep xacro in comments (example-robot-data's bolt, finger, TALOS):
+    they import; an element or a ${...} value xacro did not expand is refused in one line."""
+    text = (ERD / "ur_description/urdf/ur5_robot.urdf").read_text()
+    head, sep, tail = text.partition(">\n")  # after the <?xml ...?> line
+    start = tail.index("<robot") + len("<robot")
+    if "xmlns:xacro" not in tail:
+        tail = tail[:start] + ' xmlns:xacro="http://www.ros.org/wiki/xacro"' + tail[start:]
+    end = tail.index(">", start) + 1
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(head + sep + tail[:end] + "\n" + insert + tail[end:])
+    if refused:
+        with pytest.raises(RobotImportError, match="a xacro file; expand it first"):
+            import_robot(urdf, "arm", on_path / "arm")
+    else:
+        import_robot(urdf, "arm", on_path / "arm")
