@@ -7,6 +7,7 @@ import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from marionette import robots
@@ -211,3 +212,49 @@ def test_only_xacro_left_outside_comments_is_refused(on_path, tmp_path, insert, 
             import_robot(urdf, "arm", on_path / "arm")
     else:
         import_robot(urdf, "arm", on_path / "arm")
+
+
+def _jaws(open_gap: float, closed: bool = True):
+    """Two 2 x 2 x 6 cm jaws on a 6 x 2 x 2 cm palm, ``open_gap`` apart (0: a solid block)."""
+    import trimesh
+
+    w = (0.06 - open_gap) / 2
+    parts = [
+        trimesh.creation.box(
+            (0.06, 0.02, 0.02), trimesh.transformations.translation_matrix((0, 0, 0.01))
+        )
+    ]
+    for side in (-1, 1):
+        centre = (side * (0.03 - w / 2), 0, 0.05)
+        parts.append(
+            trimesh.creation.box(
+                (w, 0.02, 0.06), trimesh.transformations.translation_matrix(centre)
+            )
+        )
+    mesh = trimesh.util.concatenate(parts)
+    if not closed:
+        mesh.update_faces(np.arange(len(mesh.faces)) != 0)
+    return mesh
+
+
+@pytest.mark.parametrize(
+    ("gap", "closed", "noted"), [(0.0, True, False), (0.04, True, True), (0.04, False, True)]
+)
+def test_a_hand_mesh_far_from_convex_is_noted(ur10_copy, gap, closed, noted):
+    """MuJoCo collides a mesh as its convex hull: jaws whose hull fills the gap between them
+    push objects away. The check notes a hand link's collision mesh filling < 80 % of its hull
+    (closed or not); a solid block passes."""
+    stl = ur10_copy / "jaws.stl"
+    _jaws(gap, closed).export(stl)
+    urdf = ur10_copy / "ur10.urdf"
+    root = ET.parse(urdf).getroot()
+    link = next(k for k in root.iter("link") if k.get("name") == "finger_left_link")
+    for c in link.findall("collision"):
+        link.remove(c)
+    collision = ET.SubElement(link, "collision")
+    ET.SubElement(ET.SubElement(collision, "geometry"), "mesh", filename=str(stl))
+    ET.ElementTree(root).write(urdf)
+    findings = check_robot(ur10_copy, build=False)
+    assert not _errors(findings)
+    notes = [str(f) for f in findings if "convex hull" in f.message]
+    assert len(notes) == noted and (not noted or "link finger_left_link" in notes[0]), notes
