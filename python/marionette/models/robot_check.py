@@ -105,6 +105,9 @@ def check_robot(folder: str | Path, build: bool = True) -> list[Finding]:
     return out
 
 
+NOT_COMPILED = "written; not compiled (no C++ build)"
+
+
 def build_robot(folder: str | Path) -> list[Finding]:
     """Links ``<folder>/meshes``, writes the MJCF and compiles it with MuJoCo."""
     from .generate import link_robot_meshes, robot_mjcf
@@ -122,7 +125,7 @@ def build_robot(folder: str | Path) -> list[Finding]:
 
         sim.MjScene(str(desc.mjcf))
     except ImportError:
-        return [Finding("note", str(desc.mjcf), "written; not compiled (no C++ build)")]
+        return [Finding("note", str(desc.mjcf), NOT_COMPILED)]
     except Exception as e:  # MuJoCo's compiler error, whatever its type
         return [Finding("error", str(desc.mjcf), f"MuJoCo refuses it: {_one_line(e)}")]
     return []
