@@ -18,8 +18,9 @@ pairs are those of adjacent links and of pairs in collision in >= 95 % of random
 The servo of each joint (``simulation.actuators``) gets kp = 50 x its effort limit per radian or
 metre and kv = kp / 50: stiff enough to follow a 1 kHz controller, damped by MuJoCo's implicit
 integrator. The gripper is the SRDF's ``end_effector`` parent link (or ``--gripper-link``), with
-its first finger joint below it; its frame's pose is left at the link's origin for the user to
-set (x along the approach, out of the palm).
+its first finger joint below it (or, when that link is a jaw moved by a joint the SRDF's arm
+group leaves out, the link the jaw is mounted on, with that joint); its frame's pose is left at
+the link's origin for the user to set (x along the approach, out of the palm).
 """
 
 from __future__ import annotations
@@ -92,7 +93,15 @@ def import_robot(
     gripper_link = gripper_link or end_effector or _deepest_link(urdf)
     if gripper_link not in urdf.links:
         raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
-    finger = _finger_joint(urdf, gripper_link)
+    jaw = _jaw_joint(urdf, gripper_link, srdf) if gripper_link == end_effector else None
+    if jaw is not None:
+        notes.append(
+            f"grippers[0]/link: the SRDF's end effector {gripper_link} is moved by {jaw.name}, "
+            f"which the SRDF's arm group leaves out: a jaw; the gripper is on {jaw.parent}, the "
+            f"link the jaw is mounted on, with finger joint {jaw.name}"
+        )
+        gripper_link = jaw.parent
+    finger = jaw or _finger_joint(urdf, gripper_link)
     gripper: dict[str, object] = {
         "name": f"{name}/gripper",
         "link": gripper_link,
@@ -453,6 +462,27 @@ def _finger_joint(urdf: Urdf, gripper_link: str) -> Joint | None:
                 if k.type in MOVABLE and k.mimic is None and k.name not in on_chain:
                     return k
     return None
+
+
+def _jaw_joint(urdf: Urdf, link: str, srdf: str) -> Joint | None:
+    """The joint moving ``link`` when it is a jaw, else None: a movable joint (not a mimic) that
+    the SRDF groups naming the other movable joints of the chain to ``link`` (the arm) leave
+    out. An SRDF may name a moving jaw as its end effector; a gripper frame there would move
+    as the gripper closes."""
+    joint = urdf.parent_joint(link)
+    if joint is None or joint.type not in MOVABLE or joint.mimic is not None:
+        return None
+    chain = set()
+    parent = urdf.parent_joint(joint.parent)
+    while parent is not None:
+        if parent.type in MOVABLE:
+            chain.add(parent.name)
+        parent = urdf.parent_joint(parent.parent)
+    groups = [
+        {j.get("name") for j in g.findall("joint")} for g in ET.fromstring(srdf).iter("group")
+    ]
+    arm = [g for g in groups if g & chain]
+    return joint if arm and not any(joint.name in g for g in arm) else None
 
 
 def _deepest_link(urdf: Urdf) -> str:

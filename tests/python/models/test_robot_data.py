@@ -258,3 +258,32 @@ def test_a_hand_mesh_far_from_convex_is_noted(ur10_copy, gap, closed, noted):
     assert not _errors(findings)
     notes = [str(f) for f in findings if "convex hull" in f.message]
     assert len(notes) == noted and (not noted or "link finger_left_link" in notes[0]), notes
+
+
+def test_an_srdf_end_effector_on_a_jaw_puts_the_gripper_on_the_palm(on_path, tmp_path):
+    """An SRDF may name a moving jaw as its end effector (example-robot-data's z1): each finger
+    link of an arm in turn, moved by a joint its SRDF's arm group leaves out, gives a gripper on
+    the link the jaw is mounted on, with that joint; the folder checks."""
+    srdf = (ERD / "panda_description/srdf/panda.srdf").read_text()
+    sroot = ET.fromstring(srdf)
+    ee = sroot.find("end_effector").get("parent_link")
+    arm = max(({j.get("name") for j in g.findall("joint")} for g in sroot.iter("group")), key=len)
+    urdf = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+    jaws = [
+        j
+        for j in urdf.iter("joint")
+        if j.get("type") in ("revolute", "prismatic")
+        and j.find("mimic") is None
+        and j.get("name") not in arm
+    ]
+    assert jaws
+    for k, joint in enumerate(jaws):
+        link = joint.find("child").get("link")
+        moved = tmp_path / f"arm{k}.srdf"
+        moved.write_text(srdf.replace(f'parent_link="{ee}"', f'parent_link="{link}"'))
+        folder = on_path / f"arm{k}"
+        import_robot(ERD / "panda_description/urdf/panda.urdf", f"arm{k}", folder, moved)
+        (gripper,) = robots.semantics(folder).grippers
+        assert gripper.link == joint.find("parent").get("link")
+        assert gripper.joint == joint.get("name")
+        assert not _errors(check_robot(folder, build=False))
