@@ -74,7 +74,7 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
-    from marionette.models.robot_check import check_robot
+    from marionette.models.robot_check import NOT_COMPILED, check_robot
 
     findings = check_robot(args.robot, build=not args.no_build)
     for f in findings:
@@ -83,7 +83,12 @@ def _check(args: argparse.Namespace) -> int:
     if errors:
         print(f"{args.robot}: {errors} problem(s) to fix")
         return 1
-    print(f"{args.robot}: ok" + ("" if args.no_build else " (MJCF written and compiled)"))
+    built = not args.no_build
+    compiled = built and not any(f.message == NOT_COMPILED for f in findings)
+    print(
+        f"{args.robot}: ok"
+        + (" (MJCF written and compiled)" if compiled else " (MJCF written)" if built else "")
+    )
     return 0
 
 

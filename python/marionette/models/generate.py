@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -100,13 +101,22 @@ def write(out_dir: str | Path, models_dir: str | Path | None = None) -> list[Pat
 
 def link_meshes(models_dir: str | Path) -> list[Path]:
     """(Re)create ``<models_dir>/<robot>/meshes`` -> the folder robot.yaml's ``meshes`` names,
-    for every robot folder under ``models_dir`` that declares one."""
+    for every robot folder under ``models_dir`` that declares one, and the STL conversions of
+    DAE meshes (``<robot>/converted_meshes``, not versioned) its MJCF names and lacks."""
     links = []
     for folder in sorted(p.parent for p in Path(models_dir).glob(f"*/{robots.ROBOT_FILE}")):
-        link = link_robot_meshes(robots.robot(folder))
+        desc = robots.robot(folder)
+        link = link_robot_meshes(desc)
         if link is not None:
             links.append(link)
+        if desc.mjcf.is_file() and _lacks_converted_meshes(desc.mjcf, folder.parent):
+            robot_mjcf(folder)  # converts them as it names them
     return links
+
+
+def _lacks_converted_meshes(mjcf: Path, meshdir: Path) -> bool:
+    files = re.findall(r'file="([^"]*converted_meshes[^"]*)"', mjcf.read_text())
+    return any(not (meshdir / f).is_file() for f in files)
 
 
 def link_robot_meshes(desc: robots.RobotDescription) -> Path | None:

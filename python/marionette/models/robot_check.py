@@ -6,15 +6,18 @@ that a user bringing a robot (docs/robots.md) fixes them in one pass. The checks
 1. ``robot.yaml`` follows its schema (unknown keys with a "did you mean", types, ranges);
 2. the URDF and the SRDF load in Pinocchio, the URDF through the robot's ``package://``
    search path (its meshes exist);
-3. joints the URDF declares ``<mimic>`` are fixed (marionette drives their driver; MuJoCo moves
-   them), and every actuated joint has an effort limit (its servo's force limit) and a servo
-   entry in ``simulation.actuators``;
+3. no joint has a link's name (Pinocchio frames are looked up by name); joints the URDF
+   declares ``<mimic>`` are fixed (marionette drives their driver; MuJoCo moves them), and every
+   actuated joint has an effort limit (its servo's force limit) and a servo entry in
+   ``simulation.actuators``;
 4. every link, frame and joint robot.yaml names exists (grippers, contact bodies, tags, feet,
    cameras, sensors, calibration, walking);
-5. gripper joints: open and closed positions within the joint's limits;
+5. gripper joints: open and closed positions within the joint's limits, the gripper's link not
+   moved by its own finger joint;
 6. the reference posture exists in the SRDF, lies within the joint limits and is free of
    self-collision (the SRDF's disabled pairs apart);
-7. the MJCF is generated (``<robot>.xml``, meshes linked or converted) and MuJoCo compiles it.
+7. collision meshes of hand links far from convex are noted (MuJoCo collides their convex hull);
+8. the MJCF is generated (``<robot>.xml``, meshes linked or converted) and MuJoCo compiles it.
 
 A URDF whose root link is ``world`` is accepted (its MuJoCo body is renamed; a note says so).
 """
@@ -92,13 +95,17 @@ def check_robot(folder: str | Path, build: bool = True) -> list[Finding]:
     except (KeyError, ValueError, RuntimeError, OSError) as e:
         return [*out, Finding("error", str(desc.srdf), _one_line(e))]
     out += _name_findings(desc, model)
-    out += _gripper_findings(desc, model)
+    out += _gripper_findings(desc, model, urdf)
     if any(f.level == "error" for f in out):
         return out
     out += _reference_findings(desc, model, geom)
+    out += _hand_mesh_findings(desc, urdf)
     if build and not any(f.level == "error" for f in out):
         out += build_robot(folder)
     return out
+
+
+NOT_COMPILED = "written; not compiled (no C++ build)"
 
 
 def build_robot(folder: str | Path) -> list[Finding]:
@@ -118,7 +125,7 @@ def build_robot(folder: str | Path) -> list[Finding]:
 
         sim.MjScene(str(desc.mjcf))
     except ImportError:
-        return [Finding("note", str(desc.mjcf), "written; not compiled (no C++ build)")]
+        return [Finding("note", str(desc.mjcf), NOT_COMPILED)]
     except Exception as e:  # MuJoCo's compiler error, whatever its type
         return [Finding("error", str(desc.mjcf), f"MuJoCo refuses it: {_one_line(e)}")]
     return []
@@ -128,6 +135,16 @@ def _joint_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
     out = []
     where = str(desc.urdf)
     for j in urdf.joints.values():
+        if j.name in urdf.links:
+            out.append(
+                Finding(
+                    "error",
+                    where,
+                    f"joint {j.name!r} has the name of a link: rename the joint (Pinocchio makes "
+                    "a frame of both, so a frame looked up by that name is ambiguous; `marionette "
+                    "robot import` renames fixed ones)",
+                )
+            )
         if j.mimic is not None and j.type in MOVABLE:
             out.append(
                 Finding(
@@ -240,11 +257,23 @@ def _name_findings(desc: robots.RobotDescription, model) -> list[Finding]:
     return out
 
 
-def _gripper_findings(desc: robots.RobotDescription, model) -> list[Finding]:
+def _gripper_findings(desc: robots.RobotDescription, model, urdf) -> list[Finding]:
     out = []
     for g in robots.semantics(desc.directory).grippers:
         if g.joint is None or not model.existJointName(g.joint):
             continue
+        finger = model.getJointId(g.joint)
+        link = next((f for f in model.frames if f.name == g.link), None)
+        if link is not None and finger in model.supports[link.parentJoint]:
+            out.append(
+                Finding(
+                    "error",
+                    f"{desc.semantics}: grippers/{g.name}/link",
+                    f"{g.link!r} moves with the finger joint {g.joint!r}: the gripper frame would "
+                    f"move as the gripper closes; put it in the link the fingers are mounted on "
+                    f"({urdf.joints[g.joint].parent!r}) and set its pose there",
+                )
+            )
         i = model.joints[model.getJointId(g.joint)].idx_q
         lo, hi = model.lowerPositionLimit[i], model.upperPositionLimit[i]
         for key, value in (
@@ -292,6 +321,54 @@ def _reference_findings(desc: robots.RobotDescription, model, geom) -> list[Find
     if not np.all(np.isfinite(q)):
         return [Finding("error", str(desc.srdf), "the reference posture has non-finite values")]
     return []
+
+
+def _hand_mesh_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
+    """A note per collision mesh of a hand link (the links that touch objects in MuJoCo) that
+    fills less than HAND_MESH_MIN_FILL of its convex hull: MuJoCo collides a mesh as its convex
+    hull, which fills the gap between jaws or the inside of a hook, so objects are pushed away
+    from where the planner (exact meshes) put them."""
+    import trimesh
+
+    hands = {link for h in desc.hand_links if h in urdf.links for link in urdf.subtree(h)}
+    hands |= {b for bodies in desc.grip_bodies.values() for b in bodies}
+    out = []
+    for link in sorted(hands & set(urdf.links)):
+        for geometry in urdf.links[link].collisions:
+            if geometry.kind != "mesh":
+                continue
+            try:
+                mesh = trimesh.load(robots.resolve_package_uri(geometry.filename), force="mesh")
+            except (FileNotFoundError, ValueError):
+                continue  # a missing mesh is the URDF check's finding
+            fill = _hull_fill(mesh)
+            if fill < HAND_MESH_MIN_FILL:
+                out.append(
+                    Finding(
+                        "note",
+                        f"{desc.urdf}: link {link}",
+                        f"collision mesh {Path(geometry.filename).name} fills {fill:.0%} of its "
+                        "convex hull, which is what MuJoCo collides with objects (closing the "
+                        "gap between jaws): give the link convex pieces instead (boxes, "
+                        "cylinders, or convex meshes)",
+                    )
+                )
+    return out
+
+
+HAND_MESH_MIN_FILL = 0.8  # a CAD mesh of a convex part fills ~95 % of its hull
+
+
+def _hull_fill(mesh) -> float:
+    """The fraction of its convex hull's volume a mesh fills: exact when it is closed, from
+    40-voxel-wide fillings otherwise."""
+    hull = mesh.convex_hull
+    if hull.volume <= 0:
+        return 1.0
+    if mesh.is_watertight:
+        return float(abs(mesh.volume) / hull.volume)
+    pitch = max(mesh.extents) / 40
+    return float(mesh.voxelized(pitch).fill().volume / hull.voxelized(pitch).fill().volume)
 
 
 def _suggest(name: str, candidates: list[str]) -> str:

@@ -7,6 +7,8 @@ guess the user then checks, and prints what to review. What it changes in the UR
   kept): marionette drives the joint it follows, MuJoCo moves both;
 * a continuous joint becomes revolute within two turns each way (the controller maps 1-DoF
   joints by angle);
+* a fixed joint named as a link gets ``_joint`` appended (a frame looked up by that name would
+  be ambiguous in Pinocchio);
 * mesh URIs that are plain paths are made absolute, so that the folder can live anywhere; the
   folder they share becomes robot.yaml's ``meshes`` (package:// URIs are kept as they are).
 
@@ -16,14 +18,16 @@ pairs are those of adjacent links and of pairs in collision in >= 95 % of random
 The servo of each joint (``simulation.actuators``) gets kp = 50 x its effort limit per radian or
 metre and kv = kp / 50: stiff enough to follow a 1 kHz controller, damped by MuJoCo's implicit
 integrator. The gripper is the SRDF's ``end_effector`` parent link (or ``--gripper-link``), with
-its first finger joint below it; its frame's pose is left at the link's origin for the user to
-set (x along the approach, out of the palm).
+its first finger joint below it (or, when that link is a jaw moved by a joint the SRDF's arm
+group leaves out, the link the jaw is mounted on, with that joint); its frame's pose is left at
+the link's origin for the user to set (x along the approach, out of the palm).
 """
 
 from __future__ import annotations
 
 import os
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -56,19 +60,25 @@ def import_robot(
     urdf_path, out_dir = Path(urdf_path), Path(out_dir)
     if not urdf_path.is_file():
         raise RobotImportError(f"{urdf_path}: no such file")
-    if urdf_path.suffix == ".xacro" or "<xacro:" in urdf_path.read_text():
-        raise RobotImportError(
-            f"{urdf_path}: a xacro file; expand it first (`xacro FILE > OUT.urdf`)"
-        )
+    xacro = RobotImportError(
+        f"{urdf_path}: a xacro file; expand it first (`xacro FILE > OUT.urdf`)"
+    )
+    if urdf_path.suffix == ".xacro":
+        raise xacro
     if (out_dir / "robot.yaml").exists():
         raise RobotImportError(f"{out_dir / 'robot.yaml'} exists: import into a new folder")
     try:
         root = ET.fromstring(urdf_path.read_text())
     except ET.ParseError as e:
+        if "unbound prefix" in str(e) and "<xacro:" in urdf_path.read_text():
+            raise xacro from None
         raise RobotImportError(f"{urdf_path}: not XML ({e})") from None
+    if _has_xacro(root):
+        raise xacro
     notes: list[str] = []
     notes += _fix_mimics(root)
     notes += _fix_continuous(root)
+    notes += _rename_fixed_joints_named_as_links(root)
     meshes = _mesh_folder(root, urdf_path.parent)
     source = _as_package_uri(urdf_path)
     urdf_text = indent_and_serialize(root, f"imported from {source} by `marionette robot import`")
@@ -83,7 +93,15 @@ def import_robot(
     gripper_link = gripper_link or end_effector or _deepest_link(urdf)
     if gripper_link not in urdf.links:
         raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
-    finger = _finger_joint(urdf, gripper_link)
+    jaw = _jaw_joint(urdf, gripper_link, srdf) if gripper_link == end_effector else None
+    if jaw is not None:
+        notes.append(
+            f"grippers[0]/link: the SRDF's end effector {gripper_link} is moved by {jaw.name}, "
+            f"which the SRDF's arm group leaves out: a jaw; the gripper is on {jaw.parent}, the "
+            f"link the jaw is mounted on, with finger joint {jaw.name}"
+        )
+        gripper_link = jaw.parent
+    finger = jaw or _finger_joint(urdf, gripper_link)
     gripper: dict[str, object] = {
         "name": f"{name}/gripper",
         "link": gripper_link,
@@ -135,6 +153,16 @@ def import_robot(
     return notes
 
 
+def _has_xacro(root: ET.Element) -> bool:
+    """Whether a parsed URDF still holds xacro: an element of the xacro namespace or an
+    unexpanded ``${...}`` / ``$(...)`` value (xacro left in comments does not count)."""
+    return any(
+        (e.tag.startswith("{") and "xacro" in e.tag.split("}", 1)[0])
+        or any("${" in v or "$(" in v for v in e.attrib.values())
+        for e in root.iter()
+    )
+
+
 def _as_package_uri(path: Path) -> str:
     """``path`` as a ``package://`` URI when it lies in a package folder, else as given."""
     from marionette.robots import package_dirs
@@ -167,6 +195,24 @@ def _fix_mimics(root: ET.Element) -> list[str]:
                 f"{name}: made fixed (it mimics {driver}; MuJoCo moves it with its driver)"
             )
             j.set("type", "fixed")
+    return notes
+
+
+def _rename_fixed_joints_named_as_links(root: ET.Element) -> list[str]:
+    """A fixed joint named as a link gets ``_joint`` appended: Pinocchio makes a frame of both,
+    and a frame looked up by that name (a gripper's link) would be ambiguous. A fixed joint's
+    name is nowhere else in a robot folder; a movable one's is (SRDF, robot.yaml): the check
+    reports those."""
+    links = {link.get("name") for link in root.findall("link")}
+    names = links | {j.get("name") for j in root.findall("joint")}
+    notes = []
+    for j in root.findall("joint"):
+        name = j.get("name")
+        if j.get("type") == "fixed" and name in links:
+            new = next(n for k in range(100) if (n := f"{name}_joint{k or ''}") not in names)
+            j.set("name", new)
+            names.add(new)
+            notes.append(f"{name}: a fixed joint named as a link, renamed {new}")
     return notes
 
 
@@ -231,16 +277,6 @@ def _srdf(
         where = str(srdf_path)
         ee = sroot.find("end_effector")
         end_effector = ee.get("parent_link") if ee is not None else None
-        states = [
-            attribute(g, "name", where, RobotImportError) for g in sroot.findall("group_state")
-        ]
-        refused = {}
-        for state in states:
-            problem = _state_problem(urdf_text, text, state)
-            if problem is None:
-                notes.append(f"reference posture: the SRDF's group_state {state!r}")
-                return text, state, end_effector
-            refused[state] = problem
         pairs = [
             (
                 attribute(d, "link1", where, RobotImportError),
@@ -260,17 +296,34 @@ def _srdf(
                 f"SRDF: {len(missing)} collision pairs it lacked (adjacent or always in contact) "
                 "disabled"
             )
+            text = indent_and_serialize(sroot, "with the collision pairs it lacked disabled")
+        states = [
+            attribute(g, "name", where, RobotImportError) for g in sroot.findall("group_state")
+        ]
+        collides = _self_collision(urdf_text, pairs + missing)
+        refused = {}
+        for state in states:
+            problem = _state_problem(urdf_text, text, state, collides)
+            if problem is None:
+                notes.append(f"reference posture: the SRDF's group_state {state!r}")
+                return text, state, end_effector
+            refused[state] = problem
         posture, _ = _collision_free_posture(urdf_text, _zero_posture(urdf), pairs + missing)
-        gs = sub(sroot, "group_state", name=REFERENCE_STATE, group="all")
+        added = next(
+            s
+            for k in range(len(states) + 1)
+            if (s := REFERENCE_STATE + (f"_{k}" if k else "")) not in states
+        )
+        gs = sub(sroot, "group_state", name=added, group="all")
         for joint, value in posture.items():
             sub(gs, "joint", name=joint, value=f"{value:.12g}")
         why = "; ".join(f"{s}: {p}" for s, p in refused.items()) or "it has none"
         notes.append(
-            f"reference posture: added {REFERENCE_STATE!r} (collision-free, around every joint at "
-            f"0) because no SRDF group_state fits ({why})"
+            f"reference posture: added {added!r} (collision-free, around every joint at 0) "
+            f"because no SRDF group_state fits ({why}); edit it to a natural one"
         )
         text = indent_and_serialize(sroot, "with a reference group_state added")
-        return text, REFERENCE_STATE, end_effector
+        return text, added, end_effector
     pairs = disabled_collision_pairs(urdf_text)
     posture, tries = _collision_free_posture(urdf_text, _zero_posture(urdf), pairs)
     how = (
@@ -305,20 +358,8 @@ def _collision_free_posture(
     limits); (posture, draws it took). Raises RobotImportError when none is found."""
     import pinocchio as pin
 
-    from marionette.robots import package_dirs
-
     model = pin.buildModelFromXML(urdf_text)
-    geom = pin.buildGeomFromUrdfString(
-        model, urdf_text, pin.GeometryType.COLLISION, None, package_dirs()
-    )
-    geom.addAllCollisionPairs()
-    link_of = [model.frames[g.parentFrame].name for g in geom.geometryObjects]
-    skip = {tuple(sorted(p[:2])) for p in pairs}
-    for k in reversed(range(len(geom.collisionPairs))):
-        cp = geom.collisionPairs[k]
-        if tuple(sorted((link_of[cp.first], link_of[cp.second]))) in skip:
-            geom.removeCollisionPair(cp)
-    data, gdata = model.createData(), pin.GeometryData(geom)
+    collides = _self_collision(urdf_text, pairs)
     names = [n for n in posture if model.existJointName(n)]
     idx = [model.joints[model.getJointId(n)].idx_q for n in names]
     lo, hi = model.lowerPositionLimit[idx], model.upperPositionLimit[idx]
@@ -334,16 +375,18 @@ def _collision_free_posture(
         )
         q = pin.neutral(model)
         q[idx] = values
-        if not pin.computeCollisions(model, data, geom, gdata, q, True):
+        if collides(q) is None:
             return dict(zip(names, (float(v) for v in values))), k
     raise RobotImportError(
         f"no posture free of self-collision found in {draws} draws: give an SRDF with a group_state"
     )
 
 
-def _state_problem(urdf_text: str, srdf: str, state: str) -> str | None:
-    """Why ``state`` cannot be the reference posture (a joint unknown or outside its limits),
-    or None."""
+def _state_problem(
+    urdf_text: str, srdf: str, state: str, collides: Callable[[np.ndarray], str | None]
+) -> str | None:
+    """Why ``state`` cannot be the reference posture (a joint unknown or outside its limits,
+    links in collision), or None."""
     import pinocchio as pin
 
     from marionette.models.semantics import Semantics
@@ -351,10 +394,47 @@ def _state_problem(urdf_text: str, srdf: str, state: str) -> str | None:
 
     model = pin.buildModelFromXML(urdf_text)
     try:
-        configuration_from_srdf(model, srdf, state, Semantics(model.name))
+        q = configuration_from_srdf(model, srdf, state, Semantics(model.name))
     except (KeyError, ValueError) as e:
         return str(e.args[0] if e.args else e).split(": ", 1)[-1]
-    return None
+    return collides(q)
+
+
+def _self_collision(
+    urdf_text: str, pairs: list[tuple[str, str, str]]
+) -> Callable[[np.ndarray], str | None]:
+    """A test of configurations of the URDF's Pinocchio model: None when free of self-collision
+    (the link ``pairs`` skipped), else which links collide."""
+    import pinocchio as pin
+
+    from marionette.robots import package_dirs
+
+    model = pin.buildModelFromXML(urdf_text)
+    geom = pin.buildGeomFromUrdfString(
+        model, urdf_text, pin.GeometryType.COLLISION, None, package_dirs()
+    )
+    geom.addAllCollisionPairs()
+    link_of = [model.frames[g.parentFrame].name for g in geom.geometryObjects]
+    skip = {tuple(sorted(p[:2])) for p in pairs}
+    for k in reversed(range(len(geom.collisionPairs))):
+        cp = geom.collisionPairs[k]
+        if tuple(sorted((link_of[cp.first], link_of[cp.second]))) in skip:
+            geom.removeCollisionPair(cp)
+    data, gdata = model.createData(), pin.GeometryData(geom)
+
+    def collides(q: np.ndarray) -> str | None:
+        if not pin.computeCollisions(model, data, geom, gdata, q, False):
+            return None
+        hits = sorted(
+            {
+                tuple(sorted((link_of[p.first], link_of[p.second])))
+                for p, r in zip(geom.collisionPairs, gdata.collisionResults)
+                if r.isCollision()
+            }
+        )
+        return "links in collision: " + ", ".join(f"{a} and {b}" for a, b in hits)
+
+    return collides
 
 
 def _zero_posture(urdf: Urdf) -> dict[str, float]:
@@ -382,6 +462,27 @@ def _finger_joint(urdf: Urdf, gripper_link: str) -> Joint | None:
                 if k.type in MOVABLE and k.mimic is None and k.name not in on_chain:
                     return k
     return None
+
+
+def _jaw_joint(urdf: Urdf, link: str, srdf: str) -> Joint | None:
+    """The joint moving ``link`` when it is a jaw, else None: a movable joint (not a mimic) that
+    the SRDF groups naming the other movable joints of the chain to ``link`` (the arm) leave
+    out. An SRDF may name a moving jaw as its end effector; a gripper frame there would move
+    as the gripper closes."""
+    joint = urdf.parent_joint(link)
+    if joint is None or joint.type not in MOVABLE or joint.mimic is not None:
+        return None
+    chain = set()
+    parent = urdf.parent_joint(joint.parent)
+    while parent is not None:
+        if parent.type in MOVABLE:
+            chain.add(parent.name)
+        parent = urdf.parent_joint(parent.parent)
+    groups = [
+        {j.get("name") for j in g.findall("joint")} for g in ET.fromstring(srdf).iter("group")
+    ]
+    arm = [g for g in groups if g & chain]
+    return joint if arm and not any(joint.name in g for g in arm) else None
 
 
 def _deepest_link(urdf: Urdf) -> str:

@@ -7,11 +7,12 @@ import shutil
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from marionette import robots
 from marionette.models.robot_check import check_robot
-from marionette.models.robot_import import import_robot
+from marionette.models.robot_import import RobotImportError, import_robot
 from marionette.schemas import DataFileError
 
 ERD = robots.example_robot_data_dir()
@@ -90,6 +91,7 @@ def _edit(folder: Path, old: str, new: str) -> None:
         ("link: gripper_link", "link: gripper_lnk", "'gripper_lnk' is not a link"),
         ("joint: finger_joint", "joint: finger_jiont", "'finger_jiont' is not a movable joint"),
         ("closed_position: 0.04", "closed_position: 0.4", "outside finger_joint's limits"),
+        ("link: gripper_link", "link: finger_left_link", "moves with the finger joint"),
         ("reference_posture: home", "reference_posture: away", "no group_state 'away'"),
         ("- {joints: finger_", "- {joints: fingerless_", "no entry matches joint 'finger_joint'"),
     ],
@@ -127,3 +129,161 @@ def test_a_movable_mimic_joint_is_refused_with_the_fix(on_path):
     )
     (error,) = _errors(check_robot(folder, build=False))
     assert "panda_finger_joint2" in error and 'make it type="fixed"' in error
+
+
+def _erd_described_robots() -> list[tuple[str, str]]:
+    """(URDF, SRDF) of example-robot-data's robots whose SRDF names an end effector and whose
+    URDF, beside it, has at most 10 movable joints (arms and small robots): what a user brings
+    with ``marionette robot import URDF --srdf SRDF``."""
+    out = []
+    for srdf in sorted(ERD.glob("*/srdf/*.srdf")):
+        urdfs = sorted(srdf.parents[1].glob(f"*/{srdf.stem}.urdf"))
+        if not urdfs or "<end_effector" not in srdf.read_text():
+            continue
+        urdf = ET.parse(urdfs[0]).getroot()
+        movable = [j for j in urdf.iter("joint") if j.get("type") in ("revolute", "prismatic")]
+        if len(movable) <= 10:
+            out.append((str(urdfs[0].relative_to(ERD)), str(srdf.relative_to(ERD))))
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("urdf", "srdf"), _erd_described_robots())
+def test_an_imported_srdf_gives_a_reference_posture_free_of_self_collision(on_path, urdf, srdf):
+    """The import keeps an SRDF's own postures only when they pass the check (limits and
+    self-collision, the adjacent links it lacks disabled), whatever the SRDF declares."""
+    name = Path(urdf).stem.replace("-", "_")
+    folder = on_path / name
+    import_robot(ERD / urdf, name, folder, ERD / srdf)
+    assert not _errors(check_robot(folder, build=False))
+
+
+@pytest.mark.slow
+def test_a_fixed_joint_named_as_a_link_is_renamed_by_the_import_and_refused_by_the_check(
+    on_path, tmp_path
+):
+    """Every fixed joint of an arm in turn takes its child link's name (a URDF may do so): the
+    check refuses it in one line, the import renames it and the folder then checks."""
+    source = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+    fixed = [j.get("name") for j in source.iter("joint") if j.get("type") == "fixed"]
+    assert fixed
+    for k, joint in enumerate(fixed):
+        root = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+        j = next(j for j in root.iter("joint") if j.get("name") == joint)
+        link = j.find("child").get("link")
+        j.set("name", link)
+        urdf = tmp_path / f"panda{k}.urdf"
+        ET.ElementTree(root).write(urdf)
+        folder = on_path / f"arm{k}"
+        notes = import_robot(urdf, f"arm{k}", folder)
+        assert any(f"renamed {link}_joint" in n for n in notes), notes
+        assert not _errors(check_robot(folder, build=False))
+        imported = folder / f"arm{k}.urdf"
+        imported.write_text(imported.read_text().replace(f'"{link}_joint"', f'"{link}"'))
+        (error,) = _errors(check_robot(folder, build=False))
+        assert f"joint {link!r} has the name of a link" in error
+
+
+@pytest.mark.parametrize(
+    ("insert", "refused"),
+    [
+        ('<xacro:property name="d" value="0.1"/>', True),
+        (
+            '<link name="extra"><visual><geometry><box size="${d} 1 1"/></geometry>'
+            "</visual></link>",
+            True,
+        ),
+        ('<!-- <xacro:property name="d" value="0.1"/> -->', False),
+    ],
+)
+def test_only_xacro_left_outside_comments_is_refused(on_path, tmp_path, insert, refused):
+    """Expanded URDFs often keep xacro in comments (example-robot-data's bolt, finger, TALOS):
+    they import; an element or a ${...} value xacro did not expand is refused in one line."""
+    text = (ERD / "ur_description/urdf/ur5_robot.urdf").read_text()
+    head, sep, tail = text.partition(">\n")  # after the <?xml ...?> line
+    start = tail.index("<robot") + len("<robot")
+    if "xmlns:xacro" not in tail:
+        tail = tail[:start] + ' xmlns:xacro="http://www.ros.org/wiki/xacro"' + tail[start:]
+    end = tail.index(">", start) + 1
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(head + sep + tail[:end] + "\n" + insert + tail[end:])
+    if refused:
+        with pytest.raises(RobotImportError, match="a xacro file; expand it first"):
+            import_robot(urdf, "arm", on_path / "arm")
+    else:
+        import_robot(urdf, "arm", on_path / "arm")
+
+
+def _jaws(open_gap: float, closed: bool = True):
+    """Two 2 x 2 x 6 cm jaws on a 6 x 2 x 2 cm palm, ``open_gap`` apart (0: a solid block)."""
+    import trimesh
+
+    w = (0.06 - open_gap) / 2
+    parts = [
+        trimesh.creation.box(
+            (0.06, 0.02, 0.02), trimesh.transformations.translation_matrix((0, 0, 0.01))
+        )
+    ]
+    for side in (-1, 1):
+        centre = (side * (0.03 - w / 2), 0, 0.05)
+        parts.append(
+            trimesh.creation.box(
+                (w, 0.02, 0.06), trimesh.transformations.translation_matrix(centre)
+            )
+        )
+    mesh = trimesh.util.concatenate(parts)
+    if not closed:
+        mesh.update_faces(np.arange(len(mesh.faces)) != 0)
+    return mesh
+
+
+@pytest.mark.parametrize(
+    ("gap", "closed", "noted"), [(0.0, True, False), (0.04, True, True), (0.04, False, True)]
+)
+def test_a_hand_mesh_far_from_convex_is_noted(ur10_copy, gap, closed, noted):
+    """MuJoCo collides a mesh as its convex hull: jaws whose hull fills the gap between them
+    push objects away. The check notes a hand link's collision mesh filling < 80 % of its hull
+    (closed or not); a solid block passes."""
+    stl = ur10_copy / "jaws.stl"
+    _jaws(gap, closed).export(stl)
+    urdf = ur10_copy / "ur10.urdf"
+    root = ET.parse(urdf).getroot()
+    link = next(k for k in root.iter("link") if k.get("name") == "finger_left_link")
+    for c in link.findall("collision"):
+        link.remove(c)
+    collision = ET.SubElement(link, "collision")
+    ET.SubElement(ET.SubElement(collision, "geometry"), "mesh", filename=str(stl))
+    ET.ElementTree(root).write(urdf)
+    findings = check_robot(ur10_copy, build=False)
+    assert not _errors(findings)
+    notes = [str(f) for f in findings if "convex hull" in f.message]
+    assert len(notes) == noted and (not noted or "link finger_left_link" in notes[0]), notes
+
+
+def test_an_srdf_end_effector_on_a_jaw_puts_the_gripper_on_the_palm(on_path, tmp_path):
+    """An SRDF may name a moving jaw as its end effector (example-robot-data's z1): each finger
+    link of an arm in turn, moved by a joint its SRDF's arm group leaves out, gives a gripper on
+    the link the jaw is mounted on, with that joint; the folder checks."""
+    srdf = (ERD / "panda_description/srdf/panda.srdf").read_text()
+    sroot = ET.fromstring(srdf)
+    ee = sroot.find("end_effector").get("parent_link")
+    arm = max(({j.get("name") for j in g.findall("joint")} for g in sroot.iter("group")), key=len)
+    urdf = ET.parse(ERD / "panda_description/urdf/panda.urdf").getroot()
+    jaws = [
+        j
+        for j in urdf.iter("joint")
+        if j.get("type") in ("revolute", "prismatic")
+        and j.find("mimic") is None
+        and j.get("name") not in arm
+    ]
+    assert jaws
+    for k, joint in enumerate(jaws):
+        link = joint.find("child").get("link")
+        moved = tmp_path / f"arm{k}.srdf"
+        moved.write_text(srdf.replace(f'parent_link="{ee}"', f'parent_link="{link}"'))
+        folder = on_path / f"arm{k}"
+        import_robot(ERD / "panda_description/urdf/panda.urdf", f"arm{k}", folder, moved)
+        (gripper,) = robots.semantics(folder).grippers
+        assert gripper.link == joint.find("parent").get("link")
+        assert gripper.joint == joint.get("name")
+        assert not _errors(check_robot(folder, build=False))
