@@ -352,10 +352,13 @@ bool Inside(double value, double lo, double hi, double tol) {
   return value >= lo - tol && value <= hi + tol;
 }
 
+double CarriedValue(const Impl& w, int i, const Eigen::VectorXd& x) {
+  return w.g_col[i] >= 0 ? x[w.g_col[i]] : w.G.row(i).dot(x);
+}
+
 bool CarriedFeasible(const Impl& w, const Eigen::VectorXd& x, double tol) {
   for (int i = 0; i < w.num_carried; ++i) {
-    const double value = w.g_col[i] >= 0 ? x[w.g_col[i]] : w.G.row(i).dot(x);
-    if (!Inside(value, w.glo[i], w.ghi[i], tol)) return false;
+    if (!Inside(CarriedValue(w, i, x), w.glo[i], w.ghi[i], tol)) return false;
   }
   return true;
 }
@@ -1039,10 +1042,8 @@ bool ReviveMovedRows(Impl& w, int mi, double tol) {
   bool revived = false;
   for (int t = 0; t < w.num_carried + mi; ++t) {
     if (w.row_live[t]) continue;
-    const bool own = t >= w.num_carried;
-    const int i = own ? t - w.num_carried : t;
-    const int col = own ? w.c_col[i] : w.g_col[i];
-    const double value = col >= 0 ? w.x[col] : (own ? w.C.row(i) : w.G.row(i)).dot(w.x);
+    const double value =
+        t >= w.num_carried ? RowValue(w, t - w.num_carried, w.x) : CarriedValue(w, t, w.x);
     if (std::abs(value - w.row_val[t]) > tol) w.row_live[t] = revived = true;
   }
   return revived;
