@@ -20,7 +20,8 @@ the last hang_s: a hung owner falls silent hang_s later, a dead process at once.
                                                 HeartbeatOptions{period_s, hang_s});
            }),
            py::arg("url"), py::arg("source"), py::arg("key") = py::bytes(),
-           py::arg("period_s") = 0.02, py::arg("hang_s") = 2.0)
+           py::arg("period_s") = HeartbeatOptions{}.period_s,
+           py::arg("hang_s") = HeartbeatOptions{}.hang_s)
       .def("feed", &Heartbeat::Feed, "The owner is alive.")
       .def("stop", &Heartbeat::Stop, py::call_guard<py::gil_scoped_release>(),
            "Stops beating and joins the thread (idempotent).")

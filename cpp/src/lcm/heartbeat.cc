@@ -20,6 +20,11 @@ int64_t WallUs() {
       .count();
 }
 
+// max <- value if larger (one writer per maximum: Feed's thread, or Run's).
+void RaiseTo(std::atomic<int64_t>& max, int64_t value) {
+  if (value > max.load(std::memory_order_relaxed)) max.store(value, std::memory_order_relaxed);
+}
+
 }  // namespace
 
 Heartbeat::Heartbeat(const std::string& url, std::string source, const std::string& key,
@@ -45,9 +50,7 @@ Heartbeat::~Heartbeat() { Stop(); }
 void Heartbeat::Feed() {
   const int64_t now_us = WallUs();
   const int64_t last_us = fed_us_.exchange(now_us, std::memory_order_relaxed);
-  if (last_us > 0 && now_us - last_us > longest_gap_us_.load(std::memory_order_relaxed)) {
-    longest_gap_us_.store(now_us - last_us, std::memory_order_relaxed);
-  }
+  if (last_us > 0) RaiseTo(longest_gap_us_, now_us - last_us);
 }
 
 void Heartbeat::Stop() {
@@ -89,10 +92,7 @@ void Heartbeat::Run() {
       lcm_->publish(channels::kCommand, buffer.data(), static_cast<unsigned int>(buffer.size()));
     }
     beats_.fetch_add(1, std::memory_order_relaxed);
-    if (last_beat_us > 0 &&
-        now_us - last_beat_us > longest_beat_gap_us_.load(std::memory_order_relaxed)) {
-      longest_beat_gap_us_.store(now_us - last_beat_us, std::memory_order_relaxed);
-    }
+    if (last_beat_us > 0) RaiseTo(longest_beat_gap_us_, now_us - last_beat_us);
     last_beat_us = now_us;
   }
 }
