@@ -276,7 +276,9 @@ def _markdown(r: dict[str, Any]) -> str:
     lines += [
         "",
         "Files: `controllers.yaml` (the generated controllers), `run.lcmlog` (every LCM "
-        "message of the run; `marionette replay run.lcmlog`), `logs/` (process outputs).",
+        "message of the run: `marionette replay run.lcmlog --view` plays it in the browser, "
+        "`--controller` / `--supervisor` re-run the controller / the supervisor's decisions "
+        "from it), `logs/` (process outputs).",
     ]
     return "\n".join(lines) + "\n"
 

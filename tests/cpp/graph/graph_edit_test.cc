@@ -1,6 +1,9 @@
 // GraphEdit + Graph::Apply: a controller replaced between two ticks.
 #include <gtest/gtest.h>
 
+#include <atomic>
+#include <thread>
+
 #include "marionette/graph/arithmetic.h"
 #include "marionette/graph/graph.h"
 
@@ -51,6 +54,37 @@ TEST(GraphEditTest, SwapsAControllerAtATickBoundary) {
   EXPECT_TRUE(f.integrator->state_output().value().isApprox(Eigen::Vector2d(0.07, 0.07)));
   edit.reset();  // off the loop thread in the controller
   EXPECT_TRUE(old_controller.expired());
+}
+
+// The controller builds the next controller's edit on its LCM thread while the loop ticks: the
+// plug checks of that edit read the shapes of live signals, whose values the loop is rewriting.
+// A state's value passes through a moved-from (empty) vector while it is committed, so a shape
+// read from the value could say 0x1 and refuse a good controller ("shape mismatch: ... 8x1 cannot
+// feed ... 8x1", one Panda trial in 20). A signal's shape is what it was declared with.
+TEST(GraphEditTest, PlugsToLiveStatesWhileTheLoopCommitsThem) {
+  Fixture f;
+  std::atomic<bool> done{false};
+  std::atomic<int64_t> ticks{0};
+  std::thread loop([&] {
+    Tick t;
+    while (!done.load()) {
+      RunTicks(*f.graph, &t, 100);
+      ticks += 100;
+    }
+  });
+  int refused = 0;
+  while (ticks.load() < 2'000'000) {
+    GraphEdit edit(*f.graph);
+    auto& reader = edit.Add<VectorGain>("reader", 2, 1.0);
+    try {
+      edit.Connect(f.integrator->state_output(), reader.in_input());
+    } catch (const GraphError&) {
+      ++refused;
+    }
+  }
+  done = true;
+  loop.join();
+  EXPECT_EQ(refused, 0);
 }
 
 TEST(GraphEditTest, StaleOrUnpreparedEditsAreNotApplied) {

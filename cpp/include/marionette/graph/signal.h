@@ -114,7 +114,10 @@ class OutputSignal final : public SignalBase {
 
   OutputSignal(Entity* owner, std::string name, SignalKind kind, T model, Calc calc,
                std::vector<const SignalBase*> prerequisites)
-      : SignalBase(owner, std::move(name), kind), value_(std::move(model)), calc_(std::move(calc)) {
+      : SignalBase(owner, std::move(name), kind),
+        value_(std::move(model)),
+        shape_(ValueTraits<T>::ShapeOf(value_)),
+        calc_(std::move(calc)) {
     prerequisites_ = std::move(prerequisites);
   }
 
@@ -140,13 +143,16 @@ class OutputSignal final : public SignalBase {
 
   std::type_index type() const override { return typeid(T); }
   const char* type_name() const override { return ValueTraits<T>::kName; }
-  Shape shape() const override { return ValueTraits<T>::ShapeOf(value_); }
+  /// The declared shape (the model's), not the current value's: another thread may read it
+  /// while the loop rewrites the value (a committed state passes through an empty vector).
+  Shape shape() const override { return shape_; }
   void Pull(const Tick& t) override { Eval(t); }
   void Flatten(double* out) const override { ValueTraits<T>::Flatten(value_, out); }
   bool IsFinite() const override { return ValueTraits<T>::IsFinite(value_); }
 
  private:
   T value_;
+  Shape shape_;  // of the model: a computation or a write keeps it (the swaps never allocate)
   Calc calc_;
   int64_t last_index_ = -1;
   int64_t num_evaluations_ = 0;
