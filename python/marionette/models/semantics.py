@@ -29,6 +29,8 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 import yaml
 
+from marionette.schemas import DataFileError, read_yaml
+
 
 class SemanticsError(ValueError):
     """A YAML declaration is malformed; the message names the file and the entry."""
@@ -246,13 +248,10 @@ def pregrasp_distance(gripper: Gripper, handle: Handle) -> float:
 
 def load_semantics(path: str | Path) -> Semantics:
     """Parse a ``models/**/<name>.yaml`` declaration; raises SemanticsError naming the culprit."""
-    path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise SemanticsError(f"{path}: no such file") from None
-    except yaml.YAMLError as e:
-        raise SemanticsError(f"{path}: not valid YAML: {e}") from None
+        data, _ = read_yaml(path)
+    except DataFileError as e:
+        raise SemanticsError(str(e)) from None
     return semantics_from_dict(data, str(path))
 
 

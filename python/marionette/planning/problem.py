@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 import pinocchio as pin
-import yaml
+
+from marionette.schemas import DataFileError, read_yaml
 
 
 class ProblemError(ValueError):
@@ -505,14 +506,9 @@ def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
 
 def _load_yaml(path: Path) -> dict[str, Any]:
     try:
-        with open(path) as f:
-            data = yaml.safe_load(f)
-    except OSError as e:
-        raise ProblemError(f"cannot read problem file {path}: {e}") from e
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark or e.context_mark
-        where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
-        raise ProblemError(f"{where}: not valid YAML: {e.problem or e.context}") from None
+        data, _ = read_yaml(path)
+    except DataFileError as e:
+        raise ProblemError(str(e)) from None
     if not isinstance(data, dict):
         raise ProblemError(f"{path}: a problem file is a YAML mapping")
     return data

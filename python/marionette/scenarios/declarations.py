@@ -29,11 +29,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from marionette import schemas
 from marionette.scenarios.base import Scenario, ScenarioError
 from marionette.scenarios.plan_and_execute import PROBLEMS_DIR, SCENES_DIR, PlanAndExecute
+from marionette.schemas import DataFileError, read_yaml
 
 BUNDLED_DIR = Path(__file__).resolve().parent / "declarations"
 PATH_VARIABLE = "MARIONETTE_SCENARIO_PATH"
@@ -135,11 +134,9 @@ def load_declaration(path: Path) -> PlanAndExecute:
     """The scenario declared in the YAML file ``path`` (named after it: ``<name>.yaml``)."""
     path = Path(path)
     try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise ScenarioError(f"cannot read the scenario declaration {path}: {e}") from e
-    except yaml.YAMLError as e:
-        raise ScenarioError(f"{path}: not YAML: {e}") from e
+        doc, _ = read_yaml(path)
+    except DataFileError as e:
+        raise ScenarioError(str(e)) from None
     scenario = declaration_from_document(doc, path.resolve().parent, str(path))
     if scenario.name != path.stem:
         raise ScenarioError(

@@ -25,7 +25,15 @@ import yaml
 
 SCHEMAS_DIR = Path(__file__).resolve().parent
 
-__all__ = ["SCHEMAS_DIR", "DataFileError", "load_validated", "problems", "schema", "validate"]
+__all__ = [
+    "SCHEMAS_DIR",
+    "DataFileError",
+    "load_validated",
+    "problems",
+    "read_yaml",
+    "schema",
+    "validate",
+]
 
 
 class DataFileError(ValueError):
@@ -46,23 +54,34 @@ def _validator(name: str) -> jsonschema.protocols.Validator:
     return cls(s)
 
 
-def load_validated(path: str | Path, schema_name: str) -> dict[str, Any]:
-    """The YAML mapping of ``path``, checked against schema ``schema_name``; raises
-    :class:`DataFileError` with ``path:line: key: problem`` otherwise."""
+def read_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
+    """The parsed YAML of ``path`` and its node tree (for line numbers); raises
+    :class:`DataFileError` with one line, ``path[:line]: problem``, when it is missing, unreadable
+    or not YAML. Every data file of the project is read by this function."""
     path = Path(path)
     try:
         text = path.read_text()
     except FileNotFoundError:
         raise DataFileError(f"{path}: no such file") from None
-    except OSError as e:
-        raise DataFileError(f"{path}: cannot read it ({e.strerror})") from None
+    except IsADirectoryError:
+        raise DataFileError(f"{path}: is a folder, not a file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        reason = e.strerror if isinstance(e, OSError) else "not text"
+        raise DataFileError(f"{path}: cannot read it ({reason})") from None
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-        data = yaml.safe_load(text)
+        return yaml.safe_load(text), yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
         raise DataFileError(f"{where}: not valid YAML: {e.problem or e.context}") from None
+    except yaml.YAMLError as e:
+        raise DataFileError(f"{path}: not valid YAML: {str(e).splitlines()[0]}") from None
+
+
+def load_validated(path: str | Path, schema_name: str) -> dict[str, Any]:
+    """The YAML mapping of ``path``, checked against schema ``schema_name``; raises
+    :class:`DataFileError` with ``path:line: key: problem`` otherwise."""
+    data, node = read_yaml(path)
     validate(data, schema_name, str(path), node)
     return data
 
