@@ -65,6 +65,9 @@ MISTAKES = [
     (["plan", _bad_problem], 2, "bad.yaml"),
     (["plan", "nope.yaml"], 2, "no problem file"),
     (["dg", "--timeout", "1", "ls", "--lcm-url", URL], 1, "no reply"),
+    (["fsm", "--timeout", "1", "state", "--lcm-url", URL], 1, "is a supervisor running on"),
+    (["fsm", "--timeout", "1", "events", "--lcm-url", URL], 1, "is a supervisor running on"),
+    (["demo", _bad_problem], 2, "bad.yaml:4: not valid YAML"),
 ]
 
 

@@ -195,7 +195,12 @@ def run_fsm(args: argparse.Namespace) -> int:
             states = MessageLog(bus, channels.SUPERVISOR_STATE, lcmt_supervisor_state)
             bus.start()
             if not states.wait_for(lambda m: len(m) > 0, args.timeout):
-                print(f"no SUPERVISOR_STATE within {args.timeout} s", file=sys.stderr)
+                print(
+                    f"marionette fsm state: no SUPERVISOR_STATE within {args.timeout} s "
+                    f"(is a supervisor running on {bus.url}? `marionette demo` or "
+                    "`marionette supervise` runs one)",
+                    file=sys.stderr,
+                )
                 return 1
             s = states.latest()
             assert s is not None  # wait_for saw one, and the log only grows
@@ -213,4 +218,12 @@ def run_fsm(args: argparse.Namespace) -> int:
             for e in events.messages[shown:]:
                 print(f"{e.utime * 1e-6:10.3f}  {e.source:10s} {e.name:20s} {e.detail}")
                 shown += 1
+        if shown == 0 or shown < args.count:
+            print(
+                f"marionette fsm events: {shown} of {args.count or 'any'} SUPERVISOR_EVENT within "
+                f"{args.timeout} s (is a supervisor running on {bus.url}? a longer --timeout "
+                "waits more)",
+                file=sys.stderr,
+            )
+            return 1
         return 0
