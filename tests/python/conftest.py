@@ -93,6 +93,18 @@ def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
     return run
 
 
+# Fixtures that run something long (a demo, a plan of the humanoid): a test that uses one is a long
+# end-to-end run whatever its own body does, so it goes with the slow tests (`make test-fast`
+# leaves it out) without each test having to say so.
+LONG_FIXTURES = {"ur10_box_run", "talos_plank"}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if LONG_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
+
 def pytest_sessionfinish(session, exitstatus):
     """An area with no test of the selected kind (``-m slow`` where none is slow) passes: ctest
     runs each area's quick and slow tests as two entries."""

@@ -12,6 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 PARENT = """
 import sys, time
 from marionette.processes import ProcessGroup
@@ -31,6 +33,7 @@ def _alive(pid: int) -> bool:
     return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
 
 
+@pytest.mark.slow
 def test_sigterm_to_the_parent_stops_the_group(tmp_path):
     parent = subprocess.Popen(
         [sys.executable, "-c", PARENT, str(tmp_path)], stdout=subprocess.PIPE, text=True
@@ -59,6 +62,7 @@ with ProcessGroup("udpm://239.255.76.67:7667?ttl=0", sys.argv[1]) as group:
 """
 
 
+@pytest.mark.slow
 def test_a_second_sigterm_while_the_group_stops_does_not_cut_the_stop_short(tmp_path):
     """A process started with PR_SET_PDEATHSIG gets SIGTERM once per thread of its dying parent:
     the ones that arrive while the group is stopping must not leave the rest running."""

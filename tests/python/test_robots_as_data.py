@@ -8,6 +8,8 @@ from __future__ import annotations
 import ast
 import re
 
+import pytest
+
 from marionette import REPO_ROOT, robots
 
 # Experiments name the robot they run: the scenarios and the benchmarks.
@@ -56,6 +58,7 @@ def _python_code_strings(tree: ast.AST) -> list[tuple[int, str]]:
     return found
 
 
+@pytest.mark.slow
 def test_no_robot_is_named_in_the_code():
     names = robots.robot_names()
     assert len(names) >= 3

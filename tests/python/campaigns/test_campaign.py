@@ -124,6 +124,7 @@ def test_a_campaign_reports_what_its_trials_reported(tmp_path, campaign_checks):
     assert progress["done"] == 12 and progress["running"] == []
 
 
+@pytest.mark.slow
 def test_a_resumed_campaign_runs_only_what_has_no_report(tmp_path, campaign_checks):
     Campaign(tmp_path, settings(6), UR10_BOX, log=lambda m: None).run(ScriptedEngine(lost={102}))
     kept = (tmp_path / "trials" / "seed100" / "report.json").stat().st_mtime_ns

@@ -14,6 +14,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 import lcm
 from marionette import (
@@ -53,6 +54,7 @@ def _spec(controller_id: int, **fields) -> lcmt_controller_spec:
     return msg
 
 
+@pytest.mark.slow
 def test_absurd_values_and_unknown_names_are_refused_with_their_reason(
     build_dir, lcm_url, tmp_path
 ):
@@ -218,6 +220,7 @@ while True:
 """
 
 
+@pytest.mark.slow
 def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(build_dir, lcm_url, tmp_path):
     with controller_running(
         build_dir, lcm_url, tmp_path / "logs", *UR10, "--state-rate", "1000"
@@ -320,6 +323,7 @@ def _stalled_supervisor(c, lcm_url: str, stall_s: float) -> tuple[list[str], flo
         driver.wait(10)
 
 
+@pytest.mark.slow
 def test_a_supervisor_kept_from_running_python_stays_heard(build_dir, lcm_url, tmp_path):
     """The heartbeat comes from a C++ thread: a supervisor whose interpreter is held for 0.5 s
     (five times the controller's 100 ms timeout; a heartbeat sent from Python would be silent
@@ -330,6 +334,7 @@ def test_a_supervisor_kept_from_running_python_stays_heard(build_dir, lcm_url, t
         assert set(modes) == {"running"}, (set(modes), c.status.mode_reason)
 
 
+@pytest.mark.slow
 def test_a_supervisor_whose_python_hangs_falls_silent(build_dir, lcm_url, tmp_path):
     """...but only while its Python runs within the heartbeat's hang window (1 s): held for
     1.6 s, the beats stop and the controller holds, the silence measured from the last beat."""
@@ -341,6 +346,7 @@ def test_a_supervisor_whose_python_hangs_falls_silent(build_dir, lcm_url, tmp_pa
         assert reason.startswith("supervisor silent: nothing heard for "), reason
 
 
+@pytest.mark.slow
 def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
     """The hold on a killed supervisor is the loop's decision at a tick that depends on wall-clock
     timing: journaled, a replay takes it at the same tick and reproduces every command."""

@@ -7,11 +7,13 @@ import math
 import subprocess
 
 import numpy as np
+import pytest
 
 from marionette import robots
 from marionette.control.client import vector_to_pose
 
 
+@pytest.mark.slow
 def test_camera_frames_rate_intrinsics_and_depth(run_controller):
     scene = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
     with run_controller(
@@ -60,6 +62,7 @@ def _two_frames(run_controller, *args: str) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
+@pytest.mark.slow
 def test_camera_noise_has_the_requested_sigma(run_controller):
     """--camera-noise 3: TIAGo holds still (without noise two frames differ in < 0.1 % of their
     values, by one grey level at most: checked first), so two noisy frames differ by the noise

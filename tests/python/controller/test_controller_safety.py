@@ -7,6 +7,7 @@ import random
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from marionette import (
     channels,
@@ -141,6 +142,7 @@ def test_watchdog_holds_when_references_stop_and_estop_latches(run_controller):
         )
 
 
+@pytest.mark.slow
 def test_a_burst_of_chunks_is_taken_whole_and_a_chunk_after_a_lost_one_refused(run_controller):
     """A supervisor streams 4 s ahead: its first burst is tens of chunks per task at once. LCM
     queues 30 messages per subscription by default and silently drops the rest when the
@@ -270,6 +272,7 @@ def _semantic_garbage(rng: random.Random, channel: str, k: int, utime: int):
     return msg
 
 
+@pytest.mark.slow
 def test_garbage_on_every_input_channel_is_counted_and_never_moves_the_robot(run_controller):
     rng = random.Random(20261121)
     with run_controller(

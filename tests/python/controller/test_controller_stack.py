@@ -50,6 +50,7 @@ def stack(controller_id: int, gripper: bool = False, posture_gain: float = 1.0) 
     )
 
 
+@pytest.mark.slow
 def test_talos_stands_then_reaches_a_target_10cm_away(run_controller, talos):
     scene = str(TALOS.mjcf)
     with run_controller(
@@ -119,6 +120,7 @@ def test_talos_stands_then_reaches_a_target_10cm_away(run_controller, talos):
         assert c.status.mode == "running"
 
 
+@pytest.mark.slow
 def test_simulated_grasp_carries_the_plank_and_release_lets_it_go(run_controller, talos):
     """SIM_COMMAND attach welds the plank to the gripper at their current relative pose: lifting
     the gripper 5 cm lifts the plank with it; after detach the gripper leaves it behind."""

@@ -8,6 +8,7 @@ import math
 import subprocess
 
 import numpy as np
+import pytest
 
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import configuration_from_state
@@ -16,6 +17,7 @@ from marionette.scenarios.perturbations import scene_with_joint_offsets
 OFFSET = math.radians(7.0)
 
 
+@pytest.mark.slow
 def test_calibrated_encoders_read_the_true_angle_and_the_robot_holds_still(
     run_controller, tmp_path
 ):

@@ -8,6 +8,7 @@ a bad parameter is refused with its name."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from marionette import robots
 from marionette.control.introspection import GraphClient
@@ -51,6 +52,7 @@ def _admittance(**parameters: float) -> TaskSpec:
     )
 
 
+@pytest.mark.slow
 def test_talos_gripper_closes_to_its_limit_without_contact(run_controller, lcm_url):
     with (
         run_controller(

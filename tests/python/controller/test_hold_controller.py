@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from marionette import channels, lcmt_robot_state, lcmt_walk_status, robots
 from marionette.control.client import configuration_from_state
@@ -37,6 +38,7 @@ def forward_plan(left, right, count: int, length: float):
     return FootstepPlan({"left": np.array(left), "right": np.array(right)}, steps).to_lcm(0, 1)
 
 
+@pytest.mark.slow
 def test_an_arm_over_budget_holds_its_posture_and_takes_a_new_controller(run_controller, lcm_url):
     with run_controller(*UR10, "--overrun-hold-ticks", "20") as c, GraphClient(lcm_url) as dg:
         # Every joint heads 0.3 rad away: the arm is moving when the solver overruns.
@@ -84,6 +86,7 @@ def test_an_arm_over_budget_holds_its_posture_and_takes_a_new_controller(run_con
         )
 
 
+@pytest.mark.slow
 def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
     build_dir, lcm_url, tmp_path
 ):
@@ -232,6 +235,7 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
     assert result["max_difference"] <= 1e-9 and result["ok"], result["output"]
 
 
+@pytest.mark.slow
 def test_a_standing_humanoid_over_budget_holds_its_feet_and_aims_its_com_between_them(
     build_dir, lcm_url, tmp_path
 ):

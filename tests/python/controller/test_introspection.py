@@ -27,6 +27,7 @@ def arm(controller_id: int, gain: float = 1.0) -> ControllerSpec:
     )
 
 
+@pytest.mark.slow
 def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
     with run_controller(*UR10) as c, GraphClient(lcm_url) as dg:
         c.send_spec(arm(1))
@@ -95,6 +96,7 @@ def test_ls_get_set_graph_and_cli(run_controller, lcm_url, lcm_env):
         assert refused.returncode == 1 and "not settable" in refused.stderr
 
 
+@pytest.mark.slow
 def test_trace_at_1khz_gets_every_tick_and_timing_is_unchanged(run_controller, lcm_url):
     # As deployed: the loop at SCHED_FIFO 80, the LCM thread that serves the trace at 40. At normal
     # priority on 2 cores the loop shares the CPU with this test's receiver of 1000 samples/s, and

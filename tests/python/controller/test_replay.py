@@ -101,6 +101,7 @@ def run_log(tmp_path_factory, build_dir, lcm_url) -> Path:
     return log
 
 
+@pytest.mark.slow
 def test_replay_reproduces_every_recorded_command(run_log):
     result = replay_controller(run_log)
     assert result["problems"] == [], result["output"]
@@ -137,6 +138,7 @@ def _rewrite(src: Path, dst: Path, edit) -> None:
     out.close()
 
 
+@pytest.mark.slow
 def test_a_tampered_command_is_reported_at_its_tick(run_log, tmp_path):
     commands = _commands(run_log)
     victim = commands[len(commands) // 2]
@@ -159,6 +161,7 @@ def test_a_tampered_command_is_reported_at_its_tick(run_log, tmp_path):
     assert 0.9e-6 < result["max_difference"] < 1.1e-6
 
 
+@pytest.mark.slow
 def test_a_missing_input_is_named(run_log, tmp_path):
     dropped = []
 

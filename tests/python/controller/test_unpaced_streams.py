@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import configuration_from_state, pose_to_vector
@@ -61,6 +62,7 @@ def _streaming(c):
     return chunk
 
 
+@pytest.mark.slow
 def test_a_slow_streamer_holds_the_unpaced_clock_without_tripping_the_watchdog(run_controller):
     with run_controller(*UR10, "--state-rate", "1000") as c:
         states = MessageLog(c.bus, channels.ROBOT_STATE, lcmt_robot_state)
@@ -79,6 +81,7 @@ def test_a_slow_streamer_holds_the_unpaced_clock_without_tripping_the_watchdog(r
         assert c.status.mode == "running", c.status.mode_reason
 
 
+@pytest.mark.slow
 def test_a_streamer_gone_trips_the_watchdog_after_the_wait_and_a_command_ends_it(run_controller):
     with run_controller(*UR10, "--state-rate", "100") as c:
         chunk = _streaming(c)

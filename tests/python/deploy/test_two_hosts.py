@@ -27,6 +27,7 @@ def hosts():
         pytest.skip(str(e))
 
 
+@pytest.mark.slow
 def test_controller_on_one_host_driven_and_inspected_from_the_other(hosts, build_dir, tmp_path):
     a, b = hosts
     scene = str(robots.MODELS_DIR / "scenes" / "ur10_box.xml")
@@ -71,6 +72,7 @@ def test_controller_on_one_host_driven_and_inspected_from_the_other(hosts, build
     assert result["listing_has_solver"], result
 
 
+@pytest.mark.slow
 def test_ttl_0_keeps_lcm_on_its_host(hosts, build_dir):
     """The set-up the README describes is what makes it work: the same URL with ttl=0 stays on
     host A (a user forgetting ttl=1 sees no controller, rather than a half-working link)."""
@@ -118,6 +120,7 @@ def test_ttl_0_keeps_lcm_on_its_host(hosts, build_dir):
     assert probe.stdout.strip().endswith("unseen"), probe.stdout + probe.stderr
 
 
+@pytest.mark.slow
 def test_ur10_pick_and_place_across_two_hosts(hosts, build_dir, tmp_path):
     """The UR10 box pick-and-place (`marionette demo ur10-box`): marionette-controller (MuJoCo)
     on host A; planning, the controller factory, the supervisor and the logger on host B."""

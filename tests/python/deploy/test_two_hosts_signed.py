@@ -47,6 +47,7 @@ def hosts():
         pytest.skip(str(e))
 
 
+@pytest.mark.slow
 def test_signed_commands_across_two_hosts(hosts, build_dir, tmp_path):
     a, b = hosts
     key = tmp_path / "marionette.key"

@@ -8,11 +8,14 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 import lcm
 from marionette import channels, lcmt_controller_status
 from marionette.execution.decision_replay import read_decision_log, replay_supervisor
 
 
+@pytest.mark.slow
 def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     log = ur10_box_run / "run.lcmlog"
     proc = subprocess.run(

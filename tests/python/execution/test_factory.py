@@ -50,6 +50,7 @@ FIG_3_13 = {
 }
 
 
+@pytest.mark.slow
 def test_talos_plank_controllers_are_those_of_fig_3_13(talos_plank):
     seen = set()
     for step, spec in zip(talos_plank.steps, talos_plank.specs):
@@ -85,7 +86,7 @@ def test_talos_plank_controllers_pass_their_checks(talos_plank):
     assert check_specs(p.steps, p.specs, p.ctx, p.robot_map) == []
 
 
-@pytest.mark.parametrize("which", ["ur10_box", "talos_plank"])
+@pytest.mark.parametrize("which", ["ur10_box", pytest.param("talos_plank", marks=pytest.mark.slow)])
 def test_references_at_step_ends_equal_the_plan_by_pinocchio(which, request):
     """First and last samples of every streamed reference against the plan's end
     configurations, through the planning problem's combined model (its own frames, with the

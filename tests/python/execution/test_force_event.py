@@ -131,6 +131,7 @@ def _check_cut(result, node):
     assert record.utime_end > record.utime_reference_end
 
 
+@pytest.mark.slow
 def test_force_event_cuts_the_reference_at_its_tick_and_the_fsm_goes_on(
     build_dir, lcm_url, tmp_path, ur10_box
 ):
@@ -138,6 +139,7 @@ def test_force_event_cuts_the_reference_at_its_tick_and_the_fsm_goes_on(
     _check_cut(*_run_with_contact(build_dir, lcm_url, tmp_path, ur10_box, 0.4))
 
 
+@pytest.mark.slow
 def test_force_event_in_the_last_lookahead_window_cuts_the_reference(
     build_dir, lcm_url, tmp_path, ur10_box
 ):

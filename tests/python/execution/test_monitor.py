@@ -139,6 +139,7 @@ def ur10_box_mujoco(build_dir, lcm_url, tmp_path):
         yield client
 
 
+@pytest.mark.slow
 def test_box_pulled_out_of_the_gripper_fails_the_step_and_holds(ur10_box_mujoco, ur10_box):
     """Live: the ur10-box plan in MuJoCo with the ground truth relayed as OBJECT_POSES (motion
     capture); once the box is carried, its weld is broken and the box put back on the table: the

@@ -92,6 +92,7 @@ def _check_within_limits(model: pin.Model, traj, streamed, v_max: float) -> None
         assert worst.max() <= 1.0 + 1e-6, (what, model.names, worst)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("robot", ROBOTS)
 def test_generated_steps_stream_within_the_joint_limits_once_re_timed(robot):
     model, _ = robots.load_pinocchio(robot, with_collision=False)

@@ -53,6 +53,7 @@ def _inject(client, name: str, value: float = 0.0) -> None:
     client.bus.publish(channels.SUPERVISOR_EVENT, msg)
 
 
+@pytest.mark.slow
 def test_plan_runs_to_done_through_every_controller(ur10_kinematic, ur10_box):
     c = ur10_kinematic
     result = _supervisor(c, ur10_box).run()

@@ -342,6 +342,7 @@ def test_the_factory_servoes_the_first_grasp_and_the_placement(talos_plank):
                 assert t.streamed and t.frame == talos_plank.ctx.gripper_frames[f"talos/{t.name}"]
 
 
+@pytest.mark.slow
 def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos_plank):
     """Rendered check of the gaze (MuJoCo, the demo scene, the demo's detector settings): along
     the approach to the first grasp, at the end of the carry to the pre-placement and during the

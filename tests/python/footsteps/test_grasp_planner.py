@@ -143,6 +143,7 @@ def test_frozen_replan_adds_steps_exactly_when_the_stance_is_beyond_the_chains_r
         _check_plan(planner, target, hand_axes=(0, 1))
 
 
+@pytest.mark.slow
 def test_replanning_beside_obstacles_adds_no_steps_for_a_closer_ball(robot, stance):
     """Moving the ball 0.5 m back towards the robot, beside two discs, never needs a longer
     walk: the replan keeps at most the initial plan's steps plus the pair a full replan's chain

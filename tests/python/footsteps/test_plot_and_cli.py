@@ -7,6 +7,7 @@ import sys
 
 import matplotlib.image as mpimg
 import numpy as np
+import pytest
 
 from footsteps_checks import TALOS_FOOT
 from marionette.footsteps.obstacles import Bar, CircleObstacle
@@ -39,6 +40,7 @@ def test_plot_writes_a_top_view_with_the_plan_drawn(tmp_path, stance):
         assert np.any(np.all(np.abs(rgb - color) < 0.06, axis=-1)), color
 
 
+@pytest.mark.slow
 def test_cli_plans_a_step_over_and_writes_the_figure(tmp_path, lcm_env):
     png = tmp_path / "step_over.png"
     out = subprocess.run(

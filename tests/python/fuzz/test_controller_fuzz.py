@@ -12,6 +12,8 @@ import os
 import random
 from pathlib import Path
 
+import pytest
+
 from marionette.control.fuzz import INPUTS, fuzz_controller
 from tests_support import controller_running
 
@@ -26,6 +28,7 @@ def _rss_mb(pid: int) -> float:
     raise AssertionError("no VmRSS")
 
 
+@pytest.mark.slow
 def test_every_mutation_is_refused_counted_with_its_reason_and_nothing_moves(
     build_dir, lcm_url, tmp_path
 ):

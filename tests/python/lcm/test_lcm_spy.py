@@ -8,6 +8,8 @@ import signal
 import subprocess
 import time
 
+import pytest
+
 import marionette
 from tests_support import wait_for_line
 
@@ -15,6 +17,7 @@ ROOT = marionette.REPO_ROOT
 NUM_TYPES = len(list((ROOT / "lcmtypes").glob("*.lcm")))
 
 
+@pytest.mark.slow
 def test_lcm_spy_type_database_decodes_cpp_messages(build_dir, lcm_url, tmp_path):
     jar = build_dir / "lcmtypes" / "marionette_lcmtypes.jar"
     classpath = f"{jar}:/usr/share/java/lcm.jar:{tmp_path}"
@@ -68,6 +71,7 @@ def test_lcm_spy_script_starts_and_finds_every_type(lcm_url):
     assert line is not None and line.strip() == f"Found {NUM_TYPES} LCM types"
 
 
+@pytest.mark.slow
 def test_lcm_spy_decodes_signed_messages(build_dir, lcm_url, tmp_path):
     """A signed message is the plain LCM message followed by its trailer (lcmtypes/README.md):
     lcm-spy's decoders stop at the message's end, so it shows signed channels as plain ones."""

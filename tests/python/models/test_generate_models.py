@@ -42,6 +42,7 @@ def _files(root):
     }
 
 
+@pytest.mark.slow
 def test_committed_models_are_byte_identical_to_a_fresh_run(fresh):
     committed = {f for f in _files(MODELS_DIR) if not _is_source(f)}
     generated = _files(fresh) - {
@@ -54,6 +55,7 @@ def test_committed_models_are_byte_identical_to_a_fresh_run(fresh):
     assert not different, f"regenerate and commit: {different}"
 
 
+@pytest.mark.slow
 def test_two_runs_give_the_same_bytes(fresh):
     again = generate.generated_files()
     assert {k: v for k, v in again.items()} == {f: (fresh / f).read_bytes() for f in again}

@@ -318,5 +318,6 @@ def test_missing_and_malformed_files_are_named(tmp_path):
         load_semantics(tmp_path / "nope.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: [unclosed\n")
-    with pytest.raises(SemanticsError, match=f"{bad}: not valid YAML"):
-        load_semantics(bad)
+    with pytest.raises(SemanticsError, match=rf"{bad}:2: not valid YAML") as e:
+        load_semantics(bad)  # the line where the parser stopped
+    assert "\n" not in str(e.value)

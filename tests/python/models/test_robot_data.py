@@ -31,6 +31,7 @@ def on_path(tmp_path, monkeypatch):
     return root
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     ("urdf", "srdf"),
     [
@@ -59,6 +60,7 @@ def test_an_imported_arm_checks_and_compiles(on_path, build_dir, urdf, srdf):
     assert name in robots.robot_names()
 
 
+@pytest.mark.slow
 def test_a_dae_only_arm_gets_converted_collision_meshes(on_path):
     folder = on_path / "kinova"
     import_robot(ERD / "kinova_description/robots/kinova.urdf", "kinova", folder)

@@ -30,6 +30,7 @@ def offset_scene(tmp_path_factory):
     )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("side", ["left", "right"])
 def test_every_offset_of_the_arm_within_0p3deg(offset_scene, side):
     cal = calibrate_arm(offset_scene, side, "talos", log=lambda line: None)
@@ -41,6 +42,7 @@ def test_every_offset_of_the_arm_within_0p3deg(offset_scene, side):
     assert summary["residual_position_mm"] < 3.0 and summary["residual_rotation_deg"] < 1.0, summary
 
 
+@pytest.mark.slow
 def test_the_command_prints_the_controller_option(offset_scene, tmp_path, capsys):
     from marionette.cli import main
 

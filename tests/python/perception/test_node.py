@@ -136,6 +136,7 @@ def test_robot_state_gives_the_configuration_and_the_camera_pose():
         kin.add_state(bad)
 
 
+@pytest.mark.slow
 def test_perceive_publishes_detections_and_world_poses_over_lcm(lcm_url, lcm_env, tmp_path):
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     q = robots.reference_configuration("talos", model)

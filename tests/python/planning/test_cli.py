@@ -22,6 +22,7 @@ def run_cli(*args):
     )
 
 
+@pytest.mark.slow
 def test_plan_writes_plan_and_graph_picture(tmp_path):
     r = run_cli(UR5_BOX, "--out", tmp_path, "--seed", "3")
     assert r.returncode == 0, r.stderr
@@ -38,6 +39,7 @@ def test_plan_reports_a_missing_problem_file(tmp_path):
     assert "nope.yaml" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_plan_reports_an_unknown_robot(tmp_path):
     bad = tmp_path / "bad.yaml"
     bad.write_text("name: x\nrobots:\n  - robot: nao\n")

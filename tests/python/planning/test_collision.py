@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from marionette.planning.collision import CollisionChecker
 from marionette.planning.graph_factory import graph_from_settings
@@ -18,6 +19,7 @@ def dense_first_collision(checker, path, step=5e-4):
     return None
 
 
+@pytest.mark.slow
 def test_certified_validation_agrees_with_dense_sampling(ur5_box):
     """Over transit paths of the UR5 (box still on the table): whenever the certified check
     accepts a path, dense sampling finds no collision; when it stops at s, the path is free

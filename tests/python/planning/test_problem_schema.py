@@ -118,6 +118,7 @@ def run_plan(*args):
     )
 
 
+@pytest.mark.slow
 def test_cli_refuses_a_typo_in_one_line(tmp_path):
     doc = copy.deepcopy(UR10_BOX)
     doc["planner"]["max_iteratons"] = 3

@@ -57,6 +57,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_bad_query_is_one_line_naming_what_fails(case, tmp_path):
     name, edit, fragments = CASES[case]

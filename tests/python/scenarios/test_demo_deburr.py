@@ -13,6 +13,7 @@ import re
 
 import numpy as np
 import pinocchio as pin
+import pytest
 import yaml
 
 import marionette
@@ -36,6 +37,7 @@ def _mjcf_body(text: str, name: str) -> pin.SE3:
     )
 
 
+@pytest.mark.slow
 def test_demo_deburr_every_hole_within_1_mm_1_deg(tmp_path, build_dir, lcm_env):
     out, report = run_demo(
         "deburr",

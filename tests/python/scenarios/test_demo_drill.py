@@ -26,6 +26,7 @@ def _se3(xyz, xyzw) -> pin.SE3:
     return pin.SE3(pin.Quaternion(w, x, y, z).normalized().matrix(), np.array(xyz, dtype=float))
 
 
+@pytest.mark.slow
 def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_env):
     out, report = run_demo(
         "drill",
@@ -90,6 +91,7 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_en
         assert abs(dp - row["position_error_m"]) < 1e-6 and abs(da - row["angle_error_deg"]) < 1e-3
 
 
+@pytest.mark.slow
 def test_drill_without_camera_detects_that_the_sensor_cannot_see_r1(tmp_path, build_dir):
     """§6.3: "Whenever one of those steps cannot be performed, the robot should autonomously detect
     its failure". Going to R1 on the nominal model alone (the offline program), the displaced

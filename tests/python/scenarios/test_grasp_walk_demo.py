@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+import pytest
 from scipy.spatial import ConvexHull
 
 from footsteps_checks import TALOS_GRASP_POINT
@@ -81,6 +82,7 @@ def zmp_inside(zmp, feet, half, tolerance):
     return ConvexHull(np.vstack([corners, zmp])).volume <= ConvexHull(corners).volume + 1e-12
 
 
+@pytest.mark.slow
 def test_grasp_walk_demo_reaches_the_moved_ball_without_falling(tmp_path, lcm_env):
     run, report = run_demo(
         "grasp-walk",

@@ -11,6 +11,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 import marionette
 from marionette.scenarios import plan_cache
 from marionette.scenarios.plan_and_execute import PROBLEMS_DIR
@@ -58,6 +60,7 @@ def test_the_digest_follows_the_planner_code(tmp_path, monkeypatch):
         plan_cache.planner_version.cache_clear()
 
 
+@pytest.mark.slow
 def test_a_cached_plan_is_reused_only_from_the_same_inputs(tmp_path, monkeypatch):
     messages: list[str] = []
     plan = cached_plan(UR10_BOX, 0, tmp_path, messages.append)
@@ -89,6 +92,7 @@ RACER = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 def test_trials_planning_the_same_key_at_once_plan_it_once(tmp_path):
     """Three processes ask for the same uncached plan at the same moment: one plans, the others
     wait for it and read the same plan; nothing half-written is left in the cache."""

@@ -11,11 +11,13 @@ import math
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from marionette import channels, lcmt_object_poses
 from tests_support import lcm_log_messages, run_demo
 
 
+@pytest.mark.slow
 def test_seed_103_calibrates_its_arms_and_places_the_plank(tmp_path, lcm_env, talos_plank):
     run, report = run_demo(
         "plank-flip",

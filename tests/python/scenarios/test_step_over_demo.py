@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
+import pytest
 
 from marionette import (
     channels,
@@ -62,6 +63,7 @@ def over_bar(points) -> bool:
     return bool(np.any((d[:, 0] <= BAR_RADIUS) & (d[:, 1] <= BAR_HALF_LENGTH)))
 
 
+@pytest.mark.slow
 def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lcm_env):
     run, report = run_demo(
         "step-over",

@@ -161,6 +161,7 @@ def check_stacks(seeds: range) -> dict:
     return counts
 
 
+@pytest.mark.slow
 def test_every_level_optimal_on_random_stacks():
     check_stacks(range(400))
 

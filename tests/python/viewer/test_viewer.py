@@ -38,6 +38,7 @@ def ur10_state(q: np.ndarray, model) -> lcmt_robot_state:
     return m
 
 
+@pytest.mark.slow
 def test_viewer_process_shows_the_robot_moving_and_the_fsm_state(lcm_url, tmp_path):
     model, _ = robots.load_pinocchio("ur10", with_collision=False)
     q_a = robots.reference_configuration("ur10", model)
@@ -92,6 +93,7 @@ def test_demo_view_served_the_run_and_stopped_with_it(ur10_box_run):
     assert "Traceback" not in viewer_log
 
 
+@pytest.mark.slow
 def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_path):
     log = ur10_box_run / "run.lcmlog"
     report = json.loads((ur10_box_run / "report.json").read_text())
@@ -160,6 +162,7 @@ def test_replay_view_rejects_bad_input(tmp_path):
         play(tmp_path / "x.lcmlog", None, speed=-1.0)
 
 
+@pytest.mark.slow
 def test_footstep_plan_is_drawn_as_soles(tmp_path):
     """FOOTSTEP_PLAN -> one sole box per step: the two right feet appear as two orange patches,
     the left foot as one blue patch (counted as connected regions of new pixels)."""

@@ -10,6 +10,7 @@ import subprocess
 import time
 
 import numpy as np
+import pytest
 from scipy.spatial import ConvexHull
 
 from marionette import (
@@ -62,6 +63,7 @@ def margin(point, corners) -> float:
     return float(-np.max(hull.equations[:, :2] @ point + hull.equations[:, 2]))
 
 
+@pytest.mark.slow
 def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_path):
     statuses: list = []
     states: list = []

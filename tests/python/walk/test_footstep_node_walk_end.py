@@ -39,6 +39,7 @@ def _ball(position):
     return msg
 
 
+@pytest.mark.slow
 def test_the_walk_ends_when_only_the_posture_step_is_left(build_dir, robot):
     from marionette.footsteps.node import FootstepNode, NodeOptions
 
