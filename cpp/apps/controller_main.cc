@@ -112,9 +112,12 @@ int main(int argc, char** argv) {
     if (std::strcmp(argv[i], "--replay") == 0) {
       try {
         return Replay(argc, argv);
-      } catch (const std::exception& e) {
+      } catch (const std::invalid_argument& e) {  // the command line (docs/errors.md: usage)
         std::cerr << "marionette-controller --replay: " << e.what() << "\n";
         return 2;
+      } catch (const std::exception& e) {  // the log: missing, unreadable
+        std::cerr << "marionette-controller --replay: " << e.what() << "\n";
+        return 1;
       }
     }
   }
@@ -135,9 +138,9 @@ int main(int argc, char** argv) {
     try {
       std::cout << mc::ToJson(mc::FindRobot(options.robot, options.models_dir)) << "\n";
       return 0;
-    } catch (const std::exception& e) {
+    } catch (const std::exception& e) {  // an unknown robot, an invalid robot.yaml
       std::cerr << "marionette-controller: " << e.what() << "\n";
-      return 2;
+      return 1;
     }
   }
   // One llvmpipe thread for the camera: rendering must not take the loop's core.

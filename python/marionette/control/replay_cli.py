@@ -117,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
         result = replay_controller(args.log, args.tolerance, args.scene)
     except (FileNotFoundError, RuntimeError) as e:
         print(f"marionette replay: {e}", file=sys.stderr)
-        return 2
+        return 1
     sys.stdout.write(result["output"])
     return 0 if result["ok"] else 1
 
@@ -133,7 +133,7 @@ def _run_supervisor(args: argparse.Namespace) -> int:
         result = replay_supervisor(args.log)
     except (FileNotFoundError, DecisionLogError) as e:
         print(f"marionette replay: {e}", file=sys.stderr)
-        return 2
+        return 1
     sys.stdout.write(format_verdict(args.log, result))
     return 0 if result.ok else 1
 
@@ -155,4 +155,4 @@ def _run_view(args: argparse.Namespace) -> int:
         )
     except (FileNotFoundError, ReplayError, ViewerError) as e:
         print(f"marionette replay: {e}", file=sys.stderr)
-        return 2
+        return 1

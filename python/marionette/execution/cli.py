@@ -112,7 +112,7 @@ def run_supervise(args: argparse.Namespace) -> int:
         steps = steps_from_plan(plan)
     except (OSError, ValueError, PlanError) as e:
         print(f"marionette supervise: {args.plan}: {e}", file=sys.stderr)
-        return 2
+        return 1
     ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=args.gripper_admittance)
     specs = build_specs(steps, ctx)
     specs_path = args.specs or args.plan.with_name("controllers.yaml")

@@ -158,8 +158,12 @@ def _perceive(args: argparse.Namespace) -> int:
         model, _ = robots.load_pinocchio(args.robot, with_collision=False)
         frame = args.camera_frame or robots.robot(args.robot).camera_frame
         if frame is None:
-            print(f"robot {args.robot} has no camera frame; pass --camera-frame", file=sys.stderr)
-            return 2
+            print(
+                f"marionette perceive: robot {args.robot} has no camera frame; pass "
+                "--camera-frame or add one to its robot.yaml",
+                file=sys.stderr,
+            )
+            return 1
         kinematics = CameraKinematics(model, frame)
         robot_sem = robots.semantics(args.robot)
         if robot_sem.tags:  # e.g. wrist tags, for the measured gripper pose of PBVS
@@ -175,7 +179,8 @@ def _perceive(args: argparse.Namespace) -> int:
     if args.quad_decimate is not None:
         if not args.quad_decimate >= 1.0:
             print(
-                f"perceive: --quad-decimate must be >= 1, got {args.quad_decimate}", file=sys.stderr
+                f"marionette perceive: --quad-decimate must be >= 1, got {args.quad_decimate}",
+                file=sys.stderr,
             )
             return 2
         config.detector.quad_decimate = args.quad_decimate

@@ -93,15 +93,15 @@ def run(args: argparse.Namespace) -> int:
             f"{hint}bundled: {', '.join(names)}",
             file=err,
         )
-        return 2
+        return 1
     try:
         problem = load_problem(args.problem)
     except (ProblemError, OSError) as e:
         print(f"marionette plan: {e}", file=err)
-        return 2
+        return 1
     if problem.q_init is None or problem.q_goal is None:
         print(f"marionette plan: {args.problem} needs 'init' and 'goal' configurations", file=err)
-        return 2
+        return 1
     out = args.out or (REPO_ROOT / "reports" / "plans" / problem.name)
     out.mkdir(parents=True, exist_ok=True)
     from marionette.planning.graph_factory import graph_from_settings

@@ -154,13 +154,16 @@ def run(args: argparse.Namespace) -> int:
         scenario = find(args.scenario)
     except ScenarioError as e:
         print(f"marionette demo: {e}", file=sys.stderr)
-        return 2
+        return 1
     from marionette.scenarios.perturbations import draw, settings_from_argument
     from marionette.schemas import DataFileError
 
     try:
         perturb = settings_from_argument(args.perturb)
-    except (ValueError, DataFileError) as e:
+    except DataFileError as e:  # a perturbation file: missing or invalid
+        print(f"marionette demo: {e}", file=sys.stderr)
+        return 1
+    except ValueError as e:  # the --perturb value itself
         print(f"marionette demo: {e}", file=sys.stderr)
         return 2
     seed0 = scenario.seed if args.seed is None else args.seed

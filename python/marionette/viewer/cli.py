@@ -45,4 +45,4 @@ def run(args: argparse.Namespace) -> int:
         return serve(args.robot, args.scene, args.lcm_url, args.url_file, args.rate)
     except ViewerError as e:
         print(f"marionette view: {e}", file=sys.stderr)
-        return 2
+        return 1

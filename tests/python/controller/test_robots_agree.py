@@ -93,7 +93,7 @@ def test_a_broken_robot_yaml_is_refused_in_one_line(build_dir, tmp_path, edit, m
         text=True,
         timeout=30,
     )
-    assert proc.returncode == 2
+    assert proc.returncode == 1
     assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
 
 
@@ -104,6 +104,6 @@ def test_an_unknown_robot_lists_the_known_ones(build_dir):
         text=True,
         timeout=30,
     )
-    assert proc.returncode == 2
+    assert proc.returncode == 1
     assert "unknown robot 'nosuch'; known robots: " in proc.stderr
     assert all(n in proc.stderr for n in robots.robot_names())

@@ -125,7 +125,7 @@ def test_cli_refuses_a_typo_in_one_line(tmp_path):
     bad = tmp_path / "typo.yaml"
     bad.write_text(yaml.safe_dump(doc))
     r = run_plan(bad, "--out", tmp_path / "out")
-    assert r.returncode == 2
+    assert r.returncode == 1
     assert "Traceback" not in r.stderr
     line = r.stderr.strip()
     assert "\n" not in line and str(bad) in line and "did you mean 'max_iterations'" in line
@@ -141,7 +141,7 @@ def test_yaml_syntax_error_is_one_line_with_file_and_line(tmp_path):
     line = int(msg.split(f"{bad}:")[1].split(":")[0])
     assert 3 <= line <= 5
     r = run_plan(bad)
-    assert r.returncode == 2 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1
+    assert r.returncode == 1 and "Traceback" not in r.stderr and r.stderr.count("\n") == 1
 
 
 BOX_SRDF = """<?xml version="1.0"?>

@@ -205,11 +205,11 @@ def test_declarations_are_found_by_name_on_the_search_path(tmp_path, monkeypatch
 def test_the_demo_command_names_a_bad_scenario_in_one_line(tmp_path, capsys):
     from marionette.cli import main
 
-    assert main(["demo", "plank-flp"]) == 2
+    assert main(["demo", "plank-flp"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "did you mean 'plank-flip'?" in err[0], err
     bad = _write(tmp_path, {**SCENARIOS["ur10-box"].document(), "toleranses": {}})
-    assert main(["demo", str(bad), "--out", str(tmp_path / "out")]) == 2
+    assert main(["demo", str(bad), "--out", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
     assert "unknown key 'toleranses'; did you mean 'tolerances'?" in err, err
     assert not (tmp_path / "out").exists()

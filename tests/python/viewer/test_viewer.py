@@ -157,7 +157,7 @@ def test_replay_view_rejects_bad_input(tmp_path):
         text=True,
         timeout=60,
     )
-    assert missing.returncode == 2 and "no LCM log at" in missing.stderr
+    assert missing.returncode == 1 and "no LCM log at" in missing.stderr
     with pytest.raises(ValueError, match="speed must be >= 0"):
         play(tmp_path / "x.lcmlog", None, speed=-1.0)
 
