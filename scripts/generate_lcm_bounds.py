@@ -111,6 +111,9 @@ def python_module(schemas) -> str:
 
 
 def main(argv: list[str]) -> int:
+    if argv[1:] in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     if len(argv) != 4:
         print(__doc__, file=sys.stderr)
         return 2

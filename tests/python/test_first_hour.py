@@ -3,6 +3,7 @@ that names the problem, with the documented exit code (docs/errors.md), never a 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -110,3 +111,30 @@ def test_every_help_page_has_an_example():
             pages.append((f"marionette {name}", sub))
     missing = [name for name, p in pages if "example" not in (p.epilog or "")]
     assert not missing, f"--help pages without an example: {missing}"
+
+
+TOOLS = sorted(
+    str(p.relative_to(marionette.REPO_ROOT))
+    for folder in ("scripts", "bench")
+    for p in (marionette.REPO_ROOT / folder).iterdir()
+    if p.is_file() and os.access(p, os.X_OK)
+)
+
+
+@pytest.mark.parametrize("tool", TOOLS)
+def test_every_script_and_benchmark_answers_help_without_running(tool):
+    """`--help` prints what the tool does and exits 0 at once: it neither runs the benchmark nor
+    sets anything up (a benchmark once ran, and the set-up once built, on `--help`)."""
+    proc = subprocess.run(
+        [str(marionette.REPO_ROOT / tool), "--help"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env={
+            **os.environ,
+            "PATH": f"{marionette.REPO_ROOT / '.venv' / 'bin'}:{os.environ['PATH']}",
+        },
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip(), "no help text"
+    assert "[setup]" not in proc.stdout and "[bench]" not in proc.stdout, proc.stdout
