@@ -69,6 +69,14 @@ MISTAKES = [
     (["fsm", "--timeout", "1", "state", "--lcm-url", URL], 1, "is a supervisor running on"),
     (["fsm", "--timeout", "1", "events", "--lcm-url", URL], 1, "is a supervisor running on"),
     (["demo", _bad_problem], 1, "bad.yaml:4: not valid YAML"),
+    (["perceive", "--lcm-url", "garbage", "--robot", "talos"], 2, "is not an LCM URL"),
+    (["supervise", "nope.json"], 1, "nope.json"),
+    (["replay", "nope.lcmlog", "--view"], 1, "no LCM log at nope.lcmlog"),
+    (["replay", "nope.lcmlog", "--supervisor"], 1, "nope.lcmlog"),
+    (["demo", "ur10-box", "--perturb", "nosuch"], 2, "nosuch"),
+    (["demo", "ur10-box", "--perturb", "nope.yaml"], 1, "nope.yaml"),
+    (["robot", "import", "nope.urdf", "--name", "x"], 1, "nope.urdf"),
+    (["footsteps", "run", "--lcm-url", "garbage"], 2, "is not an LCM URL"),
 ]
 
 
