@@ -54,8 +54,8 @@ def check_robot(folder: str | Path, build: bool = True) -> list[Finding]:
     folder = Path(folder)
     try:
         desc = robots.robot(folder)
-    except robots.UnknownModel as e:
-        return [Finding("error", str(folder), str(e))]
+    except robots.UnknownModel as e:  # its message may already start with the folder
+        return [Finding("error", str(folder), str(e).removeprefix(f"{folder}: "))]
     except DataFileError as e:
         where, _, what = str(e).partition(": ")
         return [Finding("error", where, what)]
