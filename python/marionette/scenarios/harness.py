@@ -143,6 +143,11 @@ def harness(
         run = Run(group, client, url, report, options.log)
         if processes.perceive is not None:
             run.start_cli("perceive", ["perceive", "--lcm-url", url, *processes.perceive])
+        if options.controller_url is not None:  # another machine's: say what is awaited
+            options.log(
+                f"waiting up to {READY_TIMEOUT_S:.0f} s for the marionette-controller on "
+                f"{url} (start it there, or run without --controller-url)"
+            )
         client.wait_ready(READY_TIMEOUT_S, processes=group)
         if options.view:  # the browser 3D view of the run, stopped with the group
             from marionette.viewer.node import start_viewer
