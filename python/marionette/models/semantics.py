@@ -249,7 +249,7 @@ def pregrasp_distance(gripper: Gripper, handle: Handle) -> float:
 def load_semantics(path: str | Path) -> Semantics:
     """Parse a ``models/**/<name>.yaml`` declaration; raises SemanticsError naming the culprit."""
     try:
-        data, _ = read_yaml(path)
+        data = read_yaml(path)
     except DataFileError as e:
         raise SemanticsError(str(e)) from None
     return semantics_from_dict(data, str(path))

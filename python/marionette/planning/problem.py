@@ -506,7 +506,7 @@ def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
 
 def _load_yaml(path: Path) -> dict[str, Any]:
     try:
-        data, _ = read_yaml(path)
+        data = read_yaml(path)
     except DataFileError as e:
         raise ProblemError(str(e)) from None
     if not isinstance(data, dict):

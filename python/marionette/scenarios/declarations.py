@@ -134,7 +134,7 @@ def load_declaration(path: Path) -> PlanAndExecute:
     """The scenario declared in the YAML file ``path`` (named after it: ``<name>.yaml``)."""
     path = Path(path)
     try:
-        doc, _ = read_yaml(path)
+        doc = read_yaml(path)
     except DataFileError as e:
         raise ScenarioError(str(e)) from None
     scenario = declaration_from_document(doc, path.resolve().parent, str(path))

@@ -54,10 +54,24 @@ def _validator(name: str) -> jsonschema.protocols.Validator:
     return cls(s)
 
 
-def read_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
-    """The parsed YAML of ``path`` and its node tree (for line numbers); raises
-    :class:`DataFileError` with one line, ``path[:line]: problem``, when it is missing, unreadable
-    or not YAML. Every data file of the project is read by this function."""
+def read_yaml(path: str | Path) -> Any:
+    """The parsed YAML of ``path``; raises :class:`DataFileError` with one line,
+    ``path[:line]: problem``, when it is missing, unreadable or not YAML. Every data file of the
+    project is read by this function (or by :func:`load_validated`, which also checks it)."""
+    return _parse(path, with_nodes=False)[0]
+
+
+def load_validated(path: str | Path, schema_name: str) -> dict[str, Any]:
+    """The YAML mapping of ``path``, checked against schema ``schema_name``; raises
+    :class:`DataFileError` with ``path:line: key: problem`` otherwise."""
+    data, node = _parse(path, with_nodes=True)
+    validate(data, schema_name, str(path), node)
+    return data
+
+
+def _parse(path: str | Path, with_nodes: bool) -> tuple[Any, yaml.Node | None]:
+    """The data of ``path`` and, ``with_nodes``, its node tree (the line of a key: a second
+    parse, done only for the files checked against a schema)."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -69,21 +83,14 @@ def read_yaml(path: str | Path) -> tuple[Any, yaml.Node | None]:
         reason = e.strerror if isinstance(e, OSError) else "not text"
         raise DataFileError(f"{path}: cannot read it ({reason})") from None
     try:
-        return yaml.safe_load(text), yaml.compose(text, Loader=yaml.SafeLoader)
+        data = yaml.safe_load(text)
+        return data, yaml.compose(text, Loader=yaml.SafeLoader) if with_nodes else None
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
         raise DataFileError(f"{where}: not valid YAML: {e.problem or e.context}") from None
     except yaml.YAMLError as e:
         raise DataFileError(f"{path}: not valid YAML: {str(e).splitlines()[0]}") from None
-
-
-def load_validated(path: str | Path, schema_name: str) -> dict[str, Any]:
-    """The YAML mapping of ``path``, checked against schema ``schema_name``; raises
-    :class:`DataFileError` with ``path:line: key: problem`` otherwise."""
-    data, node = read_yaml(path)
-    validate(data, schema_name, str(path), node)
-    return data
 
 
 def problems(data: Any, schema_name: str) -> list[str]:
