@@ -28,14 +28,26 @@ def test_calibrated_encoders_read_the_true_angle_and_the_robot_holds_still(
     )
     # Every state of each run by controller time: MuJoCo is deterministic and the held robot
     # moves the same in both runs (the hold acts on what the encoders read, offset included), so
-    # at the same tick the two readings differ by the offset alone.
+    # at the same tick the two readings differ by the offset alone. The publisher samples the loop
+    # on the wall clock, so the runs are paced in real time and every tick is published (1 kHz):
+    # unpaced, a loaded machine samples two disjoint sets of ticks.
     readings: dict[str, dict[int, np.ndarray]] = {}
     for name, extra in (
         ("raw", ()),
         ("calibrated", ("--encoder-offsets", f"arm_left_1_joint={OFFSET:.9f}")),
     ):
         with run_controller(
-            "--robot", "talos", "--scene", str(scene), "--speed", "0", "--camera-rate", "0", *extra
+            "--robot",
+            "talos",
+            "--scene",
+            str(scene),
+            "--speed",
+            "1",
+            "--state-rate",
+            "1000",
+            "--camera-rate",
+            "0",
+            *extra,
         ) as c:
             states: dict[int, np.ndarray] = {}
             c.bus.subscribe(
