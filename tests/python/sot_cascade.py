@@ -23,6 +23,7 @@ violation C v - clip(C v, lo, hi) of its inequality rows (``achieved``). Those a
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 from functools import cache
 
@@ -362,6 +363,11 @@ def robot_kinematics(name: str) -> RobotKinematics:
         i for i, f in enumerate(model.frames) if f.type == pin.FrameType.BODY and f.parentJoint > 0
     ]
     return RobotKinematics(name, model, base, frames)
+
+
+def stack_rng(name: str, seed: int) -> np.random.Generator:
+    """The random stream of a robot's stack number ``seed``: the same whatever else is bundled."""
+    return np.random.default_rng([seed, zlib.crc32(name.encode())])
 
 
 def bundled_robots() -> list[str]:

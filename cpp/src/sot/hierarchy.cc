@@ -5,7 +5,7 @@
 #include <algorithm>
 #include <cmath>
 
-#include <eiquadprog/eiquadprog-fast.hpp>
+#include "third_party/eiquadprog/eiquadprog-fast.hpp"
 
 namespace marionette::sot {
 
@@ -167,7 +167,7 @@ struct HierarchyWorkspace::Impl {
   struct LevelQp {
     Eigen::MatrixXd H, CI, CE;
     Eigen::VectorXd g, ci0, ce0, z, row;
-    eiquadprog::solvers::EiquadprogFast solver;
+    third_party::eiquadprog::solvers::EiquadprogFast solver;
   };
   std::vector<std::unique_ptr<LevelQp>> qps;
   // The level QP (see SolveQp), in the r coordinates ũ of Z_blk. Its objective: R1 (ρ x m) the
@@ -1015,7 +1015,8 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
   const auto status = qp.solver.solve_quadprog(qp.H, qp.g, qp.CE, qp.ce0, qp.CI, qp.ci0, qp.z);
   report->last_qp_status = static_cast<int>(status);
   report->last_qp_iterations = qp.solver.getIteratios();
-  if (status != eiquadprog::solvers::EIQUADPROG_FAST_OPTIMAL || !qp.z.allFinite()) return false;
+  if (status != third_party::eiquadprog::solvers::EIQUADPROG_FAST_OPTIMAL || !qp.z.allFinite())
+    return false;
   w.ut.head(r) = qp.z.head(r);
   w.s_eqp.head(q.mi) = qp.z.segment(slack0, q.mi);
   ClearWorkingSet(w);

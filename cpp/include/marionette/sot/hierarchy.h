@@ -118,7 +118,7 @@ struct HierarchyReport {
   int num_active_set = 0;         ///< of which solved by the active-set shortcut
   int qp_failures = 0;      ///< QPs that did not converge (their level kept the unconstrained step)
   int remaining_dof = 0;    ///< r after the last level
-  int last_qp_status = -1;  ///< eiquadprog status of the last QP (0 = optimal)
+  int last_qp_status = -1;  ///< eiquadprog status of the last QP (0 = optimal, 5 = a dependent row)
   int last_qp_iterations = 0;
 };
 
