@@ -510,7 +510,7 @@ void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int mi
       const auto row = own ? w.C.row(i) : w.G.row(i);
       d.noalias() = Z_blk.transpose() * row.transpose();
       value = row.dot(w.x_old);
-      norm2 = row.squaredNorm();
+      norm2 = std::max(1.0, row.squaredNorm());  // the rank threshold's scale, as for A
     }
     w.row_val[t] = value;
     // A row the levels above fixed (what is left of it in the remaining freedom is below the
@@ -1167,7 +1167,9 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     // Gather the level's active rows.
     int m = 0, mi = 0;
     bool dense = false;
-    double row_scale = 0.0;  // largest |row of A|: the rank threshold is relative to it
+    // max(1, largest |row of A|)²: the rank threshold is relative to it, and absolute for rows
+    // under 1 (a row of norm 1e-11 is rounding, not a task that should lock a joint).
+    double row_scale = 1.0;
     for (const TaskShape& shape : hierarchy.levels()[l]) {
       const TaskTerms& t = *tasks[k++];
       const int first_row = row;
@@ -1187,8 +1189,6 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
             w.A.row(m) = t.jacobian.row(i);
             row_scale = std::max(row_scale, w.A.row(m).squaredNorm());
             dense = true;
-          } else {
-            row_scale = std::max(row_scale, 1.0);
           }
           w.b[m] = t.lower[i] + (target_offsets ? (*target_offsets)[first_row + i] : 0.0);
         }

@@ -46,9 +46,10 @@
 namespace marionette::sot {
 
 struct HierarchyOptions {
-  /// A pivot of the QR whose remaining norm is <= rank_tolerance x the largest row norm of the
-  /// level's (unprojected) Jacobian is a dependent row (a task conflicting with higher levels,
-  /// or already fixed by them): it gets no DoF.
+  /// A pivot of the QR whose remaining norm is <= rank_tolerance x max(1, the largest row norm
+  /// of the level's (unprojected) Jacobian) is a dependent row (a task conflicting with higher
+  /// levels, or already fixed by them): it gets no DoF. The floor of 1 makes rows of rounding
+  /// size (a Jacobian row of norm 1e-11) rank 0 instead of locking a joint.
   double rank_tolerance = 1e-9;
   /// Variable damping (Maciejewski & Klein): when the level's smallest pivot d < threshold, the
   /// least squares gets μ² = damping² (1 - (d / threshold)²). 0 = undamped (exact hierarchy).
