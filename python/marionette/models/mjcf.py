@@ -105,6 +105,18 @@ class RobotModelError(ValueError):
     """A robot's files cannot make an MJCF; the message says what to fix in which file."""
 
 
+def hand_links(desc: RobotDescription, urdf: Urdf) -> set[str]:
+    """The links that touch objects (class robot_hand): the subtrees of ``simulation/hand_links``
+    (default: the grippers' links) and of the link each gripper's finger joint is mounted on
+    (its fixed jaw and its fingers, also when the gripper frame sits on a link beside them)."""
+    roots = [link for link in desc.hand_links if link in urdf.links]
+    for g in desc.data.get("grippers", []):
+        joint = urdf.joints.get(g.get("joint") or "")
+        if joint is not None:
+            roots.append(joint.parent)
+    return {link for root in roots for link in urdf.subtree(root)}
+
+
 def robot_part(
     name: str | Path, q_reference: np.ndarray, X_WB: np.ndarray | None = None, models_dir=None
 ) -> Part:
@@ -113,14 +125,13 @@ def robot_part(
     the robot's folder)."""
     desc = robot(name)
     urdf = parse_urdf(desc.urdf.read_text())
-    hands: set[str] = set()
     for link in desc.hand_links:
         if link not in urdf.links:
             raise RobotModelError(
                 f"{desc.semantics}: simulation/hand_links names {link!r}, not a link of "
                 f"{desc.urdf.name}"
             )
-        hands |= set(urdf.subtree(link))
+    hands = hand_links(desc, urdf)
     mesh_file = _mesh_namer(desc, models_dir)
 
     def geom_class(link: str) -> str:

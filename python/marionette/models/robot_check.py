@@ -330,7 +330,9 @@ def _hand_mesh_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
     from where the planner (exact meshes) put them."""
     import trimesh
 
-    hands = {link for h in desc.hand_links if h in urdf.links for link in urdf.subtree(h)}
+    from .mjcf import hand_links
+
+    hands = hand_links(desc, urdf)
     hands |= {b for bodies in desc.grip_bodies.values() for b in bodies}
     out = []
     for link in sorted(hands & set(urdf.links)):

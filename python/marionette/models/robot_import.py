@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .jaw import closing_limit
 from .srdf import disabled_collision_pairs, srdf_text
 from .urdf import MOVABLE, Joint, Urdf, UrdfError, parse_urdf
 from .xml_util import attribute, indent_and_serialize, sub
@@ -76,6 +77,7 @@ def import_robot(
     if _has_xacro(root):
         raise xacro
     notes: list[str] = []
+    as_written = ET.tostring(root, encoding="unicode")  # mimic joints movable: the jaw guess
     notes += _fix_mimics(root)
     notes += _fix_continuous(root)
     notes += _rename_fixed_joints_named_as_links(root)
@@ -84,50 +86,16 @@ def import_robot(
     urdf_text = indent_and_serialize(root, f"imported from {source} by `marionette robot import`")
     try:
         urdf = parse_urdf(urdf_text)
+        hand = parse_urdf(as_written)
     except UrdfError as e:
         raise RobotImportError(f"{urdf_path}: {e}") from None
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / f"{name}.urdf").write_text(urdf_text)
     srdf, state, end_effector = _srdf(urdf_text, urdf, name, srdf_path, base, notes)
     (out_dir / f"{name}.srdf").write_text(srdf)
-    gripper_link = gripper_link or end_effector or _deepest_link(urdf)
-    if gripper_link not in urdf.links:
-        raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
-    jaw = _jaw_joint(urdf, gripper_link, srdf) if gripper_link == end_effector else None
-    if jaw is not None:
-        notes.append(
-            f"grippers[0]/link: the SRDF's end effector {gripper_link} is moved by {jaw.name}, "
-            f"which the SRDF's arm group leaves out: a jaw; the gripper is on {jaw.parent}, the "
-            f"link the jaw is mounted on, with finger joint {jaw.name}"
-        )
-        gripper_link = jaw.parent
-    finger = jaw or _finger_joint(urdf, gripper_link)
-    gripper: dict[str, object] = {
-        "name": f"{name}/gripper",
-        "link": gripper_link,
-        "pose": {"xyz": [0.0, 0.0, 0.0], "xyzw": [0.0, 0.0, 0.0, 1.0]},
-        "clearance": 0.05,
-    }
-    if finger is not None:
-        lower, upper = finger.lower, finger.upper
-        if lower is None or upper is None:
-            raise RobotImportError(
-                f"{urdf_path}: finger joint {finger.name} (below {gripper_link}) has no "
-                "<limit lower upper>: add its limits, or name another --gripper-link"
-            )
-        gripper.update(
-            joint=finger.name,
-            open_position=round(upper - GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
-            closed_position=round(lower + GRIPPER_LIMIT_MARGIN * (upper - lower), 6),
-        )
-        notes.append(
-            f"grippers[0]: finger joint {finger.name}, open near its upper limit {upper:g}, "
-            f"closed near its lower limit {lower:g}: swap them if it closes the other way"
-        )
-    notes.append(
-        f"grippers[0]/pose: the gripper frame sits at {gripper_link}'s origin; place it between "
-        "the fingertips, x along the approach (out of the palm), y along which the fingers close"
-    )
+    grippers = [] if gripper_link else _srdf_grippers(srdf, urdf, hand, name, srdf_path, notes)
+    if not grippers:
+        grippers = [_gripper(urdf, hand, name, gripper_link, end_effector, srdf, urdf_path, notes)]
     description = {
         "format": "marionette-robot 1",
         "name": name,
@@ -139,7 +107,7 @@ def import_robot(
         **({"meshes": meshes} if meshes else {}),
         "base": base,
         "reference_posture": state,
-        "grippers": [gripper],
+        "grippers": grippers,
         "simulation": {"actuators": _actuators(urdf)},
     }
     header = (
@@ -151,6 +119,163 @@ def import_robot(
         header + yaml.safe_dump(description, sort_keys=False, default_flow_style=None, width=100)
     )
     return notes
+
+
+def _gripper(
+    urdf: Urdf,
+    hand: Urdf,
+    name: str,
+    gripper_link: str | None,
+    end_effector: str | None,
+    srdf: str,
+    urdf_path: Path,
+    notes: list[str],
+) -> dict[str, object]:
+    """The gripper on ``gripper_link`` (else the SRDF's end effector, else the deepest link),
+    with its finger joint; its frame at the link's origin for the user to place."""
+    gripper_link = gripper_link or end_effector or _deepest_link(urdf)
+    if gripper_link not in urdf.links:
+        raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
+    jaw = _jaw_joint(urdf, gripper_link, srdf) if gripper_link == end_effector else None
+    if jaw is not None:
+        notes.append(
+            f"grippers[0]/link: the SRDF's end effector {gripper_link} is moved by {jaw.name}, "
+            f"which the SRDF's arm group leaves out: a jaw; the gripper is on {jaw.parent}, the "
+            f"link the jaw is mounted on, with finger joint {jaw.name}"
+        )
+        gripper_link = jaw.parent
+    gripper: dict[str, object] = {
+        "name": f"{name}/gripper",
+        "link": gripper_link,
+        "pose": {"xyz": [0.0, 0.0, 0.0], "xyzw": [0.0, 0.0, 0.0, 1.0]},
+        "clearance": 0.05,
+    }
+    finger = jaw or _finger_joint(urdf, gripper_link)
+    gripper.update(_finger(hand, finger, urdf_path, notes, 0))
+    notes.append(
+        f"grippers[0]/pose: the gripper frame sits at {gripper_link}'s origin; place it between "
+        "the fingertips, x along the approach (out of the palm), y along which the fingers close"
+    )
+    return gripper
+
+
+def _finger(
+    hand: Urdf, finger: Joint | None, urdf_path: Path, notes: list[str], k: int
+) -> dict[str, object]:
+    """The ``joint``, ``open_position`` and ``closed_position`` of gripper ``k`` whose finger
+    joint is ``finger`` (none without one): which limit closes it is guessed from the geometry
+    of ``hand`` (the URDF as written, its mimic joints movable; marionette.models.jaw), else
+    the lower one."""
+    if finger is None:
+        return {}
+    lower, upper = finger.lower, finger.upper
+    if lower is None or upper is None:
+        raise RobotImportError(
+            f"{urdf_path}: finger joint {finger.name} (below {finger.parent}) has no "
+            "<limit lower upper>: add its limits, or name another --gripper-link"
+        )
+    closing = closing_limit(hand, hand.joints[finger.name], GRIPPER_LIMIT_MARGIN)
+    closed = closing.closed or "lower"
+    inside = GRIPPER_LIMIT_MARGIN * (upper - lower)
+    limits = {"lower": lower + inside, "upper": upper - inside}
+    opened = "upper" if closed == "lower" else "lower"
+    measured = ", ".join(f"{v * 1000:.1f} mm at its {lim}" for lim, v in closing.distance.items())
+    why = (
+        f"its surface lies nearer the rest of the hand there ({measured})"
+        if closing.closed
+        else f"the hand's geometry cannot tell ({measured or 'no geometry'})"
+    )
+    notes.append(
+        f"grippers[{k}]: finger joint {finger.name}, closed near its {closed} limit "
+        f"{getattr(finger, closed):g} ({why}), open near its {opened} limit "
+        f"{getattr(finger, opened):g}: swap them if it closes the other way"
+    )
+    return {
+        "joint": finger.name,
+        "open_position": round(limits[opened], 6),
+        "closed_position": round(limits[closed], 6),
+    }
+
+
+def _srdf_grippers(
+    srdf: str,
+    urdf: Urdf,
+    hand: Urdf,
+    name: str,
+    srdf_path: str | Path | None,
+    notes: list[str],
+) -> list[dict[str, object]]:
+    """The grippers an SRDF declares the way HPP reads them: ``<gripper name clearance>`` with
+    one ``<link>``, a ``<position>`` (text "x y z qw qx qy qz", or attributes ``xyz`` and one of
+    ``rpy``, ``wxyz``, ``xyzw``) in that link and optionally a ``<joint>`` (else the finger
+    joint found beside the link)."""
+    out: list[dict[str, object]] = []
+    where = str(srdf_path)
+    for k, g in enumerate(ET.fromstring(srdf).findall("gripper")):
+        gname = attribute(g, "name", where, RobotImportError)
+        links = g.findall("link")
+        if len(links) != 1:
+            raise RobotImportError(f"{where}: gripper {gname!r} needs exactly one <link>")
+        link = attribute(links[0], "name", f"{where}: gripper {gname!r}", RobotImportError)
+        if link not in urdf.links:
+            raise RobotImportError(f"{where}: gripper {gname!r}: {link!r} is not a URDF link")
+        xyz, xyzw = _hpp_position(g.find("position"), f"{where}: gripper {gname!r}")
+        gripper: dict[str, object] = {
+            "name": f"{name}/{gname}",
+            "link": link,
+            "pose": {"xyz": xyz, "xyzw": xyzw},
+            "clearance": float(g.get("clearance", "0.05")),
+        }
+        joints = [j.get("name") for j in g.findall("joint")]
+        finger = urdf.joints.get(str(joints[0])) if joints else _finger_joint(urdf, link)
+        if joints and (finger is None or finger.type not in MOVABLE):
+            raise RobotImportError(
+                f"{where}: gripper {gname!r}: {joints[0]!r} is not a movable joint of the URDF"
+            )
+        gripper.update(_finger(hand, finger, Path(where), notes, k))
+        notes.append(
+            f"grippers[{k}]: the SRDF's gripper {gname!r} on {link}, its frame and clearance "
+            "as the SRDF gives them"
+            + ("" if finger else "; no finger joint: it holds what it touches (a tool)")
+        )
+        out.append(gripper)
+    return out
+
+
+def _hpp_position(position: ET.Element | None, where: str) -> tuple[list[float], list[float]]:
+    """(xyz, xyzw) of an HPP SRDF ``<position>`` (the identity when there is none)."""
+    if position is None:
+        return [0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]
+
+    def numbers(text: str, n: int, what: str) -> np.ndarray:
+        try:
+            v = np.array([float(x) for x in text.split()])
+        except ValueError:
+            v = np.zeros(0)
+        if len(v) != n:
+            raise RobotImportError(f"{where}: <position> {what} needs {n} numbers: {text!r}")
+        return v
+
+    if (position.text or "").strip():
+        v = numbers(position.text or "", 7, "text (x y z qw qx qy qz)")
+        xyz, q = v[:3], np.r_[v[4:7], v[3]]
+    else:
+        xyz = numbers(position.get("xyz", "0 0 0"), 3, "xyz")
+        given = [a for a in ("rpy", "wxyz", "xyzw") if position.get(a)]
+        if len(given) > 1:
+            raise RobotImportError(f"{where}: <position> has {given}: give one of them")
+        if not given:
+            q = np.array([0.0, 0.0, 0.0, 1.0])
+        elif given[0] == "rpy":
+            import pinocchio as pin
+
+            R = pin.rpy.rpyToMatrix(*numbers(position.get("rpy", ""), 3, "rpy"))
+            q = pin.Quaternion(R).coeffs()
+        else:
+            v = numbers(position.get(given[0], ""), 4, given[0])
+            q = np.r_[v[1:], v[0]] if given[0] == "wxyz" else v
+    q = q / np.linalg.norm(q)
+    return [round(float(x), 12) for x in xyz], [round(float(x), 12) for x in q]
 
 
 def _has_xacro(root: ET.Element) -> bool:

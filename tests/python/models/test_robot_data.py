@@ -289,3 +289,119 @@ def test_an_srdf_end_effector_on_a_jaw_puts_the_gripper_on_the_palm(on_path, tmp
         assert gripper.link == joint.find("parent").get("link")
         assert gripper.joint == joint.get("name")
         assert not _errors(check_robot(folder, build=False))
+
+
+def _imported_urdf(urdf: str):
+    """example-robot-data's ``urdf`` as the import leaves it (mimic joints fixed), parsed."""
+    from marionette.models.robot_import import _fix_mimics
+    from marionette.models.urdf import parse_urdf
+    from marionette.models.xml_util import indent_and_serialize
+
+    root = ET.parse(ERD / urdf).getroot()
+    _fix_mimics(root)
+    return parse_urdf(indent_and_serialize(root, "test"))
+
+
+@pytest.mark.parametrize(
+    ("urdf", "joint", "closed"),
+    [  # from each hand's documentation: the Z1's jaw is shut at 0, its upper limit
+        ("z1_description/urdf/z1.urdf", "jointGripper", "upper"),
+        ("panda_description/urdf/panda.urdf", "panda_finger_joint1", "lower"),
+        ("so_arm_description/urdf/so101.urdf", "gripper", "lower"),
+        ("so_arm_description/urdf/so100.urdf", "gripper", "lower"),
+        # a linkage of mimic joints the URDF made fixed; models/talos closes it at -1.0
+        ("talos_data/robots/talos_left_arm.urdf", "gripper_left_joint", "lower"),
+    ],
+)
+def test_the_import_guesses_which_limit_closes_a_jaw_from_the_hand(urdf, joint, closed):
+    """The import's closed position is near the limit where the jaw folds onto the rest of the
+    hand, whichever it is (the Z1's jaw closes towards its upper limit, the others towards their
+    lower one), its mimic joints following it."""
+    from marionette.models.robot_import import _finger
+    from marionette.models.urdf import read_urdf
+
+    u = read_urdf(ERD / urdf)
+    notes: list[str] = []
+    finger = _finger(u, u.joints[joint], Path(urdf), notes, 0)
+    lower, upper = u.joints[joint].lower, u.joints[joint].upper
+    near_closed = {"lower": lower, "upper": upper}[closed]
+    near_open = {"lower": upper, "upper": lower}[closed]
+    assert abs(finger["closed_position"] - near_closed) < 0.1 * (upper - lower), notes
+    assert abs(finger["open_position"] - near_open) < 0.1 * (upper - lower), notes
+    assert f"closed near its {closed} limit" in notes[0]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_hinged_jaw_closes_towards_the_fixed_one_whatever_its_axis(tmp_path, seed):
+    """A 2.4 cm wide palm with a fixed jaw and a jaw hinged on its edge, the hinge's axis and
+    limits drawn at random (either sign, the closed end on either limit): the guess is the limit
+    where the jaws lie side by side, 1 mm apart (closed); at the other the jaw stands 60-120 deg
+    open."""
+    from marionette.models.jaw import closing_limit
+    from marionette.models.urdf import parse_urdf
+
+    rng = np.random.default_rng(seed)
+    sign = rng.choice([-1.0, 1.0])
+    opening = np.radians(rng.uniform(60, 120))
+    # The jaw hangs along -z from a hinge at y = 6 mm about x; turning it about +x by a positive
+    # angle swings its tip towards +y, away from the fixed jaw (y in [-10, 0] mm).
+    lower, upper = (0.0, opening) if sign > 0 else (-opening, 0.0)
+    closed = "lower" if sign > 0 else "upper"
+    box = '<collision><origin xyz="{}"/><geometry><box size="{}"/></geometry></collision>'
+    text = f"""<robot name="hand">
+      <link name="palm">{box.format("0 0 0.01", "0.03 0.024 0.02")}
+        {box.format("0 -0.005 -0.03", "0.02 0.01 0.06")}</link>
+      <link name="jaw">{box.format("0 0 -0.03", "0.02 0.01 0.06")}</link>
+      <joint name="hinge" type="revolute"><parent link="palm"/><child link="jaw"/>
+        <origin xyz="0 0.006 0"/><axis xyz="{sign} 0 0"/>
+        <limit lower="{lower}" upper="{upper}" effort="1" velocity="1"/></joint>
+    </robot>"""
+    urdf = parse_urdf(text)
+    assert closing_limit(urdf, urdf.joints["hinge"], 0.025).closed == closed
+
+
+def test_an_srdf_gripper_gives_the_gripper_its_link_frame_and_clearance(on_path):
+    """example-robot-data's ur3_gripper.srdf declares HPP's <gripper> (link tool0, a frame 5.5 cm
+    out of it, clearance 3 cm) over two fixed fingers: the import takes it, its frame's x along
+    the fingers (out of tool0) and its y across them (along the line joining them)."""
+    folder = on_path / "ur3"
+    notes = import_robot(
+        ERD / "ur_description/urdf/ur3_gripper.urdf",
+        "ur3",
+        folder,
+        ERD / "ur_description/srdf/ur3_gripper.srdf",
+    )
+    (gripper,) = robots.robot(folder).data["grippers"]
+    assert gripper["link"] == "tool0" and gripper["clearance"] == 0.03, notes
+    assert "joint" not in gripper
+    import pinocchio as pin
+
+    X = pin.XYZQUATToSE3(np.r_[gripper["pose"]["xyz"], gripper["pose"]["xyzw"]])
+    u = _imported_urdf("ur_description/urdf/ur3_gripper.urdf")
+    fingers = [g.X_LG[:3, 3] for g in u.links["tool0"].collisions if g.size[2] >= 0.05]
+    assert len(fingers) == 2
+    across = (fingers[1] - fingers[0]) / np.linalg.norm(fingers[1] - fingers[0])
+    middle = (fingers[0] + fingers[1]) / 2
+    assert abs(X.rotation[:, 1] @ across) > 0.999  # y across the fingers
+    assert X.rotation[:, 0] @ middle / np.linalg.norm(middle) > 0.999  # x out along them
+    assert np.linalg.norm(np.cross(X.translation, middle)) < 1e-9  # the origin between them
+    assert not _errors(check_robot(folder, build=False))
+
+
+def test_jaws_beside_the_gripper_link_are_hand_links(on_path):
+    """example-robot-data's SO-101 (no SRDF) carries its gripper frame on a bodiless link fixed
+    to the fixed jaw's link, beside the moving jaw: both jaws are hand links (the check notes
+    their meshes filling < 80 % of their hulls, the MJCF gives them the hand's class)."""
+    folder = on_path / "so101"
+    import_robot(ERD / "so_arm_description/urdf/so101.urdf", "so101", folder)
+    (gripper,) = robots.robot(folder).data["grippers"]
+    findings = check_robot(folder, build=False)
+    assert not _errors(findings)
+    noted = {f.where.rsplit("link ", 1)[-1] for f in findings if "convex hull" in f.message}
+    assert {"gripper_link", "moving_jaw_so101_v1_link"} <= noted, findings
+    from marionette.models.mjcf import hand_links
+    from marionette.models.urdf import parse_urdf
+
+    desc = robots.robot(folder)
+    hands = hand_links(desc, parse_urdf(desc.urdf.read_text()))
+    assert {gripper["link"], "gripper_link", "moving_jaw_so101_v1_link"} <= hands
