@@ -488,16 +488,18 @@ def task_jacobian(
 @dataclass(frozen=True)
 class LevelConditioning:
     """One priority level of a controller at a configuration, the levels above projected out:
-    its tasks, the rows of its tasks (a stacked posture left out), the rank those rows get, and
-    the smallest singular value the level needs — of its task rows, or, with a posture stacked
-    in it, of the whole level over the DoF left to it that its rows move (0 when it needs more
-    DoF than are left)."""
+    its tasks, the rows of its tasks (a stacked posture left out), the rank those rows get, the
+    rank they can get (``attainable``: each task's rows, or the DoF left to it that its rows
+    move when those are fewer — a 5-DoF arm's gripper pose), and the smallest singular value
+    the level needs — of its task rows, or, with a posture stacked in it, of the whole level
+    over the DoF left to it that its rows move (0 when it needs more DoF than are left)."""
 
     priority: int
     tasks: tuple[str, ...]
     rows: int
     rank: int
     sigma_min: float
+    attainable: int
 
 
 def _svd_values(J: np.ndarray) -> np.ndarray:
@@ -532,6 +534,9 @@ def level_conditioning(
         J = np.vstack(Js) @ N
         s = _svd_values(J)
         rank = int(np.sum(s > tol * max(1.0, s[0]))) if len(s) else 0
+        attainable = sum(  # a task on fewer DoF than its rows can have no more rank than them
+            min(len(Ji), int(np.sum(_svd_values(N[np.any(Ji != 0.0, axis=0)]) > tol))) for Ji in Js
+        )
         needed = J.shape[0]
         if stacked:  # the level is the least squares of its tasks and the posture
             raw = np.vstack([*Js, *stacked])
@@ -544,7 +549,9 @@ def level_conditioning(
             needed = min(needed, int(np.sum(free > tol)))
         sigma = float(s[needed - 1]) if 0 < needed <= len(s) else 0.0
         rows = sum(len(Ji) for Ji in Js)
-        out.append(LevelConditioning(level, tuple(t.name for t in tasks), rows, rank, sigma))
+        out.append(
+            LevelConditioning(level, tuple(t.name for t in tasks), rows, rank, sigma, attainable)
+        )
         if N.shape[1]:
             _, sv, Vt = np.linalg.svd(J)
             used = int(np.sum(sv > tol * max(1.0, sv[0]))) if len(sv) else 0
@@ -573,10 +580,10 @@ def check_specs(
             continue
         q = robot_map.robot_q(step.q[0])
         for level in level_conditioning(model, data, spec, q, tol):
-            if level.rank < level.rows:
+            if level.rank < level.attainable:
                 problems.append(
                     f"{where}: priority {level.priority} ({', '.join(level.tasks)}) loses rank "
-                    f"at the step's start configuration: {level.rank} < {level.rows}"
+                    f"at the step's start configuration: {level.rank} < {level.attainable}"
                 )
     for a, b in zip(steps, steps[1:]):
         gap = np.linalg.norm(

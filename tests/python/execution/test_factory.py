@@ -215,3 +215,20 @@ def test_spec_file_round_trips(ur10_box, tmp_path):
     text = path.read_text()
     assert "grasp_at_end" in text and "ur10/gripper" in text
     assert [s.to_dict() for s in read_specs(path)] == [s.to_dict() for s in p.specs]
+
+
+def test_a_gripper_on_fewer_joints_than_its_task_rows_loses_no_rank_it_could_have():
+    """The SO-101 moves its gripper with 5 joints: its se3 task (6 rows) has rank 5 at best, and
+    the check asks no more of it; the same task twice on a level still loses rank (10 of 5)."""
+    from marionette import robots
+    from marionette.control.spec import ControllerSpec
+    from marionette.execution.factory import level_conditioning
+
+    model, _ = robots.load_pinocchio("so101", with_collision=False)
+    q = robots.reference_configuration("so101", model)
+    one = [TaskSpec("g", "se3", 0, frame="gripper_link"), TaskSpec("posture", "posture", 0)]
+    (level,) = level_conditioning(model, model.createData(), ControllerSpec(1, "one", one), q)
+    assert (level.rows, level.rank, level.attainable) == (6, 5, 5)
+    twice = [*one, TaskSpec("h", "se3", 0, frame="gripper_link")]
+    (level,) = level_conditioning(model, model.createData(), ControllerSpec(2, "two", twice), q)
+    assert level.rank == 5 and level.attainable == 10
