@@ -63,14 +63,15 @@ def require_program(name: str) -> str:
 def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
     """One recorded `marionette demo ur10-box --speed 3 --view` run (≈ 30 s), shared by the replay
     and viewer tests: its report folder (run.lcmlog, report.json, logs/viewer.log, ...)."""
-    import subprocess
     import sys
+
+    from tests_support import run_stopping_what_it_started
 
     out = tmp_path_factory.mktemp("ur10_box_run")
     env = dict(
         os.environ, MARIONETTE_LCM_URL=lcm_url, MARIONETTE_BUILD_DIR=str(marionette.BUILD_DIR)
     )
-    proc = subprocess.run(
+    proc = run_stopping_what_it_started(
         [
             sys.executable,
             "-m",
@@ -83,9 +84,7 @@ def ur10_box_run(tmp_path_factory, lcm_url: str) -> Path:
             "--out",
             str(out),
         ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+        timeout_s=300,
         env=env,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -9,10 +9,14 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import pytest
+
+from marionette.campaigns.local_cluster import processes_with_env
+from tests_support import run_stopping_what_it_started
 
 PARENT = """
 import sys, time
@@ -83,3 +87,30 @@ def test_a_second_sigterm_while_the_group_stops_does_not_cut_the_stop_short(tmp_
         assert not any(map(_alive, children)), "a process outlived its group's parent"
     finally:
         parent.kill()
+
+
+@pytest.mark.slow
+def test_a_demo_a_test_gives_up_on_leaves_no_process(tmp_path, lcm_env):
+    """The tests' runner of demos (tests_support.run_stopping_what_it_started) on its timeout: the
+    demo is stopped with what it started (controller, perception, logger), nothing runs on into
+    the rest of the suite."""
+    (tmp_path / "tmp").mkdir()
+    env = {**lcm_env, "TMPDIR": str(tmp_path / "tmp")}  # marks every process the demo starts
+    argv = [sys.executable, "-m", "marionette.cli", "demo", "ur10-box", "--out", str(tmp_path)]
+    seen: list[int] = []  # the most processes of the demo seen at once: it had started them
+    done = threading.Event()
+
+    def count() -> None:
+        while not done.wait(0.2):
+            seen.append(len(processes_with_env("TMPDIR", env["TMPDIR"])))
+
+    watcher = threading.Thread(target=count)
+    watcher.start()
+    try:
+        with pytest.raises(subprocess.TimeoutExpired):
+            run_stopping_what_it_started(argv, timeout_s=20.0, env=env)
+    finally:
+        done.set()
+        watcher.join()
+    assert max(seen) >= 3, seen  # the demo, its controller and its logger at least
+    assert processes_with_env("TMPDIR", env["TMPDIR"]) == []

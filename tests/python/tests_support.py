@@ -63,6 +63,32 @@ def controller_running(
         assert code == 0, f"controller exited with {code}:\n{proc.log_tail()}"
 
 
+def run_stopping_what_it_started(
+    argv: list[str], timeout_s: float, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """``subprocess.run(argv, capture_output=True, text=True)`` for a command that starts
+    processes of its own (a demo: controller, perception, logger, ...). When the test ends it
+    early (its timeout, pytest-timeout, Ctrl-C), the command gets SIGTERM, on which it stops
+    what it started (tests/python/test_processes.py), then SIGKILL after 30 s. subprocess.run
+    SIGKILLs it at once: its children, each in its own session, ran on for the rest of the
+    suite (a timed-out deburr demo left its controller and perception at ~90 % of a core for
+    40 minutes, and the demos after it failed on timing)."""
+    with subprocess.Popen(
+        argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+    ) as proc:
+        try:
+            out, err = proc.communicate(timeout=timeout_s)
+        except BaseException:
+            proc.terminate()
+            try:
+                proc.communicate(timeout=30.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.communicate()
+            raise
+    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
 def run_demo(
     name: str,
     out_dir: Path,
@@ -77,7 +103,7 @@ def run_demo(
     of that folder not empty; and that the report carries the scenario's declaration, a measure
     of each of its criteria and the scene a replay draws. Returns the run folder and its
     report.json."""
-    proc = subprocess.run(
+    proc = run_stopping_what_it_started(
         [
             sys.executable,
             "-m",
@@ -90,9 +116,7 @@ def run_demo(
             str(out_dir),
             *args,
         ],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
+        timeout_s=timeout_s,
         env=env,
     )
     print(proc.stdout)

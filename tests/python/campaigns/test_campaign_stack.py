@@ -16,18 +16,15 @@ from pathlib import Path
 import pytest
 
 from marionette.campaigns.local_cluster import local_cluster, processes_with_env
+from tests_support import run_stopping_what_it_started
 
 pytestmark = pytest.mark.slow
 TRIAL = ["ur10-box", "--speed", "0", "--plan-seed", "0"]
 
 
 def demo(args: list[str], env: dict[str, str], timeout_s: float) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "marionette.cli", "demo", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        env=env,
+    return run_stopping_what_it_started(
+        [sys.executable, "-m", "marionette.cli", "demo", *args], timeout_s=timeout_s, env=env
     )
 
 

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import json
-import subprocess
 import sys
 import threading
 
@@ -17,7 +16,7 @@ from marionette import channels, lcmt_supervisor_event
 from marionette.control.spec import TaskSpec
 from marionette.execution import streamer as streamer_module
 from marionette.execution.supervisor import Supervisor, SupervisorOptions
-from tests_support import controller_running
+from tests_support import controller_running, run_stopping_what_it_started
 
 KINEMATIC = (
     "--robot",
@@ -165,7 +164,7 @@ def test_demo_ur10_box_end_to_end_in_mujoco(tmp_path, lcm_env):
     MuJoCo computes on the fingers, independent of the effort estimate the admittance regulates.
     (3x real time, not unpaced: the references are streamed 4 s of controller time ahead, which
     unpaced at ~18x is ~0.2 s of wall time, less than a loaded CI machine may stall Python.)"""
-    proc = subprocess.run(
+    proc = run_stopping_what_it_started(
         [
             sys.executable,
             "-m",
@@ -177,9 +176,7 @@ def test_demo_ur10_box_end_to_end_in_mujoco(tmp_path, lcm_env):
             "--out",
             str(tmp_path),
         ],
-        capture_output=True,
-        text=True,
-        timeout=300,
+        timeout_s=300,
         env=lcm_env,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
