@@ -212,6 +212,16 @@ def robot(name: str | Path) -> RobotDescription:
     return _load_robot(folder.resolve())
 
 
+def controller_robot_argument(name: str | Path) -> str:
+    """Robot ``name`` as a C++ process's ``--robot`` takes it: the folder this Python found.
+
+    A compiled marionette-controller searches the ``models/`` of the checkout it was built in: a
+    name alone would find another robot.yaml of that name there, or none (a robot added in
+    another checkout or worktree sharing a build), and the controller would drive another robot
+    than the one planned for. A folder names the same files on both sides."""
+    return str(robot(name).directory)
+
+
 def _robot_folder(name: str | Path) -> Path:
     text = str(name)
     if os.sep in text or text.endswith(ROBOT_FILE) or Path(text).is_dir():

@@ -92,3 +92,23 @@ def test_the_check_sees_code_and_spares_prose():
         'def load_talos(): return "talos"\n'
     )
     assert sorted(n for n, t in _python_code_strings(ast.parse(py)) if pattern.search(t)) == [5, 5]
+
+
+def test_the_controller_is_given_the_robot_folder_python_found(tmp_path, monkeypatch):
+    """The compiled controller searches the models/ of the checkout it was built in: a robot
+    found by this Python elsewhere (another worktree sharing a build, $MARIONETTE_ROBOT_PATH
+    set for Python only) reached it by name as unknown or, worse, as another robot of that name.
+    Every controller command line gives the folder Python found."""
+    import shutil
+
+    from marionette.scenarios.harness import Processes, controller_command
+
+    name = robots.robot_names()[0]
+    source = robots.robot(name).directory
+    folder = tmp_path / "models" / name  # this checkout's models/, not the controller's
+    shutil.copytree(source, folder, symlinks=True)
+    monkeypatch.setattr(robots, "MODELS_DIR", tmp_path / "models")
+    command = controller_command(Processes(name, tmp_path / "s.xml"), "u", 0.0)
+    argument = command[command.index("--robot") + 1]
+    assert argument == str(folder.resolve()), argument
+    assert robots.controller_robot_argument(str(folder)) == str(folder.resolve())

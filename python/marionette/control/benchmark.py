@@ -91,7 +91,7 @@ def run(robot: str, name: str, args: list[str], duration_s: float, log_dir: Path
             [
                 str(binary),
                 "--robot",
-                robot,
+                robots.controller_robot_argument(robot),
                 "--lcm-url",
                 url,
                 "--duration",

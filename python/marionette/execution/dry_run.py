@@ -48,6 +48,7 @@ from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.factory import level_conditioning
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import StepTrajectory, minimum_jerk, velocity_limits
+from marionette.robots import controller_robot_argument
 
 # The controller's hierarchy damps a level whose smallest pivot is below this (hierarchy.h).
 SINGULAR_THRESHOLD = 0.02
@@ -311,7 +312,7 @@ def play(
                     "--lcm-url",
                     url,
                     "--robot",
-                    robot,
+                    controller_robot_argument(robot),
                     "--backend",
                     "kinematic",
                     "--speed",

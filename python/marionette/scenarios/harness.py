@@ -29,6 +29,7 @@ import marionette
 from marionette.control.client import ControllerClient
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ManagedProcess, ProcessError, ProcessGroup
+from marionette.robots import controller_robot_argument
 from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
 from marionette.scenarios.report import controller_summary, heartbeat_summary
 
@@ -67,7 +68,7 @@ def controller_command(processes: Processes, url: str, speed: float) -> list[Any
         "--lcm-url",
         url,
         "--robot",
-        processes.robot,
+        controller_robot_argument(processes.robot),
         "--scene",
         processes.scene,
         "--speed",
