@@ -84,12 +84,17 @@ class ProcessGroup:
         return proc
 
     def check_alive(self) -> None:
-        """Raises ProcessError naming the first process that exited, with its log's tail."""
+        """Raises ProcessError naming the first process that exited, with its log's tail. The
+        first line ends with the log's last line, usually the reason: reports and campaign tables
+        keep only that line, and the log may be in a trial's working folder removed after it."""
         for p in self.processes:
             if not p.alive():
+                tail = p.log_tail()
+                last = next((line for line in reversed(tail.splitlines()) if line.strip()), "")
                 raise ProcessError(
-                    f"{p.name} exited with code {p.popen.returncode}; last lines of "
-                    f"{p.log_path}:\n{p.log_tail()}"
+                    f"{p.name} exited with code {p.popen.returncode}"
+                    + (f": {last.strip()}" if last else " (its log is empty)")
+                    + f"\nlast lines of {p.log_path}:\n{tail}"
                 )
 
     def stop(self, name: str, timeout_s: float = 5.0) -> int | None:

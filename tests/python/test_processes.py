@@ -114,3 +114,23 @@ def test_a_demo_a_test_gives_up_on_leaves_no_process(tmp_path, lcm_env):
         watcher.join()
     assert max(seen) >= 3, seen  # the demo, its controller and its logger at least
     assert processes_with_env("TMPDIR", env["TMPDIR"]) == []
+
+
+def test_a_controller_that_exits_at_once_ends_the_wait_at_once_with_its_reason(tmp_path):
+    """A controller refusing its arguments (an unknown robot) exits in milliseconds: waiting for
+    its first state must stop then, not at the ready timeout (a demo trial spent 60 s there),
+    and the error's first line — all a campaign table keeps — must say why."""
+    from marionette.control.client import ControllerClient
+    from marionette.lcm_bus import private_lcm_url
+    from marionette.processes import ProcessError, ProcessGroup
+
+    url = private_lcm_url()
+    script = "echo starting; echo \"unknown robot 'arm'\" >&2; exit 1"
+    with ProcessGroup(url, tmp_path) as group, ControllerClient(url) as client:
+        group.start("controller", ["sh", "-c", script])
+        start = time.monotonic()
+        with pytest.raises(ProcessError) as error:
+            client.wait_ready(30.0, processes=group)
+    assert time.monotonic() - start < 10.0
+    first = str(error.value).splitlines()[0]
+    assert first == "controller exited with code 1: unknown robot 'arm'", first

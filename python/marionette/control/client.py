@@ -119,12 +119,19 @@ class ControllerClient:
 
     def wait_ready(self, timeout_s: float = 30.0, processes: Any = None) -> None:
         """Waits for the controller's first state and status. ``processes`` (a
-        :class:`~marionette.processes.ProcessGroup` that started it): on a timeout, a process of it
-        that exited is reported first (ProcessError with its log's tail), it usually says why."""
+        :class:`~marionette.processes.ProcessGroup` that started it): a process of it that exits
+        meanwhile ends the wait at once (ProcessError with its log's tail, it usually says why),
+        not at the timeout: a controller refusing its arguments exits in milliseconds."""
+
+        def ready(c: ControllerClient) -> bool:
+            if c.status is not None and c.state is not None:
+                return True
+            if processes is not None:
+                processes.check_alive()
+            return False
+
         try:
-            self.wait(
-                lambda c: c.status is not None and c.state is not None, timeout_s, "the controller"
-            )
+            self.wait(ready, timeout_s, "the controller")
         except TimeoutError:
             if processes is not None:
                 processes.check_alive()
