@@ -13,7 +13,7 @@ that a user bringing a robot (docs/robots.md) fixes them in one pass. The checks
 4. every link, frame and joint robot.yaml names exists (grippers, contact bodies, tags, feet,
    cameras, sensors, calibration, walking);
 5. gripper joints: open and closed positions within the joint's limits, the gripper's link not
-   moved by its own finger joint;
+   moved by its own finger joint, the links it moves with collision geometry;
 6. the reference posture exists in the SRDF, lies within the joint limits and is free of
    self-collision (the SRDF's disabled pairs apart);
 7. collision meshes of hand links far from convex are noted (MuJoCo collides their convex hull);
@@ -272,6 +272,18 @@ def _gripper_findings(desc: robots.RobotDescription, model, urdf) -> list[Findin
                     f"{g.link!r} moves with the finger joint {g.joint!r}: the gripper frame would "
                     f"move as the gripper closes; put it in the link the fingers are mounted on "
                     f"({urdf.joints[g.joint].parent!r}) and set its pose there",
+                )
+            )
+        moved = urdf.subtree(urdf.joints[g.joint].child)
+        if not any(urdf.links[m].collisions for m in moved):
+            out.append(
+                Finding(
+                    "error",
+                    f"{desc.urdf}: link {moved[0]}",
+                    f"no <collision> on the links finger joint {g.joint!r} moves "
+                    f"({', '.join(moved)}): in MuJoCo the jaw passes through what it should "
+                    "hold, and the planner cannot keep it clear; give the jaw convex pieces "
+                    "(boxes from its visual mesh's bounds; docs/robots.md, section 3)",
                 )
             )
         i = model.joints[model.getJointId(g.joint)].idx_q

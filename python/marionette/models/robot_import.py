@@ -42,6 +42,7 @@ SERVO_STIFFNESS_PER_EFFORT = 50.0  # kp / effort limit [1/rad or 1/m]
 SERVO_TIME_CONSTANT = 0.02  # kv / kp [s]
 REFERENCE_STATE = "home"
 CONTINUOUS_RANGE = 4 * np.pi  # [rad] limits given to a continuous joint
+JAW_MAX_TURN = np.pi  # [rad] a revolute joint ending a chain and turning less is a jaw's
 GRIPPER_LIMIT_MARGIN = 0.025  # open/closed positions this fraction of the range inside the limits
 
 
@@ -81,6 +82,8 @@ def import_robot(
     notes += _fix_mimics(root)
     notes += _fix_continuous(root)
     notes += _rename_fixed_joints_named_as_links(root)
+    link_notes, renamed_links = _rename_links_named_as_movable_joints(root)
+    notes += link_notes
     meshes = _mesh_folder(root, urdf_path.parent)
     source = _as_package_uri(urdf_path)
     urdf_text = indent_and_serialize(root, f"imported from {source} by `marionette robot import`")
@@ -91,7 +94,7 @@ def import_robot(
         raise RobotImportError(f"{urdf_path}: {e}") from None
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / f"{name}.urdf").write_text(urdf_text)
-    srdf, state, end_effector = _srdf(urdf_text, urdf, name, srdf_path, base, notes)
+    srdf, state, end_effector = _srdf(urdf_text, urdf, name, srdf_path, base, notes, renamed_links)
     (out_dir / f"{name}.srdf").write_text(srdf)
     grippers = [] if gripper_link else _srdf_grippers(srdf, urdf, hand, name, srdf_path, notes)
     if not grippers:
@@ -133,15 +136,27 @@ def _gripper(
 ) -> dict[str, object]:
     """The gripper on ``gripper_link`` (else the SRDF's end effector, else the deepest link),
     with its finger joint; its frame at the link's origin for the user to place."""
+    deepest = gripper_link is None and end_effector is None
     gripper_link = gripper_link or end_effector or _deepest_link(urdf)
     if gripper_link not in urdf.links:
         raise RobotImportError(f"--gripper-link {gripper_link!r} is not a link of {urdf_path}")
-    jaw = _jaw_joint(urdf, gripper_link, srdf) if gripper_link == end_effector else None
+    jaw = None
+    if gripper_link == end_effector:
+        jaw = _jaw_joint(urdf, gripper_link, srdf)
+        why = (
+            f"the SRDF's end effector {gripper_link} is moved by {{}}, which the SRDF's arm "
+            "group leaves out"
+        )
+    elif deepest:
+        jaw = _leaf_jaw(urdf, gripper_link)
+        why = (
+            f"the deepest link {gripper_link} is moved by {{}}, the chain's last movable joint, "
+            f"of a jaw's range ({JAW_MAX_TURN:g} rad at most)"
+        )
     if jaw is not None:
         notes.append(
-            f"grippers[0]/link: the SRDF's end effector {gripper_link} is moved by {jaw.name}, "
-            f"which the SRDF's arm group leaves out: a jaw; the gripper is on {jaw.parent}, the "
-            f"link the jaw is mounted on, with finger joint {jaw.name}"
+            f"grippers[0]/link: {why.format(jaw.name)}: a jaw; the gripper is on {jaw.parent}, "
+            f"the link the jaw is mounted on, with finger joint {jaw.name}"
         )
         gripper_link = jaw.parent
     gripper: dict[str, object] = {
@@ -341,6 +356,46 @@ def _rename_fixed_joints_named_as_links(root: ET.Element) -> list[str]:
     return notes
 
 
+def _rename_links_named_as_movable_joints(root: ET.Element) -> tuple[list[str], dict[str, str]]:
+    """A link named as a movable joint gets ``_link`` appended (the joint keeps its name: it names
+    a servo, the SRDF's postures and the robot's logs; a link's name only names a frame).
+    Pinocchio makes a frame of both; a frame looked up by that name would be ambiguous.
+    Returns the notes and the old -> new link names (the given SRDF's are renamed the same)."""
+    links = {link.get("name") for link in root.findall("link")}
+    names = links | {j.get("name") for j in root.findall("joint")}
+    movable = {j.get("name") for j in root.findall("joint") if j.get("type") != "fixed"}
+    renamed: dict[str, str] = {}
+    for link in root.findall("link"):
+        name = link.get("name")
+        if name in movable:
+            new = next(n for k in range(100) if (n := f"{name}_link{k or ''}") not in names)
+            link.set("name", new)
+            names.add(new)
+            renamed[name] = new
+    for j in root.findall("joint"):
+        for end in (j.find("parent"), j.find("child")):
+            if end is not None and end.get("link") in renamed:
+                end.set("link", renamed[end.get("link")])
+    notes = [
+        f"{old}: a link named as a movable joint, renamed {new} (the joint keeps its name)"
+        for old, new in renamed.items()
+    ]
+    return notes, renamed
+
+
+def _rename_srdf_links(sroot: ET.Element, renamed: dict[str, str]) -> bool:
+    """Renames the links of an SRDF (collision pairs, groups' and grippers' links, end
+    effectors) as ``renamed`` says; whether any was."""
+    changed = False
+    for element in sroot.iter():
+        keys = ("link1", "link2", "parent_link") + (("name",) if element.tag == "link" else ())
+        for key in keys:
+            if element.get(key) in renamed:
+                element.set(key, renamed[element.get(key)])
+                changed = True
+    return changed
+
+
 def _fix_continuous(root: ET.Element) -> list[str]:
     """Continuous joints become revolute joints of two turns each way: the controller and MuJoCo
     map 1-DoF joints with an angle, not Pinocchio's (cos, sin) of a continuous joint."""
@@ -387,8 +442,10 @@ def _srdf(
     srdf_path: str | Path | None,
     base: str,
     notes: list[str],
+    renamed_links: dict[str, str] | None = None,
 ) -> tuple[str, str, str | None]:
-    """(SRDF text, reference state name, end-effector parent link or None)."""
+    """(SRDF text, reference state name, end-effector parent link or None). ``renamed_links``:
+    old -> new names of the URDF's links the import renamed, renamed in the given SRDF too."""
     end_effector = None
     if srdf_path is not None:
         srdf_path = Path(srdf_path)
@@ -400,6 +457,8 @@ def _srdf(
         except ET.ParseError as e:
             raise RobotImportError(f"{srdf_path}: not XML ({e})") from None
         where = str(srdf_path)
+        if renamed_links and _rename_srdf_links(sroot, renamed_links):
+            text = indent_and_serialize(sroot, "its links renamed as in the URDF")
         ee = sroot.find("end_effector")
         end_effector = ee.get("parent_link") if ee is not None else None
         pairs = [
@@ -608,6 +667,27 @@ def _jaw_joint(urdf: Urdf, link: str, srdf: str) -> Joint | None:
     ]
     arm = [g for g in groups if g & chain]
     return joint if arm and not any(joint.name in g for g in arm) else None
+
+
+def _leaf_jaw(urdf: Urdf, link: str) -> Joint | None:
+    """The joint moving ``link`` when, without an SRDF to tell, it looks like a jaw, else None:
+    the last movable joint (not a mimic) of the chain to ``link``, below another movable one (an
+    arm), sliding or turning less than JAW_MAX_TURN (a jaw closes within half a turn; an arm's
+    last joint, a wrist, turns a full one or more). A gripper frame on a jaw would move as the
+    gripper closes; it belongs on the link the jaw is mounted on."""
+    joint = urdf.parent_joint(link)
+    if joint is None or joint.type not in MOVABLE or joint.mimic is not None:
+        return None
+    if any(k.type in MOVABLE for below in urdf.subtree(link) for k in urdf.child_joints(below)):
+        return None
+    parent = urdf.parent_joint(joint.parent)
+    while parent is not None and parent.type not in MOVABLE:
+        parent = urdf.parent_joint(parent.parent)
+    if parent is None or joint.lower is None or joint.upper is None:
+        return None
+    if joint.type == "revolute" and joint.upper - joint.lower >= JAW_MAX_TURN:
+        return None
+    return joint
 
 
 def _deepest_link(urdf: Urdf) -> str:

@@ -405,3 +405,84 @@ def test_jaws_beside_the_gripper_link_are_hand_links(on_path):
     desc = robots.robot(folder)
     hands = hand_links(desc, parse_urdf(desc.urdf.read_text()))
     assert {gripper["link"], "gripper_link", "moving_jaw_so101_v1_link"} <= hands
+
+
+def _arm_with_hand(tmp_path: Path, jaw_range: float, jaw_collision: bool = True) -> Path:
+    """A 2-joint arm ending in a palm and a jaw hinged on it (range ``jaw_range`` rad), its
+    deepest link; no SRDF."""
+    box = '<collision><origin xyz="{}"/><geometry><box size="{}"/></geometry></collision>'
+    jaw = box.format("0 0 -0.03", "0.02 0.01 0.06") if jaw_collision else ""
+    inertial = (
+        '<inertial><mass value="0.1"/>'
+        '<inertia ixx="1e-4" iyy="1e-4" izz="1e-4" ixy="0" ixz="0" iyz="0"/></inertial>'
+    )
+    text = f"""<robot name="arm">
+      <link name="base">{box.format("0 0 0.05", "0.1 0.1 0.1")}</link>
+      <link name="upper">{inertial}{box.format("0 0 0.15", "0.04 0.04 0.2")}</link>
+      <link name="forearm">{inertial}{box.format("0.15 0 0", "0.2 0.04 0.04")}</link>
+      <link name="palm">{inertial}{box.format("0 0 0.01", "0.03 0.024 0.02")}
+        {box.format("0 -0.005 -0.03", "0.02 0.01 0.06")}</link>
+      <link name="jaw">{inertial}{jaw}</link>
+      <joint name="pan" type="revolute"><parent link="base"/><child link="upper"/>
+        <origin xyz="0 0 0.12"/><axis xyz="0 0 1"/>
+        <limit lower="-3" upper="3" effort="10" velocity="1"/></joint>
+      <joint name="lift" type="revolute"><parent link="upper"/><child link="forearm"/>
+        <origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
+        <limit lower="-2" upper="2" effort="10" velocity="1"/></joint>
+      <joint name="wrist" type="fixed"><parent link="forearm"/><child link="palm"/>
+        <origin xyz="0.3 0 0"/></joint>
+      <joint name="hinge" type="revolute"><parent link="palm"/><child link="jaw"/>
+        <origin xyz="0 0.006 0"/><axis xyz="1 0 0"/>
+        <limit lower="0" upper="{jaw_range}" effort="1" velocity="1"/></joint>
+    </robot>"""
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text(text)
+    return urdf
+
+
+@pytest.mark.parametrize(("jaw_range", "jaw"), [(1.5, True), (2 * np.pi, False)])
+def test_without_srdf_a_deepest_link_moved_by_a_jaw_puts_the_gripper_on_the_palm(
+    on_path, tmp_path, jaw_range, jaw
+):
+    """Without an SRDF the gripper's link is the deepest one; when that is a jaw (the chain's
+    last movable joint, turning less than half a turn: example-robot-data's SO-100), the
+    gripper goes on the link the jaw is mounted on, with that joint, and the folder checks. A
+    last joint turning a full turn is a wrist: the gripper stays on its link, no finger."""
+    folder = on_path / "arm"
+    import_robot(_arm_with_hand(tmp_path, jaw_range), "arm", folder)
+    (gripper,) = robots.semantics(folder).grippers
+    assert (gripper.link, gripper.joint) == (("palm", "hinge") if jaw else ("jaw", None))
+    assert not _errors(check_robot(folder, build=False))
+
+
+def test_a_jaw_without_collision_geometry_is_refused(on_path, tmp_path):
+    """A finger joint moving links with no <collision> (example-robot-data's SO-100 hand): in
+    MuJoCo the jaw passes through the object. The check says so in one line."""
+    folder = on_path / "arm"
+    import_robot(_arm_with_hand(tmp_path, 1.5, jaw_collision=False), "arm", folder)
+    (error,) = _errors(check_robot(folder, build=False))
+    assert "link jaw: no <collision> on the links finger joint 'hinge' moves" in error
+
+
+@pytest.mark.slow
+def test_a_link_named_as_a_movable_joint_is_renamed_by_the_import_and_in_its_srdf(
+    on_path, tmp_path
+):
+    """A link may carry its joint's name (example-robot-data's SO-100: joint and link
+    'gripper'); Pinocchio frames are looked up by name. The import renames the link (the joint
+    keeps its name, which the servos and postures use), in the URDF and in the given SRDF's
+    collision pairs, and the folder checks."""
+    source = (ERD / "panda_description/urdf/panda.urdf").read_text()
+    urdf = tmp_path / "panda.urdf"
+    urdf.write_text(source.replace('"panda_link4"', '"panda_joint4"'))
+    srdf = tmp_path / "panda.srdf"
+    srdf.write_text(
+        (ERD / "panda_description/srdf/panda.srdf")
+        .read_text()
+        .replace('"panda_link4"', '"panda_joint4"')
+    )
+    folder = on_path / "arm"
+    notes = import_robot(urdf, "arm", folder, srdf)
+    assert any("renamed panda_joint4_link" in n for n in notes), notes
+    assert "panda_joint4_link" in (folder / "arm.srdf").read_text()
+    assert not _errors(check_robot(folder, build=False))
