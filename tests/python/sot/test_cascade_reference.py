@@ -64,6 +64,16 @@ KNOWN_DEFECTS = {
     # A QP failure reported on an optimal point (gaps <= 1e-20): eiquadprog's and the primal
     # method's points both left uncertified (an equality, inequality, equality stack).
     ("tiago", 68, False): "qp_failures",
+    # Found when the UR3 and the SO-100 were bundled; not analysed yet:
+    # the 4th level (of bounds, mixed, equality, equality, inequality) ends 0.01 (relative) above
+    # its optimum in both modes, no QP failure reported (not the Gram path: the same without it);
+    ("so100", 132, True): "gap",
+    ("so100", 132, False): "gap",
+    # QP failures reported on optimal points (gaps <= 3e-13).
+    ("so100", 4, True): "qp_failures",
+    ("so100", 4, False): "qp_failures",
+    ("so100", 476, True): "qp_failures",
+    ("so100", 476, False): "qp_failures",
 }
 
 
