@@ -367,15 +367,16 @@ def _rename_links_named_as_movable_joints(root: ET.Element) -> tuple[list[str], 
     renamed: dict[str, str] = {}
     for link in root.findall("link"):
         name = link.get("name")
-        if name in movable:
+        if name is not None and name in movable:
             new = next(n for k in range(100) if (n := f"{name}_link{k or ''}") not in names)
             link.set("name", new)
             names.add(new)
             renamed[name] = new
     for j in root.findall("joint"):
         for end in (j.find("parent"), j.find("child")):
-            if end is not None and end.get("link") in renamed:
-                end.set("link", renamed[end.get("link")])
+            old_name = end.get("link") if end is not None else None
+            if end is not None and old_name is not None and old_name in renamed:
+                end.set("link", renamed[old_name])
     notes = [
         f"{old}: a link named as a movable joint, renamed {new} (the joint keeps its name)"
         for old, new in renamed.items()
@@ -390,8 +391,9 @@ def _rename_srdf_links(sroot: ET.Element, renamed: dict[str, str]) -> bool:
     for element in sroot.iter():
         keys = ("link1", "link2", "parent_link") + (("name",) if element.tag == "link" else ())
         for key in keys:
-            if element.get(key) in renamed:
-                element.set(key, renamed[element.get(key)])
+            value = element.get(key)
+            if value is not None and value in renamed:
+                element.set(key, renamed[value])
                 changed = True
     return changed
 
