@@ -12,6 +12,14 @@ GraphService::~GraphService() = default;
 // ---- loop thread ---------------------------------------------------------------------------
 
 int GraphService::ApplySets(int64_t* hashes, int max) {
+  // The watch is taken here, before the sets, not where it is sampled: a `get` posted after a
+  // `set` then sees the set applied. Taken at the end of the tick, a watch posted between this
+  // tick's sets and its sample read the value from before a set queued ahead of it.
+  if (Watch* next = posted_.exchange(nullptr, std::memory_order_acq_rel)) {
+    if (active_ != nullptr) retired_.Push(active_);
+    active_ = next->signals.empty() ? nullptr : next;
+    if (active_ == nullptr) retired_.Push(next);
+  }
   int n = 0;
   SetRequest r;
   while (n < max && sets_.Pop(&r)) {
@@ -22,11 +30,6 @@ int GraphService::ApplySets(int64_t* hashes, int max) {
 }
 
 void GraphService::Sample(int64_t tick, int64_t utime) {
-  if (Watch* next = posted_.exchange(nullptr, std::memory_order_acq_rel)) {
-    if (active_ != nullptr) retired_.Push(active_);
-    active_ = next->signals.empty() ? nullptr : next;
-    if (active_ == nullptr) retired_.Push(next);
-  }
   if (active_ == nullptr) return;
   // Filled in place in the queue (slots are preallocated at the largest size): only the watched
   // values are written. A full queue drops the sample (the LCM thread is behind).

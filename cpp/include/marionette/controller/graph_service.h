@@ -6,8 +6,9 @@
 ///   ----------                               ------------------------------
 ///   ls / graph / timing: read the structure  —
 ///     (only while no controller swap is pending: the structure is then frozen)
-///   get / trace: resolve names, post a Watch  Sample(): flatten the watched signals into a
-///     (atomic pointer swap)                    preallocated slot of a lock-free queue
+///   get / trace: resolve names, post a Watch  ApplySets() (start): take the posted watch;
+///     (atomic pointer swap)                    Sample() (end): flatten the watched signals
+///                                              into a preallocated slot of a lock-free queue
 ///   drain samples: reply to gets, publish     —
 ///     traces at their rate
 ///   set: only inputs declared settable;       ApplySets(): copy the values into the input
@@ -60,8 +61,9 @@ class GraphService {
   ~GraphService();
 
   // ---- loop thread (real-time: no allocation, no lock) --------------------------------------
-  /// Applies the queued `set` requests (call at the start of a tick); writes the hashes of the
-  /// requests applied into hashes[0 .. returned count), at most `max`.
+  /// Takes the watch last posted, then applies the queued `set` requests (call at the start of
+  /// every tick); writes the hashes of the requests applied into hashes[0 .. returned count), at
+  /// most `max`.
   int ApplySets(int64_t* hashes, int max);
   /// Copies the watched signals (call at the end of a tick, after evaluation).
   void Sample(int64_t tick, int64_t utime);
