@@ -27,5 +27,8 @@ inline constexpr char kDgReply[] = "DG_REPLY";
 inline constexpr char kDgTrace[] = "DG_TRACE";
 inline constexpr char kControllerTiming[] = "CONTROLLER_TIMING";
 inline constexpr char kControllerJournal[] = "CONTROLLER_JOURNAL";
+inline constexpr char kDriverState[] = "DRIVER_STATE";
+inline constexpr char kDriverCommand[] = "DRIVER_COMMAND";
+inline constexpr char kDriverStatus[] = "DRIVER_STATUS";
 
 }  // namespace marionette::channels
