@@ -66,8 +66,8 @@ StateReader::StateReader(DriverLayout layout) : layout_(std::move(layout)) {}
 
 bool StateReader::Read(const lcmt_driver_state& msg, MeasuredState* out, std::string* why) {
   if (msg.protocol_version != kDriverProtocolVersion) {
-    *why = "protocol version " + std::to_string(msg.protocol_version) + ", this controller speaks " +
-           std::to_string(kDriverProtocolVersion);
+    *why = "protocol version " + std::to_string(msg.protocol_version) +
+           ", this controller speaks " + std::to_string(kDriverProtocolVersion);
     return false;
   }
   if (!joints_.Match(layout_.joints, msg.joint_name, "joint", why)) {
@@ -91,7 +91,8 @@ bool StateReader::Read(const lcmt_driver_state& msg, MeasuredState* out, std::st
   const Eigen::Quaterniond quat(msg.base_quaternion[0], msg.base_quaternion[1],
                                 msg.base_quaternion[2], msg.base_quaternion[3]);
   if (floating && std::abs(quat.norm() - 1.0) > 1e-6) {
-    *why = "base quaternion of norm " + std::to_string(quat.norm()) + " (a unit quaternion w x y z)";
+    *why =
+        "base quaternion of norm " + std::to_string(quat.norm()) + " (a unit quaternion w x y z)";
     return false;
   }
   if (out->q.size() != layout_.nq) {

@@ -12,8 +12,7 @@ Eigen::VectorXd RobotConfiguration(const MujocoScene& scene) {
 
 }  // namespace
 
-SceneMeasurement::SceneMeasurement(const MujocoScene* scene,
-                                   const std::vector<std::string>& bodies)
+SceneMeasurement::SceneMeasurement(const MujocoScene* scene, const std::vector<std::string>& bodies)
     : scene_(scene),
       effort_(Eigen::VectorXd::Zero(scene->robot_nv())),
       wrenches_(bodies.size(), Eigen::Matrix<double, 6, 1>::Zero()) {

@@ -27,8 +27,8 @@ class DriverDevice final : public graph::Device {
   /// `first`: the robot's first state (its configuration is the device's initial one; it is also
   /// the state of tick 0). `lcm`: where commands go (nullptr: nowhere, for replays); it must
   /// outlive the device.
-  DriverDevice(std::string name, DriverLayout layout, const MeasuredState& first,
-               lcm::LCM* lcm, int64_t max_clock_step_us);
+  DriverDevice(std::string name, DriverLayout layout, const MeasuredState& first, lcm::LCM* lcm,
+               int64_t max_clock_step_us);
   const char* type_name() const override { return "DriverDevice"; }
 
   /// Why a state was refused: a category (counted per category) and one line of detail.

@@ -27,9 +27,9 @@ inline constexpr int16_t kDriverProtocolVersion = 1;
 /// Where a robot's measured quantities live in Pinocchio's q (nq) and v (nv).
 struct DriverLayout {
   std::string robot_name;
-  std::vector<std::string> joints;  ///< every 1-dof joint, in Pinocchio order
-  std::vector<int> idx_q, idx_v;    ///< their indices in q and v
-  std::string base;                 ///< "fixed" | "free_flyer" | "planar"
+  std::vector<std::string> joints;         ///< every 1-dof joint, in Pinocchio order
+  std::vector<int> idx_q, idx_v;           ///< their indices in q and v
+  std::string base;                        ///< "fixed" | "free_flyer" | "planar"
   std::vector<std::string> wrench_bodies;  ///< robot.measured_bodies(): soles, then fingers
   int nq = 0, nv = 0;
 };
@@ -41,8 +41,8 @@ std::string JointList(const DriverLayout& layout);
 
 /// A robot's measured state in Pinocchio's layout.
 struct MeasuredState {
-  int64_t utime = 0;     ///< the robot's clock [us]
-  int64_t sequence = 0;  ///< the driver's cycle count
+  int64_t utime = 0;             ///< the robot's clock [us]
+  int64_t sequence = 0;          ///< the driver's cycle count
   Eigen::VectorXd q, v, effort;  ///< (nq), (nv), (nv; 0 on the base)
   std::vector<double> wrenches;  ///< 6 per layout.wrench_bodies: (f, tau) world axes [N, N m]
 };
