@@ -16,9 +16,7 @@ DriverDevice::DriverDevice(std::string name, DriverLayout layout, const Measured
       reader_(std::move(layout)),
       lcm_(lcm),
       max_clock_step_us_(max_clock_step_us),
-      state_(first),
-      has_state_(true),
-      first_(false) {
+      state_(first) {
   command_.q = first.q;
   command_.v = Eigen::VectorXd::Zero(first.v.size());
   WriteCommand(reader_.layout(), command_, &command_message_);  // sized once
@@ -88,45 +86,61 @@ void DriverDevice::Write(const graph::Tick& t) {
   if (size > 0) lcm_->publish(channels::kDriverCommand, buffer_.data(), size);
 }
 
-MeasuredState WaitFirstState(lcm::LCM& lcm, const DriverLayout& layout, double timeout_s) {
+namespace {
+
+// Why `data` is not a state of `layout` ("" when it is one, then in `state`).
+std::string CheckState(const void* data, size_t size, const DriverLayout& layout,
+                       StateReader* reader, MeasuredState* state) {
+  const wire::Verdict verdict = wire::Validate<lcmt_driver_state>(data, size);
+  if (!verdict.ok()) return std::string(wire::ToString(verdict.refusal)) + ": " + verdict.detail;
+  lcmt_driver_state msg;
+  if (msg.decode(data, 0, static_cast<int>(size)) != static_cast<int>(size)) return "undecodable";
+  std::string why;
+  return reader->Read(msg, state, &why) ? std::string() : why;
+}
+
+}  // namespace
+
+std::string WaitFirstState(lcm::LCM& lcm, const DriverLayout& layout, double timeout_s) {
   struct Waiter {
+    const DriverLayout& layout;
     StateReader reader;
-    MeasuredState state;
-    bool taken = false;
+    std::string bytes;
     std::set<std::string> logged;
     void Handle(const lcm::ReceiveBuffer* rbuf, const std::string&) {
-      if (taken) return;
-      const wire::Verdict verdict = wire::Validate<lcmt_driver_state>(rbuf->data, rbuf->data_size);
-      std::string why;
-      lcmt_driver_state msg;
-      if (!verdict.ok()) {
-        why = std::string(wire::ToString(verdict.refusal)) + ": " + verdict.detail;
-      } else if (msg.decode(rbuf->data, 0, static_cast<int>(rbuf->data_size)) !=
-                 static_cast<int>(rbuf->data_size)) {
-        why = "undecodable";
-      } else if (reader.Read(msg, &state, &why)) {
-        taken = true;
-        return;
-      }
-      if (logged.insert(why.substr(0, 40)).second)
+      if (!bytes.empty()) return;
+      MeasuredState state;
+      const std::string why = CheckState(rbuf->data, rbuf->data_size, layout, &reader, &state);
+      if (why.empty()) {
+        bytes.assign(static_cast<const char*>(rbuf->data), rbuf->data_size);
+      } else if (logged.insert(why.substr(0, 40)).second) {
         runtime::LogLine("[controller] DRIVER_STATE refused: ", why);
+      }
     }
-  } waiter{StateReader(layout), {}, false, {}};
+  } waiter{layout, StateReader(layout), {}, {}};
   lcm::Subscription* sub = lcm.subscribe(channels::kDriverState, &Waiter::Handle, &waiter);
   const auto start = std::chrono::steady_clock::now();
-  while (!waiter.taken) {
+  while (waiter.bytes.empty()) {
     const double waited =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     if (timeout_s > 0.0 && waited >= timeout_s) break;
     lcm.handleTimeout(100);
   }
   lcm.unsubscribe(sub);
-  if (!waiter.taken) {
+  if (waiter.bytes.empty()) {
     throw std::runtime_error("no DRIVER_STATE from " + layout.robot_name + "'s driver in " +
                              std::to_string(timeout_s) + " s (is the driver or marionette-sim " +
                              "running on this LCM URL? docs/driver.md)");
   }
-  return waiter.state;
+  return waiter.bytes;
+}
+
+MeasuredState ReadState(const std::string& bytes, const DriverLayout& layout) {
+  StateReader reader(layout);
+  MeasuredState state;
+  const std::string why = CheckState(bytes.data(), bytes.size(), layout, &reader, &state);
+  if (!why.empty()) throw std::runtime_error("DRIVER_STATE refused: " + why);
+  return state;
 }
 
 }  // namespace marionette::controller

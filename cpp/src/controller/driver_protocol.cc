@@ -52,8 +52,9 @@ bool NameOrder::Match(const std::vector<std::string>& expected,
   }
   for (size_t k = 0; k < expected.size(); ++k) {
     if (!seen[k]) {
-      *why = std::to_string(names.size()) + " " + what + "s where the robot has " +
-             std::to_string(expected.size()) + ": '" + expected[k] + "' is missing";
+      *why = std::string(what) + " '" + expected[k] + "' is missing (" +
+             std::to_string(names.size()) + " given, the robot has " +
+             std::to_string(expected.size()) + ")";
       return false;
     }
   }

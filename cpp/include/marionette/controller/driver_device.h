@@ -68,8 +68,12 @@ class DriverDevice final : public graph::Device {
   std::vector<uint8_t> buffer_;  // the encoded command
 };
 
-/// The first DRIVER_STATE on `lcm` that fits `layout`, waited for up to `timeout_s` (0: forever);
-/// the first refusal of each category is logged. Throws std::runtime_error when none came.
-MeasuredState WaitFirstState(lcm::LCM& lcm, const DriverLayout& layout, double timeout_s);
+/// The bytes of the first DRIVER_STATE on `lcm` that fits `layout`, waited for up to `timeout_s`
+/// (0: forever); the first refusal of each kind is logged. Throws std::runtime_error when none
+/// came.
+std::string WaitFirstState(lcm::LCM& lcm, const DriverLayout& layout, double timeout_s);
+/// The state in a DRIVER_STATE message's bytes; throws std::runtime_error saying why it does not
+/// fit `layout`.
+MeasuredState ReadState(const std::string& bytes, const DriverLayout& layout);
 
 }  // namespace marionette::controller
