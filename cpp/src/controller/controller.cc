@@ -12,6 +12,11 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
   if (!options.key_file.empty())
     verifier = std::make_unique<wire::Verifier>(wire::LoadKey(o.key_file));
+  if (!options.journal_file.empty()) {
+    black_box = std::make_unique<lcm::LogFile>(options.journal_file, "w");
+    if (!black_box->good())
+      throw std::runtime_error("cannot write the journal '" + options.journal_file + "'");
+  }
   try {
     robot = FindRobot(options.robot, options.models_dir);
   } catch (const std::invalid_argument& e) {
@@ -327,6 +332,18 @@ void Controller::Impl::CopyTimings(const graph::Tick& t) {
   timing_tables->Publish();
 }
 
+void Controller::Impl::Record(const std::string& channel, const void* data, size_t size,
+                              int64_t utime) {
+  std::lock_guard<std::mutex> lock(black_box_mutex);
+  lcm::LogEvent event;
+  event.eventnum = black_box_events++;
+  event.timestamp = utime;
+  event.channel = channel;
+  event.datalen = static_cast<int32_t>(size);
+  event.data = const_cast<void*>(data);
+  if (black_box->writeEvent(&event) != 0) records_lost.fetch_add(1, std::memory_order_relaxed);
+}
+
 void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
   // Full: the publisher is behind; the entry is lost and counted (a replay says it cannot be
   // exact).
@@ -450,6 +467,16 @@ void Controller::Impl::OnDriverState(const lcm::ReceiveBuffer* rbuf, const std::
   DriverDevice::Refusal refusal;
   if (driver_device->Offer(rbuf->data, rbuf->data_size, &refusal)) {
     driver_state_hash = Fnv1a(rbuf->data, rbuf->data_size);
+    if (black_box && !replaying) {  // copied within the scratch's capacity: no allocation
+      const auto* bytes = static_cast<const uint8_t*>(rbuf->data);
+      if (rbuf->data_size > kMaxRecordedState) {
+        records_lost.fetch_add(1, std::memory_order_relaxed);
+      } else {
+        state_record_scratch.assign(bytes, bytes + rbuf->data_size);
+        if (!state_records.Push(state_record_scratch))
+          records_lost.fetch_add(1, std::memory_order_relaxed);
+      }
+    }
     return;
   }
   if (!driver_refusals.Push(DriverRefusalEvent{refusal.category, refusal.detail}))
@@ -790,6 +817,8 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
       o.key_file = value(i);
     else if (a == "--driver-timeout")
       o.driver_timeout = number(i);
+    else if (a == "--journal")
+      o.journal_file = value(i);
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else

@@ -328,6 +328,21 @@ struct Controller::Impl {
   std::atomic<int> graph_lease{0};
   enum class Engage { kEngaged, kRetry, kUnavailable };
 
+  // The black box (--journal FILE): a local LCM log of every input the LCM thread admits, every
+  // journal batch and (driver backend) every robot state the loop takes, so that a replay never
+  // depends on a network logger, which drops messages when its process falls behind (a plank
+  // flip's lcm-logger lost 5 of 1042 consumed inputs at load 3.5).
+  std::unique_ptr<lcm::LogFile> black_box;
+  std::mutex black_box_mutex;
+  int64_t black_box_events = 0;  // under black_box_mutex
+  void Record(const std::string& channel, const void* data, size_t size, int64_t utime);
+  // Driver states, loop -> publisher (written to the black box off the loop).
+  static constexpr size_t kMaxRecordedState = 16384;  // [bytes] larger ones are counted lost
+  runtime::SpscQueue<std::vector<uint8_t>> state_records{256,
+                                                         std::vector<uint8_t>(kMaxRecordedState)};
+  std::vector<uint8_t> state_record_scratch = std::vector<uint8_t>(kMaxRecordedState);
+  std::atomic<int64_t> records_lost{0};
+
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};
   std::atomic<int64_t> journal_lost{0};
@@ -482,6 +497,7 @@ bool Controller::Impl::Admit(const char* channel, const lcm::ReceiveBuffer* rbuf
     Reject(channel, "undecodable", std::string("not a valid ") + Msg::getTypeName());
     return false;
   }
+  if (black_box && !replaying) Record(channel, rbuf->data, rbuf->data_size, rbuf->recv_utime);
   return true;
 }
 

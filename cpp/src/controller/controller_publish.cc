@@ -83,12 +83,25 @@ void Controller::Impl::PublishJournal(int64_t utime, bool always) {
     j.channel.push_back(kJournalChannels[entry.channel]);
     j.payload_hash.push_back(entry.hash);
   }
+  if (black_box) {  // the robot's states the loop took, then this batch: in consumption order
+    const std::vector<uint8_t>* state = nullptr;
+    while ((state = state_records.Front()) != nullptr) {
+      Record(channels::kDriverState, state->data(), state->size(), WallUs());
+      state_records.PopFront();
+    }
+  }
   if (j.tick.empty() && !always) return;
   j.utime = utime;
   j.config = MotionConfig();
-  j.num_lost = journal_lost.load(std::memory_order_relaxed);
+  j.num_lost =
+      journal_lost.load(std::memory_order_relaxed) + records_lost.load(std::memory_order_relaxed);
   j.num_entries = static_cast<int32_t>(j.tick.size());
   lcm.publish(channels::kControllerJournal, &j);
+  if (black_box) {
+    std::vector<uint8_t> bytes(j.getEncodedSize());
+    j.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    Record(channels::kControllerJournal, bytes.data(), bytes.size(), WallUs());
+  }
 }
 
 void Controller::Impl::PublishState(const Snapshot& s) {
