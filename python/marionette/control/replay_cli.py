@@ -22,7 +22,6 @@ from pathlib import Path
 
 import marionette
 
-
 # The controller's own journal of a run (marionette-controller --journal), beside the run's LCM
 # log in a demo's report folder: every input it took, even those the network logger dropped.
 JOURNAL_NAME = "controller-journal.lcmlog"
