@@ -101,7 +101,7 @@ def run_demo(
     """Runs ``marionette demo <name> --speed <speed> --out <out_dir> <args>`` and checks what a
     user checks first: exit code 0, a single run folder whose report says success, and ``files``
     of that folder not empty; and that the report carries the scenario's declaration, a measure
-    of each of its criteria and the scene a replay draws; and that the run's first 20 s replay
+    of each of its criteria and the scene a replay draws; and that the run's first 10 s replay
     exactly. Returns the run folder and its report.json."""
     proc = run_stopping_what_it_started(
         [
@@ -145,9 +145,9 @@ def run_demo(
     return run, report
 
 
-# Ticks of a demo's run replayed by run_demo (20 s of controller time: TALOS replays ~1500 ticks a
+# Ticks of a demo's run replayed by run_demo (10 s of controller time: TALOS replays ~1500 ticks a
 # second, and a deburr run is 12 minutes long).
-REPLAYED_TICKS = 20_000
+REPLAYED_TICKS = 10_000
 
 
 def lcm_log_messages(path: Path, types: dict[str, Any]) -> Iterator[tuple[str, Any]]:

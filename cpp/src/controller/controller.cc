@@ -453,12 +453,13 @@ bool Controller::Impl::WaitDriverState(double timeout_s) {
   }
   if (driver_device->has_state()) {
     driver_silent = false;
+    last_driver_state = Clock::now();
     return true;
   }
-  if (!driver_silent && !stop) {  // once per silence
+  if (!driver_silent && !stop) {  // once per silence; the status says how long since the last
     driver_silent = true;
     driver_hold = 1;
-    ShowDriverHold(timeout_s);
+    ShowDriverHold(std::chrono::duration<double>(Clock::now() - last_driver_state).count());
   }
   return false;
 }

@@ -201,6 +201,7 @@ struct Controller::Impl {
   std::string first_driver_state_bytes;  // the DRIVER_STATE the controller started from
   int64_t driver_state_hash = 0;         // of the state the next tick reads (the journal's)
   bool driver_silent = false;            // loop: a silence hold was decided, no state since
+  Clock::time_point last_driver_state = Clock::now();  // loop: when the last state was taken
   std::unique_ptr<graph::Graph> graph;
   std::unique_ptr<ControllerFactory> factory;
   lcm::LCM lcm;

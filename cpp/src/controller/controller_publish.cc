@@ -224,7 +224,7 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
       char buffer[200];
       std::snprintf(
           buffer, sizeof(buffer),
-          "driver silent: no DRIVER_STATE for %.0f ms; holding until resumed or a new spec",
+          "driver silent: no DRIVER_STATE for %.1f ms; holding until resumed or a new spec",
           1e3 * s.reason_value);
       st.mode_reason = buffer;
       break;
