@@ -16,6 +16,7 @@ import lcm
 from marionette import (
     REPO_ROOT,
     channels,
+    lcmt_camera_image,
     lcmt_driver_command,
     lcmt_driver_state,
     lcmt_driver_status,
@@ -23,7 +24,9 @@ from marionette import (
     lcmt_sim_command,
 )
 from marionette.lcm_bus import LcmBus, MessageLog, private_lcm_url
+from marionette.lcm_signing import load_key
 from marionette.processes import ManagedProcess, ProcessGroup
+from marionette.robots import robot
 
 JOINT = "shoulder_pan_joint"  # the UR10's vertical axis: no gravity load on its servo
 RAMP_RAD = 0.3
@@ -89,11 +92,11 @@ class Answerer:
 
 
 def start_sim(group: ProcessGroup, url: str, *args: str) -> ManagedProcess:
+    """marionette-sim on ``url`` (the UR10 unless ``args`` name a robot)."""
     from marionette import BUILD_DIR
 
-    return group.start(
-        "sim", [BUILD_DIR / "marionette-sim", "--robot", "ur10", "--lcm-url", url, *args]
-    )
+    robot = [] if "--robot" in args else ["--robot", "ur10"]
+    return group.start("sim", [BUILD_DIR / "marionette-sim", *robot, "--lcm-url", url, *args])
 
 
 def wait_status(
@@ -204,8 +207,9 @@ def test_paced_driver_holds_without_commands(build_dir: Path, tmp_path: Path) ->
         answerer.answering = False
         status = wait_status(statuses, proc, lambda st: st.holding and st.holds >= 1, timeout_s=5.0)
         assert status.reason.startswith("no command for"), status.reason
-        # From the last receipt, on the robot's clock: the timeout, less the last answer's delay.
-        assert 5.0 <= status.last_hold_reaction_ms <= 10.0, status.last_hold_reaction_ms
+        # From the last receipt, on the robot's clock: the timeout less how late that answer came
+        # (10 ms when it came in its own cycle; Python on a busy machine is often later).
+        assert 0.0 < status.last_hold_reaction_ms <= 10.0, status.last_hold_reaction_ms
         assert status.commands_refused == 0
 
         # SIM_COMMAND: an unknown object is refused with the known ones; the box moves.
@@ -230,6 +234,89 @@ def test_paced_driver_holds_without_commands(build_dir: Path, tmp_path: Path) ->
         log = proc.log_path.read_text()
         assert "'no_such_box' (free objects: box)" in log, log
         assert "refused 0" in summary, summary
+
+
+def _key_file(tmp_path: Path) -> Path:
+    path = tmp_path / "marionette.key"
+    path.write_text("0123456789abcdef" * 4 + "\n")
+    path.chmod(0o600)
+    return path
+
+
+def test_signed_sim_command_only_with_a_key(build_dir: Path, tmp_path: Path) -> None:
+    """SIM_COMMAND is a signed channel: with --key, an unsigned request is refused and a signed
+    one taken (the box moves); the controller's boundary, in the driver."""
+    url = private_lcm_url()
+    key_path = _key_file(tmp_path)
+    scene = REPO_ROOT / "models" / "scenes" / "ur10_box.xml"
+    with (
+        ProcessGroup(url, tmp_path / "logs") as group,
+        LcmBus(url, key=False) as unsigned,
+        LcmBus(url, key=load_key(key_path)) as signed,
+    ):
+        poses = MessageLog(unsigned, channels.SIM_OBJECT_POSES, lcmt_object_poses)
+        unsigned.start()
+        proc = start_sim(
+            group, url, "--camera-rate", "0", "--scene", str(scene), "--key", str(key_path)
+        )
+        assert poses.wait_for(lambda msgs: bool(msgs), 30.0), proc.log_tail()
+        (box,) = poses.latest().objects
+        move = lcmt_sim_command()
+        move.command, move.object_name = "set_object_pose", "box"
+        move.quaternion = [1.0, 0.0, 0.0, 0.0]
+        move.position = [box.position_world[0], box.position_world[1] + 0.1, box.position_world[2]]
+        unsigned.publish(channels.SIM_COMMAND, move)
+        time.sleep(0.3)
+        assert abs(poses.latest().objects[0].position_world[1] - box.position_world[1]) < 0.01
+        signed.publish(channels.SIM_COMMAND, move)
+        assert poses.wait_for(
+            lambda msgs: abs(msgs[-1].objects[0].position_world[1] - move.position[1]) < 0.01, 5.0
+        ), vars_of(poses.latest().objects[0])
+        stop_cleanly(group, proc)
+        log = proc.log_path.read_text()
+        assert "SIM_COMMAND refused (unsigned)" in log, log
+        assert "signed only" in log
+
+
+def test_head_camera_frames_on_the_robot_clock(build_dir: Path, tmp_path: Path) -> None:
+    """CAMERA_HEAD as the controller's mujoco backend renders it: TIAGo's head camera at 15 Hz of
+    robot time; the planar base travels in the state."""
+    url = private_lcm_url()
+    scene = REPO_ROOT / "models" / "scenes" / "tiago_deburr.xml"
+    with (
+        ProcessGroup(url, tmp_path / "logs") as group,
+        LcmBus(url, key=False) as bus,
+    ):
+        images = MessageLog(bus, channels.CAMERA_HEAD, lcmt_camera_image)
+        states = MessageLog(bus, channels.DRIVER_STATE, lcmt_driver_state)
+        bus.start()
+        proc = start_sim(
+            group,
+            url,
+            "--robot",
+            "tiago",
+            "--scene",
+            str(scene),
+            "--camera-rate",
+            "15",
+            "--camera-size",
+            "160x120",
+        )
+        assert images.wait_for(lambda msgs: len(msgs) >= 6, 60.0), proc.log_tail()
+        stop_cleanly(group, proc)
+    frames = images.messages
+    utimes = [f.utime for f in frames[1:]]
+    # Sampled every 67 cycles (SCHED_IDLE rendering may skip one on a busy machine: the newest
+    # snapshot wins, the physics never waits).
+    gaps = [b - a for a, b in zip(utimes, utimes[1:], strict=False)]
+    assert all(g > 0 and g % 67_000 == 0 for g in gaps), utimes
+    image = frames[-1]
+    assert (image.width, image.height, image.camera_name) == (160, 120, "head")
+    assert image.frame_name == robot("tiago").camera_frame
+    assert len(image.rgb) == 160 * 120 * 3 and len(image.depth) == 160 * 120
+    assert max(image.rgb) - min(image.rgb) > 50, "a rendered image, not a blank one"
+    state = states.latest()
+    assert state.robot_name == "tiago" and state.has_base
 
 
 def run_sim(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
