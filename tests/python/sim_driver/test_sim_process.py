@@ -230,10 +230,21 @@ def test_paced_driver_holds_without_commands(build_dir: Path, tmp_path: Path) ->
             return abs(p[0] - target[0]) < 0.01 and abs(p[1] - target[1]) < 0.01
 
         assert poses.wait_for(moved, 5.0), vars_of(poses.latest().objects[0])
+        # The simulated grasp: a known weld is taken (attach, then detach), an unknown one refused.
+        for command, weld in [
+            ("attach", "grasp/ur10/no_such_gripper/box"),
+            ("attach", "grasp/ur10/gripper/box"),
+            ("detach", "grasp/ur10/gripper/box"),
+        ]:
+            move.command, move.object_name = command, weld
+            bus.publish(channels.SIM_COMMAND, move)
+        time.sleep(0.3)
         summary = stop_cleanly(group, proc)
         log = proc.log_path.read_text()
         assert "'no_such_box' (free objects: box)" in log, log
-        assert "refused 0" in summary, summary
+        assert log.count("SIM_COMMAND refused (") == 2, log
+        assert "no weld 'grasp/ur10/no_such_gripper/box' in the scene (welds: " in log, log
+        assert "refused 0" in summary and "SIM_COMMAND refused 2" in summary, summary
 
 
 def _key_file(tmp_path: Path) -> Path:
