@@ -45,6 +45,10 @@ constexpr int kRing = 64;                // cycles whose publish time is kept (l
 constexpr int kMaxRoundTripUs = 100000;  // the histogram's range (1 us bins); beyond: in max only
 constexpr auto kLockstepRepublish = std::chrono::milliseconds(500);
 constexpr double kStatusRate = 10.0;  // DRIVER_STATUS [Hz]
+// --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (SIM_COMMAND,
+// publisher), as the controller's.
+constexpr int kLoopPriority = 80;
+constexpr int kIoPriority = 40;
 
 int64_t WallUs() {
   return std::chrono::duration_cast<std::chrono::microseconds>(
@@ -403,6 +407,10 @@ void SimDriver::Impl::RefuseSim(const std::string& category, const std::string& 
 }
 
 void SimDriver::Impl::SimCommandThread() {
+  if (options.realtime) {
+    runtime::LogLine("[sim] SIM_COMMAND thread ",
+                     runtime::RequestThreadPriority(kIoPriority).message);
+  }
   side_lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, this);
   while (!stop.load(std::memory_order_relaxed)) side_lcm.handleTimeout(50);
 }
@@ -541,6 +549,10 @@ void SimDriver::Impl::PublishObjectPoses(const Snapshot& s) {
 }
 
 void SimDriver::Impl::PublisherThread() {
+  if (options.realtime) {
+    runtime::LogLine("[sim] publisher thread ",
+                     runtime::RequestThreadPriority(kIoPriority).message);
+  }
   const auto state_period = std::chrono::duration_cast<Clock::duration>(
       std::chrono::duration<double>(1.0 / options.state_rate));
   const auto status_period =
@@ -643,6 +655,11 @@ int SimDriver::Run() {
   std::thread sim_commands(&Impl::SimCommandThread, &c);
   std::thread publisher(&Impl::PublisherThread, &c);
   if (c.camera) c.camera->Start();
+  // The loop alone at the top priority, asked for once the other threads exist (they would
+  // inherit it); the camera thread runs at SCHED_IDLE.
+  if (c.options.realtime) {
+    runtime::LogLine("[sim] loop thread ", runtime::RequestRealtime(kLoopPriority).message);
+  }
   char timeout[32], speed[32];
   std::snprintf(timeout, sizeof(timeout), "%.1f ms", c.options.command_timeout * 1e3);
   std::snprintf(speed, sizeof(speed), "speed %g", c.options.speed);

@@ -23,6 +23,7 @@ driver), holds when commands stop, and reports on DRIVER_STATUS.
   --speed X             1 real time, 2 twice as fast, 0 lockstep: each cycle waits for its
                         command (a split run reproduces an in-process one) (default 1)
   --duration S          stop after S seconds of robot time (default: until SIGINT/SIGTERM)
+  --realtime            ask for SCHED_FIFO and mlockall (says in the log what was refused)
   --encoder-offsets J=X,...  encoder calibration: joint J's encoder reads X [rad or m] above its
                         true position
   --command-timeout S   the watchdog: run on the newest command while it is younger than S, then
@@ -98,6 +99,8 @@ SimOptions ParseSimOptions(int argc, char** argv, bool* help) {
       o.speed = number(i);
     else if (a == "--duration")
       o.duration = number(i);
+    else if (a == "--realtime")
+      o.realtime = true;
     else if (a == "--encoder-offsets")
       o.encoder_offsets = ParseJointValues(a, value(i));
     else if (a == "--command-timeout")

@@ -48,6 +48,7 @@ struct SimOptions {
   double command_timeout = 0.01;  ///< [s] the watchdog: hold when no command is younger
   std::string timing_log;         ///< CSV of every cycle's round trip at exit, "" = none
   std::string key_file;           ///< shared key of signed SIM_COMMAND ("" = unsigned)
+  bool realtime = false;          ///< ask for SCHED_FIFO and mlockall (as the controller)
   bool verbose = false;
 };
 
