@@ -650,16 +650,18 @@ void SimDriver::Stop() {
 
 int SimDriver::Run() {
   Impl& c = *impl_;
-  // Subscribed before the first state goes out: its answer cannot be missed.
-  c.loop_lcm.subscribe(channels::kDriverCommand, &Impl::OnDriverCommand, &c);
   std::thread sim_commands(&Impl::SimCommandThread, &c);
   std::thread publisher(&Impl::PublisherThread, &c);
   if (c.camera) c.camera->Start();
-  // The loop alone at the top priority, asked for once the other threads exist (they would
-  // inherit it); the camera thread runs at SCHED_IDLE.
+  // The loop at the top priority, asked for once the other threads exist (they would inherit
+  // it); the camera thread runs at SCHED_IDLE.
   if (c.options.realtime) {
     runtime::LogLine("[sim] loop thread ", runtime::RequestRealtime(kLoopPriority).message);
   }
+  // Subscribed before the first state goes out: its answer cannot be missed. After the request
+  // above: LCM's receiving thread, started by the first subscription, inherits the loop's
+  // priority (the command's path from the socket to the loop is real-time end to end).
+  c.loop_lcm.subscribe(channels::kDriverCommand, &Impl::OnDriverCommand, &c);
   char timeout[32], speed[32];
   std::snprintf(timeout, sizeof(timeout), "%.1f ms", c.options.command_timeout * 1e3);
   std::snprintf(speed, sizeof(speed), "speed %g", c.options.speed);
