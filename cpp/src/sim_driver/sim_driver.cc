@@ -365,9 +365,10 @@ void SimDriver::Impl::Loop() {
     scene.WriteServoTargets(gate.q(), gate.v());
     scene.Step2(substeps);
     measurement->AfterStep();
-    // 5. What the other threads publish.
-    if (!timings.Push(CycleTiming{cycle, round_trip_us, gate.late() || round_trip_us < 0.0,
-                                  gate.holding(), false}))
+    // 5. What the other threads publish. A cycle is late when it ran without its own answer
+    // once commands had begun (before the first one, no controller is there to be late).
+    const bool late = gate.reason() != HoldReason::kNoCommandYet && !gate.HasCommandFor(cycle);
+    if (!timings.Push(CycleTiming{cycle, round_trip_us, late, gate.holding(), false}))
       timings_lost.fetch_add(1, std::memory_order_relaxed);
     Snapshot& s = loop_state;
     s.cycle = cycle;

@@ -33,8 +33,9 @@ driver), holds when commands stop, and reports on DRIVER_STATUS.
   --camera-size WxH     camera image size (default 640x480)
   --camera-noise GREY   Gaussian sensor noise on the images [grey levels, 1 sigma] (default 0)
   --depth-noise M       Gaussian noise on the depth pixels with a return [m, 1 sigma] (default 0)
-  --timing-log FILE     write every cycle's state -> command round trip [us] and late flag (CSV)
-                        at exit
+  --timing-log FILE     at exit, one CSV line per cycle: sequence, state -> command round trip
+                        [us] (empty: no answer within the cycle), late (1: the cycle ran without
+                        its own answer, once commands had begun), holding
   --key FILE            take signed SIM_COMMAND only, with this shared key (default
                         $MARIONETTE_KEY; none: unsigned; lcmtypes/README.md)
   -v, --verbose         log every refused command

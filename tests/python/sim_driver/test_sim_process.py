@@ -135,7 +135,10 @@ def test_lockstep_follows_the_commanded_ramp(build_dir: Path, tmp_path: Path) ->
         bus.start()
         answerer = Answerer(url)
         answerer.wrong_joint_at = 100
-        proc = start_sim(group, url, "--speed", "0", "--camera-rate", "0")
+        timing_log = tmp_path / "cycles.csv"
+        proc = start_sim(
+            group, url, "--speed", "0", "--camera-rate", "0", "--timing-log", str(timing_log)
+        )
         answerer.run(lambda: len(answerer.states) >= cycles, timeout_s=120.0)
         group.check_alive()
 
@@ -179,6 +182,12 @@ def test_lockstep_follows_the_commanded_ramp(build_dir: Path, tmp_path: Path) ->
         assert not status.holding and status.reason == ""
         summary = stop_cleanly(group, proc)
         assert "refused 1" in summary and "late 0" in summary, summary
+    # Every cycle's round trip, none late (the last state may have gone out unanswered).
+    lines = timing_log.read_text().splitlines()
+    assert lines[0] == "sequence,round_trip_us,late,holding"
+    rows = [line.split(",") for line in lines[1:]]
+    assert [int(r[0]) for r in rows] == list(range(len(rows))) and len(rows) >= cycles - 1
+    assert all(float(r[1]) > 0.0 and r[2:] == ["0", "0"] for r in rows), rows[:5]
 
 
 def test_paced_driver_holds_without_commands(build_dir: Path, tmp_path: Path) -> None:
