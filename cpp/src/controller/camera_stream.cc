@@ -1,5 +1,5 @@
-// The simulated head camera in a thread of its own (camera_stream.h): what
-// controller_publish.cc's CameraThread does, reusable outside the controller.
+// The simulated head camera in a thread of its own (camera_stream.h), for marionette-controller's
+// mujoco backend and marionette-sim.
 #include "marionette/controller/camera_stream.h"
 
 #include <pthread.h>

@@ -1,7 +1,7 @@
 #pragma once
 // The inside of marionette-controller (controller/controller.h): the Impl shared by
 // controller.cc (start-up, the loop), controller_lcm.cc (the LCM thread: inputs, controller
-// swaps, introspection) and controller_publish.cc (publisher and camera threads).
+// swaps, introspection) and controller_publish.cc (the publisher thread).
 
 #include <mujoco/mujoco.h>
 #include <pthread.h>
@@ -22,6 +22,7 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include "marionette/controller/camera_stream.h"
 #include "marionette/controller/controller.h"
 #include "marionette/controller/controller_factory.h"
 #include "marionette/controller/driver_device.h"
@@ -31,6 +32,7 @@
 #include "marionette/controller/reference_stream.h"
 #include "marionette/controller/robots.h"
 #include "marionette/controller/safety_filter.h"
+#include "marionette/controller/sim_start.h"
 #include "marionette/graph/arithmetic.h"
 #include "marionette/graph/graph.h"
 #include "marionette/lcm/channels.h"
@@ -56,7 +58,6 @@
 #include "marionette/runtime/timing_stats.h"
 #include "marionette/runtime/triple_buffer.h"
 #include "marionette/sim/mujoco_device.h"
-#include "marionette/sim/rgbd_renderer.h"
 #include "marionette/sot/kinematic_device.h"
 #include "marionette/sot/robot_model.h"
 
@@ -249,8 +250,7 @@ struct Controller::Impl {
   // Loop -> publisher / camera.
   std::unique_ptr<runtime::TripleBuffer<Snapshot>> snapshots;
   runtime::SpscQueue<runtime::TickTiming> timings{20000};
-  std::unique_ptr<runtime::TripleBuffer<std::vector<double>>> render_states;  // qpos + mocap
-  int render_every = 0;
+  std::unique_ptr<CameraStream> camera;  // the head camera (mujoco backend)
 
   // The boundary (LCM thread): signed commands when a key is given (nullptr: unsigned).
   std::unique_ptr<wire::Verifier> verifier;
@@ -452,7 +452,6 @@ struct Controller::Impl {
   void PublishWalkStatus(const Snapshot& s);  // controller_walk.cc
   void PublishStatus(const Snapshot& s, runtime::TimingWindow& period,
                      runtime::TimingWindow& compute, runtime::TimingWindow& lateness);
-  void CameraThread();
 };
 
 inline int64_t WallUs() {

@@ -43,7 +43,12 @@ constexpr int64_t kPeriodUs = 1000;      // the same in robot-clock microseconds
 constexpr double kWaitFraction = 0.9;    // paced: wait for the answer this much of the period
 constexpr int kRing = 64;                // cycles whose publish time is kept (late answers)
 constexpr int kMaxRoundTripUs = 100000;  // the histogram's range (1 us bins); beyond: in max only
+// Lockstep (--speed 0): before any command, the state goes out again this often (a controller
+// that starts later gets it); after, an answer not there within kLockstepGiveUp was lost, and the
+// cycle runs late (the clock moves on) rather than both ends waiting for ever. The controller may
+// itself wait 5 s of wall time for a streamed reference before it answers.
 constexpr auto kLockstepRepublish = std::chrono::milliseconds(500);
+constexpr auto kLockstepGiveUp = std::chrono::seconds(10);
 constexpr double kStatusRate = 10.0;  // DRIVER_STATUS [Hz]
 // --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (SIM_COMMAND,
 // publisher), as the controller's.
@@ -309,10 +314,10 @@ void SimDriver::Impl::WaitForCommand(Clock::time_point deadline, bool unpaced) {
     if (!unpaced) {
       if (now >= deadline) return;
       wait = std::min(wait, std::chrono::nanoseconds(deadline - now));
-    } else if (now - last_publish >= kLockstepRepublish) {
-      // Lockstep: a controller that started after this state went out (or lost it) gets it
-      // again; one that took it refuses the duplicate.
-      PublishState();
+    } else if (gate.commands_taken() == 0 && now - last_publish >= kLockstepRepublish) {
+      PublishState();  // no controller yet: one that starts later gets this state
+    } else if (gate.commands_taken() > 0 && now - last_publish >= kLockstepGiveUp) {
+      return;  // the answer was lost
     }
     const timespec timeout{static_cast<time_t>(wait.count() / 1000000000),
                            static_cast<long>(wait.count() % 1000000000)};
