@@ -19,6 +19,15 @@ from typing import Any
 
 import marionette
 
+# The silence after which a controller started beside its supervisor holds the robot (its
+# --supervisor-timeout). A demo's trial or dry run puts the simulated robot, the controller,
+# perception and the supervisor on one shared machine, and under load that machine stops a whole
+# process for longer than the controller's default 100 ms: a plank-flip trial at load 3.7 on 2
+# cores left 250 ms between two beats of its heartbeat thread (C++, which the interpreter's lock
+# cannot hold back) and was held as silent. A robot's supervisor on a machine of its own keeps
+# the default; a dead supervisor still stops the robot within this.
+SHARED_MACHINE_SUPERVISOR_TIMEOUT_S = 0.5
+
 
 class ProcessError(RuntimeError):
     """A process of the group could not start or died while it was needed."""

@@ -442,13 +442,19 @@ void Controller::Impl::OnDriverState(const lcm::ReceiveBuffer* rbuf, const std::
   DriverDevice::Refusal refusal;
   if (driver_device->Offer(rbuf->data, rbuf->data_size, &refusal)) {
     driver_state_hash = Fnv1a(rbuf->data, rbuf->data_size);
-    if (black_box && !replaying) {  // copied within the scratch's capacity: no allocation
+    if (black_box && !replaying) {  // copied within the slots' capacity: no allocation
       const auto* bytes = static_cast<const uint8_t*>(rbuf->data);
-      if (rbuf->data_size > kMaxRecordedState) {
+      if (!state_records) {  // the first state (start-up) sizes the slots
+        const size_t slot = std::max<size_t>(4096, 2 * rbuf->data_size);
+        state_records = std::make_unique<runtime::SpscQueue<std::vector<uint8_t>>>(
+            kStateRecords, std::vector<uint8_t>(slot));
+        state_record_scratch.reserve(slot);
+      }
+      if (rbuf->data_size > state_record_scratch.capacity()) {
         records_lost.fetch_add(1, std::memory_order_relaxed);
       } else {
         state_record_scratch.assign(bytes, bytes + rbuf->data_size);
-        if (!state_records.Push(state_record_scratch))
+        if (!state_records->Push(state_record_scratch))
           records_lost.fetch_add(1, std::memory_order_relaxed);
       }
     }

@@ -337,12 +337,14 @@ struct Controller::Impl {
   std::mutex black_box_mutex;
   int64_t black_box_events = 0;  // under black_box_mutex
   void Record(const std::string& channel, const void* data, size_t size, int64_t utime);
-  // Driver states, loop -> publisher (written to the black box off the loop).
-  static constexpr size_t kMaxRecordedState = 16384;  // [bytes] larger ones are counted lost
-  runtime::SpscQueue<std::vector<uint8_t>> state_records{256,
-                                                         std::vector<uint8_t>(kMaxRecordedState)};
-  std::vector<uint8_t> state_record_scratch = std::vector<uint8_t>(kMaxRecordedState);
+  // Driver states, loop -> publisher (written to the black box off the loop, drained at every
+  // wake of the publisher: 100 Hz covers an unpaced loop's 10 kHz). Slots hold twice the first
+  // state's size (allocated at start-up); a larger state is counted lost.
+  static constexpr size_t kStateRecords = 1024;
+  std::unique_ptr<runtime::SpscQueue<std::vector<uint8_t>>> state_records;
+  std::vector<uint8_t> state_record_scratch;
   std::atomic<int64_t> records_lost{0};
+  void RecordDriverStates();  // publisher thread
 
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};

@@ -30,6 +30,7 @@ void Controller::Impl::PublisherThread() {
       lateness.Add(timing.lateness_us);
       if (!options.timing_log.empty()) all.push_back(timing);
     }
+    RecordDriverStates();
     if (snapshots->Fetch()) {
       const Snapshot& fresh = snapshots->read_slot();
       std::lock_guard<std::mutex> lock(shared_mutex);
@@ -74,6 +75,15 @@ void Controller::Impl::PublisherThread() {
   }
 }
 
+void Controller::Impl::RecordDriverStates() {
+  if (!black_box || !state_records) return;
+  const std::vector<uint8_t>* state = nullptr;
+  while ((state = state_records->Front()) != nullptr) {
+    Record(channels::kDriverState, state->data(), state->size(), WallUs());
+    state_records->PopFront();
+  }
+}
+
 void Controller::Impl::PublishJournal(int64_t utime, bool always) {
   lcmt_controller_journal j{};
   JournalEntry entry;
@@ -82,13 +92,7 @@ void Controller::Impl::PublishJournal(int64_t utime, bool always) {
     j.channel.push_back(kJournalChannels[entry.channel]);
     j.payload_hash.push_back(entry.hash);
   }
-  if (black_box) {  // the robot's states the loop took, then this batch: in consumption order
-    const std::vector<uint8_t>* state = nullptr;
-    while ((state = state_records.Front()) != nullptr) {
-      Record(channels::kDriverState, state->data(), state->size(), WallUs());
-      state_records.PopFront();
-    }
-  }
+  RecordDriverStates();  // the robot's states the loop took before this batch
   if (j.tick.empty() && !always) return;
   j.utime = utime;
   j.config = MotionConfig();

@@ -298,7 +298,7 @@ def play(
     (default: the first step's start)."""
     from marionette.execution.supervisor import Supervisor
     from marionette.lcm_bus import private_lcm_url
-    from marionette.processes import ProcessGroup
+    from marionette.processes import SHARED_MACHINE_SUPERVISOR_TIMEOUT_S, ProcessGroup
 
     model = robot_map.model
     url = private_lcm_url()
@@ -321,6 +321,8 @@ def play(
                     "0",
                     "--status-rate",
                     "100",
+                    "--supervisor-timeout",
+                    str(SHARED_MACHINE_SUPERVISOR_TIMEOUT_S),
                 ],
             )
             client.wait_ready(options.ready_timeout_s, processes=group)

@@ -31,7 +31,12 @@ import marionette
 from marionette.control.client import ControllerClient
 from marionette.control.replay_cli import JOURNAL_NAME
 from marionette.lcm_bus import private_lcm_url
-from marionette.processes import ManagedProcess, ProcessError, ProcessGroup
+from marionette.processes import (
+    SHARED_MACHINE_SUPERVISOR_TIMEOUT_S,
+    ManagedProcess,
+    ProcessError,
+    ProcessGroup,
+)
 from marionette.robots import controller_robot_argument
 from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
 from marionette.scenarios.report import controller_summary, heartbeat_summary
@@ -57,13 +62,6 @@ class Processes:
     view_scene: Path | None = None
 
 
-# The silence after which a trial's controller holds the robot. A trial runs the simulated robot,
-# the controller, perception and the supervisor on one shared machine, and under load that
-# machine stops a whole process for longer than the controller's default 100 ms: a plank-flip
-# trial at load 3.7 on 2 cores left 250 ms between two beats of its heartbeat thread (C++, which
-# the interpreter's lock cannot hold back) and was held as silent. A robot's supervisor on a
-# machine of its own keeps the default; a dead trial still stops the robot within this.
-TRIAL_SUPERVISOR_TIMEOUT_S = 0.5
 # With --split-sim, the silence after which the controller holds for want of robot states, and
 # the simulated robot holds for want of commands: the defaults (10 ms) are a robot's, whose driver
 # and controller have their cores; a trial's share two cores with the supervisor and perception.
@@ -86,7 +84,7 @@ def controller_command(
         "--status-rate",
         str(processes.status_rate),
         "--supervisor-timeout",
-        str(TRIAL_SUPERVISOR_TIMEOUT_S),
+        str(SHARED_MACHINE_SUPERVISOR_TIMEOUT_S),
     ]
     if split_sim:
         return [*common, "--backend", "driver", "--driver-timeout", str(TRIAL_DRIVER_TIMEOUT_S)]
