@@ -5,6 +5,9 @@
 #include <sstream>
 #include <stdexcept>
 
+#include <tuple>
+
+#include "marionette/controller/command_line.h"
 #include "marionette/sim_driver/sim_driver.h"
 
 namespace marionette::sim_driver {
@@ -41,30 +44,6 @@ driver), holds when commands stop, and reports on DRIVER_STATUS.
   -v, --verbose         log every refused command
 )";
 
-namespace {
-
-// "name=value,name=value" -> pairs; throws std::invalid_argument naming `flag`.
-std::vector<std::pair<std::string, double>> ParseJointValues(const std::string& flag,
-                                                             const std::string& text) {
-  std::vector<std::pair<std::string, double>> out;
-  std::istringstream in(text);
-  for (std::string item; std::getline(in, item, ',');) {
-    const size_t eq = item.find('=');
-    char* end = nullptr;
-    const double x = eq == std::string::npos ? 0.0 : std::strtod(item.c_str() + eq + 1, &end);
-    if (eq == std::string::npos || eq == 0 || end == item.c_str() + eq + 1 || *end != '\0' ||
-        !std::isfinite(x)) {
-      throw std::invalid_argument(flag + ": '" + item +
-                                  "' is not joint=value (value a finite number)");
-    }
-    out.emplace_back(item.substr(0, eq), x);
-  }
-  if (out.empty()) throw std::invalid_argument(flag + " needs joint=value[,joint=value...]");
-  return out;
-}
-
-}  // namespace
-
 SimOptions ParseSimOptions(int argc, char** argv, bool* help) {
   SimOptions o;
   if (const char* url = std::getenv("MARIONETTE_LCM_URL")) o.lcm_url = url;
@@ -76,13 +55,7 @@ SimOptions ParseSimOptions(int argc, char** argv, bool* help) {
   };
   const auto number = [&](int& i) -> double {
     const std::string flag = argv[i];
-    const std::string v = value(i);
-    char* end = nullptr;
-    const double x = std::strtod(v.c_str(), &end);
-    if (end == v.c_str() || *end != '\0' || !std::isfinite(x) || x < 0.0) {
-      throw std::invalid_argument(flag + ": '" + v + "' is not a non-negative number");
-    }
-    return x;
+    return controller::ParseNonNegative(flag, value(i));
   };
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
@@ -103,20 +76,16 @@ SimOptions ParseSimOptions(int argc, char** argv, bool* help) {
     else if (a == "--realtime")
       o.realtime = true;
     else if (a == "--encoder-offsets")
-      o.encoder_offsets = ParseJointValues(a, value(i));
+      o.encoder_offsets = controller::ParseJointValues(a, value(i));
     else if (a == "--command-timeout")
       o.command_timeout = number(i);
     else if (a == "--state-rate")
       o.state_rate = number(i);
     else if (a == "--camera-rate")
       o.camera_rate = number(i);
-    else if (a == "--camera-size") {
-      const std::string v = value(i);
-      if (std::sscanf(v.c_str(), "%dx%d", &o.camera_width, &o.camera_height) != 2 ||
-          o.camera_width < 16 || o.camera_height < 16) {
-        throw std::invalid_argument("--camera-size: '" + v + "' is not WIDTHxHEIGHT");
-      }
-    } else if (a == "--camera-noise")
+    else if (a == "--camera-size")
+      std::tie(o.camera_width, o.camera_height) = controller::ParseImageSize(a, value(i));
+    else if (a == "--camera-noise")
       o.camera_noise = number(i);
     else if (a == "--depth-noise")
       o.depth_noise = number(i);
@@ -133,16 +102,7 @@ SimOptions ParseSimOptions(int argc, char** argv, bool* help) {
   if (o.robot.empty())
     throw std::invalid_argument(
         "--robot NAME|DIR is required (`marionette robot list` shows the robots; docs/robots.md)");
-  if (!o.lcm_url.empty()) {
-    bool known = false;
-    for (const char* scheme : {"udpm://", "file://", "memq://", "tcpq://"}) {
-      known = known || o.lcm_url.rfind(scheme, 0) == 0;
-    }
-    if (!known)
-      throw std::invalid_argument("--lcm-url '" + o.lcm_url +
-                                  "' is not an LCM URL; use udpm://239.255.76.67:7667?ttl=0 "
-                                  "(ttl=0: this machine only; ttl=1 across a network)");
-  }
+  controller::CheckLcmUrl(o.lcm_url);
   if (o.state_rate <= 0.0 || o.state_rate > 1000.0)
     throw std::invalid_argument("--state-rate must be in (0, 1000]");
   if (o.camera_rate > 1000.0) throw std::invalid_argument("--camera-rate must be at most 1000");
