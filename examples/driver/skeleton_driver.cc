@@ -30,6 +30,8 @@ constexpr const char* kUsage = R"(usage: marionette-skeleton-driver --joints a,b
   --joints A,B,...      the robot's actuated joints (required; marionette-controller
                         --describe-robot lists them)
   --positions X,Y,...   initial positions [rad or m], one per joint (default zeros)
+  --wrench-bodies A,..  the bodies whose wrench the robot measures (default none; the
+                        controller's --describe-robot: contact_bodies, then grip_bodies)
   --robot NAME          robot_name in DRIVER_STATE and DRIVER_STATUS (default skeleton)
   --lcm-url URL         LCM URL (default $MARIONETTE_LCM_URL, else LCM's default)
   --rate HZ             control rate (default 1000)
@@ -74,7 +76,7 @@ int64_t MicrosecondsOf(clockid_t clock) {
 }
 
 struct Options {
-  std::vector<std::string> joints;
+  std::vector<std::string> joints, wrench_bodies;
   std::vector<double> positions;
   std::string robot = "skeleton", lcm_url;
   double rate = 1000, command_timeout = 0.01, duration = -1;
@@ -94,6 +96,8 @@ Options Parse(int argc, char** argv) {
     } else if (a == "--positions") {
       o.positions.clear();
       for (const std::string& x : Split(value())) o.positions.push_back(Number(a, x));
+    } else if (a == "--wrench-bodies") {
+      o.wrench_bodies = Split(value());
     } else if (a == "--robot") {
       o.robot = value();
     } else if (a == "--lcm-url") {
@@ -133,7 +137,9 @@ class Driver {
     state_.joint_velocity = v_ = target_v_ = effort_ = std::vector<double>(n, 0.0);
     state_.has_base = false;  // a floating base fills base_* from the robot's estimator
     state_.base_quaternion[0] = 1.0;
-    state_.num_wrenches = 0;  // force/torque sensors: wrench_body and wrench
+    state_.num_wrenches = static_cast<int32_t>(o.wrench_bodies.size());
+    state_.wrench_body = o.wrench_bodies;
+    state_.wrench.assign(o.wrench_bodies.size(), std::vector<double>(6, 0.0));
     status_.holding = true;
     status_.reason = "no command yet";
     command_.utime = -1;  // none yet: the first state has sequence 1
@@ -161,7 +167,8 @@ class Driver {
     // engage the brakes while holding. The perfect robot reaches its target within the cycle.
     q_ = status_.holding ? hold_q_ : target_q_;
     v_ = status_.holding ? std::vector<double>(q_.size(), 0.0) : target_v_;
-    // READ THE ENCODERS HERE (calibrated joint positions), the velocities and the joint torques.
+    // READ THE ENCODERS HERE (calibrated joint positions), the velocities and the joint torques,
+    // and the force/torque sensors into state_.wrench (zeros for a body the robot does not sense).
     state_.joint_position = q_;
     state_.joint_velocity = v_;
     state_.joint_effort = effort_;

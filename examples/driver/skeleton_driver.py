@@ -36,6 +36,7 @@ class SkeletonDriver:
         positions: list[float],
         robot: str,
         command_timeout_s: float,
+        wrench_bodies: list[str],
     ) -> None:
         self.bus, self.joints, self.timeout_us = bus, joints, command_timeout_s * 1e6
         self.start = time.monotonic()
@@ -46,6 +47,8 @@ class SkeletonDriver:
         self.state.num_joints, self.state.joint_name = len(joints), list(joints)
         self.state.joint_effort = [0.0] * len(joints)  # READ THE JOINT TORQUES HERE
         self.state.base_quaternion = [1.0, 0.0, 0.0, 0.0]  # has_base false: a fixed base
+        self.state.num_wrenches, self.state.wrench_body = len(wrench_bodies), list(wrench_bodies)
+        self.state.wrench = [[0.0] * 6 for _ in wrench_bodies]  # READ THE F/T SENSORS HERE
         self.status = lcmt_driver_status()
         self.status.robot_name = robot
         self.status.holding, self.status.reason = True, "no command yet"
@@ -125,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     p = _Parser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawTextHelpFormatter)
     p.add_argument("--joints", required=True, help="the robot's actuated joints: a,b,c")
     p.add_argument("--positions", default="", help="initial positions, one per joint (zeros)")
+    p.add_argument("--wrench-bodies", default="", help="bodies whose wrench is measured: a,b")
     p.add_argument("--robot", default="skeleton", help="robot_name in DRIVER_STATE")
     p.add_argument("--lcm-url", default=None, help="default $MARIONETTE_LCM_URL")
     p.add_argument("--rate", type=float, default=1000.0, help="control rate [Hz] (1000)")
@@ -147,7 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, frame: stop.append(signum))
     bus = LcmBus(a.lcm_url)
-    driver = SkeletonDriver(bus, joints, positions, a.robot, a.command_timeout)
+    bodies = a.wrench_bodies.split(",") if a.wrench_bodies else []
+    driver = SkeletonDriver(bus, joints, positions, a.robot, a.command_timeout, bodies)
     period, deadline, cycles, missed = 1.0 / a.rate, time.monotonic(), 0, 0
     while not stop:
         now_us = driver.robot_time()

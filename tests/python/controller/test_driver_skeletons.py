@@ -8,8 +8,10 @@ skeleton holds when the controller is killed."""
 
 from __future__ import annotations
 
+import json
 import random
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Iterator
@@ -257,26 +259,47 @@ def test_python_skeleton_publishes_tracks_and_holds(lcm_url, tmp_path):
 # ---- marionette-controller --backend driver drives the C++ skeleton -----------------------------
 
 
-def ur10_joints() -> tuple[list[str], list[float]]:
+def ur10_joints() -> tuple[list[str], list[float], list[float]]:
     """The UR10's actuated joints (every 1-dof joint of its Pinocchio model, as the controller
-    takes them) and its reference posture, from models/ur10."""
+    takes them), its reference posture and each joint's range [rad or m], from models/ur10."""
     model, _ = robots.load_pinocchio("ur10", with_collision=False)
     q = robots.reference_configuration("ur10", model)
-    joints = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nv == 1]
-    assert all(model.joints[model.getJointId(n)].nq == 1 for n in joints)
-    return joints, [float(q[model.joints[model.getJointId(n)].idx_q]) for n in joints]
+    joints = [
+        model.names[j]
+        for j in range(1, model.njoints)
+        if model.joints[j].nq == 1 and model.joints[j].nv == 1
+    ]
+    idx = [model.joints[model.getJointId(n)].idx_q for n in joints]
+    ranges = model.upperPositionLimit - model.lowerPositionLimit
+    return joints, [float(q[i]) for i in idx], [float(ranges[i]) for i in idx]
+
+
+def wrench_bodies(build_dir: Path, robot: str) -> list[str]:
+    """The bodies whose wrench the controller expects in DRIVER_STATE: the robot's contact bodies,
+    then its grip bodies (marionette-controller --describe-robot)."""
+    out = subprocess.run(
+        [build_dir / "marionette-controller", "--robot", robot, "--describe-robot"],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=60,
+    ).stdout
+    description = json.loads(out)
+    return [*description["contact_bodies"], *description["grip_bodies"]]
 
 
 @pytest.mark.slow
 def test_controller_drives_the_cpp_skeleton_and_the_skeleton_holds_when_it_dies(
     build_dir, lcm_url, tmp_path
 ):
-    joints, start = ur10_joints()
+    joints, start, ranges = ur10_joints()
+    arm = [n for n, r in zip(joints, ranges) if r > 1.0]  # the gripper's 4 cm stay as they are
     # Off the reference posture, so that "the first command is the measured position" is not
     # the controller commanding its own reference.
     rng = random.Random(7)
-    start = [q + rng.uniform(-0.1, 0.1) for q in start]
+    start = [q + (rng.uniform(-0.1, 0.1) if n in arm else 0.0) for n, q in zip(joints, start)]
     args = ["--robot", "ur10", "--joints", ",".join(joints)]
+    args += ["--wrench-bodies", ",".join(wrench_bodies(build_dir, "ur10"))]
     args += ["--positions", ",".join(repr(q) for q in start)]
     with (
         driver(lcm_url, tmp_path / "logs", cpp_skeleton(build_dir, *args)) as (robot, group),
@@ -300,11 +323,11 @@ def test_controller_drives_the_cpp_skeleton_and_the_skeleton_holds_when_it_dies(
         status = robot.status_where(lambda s: not s.holding, 5.0, "tracking the controller")
         assert status.commands_refused == 0
 
-        # A posture 0.2 rad away on every joint, reached by the skeleton's joints.
+        # A posture 0.2 rad away on every joint of the arm, reached by the skeleton's joints.
         c.send_spec(ControllerSpec(1, "hold", [TaskSpec("posture", "posture", 1, gain=1.0)]))
         c.wait(lambda c: c.status.active_controller_id == 1, 20, "controller 1")
         now = robot.positions()
-        target = {n: now[n] + 0.2 for n in joints}
+        target = {n: now[n] + (0.2 if n in arm else 0.0) for n in joints}
         c.send_spec(
             ControllerSpec(
                 2,
