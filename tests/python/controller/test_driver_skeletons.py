@@ -220,6 +220,11 @@ def test_cpp_skeleton_tracks_refuses_and_holds_when_commands_stop(build_dir, lcm
         robot.bus.publish(channels.DRIVER_COMMAND, old)
         status = robot.status_where(lambda s: s.commands_refused == 2, 2.0, "two refusals")
         assert status.last_refusal.startswith("out of order"), status.last_refusal
+        # NaN: refused by the bounds, before it is decoded.
+        nan = robot.command(robot.states.latest(), {"j1": float("nan"), "j2": 1.0, "j3": 1.0})
+        robot.bus.publish(channels.DRIVER_COMMAND, nan)
+        status = robot.status_where(lambda s: s.commands_refused == 3, 2.0, "three refusals")
+        assert status.last_refusal.startswith("out of range"), status.last_refusal
         assert robot.positions() == pytest.approx(target, abs=0.0)
         assert not status.holding
 
@@ -231,7 +236,7 @@ def test_cpp_skeleton_tracks_refuses_and_holds_when_commands_stop(build_dir, lcm
         robot.target = {"j1": 0.0, "j2": 0.0, "j3": 0.0}
         wait_positions(robot, robot.target, 5.0, tol=0.0)
         status = robot.status_where(lambda s: not s.holding, 2.0, "tracking again")
-        assert status.holds == 1 and status.commands_refused == 2
+        assert status.holds == 1 and status.commands_refused == 3
         print(f"commands taken {status.commands_taken}, late cycles {status.commands_late}")
 
 
@@ -243,7 +248,9 @@ def test_python_skeleton_publishes_tracks_and_holds(lcm_url, tmp_path):
         robot.states.wait_for(lambda m: len(m) >= 100, 10.0)
         median_ms, mean_hz = check_stream(list(robot.states.messages), JOINTS)
         print(f"Python skeleton: median period {median_ms:.3f} ms, mean rate {mean_hz:.1f} Hz")
-        assert median_ms == pytest.approx(4.0, abs=0.2)
+        # Its deadlines are absolute, but a Python process on a loaded machine wakes late by a
+        # fraction of its period (the reason robots' drivers are C++): 10 % of it is allowed.
+        assert median_ms == pytest.approx(4.0, abs=0.4)
         assert robot.statuses.latest().holding
         target = {"j1": -0.5, "j2": 0.5, "j3": 1.0}
         robot.target = target
