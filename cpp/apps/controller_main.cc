@@ -23,8 +23,12 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
 
   --robot NAME|DIR      the robot: a name found in --models or $MARIONETTE_ROBOT_PATH, or a
                         folder holding robot.yaml (required; docs/robots.md)
-  --backend NAME        mujoco | kinematic                        (default mujoco)
+  --backend NAME        mujoco: MuJoCo in this process; kinematic: perfect velocity integration;
+                        driver: the robot behind a driver process (a real robot's, or
+                        marionette-sim) on DRIVER_STATE / DRIVER_COMMAND, one tick per state
+                        (docs/driver.md)                            (default mujoco)
   --scene FILE          MJCF scene (mujoco backend; default: the robot alone)
+  --driver-timeout S    driver backend: hold when no DRIVER_STATE came for S seconds (default 0.01)
   --encoder-offsets J=X,...  encoder calibration (mujoco backend): joint J's encoder reads X
                         [rad or m] above its true position (e.g. from marionette calibrate)
   --lcm-url URL         LCM URL (default $MARIONETTE_LCM_URL, else LCM's default)

@@ -7,7 +7,8 @@
 
 namespace marionette::controller {
 
-Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) {
+Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driver_state)
+    : options(o), lcm(o.lcm_url) {
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
   if (!options.key_file.empty())
     verifier = std::make_unique<wire::Verifier>(wire::LoadKey(o.key_file));
@@ -69,10 +70,31 @@ Controller::Impl::Impl(const ControllerOptions& o) : options(o), lcm(o.lcm_url) 
         free_object_ids.push_back(b);
       }
     }
+  } else if (options.backend == "driver") {
+    driver_layout = std::make_unique<DriverLayout>(MakeDriverLayout(*model, robot));
+    std::string first;
+    if (first_driver_state != nullptr) {
+      first = *first_driver_state;
+    } else {
+      driver_lcm = std::make_unique<lcm::LCM>(options.lcm_url);
+      if (!driver_lcm->good())
+        throw std::runtime_error("cannot open LCM at '" + options.lcm_url + "' for the driver");
+      runtime::LogLine("[controller] waiting for ", robot.name, "'s driver on DRIVER_STATE (",
+                       driver_layout->joints.size(), " joints: ", JointList(*driver_layout), ")");
+      first = WaitFirstState(*driver_lcm, *driver_layout, /*timeout_s=*/0.0);
+    }
+    first_driver_state_bytes = first;
+    q0 = ReadState(first, *driver_layout).q;  // throws: a replay's log that does not fit
   } else if (options.backend != "kinematic") {
-    throw std::runtime_error("unknown backend '" + options.backend + "' (mujoco, kinematic)");
+    throw std::runtime_error("unknown backend '" + options.backend +
+                             "' (mujoco, kinematic, driver)");
   }
   BuildPersistentGraph(q0);
+  if (driver_device) {  // the first state is tick 0's
+    lcm::ReceiveBuffer rbuf{first_driver_state_bytes.data(),
+                            static_cast<uint32_t>(first_driver_state_bytes.size()), 0};
+    OnDriverState(&rbuf, channels::kDriverState);
+  }
 }
 
 void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
@@ -85,8 +107,15 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
       b.Add<graph::VectorConstant>("idle", Eigen::VectorXd::Zero(model->nv), /*settable=*/false);
   b.Connect(idle.out_output(), safety->velocity_input());
   b.Connect(safety->velocity_output(), command->command_input());
-  if (scene) {
+  if (driver_layout) {
+    driver_device = &b.Add<DriverDevice>("device", *driver_layout,
+                                         ReadState(first_driver_state_bytes, *driver_layout),
+                                         driver_lcm.get(), kMaxDriverClockStepUs);
+    device = driver_device;
+  } else if (scene) {
     device = &b.Add<sim::MujocoDevice>("device", scene.get(), robot.measured_bodies(), kDt);
+  }
+  if (device) {
     const int base_nq = robot.base == "free_flyer" ? 7 : robot.base == "planar" ? 4 : 0;
     measured_base = &b.Add<MeasuredBase>("measured_base", model->nq, base_nq);
     b.Connect(command->configuration_output(), measured_base->q_command_input());
@@ -129,7 +158,7 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_snapshot.q_kinematics = q0;
   model_snapshot.v_command = Eigen::VectorXd::Zero(model->nv);
   model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
-  model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (scene ? 1 : 0), 0.0);
+  model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (device ? 1 : 0), 0.0);
   model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
   loop_state = model_snapshot;
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
@@ -183,6 +212,10 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   for (int i = 0; i < num_sets; ++i) Journal(t.index, 4, set_hashes[i]);
   ApplyCommand(t);
   safety->mode_input().SetValue(static_cast<int>(mode));
+  if (driver_device) {
+    ApplyDriverHold(t);
+    Journal(t.index, kDriverStateChannel, driver_state_hash);
+  }
   if (device) device->Read(t);
   graph->Evaluate(t);
   for (ReferenceStream* stream : active_streams) {
@@ -205,6 +238,7 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   CheckBudgets(t);
   HoldOnSilence(t);
   DecideSwitch(t);
+  if (driver_device) driver_device->set_command_mode(mode == ControlMode::kEstop ? 1 : 0);
   if (device) device->Write(t);
   FillSnapshot(t, clock);
   service.Sample(t.index, TickUs(t));
@@ -303,9 +337,15 @@ void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
 std::string Controller::Impl::MotionConfig() const {
   char scale[32];
   std::snprintf(scale, sizeof(scale), "%.17g", options.velocity_scale);
+  std::string offsets;
+  for (const auto& [joint, offset] : options.encoder_offsets) {
+    char value[64];
+    std::snprintf(value, sizeof(value), "%.17g", offset);
+    offsets += (offsets.empty() ? " --encoder-offsets " : ",") + joint + "=" + value;
+  }
   return "--robot " + options.robot + " --backend " + options.backend +
          (options.scene.empty() ? std::string() : " --scene " + options.scene) +
-         " --velocity-scale " + scale;
+         " --velocity-scale " + scale + offsets;
 }
 
 void Controller::Impl::ApplyCommand(const graph::Tick& t) {
@@ -379,6 +419,62 @@ void Controller::Impl::HoldOnSilence(const graph::Tick& t) {
   if (!engaged) mode = ControlMode::kHold;
   loop_state.reason = Reason::kSupervisorSilent;
   loop_state.reason_value = silence_seconds.load(std::memory_order_relaxed);
+}
+
+// ---- the robot's driver (driver backend)
+// ---------------------------------------------------------
+
+bool Controller::Impl::WaitDriverState(double timeout_s) {
+  const auto deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(
+                                           std::chrono::duration<double>(timeout_s));
+  while (!driver_device->has_state() && !stop) {
+    const auto left =
+        std::chrono::duration_cast<std::chrono::microseconds>(deadline - Clock::now());
+    if (left.count() <= 0) break;
+    // LCM waits in whole milliseconds: at least 1, at most 100 (a stop is seen within that).
+    driver_lcm->handleTimeout(static_cast<int>(std::clamp<int64_t>(left.count() / 1000, 1, 100)));
+  }
+  if (driver_device->has_state()) {
+    driver_silent = false;
+    return true;
+  }
+  if (!driver_silent && !stop) {  // once per silence
+    driver_silent = true;
+    driver_hold = 1;
+    ShowDriverHold(timeout_s);
+  }
+  return false;
+}
+
+void Controller::Impl::OnDriverState(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  DriverDevice::Refusal refusal;
+  if (driver_device->Offer(rbuf->data, rbuf->data_size, &refusal)) {
+    driver_state_hash = Fnv1a(rbuf->data, rbuf->data_size);
+    return;
+  }
+  if (!driver_refusals.Push(DriverRefusalEvent{refusal.category, refusal.detail}))
+    driver_refusals_lost.fetch_add(1, std::memory_order_relaxed);
+  if (replaying) return;  // the journal says when the live run held
+  driver_hold = 2;
+  ShowDriverHold(0.0);
+}
+
+void Controller::Impl::ShowDriverHold(double seconds) {
+  // Between ticks: the status says it now; the next tick journals it (ApplyDriverHold).
+  if (mode == ControlMode::kRun) mode = ControlMode::kHold;
+  loop_state.reason = driver_hold == 1 ? Reason::kDriverSilent : Reason::kDriverRefused;
+  loop_state.reason_value = seconds;
+  loop_state.mode = static_cast<int>(mode);
+  snapshots->write_slot() = loop_state;
+  snapshots->Publish();
+}
+
+void Controller::Impl::ApplyDriverHold(const graph::Tick& t) {
+  if (driver_hold == 0) return;
+  Journal(t.index, kDriverHoldChannel, driver_hold);
+  if (mode == ControlMode::kRun) mode = ControlMode::kHold;
+  loop_state.reason = driver_hold == 1 ? Reason::kDriverSilent : Reason::kDriverRefused;
+  driver_hold = 0;
 }
 
 void Controller::Impl::DecideSwitch(const graph::Tick& t) {
@@ -534,7 +630,9 @@ int Controller::Run() {
   c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)
       ->setQueueCapacity(kReferenceQueueMessages);
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
-  c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
+  // SIM_COMMAND is the simulator's: here only when it runs in this process.
+  if (c.scene) c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
+  if (c.driver_lcm) c.driver_lcm->subscribe(channels::kDriverState, &Impl::OnDriverState, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
   c.lcm.subscribe(channels::kFootstepPlan, &Impl::OnFootstepPlan, &c);
   std::thread lcm_thread(&Impl::LcmThread, &c);
@@ -566,12 +664,15 @@ int Controller::Run() {
                                             : std::string("running until stopped"),
                    " at speed ", c.options.speed);
 
-  runtime::LoopClock clock(kDt, c.options.speed);
+  // With a driver, its states set the pace (the clock only measures); else the clock does.
+  const bool driven = c.driver_device != nullptr;
+  runtime::LoopClock clock(kDt, driven ? 0.0 : c.options.speed);
   ReferenceWait reference_wait;
   const bool unpaced = c.options.speed == 0.0;
   graph::Tick t{0, 0.0, kDt};
   const int64_t last_tick = c.options.duration > 0.0 ? std::llround(c.options.duration / kDt) : -1;
   while (!c.stop && (last_tick < 0 || t.index < last_tick)) {
+    if (driven && !c.WaitDriverState(c.options.driver_timeout)) continue;
     if (unpaced) reference_wait.Before(c, t);
     runtime::TickTiming timing = clock.WaitNextTick();
     c.LoopTick(t, clock);
@@ -687,6 +788,8 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
       o.supervisor_timeout = number(i);
     else if (a == "--key")
       o.key_file = value(i);
+    else if (a == "--driver-timeout")
+      o.driver_timeout = number(i);
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else
@@ -709,8 +812,13 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
     throw std::invalid_argument("--state-rate must be in (0, 1000]");
   if (!o.encoder_offsets.empty() && o.backend != "mujoco") {
     throw std::invalid_argument("--encoder-offsets calibrates the mujoco backend's encoders; the " +
-                                o.backend + " backend has none");
+                                o.backend + " backend has none" +
+                                (o.backend == "driver"
+                                     ? " (the driver reads calibrated encoders: marionette-sim "
+                                       "--encoder-offsets)"
+                                     : ""));
   }
+  if (o.driver_timeout <= 0.0) throw std::invalid_argument("--driver-timeout must be > 0");
   return o;
 }
 

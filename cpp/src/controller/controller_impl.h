@@ -24,6 +24,7 @@
 #include <thread>
 #include "marionette/controller/controller.h"
 #include "marionette/controller/controller_factory.h"
+#include "marionette/controller/driver_device.h"
 #include "marionette/controller/graph_service.h"
 #include "marionette/controller/hold_controller.h"
 #include "marionette/controller/measured_base.h"
@@ -85,6 +86,8 @@ enum class Reason : int {
   kNonFinite,         // the solver produced NaN/Inf
   kBudget,            // an entity overran its time budget too many ticks in a row
   kSupervisorSilent,  // no heartbeat from the supervisor for --supervisor-timeout
+  kDriverSilent,      // no state from the robot's driver for --driver-timeout
+  kDriverRefused,     // a state from the robot's driver was refused
 };
 
 enum class Command : int { kNone = 0, kHold, kResume, kEstop, kResetEstop, kStop };
@@ -158,10 +161,14 @@ inline constexpr char kBuildTickEntry[] = "CONTROLLER_BUILD_TICK";
 /// Not a channel: the loop's decision to hold because the supervisor fell silent (hash 1 when the
 /// hold controller was engaged, 0 for a zero-velocity hold), replayed as an input like a budget's.
 inline constexpr char kSilenceHoldEntry[] = "CONTROLLER_SILENCE_HOLD";
+/// Not a channel: the loop's decision to hold because the robot's driver fell silent (hash 1) or
+/// sent a state that was refused (hash 2), taken between two ticks and journaled with the next.
+inline constexpr char kDriverHoldEntry[] = "CONTROLLER_DRIVER_HOLD";
 inline constexpr const char* kJournalChannels[] = {
     channels::kControllerSpec, channels::kTaskReference, channels::kCommand,
     channels::kSimCommand,     channels::kDgRequest,     kBudgetHoldEntry,
-    channels::kFootstepPlan,   kBuildTickEntry,          kSilenceHoldEntry};
+    channels::kFootstepPlan,   kBuildTickEntry,          kSilenceHoldEntry,
+    channels::kDriverState,    kDriverHoldEntry};
 inline constexpr int kBudgetHoldChannel = 5;
 /// A budget-hold entry's hash is the overrunning entity's index, plus this flag when the hold
 /// controller was engaged (else the loop held with zero velocity).
@@ -169,6 +176,10 @@ inline constexpr int64_t kBudgetHoldEngaged = int64_t{1} << 32;
 inline constexpr int kFootstepPlanChannel = 6;  // consumed by the active walking controller's poll
 inline constexpr int kBuildTickChannel = 7;
 inline constexpr int kSilenceHoldChannel = 8;
+inline constexpr int kDriverStateChannel = 9;  // the robot's state of each tick (driver backend)
+inline constexpr int kDriverHoldChannel = 10;
+/// Driver backend: a robot clock step above this between two states is a jump (refused, hold).
+inline constexpr int64_t kMaxDriverClockStepUs = 100000;
 /// Ticks the loop retries engaging the hold controller for a silent supervisor while the LCM thread
 /// holds the graph lease, before it holds with zero velocity.
 inline constexpr int kSilenceEngageRetries = 10;
@@ -182,13 +193,21 @@ struct Controller::Impl {
   ControllerOptions options;
   RobotInfo robot;
   sot::ModelPtr model;
-  std::unique_ptr<sim::MujocoScene> scene;
+  std::unique_ptr<sim::MujocoScene> scene;  // mujoco backend
+  // Driver backend: the robot's driver on its own LCM instance (states in, commands out), read by
+  // the loop thread itself: no hand-off between a state's arrival and its tick.
+  std::unique_ptr<lcm::LCM> driver_lcm;
+  std::unique_ptr<DriverLayout> driver_layout;
+  std::string first_driver_state_bytes;  // the DRIVER_STATE the controller started from
+  int64_t driver_state_hash = 0;         // of the state the next tick reads (the journal's)
+  bool driver_silent = false;            // loop: a silence hold was decided, no state since
   std::unique_ptr<graph::Graph> graph;
   std::unique_ptr<ControllerFactory> factory;
   lcm::LCM lcm;
 
   // Persistent entities.
-  sim::MujocoDevice* device = nullptr;
+  graph::Device* device = nullptr;        // the robot: MuJoCo here, or behind a driver
+  DriverDevice* driver_device = nullptr;  // the driver backend's device
   sot::KinematicDevice* command = nullptr;
   MeasuredBase* measured_base = nullptr;
   sot::RobotModel* robot_model = nullptr;
@@ -250,7 +269,16 @@ struct Controller::Impl {
   std::atomic<double> silence_seconds{0.0};  // how long it had been silent, for the status
   int silence_retries = 0;                   // loop: ticks waiting for the graph lease
   int64_t replay_silence_hold = -1;          // replay: 1 engage the hold controller, 0 hold
-  std::string silence_driver;                // under stats_mutex: who fell silent
+  // Driver backend (loop thread): a hold decided between ticks (1 silent, 2 refused state), applied
+  // and journaled at the start of the next tick; the refusals, for the LCM thread to count.
+  int64_t driver_hold = 0;
+  struct DriverRefusalEvent {
+    std::string category, detail;
+  };
+  runtime::SpscQueue<DriverRefusalEvent> driver_refusals{64};
+  std::atomic<int64_t> driver_refusals_lost{0};
+  std::string silence_driver;       // under stats_mutex: who fell silent
+  std::string last_driver_refusal;  // under stats_mutex: the last refused DRIVER_STATE
 
   // LCM-thread-owned.
   std::map<int64_t, std::unique_ptr<BuiltController>> controllers;  // posted or active
@@ -327,7 +355,9 @@ struct Controller::Impl {
   };
   std::map<int64_t, Names> names_by_id;
 
-  explicit Impl(const ControllerOptions& o);
+  /// `first_driver_state` (driver backend): the bytes of the robot's first DRIVER_STATE, as a
+  /// replay knows them; live (nullptr), the controller waits for it.
+  explicit Impl(const ControllerOptions& o, const std::string* first_driver_state = nullptr);
   void BuildPersistentGraph(const Eigen::VectorXd& q0);
   void Reject(const std::string& channel, const std::string& category, const std::string& detail);
 
@@ -339,6 +369,16 @@ struct Controller::Impl {
   void DecideSwitch(const graph::Tick& t);
   void Watchdog(const graph::Tick& t);
   void HoldOnSilence(const graph::Tick& t);
+  /// Driver backend, between ticks: waits up to `timeout_s` of wall time for the next state the
+  /// device takes (true), else decides a silence hold (false). Offers each message on the way.
+  bool WaitDriverState(double timeout_s);
+  /// A DRIVER_STATE (loop thread, from WaitDriverState; or the replay): offered to the device; a
+  /// refused one is counted and holds the robot.
+  void OnDriverState(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
+  /// The driver hold decided between ticks, in the status at once (`seconds`: of silence).
+  void ShowDriverHold(double seconds);
+  /// Holds for the driver (driver_hold: 1 silent, 2 refused state) and journals it at tick t.
+  void ApplyDriverHold(const graph::Tick& t);
   /// `why`: kBudget or kSupervisorSilent (said by the LCM thread when it collects the swap).
   Engage EngageHoldController(const graph::Tick& t, Reason why);
   void FillSnapshot(const graph::Tick& t, const runtime::LoopClock& clock);
@@ -356,6 +396,7 @@ struct Controller::Impl {
   void Guarded(const char* channel, Handle&& handle);
   void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
   void WatchSupervisor(bool idle);  // after each wait: raises silence_request
+  void CountDriverRefusals();       // the loop's refused DRIVER_STATEs, counted here
   int WaitMs();                     // how long the next wait may be (the silence's deadline)
   void OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);

@@ -36,6 +36,7 @@ void Controller::Impl::LcmThread() {
   while (!stop) {
     const bool idle = lcm.handleTimeout(WaitMs()) == 0;
     WatchSupervisor(idle);
+    CountDriverRefusals();
     GraphReadLease lease(graph_lease);
     try {
       CollectSwitchDecision();
@@ -55,6 +56,15 @@ void Controller::Impl::LcmThread() {
     } catch (...) {
       Guarded("LCM_THREAD", [&] { Reject("LCM_THREAD", "internal error", "unknown exception"); });
     }
+  }
+}
+
+void Controller::Impl::CountDriverRefusals() {
+  DriverRefusalEvent event;
+  while (driver_refusals.Pop(&event)) {
+    Reject(channels::kDriverState, event.category, event.detail);
+    std::lock_guard<std::mutex> lock(stats_mutex);
+    last_driver_refusal = event.category + ": " + event.detail;
   }
 }
 

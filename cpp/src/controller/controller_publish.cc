@@ -207,6 +207,19 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
                             : "; zero-velocity hold";
       break;
     }
+    case Reason::kDriverSilent: {
+      char buffer[200];
+      std::snprintf(
+          buffer, sizeof(buffer),
+          "driver silent: no DRIVER_STATE for %.0f ms; holding until resumed or a new spec",
+          1e3 * s.reason_value);
+      st.mode_reason = buffer;
+      break;
+    }
+    case Reason::kDriverRefused:
+      st.mode_reason = "driver: a DRIVER_STATE was refused (" + last_driver_refusal +
+                       "); holding until resumed or a new spec";
+      break;
     case Reason::kBudget: {
       char buffer[200];
       std::snprintf(buffer, sizeof(buffer),

@@ -147,7 +147,23 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
         std::to_string(run.num_lost) +
         " journal entries were lost during the run (queue full): the replay cannot be exact");
   }
-  Controller::Impl c(OptionsFromConfig(run.config, options));
+  const ControllerOptions controller_options = OptionsFromConfig(run.config, options);
+  // Driver backend: the robot's first state is the journal's first DRIVER_STATE (tick 0's).
+  std::string first_state;
+  int64_t first_state_hash = 0;
+  if (controller_options.backend == "driver") {
+    for (const JournalEntry& e : run.entries) {
+      if (e.channel != kDriverStateChannel) continue;
+      const auto message = run.messages.find(e.hash);
+      if (message == run.messages.end()) break;
+      first_state = message->second;
+      first_state_hash = e.hash;
+      break;
+    }
+    if (first_state.empty())
+      throw std::runtime_error("the log holds no DRIVER_STATE the controller took: cannot replay");
+  }
+  Controller::Impl c(controller_options, first_state.empty() ? nullptr : &first_state);
   c.replaying = true;
   std::map<std::string, int> joint_index;
   for (size_t i = 0; i < c.joint_names.size(); ++i)
@@ -197,6 +213,12 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
         continue;
       }
       if (e.channel == kBuildTickChannel) continue;  // applied above, before the spec is built
+      if (e.channel == kDriverHoldChannel) {
+        c.driver_hold = e.hash;
+        continue;
+      }
+      // The first state was taken when the controller started.
+      if (e.channel == kDriverStateChannel && t.index == 0 && e.hash == first_state_hash) continue;
       const auto message = run.messages.find(e.hash);
       if (message == run.messages.end()) {
         result.problems.push_back(std::string("the ") + kJournalChannels[e.channel] +
@@ -227,6 +249,9 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
           break;
         case kFootstepPlanChannel:
           c.OnFootstepPlan(&rbuf, channel);
+          break;
+        case kDriverStateChannel:
+          c.OnDriverState(&rbuf, channel);
           break;
       }
     }

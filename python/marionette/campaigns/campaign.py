@@ -53,6 +53,9 @@ class CampaignSettings:
     gripper_admittance: bool | None = None
     controller_url: str | None = None
     dry_run: bool = True  # the controllers played on the plan before anything moves
+    split_sim: bool = (
+        False  # the robot simulated in marionette-sim, driven over the driver protocol
+    )
 
     def seeds(self) -> range:
         return range(self.first_seed, self.first_seed + self.trials)
@@ -67,6 +70,7 @@ class CampaignSettings:
             self.gripper_admittance,
             self.controller_url,
             self.dry_run,
+            self.split_sim,
         )
 
     def same_trials_as(self, other: CampaignSettings) -> list[str]:

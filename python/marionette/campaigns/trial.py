@@ -55,6 +55,9 @@ class TrialSpec:
     gripper_admittance: bool | None = None
     controller_url: str | None = None
     dry_run: bool = True  # the controllers played on the plan before anything moves
+    split_sim: bool = (
+        False  # the robot simulated in marionette-sim, driven over the driver protocol
+    )
 
     def command(self, out: Path) -> list[str]:
         """The demo's command line, writing its report folder in ``out``."""
@@ -71,6 +74,8 @@ class TrialSpec:
             argv += ["--controller-url", self.controller_url]
         if not self.dry_run:
             argv.append("--no-dry-run")
+        if self.split_sim:
+            argv.append("--split-sim")
         return argv
 
     def to_dict(self) -> dict[str, Any]:

@@ -59,6 +59,9 @@ class RunOptions:
     # Play the generated controllers on the plan before anything moves and refuse a plan that
     # would fail (kinds that plan: marionette.execution.dry_run); False skips it.
     dry_run: bool = True
+    # Simulate the robot in marionette-sim, a driver process the controller drives as it would a
+    # robot (docs/driver.md), instead of in the controller's process.
+    split_sim: bool = False
 
 
 def repo_relative(path: Path) -> str:

@@ -80,6 +80,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=1.0,
         help="controller pacing: 1 real time (default), 0 as fast as possible",
     )
+    p.add_argument(
+        "--split-sim",
+        action="store_true",
+        help="simulate the robot in marionette-sim, a separate driver process, and drive it "
+        "with marionette-controller --backend driver exactly as a robot (docs/driver.md)",
+    )
     p.add_argument("--out", type=Path, default=None, help="reports folder (default reports/demo)")
     p.add_argument(
         "--controller-url",
@@ -180,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         perturbation=None if perturb is None else draw(perturb, seed0),
         gripper_admittance=args.gripper_admittance,
         dry_run=args.dry_run,
+        split_sim=args.split_sim,
     )
     try:
         report = scenario.run(seed0 if args.plan_seed is None else args.plan_seed, out, options)
@@ -209,6 +216,10 @@ def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path, pertur
         problem = "--jobs is for this machine: a cluster runs as many trials as it has CPUs"
     elif args.view:
         problem = "--view shows one trial: run it alone (without --trials, --jobs, --cluster)"
+    elif args.controller_url and args.split_sim:
+        problem = (
+            "--split-sim starts the simulator for a controller it starts: not with --controller-url"
+        )
     elif args.controller_url and (args.jobs > 1 or args.cluster):
         problem = "--controller-url drives one controller: trials at once need their own"
     if problem is None:
@@ -220,6 +231,7 @@ def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path, pertur
                     perturbation=None if perturb is None else draw(perturb, seed0),
                     gripper_admittance=args.gripper_admittance,
                     dry_run=args.dry_run,
+                    split_sim=args.split_sim,
                 )
             )
         except ScenarioError as e:
@@ -243,6 +255,7 @@ def _campaign(args: argparse.Namespace, scenario, seed0: int, root: Path, pertur
         args.gripper_admittance,
         args.controller_url,
         args.dry_run,
+        args.split_sim,
     )
     folder = args.campaign or root / f"{scenario.name}-campaign-{time.strftime('%Y%m%d-%H%M%S')}"
     try:

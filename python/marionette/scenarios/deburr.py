@@ -575,7 +575,7 @@ def run_deburr(
         scene,
         camera_rate=st.camera_rate_hz,
         status_rate=50,
-        controller_args=(
+        sim_args=(
             "--camera-noise",
             str(st.camera_noise_grey),
             "--depth-noise",

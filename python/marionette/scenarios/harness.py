@@ -5,7 +5,9 @@ and starts, in one process group whose outputs go to ``<report folder>/logs/``:
 
 1. ``lcm-logger`` recording every message to ``run.lcmlog`` (camera frames left out when the
    controller renders cameras: 1.5 MB each, the poses measured in them are logged);
-2. ``marionette-controller`` on the trial's scene (unless a running one is driven);
+2. ``marionette-controller`` on the trial's scene (unless a running one is driven) — with
+   ``--split-sim``, ``marionette-sim`` on the scene and the controller driving it as it would a
+   robot (``--backend driver``, docs/driver.md);
 3. ``marionette perceive`` when the scenario measures objects with a camera;
 
 waits for the controller's first state, serves the browser 3D view on ``--view``, and yields a
@@ -41,13 +43,15 @@ class Processes:
     """What a trial runs beside itself. ``scene``: the MJCF the controller loads (a perturbed copy
     of the scenario's); ``view_scene``: the one the browser view draws (default ``scene``);
     ``perceive``: the arguments of ``marionette perceive`` after ``--lcm-url`` (None: no
-    perception process); ``controller_args``: further controller options."""
+    perception process); ``sim_args``: options of the simulated robot (its camera's noise, its
+    encoders' offsets), given to whichever process simulates it: the controller, or
+    marionette-sim."""
 
     robot: str
     scene: Path
     camera_rate: float = 0.0  # [Hz of controller time] camera frames the controller renders
     status_rate: int = 100  # [Hz] CONTROLLER_STATUS
-    controller_args: tuple[str, ...] = ()
+    sim_args: tuple[str, ...] = ()
     perceive: tuple[str, ...] | None = None
     view_scene: Path | None = None
 
@@ -59,12 +63,41 @@ class Processes:
 # the interpreter's lock cannot hold back) and was held as silent. A robot's supervisor on a
 # machine of its own keeps the default; a dead trial still stops the robot within this.
 TRIAL_SUPERVISOR_TIMEOUT_S = 0.5
+# With --split-sim, the silence after which the controller holds for want of robot states, and
+# the simulated robot holds for want of commands: the defaults (10 ms) are a robot's, whose driver
+# and controller have their cores; a trial's share two cores with the supervisor and perception.
+TRIAL_DRIVER_TIMEOUT_S = 0.5
 
 
-def controller_command(processes: Processes, url: str, speed: float) -> list[Any]:
-    """The marionette-controller command line of a trial."""
-    return [
+def controller_command(
+    processes: Processes, url: str, speed: float, split_sim: bool = False
+) -> list[Any]:
+    """The marionette-controller command line of a trial: simulating the robot itself, or
+    (``split_sim``) driving marionette-sim's (:func:`sim_command`)."""
+    common = [
         marionette.BUILD_DIR / "marionette-controller",
+        "--lcm-url",
+        url,
+        "--robot",
+        controller_robot_argument(processes.robot),
+        "--speed",
+        str(speed),
+        "--status-rate",
+        str(processes.status_rate),
+        "--supervisor-timeout",
+        str(TRIAL_SUPERVISOR_TIMEOUT_S),
+    ]
+    if split_sim:
+        return [*common, "--backend", "driver", "--driver-timeout", str(TRIAL_DRIVER_TIMEOUT_S)]
+    scene = ["--scene", processes.scene, "--camera-rate", str(processes.camera_rate)]
+    return [*common, *scene, *processes.sim_args]
+
+
+def sim_command(processes: Processes, url: str, speed: float) -> list[Any]:
+    """The marionette-sim command line of a trial run with --split-sim: the scene, its camera and
+    the simulated robot's options, a driver on ``url``."""
+    return [
+        marionette.BUILD_DIR / "marionette-sim",
         "--lcm-url",
         url,
         "--robot",
@@ -75,11 +108,9 @@ def controller_command(processes: Processes, url: str, speed: float) -> list[Any
         str(speed),
         "--camera-rate",
         str(processes.camera_rate),
-        "--status-rate",
-        str(processes.status_rate),
-        "--supervisor-timeout",
-        str(TRIAL_SUPERVISOR_TIMEOUT_S),
-        *processes.controller_args,
+        "--command-timeout",
+        str(TRIAL_DRIVER_TIMEOUT_S),
+        *processes.sim_args,
     ]
 
 
@@ -132,6 +163,11 @@ def harness(
     report["scene"] = repo_relative(processes.view_scene or processes.scene)
     if options.controller_url is None:
         report["controller_scene"] = repo_relative(processes.scene)
+        report["simulator"] = (
+            "marionette-sim (a driver process)"
+            if options.split_sim
+            else ("in the controller's process")
+        )
     cameras = processes.camera_rate > 0
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
         group.start(
@@ -140,7 +176,11 @@ def harness(
             + (["--channel=^CAMERA_.*", "--invert-channels"] if cameras else []),
         )
         if options.controller_url is None:
-            group.start("controller", controller_command(processes, url, options.speed))
+            if options.split_sim:
+                group.start("sim", sim_command(processes, url, options.speed))
+            group.start(
+                "controller", controller_command(processes, url, options.speed, options.split_sim)
+            )
         run = Run(group, client, url, report, options.log)
         if processes.perceive is not None:
             run.start_cli("perceive", ["perceive", "--lcm-url", url, *processes.perceive])

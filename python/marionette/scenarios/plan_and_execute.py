@@ -496,7 +496,7 @@ def run_plan_and_execute(
         robot,
         scene,
         camera_rate=scenario.camera_rate if scenario.vision else 0.0,
-        controller_args=(
+        sim_args=(
             ("--encoder-offsets", encoder_offsets_argument(encoder_offsets))
             if encoder_offsets
             else ()

@@ -10,9 +10,9 @@
 ///                    SIM_OBJECT_POSES (simulator ground truth), from lock-free snapshots
 ///   camera thread    renders the head RGB-D camera from a state snapshot (CAMERA_HEAD)
 ///
-/// Persistent graph: device (MuJoCo) → measured_base → robot (RobotModel) → [controller] →
-/// safety (SafetyFilter) → command (KinematicDevice: the integrated position command) → device.
-/// With the kinematic backend the command integrator is the robot.
+/// Persistent graph: device (MuJoCo, or a robot's driver) → measured_base → robot (RobotModel) →
+/// [controller] → safety (SafetyFilter) → command (KinematicDevice: the integrated position
+/// command) → device. With the kinematic backend the command integrator is the robot.
 ///
 /// Modes: hold (zero velocity, the servos hold the last command) until a controller is
 /// accepted; run; hold again when a streamed reference goes stale (watchdog) or on COMMAND
@@ -37,7 +37,7 @@ namespace marionette::controller {
 
 struct ControllerOptions {
   std::string robot;  ///< name on the robot search path, or a folder holding robot.yaml
-  std::string backend = "mujoco";  ///< "mujoco" | "kinematic"
+  std::string backend = "mujoco";  ///< "mujoco" | "kinematic" | "driver" (docs/driver.md)
   std::string scene;               ///< MJCF (mujoco backend); default: the robot alone
   /// Encoder calibration (mujoco backend): joint -> offset its encoder reads above the truth.
   std::vector<std::pair<std::string, double>> encoder_offsets;
@@ -63,6 +63,8 @@ struct ControllerOptions {
   double supervisor_timeout = 0.1;
   /// The shared key of signed commands ("" = $MARIONETTE_KEY, none: unsigned commands)
   std::string key_file;
+  /// [s] driver backend: hold when no DRIVER_STATE came for this long (wall clock)
+  double driver_timeout = 0.01;
   bool verbose = false;
 };
 
