@@ -27,8 +27,8 @@ namespace {
 
 constexpr const char* kUsage = R"(usage: marionette-skeleton-driver --joints a,b,c [options]
 
-  --joints A,B,...      the robot's actuated joints (required; marionette-controller
-                        --describe-robot lists them)
+  --joints A,B,...      the robot's actuated joints (required; docs/driver.md says how to
+                        list them, marionette-controller --backend driver logs them)
   --positions X,Y,...   initial positions [rad or m], one per joint (default zeros)
   --wrench-bodies A,..  the bodies whose wrench the robot measures (default none; the
                         controller's --describe-robot: contact_bodies, then grip_bodies)
@@ -150,16 +150,18 @@ class Driver {
   void Cycle(int64_t now_us) {
     while (lcm_->handleTimeout(0) > 0) {  // every command received since the last cycle
     }
+    // The watchdog first: a command that arrived while this process was stalled is as old as
+    // its arrival says, and does not resume tracking.
     const double silent_ms = (now_us - received_us_) / 1e3;
-    if (fresh_ && command_.mode == 1) {
+    if (command_.utime >= 0 && silent_ms >= o_.command_timeout * 1e3) {
+      if (!status_.holding) Hold(now_us, "no command for " + Milliseconds(silent_ms));
+    } else if (fresh_ && command_.mode == 1) {
       Hold(now_us, "hold requested");
     } else if (fresh_) {  // track it (again)
       status_.holding = false;
       status_.reason = "";
       target_q_ = command_.joint_position;
       target_v_ = command_.joint_velocity;
-    } else if (!status_.holding && silent_ms >= o_.command_timeout * 1e3) {  // the watchdog
-      Hold(now_us, "no command for " + Milliseconds(silent_ms));
     }
     if (!status_.holding && command_.sequence != state_.sequence) ++status_.commands_late;
     fresh_ = false;

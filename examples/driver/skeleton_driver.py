@@ -91,13 +91,14 @@ class SkeletonDriver:
     def cycle(self, now_us: int) -> None:
         """Applies the newest command (or holds), measures, publishes."""
         silent_us = now_us - self.received_us
-        if self.fresh and self.command.mode == 1:
+        if self.command is not None and silent_us >= self.timeout_us:  # the watchdog first
+            if not self.status.holding:
+                self.hold(now_us, f"no command for {silent_us / 1e3:.1f} ms")
+        elif self.fresh and self.command.mode == 1:
             self.hold(now_us, "hold requested")
         elif self.fresh:
             self.status.holding, self.status.reason = False, ""
             self.target_q, self.target_v = self.command.joint_position, self.command.joint_velocity
-        elif not self.status.holding and silent_us >= self.timeout_us:  # the watchdog
-            self.hold(now_us, f"no command for {silent_us / 1e3:.1f} ms")
         if not self.status.holding and self.command.sequence != self.state.sequence:
             self.status.commands_late += 1
         self.fresh = False
