@@ -66,10 +66,15 @@ class Robot:
         self.states = Log(self.bus, channels.DRIVER_STATE, lcmt_driver_state)
         self.statuses = Log(self.bus, channels.DRIVER_STATUS, lcmt_driver_status)
         self.commands = Log(self.bus, channels.DRIVER_COMMAND, lcmt_driver_command)
+        # When this process handled each state and command, by sequence (the round trip).
+        self.arrivals: dict[str, dict[int, float]] = {"state": {}, "command": {}}
         self.target: dict[str, float] | None = None
         self.last_answered = 0  # sequence of the last state answered
         answering = self.bus.subscribe(channels.DRIVER_STATE, lcmt_driver_state, self._answer)
         answering.set_queue_capacity(10_000)
+        self.bus.subscribe(
+            channels.DRIVER_COMMAND, lcmt_driver_command, self._arrived("command")
+        ).set_queue_capacity(10_000)
         self.bus.start()
 
     def command(self, state: Any, positions: dict[str, float]) -> Any:
@@ -82,7 +87,19 @@ class Robot:
         c.joint_effort = [0.0] * len(names)
         return c
 
+    def _arrived(self, kind: str):
+        def handler(msg: Any) -> None:
+            self.arrivals[kind][msg.sequence] = time.monotonic()
+
+        return handler
+
+    def round_trips_ms(self) -> np.ndarray:
+        """State -> command as this process heard them [ms], for every command heard."""
+        states, commands = self.arrivals["state"], self.arrivals["command"]
+        return np.array([1e3 * (t - states[k]) for k, t in commands.items() if k in states])
+
     def _answer(self, state: Any) -> None:
+        self.arrivals["state"][state.sequence] = time.monotonic()
         target = self.target
         if target is not None:
             self.bus.publish(channels.DRIVER_COMMAND, self.command(state, target))
@@ -402,9 +419,11 @@ def test_controller_drives_the_cpp_skeleton_and_the_skeleton_holds_when_it_dies(
             raise
         moving = robot.statuses.latest()
         assert not moving.holding and moving.commands_refused == 0
+        trips = robot.round_trips_ms()
         print(
             f"controller drove the skeleton: {moving.commands_taken} commands taken, "
-            f"{moving.commands_late} late cycles"
+            f"{moving.commands_late} late cycles; state -> command as heard by the test: "
+            f"p50 {np.percentile(trips, 50):.3f} ms, p99 {np.percentile(trips, 99):.3f} ms"
         )
 
         def kill_controller():
