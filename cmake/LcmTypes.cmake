@@ -61,5 +61,6 @@ add_custom_target(marionette_lcmtypes_gen ALL
 
 add_library(marionette_lcmtypes INTERFACE)
 add_dependencies(marionette_lcmtypes marionette_lcmtypes_gen)
-target_include_directories(marionette_lcmtypes INTERFACE ${_cpp_dir})
+# SYSTEM: lcm-gen's generated code is not ours to warn about.
+target_include_directories(marionette_lcmtypes SYSTEM INTERFACE ${_cpp_dir})
 target_link_libraries(marionette_lcmtypes INTERFACE PkgConfig::LCM)

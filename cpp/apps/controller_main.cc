@@ -43,6 +43,8 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --depth-noise M       Gaussian noise on the depth pixels with a return [m, 1 sigma] (default 0)
   --velocity-scale F    fraction of the URDF velocity limits allowed (default 1)
   --timing-log FILE     write every tick's period, compute time and lateness (CSV) at exit
+  --journal FILE        write every input taken and the journal to this LCM log (what --replay
+                        needs, even when a network logger dropped messages)
   --no-profiling        do not time every entity (CONTROLLER_TIMING, budgets) each tick
   --overrun-hold-ticks N  hold when an entity overruns its budget N ticks in a row (default 100)
   --supervisor-timeout S  hold when the supervisor of the running controller is silent S seconds
@@ -53,11 +55,14 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --describe-robot      print what the controller knows of --robot as JSON and exit
   -v, --verbose         log every rejected input and controller switch
 
-usage: marionette-controller --replay LOG [--scene FILE] [--tolerance X] [--json FILE] [--models DIR]
+usage: marionette-controller --replay LOG [--journal FILE] [--scene FILE] [--tolerance X]
+                             [--max-ticks N] [--json FILE] [--models DIR]
 
   Re-runs a recorded run offline on a simulated clock from the inputs its journal says the loop
-  consumed (CONTROLLER_JOURNAL in the LCM log), and compares every recorded ROBOT_COMMAND.
-  Exit code 0 when every command matches within --tolerance (default 1e-9).
+  consumed (CONTROLLER_JOURNAL in the LCM log, or in the controller's own --journal FILE), and
+  compares every recorded ROBOT_COMMAND of LOG.
+  Exit code 0 when every command matches within --tolerance (default 1e-9); --max-ticks N
+  replays the first N ticks only.
 )";
 
 // marionette-controller --replay LOG ...: see kUsage.
@@ -76,12 +81,16 @@ int Replay(int argc, char** argv) {
       o.log = value();
     else if (a == "--scene")
       o.scene = value();
+    else if (a == "--journal")
+      o.journal = value();
     else if (a == "--models")
       o.models_dir = value();
     else if (a == "--json")
       json = value();
     else if (a == "--tolerance")
       o.tolerance = std::stod(value());
+    else if (a == "--max-ticks")
+      o.max_ticks = std::stoll(value());
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else

@@ -101,8 +101,8 @@ def run_demo(
     """Runs ``marionette demo <name> --speed <speed> --out <out_dir> <args>`` and checks what a
     user checks first: exit code 0, a single run folder whose report says success, and ``files``
     of that folder not empty; and that the report carries the scenario's declaration, a measure
-    of each of its criteria and the scene a replay draws. Returns the run folder and its
-    report.json."""
+    of each of its criteria and the scene a replay draws; and that the run's first 10 s replay
+    exactly. Returns the run folder and its report.json."""
     proc = run_stopping_what_it_started(
         [
             sys.executable,
@@ -136,7 +136,18 @@ def run_demo(
     assert (REPO_ROOT / report["scene"]).is_file() and (
         REPO_ROOT / report["controller_scene"]
     ).is_file()
+    # The run replays: from its start-up options (encoder offsets, scene) and the controller's own
+    # journal, the first REPLAYED_TICKS give the recorded commands exactly.
+    from marionette.control.replay_cli import replay_controller
+
+    replay = replay_controller(run / "run.lcmlog", max_ticks=REPLAYED_TICKS)
+    assert replay["ok"] and replay["commands_compared"] > 0, replay
     return run, report
+
+
+# Ticks of a demo's run replayed by run_demo (10 s of controller time: TALOS replays ~1500 ticks a
+# second, and a deburr run is 12 minutes long).
+REPLAYED_TICKS = 10_000
 
 
 def lcm_log_messages(path: Path, types: dict[str, Any]) -> Iterator[tuple[str, Any]]:

@@ -12,6 +12,11 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
   if (!options.key_file.empty())
     verifier = std::make_unique<wire::Verifier>(wire::LoadKey(o.key_file));
+  if (!options.journal_file.empty()) {
+    black_box = std::make_unique<lcm::LogFile>(options.journal_file, "w");
+    if (!black_box->good())
+      throw std::runtime_error("cannot write the journal '" + options.journal_file + "'");
+  }
   try {
     robot = FindRobot(options.robot, options.models_dir);
   } catch (const std::invalid_argument& e) {
@@ -22,14 +27,7 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
   } catch (const std::exception& e) {
     throw std::runtime_error("cannot load robot '" + robot.name + "': " + e.what());
   }
-  if (model->referenceConfigurations.count(robot.reference) == 0) {
-    throw std::runtime_error(robot.srdf + " has no group_state '" + robot.reference + "'");
-  }
-  Eigen::VectorXd q0 = model->referenceConfigurations.at(robot.reference);
-  for (const GripperInfo& g : robot.grippers) {  // just inside the limit, as marionette.robots
-    if (model->existJointName(g.joint))
-      q0[model->joints[model->getJointId(g.joint)].idx_q()] = g.open_position;
-  }
+  Eigen::VectorXd q0 = ReferencePosture(*model, robot);
   for (pinocchio::JointIndex j = 1; j < model->joints.size(); ++j) {
     if (model->joints[j].nq() == 1 && model->joints[j].nv() == 1) {
       joint_names.push_back(model->names[j]);
@@ -37,51 +35,28 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
       joint_v.push_back(model->joints[j].idx_v());
     }
   }
-
   if (options.backend == "mujoco") {
-    const std::string scene_path = options.scene.empty() ? robot.mjcf : options.scene;
-    try {
-      scene = std::make_unique<sim::MujocoScene>(scene_path, *model);
-      scene->SetEncoderOffsets(options.encoder_offsets);
-    } catch (const std::exception& e) {
-      throw std::runtime_error(e.what());
-    }
-    // Start from the scene's first keyframe if it has one (scenes put the robot and objects in
-    // place), else from the reference posture with the robot as the model file puts it.
-    mjData& d = scene->mutable_data();
-    if (scene->model().nkey > 0) {
-      mj_resetDataKeyframe(&scene->model(), &d, 0);
-      mj_forward(&scene->model(), &d);
-      Eigen::VectorXd v(model->nv);
-      scene->ReadRobotState(q0, v);
-    } else {
-      Eigen::VectorXd qs(model->nq), vs(model->nv);
-      scene->ReadRobotState(qs, vs);
-      if (robot.base != "fixed")
-        q0.head(robot.base == "free_flyer" ? 7 : 4) = qs.head(robot.base == "free_flyer" ? 7 : 4);
-      scene->WriteRobotState(q0, Eigen::VectorXd::Zero(model->nv));
-    }
-    const mjModel& m = scene->model();
-    for (int b = 1; b < m.nbody; ++b) {
-      const int jnt = m.body_jntadr[b];
-      if (jnt >= 0 && m.jnt_type[jnt] == mjJNT_FREE && m.body_rootid[b] == b &&
-          std::string(mj_id2name(&m, mjOBJ_BODY, b)) != "base_link") {
-        free_objects.push_back(mj_id2name(&m, mjOBJ_BODY, b));
-        free_object_ids.push_back(b);
-      }
-    }
+    StartedScene started = StartScene(options.scene.empty() ? robot.mjcf : options.scene, *model,
+                                      robot, q0, options.encoder_offsets);
+    scene = std::move(started.scene);
+    q0 = started.q0;
+    free_objects = std::move(started.free_objects);
+    free_object_ids = std::move(started.free_object_ids);
   } else if (options.backend == "driver") {
     driver_layout = std::make_unique<DriverLayout>(MakeDriverLayout(*model, robot));
     std::string first;
     if (first_driver_state != nullptr) {
       first = *first_driver_state;
     } else {
+      // The loop's own instance subscribes in Run(), once the loop thread has its priority: LCM
+      // starts its receiving thread at the first subscription, and that thread inherits it.
       driver_lcm = std::make_unique<lcm::LCM>(options.lcm_url);
-      if (!driver_lcm->good())
+      lcm::LCM waiting(options.lcm_url);
+      if (!driver_lcm->good() || !waiting.good())
         throw std::runtime_error("cannot open LCM at '" + options.lcm_url + "' for the driver");
       runtime::LogLine("[controller] waiting for ", robot.name, "'s driver on DRIVER_STATE (",
                        driver_layout->joints.size(), " joints: ", JointList(*driver_layout), ")");
-      first = WaitFirstState(*driver_lcm, *driver_layout, /*timeout_s=*/0.0);
+      first = WaitFirstState(waiting, *driver_layout, /*timeout_s=*/0.0);
     }
     first_driver_state_bytes = first;
     q0 = ReadState(first, *driver_layout).q;  // throws: a replay's log that does not fit
@@ -164,10 +139,14 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
   active_streams.reserve(kMaxTasks);
   if (scene && options.camera_rate > 0.0 && !robot.camera.empty()) {
-    render_every = std::max(1, static_cast<int>(std::lround(1.0 / (options.camera_rate * kDt))));
-    const mjModel& m = scene->model();
-    render_states = std::make_unique<runtime::TripleBuffer<std::vector<double>>>(
-        std::vector<double>(m.nq + 3 * m.nmocap + 4 * m.nmocap + 1, 0.0));
+    CameraStreamOptions o;
+    o.camera = robot.camera;
+    o.camera_frame = robot.camera_frame;
+    o.rate_hz = options.camera_rate;
+    o.dt = kDt;
+    o.width = options.camera_width, o.height = options.camera_height;
+    o.noise_grey = options.camera_noise, o.depth_noise = options.depth_noise;
+    camera = std::make_unique<CameraStream>(&scene->model(), &lcm, o);
   }
 }
 
@@ -327,6 +306,18 @@ void Controller::Impl::CopyTimings(const graph::Tick& t) {
   timing_tables->Publish();
 }
 
+void Controller::Impl::Record(const std::string& channel, const void* data, size_t size,
+                              int64_t utime) {
+  std::lock_guard<std::mutex> lock(black_box_mutex);
+  lcm::LogEvent event;
+  event.eventnum = black_box_events++;
+  event.timestamp = utime;
+  event.channel = channel;
+  event.datalen = static_cast<int32_t>(size);
+  event.data = const_cast<void*>(data);
+  if (black_box->writeEvent(&event) != 0) records_lost.fetch_add(1, std::memory_order_relaxed);
+}
+
 void Controller::Impl::Journal(int64_t tick, int channel, int64_t hash) {
   // Full: the publisher is behind; the entry is lost and counted (a replay says it cannot be
   // exact).
@@ -436,12 +427,13 @@ bool Controller::Impl::WaitDriverState(double timeout_s) {
   }
   if (driver_device->has_state()) {
     driver_silent = false;
+    last_driver_state = Clock::now();
     return true;
   }
-  if (!driver_silent && !stop) {  // once per silence
+  if (!driver_silent && !stop) {  // once per silence; the status says how long since the last
     driver_silent = true;
     driver_hold = 1;
-    ShowDriverHold(timeout_s);
+    ShowDriverHold(std::chrono::duration<double>(Clock::now() - last_driver_state).count());
   }
   return false;
 }
@@ -450,6 +442,16 @@ void Controller::Impl::OnDriverState(const lcm::ReceiveBuffer* rbuf, const std::
   DriverDevice::Refusal refusal;
   if (driver_device->Offer(rbuf->data, rbuf->data_size, &refusal)) {
     driver_state_hash = Fnv1a(rbuf->data, rbuf->data_size);
+    if (black_box && !replaying) {  // copied within the scratch's capacity: no allocation
+      const auto* bytes = static_cast<const uint8_t*>(rbuf->data);
+      if (rbuf->data_size > kMaxRecordedState) {
+        records_lost.fetch_add(1, std::memory_order_relaxed);
+      } else {
+        state_record_scratch.assign(bytes, bytes + rbuf->data_size);
+        if (!state_records.Push(state_record_scratch))
+          records_lost.fetch_add(1, std::memory_order_relaxed);
+      }
+    }
     return;
   }
   if (!driver_refusals.Push(DriverRefusalEvent{refusal.category, refusal.detail}))
@@ -552,16 +554,7 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
   if (s.walking) FillWalkStatus(t, &s);
   snapshots->write_slot() = s;  // same sizes: no allocation
   snapshots->Publish();
-  if (render_states && t.index % render_every == 0) {
-    const mjModel& m = scene->model();
-    const mjData& d = scene->data();
-    std::vector<double>& r = render_states->write_slot();
-    r[0] = static_cast<double>(TickUs(t));
-    std::copy_n(d.qpos, m.nq, r.begin() + 1);
-    std::copy_n(d.mocap_pos, 3 * m.nmocap, r.begin() + 1 + m.nq);
-    std::copy_n(d.mocap_quat, 4 * m.nmocap, r.begin() + 1 + m.nq + 3 * m.nmocap);
-    render_states->Publish();
-  }
+  if (camera && camera->Due(t.index)) camera->Offer(TickUs(t), scene->data());
 }
 
 // ---- unpaced pacing ---------------------------------------------------------------------------
@@ -632,13 +625,11 @@ int Controller::Run() {
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
   // SIM_COMMAND is the simulator's: here only when it runs in this process.
   if (c.scene) c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
-  if (c.driver_lcm) c.driver_lcm->subscribe(channels::kDriverState, &Impl::OnDriverState, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
   c.lcm.subscribe(channels::kFootstepPlan, &Impl::OnFootstepPlan, &c);
   std::thread lcm_thread(&Impl::LcmThread, &c);
   std::thread publisher(&Impl::PublisherThread, &c);
-  std::thread camera;
-  if (c.render_states) camera = std::thread(&Impl::CameraThread, &c);
+  if (c.camera) c.camera->Start();
   // The loop alone at the top priority, requested once the other threads exist (they would
   // inherit it): the LCM and publisher threads ask for kIoPriority themselves, the camera
   // thread runs at SCHED_IDLE.
@@ -658,6 +649,7 @@ int Controller::Run() {
           ? std::to_string(static_cast<int>(std::lround(1e3 * c.options.supervisor_timeout))) +
                 " ms"
           : std::string("off"));
+  if (c.driver_lcm) c.driver_lcm->subscribe(channels::kDriverState, &Impl::OnDriverState, &c);
   runtime::LogLine("[controller] ", c.robot.name, " on ", c.options.backend, " backend, ",
                    c.model->nv, " dofs, graph of ", c.graph->entities().size(), " entities; ",
                    c.options.duration > 0.0 ? "running " + std::to_string(c.options.duration) + " s"
@@ -684,7 +676,7 @@ int Controller::Run() {
   // Give the publisher a last snapshot before everything stops.
   lcm_thread.join();
   publisher.join();
-  if (camera.joinable()) camera.join();
+  if (c.camera) c.camera->Stop();
   runtime::LogLine("[controller] stopped after ", t.index, " ticks (", t.time, " s), ",
                    clock.deadline_misses(), " deadline misses");
   return 0;
@@ -790,6 +782,8 @@ ControllerOptions ParseOptions(int argc, char** argv, bool* help, bool* describe
       o.key_file = value(i);
     else if (a == "--driver-timeout")
       o.driver_timeout = number(i);
+    else if (a == "--journal")
+      o.journal_file = value(i);
     else if (a == "-v" || a == "--verbose")
       o.verbose = true;
     else

@@ -1,7 +1,7 @@
 #pragma once
 // The inside of marionette-controller (controller/controller.h): the Impl shared by
 // controller.cc (start-up, the loop), controller_lcm.cc (the LCM thread: inputs, controller
-// swaps, introspection) and controller_publish.cc (publisher and camera threads).
+// swaps, introspection) and controller_publish.cc (the publisher thread).
 
 #include <mujoco/mujoco.h>
 #include <pthread.h>
@@ -22,6 +22,7 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include "marionette/controller/camera_stream.h"
 #include "marionette/controller/controller.h"
 #include "marionette/controller/controller_factory.h"
 #include "marionette/controller/driver_device.h"
@@ -31,6 +32,7 @@
 #include "marionette/controller/reference_stream.h"
 #include "marionette/controller/robots.h"
 #include "marionette/controller/safety_filter.h"
+#include "marionette/controller/sim_start.h"
 #include "marionette/graph/arithmetic.h"
 #include "marionette/graph/graph.h"
 #include "marionette/lcm/channels.h"
@@ -56,7 +58,6 @@
 #include "marionette/runtime/timing_stats.h"
 #include "marionette/runtime/triple_buffer.h"
 #include "marionette/sim/mujoco_device.h"
-#include "marionette/sim/rgbd_renderer.h"
 #include "marionette/sot/kinematic_device.h"
 #include "marionette/sot/robot_model.h"
 
@@ -201,6 +202,7 @@ struct Controller::Impl {
   std::string first_driver_state_bytes;  // the DRIVER_STATE the controller started from
   int64_t driver_state_hash = 0;         // of the state the next tick reads (the journal's)
   bool driver_silent = false;            // loop: a silence hold was decided, no state since
+  Clock::time_point last_driver_state = Clock::now();  // loop: when the last state was taken
   std::unique_ptr<graph::Graph> graph;
   std::unique_ptr<ControllerFactory> factory;
   lcm::LCM lcm;
@@ -248,8 +250,7 @@ struct Controller::Impl {
   // Loop -> publisher / camera.
   std::unique_ptr<runtime::TripleBuffer<Snapshot>> snapshots;
   runtime::SpscQueue<runtime::TickTiming> timings{20000};
-  std::unique_ptr<runtime::TripleBuffer<std::vector<double>>> render_states;  // qpos + mocap
-  int render_every = 0;
+  std::unique_ptr<CameraStream> camera;  // the head camera (mujoco backend)
 
   // The boundary (LCM thread): signed commands when a key is given (nullptr: unsigned).
   std::unique_ptr<wire::Verifier> verifier;
@@ -327,6 +328,21 @@ struct Controller::Impl {
   // 2 loop); the loop engages the hold controller only if it gets the lease at once.
   std::atomic<int> graph_lease{0};
   enum class Engage { kEngaged, kRetry, kUnavailable };
+
+  // The black box (--journal FILE): a local LCM log of every input the LCM thread admits, every
+  // journal batch and (driver backend) every robot state the loop takes, so that a replay never
+  // depends on a network logger, which drops messages when its process falls behind (a plank
+  // flip's lcm-logger lost 5 of 1042 consumed inputs at load 3.5).
+  std::unique_ptr<lcm::LogFile> black_box;
+  std::mutex black_box_mutex;
+  int64_t black_box_events = 0;  // under black_box_mutex
+  void Record(const std::string& channel, const void* data, size_t size, int64_t utime);
+  // Driver states, loop -> publisher (written to the black box off the loop).
+  static constexpr size_t kMaxRecordedState = 16384;  // [bytes] larger ones are counted lost
+  runtime::SpscQueue<std::vector<uint8_t>> state_records{256,
+                                                         std::vector<uint8_t>(kMaxRecordedState)};
+  std::vector<uint8_t> state_record_scratch = std::vector<uint8_t>(kMaxRecordedState);
+  std::atomic<int64_t> records_lost{0};
 
   // Journal of consumed inputs (loop -> publisher) for deterministic replay.
   runtime::SpscQueue<JournalEntry> journal{1 << 14};
@@ -436,7 +452,6 @@ struct Controller::Impl {
   void PublishWalkStatus(const Snapshot& s);  // controller_walk.cc
   void PublishStatus(const Snapshot& s, runtime::TimingWindow& period,
                      runtime::TimingWindow& compute, runtime::TimingWindow& lateness);
-  void CameraThread();
 };
 
 inline int64_t WallUs() {
@@ -482,6 +497,7 @@ bool Controller::Impl::Admit(const char* channel, const lcm::ReceiveBuffer* rbuf
     Reject(channel, "undecodable", std::string("not a valid ") + Msg::getTypeName());
     return false;
   }
+  if (black_box && !replaying) Record(channel, rbuf->data, rbuf->data_size, rbuf->recv_utime);
   return true;
 }
 

@@ -1,7 +1,6 @@
-// marionette-controller's publisher and camera threads: state, command, status, ground truth
-// and RGB-D frames, from lock-free snapshots of the loop.
+// marionette-controller's publisher thread: state, command, status and ground truth, from
+// lock-free snapshots of the loop.
 #include "controller_impl.h"
-#include "marionette/sim/camera_noise.h"
 
 namespace marionette::controller {
 
@@ -83,12 +82,25 @@ void Controller::Impl::PublishJournal(int64_t utime, bool always) {
     j.channel.push_back(kJournalChannels[entry.channel]);
     j.payload_hash.push_back(entry.hash);
   }
+  if (black_box) {  // the robot's states the loop took, then this batch: in consumption order
+    const std::vector<uint8_t>* state = nullptr;
+    while ((state = state_records.Front()) != nullptr) {
+      Record(channels::kDriverState, state->data(), state->size(), WallUs());
+      state_records.PopFront();
+    }
+  }
   if (j.tick.empty() && !always) return;
   j.utime = utime;
   j.config = MotionConfig();
-  j.num_lost = journal_lost.load(std::memory_order_relaxed);
+  j.num_lost =
+      journal_lost.load(std::memory_order_relaxed) + records_lost.load(std::memory_order_relaxed);
   j.num_entries = static_cast<int32_t>(j.tick.size());
   lcm.publish(channels::kControllerJournal, &j);
+  if (black_box) {
+    std::vector<uint8_t> bytes(j.getEncodedSize());
+    j.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    Record(channels::kControllerJournal, bytes.data(), bytes.size(), WallUs());
+  }
 }
 
 void Controller::Impl::PublishState(const Snapshot& s) {
@@ -211,7 +223,7 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
       char buffer[200];
       std::snprintf(
           buffer, sizeof(buffer),
-          "driver silent: no DRIVER_STATE for %.0f ms; holding until resumed or a new spec",
+          "driver silent: no DRIVER_STATE for %.1f ms; holding until resumed or a new spec",
           1e3 * s.reason_value);
       st.mode_reason = buffer;
       break;
@@ -274,73 +286,6 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
   }
   st.last_switch_result = last_switch_result;
   lcm.publish(channels::kControllerStatus, &st);
-}
-
-// ---- camera -------------------------------------------------------------------------------------
-
-void Controller::Impl::CameraThread() {
-  // Rendering takes what the loop leaves: SCHED_IDLE runs only when no other thread wants the
-  // CPU, so a frame can be late but a tick never waits for one.
-  sched_param idle{};
-  if (pthread_setschedparam(pthread_self(), SCHED_IDLE, &idle) != 0) {
-    runtime::LogLine(
-        "[controller] camera thread: SCHED_IDLE refused, rendering at normal priority");
-  }
-  const mjModel& m = scene->model();
-  mjData* d = mj_makeData(&m);
-  std::unique_ptr<sim::RgbdRenderer> renderer;
-  try {
-    renderer = std::make_unique<sim::RgbdRenderer>(&m, robot.camera, options.camera_width,
-                                                   options.camera_height);
-  } catch (const std::exception& e) {
-    runtime::LogLine("[controller] camera disabled: ", e.what());
-    mj_deleteData(d);
-    return;
-  }
-  sim::RgbdFrame frame;
-  sim::CameraNoise noise({options.camera_noise, options.depth_noise, /*seed=*/0});
-  if (noise.enabled()) {
-    runtime::LogLine("[controller] camera: sensor noise ", options.camera_noise,
-                     " grey levels, depth ", options.depth_noise * 1e3, " mm (1 sigma)");
-  }
-  lcmt_camera_image msg{};
-  const sim::PinholeIntrinsics& K = renderer->intrinsics();
-  msg.camera_name = "head";
-  msg.frame_name = robot.camera_frame;
-  msg.width = K.width, msg.height = K.height;
-  msg.fx = K.fx, msg.fy = K.fy, msg.cx = K.cx, msg.cy = K.cy;
-  msg.depth_scale = 0.001;
-  msg.num_rgb = K.width * K.height * 3;
-  msg.num_depth = K.width * K.height;
-  msg.depth.resize(msg.num_depth);
-  while (!stop) {
-    if (!render_states->Fetch()) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(2));
-      continue;
-    }
-    const std::vector<double>& r = render_states->read_slot();
-    std::copy_n(r.begin() + 1, m.nq, d->qpos);
-    std::copy_n(r.begin() + 1 + m.nq, 3 * m.nmocap, d->mocap_pos);
-    std::copy_n(r.begin() + 1 + m.nq + 3 * m.nmocap, 4 * m.nmocap, d->mocap_quat);
-    mj_kinematics(&m, d);
-    mj_camlight(&m, d);
-    renderer->Render(*d, &frame);
-    noise.Apply(&frame);  // nothing when both sigmas are 0
-    msg.utime = static_cast<int64_t>(r[0]);
-    msg.rgb = frame.rgb;
-    for (int i = 0; i < msg.num_depth; ++i) {
-      // Depth in mm; beyond int16's 32.767 m a real sensor returns nothing either: 0.
-      const double mm = std::round(frame.depth[i] * 1000.0);
-      msg.depth[i] = mm > 0.0 && mm <= 32767.0 ? static_cast<int16_t>(mm) : 0;
-    }
-    const Eigen::Isometry3d X_WC = renderer->CameraPose(*d);
-    const Eigen::Quaterniond quat(X_WC.rotation());
-    for (int k = 0; k < 3; ++k) msg.camera_position[k] = X_WC.translation()[k];
-    msg.camera_quaternion[0] = quat.w(), msg.camera_quaternion[1] = quat.x();
-    msg.camera_quaternion[2] = quat.y(), msg.camera_quaternion[3] = quat.z();
-    lcm.publish(channels::kCameraHead, &msg);
-  }
-  mj_deleteData(d);
 }
 
 }  // namespace marionette::controller

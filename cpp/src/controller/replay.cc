@@ -35,13 +35,20 @@ int JournalChannelIndex(const std::string& channel) {
   return -1;
 }
 
-RecordedRun ReadLog(const std::string& path, std::vector<std::string>* problems) {
+// What to take from a log: the journal and the inputs it names, the recorded commands, or both.
+enum class Take { kJournal = 1, kCommands = 2, kAll = 3 };
+
+void ReadLog(const std::string& path, Take take, RecordedRun* out,
+             std::vector<std::string>* problems) {
   lcm::LogFile log(path, "r");
   if (!log.good()) throw std::runtime_error("cannot read the LCM log '" + path + "'");
-  RecordedRun run;
+  RecordedRun& run = *out;
+  const bool journal = (static_cast<int>(take) & static_cast<int>(Take::kJournal)) != 0;
+  const bool commands = (static_cast<int>(take) & static_cast<int>(Take::kCommands)) != 0;
   int64_t undecodable = 0;
   while (const lcm::LogEvent* event = log.readNextEvent()) {
     if (event->channel == channels::kControllerJournal) {
+      if (!journal) continue;
       lcmt_controller_journal j;
       if (j.decode(event->data, 0, event->datalen) != event->datalen) {
         ++undecodable;
@@ -58,6 +65,7 @@ RecordedRun ReadLog(const std::string& path, std::vector<std::string>* problems)
         run.entries.push_back(JournalEntry{j.tick[i], channel, j.payload_hash[i]});
       }
     } else if (event->channel == channels::kRobotCommand) {
+      if (!commands) continue;
       lcmt_robot_command c;
       if (c.decode(event->data, 0, event->datalen) != event->datalen) {
         ++undecodable;
@@ -70,11 +78,21 @@ RecordedRun ReadLog(const std::string& path, std::vector<std::string>* problems)
     }
   }
   if (undecodable > 0)
-    problems->push_back(std::to_string(undecodable) +
-                        " undecodable journal/command messages skipped");
-  if (run.config.empty()) {
+    problems->push_back(std::to_string(undecodable) + " undecodable journal/command messages in '" +
+                        path + "' skipped");
+  if (journal && run.config.empty()) {
     throw std::runtime_error(
         "'" + path + "' holds no CONTROLLER_JOURNAL: was the controller's journal recorded?");
+  }
+}
+
+RecordedRun ReadRun(const ReplayOptions& options, std::vector<std::string>* problems) {
+  RecordedRun run;
+  if (options.journal.empty()) {
+    ReadLog(options.log, Take::kAll, &run, problems);
+  } else {
+    ReadLog(options.journal, Take::kJournal, &run, problems);
+    ReadLog(options.log, Take::kCommands, &run, problems);
   }
   // Consumption order is tick order; entries of one tick keep their recorded order.
   std::stable_sort(run.entries.begin(), run.entries.end(),
@@ -140,7 +158,7 @@ std::string ReplayResult::ToJson() const {
 
 ReplayResult ReplayLog(const ReplayOptions& options) {
   ReplayResult result;
-  const RecordedRun run = ReadLog(options.log, &result.problems);
+  const RecordedRun run = ReadRun(options, &result.problems);
   result.config = run.config;
   if (run.num_lost > 0) {
     result.problems.push_back(
@@ -171,6 +189,7 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
 
   int64_t last_tick = run.commands.empty() ? -1 : run.commands.rbegin()->first;
   if (!run.entries.empty()) last_tick = std::max(last_tick, run.entries.back().tick);
+  if (options.max_ticks >= 0) last_tick = std::min(last_tick, options.max_ticks - 1);
   runtime::LoopClock clock(kDt, 0.0);
   graph::Tick t{0, 0.0, kDt};
   size_t next_entry = 0;
@@ -303,7 +322,7 @@ ReplayResult ReplayLog(const ReplayOptions& options) {
     }
   }
   result.ticks = t.index;
-  if (next_entry < run.entries.size()) {
+  if (next_entry < run.entries.size() && options.max_ticks < 0) {
     result.problems.push_back(std::to_string(run.entries.size() - next_entry) +
                               " journal entries were not replayed");
   }

@@ -22,12 +22,18 @@ from pathlib import Path
 
 import marionette
 
+# The controller's own journal of a run (marionette-controller --journal), beside the run's LCM
+# log in a demo's report folder: every input it took, even those the network logger dropped.
+JOURNAL_NAME = "controller-journal.lcmlog"
+
 
 def controller_binary() -> Path:
     return marionette.BUILD_DIR / "marionette-controller"
 
 
-def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = None) -> dict:
+def replay_controller(
+    log: Path, tolerance: float = 1e-9, scene: str | None = None, max_ticks: int | None = None
+) -> dict:
     """Replays ``log`` and returns the verdict as a dict (see
     cpp/include/marionette/controller/replay.h): ok, ticks, inputs, commands_compared,
     max_difference, first_divergence_tick, first_divergence, journal_mismatches, problems, plus
@@ -47,6 +53,11 @@ def replay_controller(log: Path, tolerance: float = 1e-9, scene: str | None = No
         ]
         if scene:
             argv += ["--scene", scene]
+        if max_ticks is not None:
+            argv += ["--max-ticks", str(max_ticks)]
+        journal = Path(log).parent / JOURNAL_NAME
+        if journal.is_file():
+            argv += ["--journal", str(journal)]
         proc = subprocess.run(argv, capture_output=True, text=True)
         if proc.returncode == 2 or not out.exists():
             raise RuntimeError(

@@ -29,6 +29,7 @@ from typing import Any
 
 import marionette
 from marionette.control.client import ControllerClient
+from marionette.control.replay_cli import JOURNAL_NAME
 from marionette.lcm_bus import private_lcm_url
 from marionette.processes import ManagedProcess, ProcessError, ProcessGroup
 from marionette.robots import controller_robot_argument
@@ -178,9 +179,11 @@ def harness(
         if options.controller_url is None:
             if options.split_sim:
                 group.start("sim", sim_command(processes, url, options.speed))
-            group.start(
-                "controller", controller_command(processes, url, options.speed, options.split_sim)
-            )
+            # Its own journal beside run.lcmlog: what `marionette replay --controller` needs,
+            # even when lcm-logger drops a message.
+            journal = ("--journal", str(out_dir / JOURNAL_NAME))
+            command = controller_command(processes, url, options.speed, options.split_sim)
+            group.start("controller", [*command, *journal])
         run = Run(group, client, url, report, options.log)
         if processes.perceive is not None:
             run.start_cli("perceive", ["perceive", "--lcm-url", url, *processes.perceive])

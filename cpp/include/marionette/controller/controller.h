@@ -63,6 +63,10 @@ struct ControllerOptions {
   double supervisor_timeout = 0.1;
   /// The shared key of signed commands ("" = $MARIONETTE_KEY, none: unsigned commands)
   std::string key_file;
+  /// An LCM log the controller writes itself: every input it admits and its journal (the
+  /// robot's states too with a driver), what `--replay` needs even when a network logger dropped
+  /// messages ("" = none)
+  std::string journal_file;
   /// [s] driver backend: hold when no DRIVER_STATE came for this long (wall clock)
   double driver_timeout = 0.01;
   bool verbose = false;

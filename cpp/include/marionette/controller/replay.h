@@ -18,10 +18,14 @@
 namespace marionette::controller {
 
 struct ReplayOptions {
-  std::string log;          ///< the LCM log of the live run
+  std::string log;  ///< the LCM log of the live run
+  /// The controller's own journal of the run (marionette-controller --journal): its inputs and
+  /// journal are taken from it, the recorded commands from `log` ("" = everything from `log`)
+  std::string journal;
   std::string models_dir;   ///< models/ of the repository
   std::string scene;        ///< overrides the journaled scene path ("" = the journal's)
   double tolerance = 1e-9;  ///< largest accepted |recorded - replayed| command difference
+  int64_t max_ticks = -1;   ///< replay only the first ticks of the run (-1: all of it)
   bool verbose = false;
 };
 

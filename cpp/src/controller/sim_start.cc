@@ -1,0 +1,61 @@
+// How a simulated run starts (sim_start.h): what marionette-controller's Impl::Impl did inline.
+#include "marionette/controller/sim_start.h"
+
+#include <mujoco/mujoco.h>
+
+#include <stdexcept>
+
+namespace marionette::controller {
+
+Eigen::VectorXd ReferencePosture(const pinocchio::Model& model, const RobotInfo& robot) {
+  if (model.referenceConfigurations.count(robot.reference) == 0) {
+    throw std::runtime_error(robot.srdf + " has no group_state '" + robot.reference + "'");
+  }
+  Eigen::VectorXd q0 = model.referenceConfigurations.at(robot.reference);
+  for (const GripperInfo& g : robot.grippers) {  // just inside the limit, as marionette.robots
+    if (model.existJointName(g.joint))
+      q0[model.joints[model.getJointId(g.joint)].idx_q()] = g.open_position;
+  }
+  return q0;
+}
+
+StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& model,
+                        const RobotInfo& robot, const Eigen::VectorXd& reference,
+                        const std::vector<std::pair<std::string, double>>& encoder_offsets) {
+  StartedScene out;
+  out.q0 = reference;
+  try {
+    out.scene = std::make_unique<sim::MujocoScene>(mjcf_path, model);
+    out.scene->SetEncoderOffsets(encoder_offsets);
+  } catch (const std::exception& e) {
+    throw std::runtime_error(e.what());
+  }
+  sim::MujocoScene& scene = *out.scene;
+  mjData& d = scene.mutable_data();
+  if (scene.model().nkey > 0) {
+    mj_resetDataKeyframe(&scene.model(), &d, 0);
+    mj_forward(&scene.model(), &d);
+    Eigen::VectorXd v(model.nv);
+    scene.ReadRobotState(out.q0, v);
+  } else {
+    Eigen::VectorXd qs(model.nq), vs(model.nv);
+    scene.ReadRobotState(qs, vs);
+    if (robot.base != "fixed") {
+      const int base_nq = robot.base == "free_flyer" ? 7 : 4;
+      out.q0.head(base_nq) = qs.head(base_nq);
+    }
+    scene.WriteRobotState(out.q0, Eigen::VectorXd::Zero(model.nv));
+  }
+  const mjModel& m = scene.model();
+  for (int b = 1; b < m.nbody; ++b) {
+    const int jnt = m.body_jntadr[b];
+    if (jnt >= 0 && m.jnt_type[jnt] == mjJNT_FREE && m.body_rootid[b] == b &&
+        std::string(mj_id2name(&m, mjOBJ_BODY, b)) != "base_link") {
+      out.free_objects.push_back(mj_id2name(&m, mjOBJ_BODY, b));
+      out.free_object_ids.push_back(b);
+    }
+  }
+  return out;
+}
+
+}  // namespace marionette::controller
