@@ -2,7 +2,9 @@
 // a perfect position-servoed robot simulated in software: the measured position is the last
 // commanded one, the measured velocity the commanded one. It runs as-is (tests, a dry run of the
 // controller); a real robot's driver replaces the three marked places and keeps the rest: the
-// absolute-deadline loop, the checks on commands, the watchdog and DRIVER_STATUS.
+// absolute-deadline loop, the checks on commands, the watchdog and DRIVER_STATUS. Not written to
+// be allocation-free (lcm::LCM::publish encodes into a new buffer, refusals build strings): a
+// robot's real-time loop encodes into buffers of its own.
 #include <time.h>
 #include <lcm/lcm-cpp.hpp>
 
@@ -168,7 +170,8 @@ class Driver {
     // SEND TO THE SERVOS HERE: target_q_ (position) and target_v_ (velocity feed-forward), or
     // engage the brakes while holding. The perfect robot reaches its target within the cycle.
     q_ = status_.holding ? hold_q_ : target_q_;
-    v_ = status_.holding ? std::vector<double>(q_.size(), 0.0) : target_v_;
+    if (status_.holding) std::fill(v_.begin(), v_.end(), 0.0);
+    if (!status_.holding) v_ = target_v_;
     // READ THE ENCODERS HERE (calibrated joint positions), the velocities and the joint torques,
     // and the force/torque sensors into state_.wrench (zeros for a body the robot does not sense).
     state_.joint_position = q_;
