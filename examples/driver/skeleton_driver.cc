@@ -169,9 +169,13 @@ class Driver {
     fresh_ = false;
     // SEND TO THE SERVOS HERE: target_q_ (position) and target_v_ (velocity feed-forward), or
     // engage the brakes while holding. The perfect robot reaches its target within the cycle.
-    q_ = status_.holding ? hold_q_ : target_q_;
-    if (status_.holding) std::fill(v_.begin(), v_.end(), 0.0);
-    if (!status_.holding) v_ = target_v_;
+    if (status_.holding) {
+      q_ = hold_q_;
+      std::fill(v_.begin(), v_.end(), 0.0);
+    } else {
+      q_ = target_q_;
+      v_ = target_v_;
+    }
     // READ THE ENCODERS HERE (calibrated joint positions), the velocities and the joint torques,
     // and the force/torque sensors into state_.wrench (zeros for a body the robot does not sense).
     state_.joint_position = q_;
