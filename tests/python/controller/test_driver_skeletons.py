@@ -263,9 +263,9 @@ def test_cpp_skeleton_tracks_refuses_and_holds_when_commands_stop(build_dir, lcm
         robot.bus.publish(channels.DRIVER_COMMAND, wrong)
         status = robot.status_where(lambda s: s.commands_refused == 1, 2.0, "one refusal")
         assert "elbow" in status.last_refusal, status.last_refusal
-        # An older sequence than the last command taken: out of order.
-        time.sleep(0.02)
-        old = robot.command(robot.states.messages[-50], {"j1": 1.0, "j2": 1.0, "j3": 1.0})
+        # An older sequence than the last command taken (the first state, before any answer):
+        # out of order.
+        old = robot.command(robot.states.messages[0], {"j1": 1.0, "j2": 1.0, "j3": 1.0})
         robot.bus.publish(channels.DRIVER_COMMAND, old)
         status = robot.status_where(lambda s: s.commands_refused == 2, 2.0, "two refusals")
         assert status.last_refusal.startswith("out of order"), status.last_refusal
