@@ -631,8 +631,9 @@ int Controller::Run() {
   c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)
       ->setQueueCapacity(kReferenceQueueMessages);
   c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
-  // SIM_COMMAND is the simulator's: here only when it runs in this process.
-  if (c.scene) c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
+  // SIM_COMMAND is the simulator's: with a driver, marionette-sim's (or nobody's, on a robot); the
+  // kinematic backend refuses it, counted ("no simulator").
+  if (!c.driver_device) c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
   c.lcm.subscribe(channels::kFootstepPlan, &Impl::OnFootstepPlan, &c);
   std::thread lcm_thread(&Impl::LcmThread, &c);

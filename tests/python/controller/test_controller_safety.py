@@ -75,7 +75,13 @@ def test_continuous_swap_is_accepted_and_a_discontinuous_one_refused(run_control
             max_switch_velocity_jump=0.05,
         )
         c.send_spec(spec)
-        c.wait(lambda c: c.status.num_refused_switches == 1, 20, "the refusal")
+        # The count comes with the tick's snapshot, the decision's text once the LCM thread has
+        # collected it: wait for both.
+        c.wait(
+            lambda c: c.status.num_refused_switches == 1 and "'far'" in c.status.last_switch_result,
+            20,
+            "the refusal",
+        )
         assert "refused controller 'far' (id 3): command jump" in c.status.last_switch_result
         assert c.status.active_controller_id == 2
         assert c.status.mode == "running"
