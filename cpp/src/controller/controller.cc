@@ -179,14 +179,7 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
       scene->SetWeld(request.id, request.kind == SimRequest::kAttach);
       continue;
     }
-    mjData& d = scene->mutable_data();
-    const mjModel& m = scene->model();
-    const int jnt = m.body_jntadr[request.id];
-    double* p = d.qpos + m.jnt_qposadr[jnt];
-    const Eigen::Quaterniond quat(request.pose.rotation());
-    for (int k = 0; k < 3; ++k) p[k] = request.pose.translation()[k];
-    p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
-    for (int k = 0; k < 6; ++k) d.qvel[m.jnt_dofadr[jnt] + k] = 0.0;
+    scene->MoveFreeBody(request.id, request.pose);
   }
   std::array<int64_t, 64> set_hashes;
   const int num_sets = service.ApplySets(set_hashes.data(), static_cast<int>(set_hashes.size()));

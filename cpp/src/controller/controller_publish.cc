@@ -155,19 +155,7 @@ void Controller::Impl::PublishState(const Snapshot& s) {
   lcm.publish(channels::kRobotState, &state);
   lcm.publish(channels::kRobotCommand, &cmd);
   if (!free_objects.empty()) {
-    lcmt_object_poses poses{};
-    poses.utime = s.utime;
-    poses.camera_name = "simulator";
-    poses.num_objects = static_cast<int32_t>(free_objects.size());
-    for (size_t i = 0; i < free_objects.size(); ++i) {
-      lcmt_object_pose p{};
-      p.utime = s.utime;
-      p.object_name = free_objects[i];
-      for (int k = 0; k < 3; ++k) p.position_world[k] = s.object_poses[7 * i + k];
-      for (int k = 0; k < 4; ++k) p.quaternion_world[k] = s.object_poses[7 * i + 3 + k];
-      p.quaternion_camera[0] = 1.0;
-      poses.objects.push_back(p);
-    }
+    const lcmt_object_poses poses = SimulatorObjectPoses(free_objects, s.object_poses, s.utime);
     lcm.publish(channels::kSimObjectPoses, &poses);
   }
 }

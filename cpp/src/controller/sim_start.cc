@@ -58,4 +58,22 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
   return out;
 }
 
+lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
+                                       const std::vector<double>& poses, int64_t utime) {
+  lcmt_object_poses out{};
+  out.utime = utime;
+  out.camera_name = "simulator";
+  out.num_objects = static_cast<int32_t>(names.size());
+  for (size_t i = 0; i < names.size(); ++i) {
+    lcmt_object_pose p{};
+    p.utime = utime;
+    p.object_name = names[i];
+    for (int k = 0; k < 3; ++k) p.position_world[k] = poses[7 * i + k];
+    for (int k = 0; k < 4; ++k) p.quaternion_world[k] = poses[7 * i + 3 + k];
+    p.quaternion_camera[0] = 1.0;
+    out.objects.push_back(p);
+  }
+  return out;
+}
+
 }  // namespace marionette::controller

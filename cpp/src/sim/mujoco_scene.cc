@@ -252,12 +252,17 @@ void MujocoScene::SetFreeBodyPose(const std::string& body, const pinocchio::SE3&
   if (jnt < 0 || model_->jnt_type[jnt] != mjJNT_FREE) {
     throw SimError("body '" + body + "' has no free joint: it cannot be moved");
   }
+  MoveFreeBody(id, X_WB);
+  mj_forward(model_, data_);
+}
+
+void MujocoScene::MoveFreeBody(int body_id, const pinocchio::SE3& X_WB) {
+  const int jnt = model_->body_jntadr[body_id];
   double* p = data_->qpos + model_->jnt_qposadr[jnt];
   const Eigen::Quaterniond quat(X_WB.rotation());
   for (int k = 0; k < 3; ++k) p[k] = X_WB.translation()[k];
   p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
   for (int k = 0; k < 6; ++k) data_->qvel[model_->jnt_dofadr[jnt] + k] = 0.0;
-  mj_forward(model_, data_);
 }
 
 int MujocoScene::WeldId(const std::string& name) const {

@@ -244,14 +244,7 @@ void SimDriver::Impl::ApplySimRequests() {
       scene.SetWeld(request.id, request.kind == SimRequest::kAttach);
       continue;
     }
-    mjData& d = scene.mutable_data();
-    const mjModel& m = scene.model();
-    const int jnt = m.body_jntadr[request.id];
-    double* p = d.qpos + m.jnt_qposadr[jnt];
-    const Eigen::Quaterniond quat(request.pose.rotation());
-    for (int k = 0; k < 3; ++k) p[k] = request.pose.translation()[k];
-    p[3] = quat.w(), p[4] = quat.x(), p[5] = quat.y(), p[6] = quat.z();
-    for (int k = 0; k < 6; ++k) d.qvel[m.jnt_dofadr[jnt] + k] = 0.0;
+    scene.MoveFreeBody(request.id, request.pose);
   }
 }
 
@@ -536,21 +529,9 @@ void SimDriver::Impl::PublishStatus(const Snapshot& s) {
 }
 
 void SimDriver::Impl::PublishObjectPoses(const Snapshot& s) {
-  const auto& objects = started.free_objects;
-  if (objects.empty()) return;
-  lcmt_object_poses poses{};
-  poses.utime = s.utime;
-  poses.camera_name = "simulator";
-  poses.num_objects = static_cast<int32_t>(objects.size());
-  for (size_t i = 0; i < objects.size(); ++i) {
-    lcmt_object_pose p{};
-    p.utime = s.utime;
-    p.object_name = objects[i];
-    for (int k = 0; k < 3; ++k) p.position_world[k] = s.object_poses[7 * i + k];
-    for (int k = 0; k < 4; ++k) p.quaternion_world[k] = s.object_poses[7 * i + 3 + k];
-    p.quaternion_camera[0] = 1.0;
-    poses.objects.push_back(p);
-  }
+  if (started.free_objects.empty()) return;
+  const lcmt_object_poses poses =
+      controller::SimulatorObjectPoses(started.free_objects, s.object_poses, s.utime);
   side_lcm.publish(channels::kSimObjectPoses, &poses);
 }
 

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "marionette/controller/robots.h"
+#include "marionette/lcmt_object_poses.hpp"
 #include "marionette/sim/mujoco_scene.h"
 
 namespace marionette::controller {
@@ -35,5 +36,10 @@ struct StartedScene {
 StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& model,
                         const RobotInfo& robot, const Eigen::VectorXd& reference,
                         const std::vector<std::pair<std::string, double>>& encoder_offsets);
+
+/// SIM_OBJECT_POSES (the simulator's ground truth, camera_name "simulator") at robot time `utime`
+/// [us]: `names` with their poses, 7 per object in `poses` (x y z qw qx qy qz, world).
+lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
+                                       const std::vector<double>& poses, int64_t utime);
 
 }  // namespace marionette::controller

@@ -86,6 +86,9 @@ class MujocoScene {
   pinocchio::SE3 BodyPose(const std::string& body) const;
   /// Teleports a free body (freejoint) to X_WB with zero velocity (perturbations, tests).
   void SetFreeBodyPose(const std::string& body, const pinocchio::SE3& X_WB);
+  /// The same for body `body_id` (which must have a free joint) without recomputing positions:
+  /// from a control loop, between two steps (the next mj_step1 recomputes them).
+  void MoveFreeBody(int body_id, const pinocchio::SE3& X_WB);
 
   /// The simulated grasp (Agimus simulated it too, §3.3.6: physics engines hold objects badly):
   /// activates the weld equality `weld` ("grasp/<robot>/<gripper>/<object>") at the current
