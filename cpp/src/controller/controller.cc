@@ -30,12 +30,11 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
     throw std::runtime_error("cannot load robot '" + robot.name + "': " + e.what());
   }
   Eigen::VectorXd q0 = ReferencePosture(*model, robot);
-  for (pinocchio::JointIndex j = 1; j < model->joints.size(); ++j) {
-    if (model->joints[j].nq() == 1 && model->joints[j].nv() == 1) {
-      joint_names.push_back(model->names[j]);
-      joint_q.push_back(model->joints[j].idx_q());
-      joint_v.push_back(model->joints[j].idx_v());
-    }
+  {  // the 1-dof joints, as the driver protocol lays them out (one definition for both)
+    const DriverLayout layout = MakeDriverLayout(*model, robot);
+    joint_names = layout.joints;
+    joint_q = layout.idx_q;
+    joint_v = layout.idx_v;
   }
   if (options.backend == "mujoco") {
     StartedScene started = StartScene(options.scene.empty() ? robot.mjcf : options.scene, *model,
@@ -61,7 +60,9 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
       first = WaitFirstState(waiting, *driver_layout, /*timeout_s=*/0.0);
     }
     first_driver_state_bytes = first;
-    q0 = ReadState(first, *driver_layout).q;  // throws: a replay's log that does not fit
+    first_driver_state_read = std::make_unique<MeasuredState>(
+        ReadState(first, *driver_layout));  // throws: a replay's log that does not fit
+    q0 = first_driver_state_read->q;
   } else if (options.backend != "kinematic") {
     throw std::runtime_error("unknown backend '" + options.backend +
                              "' (mujoco, kinematic, driver)");
@@ -85,8 +86,7 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   b.Connect(idle.out_output(), safety->velocity_input());
   b.Connect(safety->velocity_output(), command->command_input());
   if (driver_layout) {
-    driver_device = &b.Add<DriverDevice>("device", *driver_layout,
-                                         ReadState(first_driver_state_bytes, *driver_layout),
+    driver_device = &b.Add<DriverDevice>("device", *driver_layout, *first_driver_state_read,
                                          driver_lcm.get(), kMaxDriverClockStepUs);
     device = driver_device;
   } else if (scene) {

@@ -200,8 +200,9 @@ struct Controller::Impl {
   std::unique_ptr<lcm::LCM> driver_lcm;
   std::unique_ptr<DriverLayout> driver_layout;
   std::string first_driver_state_bytes;  // the DRIVER_STATE the controller started from
-  int64_t driver_state_hash = 0;         // of the state the next tick reads (the journal's)
-  bool driver_silent = false;            // loop: a silence hold was decided, no state since
+  std::unique_ptr<MeasuredState> first_driver_state_read;  // the same, read once
+  int64_t driver_state_hash = 0;  // of the state the next tick reads (the journal's)
+  bool driver_silent = false;     // loop: a silence hold was decided, no state since
   Clock::time_point last_driver_state = Clock::now();  // loop: when the last state was taken
   std::unique_ptr<graph::Graph> graph;
   std::unique_ptr<ControllerFactory> factory;
