@@ -48,7 +48,8 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --no-profiling        do not time every entity (CONTROLLER_TIMING, budgets) each tick
   --overrun-hold-ticks N  hold when an entity overruns its budget N ticks in a row (default 100)
   --supervisor-timeout S  hold when the supervisor of the running controller is silent S seconds
-                        (no heartbeat, spec, reference or command; default 0.1, 0 = never)
+                        (no heartbeat, spec, reference or command; default 0.1, 0 = never),
+                        and at once when its process exits (a heartbeat from this machine)
   --key FILE            take signed commands only, with this shared key (default $MARIONETTE_KEY;
                         none: unsigned commands; lcmtypes/README.md)
   --models DIR          the models/ folder (robots, scenes; default: the repository's)

@@ -13,7 +13,8 @@ PYBIND11_MODULE(_wire, m) {
 The supervisor's heartbeat (COMMAND "heartbeat" every period_s on url, signed with key when it
 is not empty) from a C++ thread that never takes the interpreter's lock: a Python thread
 holding it for a while does not silence the supervisor. It beats while feed() was called within
-the last hang_s: a hung owner falls silent hang_s later, a dead process at once.)doc")
+the last hang_s: a hung owner falls silent hang_s later, a dead process at once. Each beat names
+this process, so that a controller on the same machine holds the moment it exits.)doc")
       .def(py::init([](const std::string& url, std::string source, const py::bytes& key,
                        double period_s, double hang_s) {
              return std::make_unique<Heartbeat>(url, std::move(source), std::string(key),

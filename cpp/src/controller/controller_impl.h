@@ -54,6 +54,7 @@
 #include "marionette/lcmt_task_reference.hpp"
 #include "marionette/runtime/log_line.h"
 #include "marionette/runtime/loop_clock.h"
+#include "marionette/runtime/process_watch.h"
 #include "marionette/runtime/spsc_queue.h"
 #include "marionette/runtime/timing_stats.h"
 #include "marionette/runtime/triple_buffer.h"
@@ -267,6 +268,10 @@ struct Controller::Impl {
   int64_t handled_us = 0;       // arrival of the message being handled
   std::string driver;           // the source of the last COMMAND heard
   bool silence_raised = false;  // once per silence: the next heartbeat clears it
+  // The process of the last heartbeat that named itself (same machine): its exit raises the
+  // silence at once instead of after the timeout. The LCM thread's wait polls its pidfd.
+  runtime::ProcessWatch supervisor_process;
+  bool process_watch_noted = false;  // why a sender cannot be watched, logged once
   std::atomic<bool> silence_request{false};
   std::atomic<double> silence_seconds{0.0};  // how long it had been silent, for the status
   int silence_retries = 0;                   // loop: ticks waiting for the graph lease
@@ -280,6 +285,7 @@ struct Controller::Impl {
   runtime::SpscQueue<DriverRefusalEvent> driver_refusals{64};
   std::atomic<int64_t> driver_refusals_lost{0};
   std::string silence_driver;       // under stats_mutex: who fell silent
+  int silence_exited_pid = 0;       // under stats_mutex: the silence is this process's exit
   std::string last_driver_refusal;  // under stats_mutex: the last refused DRIVER_STATE
 
   // LCM-thread-owned.
@@ -415,8 +421,14 @@ struct Controller::Impl {
   void Guarded(const char* channel, Handle&& handle);
   void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
   void WatchSupervisor(bool idle);  // after each wait: raises silence_request
-  void CountDriverRefusals();       // the loop's refused DRIVER_STATEs, counted here
-  int WaitMs();                     // how long the next wait may be (the silence's deadline)
+  /// Waits up to WaitMs() for a message (handled) or the watched supervisor's exit; false: none.
+  bool WaitForMessage();
+  /// From a heartbeat that names its process: watch that process's exit.
+  void WatchSupervisorProcess(const lcmt_command& heartbeat);
+  /// Asks the loop to hold: silent for `silent_s`, or (exited_pid > 0) that process exited.
+  void RaiseSilence(double silent_s, int exited_pid);
+  void CountDriverRefusals();  // the loop's refused DRIVER_STATEs, counted here
+  int WaitMs();                // how long the next wait may be (the silence's deadline)
   void OnSpec(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnReference(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void OnCommand(const lcm::ReceiveBuffer* rbuf, const std::string& channel);

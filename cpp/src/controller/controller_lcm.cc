@@ -1,5 +1,7 @@
 // marionette-controller's LCM thread: every input decoded, validated (or rejected and counted),
 // controllers built off the loop and handed over, streamed references routed to their streams.
+#include <poll.h>
+
 #include "controller_impl.h"
 
 namespace marionette::controller {
@@ -34,7 +36,7 @@ void Controller::Impl::LcmThread() {
                      runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
-    const bool idle = lcm.handleTimeout(WaitMs()) == 0;
+    const bool idle = !WaitForMessage();
     WatchSupervisor(idle);
     CountDriverRefusals();
     GraphReadLease lease(graph_lease);
@@ -83,6 +85,22 @@ int Controller::Impl::WaitMs() {
   return left_ms <= 0.0 ? 0 : std::clamp(static_cast<int>(std::ceil(left_ms)), 1, 2);
 }
 
+bool Controller::Impl::WaitForMessage() {
+  const int wait_ms = WaitMs();
+  if (supervisor_process.fd() < 0) return lcm.handleTimeout(wait_ms) != 0;
+  pollfd ready[2] = {{lcm.getFileno(), POLLIN, 0}, {supervisor_process.fd(), POLLIN, 0}};
+  if (poll(ready, 2, wait_ms) <= 0) return false;
+  if ((ready[1].revents & (POLLIN | POLLHUP | POLLERR)) != 0) {
+    const int pid = supervisor_process.pid();
+    supervisor_process.Stop();  // its pidfd stays readable: watched once
+    // Only a supervisor's controller is held (not the hold controller, nor before the first).
+    if (options.supervisor_timeout > 0.0 && active_owned_id >= 0 && !silence_raised) {
+      RaiseSilence(1e-6 * static_cast<double>(WallUs() - last_heartbeat_us), pid);
+    }
+  }
+  return (ready[0].revents & POLLIN) != 0 && lcm.handle() != 0;
+}
+
 void Controller::Impl::WatchSupervisor(bool idle) {
   // Only a supervisor's controller is watched (not the hold controller, nor before the first).
   if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return;
@@ -90,16 +108,47 @@ void Controller::Impl::WatchSupervisor(bool idle) {
   // arrived before it, heartbeats included, has been handled (LCM hands messages over in order).
   const int64_t until_us = idle ? WallUs() : handled_us;
   const double silent = 1e-6 * static_cast<double>(until_us - last_heartbeat_us);
-  if (silent < options.supervisor_timeout) return;
+  if (silent >= options.supervisor_timeout) RaiseSilence(silent, 0);
+}
+
+void Controller::Impl::WatchSupervisorProcess(const lcmt_command& heartbeat) {
+  // A replay holds where the journal says; the recorded pid is not this run's.
+  if (heartbeat.sender_pid <= 0 || options.supervisor_timeout <= 0.0 || replaying) return;
+  switch (supervisor_process.Watch(heartbeat.sender_pid, heartbeat.sender_pid_namespace)) {
+    case runtime::ProcessWatch::Start::kWatching:
+      return;
+    case runtime::ProcessWatch::Start::kGone:  // it died while its last beat was on the way
+      if (active_owned_id >= 0 && !silence_raised) {
+        RaiseSilence(1e-6 * static_cast<double>(WallUs() - last_heartbeat_us),
+                     heartbeat.sender_pid);
+      }
+      return;
+    case runtime::ProcessWatch::Start::kUnavailable:
+      if (options.verbose && !process_watch_noted) {
+        runtime::LogLine("[controller] supervisor process ", heartbeat.sender_pid, " of '",
+                         heartbeat.source, "' not watched (", supervisor_process.why_unavailable(),
+                         "): its silence is noticed after --supervisor-timeout");
+      }
+      process_watch_noted = true;
+      return;
+  }
+}
+
+void Controller::Impl::RaiseSilence(double silent_s, int exited_pid) {
   silence_raised = true;
   {
     std::lock_guard<std::mutex> lock(stats_mutex);
     silence_driver = driver;
+    silence_exited_pid = exited_pid;
   }
-  silence_seconds.store(silent, std::memory_order_relaxed);
+  silence_seconds.store(silent_s, std::memory_order_relaxed);
   silence_request.store(true, std::memory_order_release);
-  if (options.verbose) {
-    runtime::LogLine("[controller] supervisor silent for ", 1e3 * silent, " ms (last heard: '",
+  if (!options.verbose) return;
+  if (exited_pid > 0) {
+    runtime::LogLine("[controller] supervisor process ", exited_pid, " exited (last heard: '",
+                     driver, "', ", 1e3 * silent_s, " ms before): holding");
+  } else {
+    runtime::LogLine("[controller] supervisor silent for ", 1e3 * silent_s, " ms (last heard: '",
                      driver, "'): holding");
   }
 }
@@ -345,6 +394,7 @@ void Controller::Impl::ReceiveCommand(const lcm::ReceiveBuffer* rbuf) {
   if (!Admit(channels::kCommand, rbuf, &msg)) return;
   if (ToLower(msg.command) == "heartbeat") {  // the supervisor is alive; nothing for the loop
     Heard(msg.source.empty() ? "?" : msg.source, rbuf->recv_utime);
+    WatchSupervisorProcess(msg);
     return;
   }
   static const std::map<std::string, Command> kCommands = {{"hold", Command::kHold},

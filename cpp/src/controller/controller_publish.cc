@@ -202,8 +202,14 @@ void Controller::Impl::PublishStatus(const Snapshot& s, runtime::TimingWindow& p
       break;
     case Reason::kSupervisorSilent: {
       char buffer[200];
-      std::snprintf(buffer, sizeof(buffer), "supervisor silent: nothing heard for %.0f ms",
-                    1e3 * s.reason_value);
+      if (silence_exited_pid > 0) {
+        std::snprintf(buffer, sizeof(buffer),
+                      "supervisor exited: its process %d ended %.0f ms after its last message",
+                      silence_exited_pid, 1e3 * s.reason_value);
+      } else {
+        std::snprintf(buffer, sizeof(buffer), "supervisor silent: nothing heard for %.0f ms",
+                      1e3 * s.reason_value);
+      }
       st.mode_reason = buffer;
       if (!silence_driver.empty()) st.mode_reason += " (last from '" + silence_driver + "')";
       st.mode_reason += s.active_id == kHoldControllerId && names != names_by_id.end()

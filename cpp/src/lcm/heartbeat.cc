@@ -1,7 +1,9 @@
 #include "marionette/lcm/heartbeat.h"
 
+#include <unistd.h>
 #include <chrono>
 #include <cmath>
+
 #include <lcm/lcm-cpp.hpp>
 #include <stdexcept>
 #include <utility>
@@ -10,6 +12,7 @@
 #include "marionette/lcm/channels.h"
 #include "marionette/lcm/signing.h"
 #include "marionette/lcmt_command.hpp"
+#include "marionette/runtime/process_watch.h"
 
 namespace marionette::wire {
 namespace {
@@ -66,6 +69,9 @@ void Heartbeat::Run() {
   lcmt_command msg;
   msg.command = "heartbeat";
   msg.source = source_;
+  // Who beats, so that a controller on this machine also sees the moment this process exits.
+  msg.sender_pid = static_cast<int32_t>(getpid());
+  msg.sender_pid_namespace = runtime::ThisProcessNamespace();
   std::vector<uint8_t> buffer;
   int64_t last_beat_us = 0;
   const auto period = std::chrono::duration<double>(options_.period_s);

@@ -296,9 +296,7 @@ def kill_trials(trials: int, binary: Path, seed: int = 0, log=print) -> dict:
                 rows.append(
                     {
                         "kill_to_hold_ms": (hold_us - kill_us) * 1e-3,
-                        "reported_silence_ms": float(
-                            c.status.mode_reason.split("for ")[1].split(" ms")[0]
-                        ),
+                        "reported": c.status.mode_reason.split("; ")[0],
                         "velocity_at_kill_rad_s": float(v_kill),
                         "motion_kill_to_hold_mrad": float(1e3 * np.abs(q_hold - q_kill).max()),
                         "motion_after_hold_mrad": float(

@@ -1,7 +1,8 @@
 """marionette-controller's boundary: absurd but finite values and unknown names refused with
 their reason; signed commands (Python signs, C++ verifies: unsigned, altered, replayed, moved,
-stale and foreign messages refused and counted); a supervisor killed mid-motion makes it hold
-within its --supervisor-timeout, and a new one resumes."""
+stale and foreign messages refused and counted); a supervisor killed mid-motion makes it hold —
+at once on the same machine (its process is watched), within its --supervisor-timeout from
+another — and a new one resumes."""
 
 from __future__ import annotations
 
@@ -182,9 +183,9 @@ def test_a_controller_without_key_refuses_signed_messages(build_dir, lcm_url, tm
 
 
 DRIVER = """
-import sys, time
+import os, sys, time
 import numpy as np
-from marionette import robots
+from marionette import channels, lcmt_command, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.streamer import ReferenceStreamer
@@ -203,9 +204,17 @@ derivatives = np.zeros((len(t), model.nv))
 derivatives[:, 0] = 0.3 * 2 * np.pi / 4 * np.cos(2 * np.pi * t / 4)
 streamer = ReferenceStreamer(c.send_reference, 10, {"posture": (values, derivatives)},
                              c.utime() + 50_000, 1000, 200, 4.0)
+if sys.argv[2] == "another machine":  # its heartbeat names a process this machine cannot watch
+    c.bus.heartbeat.stop()
+    beat = lcmt_command()
+    beat.command, beat.source, beat.sender_pid = "heartbeat", "remote supervisor", os.getpid()
+    beat.sender_pid_namespace = "another-boot-id/pid:[4026531836]"
 print("streaming", flush=True)
 while True:
     streamer.pump(c.utime())
+    if sys.argv[2] == "another machine":
+        beat.utime = c.utime()
+        c.bus.publish(channels.COMMAND, beat)
     time.sleep(0.005)
 """
 
@@ -221,18 +230,32 @@ while True:
 
 
 @pytest.mark.slow
-def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(build_dir, lcm_url, tmp_path):
+@pytest.mark.parametrize("where", ["same machine", "another machine"])
+def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(
+    build_dir, lcm_url, tmp_path, where
+):
+    """On the same machine the controller watches the supervisor's process and holds when it
+    exits, long before its timeout (2 s here); a supervisor whose heartbeat names a process of
+    another machine is held after exactly its timeout (100 ms)."""
+    timeout_s = 2.0 if where == "same machine" else 0.1
     with controller_running(
-        build_dir, lcm_url, tmp_path / "logs", *UR10, "--state-rate", "1000"
+        build_dir,
+        lcm_url,
+        tmp_path / "logs",
+        *UR10,
+        "--state-rate",
+        "1000",
+        "--supervisor-timeout",
+        str(timeout_s),
     ) as c:
         commands = MessageLog(c.bus, channels.ROBOT_COMMAND, lcmt_robot_command)
         journal = MessageLog(c.bus, channels.CONTROLLER_JOURNAL, lcmt_controller_journal)
         driver = subprocess.Popen(
-            [sys.executable, "-c", DRIVER, lcm_url], stdout=subprocess.PIPE, text=True
+            [sys.executable, "-c", DRIVER, lcm_url, where], stdout=subprocess.PIPE, text=True
         )
         # A flood of garbage on another channel (a message every ~0.3 ms) keeps the controller's
-        # LCM thread from ever waiting idle: it must not hide the silence. (A flood long enough to
-        # drown the heartbeats holds the robot too: on the safe side.)
+        # LCM thread from ever waiting idle: it must hide neither the exit nor the silence. (A
+        # flood long enough to drown the heartbeats holds the robot too: on the safe side.)
         flood = None
         try:
             assert wait_for_line(driver.stdout, "streaming", 60.0) is not None
@@ -249,10 +272,17 @@ def test_a_killed_supervisor_makes_it_hold_and_a_new_one_resumes(build_dir, lcm_
                 flood.kill()
                 flood.wait(10)
         reason = c.status.mode_reason
-        assert reason.startswith("supervisor silent: nothing heard for "), reason
-        silent_ms = float(re.search(r"for (\d+) ms", reason).group(1))
-        # Never before the timeout; within a few ms of it (a loaded machine adds scheduling).
-        assert 100 <= silent_ms <= 130, reason
+        if where == "same machine":
+            prefix = f"supervisor exited: its process {driver.pid} ended "
+            assert reason.startswith(prefix), reason
+            # Within a beat or two of its last message (20 ms apart), far from the 2 s timeout.
+            after_ms = float(re.search(r"ended (\d+) ms after", reason).group(1))
+            assert after_ms < 500, reason
+        else:
+            assert reason.startswith("supervisor silent: nothing heard for "), reason
+            silent_ms = float(re.search(r"for (\d+) ms", reason).group(1))
+            # Never before the timeout; within a few ms of it (a loaded machine adds scheduling).
+            assert 100 <= silent_ms <= 130, reason
         assert "controller holds the robot" in reason or "zero-velocity" in reason, reason
         # The robot comes to rest where it was held instead of playing the 4 s it had been sent
         # (the shoulder swings 0.3 rad): the hold controller's blend (50 ms) carries it on a
@@ -356,7 +386,9 @@ def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
         time.sleep(0.3)
         with controller_running(build_dir, lcm_url, tmp_path / "logs", *UR10) as c:
             driver = subprocess.Popen(
-                [sys.executable, "-c", DRIVER, lcm_url], stdout=subprocess.PIPE, text=True
+                [sys.executable, "-c", DRIVER, lcm_url, "same machine"],
+                stdout=subprocess.PIPE,
+                text=True,
             )
             try:
                 assert wait_for_line(driver.stdout, "streaming", 60.0) is not None
@@ -365,7 +397,7 @@ def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
                 driver.wait(10)
             finally:
                 driver.kill()
-            c.wait(lambda c: "supervisor silent" in c.status.mode_reason, 10, "the hold")
+            c.wait(lambda c: "supervisor exited" in c.status.mode_reason, 10, "the hold")
             # The new supervisor comes once the hold has stopped the swing (the switch-jump
             # limit refuses a spec while the held robot still moves).
             c.wait(lambda c: np.abs(c.state.joint_velocity).max() < 0.02, 10, "the robot at rest")

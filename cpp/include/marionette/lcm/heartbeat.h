@@ -11,6 +11,9 @@
 /// from a thread of its own) must have been called within the last `hang_s`. So a supervisor
 /// process that dies is silent at once (its threads die with it), one that hangs is silent
 /// hang_s later, and one merely kept from running for less than hang_s stays heard.
+///
+/// Each beat names its process (pid and pid namespace): a controller on the same machine watches
+/// that process and holds the robot the moment it exits, instead of after its timeout.
 
 #include <atomic>
 #include <condition_variable>
