@@ -44,7 +44,7 @@ def _campaign(scenario: str, trials: int, out: Path, extra: list[str], log=print
     """Runs one campaign through the CLI; its wall time, busy cores and report."""
     argv = [sys.executable, "-m", "marionette.cli", "demo", scenario, "--trials", str(trials)]
     argv += ["--speed", "0", "--out", str(out), *extra]
-    log("  $ " + " ".join(argv[2:]))
+    log("  $ marionette " + " ".join(argv[3:]))
     busy0, total0 = _cpu_jiffies()
     t0 = time.monotonic()
     done = subprocess.run(argv, capture_output=True, text=True)
@@ -58,7 +58,7 @@ def _campaign(scenario: str, trials: int, out: Path, extra: list[str], log=print
     report = json.loads(reports[-1].read_text())
     trial_wall = [t["wall_s"] for t in report["trials"] if t.get("wall_s") is not None]
     return {
-        "argv": argv[2:],
+        "argv": ["marionette", *argv[3:]],
         "exit_code": done.returncode,
         "wall_s": wall,
         "succeeded": report["counts"]["succeeded"],
