@@ -425,6 +425,8 @@ struct Controller::Impl {
   bool WaitForMessage();
   /// From a heartbeat that names its process: watch that process's exit.
   void WatchSupervisorProcess(const lcmt_command& heartbeat);
+  /// The watched supervisor process `pid` exited: RaiseSilence when its controller runs.
+  void SupervisorExited(int pid);
   /// Asks the loop to hold: silent for `silent_s`, or (exited_pid > 0) that process exited.
   void RaiseSilence(double silent_s, int exited_pid);
   void CountDriverRefusals();  // the loop's refused DRIVER_STATEs, counted here

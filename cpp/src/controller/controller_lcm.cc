@@ -93,10 +93,7 @@ bool Controller::Impl::WaitForMessage() {
   if ((ready[1].revents & (POLLIN | POLLHUP | POLLERR)) != 0) {
     const int pid = supervisor_process.pid();
     supervisor_process.Stop();  // its pidfd stays readable: watched once
-    // Only a supervisor's controller is held (not the hold controller, nor before the first).
-    if (options.supervisor_timeout > 0.0 && active_owned_id >= 0 && !silence_raised) {
-      RaiseSilence(1e-6 * static_cast<double>(WallUs() - last_heartbeat_us), pid);
-    }
+    SupervisorExited(pid);
   }
   return (ready[0].revents & POLLIN) != 0 && lcm.handle() != 0;
 }
@@ -118,10 +115,7 @@ void Controller::Impl::WatchSupervisorProcess(const lcmt_command& heartbeat) {
     case runtime::ProcessWatch::Start::kWatching:
       return;
     case runtime::ProcessWatch::Start::kGone:  // it died while its last beat was on the way
-      if (active_owned_id >= 0 && !silence_raised) {
-        RaiseSilence(1e-6 * static_cast<double>(WallUs() - last_heartbeat_us),
-                     heartbeat.sender_pid);
-      }
+      SupervisorExited(heartbeat.sender_pid);
       return;
     case runtime::ProcessWatch::Start::kUnavailable:
       if (options.verbose && !process_watch_noted) {
@@ -132,6 +126,12 @@ void Controller::Impl::WatchSupervisorProcess(const lcmt_command& heartbeat) {
       process_watch_noted = true;
       return;
   }
+}
+
+void Controller::Impl::SupervisorExited(int pid) {
+  // Only a supervisor's controller is held (not the hold controller, nor before the first).
+  if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return;
+  RaiseSilence(1e-6 * static_cast<double>(WallUs() - last_heartbeat_us), pid);
 }
 
 void Controller::Impl::RaiseSilence(double silent_s, int exited_pid) {
