@@ -10,6 +10,7 @@
 #include "marionette/controller/controller.h"
 #include "marionette/controller/replay.h"
 #include "marionette/controller/robots.h"
+#include "marionette/runtime/stop_signals.h"
 
 namespace {
 
@@ -121,6 +122,7 @@ int Replay(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  marionette::runtime::RestoreStopSignals();  // before any thread: they inherit the mask
   namespace mc = marionette::controller;
   for (int i = 1; i < argc; ++i) {
     if (std::strcmp(argv[i], "--replay") == 0) {

@@ -3,6 +3,7 @@
 #include <cstdlib>
 #include <iostream>
 
+#include "marionette/runtime/stop_signals.h"
 #include "marionette/sim_driver/sim_driver.h"
 
 namespace {
@@ -16,6 +17,7 @@ void OnSignal(int) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  marionette::runtime::RestoreStopSignals();  // before any thread: they inherit the mask
   namespace sd = marionette::sim_driver;
   sd::SimOptions options;
   bool help = false;

@@ -21,6 +21,8 @@ import re
 import sys
 from typing import NoReturn
 
+from marionette.processes import restore_stop_signals
+
 COMMAND_MODULES: list[str] = [
     "marionette.planning.cli",
     "marionette.perception.cli",
@@ -143,6 +145,7 @@ def _usage_error(message: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    restore_stop_signals()
     argv = list(sys.argv[1:] if argv is None else argv)
     argv, url, debug = split_global_options(argv)
     if url is not None:

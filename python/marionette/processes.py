@@ -29,6 +29,23 @@ import marionette
 SHARED_MACHINE_SUPERVISOR_TIMEOUT_S = 0.5
 
 
+def restore_stop_signals() -> None:
+    """Lets this process hear SIGINT and SIGTERM, however its parent left them: unblocked, and
+    given their default action back where they were ignored (SIGINT: KeyboardInterrupt). A signal
+    mask and ignored signals survive fork and exec; a Ray worker blocks SIGINT and a
+    non-interactive shell ignores it in ``command &``. A process started so did not hear the
+    group's stop (SIGINT), was killed after the grace period (5 s each: a trial on a Ray cluster
+    took twice as long as the same trial run by ``--jobs``) and lost what it had not written.
+    Called first by every marionette program (C++: ``runtime::RestoreStopSignals``)."""
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
+    if threading.current_thread() is not threading.main_thread():
+        return  # dispositions are set from the main thread only (a test calling main())
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_IGN:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 class ProcessError(RuntimeError):
     """A process of the group could not start or died while it was needed."""
 

@@ -134,3 +134,69 @@ def test_a_controller_that_exits_at_once_ends_the_wait_at_once_with_its_reason(t
     assert time.monotonic() - start < 10.0
     first = str(error.value).splitlines()[0]
     assert first == "controller exited with code 1: unknown robot 'arm'", first
+
+
+def _as_a_ray_worker_leaves_it() -> None:
+    """The signal state a Ray worker gives the processes it starts (measured: SIGINT blocked,
+    SIGTERM ignored), which a non-interactive shell's ``command &`` resembles (SIGINT ignored)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+STOPPABLE_PYTHON = """
+import time
+from marionette.processes import restore_stop_signals
+restore_stop_signals()
+print("ready", flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.parametrize("program", ["python", "controller", "sim"])
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_program_started_with_its_stop_signals_blocked_or_ignored_still_stops(
+    program, stop, tmp_path
+):
+    """A group stops its processes with SIGINT and kills them 5 s later: a program that inherited
+    a blocked or ignored SIGINT was killed every time, losing its journal (and a trial on a Ray
+    worker took twice as long). Each marionette program restores its stop signals first."""
+    import marionette
+
+    argv = {
+        "python": [sys.executable, "-c", STOPPABLE_PYTHON],
+        "controller": [
+            str(marionette.BUILD_DIR / "marionette-controller"),
+            "--robot",
+            "ur10",
+            "--backend",
+            "kinematic",
+            "--camera-rate",
+            "0",
+        ],
+        "sim": [str(marionette.BUILD_DIR / "marionette-sim"), "--robot", "ur10"],
+    }[program]
+    env = {**os.environ, "MARIONETTE_LCM_URL": "udpm://239.255.76.67:7991?ttl=0"}
+    child = subprocess.Popen(
+        argv,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+        preexec_fn=_as_a_ray_worker_leaves_it,
+    )
+    try:
+        if program == "python":
+            assert child.stdout.readline().strip() == "ready"
+        else:
+            time.sleep(1.0)  # a signal before its handler is installed ends it too
+        child.send_signal(stop)
+        try:
+            code = child.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"{program} did not stop on {signal.Signals(stop).name}")
+        # its handler's clean exit, its default action, or KeyboardInterrupt's exit 1
+        assert code in (0, 1, -stop), (code, child.stdout.read()[-2000:])
+    finally:
+        child.kill()
+        child.wait()

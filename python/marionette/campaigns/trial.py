@@ -33,9 +33,12 @@ REPORT = "report.json"
 LOG = "trial.log"
 
 # Runs argv[2:] with SIGTERM from the kernel when the thread that started it ends; argv[1] is the
-# starter's pid (it may have died before the prctl).
+# starter's pid (it may have died before the prctl). SIGTERM is made deliverable first: a Ray
+# worker, this trial's starter there, ignores it, and an ignored signal survives exec.
 _ORPHAN_GUARD = (
     "import ctypes, os, signal, sys\n"
+    "signal.signal(signal.SIGTERM, signal.SIG_DFL)\n"
+    "signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})\n"
     "ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG\n"
     "if os.getppid() != int(sys.argv[1]): sys.exit(143)\n"
     "os.execv(sys.argv[2], sys.argv[2:])\n"
