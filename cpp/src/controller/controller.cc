@@ -569,6 +569,11 @@ namespace {
 // past). So the unpaced loop starts no tick that a running stream does not cover: it waits for its
 // first or next chunk (or a command, a swap, a stop), and only after kStarvedWallTimeout of wall
 // time without one lets the clock go on, and the watchdog fire: the streaming process is gone.
+// Covering is judged on what the chunks that came say, taken in before the tick: a chunk replaces
+// a stream's future from its start, and a supervisor re-sending a corrected stretch in pieces
+// from where it last saw the clock (1.5 s of controller time behind it, unpaced) cut the stream
+// short with its first piece; a chunk merely waiting in the queue let the tick go on, and the
+// watchdog held the robot 64 ms of wall time before the next piece came.
 constexpr auto kStarvedWallTimeout = std::chrono::seconds(5);
 constexpr auto kStarvedPoll = std::chrono::microseconds(100);
 
@@ -576,7 +581,7 @@ class ReferenceWait {
  public:
   // Before tick `t`: returns once no running stream is starved at t, an input is pending, or the
   // timeout of the current starvation has passed.
-  void Before(const Controller::Impl& c, const graph::Tick& t) {
+  void Before(Controller::Impl& c, const graph::Tick& t) {
     if (!Starved(c, t)) {
       starved_ = false;
       return;
@@ -589,10 +594,12 @@ class ReferenceWait {
   }
 
  private:
-  static bool Starved(const Controller::Impl& c, const graph::Tick& t) {
+  static bool Starved(Controller::Impl& c, const graph::Tick& t) {
     if (c.mode != ControlMode::kRun || c.active == nullptr) return false;
-    for (const ReferenceStream* s : c.active_streams)
+    for (ReferenceStream* s : c.active_streams) {
+      s->PollBeforeTick();
       if (s->Starved(TickUs(t))) return true;
+    }
     return false;
   }
   static bool InputPending(const Controller::Impl& c) {

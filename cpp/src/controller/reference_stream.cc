@@ -113,7 +113,18 @@ bool ReferenceStream::Push(const ReferenceChunk& chunk) {
 }
 
 void ReferenceStream::Poll(const graph::Tick&) {
-  drained_count_ = 0;
+  if (!polled_before_tick_) drained_count_ = 0;
+  polled_before_tick_ = false;
+  Drain();
+}
+
+void ReferenceStream::PollBeforeTick() {
+  if (!polled_before_tick_) drained_count_ = 0;
+  polled_before_tick_ = true;
+  Drain();
+}
+
+void ReferenceStream::Drain() {
   while (queue_.Pop(&popped_)) {
     const ReferenceChunk& c = popped_;
     if (drained_count_ < static_cast<int>(drained_hashes_.size())) {

@@ -109,3 +109,27 @@ def test_a_streamer_gone_trips_the_watchdog_after_the_wait_and_a_command_ends_it
         c.wait(lambda c: c.status.mode == "holding", 10, "the hold")
         assert time.monotonic() - wall0 < 2.0
         assert "command" in c.status.mode_reason, c.status.mode_reason
+
+
+@pytest.mark.slow
+def test_a_stretch_re_sent_from_the_past_in_pieces_waits_for_its_last_piece(run_controller):
+    """A supervisor correcting a streamed reference (visual servoing) re-sends what it had sent
+    from where it last saw the clock, in pieces; a chunk replaces the stream's future from its
+    start. Unpaced, the supervisor's view lagged the clock by 1.5 s, so its first piece ended the
+    stream before the clock: the loop, seeing a chunk queued, ticked on and the watchdog held
+    the robot before the next piece came (a plank-flip trial). The loop now judges what the
+    chunks taken in cover, and waits for the next piece."""
+    with run_controller(*UR10, "--state-rate", "1000") as c:
+        chunk = _streaming(c)
+        t0 = c.utime() + 20_000
+        for k in range(4):  # 800 ms of samples
+            c.send_reference(chunk(t0 + k * 200_000, 200, k))
+        c.wait(lambda c: c.utime() >= t0 + 700_000, 10, "the clock in the last chunk")
+        # The re-sent stretch: from 500 ms (behind the clock) in two pieces, the first ending at
+        # 650 ms (behind it too), the second after a wall-clock pause.
+        c.send_reference(chunk(t0 + 500_000, 150, 4))
+        time.sleep(0.4)
+        assert c.status.mode == "running", c.status.mode_reason
+        c.send_reference(chunk(t0 + 650_000, 350, 5, last=True))
+        c.wait(lambda c: c.utime() > t0 + 1_200_000, 10, "the clock after the end")
+        assert c.status.mode == "running", c.status.mode_reason

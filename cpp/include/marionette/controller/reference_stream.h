@@ -71,6 +71,11 @@ class ReferenceStream final : public graph::Entity {
   /// ended, no sample came yet or the last one is before `time_us`, and no chunk waits in the
   /// queue. An unpaced loop (simulated time) waits while this holds instead of ticking on.
   bool Starved(int64_t time_us) const;
+  /// Loop thread, before tick t is evaluated (an unpaced loop waiting for this stream): drains
+  /// the queue as the tick's Poll would, so that Starved sees what the chunks taken in cover (a
+  /// chunk replaces the future from its start: a re-sent stretch that starts in the past may end
+  /// it before t). The chunks count as drained at tick t (the journal records them there).
+  void PollBeforeTick();
   /// Loop thread: the source_hash of the chunks the last poll took in (up to 64 per tick).
   int drained_count() const { return drained_count_; }
   int64_t drained_hash(int i) const { return drained_hashes_[i]; }
@@ -114,6 +119,8 @@ class ReferenceStream final : public graph::Entity {
   bool ends_ = false;  // the sample end_ - 1 is the last one
   std::array<int64_t, 64> drained_hashes_{};
   int drained_count_ = 0;
+  bool polled_before_tick_ = false;  // PollBeforeTick drained for the coming tick
+  void Drain();
 
   graph::OutputSignal<Eigen::VectorXd>* value_{};
   graph::OutputSignal<Eigen::VectorXd>* derivative_{};
