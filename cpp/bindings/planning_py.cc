@@ -89,15 +89,21 @@ void RegisterPlanning(py::module_& parent) {
            py::arg("locked_idx_q"), py::arg("locked_value"), py::arg("attached_idx_q"),
            py::arg("attached_parent"), py::arg("attached_M_PO"));
 
-  py::class_<PairMotion>(m, "PairMotion", "Per pair: rigid, skip (npairs), R, L (npairs x njoints)")
-      .def(py::init([](BoolArray rigid, BoolArray skip, Eigen::MatrixXd R, Eigen::MatrixXd L) {
-             return PairMotion{std::move(rigid), std::move(skip), std::move(R), std::move(L)};
+  py::class_<PairMotion>(m, "PairMotion",
+                         "Per pair: rigid, skip (npairs), R, L (npairs x njoints), clearance "
+                         "(npairs [m], or empty: the contact distance)")
+      .def(py::init([](BoolArray rigid, BoolArray skip, Eigen::MatrixXd R, Eigen::MatrixXd L,
+                       Eigen::VectorXd clearance) {
+             return PairMotion{std::move(rigid), std::move(skip), std::move(R), std::move(L),
+                               std::move(clearance)};
            }),
-           py::arg("rigid"), py::arg("skip"), py::arg("R"), py::arg("L"))
+           py::arg("rigid"), py::arg("skip"), py::arg("R"), py::arg("L"),
+           py::arg("clearance") = Eigen::VectorXd())
       .def_readonly("rigid", &PairMotion::rigid)
       .def_readonly("skip", &PairMotion::skip)
       .def_readonly("R", &PairMotion::R)
-      .def_readonly("L", &PairMotion::L);
+      .def_readonly("L", &PairMotion::L)
+      .def_readonly("clearance", &PairMotion::clearance);
 
   py::class_<PathValidator>(m, "PathValidator",
                             "Certified continuous collision checking of constrained polylines")
@@ -122,6 +128,13 @@ void RegisterPlanning(py::module_& parent) {
           py::arg("probes"),
           "(valid, s_valid, pair queries, refused as grazing) of the path points (k x nq) at arc "
           "lengths cum (k)")
+      .def(
+          "is_clear",
+          [](PathValidator& v, const Eigen::VectorXd& q, const PairMotion& motion) {
+            return v.IsClear(q, motion);
+          },
+          py::arg("q"), py::arg("motion"),
+          "True when every pair but the skipped ones is farther than its clearance at q")
       .def(
           "eval",
           [](PathValidator& v, const Eigen::MatrixXd& points, const Eigen::VectorXd& cum,

@@ -49,9 +49,13 @@ class Leaf {
     return q_;
   }
 
+  // The query's own ends may be closer than the clearance (a given start or goal placed close);
+  // every configuration the planner adds keeps it, so no path from it is excused.
   bool IsValid(const ob::State* s) {
     ++checks_;
-    return validator_->IsValid(Configuration(s), motion_.skip);
+    const Eigen::VectorXd& q = Configuration(s);
+    if (IsQueryEnd(q)) return validator_->IsValid(q, motion_.skip);
+    return validator_->IsClear(q, motion_);
   }
 
   // All-or-nothing certified validation of the straight motion a -> b (the polyline's segment).
@@ -69,6 +73,15 @@ class Leaf {
   std::int64_t queries() const { return queries_; }
 
  private:
+  bool IsQueryEnd(const Eigen::VectorXd& q) const {
+    auto same = [&](const Eigen::VectorXd& end) {
+      for (const int i : query_.free_idx_q)
+        if (q[i] != end[i]) return false;
+      return true;
+    };
+    return same(query_.q_start) || same(query_.q_goal);
+  }
+
   PathValidator* validator_;
   const PairMotion& motion_;
   const LeafQuery& query_;
@@ -258,6 +271,8 @@ class ConstrainedLeaf {
       if (!Project(&q)) return -1;
       if (Distance(from, q) > 2.0 * query_.step) return -1;  // continuity (Progressive)
     }
+    // A node keeps the clearance (the query's ends may not: a given start or goal placed close).
+    if (q != query_.q_start && q != query_.q_goal && !validator_->IsClear(q, motion_)) return -1;
     if (!Segment(from, q)) return -1;
     tree->q.push_back(q);
     tree->parent.push_back(i);

@@ -154,6 +154,7 @@ PathValidator::PathValidator(pinocchio::Model model, pinocchio::GeometryModel ge
   lin_.resize(model_.njoints);
   const int np = num_pairs();
   u_.resize(np);
+  threshold_.resize(np);
   horizon_.resize(np);
   budget_.resize(np);
 }
@@ -169,10 +170,12 @@ void PathValidator::CheckSizes(const Polyline& path, const Substitution& sub,
   const int np = num_pairs();
   if (motion.rigid.size() != np || motion.skip.size() != np || motion.R.rows() != np ||
       motion.L.rows() != np || motion.R.cols() != model_.njoints ||
-      motion.L.cols() != model_.njoints)
-    throw std::invalid_argument("pair motion must be sized npairs = " + std::to_string(np) +
-                                " (rigid, skip) and npairs x njoints = " + std::to_string(np) +
-                                " x " + std::to_string(model_.njoints) + " (R, L)");
+      motion.L.cols() != model_.njoints ||
+      (motion.clearance.size() != 0 && motion.clearance.size() != np))
+    throw std::invalid_argument(
+        "pair motion must be sized npairs = " + std::to_string(np) +
+        " (rigid, skip, clearance if given) and npairs x njoints = " + std::to_string(np) + " x " +
+        std::to_string(model_.njoints) + " (R, L)");
   if (sub.locked_idx_q.size() != sub.locked_value.size() ||
       sub.attached_idx_q.size() != sub.attached_parent.size() ||
       sub.attached_idx_q.size() != sub.attached_M_PO.size())
@@ -254,6 +257,44 @@ bool PathValidator::IsValid(const Eigen::VectorXd& q,
   return true;
 }
 
+double PathValidator::DistanceWithin(int p, double within) {
+  const double bound = SphereBound(p);
+  return bound <= within ? pinocchio::computeDistance(geom_model_, geom_data_, p).min_distance
+                         : bound;
+}
+
+bool PathValidator::IsClear(const Eigen::VectorXd& q, const PairMotion& motion) {
+  if (q.size() != model_.nq) throw std::invalid_argument("q must have nq entries");
+  if (motion.skip.size() != num_pairs() ||
+      (motion.clearance.size() != 0 && motion.clearance.size() != num_pairs()))
+    throw std::invalid_argument("skip and clearance must have npairs entries");
+  Update(q);
+  for (int k = 0; k < num_pairs(); ++k) {
+    if (motion.skip[k]) continue;
+    const double keep =
+        motion.clearance.size() == 0 ? contact_ : std::max(contact_, motion.clearance[k]);
+    if (DistanceWithin(k, keep) <= keep) return false;
+  }
+  return true;
+}
+
+void PathValidator::SetThresholds(const Polyline& path, const PairMotion& motion) {
+  threshold_.setConstant(contact_);
+  if (motion.clearance.size() == 0) return;
+  std::vector<int> kept;  // pairs that keep a clearance beyond contact, unless an end excuses them
+  for (int p = 0; p < num_pairs(); ++p) {
+    if (motion.rigid[p] || motion.skip[p] || !(motion.clearance[p] > contact_)) continue;
+    threshold_[p] = motion.clearance[p];
+    kept.push_back(p);
+  }
+  if (kept.empty()) return;
+  for (const Eigen::Index end : {Eigen::Index{0}, path.points.rows() - 1}) {
+    Update(path.points.row(end).transpose());
+    for (const int p : kept)
+      if (DistanceWithin(p, threshold_[p]) <= threshold_[p]) threshold_[p] = contact_;
+  }
+}
+
 Eigen::VectorXd PathValidator::Distances(const Eigen::VectorXd& q) {
   if (q.size() != model_.nq) throw std::invalid_argument("q must have nq entries");
   Update(q);
@@ -277,6 +318,7 @@ ValidationResult PathValidator::Validate(const Polyline& path, const Substitutio
       if (!IsValid(q_, motion.skip)) return out;
     }
   }
+  SetThresholds(path, motion);
   Update(path.points.row(0).transpose());
   // Pairs that do not move relatively: checked once, at the start.
   for (int p = 0; p < num_pairs(); ++p) {
@@ -360,15 +402,15 @@ bool PathValidator::ValidateSegment(const Polyline& path, const Substitution& su
       }
       const double bound = SphereBound(p);
       double d = bound;
-      if (bound <= kSphereMargin) {
+      if (bound <= kSphereMargin + threshold_[p]) {
         ++out->queries;
         d = pinocchio::computeDistance(geom_model_, geom_data_, p).min_distance;
       }
-      if (d <= contact_) {
+      if (d <= threshold_[p]) {
         *t_fail = t;
         return false;
       }
-      horizon_[p] = t + d / u_[p];
+      horizon_[p] = t + (d - threshold_[p]) / u_[p];
     }
     const double t_next = horizon_.minCoeff();
     if (t_next >= 1.0) {
@@ -376,7 +418,7 @@ bool PathValidator::ValidateSegment(const Polyline& path, const Substitution& su
         if (std::isfinite(horizon_[p])) budget_[p] = (horizon_[p] - 1.0) * u_[p];
       return true;
     }
-    // d > contact at every query, so each step is at least contact / u: no Zeno loop.
+    // d > threshold at every query, but a pair may hug its threshold: the query budget ends it.
     t = t_next;
   }
   // Bodies grazing each other along the whole segment: not certifiable, refused.

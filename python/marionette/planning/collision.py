@@ -13,6 +13,13 @@ at time t is therefore collision-free on |t' - t| < d / (u_A + u_B): each pair k
 certified horizon and only the pairs whose horizon has run out are queried again.  Pairs that
 the transition keeps rigid (both bodies attached to the same joint through explicit or full
 6-D constraints, or both still) are checked at the start only.
+
+On a free motion (a transit or a transfer, not an approach), a pair of a moving body and a still
+one (the robot or what it carries against the table, an object put down, the environment) keeps
+a clearance (``CLEARANCE``) instead of contact: the same stepping with d - clearance.  A path is
+excused, pair by pair, where one of its ends is already closer (a given start, goal or waypoint
+placed close); every configuration the planner and the optimiser create keeps the clearance
+(:meth:`CollisionChecker.is_clear`), so the excuse never spreads beyond the given ones.
 """
 
 from __future__ import annotations
@@ -41,6 +48,12 @@ MAX_QUERIES = 20000  # evaluations of one segment before it is refused as grazin
 # A pair whose bounding spheres are this far apart [m] is certified from that lower bound of
 # its distance, without a GJK query (same in cpp/src/planning/path_validator.cc).
 SPHERE_MARGIN = 0.02
+# On a free motion (a transit or transfer, not an approach) the robots and what they carry stay
+# this far [m] from what stays in place (the problem's ``planner: clearance``). With contact
+# only, paths grazed the table: roadmap nodes sat where an extension was stopped by it (0.06 mm)
+# and shortcuts pulled motions tight against it (0.2 mm); a humanoid tracking such a plan within
+# a few millimetres pressed its fingertips on the table and slid its feet.
+CLEARANCE = 0.01
 
 
 def convexify(geom_model: pin.GeometryModel) -> pin.GeometryModel:
@@ -83,6 +96,7 @@ class CollisionChecker:
             raise ValueError(f"backend must be 'cpp' or 'python', got {backend!r}")
         self.problem = problem
         self.backend = backend
+        self.clearance = float((problem.settings.get("planner") or {}).get("clearance", CLEARANCE))
         self.model = problem.model
         self.geom_model = convexify(problem.geom_model) if convex else problem.geom_model.copy()
         self.data = self.model.createData()
@@ -222,11 +236,15 @@ class CollisionChecker:
         ]
 
     # --------------------------------------------------------------------------- paths
-    def _motion(self, projector: Projector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _motion(
+        self, projector: Projector
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per pair, how fast it can close its distance, as linear maps of joint speeds.
 
-        Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints)) with
-        u_pair = R @ angular_speed + L @ linear_speed.  A locked joint is welded to its parent:
+        Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints), one_still
+        (npairs,) bool) with u_pair = R @ angular_speed + L @ linear_speed; ``one_still``: one
+        body of the pair stays in place in this transition and the other moves (the pairs that
+        keep the clearance on a free motion).  A locked joint is welded to its parent:
         its geometries move with the nearest joint above it that is not locked (an object
         locked where it rests: with the universe, still; a locked finger: with the wrist).  A
         geometry on an object attached by an explicit relative pose moves with the parent
@@ -264,17 +282,19 @@ class CollisionChecker:
         rigid = np.zeros(n, dtype=bool)
         R = np.zeros((n, nj))
         L = np.zeros((n, nj))
+        one_still = np.zeros(n, dtype=bool)
         for k, (a, b) in enumerate(self.pairs):
             ga, gb = rigid_map.get(eff[a], eff[a]), rigid_map.get(eff[b], eff[b])
             if ga == gb:
                 rigid[k] = True
                 continue
+            one_still[k] = (ga == 0) != (gb == 0)
             common = {j for j, _ in chains[a]} & {j for j, _ in chains[b]}
             for j, r in chains[a] + chains[b]:
                 if j not in common:
                     R[k, j] += r
                     L[k, j] += 1.0
-        out = (rigid, R, L)
+        out = (rigid, R, L, one_still)
         self._motion_cache[key] = (projector, out)
         return out
 
@@ -287,11 +307,13 @@ class CollisionChecker:
         ``allowed`` (default: the grasp contacts of the path's transition) are not checked.
         ``prefix=False`` (connections, shortcuts: all or nothing) first probes a few
         configurations and gives up at the first collision found, s_valid then being 0."""
-        rigid, R, L = self._motion(path.projector)
+        rigid, R, L, _ = self._motion(path.projector)
         if allowed is None:
             allowed = self.grasp_contact_pairs(path.edge.grasps)
+        free_motion = not path.edge.short
         if self._cpp is not None:
-            return self._validate_cpp(self._cpp, path, rigid, R, L, allowed, prefix)
+            return self._validate_cpp(self._cpp, path, allowed, free_motion, prefix)
+        clearance = self._clearance(path.projector, free_motion)
         if allowed:
             rigid = rigid.copy()
             rigid[list(allowed)] = True  # treated as never moving...
@@ -305,19 +327,53 @@ class CollisionChecker:
             for frac in (0.5, 0.25, 0.75):
                 if not self.is_valid(path.eval(frac * path.length), allowed):
                     return False, 0.0
-        return self._certified(path, rigid, R, L, skip)
+        return self._certified(path, rigid, R, L, skip, clearance)
 
-    def _cpp_pair_motion(self, projector: Projector, allowed: frozenset[int]) -> tuple:
-        """(projector, C++ PairMotion, attached parts) of a transition, cached."""
+    def _clearance(self, projector: Projector, free_motion: bool) -> np.ndarray:
+        """The distance each pair keeps on a path of this transition [m] (npairs): the
+        clearance for a moving body against a still one on a free motion, else contact."""
+        out = np.full(len(self.pairs), CONTACT)
+        if free_motion and self.clearance > CONTACT:
+            out[self._motion(projector)[3]] = self.clearance
+        return out
+
+    def is_clear(self, q: np.ndarray, path: ConstrainedPath) -> bool:
+        """Does q, a configuration of ``path``'s transition, keep that transition's clearance
+        (:meth:`_clearance`; grasp contacts excepted)? What every configuration a planner or an
+        optimiser adds on a free motion must keep: a path is excused from the clearance only at
+        an end already closer (a given start, goal or waypoint)."""
+        allowed = self.grasp_contact_pairs(path.edge.grasps)
+        free_motion = not path.edge.short
+        if self._cpp is not None:
+            _, motion, _ = self._cpp_pair_motion(path.projector, allowed, free_motion)
+            return bool(self._cpp.is_clear(np.asarray(q, dtype=float), motion))
+        keep = self._clearance(path.projector, free_motion)
+        self._update(q)
+        gm, gd = self.geom_model, self.geom_data
+        for k in range(len(self.pairs)):
+            if k in allowed:
+                continue
+            if self._sphere_bounds(np.array([k]))[0] > keep[k]:
+                continue
+            if pin.computeDistance(gm, gd, k).min_distance <= keep[k]:
+                return False
+        return True
+
+    def _cpp_pair_motion(
+        self, projector: Projector, allowed: frozenset[int], free_motion: bool
+    ) -> tuple:
+        """(projector, C++ PairMotion, attached parts) of a transition (its paths free motions
+        or approaches: :meth:`_clearance`), cached."""
         from marionette.planning import collision_cpp
 
-        key = (id(projector), allowed)
+        key = (id(projector), allowed, free_motion)
         cached = self._cpp_motion.get(key)
         if cached is None or cached[0] is not projector:
-            rigid, R, L = self._motion(projector)
+            rigid, R, L, _ = self._motion(projector)
             skip = np.zeros(len(self.pairs), dtype=bool)
             skip[list(allowed)] = True
-            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
+            clearance = self._clearance(projector, free_motion)
+            motion = collision_cpp._planning.PairMotion(rigid, skip, R, L, clearance)
             cached = (projector, motion, collision_cpp.attached(projector))
             self._cpp_motion[key] = cached
         return cached
@@ -364,7 +420,7 @@ class CollisionChecker:
         free = self.leaf_free_joints(projector)
         if free is None or self._cpp is None:  # (no free joints without the C++ backend)
             return None
-        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        _, motion, attached = self._cpp_pair_motion(projector, allowed, free_motion=True)
         sub = collision_cpp._planning.Substitution(
             [lk.idx_q for lk in projector.locked],
             [lk.value.copy() for lk in projector.locked],
@@ -393,7 +449,7 @@ class CollisionChecker:
 
         if projector._cpp is None or self._cpp is None:
             return None
-        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        _, motion, attached = self._cpp_pair_motion(projector, allowed, free_motion=True)
         sub = collision_cpp._planning.Substitution(
             [lk.idx_q for lk in projector.locked],
             [lk.value.copy() for lk in projector.locked],
@@ -443,19 +499,17 @@ class CollisionChecker:
         self,
         validator: Any,
         path: ConstrainedPath,
-        rigid: np.ndarray,
-        R: np.ndarray,
-        L: np.ndarray,
         allowed: frozenset[int],
+        free_motion: bool,
         prefix: bool,
     ) -> tuple[bool, float]:
-        """:meth:`validate` in C++: the pair bounds and explicit constraints handed over once per
-        (transition projector, allowed pairs), the locked values once per path; ``validator``:
-        the C++ path validator (``self._cpp``)."""
+        """:meth:`validate` in C++: the pair bounds, clearances and explicit constraints handed
+        over once per (transition projector, allowed pairs, free motion or not), the locked
+        values once per path; ``validator``: the C++ path validator (``self._cpp``)."""
         from marionette.planning import collision_cpp
 
         projector = path.projector
-        _, motion, attached = self._cpp_pair_motion(projector, allowed)
+        _, motion, attached = self._cpp_pair_motion(projector, allowed, free_motion)
         ok, s, queries, grazing = validator.validate(
             path.points, path.cum, collision_cpp.substitution(path, attached), motion, not prefix
         )
@@ -472,7 +526,22 @@ class CollisionChecker:
         R: np.ndarray,
         L: np.ndarray,
         skip: np.ndarray | None,
+        clearance: np.ndarray,
     ) -> tuple[bool, float]:
+        # The distance each pair keeps on this path: its clearance, or contact where an end of
+        # the path is already closer (a given start, goal or waypoint placed close).
+        threshold = np.where(rigid if skip is None else rigid | skip, CONTACT, clearance)
+        for q_end in (path.points[0], path.points[-1]):
+            kept = np.flatnonzero(threshold > CONTACT)
+            if not kept.size:
+                break
+            self._update(q_end)
+            for k in kept:
+                d = self._sphere_bounds(np.array([k]))[0]
+                if d <= threshold[k]:
+                    d = pin.computeDistance(self.geom_model, self.geom_data, int(k)).min_distance
+                if d <= threshold[k]:
+                    threshold[k] = CONTACT
         q0 = path.eval(0.0)
         self._update(q0)
         # Pairs that do not move relatively: checked once, at the start.
@@ -486,7 +555,9 @@ class CollisionChecker:
         budget = np.zeros(len(self.pairs))
         for i in range(len(pts) - 1):
             s0, s1 = path.cum[i], path.cum[i + 1]
-            ok, t = self._validate_segment(path, pts[i], pts[i + 1], s0, s1, rigid, R, L, budget)
+            ok, t = self._validate_segment(
+                path, pts[i], pts[i + 1], s0, s1, rigid, R, L, budget, threshold
+            )
             if not ok:
                 return False, s0 + t * (s1 - s0)
         return True, path.length
@@ -522,10 +593,11 @@ class CollisionChecker:
         )
 
     def _validate_segment(
-        self, path, qa, qb, s0, s1, rigid, R, L, budget: np.ndarray
+        self, path, qa, qb, s0, s1, rigid, R, L, budget: np.ndarray, threshold: np.ndarray
     ) -> tuple[bool, float]:
         """Certified check of the segment qa -> qb (t in [0, 1]); (ok, first unsafe t).
-        ``budget`` (npairs): certified displacement left per pair, updated in place."""
+        ``budget`` (npairs): certified displacement left per pair, updated in place;
+        ``threshold`` (npairs): the distance each pair keeps."""
         ang, lin = self._joint_speeds(qa, qb)
         u = R @ ang + L @ lin
         moving = (u > 0.0) & ~rigid
@@ -546,17 +618,18 @@ class CollisionChecker:
                 self._update(q)
                 # Pairs whose bounding spheres are far apart are certified by that bound.
                 d = self._sphere_bounds(due)
-                for i in np.flatnonzero(d <= SPHERE_MARGIN):
+                keep = threshold[due]
+                for i in np.flatnonzero(d <= SPHERE_MARGIN + keep):
                     self.checks += 1
                     d[i] = pin.computeDistance(gm, gd, int(due[i])).min_distance
-                    if d[i] <= CONTACT:
+                    if d[i] <= keep[i]:
                         return False, t
-                horizon[due] = t + d / u[due]
+                horizon[due] = t + (d - keep) / u[due]
             t_next = float(horizon.min())
             if t_next >= 1.0:
                 budget[moving] = (horizon[moving] - 1.0) * u[moving]
                 return True, 1.0
-            # d > CONTACT at every query, so each step is at least CONTACT / u: no Zeno loop.
+            # d > threshold at every query; a pair hugging it ends in the query budget.
             t = t_next
         # Bodies grazing each other along the whole segment: not certifiable, refused.
         self.refused_grazing += 1

@@ -405,8 +405,7 @@ class ManipulationRRT:
             if ok:
                 valid.append(p)
                 continue
-            if s > 0:
-                valid.append(p.extract(0.0, s * 0.999))
+            self._keep_stopped(valid, p, s)
             self.stats["extension stopped by a collision"] += 1
             break
         else:
@@ -419,6 +418,18 @@ class ManipulationRRT:
             self.stats["extension ended in no state"] += 1
             return None
         return valid, q_new.copy(), state
+
+    def _keep_stopped(self, valid: list[ConstrainedPath], path: ConstrainedPath, s: float) -> None:
+        """Appends to ``valid`` the part of ``path`` before the collision at arc length ``s``,
+        when its end, a new node, keeps the clearance (a path from a start placed close may
+        have come closer than it: such a node would excuse every path from it)."""
+        if s <= 0:
+            return
+        part = path.extract(0.0, s * 0.999)
+        if self.checker.is_clear(part.end, part):
+            valid.append(part)
+        else:
+            self.stats["extension stopped closer than the clearance"] += 1
 
     def _extend_waypoints(
         self,
@@ -455,8 +466,7 @@ class ManipulationRRT:
                     valid += planned
                     q_prev = q
                     continue
-                if s > 0:
-                    valid.append(paths[0].extract(0.0, s * 0.999))
+                self._keep_stopped(valid, paths[0], s)
                 self.stats["extension stopped by a collision"] += 1
                 break
             valid.append(paths[0])

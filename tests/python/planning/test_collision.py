@@ -59,7 +59,7 @@ def test_grasped_box_moves_with_the_gripper_and_is_checked(ur5_box):
     g = graph_from_settings(p)
     edge = g.edges["Loop | 0-0"]
     checker = CollisionChecker(p)
-    rigid, R, _L = checker._motion(edge.path_projector)
+    rigid, R, _L, _ = checker._motion(edge.path_projector)
     names = [o.name for o in checker.geom_model.geometryObjects]
     pair_names = [(names[a], names[b]) for a, b in checker.pairs]
     k = pair_names.index(("ur5/tool0_0", "box/base_link_0"))

@@ -100,7 +100,7 @@ def test_pair_speed_bounds_match_python(ur5_box):
     graph = graph_from_settings(ur5_box)
     rng = np.random.default_rng(0)
     for edge in (graph.edges["Loop | f"], graph.edges["Loop | 0-0"]):
-        rigid, R, L = checker._motion(edge.path_projector)
+        rigid, R, L, _ = checker._motion(edge.path_projector)
         skip = np.zeros(len(checker.pairs), dtype=bool)
         motion = collision_cpp._planning.PairMotion(rigid, skip, R, L)
         for _ in range(5):
@@ -233,3 +233,50 @@ def test_stops_at_the_closed_form_first_contact(kind):
         True,
     )
     assert not ok and s_valid == 0.0 and queries == 0
+
+
+def test_a_clearance_stops_at_the_closed_form_distance_and_is_excused_at_a_close_end():
+    """Sphere A driven along x towards sphere B (centres 1 apart, radii 0.1 + 0.2): with a
+    clearance of 0.05 the certified prefix ends where the surfaces are 0.05 apart (s = 0.65), not
+    at contact (s = 0.7); a path starting 0.02 from B (closer than the clearance: a given start)
+    may move on that pair down to contact; is_clear tells the clearance at a configuration."""
+    from marionette.planning.collision import CONTACT, MAX_QUERIES
+
+    P, joints, XA = _two_spheres("PX", 0.0)
+    XB = np.eye(4)
+    XB[0, 3] = 1.0
+    geoms = [
+        P.GeometrySpec("A", 1, XA, "sphere", radius=0.1),
+        P.GeometrySpec("B", 0, XB, "sphere", radius=0.2),
+    ]
+    v = P.PathValidator(joints, geoms, [(0, 1)], CONTACT, MAX_QUERIES)
+    clearance = 0.05
+    motion = P.PairMotion(
+        np.zeros(1, bool),
+        np.zeros(1, bool),
+        np.array([[0.0, 0.1]]),
+        np.array([[0.0, 1.0]]),
+        np.array([clearance]),
+    )
+    sub = P.Substitution([], [], [], [], [])
+
+    def validate(q0: float, q1: float):
+        return v.validate(np.array([[q0], [q1]]), np.array([0.0, abs(q1 - q0)]), sub, motion, False)
+
+    ok, s_valid, _, grazing = validate(0.0, 2.0)
+    assert not ok and not grazing
+    assert 0.65 - 1e-4 <= s_valid <= 0.65  # distance 1 - 0.3 - s = clearance
+    assert validate(0.0, 0.64)[0]
+    # An end closer than the clearance excuses the pair on that path (a planner creates no such
+    # end: is_clear below), so 0.66 is accepted where 2.0 was stopped at 0.65.
+    assert validate(0.0, 0.66)[0]
+    # From 0.02 away (a given start): excused on this pair, stopped at contact only.
+    ok, s_valid, _, _ = validate(0.68, 0.0)
+    assert ok
+    ok, s_valid, _, _ = validate(0.68, 2.0)
+    assert not ok and s_valid == pytest.approx(0.02, abs=1e-4)
+    assert v.is_clear(np.array([0.64]), motion) and not v.is_clear(np.array([0.66]), motion)
+    # Without a clearance: contact only, as before.
+    plain = P.PairMotion(np.zeros(1, bool), np.zeros(1, bool), motion.R, motion.L)
+    assert v.validate(np.array([[0.0], [0.69]]), np.array([0.0, 0.69]), sub, plain, False)[0]
+    assert v.is_clear(np.array([0.69]), plain)

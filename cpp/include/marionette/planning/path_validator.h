@@ -61,11 +61,16 @@ struct Substitution {
 /// How fast each collision pair can close its distance: u_k = R(k,:) w + L(k,:) v, with w, v
 /// the angular / linear displacement of every joint over a segment (npairs x njoints each).
 /// rigid pairs are checked at the start of a path only; skipped pairs never (grasp contacts).
+/// clearance (npairs, or empty: the contact distance for every pair) is the distance a moving
+/// pair keeps along a path [m]: on a free motion, the robot and what it carries stay that far
+/// from what stays in place. A pair already closer than its clearance at one end of a path (a
+/// given start, goal or waypoint placed close) keeps only the contact distance on that path.
 struct PairMotion {
   Eigen::Array<bool, Eigen::Dynamic, 1> rigid;  // (npairs)
   Eigen::Array<bool, Eigen::Dynamic, 1> skip;   // (npairs)
   Eigen::MatrixXd R;                            // (npairs x njoints) [m / rad]
   Eigen::MatrixXd L;                            // (npairs x njoints) [1]
+  Eigen::VectorXd clearance;                    // (npairs) [m], or empty
 };
 
 /// Polyline of a constrained path: points (k x nq) at arc lengths cum (k), cum(0) = 0.
@@ -124,6 +129,11 @@ class PathValidator {
   /// True when no pair except the skipped ones is in collision at q (nq).
   bool IsValid(const Eigen::VectorXd& q, const Eigen::Array<bool, Eigen::Dynamic, 1>& skip);
 
+  /// True when every pair but the skipped ones is farther than its clearance at q (nq): what a
+  /// configuration a planner creates on a free motion must keep (then no path from it is
+  /// excused from the clearance).
+  bool IsClear(const Eigen::VectorXd& q, const PairMotion& motion);
+
   /// Distance of every pair at q (npairs) [m].
   Eigen::VectorXd Distances(const Eigen::VectorXd& q);
 
@@ -135,6 +145,12 @@ class PathValidator {
   // Lower bound of pair p's distance from the geometries' bounding spheres (placements as last
   // updated): |c_a - c_b| - r_a - r_b.  Far pairs are certified with it, no GJK query.
   double SphereBound(int p) const;
+  // Distance of pair p as last updated, exact (GJK) only when its bounding spheres are closer
+  // than `within`.
+  double DistanceWithin(int p, double within);
+  // threshold_: the distance each pair keeps on this path (its clearance, or the contact
+  // distance where an end of the path is already closer; see PairMotion).
+  void SetThresholds(const Polyline& path, const PairMotion& motion);
   bool ValidateSegment(const Polyline& path, const Substitution& sub, int i,
                        const PairMotion& motion, ValidationResult* out, double* t_fail);
   void Update(const Eigen::VectorXd& q);
@@ -147,6 +163,7 @@ class PathValidator {
   double contact_;
   int max_queries_;
   std::vector<Kind> kinds_;                     // per joint (index 0 unused)
+  Eigen::VectorXd threshold_;                   // per pair, for the path being validated
   std::vector<Eigen::Vector3d> sphere_center_;  // per geometry, in its own frame
   std::vector<double> sphere_radius_;
   Eigen::VectorXd q_, qa_, qb_, ea_, eb_, dv_, ang_, lin_, u_, horizon_, budget_;
