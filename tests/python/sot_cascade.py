@@ -37,6 +37,7 @@ from marionette import robots
 
 RANK_TOLERANCE = 1e-9  # singular values <= this x the level's largest row norm are dependent
 CERTIFICATE_TOLERANCE = 1e-10  # KKT residuals of the reference's level QPs (relative)
+FEASIBILITY_TOLERANCE = 1e-9  # a carried row left by the reference's optimum (relative)
 
 
 def _null_space(M: np.ndarray, scale: float) -> tuple[np.ndarray, int]:
@@ -248,7 +249,19 @@ def _level_step(level, v, N, carried, solver):
         carried_C @ N, np.minimum(carried_lo - value, 0.0), np.maximum(carried_hi - value, 0.0)
     )
     w = _level_qp(M @ E, b - A @ v, G, g_lo, g_hi, C @ N @ E, lo - C @ v, hi - C @ v, solver, scale)
-    return E @ w, M, scale
+    y = E @ w
+    # The presolve merged rows within 1.4e-6 rad of parallel: its optimum may leave one of them
+    # by (angle x step), e.g. 8e-8 rad/s past a joint bound that a row of 9e-8 made distinct
+    # (an SO-100 stack whose hierarchy held every bound and was flagged 1.4 % "worse"). Such a
+    # point is not the cascade's: this reference cannot decide the stack.
+    moved = carried_C @ (v + N @ y)
+    excess = np.max(
+        np.maximum(moved - np.maximum(carried_hi, value), np.minimum(carried_lo, value) - moved),
+        initial=0.0,
+    )
+    if excess > FEASIBILITY_TOLERANCE * (1.0 + np.max(np.abs(moved), initial=0.0)):
+        raise ReferenceFailure(f"merged near-parallel carried rows: one left by {excess:.1e}")
+    return y, M, scale
 
 
 def _descend(level, v, N, carried):
