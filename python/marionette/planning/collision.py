@@ -18,10 +18,9 @@ On a free motion (a transit or a transfer, not an approach), a pair of a moving 
 one (the robot or what it carries against the table, an object put down, the environment) keeps
 a clearance (``CLEARANCE``) instead of contact: the same stepping with d - clearance.  A path is
 excused, pair by pair, where one of its ends is already closer (a given start, goal or waypoint
-placed close); the configurations the planners and the optimiser create where a motion stops,
-cut or joins keep the clearance (:meth:`CollisionChecker.is_clear`), so the excuse does not
-spread from the given ones — except through a random target an RRT extension reaches, which
-becomes a node unchecked (not seen in the bundled plans; to close).
+placed close); every configuration the planners and the optimiser create (an extension's end,
+whether stopped or at its random target, a leaf planner's node, a shortcut's cut) keeps the
+clearance (:meth:`CollisionChecker.is_clear`), so the excuse never spreads from the given ones.
 """
 
 from __future__ import annotations

@@ -409,6 +409,10 @@ class ManipulationRRT:
             self.stats["extension stopped by a collision"] += 1
             break
         else:
+            if not self.checker.is_clear(valid[-1].end, valid[-1]):
+                # a random target within the clearance would excuse every path from it
+                self.stats["target closer than the clearance"] += 1
+                return None
             self.stats["extension reached its target"] += 1
         if not valid:
             return None
