@@ -308,12 +308,12 @@ class CollisionChecker:
         ``allowed`` (default: the grasp contacts of the path's transition) are not checked.
         ``prefix=False`` (connections, shortcuts: all or nothing) first probes a few
         configurations and gives up at the first collision found, s_valid then being 0."""
-        rigid, R, L, _ = self._motion(path.projector)
         if allowed is None:
             allowed = self.grasp_contact_pairs(path.edge.grasps)
         free_motion = not path.edge.short
         if self._cpp is not None:
             return self._validate_cpp(self._cpp, path, allowed, free_motion, prefix)
+        rigid, R, L, _ = self._motion(path.projector)
         clearance = self._clearance(path.projector, free_motion)
         if allowed:
             rigid = rigid.copy()
@@ -350,15 +350,19 @@ class CollisionChecker:
             return bool(self._cpp.is_clear(np.asarray(q, dtype=float), motion))
         keep = self._clearance(path.projector, free_motion)
         self._update(q)
-        gm, gd = self.geom_model, self.geom_data
-        for k in range(len(self.pairs)):
-            if k in allowed:
-                continue
-            if self._sphere_bounds(np.array([k]))[0] > keep[k]:
-                continue
-            if pin.computeDistance(gm, gd, k).min_distance <= keep[k]:
-                return False
-        return True
+        return all(
+            self._distance_within(k, keep[k]) > keep[k]
+            for k in range(len(self.pairs))
+            if k not in allowed
+        )
+
+    def _distance_within(self, k: int, within: float) -> float:
+        """Distance of pair k at the last update: exact (GJK) only when its bounding spheres are
+        closer than ``within``, else their lower bound (PathValidator::DistanceWithin)."""
+        bound = self._sphere_bounds(np.array([k]))[0]
+        if bound > within:
+            return float(bound)
+        return pin.computeDistance(self.geom_model, self.geom_data, k).min_distance
 
     def _cpp_pair_motion(
         self, projector: Projector, allowed: frozenset[int], free_motion: bool
@@ -538,10 +542,7 @@ class CollisionChecker:
                 break
             self._update(q_end)
             for k in kept:
-                d = self._sphere_bounds(np.array([k]))[0]
-                if d <= threshold[k]:
-                    d = pin.computeDistance(self.geom_model, self.geom_data, int(k)).min_distance
-                if d <= threshold[k]:
+                if self._distance_within(int(k), threshold[k]) <= threshold[k]:
                     threshold[k] = CONTACT
         q0 = path.eval(0.0)
         self._update(q0)

@@ -110,13 +110,13 @@ def _with_ends(p: ConstrainedPath, start: np.ndarray, end: np.ndarray) -> Constr
 
 
 def _cuts_clear(
-    checker: CollisionChecker, path: ConstrainedPath, *configurations: list[np.ndarray]
+    checker: CollisionChecker, path: ConstrainedPath, cuts: Sequence[np.ndarray]
 ) -> bool:
     """Do the new path ends cut out of ``path`` keep its transition's clearance? A path is
     excused from the clearance at an end already closer (a given start, goal or waypoint): a
     cut there would pass that excuse on, and shortcut after shortcut pull the motion against
     the obstacle."""
-    return all(checker.is_clear(q, path) for group in configurations for q in group)
+    return all(checker.is_clear(q, path) for q in cuts)
 
 
 def vertex_shortcut(
@@ -195,7 +195,7 @@ def random_shortcut(
         tail = _cut_run(run, cum, b, total)
         qa = head[-1].end if head else run[0].start
         qb = tail[0].start if tail else run[-1].end
-        if not _cuts_clear(checker, run[0], [qa] if head else [], [qb] if tail else []):
+        if not _cuts_clear(checker, run[0], [q for q, cut in ((qa, head), (qb, tail)) if cut]):
             continue
         new = run[0].edge.build(qa, qb)
         if not new or len(new) != 1:
@@ -237,9 +237,9 @@ def graph_shortcut(
         # The ends of the cut pieces are the shortcut's ends: the plan stays continuous.
         qa = head[-1].end if head else paths[0].start
         qb = tail[0].start if tail else paths[-1].end
-        if not _cuts_clear(checker, paths[ia], [qa] if head else [], []) or not _cuts_clear(
-            checker, paths[ib], [], [qb] if tail else []
-        ):
+        if not _cuts_clear(checker, paths[ia], [qa] if head else []):
+            continue
+        if not _cuts_clear(checker, paths[ib], [qb] if tail else []):
             continue
         s1, s2 = graph.state_of(qa), graph.state_of(qb)
         if s1 is None or s2 is None:
@@ -312,7 +312,7 @@ def partial_shortcut(
         ]
         if sum(p.length for p in new) >= s[-1] - 1e-9:
             continue
-        if not _cuts_clear(checker, run[0], new_verts[1:-1], []):
+        if not _cuts_clear(checker, run[0], new_verts[1:-1]):
             continue
         if not all(checker.validate(p, prefix=False)[0] for p in new):
             continue
