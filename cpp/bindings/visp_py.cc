@@ -113,29 +113,55 @@ PYBIND11_MODULE(_visp, m) {
         return std::vector<mp::PoseHypothesis>(d.hypotheses.begin(), d.hypotheses.end());
       });
 
+  py::class_<mp::DetectionStats>(m, "DetectionStats", "what the last detect call did")
+      .def_readonly("noise_sigma", &mp::DetectionStats::noise_sigma,
+                    "estimated pixel noise [grey levels]")
+      .def_readonly("quad_sigma", &mp::DetectionStats::quad_sigma,
+                    "blur applied for quad detection [px]")
+      .def_readonly("pixels_searched", &mp::DetectionStats::pixels_searched);
+
   py::class_<mp::AprilTagDetector>(m, "AprilTagDetector", "tag36h11 detector (ViSP/AprilTag 3)")
       .def(py::init([](float quad_decimate, float quad_sigma, int num_threads, bool refine_edges,
-                       double decode_sharpening) {
-             return std::make_unique<mp::AprilTagDetector>(mp::AprilTagDetectorOptions{
-                 quad_decimate, quad_sigma, num_threads, refine_edges, decode_sharpening});
+                       double decode_sharpening, bool noise_adaptive_blur) {
+             return std::make_unique<mp::AprilTagDetector>(
+                 mp::AprilTagDetectorOptions{quad_decimate, quad_sigma, num_threads, refine_edges,
+                                             decode_sharpening, noise_adaptive_blur});
            }),
            py::arg("quad_decimate") = 1.0f, py::arg("quad_sigma") = 0.0f,
            py::arg("num_threads") = 1, py::arg("refine_edges") = true,
-           py::arg("decode_sharpening") = 0.25)
+           py::arg("decode_sharpening") = 0.25, py::arg("noise_adaptive_blur") = true)
       .def(
           "detect",
           [](mp::AprilTagDetector& d,
              const py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast>& gray,
              const mp::CameraIntrinsics& k, const std::map<int, double>& tag_sizes,
-             double default_size) {
+             double default_size, const std::vector<std::array<int, 4>>& regions) {
             CheckImage(gray, k, "gray image");
             const mp::TagSizes sizes{default_size, tag_sizes};
+            std::vector<mp::PixelBox> boxes;
+            for (const auto& r : regions) boxes.push_back({r[0], r[1], r[2], r[3]});
             py::gil_scoped_release release;
-            return d.Detect(gray.data(), k.width, k.height, k, sizes);
+            return d.Detect(gray.data(), k.width, k.height, k, sizes, boxes);
           },
           py::arg("gray"), py::arg("intrinsics"), py::arg("tag_sizes") = std::map<int, double>{},
-          py::arg("default_size") = 0.0,
-          "gray (height, width) uint8 -> [TagDetection]; poses for ids with a known size [m]");
+          py::arg("default_size") = 0.0, py::arg("regions") = std::vector<std::array<int, 4>>{},
+          "gray (height, width) uint8 -> [TagDetection]; poses for ids with a known size [m]; "
+          "regions: (u0, v0, u1, v1) pixel boxes to search (columns u0..u1-1, rows v0..v1-1), "
+          "none: the whole image")
+      .def_property_readonly("last_stats", &mp::AprilTagDetector::last_stats);
+
+  m.def(
+      "estimate_noise_sigma",
+      [](const py::array_t<std::uint8_t, py::array::c_style | py::array::forcecast>& gray,
+         int row_step) {
+        if (gray.ndim() != 2) throw mp::PerceptionError("gray must be a (height, width) image");
+        const int h = static_cast<int>(gray.shape(0)), w = static_cast<int>(gray.shape(1));
+        return mp::EstimateNoiseSigma(gray.data(), w, h, w, row_step);
+      },
+      py::arg("gray"), py::arg("row_step") = 2,
+      "standard deviation of the pixel noise [grey levels] (Immerkaer's mask, median)");
+  m.def("blur_for_noise", &mp::BlurForNoise, py::arg("noise_sigma"),
+        "the quad-detection blur [px] the adaptive detector applies for that noise");
 
   m.def(
       "tag_corners",

@@ -73,6 +73,14 @@ def register(subparsers) -> None:
         "tags of ~40 px, e.g. a tool's 3 cm tags at 0.7 m, at about twice the cost)",
     )
     p.add_argument(
+        "--full-search-every",
+        type=int,
+        default=None,
+        metavar="N",
+        help="search the whole image every N frames and around the last frame's tags in "
+        "between (default 10; 1: the whole image every frame)",
+    )
+    p.add_argument(
         "--up-axis",
         action="append",
         type=_up_axis,
@@ -149,6 +157,7 @@ def _perceive(args: argparse.Namespace) -> int:
         load_tagged_bodies,
         tagged_bodies_from_semantics,
     )
+    from marionette.perception.tracking import TrackingConfig
 
     logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s", stream=sys.stderr)
     files = args.objects if args.objects is not None else _default_object_files()
@@ -184,6 +193,15 @@ def _perceive(args: argparse.Namespace) -> int:
             )
             return 2
         config.detector.quad_decimate = args.quad_decimate
+    if args.full_search_every is not None:
+        if args.full_search_every < 1:
+            print(
+                "marionette perceive: --full-search-every must be >= 1, got "
+                f"{args.full_search_every}",
+                file=sys.stderr,
+            )
+            return 2
+        config.tracking = TrackingConfig(full_search_every=args.full_search_every)
     if args.camera_channel:
         config.camera_channel = args.camera_channel
     node = PerceptionNode(config, kinematics)

@@ -23,7 +23,7 @@ the image-only minima.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,6 +83,10 @@ class DetectorConfig:
     quad_decimate: float = (
         2.0  # AprilTag's default: quads on a half-size image, edges refined at full size
     )
+    quad_sigma: float = 0.0  # blur [px] before quad detection (at least this much)
+    # Blur for quad detection chosen per image from its measured pixel noise (sensor noise
+    # multiplies AprilTag's segmentation work ~10x; see marionette._visp.blur_for_noise).
+    noise_adaptive_blur: bool = True
     num_threads: int = 1
 
 
@@ -115,8 +119,13 @@ class AprilTagDetector:
                 f"ambiguity_ratio must be in (0, 1), got {self.config.ambiguity_ratio}"
             )
         self._visp = _visp
+        if not self.config.quad_sigma >= 0.0:
+            raise ValueError(f"quad_sigma must be >= 0 px, got {self.config.quad_sigma}")
         self._native = _visp.AprilTagDetector(
-            quad_decimate=self.config.quad_decimate, num_threads=self.config.num_threads
+            quad_decimate=self.config.quad_decimate,
+            quad_sigma=self.config.quad_sigma,
+            num_threads=self.config.num_threads,
+            noise_adaptive_blur=self.config.noise_adaptive_blur,
         )
         self._sizes = {int(k): float(v) for k, v in self.config.tag_sizes.items()}
 
@@ -126,8 +135,13 @@ class AprilTagDetector:
         intrinsics: CameraIntrinsics,
         depth: np.ndarray | None = None,
         prior: HypothesisPrior | None = None,
+        regions: Sequence[tuple[int, int, int, int]] | None = None,
     ) -> list[TagDetection]:
         """Tags with a known size in ``gray`` (h, w) uint8; ``depth`` (h, w) [m] is optional.
+
+        ``regions``: search only these ``(u0, v0, u1, v1)`` pixel boxes (columns u0..u1-1, rows
+        v0..v1-1; a tag's white border must lie inside one), e.g. from a
+        :class:`~marionette.perception.tracking.TagRegionTracker`; None: the whole image.
 
         Raises ``ValueError`` when the image or depth shape disagrees with the intrinsics.
         """
@@ -139,7 +153,11 @@ class AprilTagDetector:
             if depth.shape != gray.shape:
                 raise ValueError(f"depth {depth.shape} and image {gray.shape} differ in shape")
         native = self._native.detect(
-            np.ascontiguousarray(gray), intrinsics.native, self._sizes, self.config.default_size
+            np.ascontiguousarray(gray),
+            intrinsics.native,
+            self._sizes,
+            self.config.default_size,
+            [] if regions is None else [tuple(map(int, r)) for r in regions],
         )
         out = []
         for d in native:
@@ -149,6 +167,12 @@ class AprilTagDetector:
             errors = tuple(float(h.reprojection_error) for h in d.hypotheses)
             out.append(self._decide(d, hyps, errors, intrinsics, depth, prior))
         return out
+
+    @property
+    def last_stats(self):
+        """What the last :meth:`detect` did: ``noise_sigma`` [grey levels], ``quad_sigma`` [px],
+        ``pixels_searched``."""
+        return self._native.last_stats
 
     def is_ambiguous(self, errors: tuple[float, float], has_second: bool) -> bool:
         """The runner-up explains the corners about as well as the best (see module doc)."""

@@ -35,6 +35,7 @@ from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.detector import AprilTagDetector, DetectorConfig, TagDetection
 from marionette.perception.kinematics import CameraKinematics, StateError
 from marionette.perception.objects import BodyPose, TaggedBody, estimate_body_poses, up_axis_prior
+from marionette.perception.tracking import TagRegionTracker, TrackingConfig
 
 if TYPE_CHECKING:
     from marionette.lcm_bus import LcmBus
@@ -183,6 +184,8 @@ class PerceptionConfig:
     camera_pose_source: str = "kinematics"  # "kinematics" (ROBOT_STATE) or "message"
     # body name -> axis of the body expected to point up (graph state: resting on a table)
     up_axes: dict[str, np.ndarray] = field(default_factory=dict)
+    # Search each frame around the tags of the previous one (whole image now and then).
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
 
 
 class LatencyWindow:
@@ -230,6 +233,7 @@ class PerceptionNode:
             sizes.update(body.tag_sizes())
         config.detector.tag_sizes = sizes
         self.detector = AprilTagDetector(config.detector)
+        self.tracker = TagRegionTracker(config.tracking)
         self.counters: Counter = Counter()
         self.rejected: Counter = Counter()
         self.latency = LatencyWindow()
@@ -256,7 +260,11 @@ class PerceptionNode:
         prior = None
         if self.config.up_axes and X_WC is not None:
             prior = up_axis_prior(self.config.bodies, self.config.up_axes, X_WC.rotation)
-        detections = self.detector.detect(frame.gray, frame.intrinsics, depth=depth, prior=prior)
+        regions = self.tracker.regions()
+        detections = self.detector.detect(
+            frame.gray, frame.intrinsics, depth=depth, prior=prior, regions=regions
+        )
+        self.tracker.update(detections, regions)
         poses = estimate_body_poses(
             self.config.bodies,
             detections,
@@ -334,4 +342,10 @@ class PerceptionNode:
 
     def stats(self) -> dict:
         """Counters, rejections by reason and processing latency (receive -> publish)."""
-        return {**self.counters, "rejected": dict(self.rejected), "latency": self.latency.summary()}
+        return {
+            **self.counters,
+            "rejected": dict(self.rejected),
+            "latency": self.latency.summary(),
+            "tracking": dict(self.tracker.counts),
+            "noise_sigma": round(float(self.detector.last_stats.noise_sigma), 2),
+        }

@@ -231,7 +231,8 @@ def test_recovers_offsets_from_a_wrist_tag_seen_by_the_head_camera(talos):
     X_WE, X_WC = fk(q_n)
     X_ET = X_WE.inverse() * X_WC * syn.look_at([0.0, 0.0, 0.45], tilt_deg=20, roll_deg=10)
     K = CameraIntrinsics.from_fovy(640, 480, 60.0)
-    detector = AprilTagDetector(DetectorConfig(tag_sizes={40: 0.05}))
+    # Full resolution, as the product's calibration detects (arm_calibration.py).
+    detector = AprilTagDetector(DetectorConfig(tag_sizes={40: 0.05}, quad_decimate=1.0))
     rng = np.random.default_rng(11)
     true = rng.normal(0, math.radians(0.2), 7)
     true[ARM.index(SHOULDER)], true[ARM.index(WRIST)] = math.radians(7.0), math.radians(4.0)
