@@ -11,6 +11,10 @@ sensor noise every one of them counts). The whole image is still searched
   or left the view), so that a lost tag costs one frame;
 * while no tag is tracked.
 
+A tag that is no longer found (seen too obliquely, blurred, hidden for a moment) keeps its last
+box for ``keep_lost_frames`` frames, so that it is found again where it was without waiting for
+the next whole-image search. Tags are told apart by id (a scene's ids are unique).
+
 A box that reaches the image border is clipped by the detector; overlapping boxes are merged
 there, so a tag is found once.
 """
@@ -36,12 +40,13 @@ class TrackingConfig:
     # white border alone is 1/8 of it), at least min_margin_px.
     margin_fraction: float = 0.5
     min_margin_px: int = 16
+    keep_lost_frames: int = 30  # [frames] a lost tag's last box is still searched (1 s at 30 Hz)
 
     def __post_init__(self) -> None:
         if self.full_search_every < 1:
             raise ValueError(f"full_search_every must be >= 1, got {self.full_search_every}")
-        if not self.margin_fraction >= 0.0 or self.min_margin_px < 0:
-            raise ValueError("margin_fraction and min_margin_px must be >= 0")
+        if not self.margin_fraction >= 0.0 or self.min_margin_px < 0 or self.keep_lost_frames < 0:
+            raise ValueError("margin_fraction, min_margin_px and keep_lost_frames must be >= 0")
 
 
 def tag_box(corners: np.ndarray, config: TrackingConfig) -> Box:
@@ -57,7 +62,7 @@ def tag_box(corners: np.ndarray, config: TrackingConfig) -> Box:
 
 
 class TagRegionTracker:
-    """Chooses each frame's search regions from the previous frame's detections.
+    """Chooses each frame's search regions from the tags seen in the last frames.
 
     Use: ``regions = tracker.regions()``, detect with them, then ``tracker.update(detections,
     regions)``. ``counts`` says how many frames were searched whole, in regions, and how many
@@ -66,17 +71,22 @@ class TagRegionTracker:
 
     def __init__(self, config: TrackingConfig | None = None) -> None:
         self.config = config or TrackingConfig()
-        self._boxes: list[Box] = []  # one per tag found last frame
-        self._ids: set[int] = set()
+        self._frame = 0
+        self._last_seen: dict[int, tuple[Box, int]] = {}  # tag id -> (box, frame seen)
+        self._previous: set[int] = set()  # ids found in the previous frame
         self._since_full = 0
         self._lost = False
         self.counts = {"full_searches": 0, "regional_searches": 0, "tracked_tags_lost": 0}
 
     def regions(self) -> list[Box] | None:
         """The boxes to search in the next frame, or None for the whole image."""
-        if not self._boxes or self._lost or self._since_full + 1 >= self.config.full_search_every:
+        if (
+            not self._last_seen
+            or self._lost
+            or self._since_full + 1 >= self.config.full_search_every
+        ):
             return None
-        return list(self._boxes)
+        return [box for box, _ in self._last_seen.values()]
 
     def update(self, detections: Sequence[TagDetection], regions: Sequence[Box] | None) -> None:
         """Records what a search over ``regions`` (None: the whole image) found."""
@@ -88,8 +98,12 @@ class TagRegionTracker:
         else:
             self.counts["regional_searches"] += 1
             self._since_full += 1
-            lost = len(self._ids - found)
+            lost = len(self._previous - found)
             self.counts["tracked_tags_lost"] += lost
             self._lost = lost > 0
-        self._boxes = [tag_box(np.asarray(d.corners), self.config) for d in detections]
-        self._ids = found
+        self._frame += 1
+        for d in detections:
+            self._last_seen[d.tag_id] = (tag_box(np.asarray(d.corners), self.config), self._frame)
+        oldest = self._frame - self.config.keep_lost_frames
+        self._last_seen = {i: seen for i, seen in self._last_seen.items() if seen[1] > oldest}
+        self._previous = found

@@ -124,3 +124,30 @@ def test_the_tracker_searches_around_its_tags_and_the_whole_image_when_it_must()
     assert log[6][1] == [21]  # the jumped tag is out of its box; the newcomer is tracked
     assert all(ids == [20, 21] for _, ids in log[7:]), log
     assert tracker.counts == {"full_searches": 3, "regional_searches": 9, "tracked_tags_lost": 1}
+
+
+def test_a_tag_missing_for_a_few_frames_is_found_again_in_its_last_box():
+    """Hidden for 3 frames (a hand passing, a glare): the whole-image search after the loss
+    does not find it, and it comes back where it was, found in its kept box without waiting
+    for the next whole-image search; after keep_lost_frames its box is dropped."""
+    rng = np.random.default_rng(2)
+    detector = AprilTagDetector(DetectorConfig(tag_sizes={20: SIZE, 21: SIZE}))
+    tracker = TagRegionTracker(TrackingConfig(full_search_every=30, keep_lost_frames=5))
+    X20 = syn.look_at([-0.15, 0.0, 1.0], tilt_deg=20, roll_deg=10)
+    X21 = syn.look_at([0.2, 0.05, 1.0], tilt_deg=15, roll_deg=-20)
+    log = []
+    for i in range(14):
+        hidden = 3 <= i < 6 or i >= 9
+        frame = _render([(21, X21)] + ([] if hidden else [(20, X20)]), 0.0, rng)
+        regions = tracker.regions()
+        found = detector.detect(frame.gray, K, regions=regions)
+        tracker.update(found, regions)
+        log.append((regions, sorted(d.tag_id for d in found)))
+    assert [r is None for r, _ in log[:8]] == [True, False, False, False, True, False, False, False]
+    assert log[6][1] == [20, 21]  # back in its kept box, from a regional search
+    assert len(log[8][0]) == 2  # both boxes searched
+    # Hidden from frame 9 on: lost (full search at 10), its box kept until frame 9 + 5.
+    assert log[10][0] is None
+    assert len(log[13][0]) == 2  # last seen at frame 8: still searched at 13...
+    regions = tracker.regions()
+    assert regions is not None and len(regions) == 1  # ...and dropped after it
