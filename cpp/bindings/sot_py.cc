@@ -6,6 +6,7 @@
 
 #include <memory>
 
+#include "marionette/sot/feature_gripper_admittance.h"
 #include "marionette/sot/hierarchy.h"
 
 namespace py = pybind11;
@@ -109,6 +110,22 @@ void RegisterSot(py::module_& m) {
       "Solve a strict hierarchy once: " MARIONETTE_LEVELS_DOC
       ". Returns (v, report). Defaults are the exact cascade (no damping, no QP "
       "regularisation).");
+  m.def(
+      "gripper_admittance_defaults",
+      [] {
+        const sot::GripperAdmittanceOptions o;
+        return py::dict(
+            py::arg("force_target") = o.force_target,
+            py::arg("force_threshold") = o.force_threshold,
+            py::arg("release_force") = o.release_force,
+            py::arg("admittance_gain") = o.admittance_gain, py::arg("lever_arm") = o.lever_arm,
+            py::arg("torque_per_effort") = o.torque_per_effort,
+            py::arg("cutoff_frequency") = o.cutoff_frequency, py::arg("speed") = o.speed,
+            py::arg("acceleration") = o.acceleration,
+            py::arg("closing_direction") = o.closing_direction, py::arg("task_gain") = o.task_gain);
+      },
+      "The gripper_admittance task's parameters when a spec does not give them (the "
+      "controller's GripperAdmittanceOptions).");
 }
 
 }  // namespace marionette::bindings

@@ -19,15 +19,16 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from marionette import channels, lcmt_robot_state
+from marionette import _core, channels, lcmt_robot_state
 from marionette.execution.decisions import event_message
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "force_monitor"
 # The controller's defaults of eq. 3.11-3.13's constants (GripperAdmittanceOptions,
 # cpp/include/marionette/sot/feature_gripper_admittance.h), which a task's parameters override.
-DEFAULT_LEVER_ARM = 0.1  # d [m]
-DEFAULT_TORQUE_PER_EFFORT = 1.0  # k_τ k_gear
+_DEFAULTS = _core.gripper_admittance_defaults()
+DEFAULT_LEVER_ARM: float = _DEFAULTS["lever_arm"]  # d [m]
+DEFAULT_TORQUE_PER_EFFORT: float = _DEFAULTS["torque_per_effort"]  # k_τ k_gear
 
 
 def force_estimate(

@@ -175,6 +175,58 @@ def dwell(traj: StepTrajectory, seconds: float) -> None:
         )
 
 
+def lead_in(traj: StepTrajectory, seconds: float) -> None:
+    """Holds the step's first sample ``seconds`` before its motion (references at rest): the
+    robot waits where the previous step left it, e.g. while its gripper closes on the handle."""
+    n = round(seconds / traj.dt)
+    if n <= 0:
+        return
+    traj.t = np.concatenate([traj.dt * np.arange(n), traj.t + n * traj.dt])
+    traj.duration = float(traj.t[-1])
+    traj.q = np.vstack([np.repeat(traj.q[:1], n, axis=0), traj.q])
+    traj.q_plan = np.vstack([np.repeat(traj.q_plan[:1], n, axis=0), traj.q_plan])
+    for name, (values, derivatives) in traj.references.items():
+        traj.references[name] = (
+            np.vstack([np.repeat(values[:1], n, axis=0), values]),
+            np.vstack([np.zeros((n, derivatives.shape[1])), derivatives]),
+        )
+
+
+# [s] after a gripper's ramp, for its grip force to settle: the estimate's 5 Hz filter and the
+# admittance loop (10/s) each take ~0.1 s per time constant.
+GRIP_SETTLE_S = 0.5
+
+
+def grip_change_s(step: Step, previous: Step | None, spec: ControllerSpec, robot: str) -> float:
+    """How long the arm waits at ``step``'s start while a gripper changes its grip, as §3.2.5.1
+    orders it: a gripper closes on the handle the previous step reached before the robot moves
+    the object, and opens before the robot recedes from one it releases. The time of the
+    ``gripper_admittance`` task's ramp over the gripper's whole stroke (its speed and
+    acceleration), then :data:`GRIP_SETTLE_S`; 0 when no grip changes or no admittance task
+    drives the gripper (a welded grasp holds at once)."""
+    from marionette import _core, robots
+
+    changing = set(step.released) | set(previous.created if previous is not None else {})
+    seconds = 0.0
+    for name in changing:
+        gripper = robots.semantics(robot).gripper(name)
+        task = next(
+            (
+                t
+                for t in spec.tasks
+                if t.kind == "gripper_admittance" and list(t.joints) == [gripper.joint]
+            ),
+            None,
+        )
+        if task is None or gripper.open_position is None or gripper.closed_position is None:
+            continue
+        parameters = {**_core.gripper_admittance_defaults(), **task.parameters}
+        speed, acceleration = parameters["speed"], parameters["acceleration"]
+        stroke = abs(gripper.closed_position - gripper.open_position)
+        seconds = max(seconds, stroke / speed + speed / acceleration + GRIP_SETTLE_S)
+    return seconds
+
+
 def _central(values: np.ndarray, dt: float) -> np.ndarray:
     d = np.zeros_like(values)
     if len(values) > 2:
@@ -319,15 +371,17 @@ Rewrite = Callable[[Step, StepTrajectory, bool], None]
 
 @dataclass(frozen=True)
 class StepTiming:
-    """How one step is played beyond its time law: ``slowdown`` times slower (a servoed step
-    waits for more camera frames), then ``dwell_s`` at rest on its last sample."""
+    """How one step is played beyond its time law: ``lead_in_s`` at rest on its first sample (a
+    gripper changes its grip), ``slowdown`` times slower (a servoed step waits for more camera
+    frames), then ``dwell_s`` at rest on its last sample."""
 
     slowdown: float = 1.0
     dwell_s: float = 0.0
+    lead_in_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.slowdown < 1.0 or self.dwell_s < 0.0:
-            raise ValueError(f"need slowdown >= 1 and dwell_s >= 0, got {self}")
+        if self.slowdown < 1.0 or self.dwell_s < 0.0 or self.lead_in_s < 0.0:
+            raise ValueError(f"need slowdown >= 1, dwell_s >= 0 and lead_in_s >= 0, got {self}")
 
 
 def velocity_component_name(model: pin.Model, j: int) -> str:
@@ -353,7 +407,8 @@ def shaped_trajectory(
 ) -> StepTrajectory:
     """The step sampled along its time law (bounded by ``limits`` (nv,), ``timing.slowdown``
     slower), its references computed for ``spec``, rewritten by ``rewrites``, re-timed until
-    every streamed reference respects ``limits`` (module doc), then held ``timing.dwell_s``.
+    every streamed reference respects ``limits`` (module doc), held ``timing.lead_in_s`` before
+    and ``timing.dwell_s`` after.
     ValueError when no re-timing brings it within (a rewrite that does not slow down with the
     step)."""
     model = robot_map.model
@@ -376,5 +431,6 @@ def shaped_trajectory(
             f"{ratio:.2f} x its velocity bound after {max_attempts} re-timings"
         )
     traj.retimed, traj.retimed_for = stretch / timing.slowdown, limiting
+    lead_in(traj, timing.lead_in_s)
     dwell(traj, timing.dwell_s)
     return traj

@@ -63,6 +63,7 @@ from marionette.execution.references import (
     Rewrite,
     StepTiming,
     StepTrajectory,
+    grip_change_s,
     shaped_trajectory,
     velocity_limits,
 )
@@ -149,13 +150,19 @@ def prepare_trajectories(
     """The references the supervisor streams for the steps from ``first`` on (step index ->
     trajectory): each step sampled within the joints' velocity bounds
     (:func:`references.velocity_limits` of ``options.max_joint_velocity``), played as ``timing``
-    says, rewritten by ``rewrites`` (the first step run knows it is), re-timed where a rewrite
-    made it too fast (:func:`references.shaped_trajectory`)."""
+    says, held at its start while a gripper changes its grip (:func:`references.grip_change_s`),
+    rewritten by ``rewrites`` (the first step run knows it is), re-timed where a rewrite made it
+    too fast (:func:`references.shaped_trajectory`)."""
     limits = velocity_limits(robot_map.model, options.max_joint_velocity)
     out: dict[int, StepTrajectory] = {}
-    for step, spec in zip(steps[first:], specs[first:]):
+    for k in range(first, len(steps)):
+        step, spec = steps[k], specs[k]
         if skip and step.index in skip:
             continue
+        step_timing = timing(step, spec) if timing is not None else StepTiming()
+        grip = grip_change_s(step, steps[k - 1] if k > 0 else None, spec, robot_map.robot)
+        if grip > step_timing.lead_in_s:
+            step_timing = dataclasses.replace(step_timing, lead_in_s=grip)
         out[step.index] = shaped_trajectory(
             step,
             spec,
@@ -163,7 +170,7 @@ def prepare_trajectories(
             limits,
             options.dt_us * 1e-6,
             options.min_step_duration,
-            timing(step, spec) if timing is not None else StepTiming(),
+            step_timing,
             rewrites,
             first=step.index == first,
         )

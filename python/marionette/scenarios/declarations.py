@@ -106,6 +106,7 @@ def declaration_from_document(doc: Any, base_dir: Path, source: str) -> PlanAndE
         "robot": doc.get("robot"),
         "feet": tuple(doc["feet"]) if "feet" in doc else None,
         "gripper_admittance": doc.get("gripper_admittance"),
+        "friction_grasps": doc.get("friction_grasps"),
         "calibrate_arms": tuple(doc["calibrate_arms"]) if "calibrate_arms" in doc else None,
         "vision": vision is not None,
     }

@@ -132,6 +132,9 @@ class PlanAndExecute(Scenario):
     # release), and the grip force measured on the jaws as a success criterion (± grip_tolerance).
     gripper_admittance: bool = False
     grip_tolerance: float = 1.0  # [N]
+    # The grippers hold objects by friction alone; False: the simulator welds each grasp (for
+    # grippers whose fingers cannot hold their objects yet; a debugging aid otherwise).
+    friction_grasps: bool = False
     # Arms whose encoder offsets the head camera calibrates before execution (thesis 000 ch. 4.2,
     # :mod:`marionette.perception.arm_calibration`); the controller then corrects its encoders.
     calibrate_arms: tuple[str, ...] = ()
@@ -214,6 +217,7 @@ class PlanAndExecute(Scenario):
             },
             "feet": list(self.feet),
             "gripper_admittance": self.gripper_admittance,
+            "friction_grasps": self.friction_grasps,
             "calibrate_arms": list(self.calibrate_arms),
             "vision": (
                 {
@@ -244,9 +248,24 @@ class PlanAndExecute(Scenario):
             del doc["vision"]
         return doc
 
+    def friction_grasps_in(self, options: RunOptions) -> bool:
+        """Whether a trial with ``options`` holds objects by friction: the scenario's grippers
+        can, and their admittance squeezes (without it the grasps are welds)."""
+        admittance = (
+            self.gripper_admittance
+            if options.gripper_admittance is None
+            else options.gripper_admittance
+        )
+        return self.friction_grasps and admittance
+
     def check_options(self, options: RunOptions) -> None:
         super().check_options(options)
         p = options.perturbation
+        if p is not None and any(p.slip) and self.friction_grasps_in(options):
+            raise ScenarioError(
+                f"{self.name} holds its objects by friction: the in-hand slip moves welded "
+                "grasps only (add --no-gripper-admittance for welded grasps)"
+            )
         if p is not None and p.joint_offsets:
             if options.controller_url is not None:
                 raise ScenarioError(
@@ -432,7 +451,10 @@ def run_plan_and_execute(
     # The references the supervisor will stream, within the joints' bounds (re-timed where the
     # gaze made a step too fast), and the dry run of the controllers on them.
     t_ref = time.perf_counter()
-    supervisor_options = SupervisorOptions(max_joint_velocity=scenario.max_joint_velocity)
+    supervisor_options = SupervisorOptions(
+        max_joint_velocity=scenario.max_joint_velocity,
+        simulated_grasps=not scenario.friction_grasps_in(options),
+    )
     timing = _servo_timing(scenario) if scenario.vision else None
     rewrites = []
     if scenario.vision:

@@ -232,3 +232,36 @@ def test_a_gripper_on_fewer_joints_than_its_task_rows_loses_no_rank_it_could_hav
     twice = [*one, TaskSpec("h", "se3", 0, frame="gripper_link")]
     (level,) = level_conditioning(model, model.createData(), ControllerSpec(2, "two", twice), q)
     assert level.rank == 5 and level.attainable == 10
+
+
+def test_a_gripper_changing_its_grip_holds_the_arm_at_the_step_start(ur10_box):
+    """Friction grasps (§3.2.5.1): the step after the grasp starts with the arm at rest while the
+    fingers close over their whole stroke (robot.yaml: 4 cm at 2 cm/s, ramp 0.2 m/s^2) and the
+    force settles (0.5 s); the release step likewise while they open; no other step waits."""
+    from marionette.execution.factory import build_specs, context_from_plan
+    from marionette.execution.references import GRIP_SETTLE_S
+    from marionette.execution.supervisor import SupervisorOptions, prepare_trajectories
+
+    p = ur10_box
+    ctx = context_from_plan(p.plan.doc, p.robot, p.model, gripper_admittance=True)
+    specs = build_specs(p.steps, ctx)
+    options = SupervisorOptions(max_joint_velocity=1.0)
+    with_grip = prepare_trajectories(p.steps, specs, p.robot_map, options)
+    without = prepare_trajectories(p.steps, p.specs, p.robot_map, options)  # no admittance
+    expected = 0.04 / 0.02 + 0.02 / 0.2 + GRIP_SETTLE_S
+    kinds = [s.kind for s in p.steps]
+    grasp, release = kinds.index("grasp"), kinds.index("release")
+    for step in p.steps:
+        a, b = with_grip[step.index], without[step.index]
+        waits = step.index in (grasp + 1, release)
+        lead = expected if waits else 0.0
+        assert a.duration == pytest.approx(b.duration + lead, abs=1e-9), step.transition
+        n = round(lead / a.dt)
+        np.testing.assert_allclose(np.diff(a.t), a.dt)
+        np.testing.assert_array_equal(a.q[:n], np.repeat(b.q[:1], n, axis=0))
+        np.testing.assert_array_equal(a.q[n:], b.q)
+        for name, (values, derivatives) in a.references.items():
+            if name not in b.references:
+                continue
+            np.testing.assert_array_equal(values[n:], b.references[name][0])
+            np.testing.assert_array_equal(derivatives[:n], 0.0)
