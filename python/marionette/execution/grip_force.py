@@ -22,7 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from marionette import channels, lcmt_robot_state
-from marionette.control.client import configuration_from_state
+from marionette.control.client import configuration_from_state, vector_to_pose
 from marionette.execution.force_event import (
     DEFAULT_LEVER_ARM,
     DEFAULT_TORQUE_PER_EFFORT,
@@ -93,9 +93,11 @@ def grip_forces(
 @dataclass
 class GripForceRecorder:
     """Estimate and contact grip force of each gripper vs controller time, from ROBOT_STATE
-    (every ``every``-th message). The LCM callback only keeps the messages: the kinematics run
-    after the run (:meth:`compute`), so the demo's bus thread, which also streams the references,
-    is never slowed down by it."""
+    (every ``every``-th message), and, in a simulation, where each object is in each gripper's
+    hand (its pose in the gripper's link, from SIM_OBJECT_POSES: the simulator's truth, to judge
+    the grasp afterwards, never fed back). The LCM callbacks only keep the messages: the
+    kinematics run after the run (:meth:`compute`), so the demo's bus thread, which also streams
+    the references, is never slowed down by it."""
 
     model: pin.Model
     grippers: dict[str, GripperGeometry]
@@ -103,25 +105,42 @@ class GripForceRecorder:
     t: list[float] = field(default_factory=list)  # [s] controller time
     estimate: dict[str, list[float]] = field(default_factory=dict)  # [N]
     contact: dict[str, list[float]] = field(default_factory=dict)  # [N]
-    _messages: list[Any] = field(default_factory=list)
+    # gripper -> object -> (time [s], pose of the object in the gripper's link) samples
+    in_hand: dict[str, dict[str, list[tuple[float, pin.SE3]]]] = field(default_factory=dict)
+    _messages: list[Any] = field(default_factory=list)  # robot states
+    # (robot state, object poses) of the same controller tick: the simulator publishes the
+    # objects (a few Hz) right after the tick's state
+    _in_hand: list[tuple[Any, Any]] = field(default_factory=list)
+    _last_state: Any = None
     _count: int = 0
 
     def __post_init__(self) -> None:
         self._data = self.model.createData()
         for name in self.grippers:
             self.estimate[name], self.contact[name] = [], []
+            self.in_hand[name] = {}
 
     def subscribe(self, bus: Any) -> GripForceRecorder:
+        from marionette import lcmt_object_poses
+
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self.on_state)
+        bus.subscribe(channels.SIM_OBJECT_POSES, lcmt_object_poses, self.on_objects)
         return self
 
     def on_state(self, msg: Any) -> None:
+        self._last_state = msg
         self._count += 1
         if self._count % self.every == 0:
             self._messages.append(msg)
 
+    def on_objects(self, msg: Any) -> None:
+        state = self._last_state
+        if state is not None and state.utime == msg.utime:
+            self._in_hand.append((state, msg))
+
     def compute(self) -> GripForceRecorder:
-        """Turns the messages kept so far into the time series (t, estimate, contact)."""
+        """Turns the messages kept so far into the time series (t, estimate, contact, the
+        objects' poses in the hands)."""
         messages, self._messages = self._messages, []
         for msg in messages:
             self.t.append(msg.utime * 1e-6)
@@ -129,7 +148,35 @@ class GripForceRecorder:
                 est, contact, _ = grip_forces(msg, self.model, self._data, g)
                 self.estimate[n].append(est)
                 self.contact[n].append(contact)
+        pairs, self._in_hand = self._in_hand, []
+        for state, objects in pairs:
+            pin.framesForwardKinematics(
+                self.model, self._data, configuration_from_state(self.model, state)
+            )
+            for o in objects.objects:
+                X_WO = vector_to_pose([*o.position_world, *o.quaternion_world])
+                for n, g in self.grippers.items():
+                    X_WL = self._data.oMf[self.model.getFrameId(g.base_link)]
+                    self.in_hand[n].setdefault(o.object_name, []).append(
+                        (state.utime * 1e-6, X_WL.actInv(X_WO))
+                    )
         return self
+
+    def hold_motion(
+        self, name: str, obj: str, t_from: float, t_to: float
+    ) -> tuple[float, float] | None:
+        """How far ``obj`` moved in gripper ``name``'s hand over [t_from, t_to] [s]: the largest
+        distance [m] and angle [rad] of its pose in the gripper's link from the pose at
+        ``t_from``; None without object poses (no simulator) in that window."""
+        samples = [X for t, X in self.in_hand.get(name, {}).get(obj, []) if t_from <= t <= t_to]
+        if not samples:
+            return None
+        X0 = samples[0]
+        moves = [X0.actInv(X) for X in samples]
+        return (
+            max(float(np.linalg.norm(m.translation)) for m in moves),
+            max(float(np.linalg.norm(pin.log3(m.rotation))) for m in moves),
+        )
 
     def holding_summary(
         self, name: str, t_from: float, t_to: float, target: float, tolerance: float = 1.0

@@ -18,6 +18,7 @@ perturbations; without it the objects start where the problem file says.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -694,7 +695,8 @@ def _grip_report(
 ) -> dict[str, Any]:
     """Grip force held by each admittance gripper: contact force (MuJoCo) and estimate
     over each holding window from 1 s after the switch to admittance to the release (median,
-    mean, range); plot grip_force.png."""
+    mean, range), and how far the scenario's object moved in the hand over it; plot
+    grip_force.png."""
     grip.compute()
     target, tolerance = ADMITTANCE["force_target"], scenario.grip_tolerance
     out: dict[str, Any] = {"target_n": target, "plot": "grip_force.png", "grippers": {}}
@@ -708,11 +710,15 @@ def _grip_report(
             b,
         ) in windows:  # a window where the estimate never reached the switch counts as failed
             settled = settled_windows(grip, name, [(a, b)], ADMITTANCE["force_threshold"])
-            held += (
-                [grip.holding_summary(name, *settled[0], target, tolerance)]
-                if settled
-                else [{"samples": 0, "never_switched": True, "t_from_s": a, "t_to_s": b}]
-            )
+            if not settled:
+                held.append({"samples": 0, "never_switched": True, "t_from_s": a, "t_to_s": b})
+                continue
+            summary = grip.holding_summary(name, *settled[0], target, tolerance)
+            motion = grip.hold_motion(name, scenario.object_name, *settled[0])
+            if motion is not None:  # the object's motion in the hand while it is held
+                summary["object_motion_mm"] = motion[0] * 1e3
+                summary["object_rotation_deg"] = math.degrees(motion[1])
+            held.append(summary)
         out["grippers"][name] = {"holding_windows_s": windows, "held": held}
     grip.plot(out_dir / "grip_force.png", target, spans)
     return out

@@ -223,25 +223,32 @@ def _markdown(r: dict[str, Any]) -> str:
             "",
             f"target {g['target_n']:.1f} N; contact = MuJoCo contact forces on the jaws, "
             "estimate = joint effort through eq. 3.11-3.13; from 1 s after the switch to "
-            "admittance to the release.",
+            "admittance to the release; the object's motion in the hand = the largest "
+            "displacement and turn of its pose in the gripper's link over that window "
+            "(simulator's truth).",
             "",
             "| gripper | window [s] | contact median (min-max) | estimate mean | "
-            "estimate - contact, median |",
-            "|---|---|---|---|---|",
+            "estimate - contact, median | object's motion in the hand |",
+            "|---|---|---|---|---|---|",
         ]
         for name, d in g["grippers"].items():
             for h in d["held"] or [{"never_switched": True}]:
                 if "contact_median_n" not in h:
                     lines.append(
                         f"| {name} | - | never switched to admittance or no contact measured "
-                        "| - | - |"
+                        "| - | - | - |"
                     )
                     continue
                 lines.append(
                     f"| {name} | {h['t_from_s']:.1f}-{h['t_to_s']:.1f} | "
                     f"{h['contact_median_n']:.2f} N ({h['contact_min_n']:.2f}-"
                     f"{h['contact_max_n']:.2f}) | {h['estimate_mean_n']:.2f} N | "
-                    f"{h['estimate_minus_contact_median_n']:+.2f} N |"
+                    f"{h['estimate_minus_contact_median_n']:+.2f} N | "
+                    + (
+                        f"{h['object_motion_mm']:.2f} mm, {h['object_rotation_deg']:.2f}° |"
+                        if "object_motion_mm" in h
+                        else "not measured (no simulator) |"
+                    )
                 )
         lines += ["", f"![{g['plot']}]({g['plot']})", ""]
     lines += [
