@@ -14,6 +14,7 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `monitor.py` | grasp / placement residuals from OBJECT_POSES -> `left_manifold` events |
 | `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
 | `grip_force.py` | a gripper's grip force: effort estimate (eq. 3.11-3.13), jaw contact forces |
+| `grip_monitor.py` | fingers closed on nothing (the encoder) -> `grasp_lost` events |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
 | `visual_servo.py` | PBVS correction of a carried object's gripper task, head gaze (§5.3.1) |
 | `tool_task.py` | a tool held by an arm: one streamed SE3 task, corrected on its measured pose |

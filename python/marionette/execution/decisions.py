@@ -60,6 +60,7 @@ FAILURES = (
     "controller_estopped",
     "abort",
     "left_manifold",
+    "grasp_lost",
     "end_check_failed",
     "approval_timeout",
 )
@@ -444,7 +445,7 @@ class DecisionMachine:
                     "reference_stopped", "running", f"force {ev.value:.3g} N", EVENT, ev.utime, ins
                 )
             ]
-        if ev.name in ("abort", "left_manifold") and self.status in (
+        if ev.name in ("abort", "left_manifold", "grasp_lost") and self.status in (
             "accepted",
             "running",
             "waiting_end_check",

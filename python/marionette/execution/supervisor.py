@@ -10,7 +10,9 @@ Per step:
                 then ``switch_refused``, failed;
   running       the planned references are streamed ahead of the controller's clock; events:
                 ``force_threshold`` ends the reference early (the goal is already reached),
-                ``abort`` fails; the controller going to hold on its watchdog -> failed;
+                ``abort``, ``left_manifold`` (:mod:`.monitor`) and ``grasp_lost``
+                (:mod:`.grip_monitor`) fail; the controller going to hold on its watchdog ->
+                failed;
   end_check     the whole reference has been played (``end_of_reference``), every task error
                 is below its threshold (:data:`factory.END_THRESHOLDS`) and the command is at
                 rest enough for the next switch to be accepted (:mod:`.decisions`) within
@@ -70,7 +72,7 @@ from marionette.execution.references import (
 from marionette.execution.streamer import ReferenceStreamer
 
 SOURCE = "supervisor"
-INJECTABLE = ("abort", "force_threshold", "approve", "left_manifold")
+INJECTABLE = ("abort", "force_threshold", "approve", "left_manifold", "grasp_lost")
 
 
 class SupervisorFailure(RuntimeError):

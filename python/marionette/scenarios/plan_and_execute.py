@@ -52,6 +52,7 @@ from marionette.execution.grip_force import (
     recorder_for,
     settled_windows,
 )
+from marionette.execution.grip_monitor import GripMonitor, GripMonitorNode, watched_grippers
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.references import StepTiming
 from marionette.execution.supervisor import (
@@ -545,6 +546,9 @@ def run_plan_and_execute(
         grip = recorder_for(ctx, model)  # the grip force on the jaws
         if grip is not None:
             grip.subscribe(client.bus)
+        # An admittance gripper whose fingers close on nothing fails the step (grasp_lost).
+        watched = watched_grippers(robot, sorted(ctx.gripper_joints))
+        grip_monitor = GripMonitorNode(client.bus, GripMonitor(watched), steps) if watched else None
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
         for name in robot_map.objects:
@@ -627,6 +631,15 @@ def run_plan_and_execute(
         progress.join(timeout=1.0)
         client.wait_time(1.0)  # the object settles on the table after the release
         final_objects = {n: client.object_pose(n) for n in robot_map.objects}
+        if grip_monitor is not None:
+            report["grasps_lost"] = [
+                {
+                    "controller_time_s": utime * 1e-6,
+                    "gripper": lost.gripper,
+                    "detail": lost.describe(),
+                }
+                for utime, lost in grip_monitor.events
+            ]
     timings["total_s"] = time.perf_counter() - t0
 
     report.update(

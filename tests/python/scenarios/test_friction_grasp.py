@@ -1,13 +1,18 @@
 """ur10-box holds its box by friction alone: measured in the recorded demo run (the simulator's
-contact forces on the jaws, the box's pose in the hand, the commands sent to the simulator)."""
+contact forces on the jaws, the box's pose in the hand, the commands sent to the simulator), and a
+grasp that closes on nothing stops the arm."""
 
 from __future__ import annotations
 
 import json
+import sys
+
+import numpy as np
+import pytest
 
 import lcm
-
 from marionette import channels, lcmt_sim_command
+from tests_support import run_stopping_what_it_started
 
 
 def test_the_box_is_held_by_friction_without_a_weld(ur10_box_run):
@@ -24,3 +29,44 @@ def test_the_box_is_held_by_friction_without_a_weld(ur10_box_run):
         lcmt_sim_command.decode(e.data).command for e in log if e.channel == channels.SIM_COMMAND
     ]
     assert "attach" not in commands, commands
+
+
+@pytest.mark.slow
+def test_a_grasp_that_closes_on_nothing_stops_the_arm_before_it_lifts(tmp_path, lcm_env):
+    """The box moved 20 cm after planning, the plan played open loop: the fingers close on air.
+    The grip monitor sees them reach the closed end from the encoder, the supervisor fails the
+    step after the grasp while its arm still waits for the grip, and the robot holds: the box
+    has not moved, the arm never lifted."""
+    proc = run_stopping_what_it_started(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            "ur10-box",
+            "--speed",
+            "0",
+            "--perturb",
+            "displacement_m=0.25",
+            "--out",
+            str(tmp_path),
+        ],
+        timeout_s=600,
+        env=lcm_env,
+    )
+    assert proc.returncode != 0, proc.stdout
+    (run,) = tmp_path.glob("ur10-box-*")
+    report = json.loads((run / "report.json").read_text())
+    assert not report["success"]
+    (lost,) = report["grasps_lost"]
+    assert lost["gripper"] == "ur10/gripper" and "holds nothing" in lost["detail"]
+    steps = report["steps"]
+    failed = [s for s in steps if s["result"] != "ok"]
+    assert failed and failed[0]["result"].startswith("grasp_lost"), failed
+    grasp = next(i for i, s in enumerate(steps) if s["kind"] == "grasp")
+    assert failed[0]["index"] == steps[grasp]["index"] + 1
+    # The box is where the perturbation put it: its distance to the goal is the plan's 0.5 m
+    # move (planning/problems/ur10_box.yaml: y 0.25 -> -0.25) plus the drawn displacement.
+    dx, dy, _ = report["perturbation"]["displacement"]
+    untouched = float(np.hypot(dx, 0.25 + dy - (-0.25)))
+    assert report["criteria"]["object_position_error_m"] == pytest.approx(untouched, abs=2e-3)
