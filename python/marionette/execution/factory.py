@@ -112,13 +112,49 @@ class FactoryContext:
         return name[len(prefix) :] if name.startswith(prefix) else name
 
 
-def _gripper_joint(g: Gripper) -> GripperJoint:
-    """The actuated joint of ``g``, which must have one with its open and closed positions."""
+_REVOLUTE_AXES = {"JointModelRX": (1, 0, 0), "JointModelRY": (0, 1, 0), "JointModelRZ": (0, 0, 1)}
+
+
+def hinge_lever_arm(model: pin.Model, g: Gripper) -> float | None:
+    """d_axis-gripper of eq. 3.13 for a gripper whose jaw turns on a hinge: the distance from the
+    joint's axis to the gripper frame's origin, where the jaws close on a handle (the same in
+    every configuration: a rotation about the axis keeps distances to it). None when the joint
+    is not a revolute joint of ``model`` (a slide has no lever arm: robot.yaml says so)."""
+    if g.joint is None or not model.existJointName(g.joint):
+        return None
+    jid = model.getJointId(g.joint)
+    joint = model.joints[jid]
+    name = joint.shortname()
+    if name in _REVOLUTE_AXES:
+        axis_local = np.array(_REVOLUTE_AXES[name], dtype=float)
+    elif name == "JointModelRevoluteUnaligned":
+        axis_local = np.asarray(joint.extract().axis, dtype=float)
+    else:
+        return None
+    if not model.existFrame(g.link):
+        return None
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, pin.neutral(model))
+    X_WL = data.oMf[model.getFrameId(g.link)]
+    p = X_WL.act(np.array(g.pose.xyz, dtype=float)) - data.oMi[jid].translation
+    axis = data.oMi[jid].rotation @ axis_local
+    return float(np.linalg.norm(p - axis * float(axis @ p)))
+
+
+def _gripper_joint(g: Gripper, model: pin.Model) -> GripperJoint:
+    """The actuated joint of ``g``, which must have one with its open and closed positions; its
+    admittance parameters are robot.yaml's, and for a hinge jaw the lever arm of eq. 3.13 from
+    the kinematics (:func:`hinge_lever_arm`) unless robot.yaml gives it."""
     if g.joint is None or g.open_position is None or g.closed_position is None:
         raise SemanticsError(
             f"gripper {g.name}: joint {g.joint} needs open_position and closed_position"
         )
-    return GripperJoint(g.joint, g.open_position, g.closed_position, dict(g.admittance))
+    parameters = dict(g.admittance)
+    if "lever_arm" not in parameters:
+        lever_arm = hinge_lever_arm(model, g)
+        if lever_arm is not None and lever_arm > 1e-3:
+            parameters["lever_arm"] = lever_arm
+    return GripperJoint(g.joint, g.open_position, g.closed_position, parameters)
 
 
 def context_from_plan(
@@ -130,7 +166,7 @@ def context_from_plan(
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
     joints = {
-        g.name: _gripper_joint(g)
+        g.name: _gripper_joint(g, model)
         for g in semantics
         if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]
     }

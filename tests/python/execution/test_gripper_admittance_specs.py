@@ -4,6 +4,7 @@ plank-flip plan, checked against the plan's own grasp bookkeeping, and the spec'
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from marionette import robots
@@ -80,3 +81,47 @@ def test_bad_admittance_specs_are_refused_with_the_reason():
         TaskSpec(**dict(ok, reference=[])).check()
     with pytest.raises(SpecError, match="only gripper_admittance tasks take parameters"):
         TaskSpec("p", "posture", 0, parameters={"force_target": 5.0}).check()
+
+
+def _revolute_grippers():
+    from marionette import robots
+
+    out = []
+    for name in robots.robot_names():
+        for g in robots.semantics(name).grippers:
+            if g.joint is not None and "lever_arm" not in g.admittance:
+                out.append((name, g.name))
+    return out
+
+
+@pytest.mark.parametrize("robot,gripper", _revolute_grippers())
+def test_a_hinge_jaws_lever_arm_is_the_radius_its_handle_point_turns_on(robot, gripper):
+    """Eq. 3.13's d_axis-gripper from the kinematics (factory.hinge_lever_arm), against the
+    chord of the circle the gripper frame's origin, carried by the jaw, describes when the jaw
+    turns by delta: d = chord / (2 sin(delta / 2))."""
+    import pinocchio as pin
+
+    from marionette import robots
+    from marionette.execution.factory import hinge_lever_arm
+
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
+    g = robots.semantics(robot).gripper(gripper)
+    d = hinge_lever_arm(model, g)
+    jid = model.getJointId(g.joint) if model.existJointName(g.joint) else model.njoints
+    if (
+        jid >= model.njoints
+        or model.joints[jid].nq != 1
+        or "R" not in model.joints[jid].shortname()
+    ):
+        assert d is None  # a slide (or a joint the controller's model does not have)
+        return
+    data = model.createData()
+    q = pin.neutral(model)
+    pin.framesForwardKinematics(model, data, q)
+    p_W = data.oMf[model.getFrameId(g.link)].act(np.array(g.pose.xyz))
+    p_jaw = data.oMi[jid].actInv(p_W)  # the same point, carried by the jaw
+    delta = 0.3
+    q[model.joints[jid].idx_q] += delta
+    pin.forwardKinematics(model, data, q)
+    chord = np.linalg.norm(data.oMi[jid].act(p_jaw) - p_W)
+    assert d == pytest.approx(chord / (2 * np.sin(delta / 2)), rel=1e-9)
