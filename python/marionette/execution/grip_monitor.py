@@ -8,9 +8,10 @@ they travel on to the closed position of robot.yaml (the fingers meeting). The e
 before any camera does, and without one. :class:`GripMonitor` reads the gripper joints of each
 ROBOT_STATE and reports a gripper whose fingers stay within ``empty_margin`` of the stroke from
 the closed position for ``min_duration_s`` of controller time (two states at least, whatever
-the state rate: an unpaced controller publishes a few per second); :class:`GripMonitorNode` publishes it as
-``grasp_lost`` on SUPERVISOR_EVENT (source ``grip_monitor``), the supervisor fails the step and
-holds the robot (``decisions.FAILURES``): the arm does not carry on with an empty hand.
+the state rate: an unpaced controller publishes a few per second); :class:`GripMonitorNode`
+publishes it as ``grasp_lost`` on SUPERVISOR_EVENT (source ``grip_monitor``), the supervisor
+fails the step and holds the robot (``decisions.FAILURES``): the arm does not carry on with an
+empty hand.
 
 Only grippers with a joint and both positions are watched, and only while the step holds them
 (a gripper that opens, or has not yet closed, is not a failure).
