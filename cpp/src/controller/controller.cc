@@ -175,11 +175,7 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   SimRequest request;
   while (scene && sim_requests.Pop(&request)) {
     Journal(t.index, 3, request.hash);
-    if (request.kind != SimRequest::kMove) {
-      scene->SetWeld(request.id, request.kind == SimRequest::kAttach);
-      continue;
-    }
-    scene->MoveFreeBody(request.id, request.pose);
+    ApplySimRequest(*scene, request);
   }
   std::array<int64_t, 64> set_hashes;
   const int num_sets = service.ApplySets(set_hashes.data(), static_cast<int>(set_hashes.size()));

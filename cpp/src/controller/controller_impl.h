@@ -241,13 +241,7 @@ struct Controller::Impl {
   std::atomic<int64_t> command_hash{0};  // of the message behind command_request
   int64_t posted_hash = 0;               // of the spec behind `posted`
   int64_t posted_build_tick = -1;        // the tick of the configuration it was built against
-  struct SimRequest {
-    enum Kind { kMove, kAttach, kDetach } kind = kMove;
-    int id = -1;  // body (move) or weld equality (attach, detach)
-    pinocchio::SE3 pose = pinocchio::SE3::Identity();
-    int64_t hash = 0;  // the message's, for the journal
-  };
-  runtime::SpscQueue<SimRequest> sim_requests{64};
+  runtime::SpscQueue<SimRequest> sim_requests{64};  // sim_start.h; hash: for the journal
 
   // Loop -> publisher / camera.
   std::unique_ptr<runtime::TripleBuffer<Snapshot>> snapshots;

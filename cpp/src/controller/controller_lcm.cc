@@ -430,48 +430,16 @@ void Controller::Impl::ReceiveSimCommand(const lcm::ReceiveBuffer* rbuf) {
     Reject(channels::kSimCommand, "no simulator", "the kinematic backend has no objects");
     return;
   }
-  const int64_t hash = Fnv1a(rbuf->data, rbuf->data_size);
-  if (msg.command == "attach" || msg.command == "detach") {
-    SimRequest r;
-    r.hash = hash;
-    r.kind = msg.command == "attach" ? SimRequest::kAttach : SimRequest::kDetach;
-    try {
-      r.id = scene->WeldId(msg.object_name);
-    } catch (const sim::SimError& e) {
-      Reject(channels::kSimCommand, "unknown weld", e.what());
-      return;
-    }
-    if (!sim_requests.Push(r))
-      Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not changed");
+  auto read = ReadSimCommand(msg, *scene, free_objects, free_object_ids);
+  if (const auto* refusal = std::get_if<SimCommandRefusal>(&read)) {
+    Reject(channels::kSimCommand, refusal->category, refusal->detail);
     return;
   }
-  if (msg.command != "set_object_pose") {
-    Reject(channels::kSimCommand, "unknown command",
-           "'" + msg.command + "' (set_object_pose, attach, detach)");
-    return;
+  SimRequest r = std::get<SimRequest>(read);
+  r.hash = Fnv1a(rbuf->data, rbuf->data_size);
+  if (!sim_requests.Push(r)) {
+    Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not changed");
   }
-  const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
-  if (it == free_objects.end()) {
-    std::string known;
-    for (const std::string& n : free_objects) known += (known.empty() ? "" : ", ") + n;
-    Reject(channels::kSimCommand, "unknown object",
-           "'" + msg.object_name + "' (free objects: " + known + ")");
-    return;
-  }
-  const Eigen::Map<const Eigen::Vector3d> p(msg.position);
-  const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
-  if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
-    Reject(channels::kSimCommand, "invalid pose",
-           "'" + msg.object_name + "': non-finite or non-unit quaternion");
-    return;
-  }
-  SimRequest r;
-  r.hash = hash;
-  r.id = free_object_ids[it - free_objects.begin()];
-  r.pose = pinocchio::SE3(
-      Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
-  if (!sim_requests.Push(r))
-    Reject(channels::kSimCommand, "queue full", "'" + msg.object_name + "' not moved");
 }
 
 // ---- per-entity timing and budgets ----------------------------------------------------------

@@ -3,6 +3,9 @@
 
 #include <mujoco/mujoco.h>
 
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
 #include <stdexcept>
 
 namespace marionette::controller {
@@ -74,6 +77,69 @@ lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
     out.objects.push_back(p);
   }
   return out;
+}
+
+std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
+    const lcmt_sim_command& msg, const sim::MujocoScene& scene,
+    const std::vector<std::string>& free_objects, const std::vector<int>& free_object_ids) {
+  SimRequest r;
+  if (msg.command == "attach" || msg.command == "detach") {
+    r.kind = msg.command == "attach" ? SimRequest::kAttach : SimRequest::kDetach;
+    try {
+      r.id = scene.WeldId(msg.object_name);  // its message lists the scene's welds
+    } catch (const sim::SimError& e) {
+      return SimCommandRefusal{"unknown weld", e.what()};
+    }
+    return r;
+  }
+  if (msg.command != "set_object_pose" && msg.command != "push") {
+    return SimCommandRefusal{"unknown command",
+                             "'" + msg.command + "' (set_object_pose, push, attach, detach)"};
+  }
+  const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
+  if (it == free_objects.end()) {
+    std::string known;
+    for (const std::string& n : free_objects) known += (known.empty() ? "" : ", ") + n;
+    return SimCommandRefusal{"unknown object", "'" + msg.object_name + "' (free objects: " +
+                                                   (known.empty() ? "none" : known) + ")"};
+  }
+  r.id = free_object_ids[it - free_objects.begin()];
+  if (msg.command == "push") {
+    const Eigen::Map<const Eigen::Vector3d> f(msg.force);
+    if (!f.allFinite() || !std::isfinite(msg.duration) || msg.duration < 0.0) {
+      return SimCommandRefusal{"invalid push",
+                               "'" + msg.object_name + "': non-finite force or negative duration"};
+    }
+    r.kind = SimRequest::kPush;
+    r.force = f;
+    r.duration_s = msg.duration;
+    return r;
+  }
+  const Eigen::Map<const Eigen::Vector3d> p(msg.position);
+  const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
+  if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
+    return SimCommandRefusal{"invalid pose",
+                             "'" + msg.object_name + "': non-finite or non-unit quaternion"};
+  }
+  r.kind = SimRequest::kMove;
+  r.pose = pinocchio::SE3(
+      Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
+  return r;
+}
+
+void ApplySimRequest(sim::MujocoScene& scene, const SimRequest& request) {
+  switch (request.kind) {
+    case SimRequest::kAttach:
+    case SimRequest::kDetach:
+      scene.SetWeld(request.id, request.kind == SimRequest::kAttach);
+      break;
+    case SimRequest::kMove:
+      scene.MoveFreeBody(request.id, request.pose);
+      break;
+    case SimRequest::kPush:
+      scene.Push(request.id, request.force, request.duration_s);
+      break;
+  }
 }
 
 }  // namespace marionette::controller

@@ -200,12 +200,46 @@ void MujocoScene::SetEncoderOffsets(const std::vector<std::pair<std::string, dou
   for (size_t k = 0; k < joints_.size(); ++k) joints_[k].encoder_offset = by_joint[k];
 }
 
-void MujocoScene::Step1() { mj_step1(model_, data_); }
+void MujocoScene::Step1() {
+  for (int i = 0; i < num_pushes_; ++i) {  // external forces act from mj_step2 on
+    Eigen::Map<Eigen::Vector3d>(data_->xfrc_applied + 6 * pushes_[i].body) = pushes_[i].force;
+  }
+  mj_step1(model_, data_);
+}
 
 void MujocoScene::Step2(int substeps) {
   mj_step2(model_, data_);
   for (int i = 1; i < substeps; ++i) mj_step(model_, data_);
   if (!releases_.empty()) EndClearReleases();
+  // Pushes end after the steps that covered their duration (the control period's resolution).
+  const double elapsed = substeps * model_->opt.timestep;
+  for (int i = 0; i < num_pushes_;) {
+    pushes_[i].remaining_s -= elapsed;
+    if (pushes_[i].remaining_s > 1e-12) {
+      ++i;
+      continue;
+    }
+    Eigen::Map<Eigen::Vector3d>(data_->xfrc_applied + 6 * pushes_[i].body).setZero();
+    pushes_[i] = pushes_[--num_pushes_];
+  }
+}
+
+void MujocoScene::Push(int body_id, const Eigen::Vector3d& force_W, double duration_s) {
+  if (body_id <= 0 || body_id >= model_->nbody) {
+    throw SimError("Push: " + std::to_string(body_id) + " is not a body of the scene");
+  }
+  if (!force_W.allFinite() || !std::isfinite(duration_s) || duration_s < 0.0) {
+    throw SimError("Push: the force must be finite and the duration >= 0 s");
+  }
+  int slot = 0;
+  while (slot < num_pushes_ && pushes_[slot].body != body_id) ++slot;
+  if (slot == num_pushes_) {
+    if (num_pushes_ == kMaxPushes) {
+      throw SimError("Push: " + std::to_string(kMaxPushes) + " bodies are pushed already");
+    }
+    ++num_pushes_;
+  }
+  pushes_[slot] = {body_id, force_W, duration_s};
 }
 
 int MujocoScene::BodyId(const std::string& body) const {

@@ -61,13 +61,6 @@ int64_t WallUs() {
       .count();
 }
 
-// A SIM_COMMAND request, checked and resolved by the SIM_COMMAND thread, applied by the loop.
-struct SimRequest {
-  enum Kind { kMove, kAttach, kDetach } kind = kMove;
-  int id = -1;  // body (move) or weld equality (attach, detach)
-  pinocchio::SE3 pose = pinocchio::SE3::Identity();
-};
-
 // What the loop shares with the publisher each cycle (fixed sizes: copied without allocation).
 struct Snapshot {
   int64_t cycle = -1;  // -1: no cycle completed yet
@@ -134,7 +127,7 @@ struct SimDriver::Impl {
   std::atomic<int64_t> timings_lost{0};
   std::unique_ptr<controller::CameraStream> camera;
   // SIM_COMMAND thread -> loop.
-  runtime::SpscQueue<SimRequest> sim_requests{64};
+  runtime::SpscQueue<controller::SimRequest> sim_requests{64};
   std::atomic<int64_t> sim_refused{0};
 
   // Refusals (written by the loop only when refusing, read by the publisher).
@@ -238,14 +231,8 @@ SimDriver::Impl::Impl(const SimOptions& o)
 
 void SimDriver::Impl::ApplySimRequests() {
   sim::MujocoScene& scene = *started.scene;
-  SimRequest request;
-  while (sim_requests.Pop(&request)) {
-    if (request.kind != SimRequest::kMove) {
-      scene.SetWeld(request.id, request.kind == SimRequest::kAttach);
-      continue;
-    }
-    scene.MoveFreeBody(request.id, request.pose);
-  }
+  controller::SimRequest request;
+  while (sim_requests.Pop(&request)) controller::ApplySimRequest(scene, request);
 }
 
 void SimDriver::Impl::PublishState() {
@@ -447,45 +434,16 @@ void SimDriver::Impl::OnSimCommand(const lcm::ReceiveBuffer* rbuf, const std::st
       RefuseSim("undecodable", "not a valid lcmt_sim_command");
       return;
     }
-    const sim::MujocoScene& scene = *started.scene;
-    SimRequest r;
-    if (msg.command == "attach" || msg.command == "detach") {
-      r.kind = msg.command == "attach" ? SimRequest::kAttach : SimRequest::kDetach;
-      try {
-        r.id = scene.WeldId(msg.object_name);  // its message lists the scene's welds
-      } catch (const sim::SimError& e) {
-        RefuseSim("unknown weld", e.what());
-        return;
-      }
-      if (!sim_requests.Push(r)) RefuseSim("queue full", "'" + msg.object_name + "' not changed");
-      if (options.verbose) runtime::LogLine("[sim] ", msg.command, " ", msg.object_name);
+    auto read = controller::ReadSimCommand(msg, *started.scene, started.free_objects,
+                                           started.free_object_ids);
+    if (const auto* refusal = std::get_if<controller::SimCommandRefusal>(&read)) {
+      RefuseSim(refusal->category, refusal->detail);
       return;
     }
-    if (msg.command != "set_object_pose") {
-      RefuseSim("unknown command", "'" + msg.command + "' (set_object_pose, attach, detach)");
-      return;
+    if (!sim_requests.Push(std::get<controller::SimRequest>(read))) {
+      RefuseSim("queue full", "'" + msg.object_name + "' not changed");
     }
-    const auto& objects = started.free_objects;
-    const auto it = std::find(objects.begin(), objects.end(), msg.object_name);
-    if (it == objects.end()) {
-      std::string known;
-      for (const std::string& n : objects) known += (known.empty() ? "" : ", ") + n;
-      RefuseSim("unknown object", "'" + msg.object_name +
-                                      "' (free objects: " + (known.empty() ? "none" : known) + ")");
-      return;
-    }
-    const Eigen::Map<const Eigen::Vector3d> p(msg.position);
-    const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
-    if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
-      RefuseSim("invalid pose", "'" + msg.object_name + "': non-finite or non-unit quaternion");
-      return;
-    }
-    r.kind = SimRequest::kMove;
-    r.id = started.free_object_ids[it - objects.begin()];
-    r.pose = pinocchio::SE3(
-        Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
-    if (!sim_requests.Push(r)) RefuseSim("queue full", "'" + msg.object_name + "' not moved");
-    if (options.verbose) runtime::LogLine("[sim] set_object_pose ", msg.object_name);
+    if (options.verbose) runtime::LogLine("[sim] ", msg.command, " ", msg.object_name);
   } catch (const std::exception& e) {  // no exception leaves an LCM handler
     RefuseSim("internal error", e.what());
   }

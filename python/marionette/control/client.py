@@ -169,6 +169,18 @@ class ControllerClient:
         msg.position, msg.quaternion = list(v[:3]), list(v[3:])
         self.bus.publish(channels.SIM_COMMAND, msg)
 
+    def push_object(self, name: str, force_W, duration_s: float) -> None:
+        """Pushes a free object of the MuJoCo scene with ``force_W`` [N] (world axes, at its
+        centre of mass) for ``duration_s`` of simulated time (a physical perturbation)."""
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command = "push"
+        msg.object_name = name
+        msg.quaternion = [1.0, 0.0, 0.0, 0.0]
+        msg.force = [float(f) for f in force_W]
+        msg.duration = float(duration_s)
+        self.bus.publish(channels.SIM_COMMAND, msg)
+
     def attach(self, weld: str) -> None:
         """Simulated grasp: activates the scene's weld ("grasp/<robot>/<gripper>/<object>")
         at the current relative pose of its bodies."""

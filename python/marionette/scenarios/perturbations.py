@@ -6,6 +6,9 @@ ch. 4-5; ``docs/scenarios.md``).
 * **slip during execution** — while carried, the object turns and shifts in the hand
   (``slip_m`` / ``slip_deg``): the weld is released, the object moved, the weld closed again,
   at the start of step ``slip_step`` (the carry after the hand-over in plank-flip);
+* **push during the carry** (friction grasps) — the held object is pushed by a force of
+  ``push_n`` (1/2 to 1 of it, a random direction) for ``push_s``, 0 to 1 s after the grip
+  settled in its first carry: the physics decides whether the grip holds it;
 * **joint offsets** in the controller's model (ch. 4: encoder offsets, 7° shoulder, 4° wrist):
   the MuJoCo joint's ``ref`` is set to the offset, so the simulator reports q + offset for the
   true angle q and the controller's Pinocchio model places the links off by it;
@@ -41,6 +44,8 @@ class PerturbationSettings:
     slip_m: float = 0.0
     slip_deg: float = 0.0
     slip_step: int = 10
+    push_n: float = 0.0
+    push_s: float = 0.1
     joint_offsets_deg: dict[str, float] = field(default_factory=dict)  # joint -> |offset|
     camera_noise_m: float = 0.0
     camera_noise_deg: float = 0.0
@@ -51,11 +56,14 @@ class PerturbationSettings:
             "displacement_deg",
             "slip_m",
             "slip_deg",
+            "push_n",
             "camera_noise_m",
             "camera_noise_deg",
         ):
             if getattr(self, name) < 0:
                 raise ValueError(f"perturbation {name} must be >= 0, got {getattr(self, name)}")
+        if not self.push_s > 0:
+            raise ValueError(f"perturbation push_s must be > 0 s, got {self.push_s}")
 
 
 # `marionette demo --perturb NAME`: each part alone, and all of them (the set plank-flip's trials
@@ -95,7 +103,12 @@ def combined(parts: list[PerturbationSettings]) -> PerturbationSettings:
     return PerturbationSettings(**out)
 
 
-PRESETS: dict[str, PerturbationSettings] = {"all": combined(list(PARTS.values())), **PARTS}
+PRESETS: dict[str, PerturbationSettings] = {
+    "all": combined(list(PARTS.values())),
+    **PARTS,
+    # A bump on the held object during the carry (friction grasps only: a weld would not feel it).
+    "push": PerturbationSettings(push_n=5.0, push_s=0.1),
+}
 
 
 def settings_from_document(doc: Any, source: str = "<perturbation>") -> PerturbationSettings:
@@ -166,7 +179,8 @@ def settings_from_argument(text: str) -> PerturbationSettings | None:
 @dataclass(frozen=True)
 class Perturbation:
     """One trial's draw: table displacement (dx, dy [m], dyaw [rad]), slip in the hand (a twist
-    of the object frame, (v, w) [m, rad]), joint offsets [rad], camera noise sigmas."""
+    of the object frame, (v, w) [m, rad]), joint offsets [rad], camera noise sigmas, the push
+    during the carry (force [N], duration [s], delay after the grip settled [s])."""
 
     seed: int
     displacement: tuple[float, float, float]
@@ -175,6 +189,9 @@ class Perturbation:
     joint_offsets: dict[str, float]
     camera_noise_m: float
     camera_noise_rad: float
+    push: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    push_s: float = 0.0
+    push_delay_s: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -194,6 +211,7 @@ class Perturbation:
             or self.joint_offsets
             or self.camera_noise_m
             or self.camera_noise_rad
+            or any(self.push)
         )
 
 
@@ -212,6 +230,10 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
         / max(float(np.linalg.norm(w)), 1e-12)
     )
     offsets = draw_joint_offsets(rng, settings.joint_offsets_deg)
+    # Drawn last: the draws above stay those of earlier versions for the same seed.
+    push = rng.normal(size=3)
+    push *= settings.push_n * rng.uniform(0.5, 1.0) / max(float(np.linalg.norm(push)), 1e-12)
+    push_delay = rng.uniform(0.0, 1.0)
     return Perturbation(
         seed,
         (r * math.cos(a), r * math.sin(a), yaw),
@@ -220,6 +242,9 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
         offsets,
         settings.camera_noise_m,
         math.radians(settings.camera_noise_deg),
+        (float(push[0]), float(push[1]), float(push[2])),
+        settings.push_s if settings.push_n else 0.0,
+        float(push_delay) if settings.push_n else 0.0,
     )
 
 

@@ -54,7 +54,7 @@ from marionette.execution.grip_force import (
 )
 from marionette.execution.grip_monitor import GripMonitor, GripMonitorNode, watched_grippers
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
-from marionette.execution.references import StepTiming
+from marionette.execution.references import StepTiming, grip_change_s
 from marionette.execution.supervisor import (
     Supervisor,
     SupervisorOptions,
@@ -263,6 +263,11 @@ class PlanAndExecute(Scenario):
     def check_options(self, options: RunOptions) -> None:
         super().check_options(options)
         p = options.perturbation
+        if p is not None and any(p.push) and not self.friction_grasps_in(options):
+            raise ScenarioError(
+                f"{self.name} welds its grasps: a push on the held object tests a friction "
+                "grasp (a weld would not feel it)"
+            )
         if p is not None and any(p.slip) and self.friction_grasps_in(options):
             raise ScenarioError(
                 f"{self.name} holds its objects by friction: the in-hand slip moves welded "
@@ -608,6 +613,22 @@ def run_plan_and_execute(
             target=_progress, args=(supervisor, stop_progress, log), daemon=True
         )
         progress.start()
+        if perturbation is not None and any(perturbation.push):
+            threading.Thread(
+                target=_push,
+                args=(
+                    supervisor,
+                    client,
+                    steps,
+                    specs,
+                    robot,
+                    scenario.object_name,
+                    perturbation,
+                    stop_progress,
+                    log,
+                ),
+                daemon=True,
+            ).start()
         if perturbation is not None and any(perturbation.slip):
             threading.Thread(
                 target=_slip,
@@ -762,6 +783,48 @@ def _slip(
             for w in welds:
                 client.attach(w)
             log(f"perturbation: {obj} slipped in {', '.join(welds) or 'no hand'} at step {k}")
+        return
+
+
+def _push(
+    supervisor: Supervisor,
+    client: ControllerClient,
+    steps: list,
+    specs: list,
+    robot: str,
+    obj: str,
+    perturbation: Perturbation,
+    stop: threading.Event,
+    log: Callable[[str], None],
+) -> None:
+    """In the first step that carries ``obj`` in a hand, once the grip has settled (the step's
+    lead-in, :func:`references.grip_change_s`) and ``push_delay_s`` more of controller time,
+    the object is pushed by ``push`` [N] for ``push_s``: a physical bump the grip holds or not."""
+    k = next(
+        (
+            i
+            for i, s in enumerate(steps)
+            if any(h.split("/")[0] == obj for h in s.grasps.values()) and i > 0
+        ),
+        None,
+    )
+    if k is None:
+        log(f"perturbation: no step carries {obj}: no push")
+        return
+    while not stop.wait(0.002):
+        if supervisor.step_index < k:
+            continue
+        if supervisor.step_index > k:
+            return
+        settle = grip_change_s(steps[k], steps[k - 1], specs[k], robot)
+        client.wait_time(settle + perturbation.push_delay_s)
+        if stop.is_set() or supervisor.step_index != k:
+            return
+        client.push_object(obj, perturbation.push, perturbation.push_s)
+        log(
+            f"perturbation: {obj} pushed with {np.linalg.norm(perturbation.push):.1f} N for "
+            f"{perturbation.push_s:g} s in step {k}"
+        )
         return
 
 

@@ -196,7 +196,14 @@ def _markdown(r: dict[str, Any]) -> str:
             f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
             + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
             + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / "
-            f"{np.degrees(p['camera_noise_rad']):.2f}°",
+            f"{np.degrees(p['camera_noise_rad']):.2f}°"
+            + (
+                f"; the held object pushed with {np.linalg.norm(p['push']):.1f} N "
+                f"({', '.join(f'{f:+.1f}' for f in p['push'])}) for {p['push_s']:g} s, "
+                f"{p['push_delay_s']:.2f} s after its grip settled"
+                if any(p.get("push", ()))
+                else ""
+            ),
             "",
         ]
     lines += _dry_run_lines(r) + _calibration_lines(r)

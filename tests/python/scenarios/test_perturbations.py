@@ -95,7 +95,8 @@ def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_unde
         camera_noise_m=0.002,
         camera_noise_deg=0.5,
     )
-    assert set(PRESETS) == {"all", *PARTS}
+    # push: for friction grasps only (plank-flip welds), so not a part of "all"
+    assert set(PRESETS) == {"all", "push", *PARTS}
     full = PRESETS["all"]
     for name, settings in PRESETS.items():
         for field_name in (
@@ -111,3 +112,45 @@ def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_unde
                 field_name,
             )
         assert set(settings.joint_offsets_deg) <= set(full.joint_offsets_deg)
+
+
+def test_a_push_is_drawn_after_the_other_draws_within_its_bounds():
+    """The push preset: 1/2 to 1 of push_n in a direction spread over the sphere, a delay in
+    [0, 1] s; drawn after the others, so that a seed's displacement, slip and offsets are those
+    it drew before pushes existed."""
+    with_push = PerturbationSettings(**{**PRESETS["all"].__dict__, "push_n": 6.0, "push_s": 0.2})
+    directions = []
+    for seed in range(300):
+        p, q = draw(with_push, seed), draw(PRESETS["all"], seed)
+        assert (p.displacement, p.slip, p.joint_offsets) == (
+            q.displacement,
+            q.slip,
+            q.joint_offsets,
+        )
+        f = np.array(p.push)
+        assert 3.0 - 1e-9 <= np.linalg.norm(f) <= 6.0 + 1e-9
+        assert 0.0 <= p.push_delay_s <= 1.0 and p.push_s == 0.2
+        directions.append(f / np.linalg.norm(f))
+        assert q.push == (0.0, 0.0, 0.0) and q.push_s == 0.0
+    # Directions spread over the sphere: their mean is near 0 (1/sqrt(300) per axis).
+    assert np.linalg.norm(np.mean(directions, axis=0)) < 0.15
+    # "all" stays plank-flip's set (welded grasps): no push in it.
+    assert PRESETS["push"].push_n == 5.0 and PRESETS["all"].push_n == 0.0
+
+
+def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_friction():
+    from marionette.scenarios import SCENARIOS
+    from marionette.scenarios.base import RunOptions, ScenarioError
+
+    push = draw(PRESETS["push"], 1)
+    with pytest.raises(ScenarioError, match="push on the held object"):
+        SCENARIOS["plank-flip"].check_options(RunOptions(perturbation=push))
+    SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=push))
+    slip = draw(PRESETS["in-hand"], 1)
+    with pytest.raises(ScenarioError, match="holds its objects by friction"):
+        SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=slip))
+    # Without the admittance ur10-box welds: the slip applies, the push is refused.
+    welded = RunOptions(perturbation=slip, gripper_admittance=False)
+    SCENARIOS["ur10-box"].check_options(welded)
+    with pytest.raises(ScenarioError, match="push on the held object"):
+        SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=push, gripper_admittance=False))

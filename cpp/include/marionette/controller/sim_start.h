@@ -9,10 +9,12 @@
 #include <pinocchio/multibody/model.hpp>
 #include <string>
 #include <utility>
+#include <variant>
 #include <vector>
 
 #include "marionette/controller/robots.h"
 #include "marionette/lcmt_object_poses.hpp"
+#include "marionette/lcmt_sim_command.hpp"
 #include "marionette/sim/mujoco_scene.h"
 
 namespace marionette::controller {
@@ -41,5 +43,33 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
 /// [us]: `names` with their poses, 7 per object in `poses` (x y z qw qx qy qz, world).
 lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
                                        const std::vector<double>& poses, int64_t utime);
+
+/// What a SIM_COMMAND asks of the simulator, checked against the scene by the thread that
+/// received it, applied by the loop between two steps (ApplySimRequest).
+struct SimRequest {
+  enum Kind { kMove, kAttach, kDetach, kPush } kind = kMove;
+  int id = -1;  ///< body (move, push) or weld equality (attach, detach)
+  pinocchio::SE3 pose = pinocchio::SE3::Identity();  ///< move: X_WB
+  Eigen::Vector3d force = Eigen::Vector3d::Zero();   ///< push: [N], world axes
+  double duration_s = 0.0;                           ///< push: [s]
+  int64_t hash = 0;                                  ///< the message's, for a journal
+};
+
+/// Why a SIM_COMMAND is refused: a category to count it under and a detail to log.
+struct SimCommandRefusal {
+  std::string category, detail;
+};
+
+/// The request `msg` makes of `scene`, whose free bodies are `free_objects` (MuJoCo ids
+/// `free_object_ids`), or why it is refused: an unknown command, weld or object, a non-finite or
+/// non-unit pose, a non-finite force. One reading for both simulators (marionette-controller's
+/// mujoco backend, marionette-sim).
+std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
+    const lcmt_sim_command& msg, const sim::MujocoScene& scene,
+    const std::vector<std::string>& free_objects, const std::vector<int>& free_object_ids);
+
+/// Applies a request from ReadSimCommand to the scene it was read for (from the loop, between
+/// two steps).
+void ApplySimRequest(sim::MujocoScene& scene, const SimRequest& request);
 
 }  // namespace marionette::controller

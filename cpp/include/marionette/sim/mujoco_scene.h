@@ -18,6 +18,7 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Core>
+#include <array>
 #include <functional>
 #include <memory>
 #include <pinocchio/multibody/model.hpp>
@@ -90,6 +91,13 @@ class MujocoScene {
   /// from a control loop, between two steps (the next mj_step1 recomputes them).
   void MoveFreeBody(int body_id, const pinocchio::SE3& X_WB);
 
+  /// Pushes body `body_id` with `force_W` [N] (world axes, at its centre of mass) for
+  /// `duration_s` of simulated time from the next step on: a physical perturbation (a hand
+  /// bumping a held object). A new push on a body replaces its previous one; at most
+  /// kMaxPushes bodies are pushed at once (throws SimError beyond, or on a non-finite force).
+  void Push(int body_id, const Eigen::Vector3d& force_W, double duration_s);
+  static constexpr int kMaxPushes = 8;
+
   /// The simulated grasp (Agimus simulated it too, §3.3.6: physics engines hold objects badly):
   /// activates the weld equality `weld` ("grasp/<robot>/<gripper>/<object>") at the current
   /// relative pose of its two bodies, or releases it. Throws SimError on an unknown weld.
@@ -125,6 +133,11 @@ class MujocoScene {
     int weld;
     std::vector<int> hand_geoms, object_geoms;
   };
+  struct ActivePush {
+    int body = -1;
+    Eigen::Vector3d force = Eigen::Vector3d::Zero();
+    double remaining_s = 0.0;
+  };
   bool SubtreeOf(int body, int root) const;
   void EndReleases(const std::function<bool(const Release&)>& ended);  // ends those `ended` says
   void EndClearReleases();
@@ -137,6 +150,8 @@ class MujocoScene {
   int planar_dof_[3] = {-1, -1, -1};
   int nq_ = 0, nv_ = 0;
   std::vector<JointMap> joints_;
+  std::array<ActivePush, kMaxPushes> pushes_{};  // fixed size: no allocation in the loop
+  int num_pushes_ = 0;
   std::vector<std::string> actuated_names_;
   std::vector<Release> releases_;
   // Per geom: the model's own collision masks, and how many releases hold it open (mask 0).
