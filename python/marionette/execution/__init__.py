@@ -15,6 +15,7 @@ FSM that switches controllers with start and end checks, and the initial-state e
 | `force_event.py` | `force_threshold` events from a joint's effort in ROBOT_STATE (eq. 3.11-3.13) |
 | `grip_force.py` | a gripper's grip force: effort estimate (eq. 3.11-3.13), jaw contact forces |
 | `grip_monitor.py` | fingers closed on nothing (the encoder) -> `grasp_lost` events |
+| `step_follower.py` | the supervisor's running step from SUPERVISOR_STATE (for the monitors) |
 | `cli.py` | `marionette supervise`, `marionette fsm state|events|inject` |
 | `visual_servo.py` | PBVS correction of a carried object's gripper task, head gaze (§5.3.1) |
 | `tool_task.py` | a tool held by an arm: one streamed SE3 task, corrected on its measured pose |

@@ -26,6 +26,7 @@ from typing import Any
 from marionette import channels, lcmt_robot_state, lcmt_supervisor_state
 from marionette.execution.decisions import event_message
 from marionette.execution.plan_steps import Step
+from marionette.execution.step_follower import StepFollower
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "grip_monitor"
@@ -125,20 +126,15 @@ class GripMonitorNode:
     def __init__(self, bus: LcmBus, monitor: GripMonitor, steps: list[Step]) -> None:
         self.bus = bus
         self.monitor = monitor
-        self.steps = {s.index: s for s in steps}
         self.events: list[tuple[int, GraspLost]] = []
         self._lock = threading.Lock()
-        self._step_index: int | None = None
+        self._follower = StepFollower(steps, monitor.begin_step)
         bus.subscribe(channels.SUPERVISOR_STATE, lcmt_supervisor_state, self._on_supervisor)
         bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
 
     def _on_supervisor(self, msg: Any) -> None:
         with self._lock:
-            running = msg.state not in ("idle", "done", "failed")
-            index = msg.step_index if running else None
-            if index != self._step_index:
-                self._step_index = index
-                self.monitor.begin_step(self.steps.get(index) if index is not None else None)
+            self._follower.on_supervisor_state(msg)
 
     def _on_state(self, msg: Any) -> None:
         with self._lock:

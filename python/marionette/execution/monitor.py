@@ -38,6 +38,7 @@ from marionette.control.client import configuration_from_state
 from marionette.execution.decisions import event_message
 from marionette.execution.factory import FactoryContext
 from marionette.execution.plan_steps import Step
+from marionette.execution.step_follower import StepFollower
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "monitor"
@@ -108,8 +109,12 @@ class ExecutionMonitor:
     def _object(self, handle: str) -> str:
         return self.ctx.handle_objects.get(handle, handle.split("/")[0])
 
-    def begin_step(self, step: Step) -> None:
-        """A new FSM state: grasps still held keep their reference, placements restart."""
+    def begin_step(self, step: Step | None) -> None:
+        """A new FSM state: grasps still held keep their reference, placements restart (None:
+        no step runs, nothing is checked until one does)."""
+        self.step = step
+        if step is None:
+            return
         held = {(g, self._object(h)) for g, h in step.grasps.items()}
         self._grasp_latches = {k: v for k, v in self._grasp_latches.items() if k in held}
         self._placement_latches = {}
@@ -179,10 +184,9 @@ class MonitorNode:
     def __init__(self, bus: LcmBus, monitor: ExecutionMonitor, steps: list[Step]) -> None:
         self.bus = bus
         self.monitor = monitor
-        self.steps = {s.index: s for s in steps}
         self.events: list[tuple[int, Residual]] = []
         self._lock = threading.Lock()
-        self._step_index: int | None = None
+        self._follower = StepFollower(steps, monitor.begin_step)
         self._subscriptions = [
             bus.subscribe(channels.SUPERVISOR_STATE, lcmt_supervisor_state, self._on_supervisor),
             bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state),
@@ -191,14 +195,7 @@ class MonitorNode:
 
     def _on_supervisor(self, msg: Any) -> None:
         with self._lock:
-            running = msg.state not in ("idle", "done", "failed")
-            index = msg.step_index if running else None
-            if index != self._step_index:
-                self._step_index = index
-                if index in self.steps:
-                    self.monitor.begin_step(self.steps[index])
-                else:
-                    self.monitor.step = None
+            self._follower.on_supervisor_state(msg)
 
     def _on_state(self, msg: Any) -> None:
         with self._lock:

@@ -5,7 +5,7 @@
 | `base.py` | `Scenario` (name, robot, scene, criteria, trial), `ScenarioError`, `RunOptions` |
 | `harness.py` | the one start-up / run / teardown: LCM URL, logger, controller, perception |
 | `report.py` | report pieces every scenario shares (report.json, report.md parts, partial report) |
-| `perturbations.py` | seeded perturbations: displacement, slip in the hand, a push on the held object, encoder offsets |
+| `perturbations.py` | seeded perturbations: displacement, slip, push on the held object, offsets |
 | `plan_and_execute.py`, `..._report.py` | the plan-then-execute kind and its report |
 | `task_error_plot.py` | task errors split by unit (position mm, orientation deg, joints rad) |
 | `declarations.py` | plan-and-execute scenarios declared in YAML files, found on a search path |
