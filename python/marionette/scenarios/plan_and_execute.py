@@ -447,6 +447,15 @@ def run_plan_and_execute(
     )
     ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=gripper_admittance)
     ctx.visual_servoing = scenario.vision
+    if scenario.friction_grasps_in(options):
+        jaws = robots.robot(robot).jaws
+        for gripper in plan.doc["problem"]["grippers"]:
+            if gripper not in ctx.gripper_joints or gripper not in jaws:
+                raise ScenarioError(
+                    f"{scenario.name}: friction_grasps, but gripper {gripper} cannot hold by "
+                    "friction (it needs a finger joint with open_position and closed_position "
+                    "and its jaws in robot.yaml); set friction_grasps: false for welded grasps"
+                )
     specs = build_specs(steps, ctx)
     write_specs(out_dir / "controllers.yaml", steps, specs, plan.doc["problem"]["name"])
     problems = check_specs(steps, specs, ctx, robot_map)

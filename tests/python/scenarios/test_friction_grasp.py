@@ -70,3 +70,40 @@ def test_a_grasp_that_closes_on_nothing_stops_the_arm_before_it_lifts(tmp_path, 
     dx, dy, _ = report["perturbation"]["displacement"]
     untouched = float(np.hypot(dx, 0.25 + dy - (-0.25)))
     assert report["criteria"]["object_position_error_m"] == pytest.approx(untouched, abs=2e-3)
+
+
+@pytest.mark.slow
+def test_friction_grasps_with_a_gripper_that_cannot_hold_are_refused_in_one_line(tmp_path, lcm_env):
+    """The UR5's suction cup has no fingers: a scenario that asks it to hold by friction is
+    refused before anything moves, naming the gripper and what to change."""
+    from marionette.scenarios.declarations import BUNDLED_DIR
+
+    decl = (
+        (BUNDLED_DIR / "ur5-cube.yaml")
+        .read_text()
+        .replace("name: ur5-cube", "name: ur5-cube-friction")
+    )
+    (tmp_path / "ur5-cube-friction.yaml").write_text(
+        decl + "gripper_admittance: true\nfriction_grasps: true\n"
+    )
+    proc = run_stopping_what_it_started(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            "ur5-cube-friction",
+            "--speed",
+            "0",
+            "--out",
+            str(tmp_path / "out"),
+        ],
+        timeout_s=300,
+        env={**lcm_env, "MARIONETTE_SCENARIO_PATH": str(tmp_path)},
+    )
+    assert proc.returncode != 0
+    errors = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(errors) == 1 and "gripper ur5/gripper cannot hold by friction" in errors[0], (
+        proc.stderr
+    )
+    assert "Traceback" not in proc.stdout + proc.stderr
