@@ -5,7 +5,8 @@ ch. 4-5; ``docs/scenarios.md``).
   execution (uniform in a disc of ``displacement_m`` and a yaw within ``displacement_deg``);
 * **slip during execution** — while carried, the object turns and shifts in the hand
   (``slip_m`` / ``slip_deg``): the weld is released, the object moved, the weld closed again,
-  at the start of step ``slip_step`` (the carry after the hand-over in plank-flip);
+  at the start of its last carry (after plank-flip's hand-over; ``slip_step`` names another
+  step);
 * **push during the carry** (friction grasps) — the held object is pushed by a force of
   ``push_n`` (1/2 to 1 of it, a random direction) for ``push_s``, 0 to 1 s after the grip
   settled in its first carry: the physics decides whether the grip holds it;
@@ -43,7 +44,7 @@ class PerturbationSettings:
     displacement_deg: float = 0.0
     slip_m: float = 0.0
     slip_deg: float = 0.0
-    slip_step: int = 10
+    slip_step: int | None = None  # None: the start of the object's last carry
     push_n: float = 0.0
     push_s: float = 0.1
     joint_offsets_deg: dict[str, float] = field(default_factory=dict)  # joint -> |offset|
@@ -185,7 +186,7 @@ class Perturbation:
     seed: int
     displacement: tuple[float, float, float]
     slip: tuple[float, ...]
-    slip_step: int
+    slip_step: int | None
     joint_offsets: dict[str, float]
     camera_noise_m: float
     camera_noise_rad: float

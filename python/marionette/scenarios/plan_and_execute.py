@@ -776,9 +776,15 @@ def _slip(
     stop: threading.Event,
     log: Callable[[str], None],
 ) -> None:
-    """At the start of step ``slip_step`` the object slips in the hands holding it: welds off,
-    object moved by the slip twist (its own frame), welds on again where it now is."""
+    """At the start of step ``slip_step`` (None: :func:`last_carry_step`) the object slips in the
+    hands holding it: welds off, object moved by the slip twist (its own frame), welds on again
+    where it now is."""
     k = perturbation.slip_step
+    if k is None:
+        k = last_carry_step(steps, obj)
+        if k is None:
+            log(f"perturbation: no step carries {obj}: no slip")
+            return
     while not stop.wait(0.01):
         if supervisor.step_index < k:
             continue
@@ -793,6 +799,25 @@ def _slip(
                 client.attach(w)
             log(f"perturbation: {obj} slipped in {', '.join(welds) or 'no hand'} at step {k}")
         return
+
+
+def last_carry_step(steps: list, obj: str) -> int | None:
+    """The start of ``obj``'s last carry: the first motion step (no grasp created or released)
+    of the last run of steps that hold it in the same hands before it is let go — after a
+    hand-over, the carry to the placement; the placement servo (§5.3.1) is what can correct a
+    slip there. None when no step holds it."""
+
+    def holders(step) -> frozenset:
+        return frozenset(g for g, h in step.grasps.items() if h.split("/")[0] == obj)
+
+    held = [i for i, s in enumerate(steps) if holders(s)]
+    if not held:
+        return None
+    last = held[-1]
+    first = last
+    while first > 0 and holders(steps[first - 1]) == holders(steps[last]):
+        first -= 1
+    return next((i for i in range(first, last + 1) if steps[i].kind == "motion"), first)
 
 
 def _push(

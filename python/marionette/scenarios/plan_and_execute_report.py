@@ -192,7 +192,8 @@ def _markdown(r: dict[str, Any]) -> str:
             f"object displaced before execution by ({p['displacement_mm_deg'][0]:.1f} mm, "
             f"{p['displacement_mm_deg'][1]:.1f} mm, {p['displacement_mm_deg'][2]:.1f}°); "
             "slip in the hand "
-            f"at step {p['slip_step']}: {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
+            + ("at its last carry" if p.get("slip_step") is None else f"at step {p['slip_step']}")
+            + f": {np.linalg.norm(p['slip'][:3]) * 1e3:.1f} mm / "
             f"{np.degrees(np.linalg.norm(p['slip'][3:])):.1f}°; joint offsets "
             + (", ".join(f"{k} {v:+.1f}°" for k, v in p["joint_offsets_deg"].items()) or "none")
             + f"; camera noise {p['camera_noise_m'] * 1e3:.1f} mm / "

@@ -154,3 +154,35 @@ def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_
     SCENARIOS["ur10-box"].check_options(welded)
     with pytest.raises(ScenarioError, match="push on the held object"):
         SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=push, gripper_admittance=False))
+
+
+def test_the_slip_comes_at_the_last_carry_whatever_the_plans_steps():
+    """The hand-over plans of three plank-flip seeds put the carry to the placement at steps 12,
+    9 and 9: the slip lands there (its first motion step after the hand-over), not at a fixed
+    index; a plan that never holds the object has no carry."""
+    from types import SimpleNamespace
+
+    from marionette.scenarios.plan_and_execute import last_carry_step
+
+    R, L = "talos/right_gripper", "talos/left_gripper"
+
+    def plan(layout):
+        return [
+            SimpleNamespace(kind=kind, grasps={g: f"plank/{h}" for g, h in grasps.items()})
+            for kind, grasps in layout
+        ]
+
+    free, right, left, both = {}, {R: "H1"}, {L: "H4"}, {R: "H1", L: "H4"}
+    seed4 = [("motion", free)] * 3 + [("motion", right)] * 7 + [("grasp", right)]
+    seed4 += [("release", left), ("motion", left), ("motion", left), ("motion", left)]
+    seed4 += [("release", free), ("motion", free), ("motion", free)]
+    seed101 = [("motion", free), ("motion", free), ("grasp", free), ("motion", right)]
+    seed101 += [("motion", right)] * 3 + [("grasp", right), ("release", left), ("motion", left)]
+    seed101 += [("motion", left), ("release", free), ("motion", free), ("motion", free)]
+    assert last_carry_step(plan(seed4), "plank") == 12
+    assert last_carry_step(plan(seed101), "plank") == 9
+    # One hand only (ur10-box): the carry after the grasp.
+    pick = [("motion", free), ("grasp", free), ("motion", right), ("motion", right)]
+    pick += [("release", free), ("motion", free)]
+    assert last_carry_step(plan(pick), "plank") == 2
+    assert last_carry_step(plan([("motion", both)]), "box") is None
