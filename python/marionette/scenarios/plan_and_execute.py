@@ -449,7 +449,8 @@ def run_plan_and_execute(
     ctx.visual_servoing = scenario.vision
     if scenario.friction_grasps_in(options):
         jaws = robots.robot(robot).jaws
-        for gripper in plan.doc["problem"]["grippers"]:
+        grasping = sorted({g for step in steps for g in (*step.grasps, *step.grasps_to)})
+        for gripper in grasping:  # the grippers the plan grasps with (not a drill beside them)
             if gripper not in ctx.gripper_joints or gripper not in jaws:
                 raise ScenarioError(
                     f"{scenario.name}: friction_grasps, but gripper {gripper} cannot hold by "
