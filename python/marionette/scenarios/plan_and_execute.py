@@ -250,15 +250,16 @@ class PlanAndExecute(Scenario):
             del doc["vision"]
         return doc
 
+    def admittance_in(self, options: RunOptions) -> bool:
+        """Whether a trial with ``options`` gives its grippers admittance tasks."""
+        if options.gripper_admittance is None:
+            return self.gripper_admittance
+        return options.gripper_admittance
+
     def friction_grasps_in(self, options: RunOptions) -> bool:
         """Whether a trial with ``options`` holds objects by friction: the scenario's grippers
         can, and their admittance squeezes (without it the grasps are welds)."""
-        admittance = (
-            self.gripper_admittance
-            if options.gripper_admittance is None
-            else options.gripper_admittance
-        )
-        return self.friction_grasps and admittance
+        return self.friction_grasps and self.admittance_in(options)
 
     def check_options(self, options: RunOptions) -> None:
         super().check_options(options)
@@ -440,12 +441,9 @@ def run_plan_and_execute(
     model, _ = robots.load_pinocchio(robot, with_collision=False)
     robot_map = PlanRobotMap(plan.doc["problem"]["configuration_layout"], model, robot)
     steps = steps_from_plan(plan)
-    gripper_admittance = (
-        scenario.gripper_admittance
-        if options.gripper_admittance is None
-        else options.gripper_admittance
+    ctx = context_from_plan(
+        plan.doc, robot, model, gripper_admittance=scenario.admittance_in(options)
     )
-    ctx = context_from_plan(plan.doc, robot, model, gripper_admittance=gripper_admittance)
     ctx.visual_servoing = scenario.vision
     if scenario.friction_grasps_in(options):
         jaws = robots.robot(robot).jaws
@@ -624,35 +622,29 @@ def run_plan_and_execute(
         )
         progress.start()
         if perturbation is not None and any(perturbation.push):
-            threading.Thread(
-                target=_push,
-                args=(
-                    supervisor,
-                    client,
-                    steps,
-                    specs,
-                    robot,
-                    scenario.object_name,
-                    perturbation,
-                    stop_progress,
-                    log,
-                ),
-                daemon=True,
-            ).start()
+            _in_background(
+                _push,
+                supervisor,
+                client,
+                steps,
+                specs,
+                robot,
+                scenario.object_name,
+                perturbation,
+                stop_progress,
+                log,
+            )
         if perturbation is not None and any(perturbation.slip):
-            threading.Thread(
-                target=_slip,
-                args=(
-                    supervisor,
-                    client,
-                    steps,
-                    scenario.object_name,
-                    perturbation,
-                    stop_progress,
-                    log,
-                ),
-                daemon=True,
-            ).start()
+            _in_background(
+                _slip,
+                supervisor,
+                client,
+                steps,
+                scenario.object_name,
+                perturbation,
+                stop_progress,
+                log,
+            )
         t3 = time.perf_counter()
         utime0 = client.utime()
         result = supervisor.run(first)
@@ -786,20 +778,34 @@ def _slip(
         if k is None:
             log(f"perturbation: no step carries {obj}: no slip")
             return
-    while not stop.wait(0.01):
-        if supervisor.step_index < k:
-            continue
-        if supervisor.step_index == k and k < len(steps):
-            welds = [
-                f"grasp/{g}/{obj}" for g, h in steps[k].grasps.items() if h.split("/")[0] == obj
-            ]
-            for w in welds:
-                client.detach(w)
-            client.move_object(obj, slipped(client.object_pose(obj), perturbation.slip))
-            for w in welds:
-                client.attach(w)
-            log(f"perturbation: {obj} slipped in {', '.join(welds) or 'no hand'} at step {k}")
+    if not _reached(supervisor, k, stop, 0.01) or k >= len(steps):
         return
+    welds = [f"grasp/{g}/{obj}" for g in sorted(_holders(steps[k], obj))]
+    for w in welds:
+        client.detach(w)
+    client.move_object(obj, slipped(client.object_pose(obj), perturbation.slip))
+    for w in welds:
+        client.attach(w)
+    log(f"perturbation: {obj} slipped in {', '.join(welds) or 'no hand'} at step {k}")
+
+
+def _in_background(target: Callable[..., None], *args: Any) -> None:
+    """Runs a perturbation beside the supervisor (it watches the supervisor's step)."""
+    threading.Thread(target=target, args=args, daemon=True).start()
+
+
+def _reached(supervisor: Supervisor, k: int, stop: threading.Event, poll_s: float) -> bool:
+    """Waits until the supervisor runs step ``k`` or later: True when it runs ``k``, False when
+    it went past it (or ``stop`` was set) unseen."""
+    while not stop.wait(poll_s):
+        if supervisor.step_index >= k:
+            return supervisor.step_index == k
+    return False
+
+
+def _holders(step, obj: str) -> frozenset[str]:
+    """The grippers that hold ``obj`` all along ``step``."""
+    return frozenset(g for g, h in step.grasps.items() if h.split("/")[0] == obj)
 
 
 def last_carry_step(steps: list, obj: str) -> int | None:
@@ -807,16 +813,12 @@ def last_carry_step(steps: list, obj: str) -> int | None:
     of the last run of steps that hold it in the same hands before it is let go — after a
     hand-over, the carry to the placement; the placement servo (§5.3.1) is what can correct a
     slip there. None when no step holds it."""
-
-    def holders(step) -> frozenset:
-        return frozenset(g for g, h in step.grasps.items() if h.split("/")[0] == obj)
-
-    held = [i for i, s in enumerate(steps) if holders(s)]
+    held = [i for i, s in enumerate(steps) if _holders(s, obj)]
     if not held:
         return None
     last = held[-1]
     first = last
-    while first > 0 and holders(steps[first - 1]) == holders(steps[last]):
+    while first > 0 and _holders(steps[first - 1], obj) == _holders(steps[last], obj):
         first -= 1
     return next((i for i in range(first, last + 1) if steps[i].kind == "motion"), first)
 
@@ -835,32 +837,22 @@ def _push(
     """In the first step that carries ``obj`` in a hand, once the grip has settled (the step's
     lead-in, :func:`references.grip_change_s`) and ``push_delay_s`` more of controller time,
     the object is pushed by ``push`` [N] for ``push_s``: a physical bump the grip holds or not."""
-    k = next(
-        (
-            i
-            for i, s in enumerate(steps)
-            if any(h.split("/")[0] == obj for h in s.grasps.values()) and i > 0
-        ),
-        None,
-    )
+    k = next((i for i, s in enumerate(steps) if i > 0 and _holders(s, obj)), None)
     if k is None:
         log(f"perturbation: no step carries {obj}: no push")
         return
-    while not stop.wait(0.002):
-        if supervisor.step_index < k:
-            continue
-        if supervisor.step_index > k:
-            return
-        settle = grip_change_s(steps[k], steps[k - 1], specs[k], robot)
-        client.wait_time(settle + perturbation.push_delay_s)
-        if stop.is_set() or supervisor.step_index != k:
-            return
-        client.push_object(obj, perturbation.push, perturbation.push_s)
-        log(
-            f"perturbation: {obj} pushed with {np.linalg.norm(perturbation.push):.1f} N for "
-            f"{perturbation.push_s:g} s in step {k}"
-        )
+    if not _reached(supervisor, k, stop, 0.002):
         return
+    client.wait_time(
+        grip_change_s(steps[k], steps[k - 1], specs[k], robot) + perturbation.push_delay_s
+    )
+    if stop.is_set() or supervisor.step_index != k:
+        return
+    client.push_object(obj, perturbation.push, perturbation.push_s)
+    log(
+        f"perturbation: {obj} pushed with {np.linalg.norm(perturbation.push):.1f} N for "
+        f"{perturbation.push_s:g} s in step {k}"
+    )
 
 
 def _progress(supervisor: Supervisor, stop: threading.Event, log: Callable[[str], None]) -> None:
