@@ -73,7 +73,6 @@ class TagRegionTracker:
         self.config = config or TrackingConfig()
         self._frame = 0
         self._last_seen: dict[int, tuple[Box, int]] = {}  # tag id -> (box, frame seen)
-        self._previous: set[int] = set()  # ids found in the previous frame
         self._since_full = 0
         self._lost = False
         self.counts = {"full_searches": 0, "regional_searches": 0, "tracked_tags_lost": 0}
@@ -98,7 +97,8 @@ class TagRegionTracker:
         else:
             self.counts["regional_searches"] += 1
             self._since_full += 1
-            lost = len(self._previous - found)
+            previous = {i for i, (_, frame) in self._last_seen.items() if frame == self._frame}
+            lost = len(previous - found)
             self.counts["tracked_tags_lost"] += lost
             self._lost = lost > 0
         self._frame += 1
@@ -106,4 +106,3 @@ class TagRegionTracker:
             self._last_seen[d.tag_id] = (tag_box(np.asarray(d.corners), self.config), self._frame)
         oldest = self._frame - self.config.keep_lost_frames
         self._last_seen = {i: seen for i, seen in self._last_seen.items() if seen[1] > oldest}
-        self._previous = found
