@@ -40,13 +40,17 @@ class TrackingConfig:
     # white border alone is 1/8 of it), at least min_margin_px.
     margin_fraction: float = 0.5
     min_margin_px: int = 16
-    keep_lost_frames: int = 30  # [frames] a lost tag's last box is still searched (1 s at 30 Hz)
+    # [frames] a tag's box is searched until this many frames after the one that last saw it
+    # (1: only the last frame's tags; 30: ~1 s at 30 Hz)
+    keep_lost_frames: int = 30
 
     def __post_init__(self) -> None:
         if self.full_search_every < 1:
             raise ValueError(f"full_search_every must be >= 1, got {self.full_search_every}")
-        if not self.margin_fraction >= 0.0 or self.min_margin_px < 0 or self.keep_lost_frames < 0:
-            raise ValueError("margin_fraction, min_margin_px and keep_lost_frames must be >= 0")
+        if not self.margin_fraction >= 0.0 or self.min_margin_px < 0:
+            raise ValueError("margin_fraction and min_margin_px must be >= 0")
+        if self.keep_lost_frames < 1:  # 0 would forget the tags just seen: never track
+            raise ValueError(f"keep_lost_frames must be >= 1, got {self.keep_lost_frames}")
 
 
 def tag_box(corners: np.ndarray, config: TrackingConfig) -> Box:
