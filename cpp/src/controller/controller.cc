@@ -485,12 +485,14 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   // "Hold where it is" references take the values of this very tick.
   next->HoldCurrent(robot_model->kinematics_output().Eval(t));
   // Agimus's start check (§3.2.5.2), real-time safe here: the new stack's solution at this very
-  // tick against the command being applied.
+  // tick against the command being applied, on the joints the robot is commanded (ROBOT_COMMAND,
+  // the driver's layout). A free-flyer's six velocities drive nothing: a walking stack keeps
+  // "commanding" the base toward soles that landed a few mm from their references, and a stack
+  // holding the measured soles would be refused for a motion no motor makes.
   const Eigen::VectorXd& v_next = next->unblended_velocity->Eval(t);
   const Eigen::VectorXd& v_now = safety->velocity_output().Eval(t);
   double jump = 0.0;
-  for (Eigen::Index i = 0; i < v_next.size(); ++i)
-    jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
+  for (const int i : joint_v) jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
   if (!std::isfinite(jump)) jump = std::numeric_limits<double>::infinity();
   if (mode == ControlMode::kEstop || !(jump <= next->max_switch_velocity_jump) ||
       !graph->Apply(next->edit.get())) {

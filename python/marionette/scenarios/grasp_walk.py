@@ -186,7 +186,7 @@ def run_grasp_walk(
         report["reach_start_utime"] = client.utime()
         if settings.reach:
             t2 = time.perf_counter()
-            report["reach"] = _reach(client, model, ball1, settings, rec.last_status(), log)
+            report["reach"] = _reach(client, model, ball1, settings, scenario.robot, log)
             run.timings["reach_wall_s"] = time.perf_counter() - t2
     report.update(
         _criteria(
@@ -208,57 +208,33 @@ def run_grasp_walk(
     return report
 
 
-def _sole_reference(foot) -> tuple[float, ...]:
-    """(x y z qw qx qy qz) of a sole (x, y, z, yaw) as WALK_STATUS gives it."""
-    x, y, z, yaw = (float(v) for v in foot)
-    return (x, y, z, float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2)))
+def reach_spec(controller_id: int, robot: str, hand: str) -> ControllerSpec:
+    """Standing reach of ``robot``: feet, CoM and the waist upright (roll, pitch) held where they
+    are at level 0, the gripper following a streamed position at level 1, posture at level 2.
 
+    Every reference holds the value of the swap's tick, so the stack's first command is ~0 and
+    the swap passes the default jump bound: at rest the walking stack's joint command is ~0 too
+    (its base "command", toward soles that landed a few mm from their references, drives no joint
+    and is not part of the check). Holding the walk's references instead would keep that base
+    motion and let the hand task, holding its world position, turn it into arm motion (0.07-0.29
+    rad/s measured after 6-8 steps)."""
+    from marionette.execution.walking import walking_spec
 
-def reach_spec(controller_id: int, hand: str, walk_status) -> ControllerSpec:
-    """Standing reach: feet and CoM at the walk's last references (``walk_status``) and the waist
-    upright at level 0, the gripper following a streamed position at level 1, posture at level 2.
-    The walk's references, not the measured values: at rest the walking stack still commands
-    ~0.1 rad/s against the contacts (its CoM reference sits ~2 cm from the measured CoM), and a
-    stack holding the measured values would command 0, a jump the controller refuses.
-
-    The swap check allows 0.25 rad/s instead of 0.1: the hand task (zero error at the swap)
-    takes the directions in which the walk's level-1 posture task was still pulling against
-    level 0, so the command changes by that posture component, measured 0.11-0.21 rad/s after
-    6-8 steps on a robot at rest (refused swaps are retried and reported)."""
+    walk = {t.name: t for t in walking_spec(robot, controller_id).tasks}
+    held = [
+        dataclasses.replace(walk[name], reference_channel="", reference=())
+        for name in ("left_foot", "right_foot", "com")
+    ]
     return ControllerSpec(
         controller_id,
         "reach",
-        max_switch_velocity_jump=0.25,
         tasks=[
-            TaskSpec(
-                "left_foot",
-                "se3",
-                0,
-                frame="left_sole_link",
-                gain=20.0,
-                reference=_sole_reference(walk_status.left_foot),
-            ),
-            TaskSpec(
-                "right_foot",
-                "se3",
-                0,
-                frame="right_sole_link",
-                gain=20.0,
-                reference=_sole_reference(walk_status.right_foot),
-            ),
-            TaskSpec("com", "com", 0, gain=5.0, reference=tuple(float(v) for v in walk_status.com)),
-            TaskSpec(
-                "waist",
-                "se3",
-                0,
-                frame="base_link",
-                mask=(False, False, False, True, True, False),
-                gain=20.0,
-            ),
+            *held,
+            walk["waist"],
             TaskSpec(
                 "hand", "position", 1, frame=f"gripper_{hand}_base_link", gain=5.0, streamed=True
             ),
-            TaskSpec("posture", "posture", 2, gain=2.0),
+            dataclasses.replace(walk["posture"], priority=2),
         ],
     )
 
@@ -283,7 +259,7 @@ def _reach(
     model: pin.Model,
     ball: np.ndarray,
     settings: GraspWalkSettings,
-    walk_status,
+    robot: str,
     log: Callable[[str], None],
 ) -> dict[str, Any]:
     """Bonus: swap to :func:`reach_spec` and bring the grasp point onto the ball. The gripper base
@@ -293,28 +269,26 @@ def _reach(
     from marionette.execution.streamer import ReferenceStreamer
 
     hand = settings.hand
-    grasp_point = np.array(robots.semantics("talos").gripper(f"talos/{hand}_gripper").pose.xyz)
+    grasp_point = np.array(robots.semantics(robot).gripper(f"{robot}/{hand}_gripper").pose.xyz)
     data = model.createData()
     pin.framesForwardKinematics(model, data, configuration_from_state(model, client.state))
     p_hand = data.oMf[model.getFrameId(f"gripper_{hand}_base_link")].translation.copy()
     shoulder = data.oMf[model.getFrameId(f"arm_{hand}_1_link")].translation.copy()
     u = (ball - shoulder) / np.linalg.norm(ball - shoulder)
     target = ball - np.linalg.norm(grasp_point) * u
-    # The controller refuses a swap whose command jumps (the walk's last sway): retry once the
-    # robot has settled a little more, with a new controller id each time.
-    refusals: list[str] = []
-    for cid in range(2, 7):
-        client.send_spec(reach_spec(cid, hand, walk_status))
-        try:
-            client.wait(_swap_decided(cid), 10.0, "the swap to the reach controller")
-        except TimeoutError as e:
-            return {"done": False, "reason": str(e), "refusals": refusals}
-        if client.status.active_controller_id == cid:
-            break
-        refusals.append(client.status.last_switch_result or client.status.last_rejection)
-        client.wait_time(0.5)
-    else:
-        return {"done": False, "reason": refusals[-1], "refusals": refusals}
+    cid = 2
+    client.send_spec(reach_spec(cid, robot, hand))
+    try:
+        client.wait(_swap_decided(cid), 10.0, "the swap to the reach controller")
+    except TimeoutError as e:
+        return {"done": False, "reason": str(e)}
+    if client.status.active_controller_id != cid:
+        tag = f"(id {cid})"
+        st = client.status
+        return {
+            "done": False,
+            "reason": st.last_switch_result if tag in st.last_switch_result else st.last_rejection,
+        }
     # The grasp point's offset from the gripper base depends on the hand's orientation, which the
     # position task leaves to the posture: correct the base's target by the measured offset and
     # move again (two short corrections, each from the previous target: no reference jump).
@@ -350,7 +324,6 @@ def _reach(
         "grasp_point_to_ball_m": error,
         "ok": bool(error <= settings.reach_tolerance),
         "errors_per_pass_m": errors,
-        "refused_swaps": refusals,
         "hand_task_error_m": float(client.task_error("hand")),
         "chunks": chunks,
         "min_lookahead_ms": min(lookahead) if lookahead else None,
@@ -536,9 +509,8 @@ def _reach_line(reach: dict[str, Any] | None, s: dict[str, Any]) -> str:
         f"after the walk, a reach controller (feet and CoM held, hand streamed at level 1) "
         f"brings the grasp point {reach['grasp_point_to_ball_m'] * 1e3:.1f} mm from the ball "
         f"(limit {s['reach_tolerance'] * 1e3:.0f} mm, {'ok' if reach['ok'] else 'missed'}; per "
-        f"pass {passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm; "
-        f"{len(reach['refused_swaps'])} refused swaps). Not part of the success verdict; no "
-        f"ball in the scene to close the gripper on."
+        f"pass {passes} mm; hand task error {reach['hand_task_error_m'] * 1e3:.1f} mm). Not part "
+        f"of the success verdict; no ball in the scene to close the gripper on."
     )
 
 

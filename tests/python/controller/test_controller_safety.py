@@ -88,6 +88,44 @@ def test_continuous_swap_is_accepted_and_a_discontinuous_one_refused(run_control
         assert c.status.num_switches == 2
 
 
+def test_the_swap_check_compares_the_joints_commands_not_a_free_flyers_velocity(run_controller):
+    """A free-flyer's velocity drives no motor: a swap that changes only the base's velocity in the
+    command is accepted, one that changes a joint's is refused (both would be with the base)."""
+    talos = robots.robot("talos")
+    model = pin.buildModelFromUrdf(str(talos.urdf), pin.JointModelFreeFlyer())
+    root = robots.root_link("talos")
+    with run_controller("--robot", "talos", "--backend", "kinematic", "--camera-rate", "0") as c:
+        c.wait(lambda c: c.state is not None, 20, "the first state")
+        q = configuration_from_state(model, c.state)
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q)
+        goal = data.oMf[model.getFrameId(root)].copy()
+        goal.translation += np.array([0.5, 0.0, 0.0])
+        drift = ControllerSpec(  # the base moves toward a goal 0.5 m ahead at 0.5 m/s, joints held
+            1,
+            "drift",
+            [
+                TaskSpec("base", "se3", 0, frame=root, gain=1.0, reference=pose_to_vector(goal)),
+                TaskSpec("posture", "posture", 1, gain=1.0),
+            ],
+        )
+        c.send_spec(drift)
+        c.wait(lambda c: c.status.active_controller_id == 1, 20, "the drifting base")
+        hold = ControllerSpec(2, "hold", [TaskSpec("posture", "posture", 0, gain=1.0)])
+        c.send_spec(hold)  # base velocity 0.5 -> 0, joints 0 -> 0
+        c.wait(lambda c: c.status.active_controller_id == 2, 20, "the swap that stops the base")
+        assert c.status.num_refused_switches == 0
+        q = configuration_from_state(model, c.state)
+        far = q.copy()
+        far[model.joints[model.getJointId("arm_right_1_joint")].idx_q] += 1.0
+        c.send_spec(
+            ControllerSpec(3, "far", [TaskSpec("posture", "posture", 0, gain=1.0, reference=far)])
+        )
+        c.wait(lambda c: "(id 3)" in c.status.last_switch_result, 20, "the refusal")
+        assert "refused controller 'far' (id 3): command jump 1" in c.status.last_switch_result
+        assert c.status.active_controller_id == 2
+
+
 def test_watchdog_holds_when_references_stop_and_estop_latches(run_controller):
     with run_controller(*UR10, "--state-rate", "1000") as c:
         commands = MessageLog(c.bus, channels.ROBOT_COMMAND, lcmt_robot_command)
