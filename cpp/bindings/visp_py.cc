@@ -179,7 +179,9 @@ PYBIND11_MODULE(_visp, m) {
       .def_readonly("reprojection_error", &mp::PoseEstimate::reprojection_error,
                     "sum of squared pixel distances [px^2]")
       .def_readonly("num_points", &mp::PoseEstimate::num_points)
-      .def_readonly("confidence", &mp::PoseEstimate::confidence);
+      .def_readonly("confidence", &mp::PoseEstimate::confidence)
+      .def_readonly("depth_sigma", &mp::PoseEstimate::depth_sigma,
+                    "RGB-D refinement: the depth noise the residuals showed, weighted with [m]");
 
   m.def(
       "reprojection_error",

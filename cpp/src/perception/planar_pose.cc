@@ -133,6 +133,16 @@ PoseEstimate PoseFromRgbd(const float* depth, const CameraIntrinsics& intrinsics
 
 namespace {
 
+// A depth pixel: its ray (x, y, 1) in the camera frame and its depth z [m].
+struct DepthPixel {
+  Eigen::Vector3d ray;
+  double z;
+};
+
+constexpr double kMinIncidence = 0.1;      // |n . ray| below: a ray grazing the plane (> 84 deg)
+constexpr size_t kMinPixelsForSigma = 30;  // fewer depth pixels: the assumed sigma is kept
+constexpr double kMinDepthSigma = 1e-4;    // [m]: a noise-free depth still has its rounding
+
 // Even-odd rule point-in-polygon test.
 bool InsidePolygon(const std::vector<Eigen::Vector2d>& poly, double u, double v) {
   bool inside = false;
@@ -190,8 +200,8 @@ PoseEstimate RefinePoseRgbd(const std::vector<Eigen::Vector3d>& p_O,
   if (!X_CO_initial.matrix().allFinite()) {
     throw PerceptionError("RefinePoseRgbd: the initial pose is not finite");
   }
-  // Measured 3D points q_j = z (x, y, 1) of each plane, inside its shrunk polygon.
-  std::vector<std::vector<Eigen::Vector3d>> q(planes.size());
+  // Depth pixels of each plane, inside its shrunk polygon: their ray a_j = (x, y, 1) and depth z_j.
+  std::vector<std::vector<DepthPixel>> pixels(planes.size());
   size_t num_depth = 0;
   for (size_t p = 0; p < planes.size(); ++p) {
     const auto& poly = planes[p].polygon;
@@ -220,51 +230,78 @@ PoseEstimate RefinePoseRgbd(const std::vector<Eigen::Vector3d>& p_O,
       for (int u = ua; u <= ub; ++u) {
         const float z = depth[static_cast<size_t>(v) * k.width + u];
         if (!(std::isfinite(z) && z > 0.0f) || !InsidePolygon(shrunk, u, v)) continue;
-        q[p].emplace_back(z * (u - k.cx) / k.fx, z * (v - k.cy) / k.fy, z);
+        pixels[p].push_back({Eigen::Vector3d((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0), z});
       }
     }
-    num_depth += q[p].size();
+    num_depth += pixels[p].size();
   }
   PoseEstimate out;
   out.num_points = static_cast<int>(p_O.size() + num_depth);
   if (num_depth == 0) return out;
 
+  // Gauss-Newton at a given depth sigma, from X; false if the estimate left the camera's front.
+  const double wp = 1.0 / options.sigma_pixel;
+  std::vector<double> residuals;
+  residuals.reserve(num_depth);
   Eigen::Isometry3d X = X_CO_initial;
-  const double wp = 1.0 / options.sigma_pixel, wd = 1.0 / options.sigma_depth;
-  const double huber = 3.0 * options.sigma_depth;  // beyond 3 sigma, residuals count linearly
-  for (int it = 0; it < options.max_iterations; ++it) {
-    Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
-    Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
-    for (size_t i = 0; i < p_O.size(); ++i) {
-      const Eigen::Vector3d pc = X * p_O[i];
-      if (pc.z() <= 1e-9) return out;  // the estimate went behind the camera
-      const double iz = 1.0 / pc.z();
-      Eigen::Matrix<double, 2, 3> Jpi;
-      Jpi << k.fx * iz, 0, -k.fx * pc.x() * iz * iz, 0, k.fy * iz, -k.fy * pc.y() * iz * iz;
-      Eigen::Matrix<double, 3, 6> Jp;
-      Jp << Eigen::Matrix3d::Identity(), -Skew(pc);  // d(exp(d) p)/dd at 0
-      const Eigen::Matrix<double, 2, 6> J = wp * Jpi * Jp;
-      const Eigen::Vector2d r = wp * (k.Project(pc) - uv[i]);
-      H += J.transpose() * J;
-      g += J.transpose() * r;
-    }
-    const Eigen::Vector3d t = X.translation();
-    for (size_t p = 0; p < planes.size(); ++p) {
-      const Eigen::Vector3d n = X.linear() * planes[p].normal_O;
-      for (const Eigen::Vector3d& qj : q[p]) {
-        const double r = n.dot(qj - t) - planes[p].offset_O;
-        const double w = std::abs(r) <= huber ? 1.0 : huber / std::abs(r);  // IRLS Huber weight
-        Eigen::Matrix<double, 1, 6> J;
-        J << -n.transpose(), n.cross(qj).transpose();
-        H += (w * wd * wd) * J.transpose() * J;
-        g += (w * wd * wd * r) * J.transpose();
+  auto solve = [&](double sigma_depth) {
+    const double wd = 1.0 / sigma_depth;
+    const double huber = 3.0 * sigma_depth;  // beyond 3 sigma, residuals count linearly
+    for (int it = 0; it < options.max_iterations; ++it) {
+      Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+      for (size_t i = 0; i < p_O.size(); ++i) {
+        const Eigen::Vector3d pc = X * p_O[i];
+        if (pc.z() <= 1e-9) return false;  // the estimate went behind the camera
+        const double iz = 1.0 / pc.z();
+        Eigen::Matrix<double, 2, 3> Jpi;
+        Jpi << k.fx * iz, 0, -k.fx * pc.x() * iz * iz, 0, k.fy * iz, -k.fy * pc.y() * iz * iz;
+        Eigen::Matrix<double, 3, 6> Jp;
+        Jp << Eigen::Matrix3d::Identity(), -Skew(pc);  // d(exp(d) p)/dd at 0
+        const Eigen::Matrix<double, 2, 6> J = wp * Jpi * Jp;
+        const Eigen::Vector2d r = wp * (k.Project(pc) - uv[i]);
+        H += J.transpose() * J;
+        g += J.transpose() * r;
       }
+      residuals.clear();
+      for (size_t p = 0; p < planes.size(); ++p) {
+        const Eigen::Vector3d n = X.linear() * planes[p].normal_O;
+        const double d = planes[p].offset_O + n.dot(X.translation());  // plane n . p_C = d
+        for (const DepthPixel& px : pixels[p]) {
+          const double s = n.dot(px.ray);
+          if (std::abs(s) < kMinIncidence || !(d / s > 0.0)) continue;  // grazing, or behind
+          const double r = d / s - px.z;
+          residuals.push_back(r);
+          const double w = std::abs(r) <= huber ? 1.0 : huber / std::abs(r);  // IRLS Huber
+          Eigen::Matrix<double, 1, 6> J;
+          J << n.transpose() / s, -(d / (s * s)) * n.cross(px.ray).transpose();
+          H += (w * wd * wd) * J.transpose() * J;
+          g += (w * wd * wd * r) * J.transpose();
+        }
+      }
+      const Eigen::Matrix<double, 6, 1> step = -H.ldlt().solve(g);
+      if (!step.allFinite()) return false;
+      X = ExpSE3(step) * X;
+      if (step.norm() < 1e-10) break;
     }
-    const Eigen::Matrix<double, 6, 1> step = -H.ldlt().solve(g);
-    if (!step.allFinite()) return out;
-    X = ExpSE3(step) * X;
-    if (step.norm() < 1e-10) break;
+    return true;
+  };
+  // The depth noise the residuals show (1.4826 x their median absolute value, a Gaussian's sigma
+  // robust to the Huber tail), re-weighted until it agrees with the one solved with to 10 %: a
+  // sigma assumed below the sensor's makes a few hundred pixels outweigh the corners.
+  double sigma = options.sigma_depth;
+  for (int round = 0; round < 4; ++round) {
+    if (!solve(sigma)) return out;
+    if (residuals.size() < kMinPixelsForSigma) break;
+    std::vector<double> a(residuals.size());
+    for (size_t j = 0; j < a.size(); ++j) a[j] = std::abs(residuals[j]);
+    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+    const double measured = std::max(1.4826 * a[a.size() / 2], kMinDepthSigma);
+    const bool agrees = std::abs(measured - sigma) <= 0.1 * sigma;
+    sigma = measured;
+    if (agrees) break;
   }
+  out.depth_sigma = sigma;
   out.ok = X.matrix().allFinite();
   out.X_CO = X;
   if (out.ok) {

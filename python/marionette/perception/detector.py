@@ -76,7 +76,9 @@ class DetectorConfig:
     corner_noise_px: float = 0.3  # below 4 * noise^2 px^2 the runner-up is as good as the best
     prior_margin_rad: float = math.radians(10.0)  # a prior decides only past this cost gap
     refine_with_depth: bool = True  # fuse the depth plane into the retained pose
-    depth_sigma: float = 0.003  # depth noise [m] (weights depth against corner_noise_px)
+    # Depth noise [m] the RGB-D fusion starts from; it then weights the depth with the noise its
+    # residuals show (planar_pose.h, RefinePoseRgbd), so this is a first guess, not a promise.
+    depth_sigma: float = 0.003
     # Depth pixels used: the black square's corner polygon scaled by this about its centre;
     # the white border reaches 1.25 (10 / 8 cells), 1.1 keeps a margin from the tag's edge.
     depth_polygon_scale: float = 1.1

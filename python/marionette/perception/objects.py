@@ -144,7 +144,8 @@ def estimate_body_pose(
     minima are ranked by reprojection error. When the runner-up is about as good (the tag test,
     :func:`errors_ambiguous`), the minimum reached from the tags' *retained* hypotheses wins
     (those carry the depth or prior decision) and ``ambiguous`` is set. With ``depth`` (h, w)
-    [m], the result is refined on corners and the depth pixels of every visible tag's plane.
+    [m], the result is refined on corners and the depth pixels of every visible tag's plane,
+    the depth weighted with the noise its residuals show (``depth_sigma``: the first guess).
     """
     from marionette import _visp
 
