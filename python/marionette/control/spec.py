@@ -209,7 +209,7 @@ class ControllerSpec:
     controller_id: int
     name: str
     tasks: list[TaskSpec] = field(default_factory=list)
-    max_switch_velocity_jump: float = 0.1  # [rad/s] refuse a swap that jumps more
+    max_switch_velocity_jump: float = 0.1  # [rad/s] refuse a swap whose joint command jumps more
     reference_timeout: float = 0.1  # [s] watchdog on streamed references
 
     def check(self) -> None:
