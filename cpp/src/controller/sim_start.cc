@@ -92,9 +92,10 @@ std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     }
     return r;
   }
-  if (msg.command != "set_object_pose" && msg.command != "push") {
-    return SimCommandRefusal{"unknown command",
-                             "'" + msg.command + "' (set_object_pose, push, attach, detach)"};
+  if (msg.command != "set_object_pose" && msg.command != "push" && msg.command != "set_friction") {
+    return SimCommandRefusal{
+        "unknown command",
+        "'" + msg.command + "' (set_object_pose, push, set_friction, attach, detach)"};
   }
   const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
   if (it == free_objects.end()) {
@@ -113,6 +114,15 @@ std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     r.kind = SimRequest::kPush;
     r.force = f;
     r.duration_s = msg.duration;
+    return r;
+  }
+  if (msg.command == "set_friction") {
+    if (!std::isfinite(msg.friction) || msg.friction < 0.0) {
+      return SimCommandRefusal{
+          "invalid friction", "'" + msg.object_name + "': the coefficient must be finite and >= 0"};
+    }
+    r.kind = SimRequest::kFriction;
+    r.friction = msg.friction;
     return r;
   }
   const Eigen::Map<const Eigen::Vector3d> p(msg.position);
@@ -138,6 +148,9 @@ void ApplySimRequest(sim::MujocoScene& scene, const SimRequest& request) {
       break;
     case SimRequest::kPush:
       scene.Push(request.id, request.force, request.duration_s);
+      break;
+    case SimRequest::kFriction:
+      scene.SetFriction(request.id, request.friction);
       break;
   }
 }

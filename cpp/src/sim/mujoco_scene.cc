@@ -242,6 +242,29 @@ void MujocoScene::Push(int body_id, const Eigen::Vector3d& force_W, double durat
   pushes_[slot] = {body_id, force_W, duration_s};
 }
 
+void MujocoScene::SetFriction(int body_id, double mu) {
+  if (body_id <= 0 || body_id >= model_->nbody) {
+    throw SimError("SetFriction: " + std::to_string(body_id) + " is not a body of the scene");
+  }
+  if (!std::isfinite(mu) || mu < 0.0) {
+    throw SimError("SetFriction: the coefficient must be finite and >= 0");
+  }
+  int top = 0;
+  for (int g = 0; g < model_->ngeom; ++g) {
+    if (model_->geom_bodyid[g] != body_id) top = std::max(top, model_->geom_priority[g]);
+  }
+  int changed = 0;
+  for (int g = 0; g < model_->ngeom; ++g) {
+    if (model_->geom_bodyid[g] != body_id) continue;
+    model_->geom_friction[3 * g] = mu;
+    model_->geom_priority[g] = top + 1;
+    ++changed;
+  }
+  if (changed == 0) {
+    throw SimError("SetFriction: body " + std::to_string(body_id) + " has no geom");
+  }
+}
+
 int MujocoScene::BodyId(const std::string& body) const {
   const int id = mj_name2id(model_, mjOBJ_BODY, body.c_str());
   if (id < 0) throw SimError("no body '" + body + "' in the MuJoCo scene");

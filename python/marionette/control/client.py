@@ -181,6 +181,17 @@ class ControllerClient:
         msg.duration = float(duration_s)
         self.bus.publish(channels.SIM_COMMAND, msg)
 
+    def set_friction(self, name: str, mu: float) -> None:
+        """Gives a free object of the MuJoCo scene the sliding friction coefficient ``mu`` in
+        every contact it makes (a physical perturbation: an object gone slippery)."""
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command = "set_friction"
+        msg.object_name = name
+        msg.quaternion = [1.0, 0.0, 0.0, 0.0]
+        msg.friction = float(mu)
+        self.bus.publish(channels.SIM_COMMAND, msg)
+
     def attach(self, weld: str) -> None:
         """Simulated grasp: activates the scene's weld ("grasp/<robot>/<gripper>/<object>")
         at the current relative pose of its bodies."""

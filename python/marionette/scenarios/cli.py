@@ -17,7 +17,7 @@ INTERRUPTED_EXIT = 130  # the shell's code for Ctrl-C
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     from marionette.scenarios import DEFAULT_SCENARIO, names
-    from marionette.scenarios.perturbations import PARTS
+    from marionette.scenarios.perturbations import PARTS, PRESETS
 
     p = subparsers.add_parser(
         "demo",
@@ -59,11 +59,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--perturb",
         default="none",
         metavar="PRESET|KEY=VALUE,...|FILE.yaml",
-        help=f"seeded perturbations per trial (scenarios/perturbations.py; presets: none, all, "
-        f"{', '.join(PARTS)}): displacement = object displaced <= 5 cm / 10 deg before "
+        help=f"seeded perturbations per trial (scenarios/perturbations.py; presets: none, "
+        f"{', '.join(PRESETS)}): displacement = object displaced <= 5 cm / 10 deg before "
         "execution; in-hand = slipping in the hand during it (<= 1 cm / 5 deg) and 2 mm / 0.5 "
         "deg camera noise; joint-offsets = 7 deg shoulder / 4 deg wrist encoder offsets on both "
-        "arms; all = the three at once. Magnitudes replace or add to presets as key=value items "
+        f"arms; all = {', '.join(PARTS)} at once; with friction grasps, push = a 2.5-5 N bump "
+        "on the held object during its first carry, slippery = its friction down to 0.25 "
+        "then. Magnitudes replace or add to presets as key=value items "
         "(all,displacement_m=0.08,joint_offsets_deg.arm_right_4_joint=6) or come from a YAML "
         "file (python/marionette/schemas/perturbation.schema.json)",
     )

@@ -10,6 +10,9 @@ ch. 4-5; ``docs/scenarios.md``).
 * **push during the carry** (friction grasps) — the held object is pushed by a force of
   ``push_n`` (1/2 to 1 of it, a random direction) for ``push_s``, 0 to 1 s after the grip
   settled in its first carry: the physics decides whether the grip holds it;
+* **friction change during the carry** (friction grasps) — once the grip has settled in the
+  first carry, the held object's surfaces take the sliding friction ``carry_friction`` in all
+  their contacts (a box gone oily): below m g / (2 squeeze) it slips out of the fingers;
 * **joint offsets** in the controller's model (ch. 4: encoder offsets, 7° shoulder, 4° wrist):
   the MuJoCo joint's ``ref`` is set to the offset, so the simulator reports q + offset for the
   true angle q and the controller's Pinocchio model places the links off by it;
@@ -47,6 +50,7 @@ class PerturbationSettings:
     slip_step: int | None = None  # None: the start of the object's last carry
     push_n: float = 0.0
     push_s: float = 0.1
+    carry_friction: float = 0.0  # 0: unchanged
     joint_offsets_deg: dict[str, float] = field(default_factory=dict)  # joint -> |offset|
     camera_noise_m: float = 0.0
     camera_noise_deg: float = 0.0
@@ -58,6 +62,7 @@ class PerturbationSettings:
             "slip_m",
             "slip_deg",
             "push_n",
+            "carry_friction",
             "camera_noise_m",
             "camera_noise_deg",
         ):
@@ -109,6 +114,9 @@ PRESETS: dict[str, PerturbationSettings] = {
     **PARTS,
     # A bump on the held object during the carry (friction grasps only: a weld would not feel it).
     "push": PerturbationSettings(push_n=5.0, push_s=0.1),
+    # The held object gone slippery during the carry (friction grasps only): at 0.25 a 5 N squeeze
+    # per finger holds 0.25 kg against gravity (Coulomb), less than a 0.3 kg box.
+    "slippery": PerturbationSettings(carry_friction=0.25),
 }
 
 
@@ -181,7 +189,8 @@ def settings_from_argument(text: str) -> PerturbationSettings | None:
 class Perturbation:
     """One trial's draw: table displacement (dx, dy [m], dyaw [rad]), slip in the hand (a twist
     of the object frame, (v, w) [m, rad]), joint offsets [rad], camera noise sigmas, the push
-    during the carry (force [N], duration [s], delay after the grip settled [s])."""
+    during the carry (force [N], duration [s], delay after the grip settled [s]), the object's
+    friction coefficient from its first carry on (0: unchanged)."""
 
     seed: int
     displacement: tuple[float, float, float]
@@ -193,6 +202,7 @@ class Perturbation:
     push: tuple[float, float, float] = (0.0, 0.0, 0.0)
     push_s: float = 0.0
     push_delay_s: float = 0.0
+    carry_friction: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -213,6 +223,7 @@ class Perturbation:
             or self.camera_noise_m
             or self.camera_noise_rad
             or any(self.push)
+            or self.carry_friction
         )
 
 
@@ -246,6 +257,7 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
         (float(push[0]), float(push[1]), float(push[2])),
         settings.push_s if settings.push_n else 0.0,
         float(push_delay) if settings.push_n else 0.0,
+        settings.carry_friction,
     )
 
 

@@ -269,6 +269,11 @@ class PlanAndExecute(Scenario):
                 f"{self.name} welds its grasps: a push on the held object tests a friction "
                 "grasp (a weld would not feel it)"
             )
+        if p is not None and p.carry_friction and not self.friction_grasps_in(options):
+            raise ScenarioError(
+                f"{self.name} welds its grasps: a friction change on the held object tests a "
+                "friction grasp (a weld would not feel it)"
+            )
         if p is not None and any(p.slip) and self.friction_grasps_in(options):
             raise ScenarioError(
                 f"{self.name} holds its objects by friction: the in-hand slip moves welded "
@@ -621,9 +626,9 @@ def run_plan_and_execute(
             target=_progress, args=(supervisor, stop_progress, log), daemon=True
         )
         progress.start()
-        if perturbation is not None and any(perturbation.push):
+        if perturbation is not None and (any(perturbation.push) or perturbation.carry_friction):
             _in_background(
-                _push,
+                _during_first_carry,
                 supervisor,
                 client,
                 steps,
@@ -823,7 +828,7 @@ def last_carry_step(steps: list, obj: str) -> int | None:
     return next((i for i in range(first, last + 1) if steps[i].kind == "motion"), first)
 
 
-def _push(
+def _during_first_carry(
     supervisor: Supervisor,
     client: ControllerClient,
     steps: list,
@@ -835,17 +840,24 @@ def _push(
     log: Callable[[str], None],
 ) -> None:
     """In the first step that carries ``obj`` in a hand, once the grip has settled (the step's
-    lead-in, :func:`references.grip_change_s`) and ``push_delay_s`` more of controller time,
-    the object is pushed by ``push`` [N] for ``push_s``: a physical bump the grip holds or not."""
+    lead-in, :func:`references.grip_change_s`): the object's friction becomes
+    ``carry_friction`` (when set), and ``push_delay_s`` later it is pushed by ``push`` [N] for
+    ``push_s`` (when set). The physics decides whether the grip holds it."""
     k = next((i for i, s in enumerate(steps) if i > 0 and _holders(s, obj)), None)
     if k is None:
-        log(f"perturbation: no step carries {obj}: no push")
+        log(f"perturbation: no step carries {obj}: no push, no friction change")
         return
     if not _reached(supervisor, k, stop, 0.002):
         return
-    client.wait_time(
-        grip_change_s(steps[k], steps[k - 1], specs[k], robot) + perturbation.push_delay_s
-    )
+    client.wait_time(grip_change_s(steps[k], steps[k - 1], specs[k], robot))
+    if stop.is_set() or supervisor.step_index != k:
+        return
+    if perturbation.carry_friction:
+        client.set_friction(obj, perturbation.carry_friction)
+        log(f"perturbation: {obj}'s friction set to {perturbation.carry_friction:g} in step {k}")
+    if not any(perturbation.push):
+        return
+    client.wait_time(perturbation.push_delay_s)
     if stop.is_set() or supervisor.step_index != k:
         return
     client.push_object(obj, perturbation.push, perturbation.push_s)

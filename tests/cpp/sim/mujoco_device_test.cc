@@ -77,6 +77,49 @@ TEST(MujocoSceneTest, APushLiftsAFreeBoxAsNewtonSays) {
   EXPECT_THROW(scene.Push(0, Eigen::Vector3d::UnitZ(), 0.1), SimError);
 }
 
+// Coulomb's law decides what a horizontal push does to the box on the table: held at its scene
+// friction (F < mu m g), slid once SetFriction makes it slippery (mu'): a = F / m - mu' g while
+// pushed for T, then it brakes at mu' g, a distance a T^2 / 2 + (a T)^2 / (2 mu' g) in all.
+TEST(MujocoSceneTest, AFrictionChangeLetsAPushSlideTheBoxAsCoulombSays) {
+  pin::Model model;
+  pin::urdf::buildModel(kModels + "/ur10/ur10.urdf", model);
+  MujocoScene scene(kModels + "/scenes/ur10_box.xml", model);
+  Eigen::VectorXd q0(model.nq), v(model.nv);
+  scene.ReadRobotState(q0, v);
+  const Eigen::VectorXd v0 = Eigen::VectorXd::Zero(model.nv);
+  const int box = scene.BodyId("box");
+  const double mass = scene.model().body_subtreemass[box];
+  const double g = -scene.model().opt.gravity[2];
+  auto run = [&](int ticks) {
+    for (int i = 0; i < ticks; ++i) {
+      scene.Step1();
+      scene.WriteServoTargets(q0, v0);  // the arm holds still
+      scene.Step2(1);
+    }
+  };
+  auto x = [&] { return scene.BodyPose("box").translation().x(); };
+  run(500);  // settle on the table
+  const double force = 0.3 * mass * g, duration = 0.2, dt = scene.timestep();
+  double x0 = x();
+  scene.Push(box, Eigen::Vector3d(force, 0.0, 0.0), duration);
+  run(static_cast<int>(1.0 / dt));
+  EXPECT_LT(std::abs(x() - x0), 1e-3) << "held by the scene's friction";
+  const double mu = 0.2;
+  scene.SetFriction(box, mu);
+  x0 = x();
+  scene.Push(box, Eigen::Vector3d(force, 0.0, 0.0), duration);
+  run(static_cast<int>(duration / dt));
+  const double a = force / mass - mu * g;
+  const double pushed = 0.5 * a * duration * duration;
+  EXPECT_NEAR(x() - x0, pushed, 0.05 * pushed) << "mass " << mass << " kg";
+  run(static_cast<int>(1.0 / dt));
+  const double expected = pushed + std::pow(a * duration, 2) / (2 * mu * g);
+  EXPECT_NEAR(x() - x0, expected, 0.05 * expected);
+  EXPECT_THROW(scene.SetFriction(box, -0.1), SimError);
+  EXPECT_THROW(scene.SetFriction(box, NAN), SimError);
+  EXPECT_THROW(scene.SetFriction(0, 0.5), SimError);
+}
+
 TEST(MujocoSceneTest, StateRoundTripsAndVelocityConventionsMatchMujoco) {
   const pin::Model model = LoadTalos();
   MujocoScene scene(kModels + "/talos/talos.xml", model);

@@ -107,3 +107,57 @@ def test_friction_grasps_with_a_gripper_that_cannot_hold_are_refused_in_one_line
         proc.stderr
     )
     assert "Traceback" not in proc.stdout + proc.stderr
+
+
+def _coulomb_friction_limit() -> float:
+    """The friction coefficient below which ur10-box's squeeze cannot hold its box against
+    gravity: m g = 2 mu F (two jaws, F each: the admittance's force target)."""
+    import xml.etree.ElementTree as ET
+
+    import marionette
+    from marionette import _core
+
+    scene = ET.parse(marionette.MODELS_DIR / "scenes" / "ur10_box.xml").getroot()
+    box = next(b for b in scene.iter("body") if b.get("name") == "box")
+    mass = float(box.find("inertial").get("mass"))
+    return mass * 9.81 / (2.0 * _core.gripper_admittance_defaults()["force_target"])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("factor", [0.75, 1.7])
+def test_coulomb_decides_whether_a_box_gone_slippery_stays_in_the_fingers(
+    tmp_path, lcm_env, factor
+):
+    """Once the grip has settled in the carry, the box's friction drops to ``factor`` times the
+    Coulomb limit m g / (2 F). Below it the box slides out of the fingers: the grip monitor sees
+    them close on nothing and the trial fails with the grasp lost; above it the box stays in the
+    hand and is placed."""
+    mu = factor * _coulomb_friction_limit()
+    proc = run_stopping_what_it_started(
+        [
+            sys.executable,
+            "-m",
+            "marionette.cli",
+            "demo",
+            "ur10-box",
+            "--speed",
+            "0",
+            "--perturb",
+            f"carry_friction={mu:.4f}",
+            "--out",
+            str(tmp_path),
+        ],
+        timeout_s=600,
+        env=lcm_env,
+    )
+    (run,) = tmp_path.glob("ur10-box-*")
+    report = json.loads((run / "report.json").read_text())
+    assert f"friction set to {mu:.4g}" in proc.stdout, proc.stdout
+    if factor < 1.0:
+        assert proc.returncode != 0 and not report["success"]
+        (lost,) = report["grasps_lost"]
+        assert "holds nothing" in lost["detail"], lost
+    else:
+        assert proc.returncode == 0 and report["success"], report.get("criteria")
+        held = [h for g in report["grip"]["grippers"].values() for h in g["held"]]
+        assert held and all(h["object_motion_mm"] < 5.0 for h in held), held

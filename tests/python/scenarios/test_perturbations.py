@@ -95,8 +95,8 @@ def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_unde
         camera_noise_m=0.002,
         camera_noise_deg=0.5,
     )
-    # push: for friction grasps only (plank-flip welds), so not a part of "all"
-    assert set(PRESETS) == {"all", "push", *PARTS}
+    # push, slippery: for friction grasps only (plank-flip welds), so not parts of "all"
+    assert set(PRESETS) == {"all", "push", "slippery", *PARTS}
     full = PRESETS["all"]
     for name, settings in PRESETS.items():
         for field_name in (
@@ -154,6 +154,16 @@ def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_
     SCENARIOS["ur10-box"].check_options(welded)
     with pytest.raises(ScenarioError, match="push on the held object"):
         SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=push, gripper_admittance=False))
+    # A friction change, like a push, needs a grasp that friction holds.
+    oily = draw(PRESETS["slippery"], 1)
+    assert oily.any and oily.carry_friction == 0.25
+    SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=oily))
+    for scenario, options in (
+        ("plank-flip", RunOptions(perturbation=oily)),
+        ("ur10-box", RunOptions(perturbation=oily, gripper_admittance=False)),
+    ):
+        with pytest.raises(ScenarioError, match="friction change on the held object"):
+            SCENARIOS[scenario].check_options(options)
 
 
 def test_the_slip_comes_at_the_last_carry_whatever_the_plans_steps():

@@ -47,11 +47,12 @@ lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
 /// What a SIM_COMMAND asks of the simulator, checked against the scene by the thread that
 /// received it, applied by the loop between two steps (ApplySimRequest).
 struct SimRequest {
-  enum Kind { kMove, kAttach, kDetach, kPush } kind = kMove;
-  int id = -1;  ///< body (move, push) or weld equality (attach, detach)
+  enum Kind { kMove, kAttach, kDetach, kPush, kFriction } kind = kMove;
+  int id = -1;  ///< body (move, push, friction) or weld equality (attach, detach)
   pinocchio::SE3 pose = pinocchio::SE3::Identity();  ///< move: X_WB
   Eigen::Vector3d force = Eigen::Vector3d::Zero();   ///< push: [N], world axes
   double duration_s = 0.0;                           ///< push: [s]
+  double friction = 0.0;                             ///< friction: sliding coefficient
   int64_t hash = 0;                                  ///< the message's, for a journal
 };
 

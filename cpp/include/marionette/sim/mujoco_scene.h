@@ -98,6 +98,13 @@ class MujocoScene {
   void Push(int body_id, const Eigen::Vector3d& force_W, double duration_s);
   static constexpr int kMaxPushes = 8;
 
+  /// Makes body `body_id`'s geoms slippery or sticky: their sliding friction becomes `mu` and
+  /// their priority the scene's highest, so that every contact they make takes their parameters
+  /// (MuJoCo's rule: the higher priority geom's condim, friction, solref and solimp; without it
+  /// a contact takes the larger friction, the fingers' pads'). Throws SimError for a body
+  /// without geoms or a negative or non-finite `mu`.
+  void SetFriction(int body_id, double mu);
+
   /// The simulated grasp (Agimus simulated it too, §3.3.6: physics engines hold objects badly):
   /// activates the weld equality `weld` ("grasp/<robot>/<gripper>/<object>") at the current
   /// relative pose of its two bodies, or releases it. Throws SimError on an unknown weld.
