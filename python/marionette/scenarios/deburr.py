@@ -123,11 +123,8 @@ class DeburrSettings:
     tsp_time_limit_s: float = 1.0
     max_holes: int = 0  # 0: every hole of the part; else the first N of the tour
     camera_rate_hz: float = 5.0
-    camera_noise_grey: float = 2.0  # head camera's sensor noise (1 sigma) on the image; none on
-    # the depth: at 3 mm (a structured-light sensor at ~1 m) the RGB-D fusion tilts a 4 cm tool tag
-    # by 1.2 deg median (0.56 with the depth weighted as 1 cm) and seed 1 misses a hole by 1.04 deg
-    # (python/marionette/scenarios/README.md)
-    depth_noise_m: float = 0.0
+    camera_noise_grey: float = 2.0  # head camera's sensor noise (1 sigma) on the image ...
+    depth_noise_m: float = 0.003  # ... and on its depth (a structured-light sensor at ~1 m)
 
 
 # ---- perturbations and the scene file ---------------------------------------------------------
