@@ -63,6 +63,15 @@ def controller_running(
         assert code == 0, f"controller exited with {code}:\n{proc.log_tail()}"
 
 
+def demo_process(
+    scenario: str, *args: str, out, timeout_s: float, env: dict[str, str] | None = None
+) -> subprocess.CompletedProcess[str]:
+    """``marionette demo SCENARIO ARGS... --out OUT`` in its own Python, through
+    :func:`run_stopping_what_it_started`."""
+    argv = [sys.executable, "-m", "marionette.cli", "demo", scenario, *args, "--out", str(out)]
+    return run_stopping_what_it_started(argv, timeout_s, env)
+
+
 def run_stopping_what_it_started(
     argv: list[str], timeout_s: float, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
@@ -103,21 +112,8 @@ def run_demo(
     of that folder not empty; and that the report carries the scenario's declaration, a measure
     of each of its criteria and the scene a replay draws; and that the run's first 10 s replay
     exactly. Returns the run folder and its report.json."""
-    proc = run_stopping_what_it_started(
-        [
-            sys.executable,
-            "-m",
-            "marionette.cli",
-            "demo",
-            name,
-            "--speed",
-            str(speed),
-            "--out",
-            str(out_dir),
-            *args,
-        ],
-        timeout_s=timeout_s,
-        env=env,
+    proc = demo_process(
+        name, "--speed", str(speed), *args, out=out_dir, timeout_s=timeout_s, env=env
     )
     print(proc.stdout)
     assert proc.returncode == 0, proc.stdout + proc.stderr

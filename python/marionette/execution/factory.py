@@ -87,6 +87,10 @@ class GripperJoint:
         """s of eq. 3.11-3.13: the sign of q̇ when closing."""
         return float(np.sign(self.closed_position - self.open_position))
 
+    def closure(self, position: float) -> float:
+        """How far along the stroke from open (0) to closed (1) the fingers are at ``position``."""
+        return (position - self.open_position) / (self.closed_position - self.open_position)
+
 
 @dataclass
 class FactoryContext:
@@ -148,6 +152,11 @@ def _gripper_joint(g: Gripper, model: pin.Model) -> GripperJoint:
     if g.joint is None or g.open_position is None or g.closed_position is None:
         raise SemanticsError(
             f"gripper {g.name}: joint {g.joint} needs open_position and closed_position"
+        )
+    if g.open_position == g.closed_position:
+        raise SemanticsError(
+            f"gripper {g.name}: open_position and closed_position of {g.joint} are equal "
+            f"({g.open_position}): the fingers would have no stroke"
         )
     parameters = dict(g.admittance)
     if "lever_arm" not in parameters:

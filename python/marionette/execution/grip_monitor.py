@@ -13,8 +13,9 @@ publishes it as ``grasp_lost`` on SUPERVISOR_EVENT (source ``grip_monitor``), th
 fails the step and holds the robot (``decisions.FAILURES``): the arm does not carry on with an
 empty hand.
 
-Only grippers with a joint and both positions are watched, and only while the step holds them
-(a gripper that opens, or has not yet closed, is not a failure).
+The grippers watched are the factory's admittance grippers (``FactoryContext.gripper_joints``:
+a joint, both positions), each only while the step holds it (a gripper that opens, or has not
+yet closed, is not a failure).
 """
 
 from __future__ import annotations
@@ -25,26 +26,13 @@ from typing import Any
 
 from marionette import channels, lcmt_robot_state, lcmt_supervisor_state
 from marionette.execution.decisions import event_message
+from marionette.execution.factory import GripperJoint
 from marionette.execution.plan_steps import Step
 from marionette.execution.step_follower import StepFollower
 from marionette.lcm_bus import LcmBus
 
 SOURCE = "grip_monitor"
 EVENT = "grasp_lost"
-
-
-@dataclass(frozen=True)
-class WatchedGripper:
-    """A gripper's joint and its open and closed positions (robot.yaml)."""
-
-    name: str
-    joint: str
-    open_position: float
-    closed_position: float
-
-    def closure(self, position: float) -> float:
-        """How far along the stroke from open (0) to closed (1) the fingers are."""
-        return (position - self.open_position) / (self.closed_position - self.open_position)
 
 
 @dataclass
@@ -72,7 +60,7 @@ class GripMonitor:
     """The check of the module docstring. Feed it :meth:`begin_step` and :meth:`on_state`; the
     latter returns the first loss of the step (once per step), else None."""
 
-    grippers: dict[str, WatchedGripper]
+    grippers: dict[str, GripperJoint]  # the factory's, by gripper name
     options: GripMonitorOptions = field(default_factory=GripMonitorOptions)
 
     def __post_init__(self) -> None:
@@ -104,19 +92,6 @@ class GripMonitor:
                 self._fired = True
                 return GraspLost(name, handle, q, g.closed_position)
         return None
-
-
-def watched_grippers(robot: str, names: list[str]) -> dict[str, WatchedGripper]:
-    """Those of ``robot``'s grippers ``names`` that have a joint and both positions."""
-    from marionette import robots
-
-    out = {}
-    for name in names:
-        g = robots.semantics(robot).gripper(name)
-        if g.joint is not None and g.open_position is not None and g.closed_position is not None:
-            if g.open_position != g.closed_position:
-                out[name] = WatchedGripper(name, g.joint, g.open_position, g.closed_position)
-    return out
 
 
 class GripMonitorNode:

@@ -52,7 +52,7 @@ from marionette.execution.grip_force import (
     recorder_for,
     settled_windows,
 )
-from marionette.execution.grip_monitor import GripMonitor, GripMonitorNode, watched_grippers
+from marionette.execution.grip_monitor import GripMonitor, GripMonitorNode
 from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
 from marionette.execution.references import StepTiming, grip_change_s
 from marionette.execution.supervisor import (
@@ -565,8 +565,11 @@ def run_plan_and_execute(
         if grip is not None:
             grip.subscribe(client.bus)
         # An admittance gripper whose fingers close on nothing fails the step (grasp_lost).
-        watched = watched_grippers(robot, sorted(ctx.gripper_joints))
-        grip_monitor = GripMonitorNode(client.bus, GripMonitor(watched), steps) if watched else None
+        grip_monitor = (
+            GripMonitorNode(client.bus, GripMonitor(ctx.gripper_joints), steps)
+            if ctx.gripper_joints
+            else None
+        )
         # Scene set-up: the objects where the problem file puts them (the planner's initial state).
         q0 = plan.doc["problem"]["q_init"]
         for name in robot_map.objects:

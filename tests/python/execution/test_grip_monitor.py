@@ -10,14 +10,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from marionette.execution.grip_monitor import (
-    GripMonitor,
-    GripMonitorOptions,
-    WatchedGripper,
-    watched_grippers,
-)
+from marionette.execution.factory import GripperJoint
+from marionette.execution.grip_monitor import GripMonitor, GripMonitorOptions
 
-UR10 = WatchedGripper("ur10/gripper", "finger_joint", 0.0, 0.04)
+UR10 = SimpleNamespace(name="ur10/gripper", joint=GripperJoint("finger_joint", 0.0, 0.04))
 
 
 def _step(grasps):
@@ -34,7 +30,7 @@ def _state(utime_us, finger):
 
 @pytest.mark.parametrize("period_us", [1000, 200_000])
 def test_fingers_closed_on_nothing_are_reported_after_the_duration(period_us):
-    monitor = GripMonitor({UR10.name: UR10}, GripMonitorOptions(min_duration_s=0.05))
+    monitor = GripMonitor({UR10.name: UR10.joint}, GripMonitorOptions(min_duration_s=0.05))
     monitor.begin_step(_step({UR10.name: "box/top"}))
     # Closing on the box: the fingers stop at 0.0157 (39 % of the stroke).
     assert all(monitor.on_state(_state(k * period_us, 0.0157)) is None for k in range(200))
@@ -52,7 +48,7 @@ def test_fingers_closed_on_nothing_are_reported_after_the_duration(period_us):
 
 
 def test_only_held_grippers_are_watched_and_a_glitch_is_not_a_loss():
-    monitor = GripMonitor({UR10.name: UR10})
+    monitor = GripMonitor({UR10.name: UR10.joint})
     monitor.begin_step(_step({}))  # the gripper approaches or opens: closed is not a failure
     assert all(monitor.on_state(_state(k * 1000, 0.04)) is None for k in range(500))
     monitor.begin_step(_step({UR10.name: "box/top"}))
@@ -66,9 +62,16 @@ def test_only_held_grippers_are_watched_and_a_glitch_is_not_a_loss():
     assert monitor.on_state(_state(1_000_000 + 100 * 1000, 0.04)) is not None
 
 
-def test_the_bundled_grippers_with_a_joint_are_watched():
-    watched = watched_grippers("ur10", ["ur10/gripper", "ur10/drill"])
-    assert list(watched) == ["ur10/gripper"]  # the drill has no finger joint
+def test_the_grippers_watched_are_the_plans_admittance_grippers():
+    """What the demo watches (FactoryContext.gripper_joints): the plan's grippers with a finger
+    joint, robot.yaml's positions; the UR10's drill has no fingers."""
+    from marionette import robots
+    from marionette.execution.factory import context_from_plan
+
+    model, _ = robots.load_pinocchio("ur10", with_collision=False)
+    doc = {"graph": {}, "problem": {"grippers": ["ur10/gripper", "ur10/drill"], "handles": {}}}
+    watched = context_from_plan(doc, "ur10", model, gripper_admittance=True).gripper_joints
+    assert list(watched) == ["ur10/gripper"]
     g = watched["ur10/gripper"]
     assert (g.joint, g.open_position, g.closed_position) == ("finger_joint", 0.0, 0.04)
     assert g.closure(0.036) == pytest.approx(0.9)

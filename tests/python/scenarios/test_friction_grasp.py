@@ -5,14 +5,13 @@ grasp that closes on nothing stops the arm."""
 from __future__ import annotations
 
 import json
-import sys
 
 import numpy as np
 import pytest
 
 import lcm
 from marionette import channels, lcmt_sim_command
-from tests_support import run_stopping_what_it_started
+from tests_support import demo_process
 
 
 def test_the_box_is_held_by_friction_without_a_weld(ur10_box_run):
@@ -37,20 +36,13 @@ def test_a_grasp_that_closes_on_nothing_stops_the_arm_before_it_lifts(tmp_path, 
     The grip monitor sees them reach the closed end from the encoder, the supervisor fails the
     step after the grasp while its arm still waits for the grip, and the robot holds: the box
     has not moved, the arm never lifted."""
-    proc = run_stopping_what_it_started(
-        [
-            sys.executable,
-            "-m",
-            "marionette.cli",
-            "demo",
-            "ur10-box",
-            "--speed",
-            "0",
-            "--perturb",
-            "displacement_m=0.25",
-            "--out",
-            str(tmp_path),
-        ],
+    proc = demo_process(
+        "ur10-box",
+        "--speed",
+        "0",
+        "--perturb",
+        "displacement_m=0.25",
+        out=str(tmp_path),
         timeout_s=600,
         env=lcm_env,
     )
@@ -86,18 +78,11 @@ def test_friction_grasps_with_a_gripper_that_cannot_hold_are_refused_in_one_line
     (tmp_path / "ur5-cube-friction.yaml").write_text(
         decl + "gripper_admittance: true\nfriction_grasps: true\n"
     )
-    proc = run_stopping_what_it_started(
-        [
-            sys.executable,
-            "-m",
-            "marionette.cli",
-            "demo",
-            "ur5-cube-friction",
-            "--speed",
-            "0",
-            "--out",
-            str(tmp_path / "out"),
-        ],
+    proc = demo_process(
+        "ur5-cube-friction",
+        "--speed",
+        "0",
+        out=str(tmp_path / "out"),
         timeout_s=300,
         env={**lcm_env, "MARIONETTE_SCENARIO_PATH": str(tmp_path)},
     )
@@ -133,20 +118,13 @@ def test_coulomb_decides_whether_a_box_gone_slippery_stays_in_the_fingers(
     them close on nothing and the trial fails with the grasp lost; above it the box stays in the
     hand and is placed."""
     mu = factor * _coulomb_friction_limit()
-    proc = run_stopping_what_it_started(
-        [
-            sys.executable,
-            "-m",
-            "marionette.cli",
-            "demo",
-            "ur10-box",
-            "--speed",
-            "0",
-            "--perturb",
-            f"carry_friction={mu:.4f}",
-            "--out",
-            str(tmp_path),
-        ],
+    proc = demo_process(
+        "ur10-box",
+        "--speed",
+        "0",
+        "--perturb",
+        f"carry_friction={mu:.4f}",
+        out=str(tmp_path),
         timeout_s=600,
         env=lcm_env,
     )
