@@ -380,18 +380,49 @@ def missing_joints(scene: Path, joints: list[str]) -> list[str]:
     return [j for j in joints if not _joint_pattern(j).search(text)]
 
 
+def _shifted_range(tag: str, attribute: str, offset: float) -> str:
+    """``tag`` (an element's opening text) with both bounds of ``attribute="lo hi"`` moved by
+    ``offset``; unchanged without the attribute."""
+
+    def shift(m: re.Match[str]) -> str:
+        lo, hi = (float(v) + offset for v in m.group(2).split())
+        return f'{m.group(1)}"{lo:.9f} {hi:.9f}"'
+
+    return re.sub(r"(\b" + attribute + r'=)"([^"]*)"', shift, tag, count=1)
+
+
+def _position_actuator_pattern(joint: str) -> re.Pattern:
+    """A position servo on ``joint``: ``<position>``, or ``<general>`` with an affine bias (the
+    MJCF the models are generated with); a motor's ctrlrange is a torque and is left alone."""
+    return re.compile(
+        r'<(?:position\b|general\b(?=[^>]*\bbiastype="affine"))[^>]*\bjoint="'
+        + re.escape(joint)
+        + r'"[^>]*>'
+    )
+
+
 def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) -> Path:
     """A copy of the MJCF ``scene`` in which each joint of ``offsets`` has ``ref`` = offset [rad]
-    (the simulator then reports q + offset), written to ``out``; asset paths made absolute."""
+    (the simulator then reports q + offset), written to ``out``; asset paths made absolute.
+
+    What the simulator reports includes the offset, and so do MJCF joint ranges and position
+    servo ctrlranges (they are in qpos units): both move by the offset too, so that the joint's
+    physical stops stay at the same true angles, as on a robot whose encoder is off. (Left
+    unmoved, a 7 deg offset moved TALOS' shoulder stop 7 deg into the plan's motion, and the arm
+    stalled against it.)"""
     text = scene.read_text()
     for joint, offset in offsets.items():
 
         def with_ref(m: re.Match[str], offset: float = offset) -> str:
-            return f'{m.group(1)} ref="{offset:.9f}"{m.group(2)}'
+            opening = _shifted_range(m.group(1), "range", offset)
+            return f'{opening} ref="{offset:.9f}"{m.group(2)}'
 
         text, n = _joint_pattern(joint).subn(with_ref, text, count=1)
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
+        text = _position_actuator_pattern(joint).sub(
+            lambda m, offset=offset: _shifted_range(m.group(0), "ctrlrange", offset), text
+        )
     return write_scene(text, scene, out)
 
 

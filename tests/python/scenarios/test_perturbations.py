@@ -76,6 +76,22 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
     assert np.allclose(
         a.body_pose("gripper_left_base_link"), b.body_pose("gripper_left_base_link"), atol=1e-9
     )
+    # The physical stops stay at the same true angles: the joint's range and its position servo's
+    # ctrlrange (reported units) move by the offset; the other joints' do not.
+    import xml.etree.ElementTree as ET
+
+    def ranges(scene):
+        root = ET.parse(scene).getroot()
+        joints = {j.get("name"): j.get("range") for j in root.iter("joint")}
+        servos = {a.get("joint"): a.get("ctrlrange") for a in root.iter("general")}
+        return joints, servos
+
+    (ja, sa), (jb, sb) = ranges(original), ranges(path)
+    for table_a, table_b in ((ja, jb), (sa, sb)):
+        lo_a, hi_a = map(float, table_a["arm_left_1_joint"].split())
+        lo_b, hi_b = map(float, table_b["arm_left_1_joint"].split())
+        assert (lo_b - lo_a, hi_b - hi_a) == pytest.approx((offset, offset), abs=1e-8)
+        assert table_a["arm_right_1_joint"] == table_b["arm_right_1_joint"]
     with pytest.raises(ValueError, match="no joint 'nope'"):
         scene_with_joint_offsets(original, {"nope": 0.1}, tmp_path / "bad.xml")
 
