@@ -32,7 +32,13 @@ from marionette import lcmt_object_poses, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.references import minimum_jerk
-from marionette.execution.walking import FEET, MergedPlan, sole_half_size, zmp_margins
+from marionette.execution.walking import (
+    FEET,
+    MergedPlan,
+    sole_half_size,
+    walking_spec,
+    zmp_margins,
+)
 from marionette.scenarios.base import Criterion, RunOptions, Scenario
 from marionette.scenarios.report import (
     controller_and_plots_lines,
@@ -218,8 +224,6 @@ def reach_spec(controller_id: int, robot: str, hand: str) -> ControllerSpec:
     and is not part of the check). Holding the walk's references instead would keep that base
     motion and let the hand task, holding its world position, turn it into arm motion (0.07-0.29
     rad/s measured after 6-8 steps)."""
-    from marionette.execution.walking import walking_spec
-
     walk = {t.name: t for t in walking_spec(robot, controller_id).tasks}
     held = [
         dataclasses.replace(walk[name], reference_channel="", reference=())
