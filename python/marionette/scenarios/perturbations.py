@@ -420,9 +420,11 @@ def scene_with_joint_offsets(scene: Path, offsets: dict[str, float], out: Path) 
         text, n = _joint_pattern(joint).subn(with_ref, text, count=1)
         if n != 1:
             raise ValueError(f"{scene}: no joint {joint!r} to offset")
-        text = _position_actuator_pattern(joint).sub(
-            lambda m, offset=offset: _shifted_range(m.group(0), "ctrlrange", offset), text
-        )
+
+        def servo_range(m: re.Match[str], offset: float = offset) -> str:
+            return _shifted_range(m.group(0), "ctrlrange", offset)
+
+        text = _position_actuator_pattern(joint).sub(servo_range, text)
     return write_scene(text, scene, out)
 
 
