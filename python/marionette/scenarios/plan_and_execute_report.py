@@ -204,6 +204,12 @@ def _markdown(r: dict[str, Any]) -> str:
                 f"{p['push_delay_s']:.2f} s after its grip settled"
                 if any(p.get("push", ()))
                 else ""
+            )
+            + (
+                f"; the held object's friction set to {p['carry_friction']:g} once its grip "
+                "settled in its first carry"
+                if p.get("carry_friction")
+                else ""
             ),
             "",
         ]

@@ -131,6 +131,7 @@ def test_coulomb_decides_whether_a_box_gone_slippery_stays_in_the_fingers(
     (run,) = tmp_path.glob("ur10-box-*")
     report = json.loads((run / "report.json").read_text())
     assert f"friction set to {mu:.4g}" in proc.stdout, proc.stdout
+    assert f"friction set to {mu:.4g} once its grip settled" in (run / "report.md").read_text()
     if factor < 1.0:
         assert proc.returncode != 0 and not report["success"]
         (lost,) = report["grasps_lost"]
