@@ -264,16 +264,15 @@ class PlanAndExecute(Scenario):
     def check_options(self, options: RunOptions) -> None:
         super().check_options(options)
         p = options.perturbation
-        if p is not None and any(p.push) and not self.friction_grasps_in(options):
-            raise ScenarioError(
-                f"{self.name} welds its grasps: a push on the held object tests a friction "
-                "grasp (a weld would not feel it)"
-            )
-        if p is not None and p.carry_friction and not self.friction_grasps_in(options):
-            raise ScenarioError(
-                f"{self.name} welds its grasps: a friction change on the held object tests a "
-                "friction grasp (a weld would not feel it)"
-            )
+        for what, asked in (
+            ("a push", p is not None and any(p.push)),
+            ("a friction change", p is not None and bool(p.carry_friction)),
+        ):
+            if asked and not self.friction_grasps_in(options):
+                raise ScenarioError(
+                    f"{self.name} welds its grasps: {what} on the held object tests a friction "
+                    "grasp (a weld would not feel it)"
+                )
         if p is not None and any(p.slip) and self.friction_grasps_in(options):
             raise ScenarioError(
                 f"{self.name} holds its objects by friction: the in-hand slip moves welded "
