@@ -448,11 +448,17 @@ def _robot_root(entry: dict[str, Any]) -> str:
 
 def _add_semantics(sem: Any, info: _SrdfInfo, owner: str) -> None:
     """Grippers/handles/contacts of a :class:`marionette.models.semantics.Semantics` (names there
-    are already ``<owner>/<name>``)."""
+    are already ``<owner>/<name>``). The robot's description is the one the controllers use: an
+    SRDF entry of the same name (an HPP SRDF shipped with the robot declares its grippers too,
+    with another clearance) gives way to it."""
 
     def local(n: str) -> str:
         return n.split("/", 1)[1] if "/" in n else n
 
+    described = {local(e.name) for e in (*sem.grippers, *sem.handles, *sem.contacts)}
+    info.grippers[:] = [g for g in info.grippers if g[0] not in described]
+    info.handles[:] = [h for h in info.handles if h[0] not in described]
+    info.contacts[:] = [c for c in info.contacts if c[0] not in described]
     for g in sem.grippers:
         info.grippers.append((local(g.name), g.link, g.pose.se3(), float(g.clearance)))
     for h in sem.handles:
@@ -502,6 +508,23 @@ def _inline(entry: dict[str, Any], info: _SrdfInfo, owner: str) -> None:
             info.contacts.append((c["name"], c["link"], np.asarray(c["points"], dtype=float)))
     except KeyError as e:
         raise ProblemError(f"{owner}: gripper/handle/contact entry misses {e}") from e
+
+
+def _refuse_duplicates(info: _SrdfInfo, owner: str) -> None:
+    """Two grippers, handles or contacts of one model with the same name (the SRDF and the
+    problem file both declaring it) would be two frames of one name: refused."""
+    for kind, entries in (
+        ("gripper", info.grippers),
+        ("handle", info.handles),
+        ("contact", info.contacts),
+    ):
+        names = [e[0] for e in entries]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ProblemError(
+                f"{kind} {owner}/{twice[0]} is declared twice (SRDF and problem file?): "
+                "keep one declaration"
+            )
 
 
 def _load_yaml(path: Path) -> dict[str, Any]:
@@ -603,6 +626,7 @@ def build_problem(
         if "semantics" in entry:
             _add_semantics(entry["semantics"], info, name)
         _inline(entry, info, name)
+        _refuse_duplicates(info, name)
         for pair in entry.get("disable_collisions", []) or []:
             if len(pair) != 2:
                 raise ProblemError(f"{name}.disable_collisions: pairs of link names, got {pair}")

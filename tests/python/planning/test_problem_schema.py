@@ -8,6 +8,7 @@ import re
 import subprocess
 import sys
 
+import pinocchio as pin
 import pytest
 import yaml
 
@@ -258,3 +259,31 @@ def test_package_uris_resolve_through_ros_package_path(tmp_path, monkeypatch):
     monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "elsewhere"))
     with pytest.raises(ProblemError, match="package 'my_objects' not found"):
         load_problem(ur5_box_with(tmp_path, srdf, "package://my_objects/urdf/box.urdf"))
+
+
+def _operational_frame_names(p) -> list[str]:
+    # a joint may share a gripper's name (so100's jaw joint "gripper"): other frame types
+    return [f.name for f in p.model.frames if f.type == pin.FrameType.OP_FRAME]
+
+
+@pytest.mark.parametrize(
+    "path", sorted(PROBLEMS.glob("*.yaml")), ids=lambda p: f"{p.parent.name}/{p.name}"
+)
+def test_every_gripper_and_handle_is_one_frame(path):
+    """A robot's HPP SRDF and its description both declare its grippers (TALOS: another
+    clearance and 1 cm further): the description wins, and the model has one frame per name
+    (HPP refuses a second frame of the same name; Pinocchio would silently find the first)."""
+    p = load_problem(path)
+    names = _operational_frame_names(p)
+    for name in (*p.grippers, *p.handles):
+        assert names.count(name) == 1, name
+
+
+def test_a_handle_declared_twice_is_refused_in_one_line(tmp_path):
+    f = ur5_box_with(tmp_path, BOX_SRDF.format(mask="1 1 1 1 1 1"))
+    doc = yaml.safe_load(f.read_text())
+    doc["objects"][0]["handles"] = [{"name": "handle", "link": "base_link"}]
+    f.write_text(yaml.safe_dump(doc))
+    with pytest.raises(ProblemError, match="handle box/handle is declared twice") as e:
+        load_problem(f)
+    assert "\n" not in str(e.value)
