@@ -21,7 +21,13 @@ from pathlib import Path
 import numpy as np
 import pinocchio
 from pinocchio import XYZQUATToSE3
-from pyhpp.constraints import ComparisonType, Implicit, LockedJoint, Transformation
+from pyhpp.constraints import (
+    ComparisonType,
+    ComparisonTypes,
+    Implicit,
+    LockedJoint,
+    Transformation,
+)
 from pyhpp.core import Dichotomy, Straight
 from pyhpp.manipulation import (
     Device,
@@ -32,7 +38,28 @@ from pyhpp.manipulation import (
     RandomShortcut,
     urdf,
 )
-from pyhpp.manipulation.constraint_graph_factory import ConstraintGraphFactory, Rule
+from pyhpp.manipulation.constraint_graph_factory import (
+    ConstraintFactory,
+    ConstraintGraphFactory,
+    Rule,
+)
+from pyhpp.pinocchio import LiegroupElement
+
+
+class OwnSurfacesExcluded(ConstraintFactory):
+    """HPP's factory offers every environment contact to every object, its own surfaces
+    included: a box whose top face is an environment contact (a tower) would be placed on
+    itself, an explicit constraint whose input contains its output, which HPP refuses. An
+    object is placed on the surfaces of the others only, as marionette's graph does."""
+
+    def buildPlacement(self, o):
+        factory = self.graphfactory
+        every = factory.envContacts
+        factory.envContacts = tuple(c for c in every if not c.startswith(o + "/"))
+        try:
+            return super().buildPlacement(o)
+        finally:
+            factory.envContacts = every
 
 
 def build(spec: dict):
@@ -53,6 +80,7 @@ def build(spec: dict):
     graph.maxIterations(40)
     graph.errorThreshold(g["error_threshold"])
     factory = ConstraintGraphFactory(graph)
+    factory.constraints = OwnSurfacesExcluded(factory, graph)
     factory.setGrippers(g["grippers"])
     factory.setObjects(
         [o[0] for o in g["objects"]], [o[1] for o in g["objects"]], [o[2] for o in g["objects"]]
@@ -63,7 +91,7 @@ def build(spec: dict):
     for o in g["objects"]:
         factory.setPreplacementDistance(o[0], g["preplacement_distance"])
     factory.generate()
-    constraints = graph_constraints(robot, problem, g["constraints"])
+    constraints = graph_constraints(robot, problem, g["constraints"], spec["legs"][0][0])
     if constraints:
         graph.addNumericalConstraintsToGraph(constraints)
     for name, w in g["weights"].items():
@@ -76,10 +104,10 @@ def build(spec: dict):
     return robot, problem, graph
 
 
-def graph_constraints(robot, problem, entries: list[dict]) -> list:
-    """HPP constraints of marionette's graph constraints (values taken at marionette's init).
-    marionette's centre of mass is in the world frame; HPP's RelativeCom is in a joint frame:
-    the first fixed frame's joint (a foot, which the other constraints keep still)."""
+def graph_constraints(robot, problem, entries: list[dict], q_init) -> list:
+    """HPP constraints of marionette's graph constraints (values taken at marionette's init
+    ``q_init``). HPP's RelativeCom is in a joint frame: the first fixed frame's joint (a foot,
+    which the other constraints keep still)."""
     out = []
     model = robot.model()
     fixed = [e for e in entries if e["type"] == "fixed_frame"]
@@ -93,19 +121,27 @@ def graph_constraints(robot, problem, entries: list[dict]) -> list:
             f = Transformation(
                 f"{e['joint']} fixed", robot, jid, M_JF, X_WF, [bool(v) for v in e["mask"]]
             )
-            out.append(Implicit(f, [ComparisonType.EqualToZero] * sum(e["mask"]), [True] * 6))
+            comparison = ComparisonTypes()
+            comparison.extend([ComparisonType.EqualToZero] * sum(e["mask"]))
+            active = pinocchio.StdVec_Bool()
+            active.extend([True] * sum(e["mask"]))
+            out.append(Implicit(f, comparison, active))
         elif e["type"] == "com":
             if not fixed:
                 raise ValueError("a centre-of-mass constraint needs a fixed frame to refer to")
-            ref = fixed[0]
-            X_WJ = (
-                XYZQUATToSE3(np.array(ref["X_WF"])) * XYZQUATToSE3(np.array(ref["M_JF"])).inverse()
+            # HPP's centre of mass is not Pinocchio's (TALOS at init: 0.645 m high in HPP 9.0.2,
+            # 0.877 m in Pinocchio, same masses), so the reference is HPP's own value at init
+            # in the foot's joint frame: HPP keeps its centre of mass where it starts, as
+            # marionette keeps its own.
+            joint = fixed[0]["joint"]
+            probe = problem.createRelativeComConstraint(
+                "com at init", "", joint, np.zeros(3), [True] * 3
             )
-            point = X_WJ.actInv(np.array(e["com"]))
-            # The feet are flat: the world's x y are the foot joint frame's x y.
+            value = LiegroupElement(probe.function().outputSpace())
+            probe.function().value(value, np.asarray(q_init, dtype=float))
             out.append(
                 problem.createRelativeComConstraint(
-                    "com", "", ref["joint"], point, [bool(v) for v in e["mask"]]
+                    "com", "", joint, np.array(value.vector()), [bool(v) for v in e["mask"]]
                 )
             )
         else:
@@ -122,11 +158,31 @@ def arm_length(path, arm: list[int], step: float = 0.01) -> float:
     return float(np.linalg.norm(np.diff(qs, axis=0), axis=1).sum())
 
 
+def hpp_legs(graph, legs: list, waypoint_states: list[str]) -> list:
+    """The legs with each waypoint projected onto HPP's own constraints of its state (HPP's
+    centre of mass is not marionette's: a waypoint that balances marionette's is up to 6 cm
+    off HPP's); the next leg starts from the projected waypoint. Raises when HPP cannot
+    project one."""
+    out, start = [], np.asarray(legs[0][0], dtype=float)
+    for k, (_, goal) in enumerate(legs):
+        goal = np.asarray(goal, dtype=float)
+        if k < len(waypoint_states):
+            ok, goal, error = graph.applyStateConstraints(graph.getState(waypoint_states[k]), goal)
+            if not ok:
+                raise RuntimeError(
+                    f"HPP cannot project waypoint {k} onto {waypoint_states[k]!r} "
+                    f"(error {error:.3g})"
+                )
+        out.append((start, np.asarray(goal, dtype=float)))
+        start = out[-1][1]
+    return out
+
+
 def plan(problem, legs, seed: int, max_iterations: int, timeout: float, optimize: bool, arm):
     pinocchio.seed(seed)
     np.random.seed(seed)
     t0 = time.perf_counter()
-    nodes, paths, ok = 0, [], True
+    nodes, paths, ok, error = 0, [], True, ""
     for a, b in legs:
         problem.initConfig(np.array(a))
         problem.resetGoalConfigs()
@@ -136,14 +192,16 @@ def plan(problem, legs, seed: int, max_iterations: int, timeout: float, optimize
         planner.timeOut(max(timeout - (time.perf_counter() - t0), 0.1))
         try:
             paths.append(planner.solve())
-        except Exception:  # HPP raises when the iteration or time limit is reached
-            ok = False
+        except Exception as e:  # HPP raises when the iteration or time limit is reached
+            ok, error = False, str(e).splitlines()[0] if str(e) else type(e).__name__
         roadmap = planner.roadmap()
         nodes += len(roadmap.nodes()) if hasattr(roadmap, "nodes") else 0
         if not ok:
             break
     dt = time.perf_counter() - t0
     out = {"seed": seed, "success": ok, "time_s": dt, "nodes": nodes}
+    if error:
+        out["error"] = error
     if ok and optimize:
         raw = sum(arm_length(p, arm) for p in paths)
         t1 = time.perf_counter()
@@ -167,7 +225,8 @@ def main() -> None:
     args = ap.parse_args()
     spec = json.loads(args.problem.read_text())
     try:
-        _robot, problem, _graph = build(spec)
+        _robot, problem, graph = build(spec)
+        legs = hpp_legs(graph, spec["legs"], spec.get("waypoint_states", []))
     except RuntimeError as e:  # a problem HPP's graph factory cannot pose
         runs = [
             {"seed": s, "success": False, "time_s": float("nan"), "nodes": 0, "error": str(e)}
@@ -178,7 +237,7 @@ def main() -> None:
     runs = [
         plan(
             problem,
-            spec["legs"],
+            legs,
             s,
             args.max_iterations,
             args.timeout,

@@ -146,6 +146,7 @@ def hpp_description(
     }
     if legs is None:
         legs = [(problem.require_init(), problem.require_goal())]
+    guide = s.get("guide") or []
     return {
         "name": problem.name,
         "models": [
@@ -180,5 +181,7 @@ def hpp_description(
             "constraints": _graph_constraints(problem),
         },
         "legs": [[np.asarray(a).tolist(), np.asarray(b).tolist()] for a, b in legs],
+        # the graph state of each intermediate leg end (a guided problem's waypoints)
+        "waypoint_states": [e["state"] for e in guide] if len(legs) == len(guide) + 1 else [],
         "arm_q_indices": arm_indices(problem),
     }
