@@ -83,19 +83,24 @@ def test_parallel_gripper_reads_the_squeeze_and_half_the_motor_force(ur10):
     assert est == pytest.approx(F)  # a squeezing motor (+q closes) pushes with 2F
 
 
-def test_talos_jaws_read_their_squeeze(talos):
+@pytest.mark.parametrize("hand", ["left", "right"])
+def test_talos_jaws_read_their_squeeze(talos, hand):
+    """The +y jaw of each hand's gripper frame (the right hand's frame is the left's turned
+    about its approach axis: its +y jaw is the single one) pushes along +y, the other along -y."""
     g = GripperGeometry.of(
-        "talos", "talos/right_gripper", {"lever_arm": 0.085}, closing_direction=-1.0
+        "talos", f"talos/{hand}_gripper", {"lever_arm": 0.085}, closing_direction=-1.0
     )
     q = _random_q(talos, 1)
     data = talos.createData()
     pin.framesForwardKinematics(talos, data, q)
-    R = data.oMf[talos.getFrameId("gripper_right_base_link")].rotation
+    R = data.oMf[talos.getFrameId(g.base_link)].rotation
+    y = R @ g.y_in_link  # the closing axis in the world
+    x = R @ np.cross(g.y_in_link, [0.0, 0.0, 1.0])  # along the fingers: must not count
     F = 4.7
     w = {b: np.zeros(6) for b in g.plus_jaw + g.minus_jaw}
-    w[g.plus_jaw[1]][:3] = R @ [0.3, 0.4 * F, 0.0]
-    w[g.plus_jaw[2]][:3] = R @ [0.0, 0.6 * F, 0.0]
-    w[g.minus_jaw[1]][:3] = R @ [-0.3, -F, 0.0]
+    w[g.plus_jaw[1]][:3] = 0.3 * x + 0.4 * F * y
+    w[g.plus_jaw[2]][:3] = 0.6 * F * y
+    w[g.minus_jaw[1]][:3] = -0.3 * x - F * y
     tau = -0.4  # closing direction -1: a squeezing motor pushes towards negative q
     est, grip, diff = grip_forces(_state(talos, q, w, {g.joint: tau}), talos, data, g)
     assert grip == pytest.approx(F, abs=1e-9)
