@@ -229,7 +229,14 @@ def main() -> None:
         legs = hpp_legs(graph, spec["legs"], spec.get("waypoint_states", []))
     except RuntimeError as e:  # a problem HPP's graph factory cannot pose
         runs = [
-            {"seed": s, "success": False, "time_s": float("nan"), "nodes": 0, "error": str(e)}
+            {
+                "seed": s,
+                "success": False,
+                "time_s": float("nan"),
+                "nodes": 0,
+                "error": str(e),
+                "not_posed": True,
+            }
             for s in range(args.seeds[0], args.seeds[1] + 1)
         ]
         args.out.write_text(json.dumps({"system": "HPP 9.0.2", "runs": runs}, indent=1))

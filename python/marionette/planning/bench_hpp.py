@@ -20,9 +20,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -225,9 +227,16 @@ def print_table(results: list[dict], seeds: int, clearance: float) -> None:
         " seeds;\npaired: median over seeds both solved of ours / HPP's arm length."
     )
     for r in results:
-        errors = {x["error"] for x in r["hpp"]["runs"] if "error" in x}
-        if errors:
-            print(f"HPP could not pose {r['problem']}: {'; '.join(sorted(errors))}")
+        runs = r["hpp"]["runs"]
+        unposed = {x["error"] for x in runs if x.get("not_posed")}
+        if unposed:
+            print(f"HPP could not pose {r['problem']}: {'; '.join(sorted(unposed))}")
+            continue
+        # HPP's messages carry times and counts: grouped with their numbers blanked
+        failures = Counter(re.sub(r"\d+(\.\d+)?", "#", x["error"]) for x in runs if "error" in x)
+        if failures:
+            said = "; ".join(f"{n}x {msg}" for msg, n in failures.most_common())
+            print(f"HPP's failed seeds on {r['problem']}: {said}")
     crashed = {r["problem"]: r["hpp"]["summary"]["crashed"] for r in results}
     if any(crashed.values()):
         print(f"HPP crashes (counted as failures at the time limit): {crashed}")
