@@ -404,16 +404,20 @@ def shaped_trajectory(
     rewrites: Sequence[Rewrite] = (),
     first: bool = False,
     max_attempts: int = 6,
+    max_duration_s: float = 600.0,
 ) -> StepTrajectory:
     """The step sampled along its time law (bounded by ``limits`` (nv,), ``timing.slowdown``
     slower), its references computed for ``spec``, rewritten by ``rewrites``, re-timed until
     every streamed reference respects ``limits`` (module doc), held ``timing.lead_in_s`` before
     and ``timing.dwell_s`` after.
-    ValueError when no re-timing brings it within (a rewrite that does not slow down with the
-    step)."""
+    ValueError when no re-timing brings it within: after ``max_attempts``, when the step would
+    last more than ``max_duration_s``, or at once when slowing it did not reduce the excess (a
+    rewrite whose reference jumps asks the same velocity at any pace: re-timing it grew the
+    samples geometrically, 21 GB before the kernel killed the demo)."""
     model = robot_map.model
     stretch = timing.slowdown
     limiting = ""
+    last_ratio, growth = math.inf, 1.0
     for _ in range(max_attempts):
         traj = sample_step(step, robot_map, dt, limits / stretch, min_duration * stretch)
         compute_references(traj, spec, model)
@@ -422,9 +426,26 @@ def shaped_trajectory(
         ratio, j = speed_ratio(model, traj, limits)
         if ratio <= 1.0:
             break
-        # 2 % beyond the excess: the rewrite is re-sampled on another grid
-        stretch *= ratio * 1.02
         limiting = velocity_component_name(model, j)
+        # a reference that follows the time law asks 1/growth of its velocity after a
+        # slow-down by growth; one that gained less than half of that (in log) does not follow
+        stuck = ratio > last_ratio / math.sqrt(growth)
+        duration = traj.num_samples * dt * ratio * 1.02
+        if stuck or duration > max_duration_s:
+            raise ValueError(
+                f"step {step.index} ({step.transition}): its references ask {limiting} for "
+                f"{ratio:.2f} x its velocity bound "
+                + (
+                    f"whatever the step's pace (slowed {stretch / timing.slowdown:.2f} x): a "
+                    "rewritten reference that jumps"
+                    if stuck
+                    else f"and slowed within them the step would last {duration:.0f} s "
+                    f"(more than {max_duration_s:g} s)"
+                )
+            )
+        # 2 % beyond the excess: the rewrite is re-sampled on another grid
+        last_ratio, growth = ratio, ratio * 1.02
+        stretch *= growth
     else:
         raise ValueError(
             f"step {step.index} ({step.transition}): its references still ask {limiting} for "

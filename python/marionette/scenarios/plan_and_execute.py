@@ -481,9 +481,12 @@ def run_plan_and_execute(
         if camera is None:
             raise ScenarioError(f"{scenario.name}: vision needs a camera; robot {robot} has none")
         rewrites.append(gaze_rewrite(robot_map, scenario.object_name, camera))
-    trajectories = prepare_trajectories(
-        steps, specs, robot_map, supervisor_options, 0, timing, rewrites
-    )
+    try:
+        trajectories = prepare_trajectories(
+            steps, specs, robot_map, supervisor_options, 0, timing, rewrites
+        )
+    except ValueError as e:  # a step no re-timing brings within the joints' bounds
+        raise ScenarioError(f"references: {e}") from None
     timings["references_s"] = time.perf_counter() - t_ref
     retimed = [(i, t) for i, t in trajectories.items() if t.retimed > 1.0]
     if retimed:

@@ -151,3 +151,46 @@ def test_a_gaze_ramped_in_over_a_short_first_step_is_re_timed():
     # the head does reach the gaze: the rewrite is applied, only slower
     head = model.joints[model.getJointId("head_1_joint")].idx_q
     assert abs(traj.references["posture"][0][-1, head] - q0[head]) > 0.2
+
+
+def _jump(joint_v: int, height: float):
+    """A rewrite whose reference jumps by ``height`` halfway (a gaze switching joints on):
+    its velocity is the jump over a sample, whatever the step's pace."""
+
+    def rewrite(step, traj, first):
+        values, derivatives = traj.references["posture"]
+        half = len(values) // 2
+        values[half:, joint_v] += height
+        derivatives[1:-1, joint_v] = (values[2:, joint_v] - values[:-2, joint_v]) / (2 * traj.dt)
+
+    return rewrite
+
+
+@pytest.mark.parametrize("robot", ROBOTS)
+def test_a_rewrite_that_jumps_or_asks_too_much_is_refused_without_growing(robot):
+    """Re-timing a jump multiplied the samples by its excess at every attempt (a demo took
+    21 GB before the kernel killed it): refused at the second attempt, the samples bounded;
+    a rewrite that would need the step to last more than max_duration_s is refused too."""
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
+    robot_map = PlanRobotMap(_layout(model, robot), model, robot)
+    spec = ControllerSpec(1, "s", [TaskSpec("posture", "posture", 0, streamed=True)])
+    rng = np.random.default_rng(7)
+    q = _random_step(model, rng, 0.3)
+    j = model.nv - 1
+    limits = velocity_limits(model, 0.5)
+    seen: list[int] = []
+
+    def counting(step, traj, first):
+        seen.append(traj.num_samples)
+
+    with pytest.raises(ValueError, match="whatever the step's pace") as e:
+        shaped_trajectory(
+            _step(q), spec, robot_map, limits, 1e-3, 0.5, StepTiming(), [_jump(j, 0.003), counting]
+        )
+    assert "\n" not in str(e.value)
+    assert len(seen) == 2 and max(seen) <= 600_000  # 600 s at 1 kHz
+    # a swing far beyond the joint's bound: within it the step would last an hour
+    with pytest.raises(ValueError, match=r"would last \d+ s \(more than 600 s\)"):
+        shaped_trajectory(
+            _step(q), spec, robot_map, limits, 1e-3, 0.5, StepTiming(), [_wobble(j, 500.0)]
+        )
