@@ -6,8 +6,9 @@ Runs inside the benchmark venv (.venv-bench, never the product's):
 ConstraintGraphFactory + ManipulationPlanner, Straight steering, Dichotomy(0) path validation,
 Progressive(0.01) path projector, the problem's error threshold, HPP's default 40 projection
 iterations.  Graph constraints (fixed frames, centre of mass, locked joints) are added to every
-state with marionette's values.  A guided problem is planned leg by leg (one planner per leg,
-same roadmap settings).  With ``--optimize``, the solution goes through HPP's manipulation
+state with marionette's values at init, except the centre of mass: HPP's is another function
+than Pinocchio's, so it keeps HPP's own value at init.  A guided problem is planned leg by leg
+(one planner per leg, same roadmap settings), its waypoints projected onto HPP's constraints.  With ``--optimize``, the solution goes through HPP's manipulation
 RandomShortcut (transition-aware) and its arm path length is measured the way marionette's is.
 """
 
