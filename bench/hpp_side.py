@@ -8,8 +8,9 @@ Progressive(0.01) path projector, the problem's error threshold, HPP's default 4
 iterations.  Graph constraints (fixed frames, centre of mass, locked joints) are added to every
 state with marionette's values at init, except the centre of mass: HPP's is another function
 than Pinocchio's, so it keeps HPP's own value at init.  A guided problem is planned leg by leg
-(one planner per leg, same roadmap settings), its waypoints projected onto HPP's constraints.  With ``--optimize``, the solution goes through HPP's manipulation
-RandomShortcut (transition-aware) and its arm path length is measured the way marionette's is.
+(one planner per leg, same roadmap settings), its waypoints projected onto HPP's constraints.
+With ``--optimize``, the solution goes through HPP's manipulation RandomShortcut
+(transition-aware) and its arm path length is measured the way marionette's is.
 """
 
 from __future__ import annotations
