@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import os
 import random
+import socket
 import sys
 import threading
 import time
@@ -47,9 +48,40 @@ def lcm_url(url: str | None = None) -> str:
     return url or os.environ.get("MARIONETTE_LCM_URL") or DEFAULT_LCM_URL
 
 
+def _ephemeral_port_floor() -> int:
+    """The lowest port the kernel hands out to outgoing sockets (Linux: 32768)."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            return int(f.read().split()[0])
+    except (OSError, ValueError, IndexError):
+        return 32768
+
+
+def _bindable(port: int) -> bool:
+    """Whether LCM can bind ``port`` (UDP, address reuse, as LCM binds it): a port another
+    socket holds without reuse fails with "bind: Address already in use", and LCM then
+    receives nothing at all."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(("", port))
+        except OSError:
+            return False
+    return True
+
+
 def private_lcm_url(rng: random.Random | None = None) -> str:
-    """A loopback multicast URL on a random port (no traffic leaves the machine: ttl=0)."""
-    port = (rng or random.SystemRandom()).randrange(20000, 60000)
+    """A loopback multicast URL on a random free port (no traffic leaves the machine: ttl=0),
+    below the kernel's ephemeral range so that an outgoing connection made later cannot take
+    it (a test whose port another process held received no message: "bind: Address already in
+    use")."""
+    rng = rng or random.SystemRandom()
+    top = max(_ephemeral_port_floor(), 21000)
+    port = rng.randrange(20000, top)
+    for _ in range(50):
+        if _bindable(port):
+            break
+        port = rng.randrange(20000, top)
     return f"udpm://239.255.76.67:{port}?ttl=0"
 
 

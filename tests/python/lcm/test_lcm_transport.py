@@ -56,3 +56,36 @@ def test_cpp_publisher_reaches_python_subscriber(build_dir, lcm_url):
         assert msg.joint_name == [f"joint_{j}" for j in range(4)]
         np.testing.assert_allclose(msg.joint_position, [msg.tick + 0.25 * j for j in range(4)])
         assert msg.utime == 1000 * msg.tick
+
+
+def test_private_urls_avoid_ports_held_elsewhere_and_the_ephemeral_range():
+    """A port another socket holds without address reuse cannot be bound by LCM ("bind:
+    Address already in use": the bus then receives nothing): such a port is skipped, and
+    ports come from below the kernel's ephemeral range (where outgoing sockets land)."""
+    import socket
+
+    from marionette.lcm_bus import _ephemeral_port_floor, private_lcm_url
+
+    holder = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # no SO_REUSEADDR
+    holder.bind(("", 0))
+    held = holder.getsockname()[1]
+    free_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    free_sock.bind(("", 0))
+    free = free_sock.getsockname()[1]
+    free_sock.close()
+
+    class Picks:  # the ports a random generator would draw, in order
+        def __init__(self, ports):
+            self.ports = list(ports)
+
+        def randrange(self, lo, hi):
+            return self.ports.pop(0)
+
+    try:
+        assert private_lcm_url(Picks([held, free])).endswith(f":{free}?ttl=0")
+    finally:
+        holder.close()
+    floor = _ephemeral_port_floor()
+    for _ in range(200):
+        port = int(private_lcm_url().split(":")[-1].split("?")[0])
+        assert 20000 <= port < max(floor, 21000)
