@@ -175,8 +175,8 @@ def hpp_legs(graph, legs: list, waypoint_states: list[str]) -> list:
                     f"HPP cannot project waypoint {k} onto {waypoint_states[k]!r} "
                     f"(error {error:.3g})"
                 )
-        out.append((start, np.asarray(goal, dtype=float)))
-        start = out[-1][1]
+        out.append((start, goal))
+        start = goal
     return out
 
 

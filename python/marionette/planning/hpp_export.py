@@ -76,7 +76,8 @@ def _joint_bounds(problem: ManipulationProblem) -> dict[str, list[float]]:
 
 
 def _graph_constraints(problem: ManipulationProblem) -> list[dict[str, Any]]:
-    """The graph constraints of the problem file with marionette's values (taken at init)."""
+    """The graph constraints of the problem file with marionette's values (taken at init); the
+    centre of mass gives its mask only, HPP's centre of mass being another function."""
     from marionette.planning.constraints import Kinematics
 
     out: list[dict[str, Any]] = []
@@ -104,8 +105,7 @@ def _graph_constraints(problem: ManipulationProblem) -> list[dict[str, Any]]:
         elif "com" in e:
             out.append(
                 {
-                    "type": "com",
-                    "com": kin.com().tolist(),
+                    "type": "com",  # its value is HPP's own at init (bench/hpp_side.py)
                     "mask": [bool(v) for v in e["com"]],
                 }
             )
