@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <optional>
 #include <stdexcept>
 
 namespace marionette::controller {
@@ -79,6 +80,53 @@ lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
   return out;
 }
 
+namespace {
+
+/// The pose of a SIM_COMMAND (position, unit quaternion w x y z), or nullopt when it is not one.
+std::optional<pinocchio::SE3> CommandPose(const lcmt_sim_command& msg) {
+  const Eigen::Map<const Eigen::Vector3d> p(msg.position);
+  const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
+  if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
+    return std::nullopt;
+  }
+  return pinocchio::SE3(
+      Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
+}
+
+/// "slide": a mocap body of the scene (a fixture the scene carries) to a pose over a duration.
+std::variant<SimRequest, SimCommandRefusal> ReadSlide(const lcmt_sim_command& msg,
+                                                      const sim::MujocoScene& scene) {
+  const mjModel& m = scene.model();
+  const int body = mj_name2id(&m, mjOBJ_BODY, msg.object_name.c_str());
+  if (body <= 0 || m.body_mocapid[body] < 0) {
+    std::string known;
+    for (int b = 1; b < m.nbody; ++b) {
+      if (m.body_mocapid[b] >= 0)
+        known += (known.empty() ? "" : ", ") + std::string(mj_id2name(&m, mjOBJ_BODY, b));
+    }
+    return SimCommandRefusal{"unknown object", "'" + msg.object_name +
+                                                   "' is not a mocap body (slide moves those: " +
+                                                   (known.empty() ? "none" : known) + ")"};
+  }
+  const std::optional<pinocchio::SE3> pose = CommandPose(msg);
+  if (!pose) {
+    return SimCommandRefusal{"invalid pose",
+                             "'" + msg.object_name + "': non-finite or non-unit quaternion"};
+  }
+  if (!std::isfinite(msg.duration) || msg.duration < 0.0) {
+    return SimCommandRefusal{"invalid slide",
+                             "'" + msg.object_name + "': the duration must be finite and >= 0 s"};
+  }
+  SimRequest r;
+  r.kind = SimRequest::kSlide;
+  r.id = body;
+  r.pose = *pose;
+  r.duration_s = msg.duration;
+  return r;
+}
+
+}  // namespace
+
 std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     const lcmt_sim_command& msg, const sim::MujocoScene& scene,
     const std::vector<std::string>& free_objects, const std::vector<int>& free_object_ids) {
@@ -92,10 +140,11 @@ std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     }
     return r;
   }
+  if (msg.command == "slide") return ReadSlide(msg, scene);
   if (msg.command != "set_object_pose" && msg.command != "push" && msg.command != "set_friction") {
     return SimCommandRefusal{
         "unknown command",
-        "'" + msg.command + "' (set_object_pose, push, set_friction, attach, detach)"};
+        "'" + msg.command + "' (set_object_pose, push, set_friction, slide, attach, detach)"};
   }
   const auto it = std::find(free_objects.begin(), free_objects.end(), msg.object_name);
   if (it == free_objects.end()) {
@@ -125,15 +174,13 @@ std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     r.friction = msg.friction;
     return r;
   }
-  const Eigen::Map<const Eigen::Vector3d> p(msg.position);
-  const Eigen::Map<const Eigen::Vector4d> wxyz(msg.quaternion);
-  if (!p.allFinite() || !wxyz.allFinite() || std::abs(wxyz.norm() - 1.0) > 1e-3) {
+  const std::optional<pinocchio::SE3> pose = CommandPose(msg);
+  if (!pose) {
     return SimCommandRefusal{"invalid pose",
                              "'" + msg.object_name + "': non-finite or non-unit quaternion"};
   }
   r.kind = SimRequest::kMove;
-  r.pose = pinocchio::SE3(
-      Eigen::Quaterniond(wxyz[0], wxyz[1], wxyz[2], wxyz[3]).normalized().toRotationMatrix(), p);
+  r.pose = *pose;
   return r;
 }
 
@@ -151,6 +198,9 @@ void ApplySimRequest(sim::MujocoScene& scene, const SimRequest& request) {
       break;
     case SimRequest::kFriction:
       scene.SetFriction(request.id, request.friction);
+      break;
+    case SimRequest::kSlide:
+      scene.Slide(request.id, request.pose, request.duration_s);
       break;
   }
 }

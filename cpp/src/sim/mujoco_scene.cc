@@ -1,6 +1,7 @@
 #include "marionette/sim/mujoco_scene.h"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 
 namespace marionette::sim {
@@ -222,6 +223,56 @@ void MujocoScene::Step2(int substeps) {
     Eigen::Map<Eigen::Vector3d>(data_->xfrc_applied + 6 * pushes_[i].body).setZero();
     pushes_[i] = pushes_[--num_pushes_];
   }
+  if (num_slides_ > 0) AdvanceSlides(elapsed);
+}
+
+void MujocoScene::AdvanceSlides(double elapsed_s) {
+  for (int i = 0; i < num_slides_;) {
+    ActiveSlide& a = slides_[i];
+    a.elapsed_s += elapsed_s;
+    const double s = a.duration_s > 0.0 ? std::min(1.0, a.elapsed_s / a.duration_s) : 1.0;
+    const Eigen::Vector3d p = a.from_p + s * (a.to_p - a.from_p);
+    const Eigen::Quaterniond q = a.from_q.slerp(s, a.to_q);
+    for (int k = 0; k < 3; ++k) data_->mocap_pos[3 * a.mocap + k] = p[k];
+    data_->mocap_quat[4 * a.mocap] = q.w();
+    data_->mocap_quat[4 * a.mocap + 1] = q.x();
+    data_->mocap_quat[4 * a.mocap + 2] = q.y();
+    data_->mocap_quat[4 * a.mocap + 3] = q.z();
+    if (s < 1.0) {
+      ++i;
+      continue;
+    }
+    slides_[i] = slides_[--num_slides_];
+  }
+}
+
+void MujocoScene::Slide(int body_id, const pinocchio::SE3& X_WB, double duration_s) {
+  if (body_id <= 0 || body_id >= model_->nbody || model_->body_mocapid[body_id] < 0) {
+    throw SimError("Slide: body " + std::to_string(body_id) + " is not a mocap body");
+  }
+  if (!std::isfinite(duration_s) || duration_s < 0.0 || !X_WB.translation().allFinite() ||
+      !X_WB.rotation().allFinite()) {
+    throw SimError("Slide: the pose must be finite and the duration >= 0 s");
+  }
+  const int mocap = model_->body_mocapid[body_id];
+  int slot = 0;
+  while (slot < num_slides_ && slides_[slot].mocap != mocap) ++slot;
+  if (slot == num_slides_) {
+    if (num_slides_ == kMaxSlides) {
+      throw SimError("Slide: " + std::to_string(kMaxSlides) + " bodies slide already");
+    }
+    ++num_slides_;
+  }
+  const double* q = data_->mocap_quat + 4 * mocap;
+  ActiveSlide& a = slides_[slot];
+  a.mocap = mocap;
+  a.from_p = Eigen::Map<const Eigen::Vector3d>(data_->mocap_pos + 3 * mocap);
+  a.from_q = Eigen::Quaterniond(q[0], q[1], q[2], q[3]).normalized();
+  a.to_p = X_WB.translation();
+  a.to_q = Eigen::Quaterniond(X_WB.rotation()).normalized();
+  if (a.from_q.dot(a.to_q) < 0.0) a.to_q.coeffs() *= -1.0;  // the shorter way round
+  a.elapsed_s = 0.0;
+  a.duration_s = duration_s;
 }
 
 void MujocoScene::Push(int body_id, const Eigen::Vector3d& force_W, double duration_s) {

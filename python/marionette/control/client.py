@@ -169,6 +169,19 @@ class ControllerClient:
         msg.position, msg.quaternion = list(v[:3]), list(v[3:])
         self.bus.publish(channels.SIM_COMMAND, msg)
 
+    def slide_object(self, name: str, X, duration_s: float) -> None:
+        """Carries a mocap body of the MuJoCo scene (a fixture: a bar, a cart) to the pose ``X``
+        at constant speed over ``duration_s`` of simulated time (a physical move: the cameras
+        see it move and the robot's contacts meet it where it is)."""
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command = "slide"
+        msg.object_name = name
+        v = pose_to_vector(X)
+        msg.position, msg.quaternion = list(v[:3]), list(v[3:])
+        msg.duration = float(duration_s)
+        self.bus.publish(channels.SIM_COMMAND, msg)
+
     def push_object(self, name: str, force_W, duration_s: float) -> None:
         """Pushes a free object of the MuJoCo scene with ``force_W`` [N] (world axes, at its
         centre of mass) for ``duration_s`` of simulated time (a physical perturbation)."""

@@ -10,6 +10,7 @@
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/parsers/srdf.hpp>
 #include <pinocchio/parsers/urdf.hpp>
+#include <pinocchio/spatial/explog.hpp>
 
 #include <cmath>
 #include <random>
@@ -118,6 +119,49 @@ TEST(MujocoSceneTest, AFrictionChangeLetsAPushSlideTheBoxAsCoulombSays) {
   EXPECT_THROW(scene.SetFriction(box, -0.1), SimError);
   EXPECT_THROW(scene.SetFriction(box, NAN), SimError);
   EXPECT_THROW(scene.SetFriction(0, 0.5), SimError);
+}
+
+// A slide carries a mocap fixture (the step-over's bar) at constant speed: after a fraction s of
+// the duration it is a fraction s of the way (position linear, orientation the shorter rotation's
+// s), it stops exactly on the target, and a free body or a non-finite pose is refused.
+TEST(MujocoSceneTest, ASlideCarriesAMocapBodyAtConstantSpeedOntoItsTarget) {
+  const pin::Model model = LoadTalos();
+  MujocoScene scene(kModels + "/scenes/talos_walk.xml", model);
+  const int bar = scene.BodyId("bar");
+  const pin::SE3 from = scene.BodyPose("bar");
+  const double yaw = 0.3, duration = 0.5, dt = scene.timestep();
+  const pin::SE3 to(
+      Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix() * from.rotation(),
+      from.translation() + Eigen::Vector3d(0.2, -0.1, 0.0));
+  scene.Slide(bar, to, duration);
+  const Eigen::VectorXd q0 = StandingConfiguration(model);
+  const Eigen::VectorXd v0 = Eigen::VectorXd::Zero(model.nv);
+  auto run = [&](int ticks) {
+    for (int i = 0; i < ticks; ++i) {
+      scene.Step1();
+      scene.WriteServoTargets(q0, v0);
+      scene.Step2(1);
+    }
+  };
+  int ticks = 0;
+  for (const double s : {0.25, 0.5, 1.0}) {
+    const int until = static_cast<int>(std::lround(s * duration / dt));
+    run(until - ticks);
+    ticks = until;
+    mj_kinematics(&scene.model(), &scene.mutable_data());
+    const pin::SE3 X = scene.BodyPose("bar");
+    EXPECT_NEAR((X.translation() - from.translation()).norm(),
+                s * (to.translation() - from.translation()).norm(), 1e-9)
+        << "at " << s << " of the slide";
+    const double turned = pin::log3(from.rotation().transpose() * X.rotation()).norm();
+    EXPECT_NEAR(turned, s * yaw, 1e-9) << "at " << s << " of the slide";
+  }
+  run(100);  // it stays on the target
+  mj_kinematics(&scene.model(), &scene.mutable_data());
+  EXPECT_TRUE(scene.BodyPose("bar").isApprox(to, 1e-9));
+  EXPECT_THROW(scene.Slide(scene.BodyId("base_link"), to, 1.0), SimError);
+  EXPECT_THROW(scene.Slide(bar, to, NAN), SimError);
+  EXPECT_THROW(scene.Slide(bar, to, -1.0), SimError);
 }
 
 TEST(MujocoSceneTest, StateRoundTripsAndVelocityConventionsMatchMujoco) {

@@ -47,11 +47,11 @@ lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
 /// What a SIM_COMMAND asks of the simulator, checked against the scene by the thread that
 /// received it, applied by the loop between two steps (ApplySimRequest).
 struct SimRequest {
-  enum Kind { kMove, kAttach, kDetach, kPush, kFriction } kind = kMove;
-  int id = -1;  ///< body (move, push, friction) or weld equality (attach, detach)
-  pinocchio::SE3 pose = pinocchio::SE3::Identity();  ///< move: X_WB
+  enum Kind { kMove, kAttach, kDetach, kPush, kFriction, kSlide } kind = kMove;
+  int id = -1;  ///< body (move, push, friction, slide) or weld equality (attach, detach)
+  pinocchio::SE3 pose = pinocchio::SE3::Identity();  ///< move, slide: X_WB
   Eigen::Vector3d force = Eigen::Vector3d::Zero();   ///< push: [N], world axes
-  double duration_s = 0.0;                           ///< push: [s]
+  double duration_s = 0.0;                           ///< push, slide: [s]
   double friction = 0.0;                             ///< friction: sliding coefficient
   int64_t hash = 0;                                  ///< the message's, for a journal
 };
@@ -62,9 +62,9 @@ struct SimCommandRefusal {
 };
 
 /// The request `msg` makes of `scene`, whose free bodies are `free_objects` (MuJoCo ids
-/// `free_object_ids`), or why it is refused: an unknown command, weld or object, a non-finite or
-/// non-unit pose, a non-finite force. One reading for both simulators (marionette-controller's
-/// mujoco backend, marionette-sim).
+/// `free_object_ids`; a slide moves a mocap body), or why it is refused: an unknown command, weld
+/// or object, a non-finite or non-unit pose, a non-finite force or duration. One reading for both
+/// simulators (marionette-controller's mujoco backend, marionette-sim).
 std::variant<SimRequest, SimCommandRefusal> ReadSimCommand(
     const lcmt_sim_command& msg, const sim::MujocoScene& scene,
     const std::vector<std::string>& free_objects, const std::vector<int>& free_object_ids);

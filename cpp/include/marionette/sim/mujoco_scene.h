@@ -18,6 +18,7 @@
 #include <mujoco/mujoco.h>
 
 #include <Eigen/Core>
+#include <Eigen/Geometry>
 #include <array>
 #include <functional>
 #include <memory>
@@ -98,6 +99,15 @@ class MujocoScene {
   void Push(int body_id, const Eigen::Vector3d& force_W, double duration_s);
   static constexpr int kMaxPushes = 8;
 
+  /// Moves mocap body `body_id` (a fixture the scene carries, as a cart or a hand would: it
+  /// moves whatever forces act on it) to X_WB at constant speed, its orientation by the
+  /// shortest rotation, over `duration_s` of simulated time from the next step on (0: at the
+  /// next step). A new slide of a body replaces its previous one; at most kMaxSlides bodies
+  /// slide at once. Throws SimError for a body that is not a mocap body, or a non-finite or
+  /// negative duration.
+  void Slide(int body_id, const pinocchio::SE3& X_WB, double duration_s);
+  static constexpr int kMaxSlides = 8;
+
   /// Makes body `body_id`'s geoms slippery or sticky: their sliding friction becomes `mu` and
   /// their priority the scene's highest, so that every contact they make takes their parameters
   /// (MuJoCo's rule: the higher priority geom's condim, friction, solref and solimp; without it
@@ -145,7 +155,15 @@ class MujocoScene {
     Eigen::Vector3d force = Eigen::Vector3d::Zero();
     double remaining_s = 0.0;
   };
+  struct ActiveSlide {
+    int mocap = -1;  // index in mocap_pos / mocap_quat
+    Eigen::Vector3d from_p = Eigen::Vector3d::Zero(), to_p = Eigen::Vector3d::Zero();
+    Eigen::Quaterniond from_q = Eigen::Quaterniond::Identity();
+    Eigen::Quaterniond to_q = Eigen::Quaterniond::Identity();
+    double elapsed_s = 0.0, duration_s = 0.0;
+  };
   bool SubtreeOf(int body, int root) const;
+  void AdvanceSlides(double elapsed_s);
   void EndReleases(const std::function<bool(const Release&)>& ended);  // ends those `ended` says
   void EndClearReleases();
 
@@ -159,6 +177,8 @@ class MujocoScene {
   std::vector<JointMap> joints_;
   std::array<ActivePush, kMaxPushes> pushes_{};  // fixed size: no allocation in the loop
   int num_pushes_ = 0;
+  std::array<ActiveSlide, kMaxSlides> slides_{};  // fixed size: no allocation in the loop
+  int num_slides_ = 0;
   std::vector<std::string> actuated_names_;
   std::vector<Release> releases_;
   // Per geom: the model's own collision masks, and how many releases hold it open (mask 0).
