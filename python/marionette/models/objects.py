@@ -438,17 +438,19 @@ class Pedestal(ObjectSpec):
 @dataclass
 class Bar(ObjectSpec):
     """The bar to step over (Dang 2012, ch. 5): a 5 cm cylinder lying on the floor along y, with
-    a small tagged block at each end (tags 50, 51 face -x, the robot's side). Frame: centre of
-    the bar's footprint on the floor, z up."""
+    a tagged block at each end. The head camera of a walking humanoid looks down on it from
+    about 1.5 m: tags 50, 51 lie on the blocks' tops (seen 30-45° off their normal), 58, 59
+    face -x (the robot's side); 8 cm tags stay 25-35 px wide in a 640 x 480 image at the
+    1.5-2 m they are seen from. Frame: centre of the bar's footprint on the floor, z up."""
 
     name: str = "bar"
     sim: SimKind = "mocap"
     description: str = "bar to step over, Dang 2012 ch. 5"
     diameter: float = 0.05
     length: float = 1.2
-    block: float = 0.07
+    block: float = 0.10
     mass_kg: float = 2.0
-    tag_size: float = 0.05
+    tag_size: float = 0.08
 
     def shapes(self) -> list[Shape]:
         r = self.diameter / 2
@@ -477,15 +479,19 @@ class Bar(ObjectSpec):
     def semantics(self) -> Semantics:
         ex, _, ez = np.eye(3)
         y = self.length / 2 + self.block / 2
+        ends = (1, -1)
         tags = [
+            Tag(50 + i, TAG_FAMILY, self.tag_size, LINK, tag_frame([0, sy * y, self.block], ez, ex))
+            for i, sy in enumerate(ends)
+        ] + [
             Tag(
-                50 + i,
+                58 + i,
                 TAG_FAMILY,
                 self.tag_size,
                 LINK,
                 tag_frame([-self.block / 2, sy * y, self.block / 2], -ex, ez),
             )
-            for i, sy in enumerate((1, -1))
+            for i, sy in enumerate(ends)
         ]
         return Semantics("bar", tags=tags)
 
