@@ -30,6 +30,7 @@ def _options(args):
         hand=args.hand,
         posture_frozen=not args.full_replan,
         bar=args.bar,
+        bar_axis_yaw=args.bar_axis_yaw,
         bar_radius=args.bar_radius,
         bar_length=args.bar_length,
         goal=tuple(args.goal),
@@ -151,6 +152,13 @@ def register(subparsers) -> None:
     run.add_argument("--lcm-url", default=None)
     run.add_argument("--target", default="ball", help="object to grasp (grasp mode)")
     run.add_argument("--bar", default="bar", help="object name of the bar (step-over mode)")
+    run.add_argument(
+        "--bar-axis-yaw",
+        type=float,
+        default=0.0,
+        help="direction of the bar's axis in its object frame, as a yaw about z [rad] (default "
+        "0: along x; the tagged bar of models/objects lies along y: pi/2)",
+    )
     run.add_argument(
         "--full-replan",
         action="store_true",

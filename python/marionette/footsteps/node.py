@@ -36,6 +36,11 @@ def yaw_from_quaternion(wxyz) -> float:
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def _wrap(angle: float) -> float:
+    """``angle`` in [-pi, pi)."""
+    return float((angle + np.pi) % (2.0 * np.pi) - np.pi)
+
+
 @dataclass
 class NodeOptions:
     robot: str = ""  # a robot with two feet (robot.yaml); "" = the only such robot found
@@ -44,6 +49,7 @@ class NodeOptions:
     hand: str = "right"
     posture_frozen: bool = True  # replanning mode (Dang §6.2.2)
     bar: str = "bar"  # object name of the bar (step-over)
+    bar_axis_yaw: float = 0.0  # [rad] the bar's axis in its object frame (pi/2: along its y)
     bar_radius: float = 0.02
     bar_length: float = 2.0
     goal: tuple[float, float, float] = (2.0, 0.0, 0.0)  # final stance (step-over)
@@ -97,10 +103,20 @@ class FootstepNode:
             if obj.object_name == name:
                 p = np.array(obj.position_world, dtype=float)
                 if np.all(np.isfinite(p)):
+                    yaw = yaw_from_quaternion(obj.quaternion_world)
                     with self._lock:
-                        self.object_pose = np.array(
-                            [p[0], p[1], p[2], yaw_from_quaternion(obj.quaternion_world)]
-                        )
+                        if self.options.mode == "step-over":
+                            yaw = self._bar_axis_yaw(yaw)
+                        self.object_pose = np.array([p[0], p[1], p[2], yaw])
+
+    def _bar_axis_yaw(self, frame_yaw: float) -> float:
+        """The bar's axis yaw from its frame's: an axis has no sign, so of the two directions
+        the one nearest the last estimate (the planner's frame of the bar stays the same)."""
+        yaw = _wrap(frame_yaw + self.options.bar_axis_yaw)
+        if self.object_pose is None:
+            return yaw
+        last = float(self.object_pose[3])
+        return last + _wrap(2.0 * (yaw - last)) / 2.0
 
     def on_walk_status(self, msg) -> None:
         with self._lock:

@@ -316,6 +316,26 @@ class StepOverPlanner:
             for i, rel in zip(self.crossing, self._crossing_in_bar)
         }
 
+    def _crossing_square_tasks(self) -> list[Task]:
+        """The footprints of the two swings over the bar (each foot's last before it and first
+        past it) square to the bar: yaw along its normal, towards its far side. The straddling
+        stance and the swings over the bar (eq. 5.1, in the plane across it) are designed for
+        feet across the bar; without it a bar turned by 7.8° was crossed with the feet 15°
+        oblique to it (twisted the other way for reach) and TALOS fell on the second crossing
+        swing. Algorithm 3's targets (the two straddling footprints) follow the bar in yaw from
+        this crossing, these tasks keep the two others square too."""
+        assert self.crossing is not None
+        stance = self.augmented.stance
+        away = self._away_from(0.5 * (stance.left[:2] + stance.right[:2]))
+        yaw = float(np.arctan2(away[1], away[0]))
+        before, past = self.crossing
+        last = self.augmented.footprints(self.config.steps).shape[0] - 2  # k
+        return [
+            FootprintPoseTask(i, (0.0, 0.0, yaw), weights=(0.0, 0.0, 1.0), name=f"square_{i}")
+            for i in (before - 1, before, past, past + 1)
+            if self.frozen_steps < i <= last
+        ]
+
     def _away_from(self, start: np.ndarray) -> np.ndarray:
         """The bar's floor normal pointing from ``start`` (x, y) towards its far side."""
         n = self.bar.normal()
@@ -374,6 +394,8 @@ class StepOverPlanner:
         obstacles = self.obstacles + ([self.bar] if with_bar else [])
         if obstacles:
             levels.append(ObstacleAvoidance(obstacles, first_step=first))
+        if with_bar and self.crossing is not None:
+            levels.extend(self._crossing_square_tasks())
         if crossing_targets and self.crossing is not None:
             for index, target in self._crossing_targets().items():
                 if index > self.frozen_steps:  # a landed footprint cannot be moved

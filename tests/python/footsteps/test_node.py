@@ -89,6 +89,23 @@ def test_a_failed_first_plan_is_tried_again_when_the_object_moves(build_dir, rob
     assert plan is not None and plan.plan_id == 1 and plan.first_step_index == 0
 
 
+@pytest.mark.parametrize("turn", [-0.17, 0.0, 0.12])
+def test_a_bar_along_its_frame_y_is_read_with_its_axis_and_an_axis_has_no_sign(turn):
+    """A tagged bar lies along its frame's y (``--bar-axis-yaw`` pi/2): its axis yaw is its
+    frame's yaw + pi/2, and of the two directions of an axis the node keeps the one nearest
+    its last estimate (a frame seen half a turn round, or a yaw wrapping past pi, does not flip
+    the bar under the planner)."""
+    from marionette.footsteps.node import FootstepNode, NodeOptions
+
+    node = FootstepNode(NodeOptions(mode="step-over", bar_axis_yaw=np.pi / 2))
+    node.on_object_poses(_object_poses("bar", [1.0, 0.0, 0.0], yaw=turn))
+    assert node.object_pose[3] == pytest.approx(np.pi / 2 + turn, abs=1e-9)
+    for frame_yaw in (turn + np.pi, turn - np.pi + 0.01, turn + 2 * np.pi - 0.01):
+        node.on_object_poses(_object_poses("bar", [1.0, 0.0, 0.0], yaw=frame_yaw))
+        expected = np.pi / 2 + turn + np.angle(np.exp(2j * (frame_yaw - turn))) / 2
+        assert node.object_pose[3] == pytest.approx(expected, abs=1e-9), frame_yaw
+
+
 def test_malformed_object_poses_are_ignored(build_dir, robot):
     from marionette.footsteps.node import FootstepNode, NodeOptions
 
