@@ -19,17 +19,44 @@ FEET = ("left", "right")
 LOADED_FORCE_N = 10.0  # a sole carries load above this normal force [N]
 
 
-def walking_spec(robot: str, controller_id: int = 1, name: str = "walk") -> ControllerSpec:
+def walking_spec(
+    robot: str, controller_id: int = 1, name: str = "walk", head_pitch: float | None = None
+) -> ControllerSpec:
     """The walking stack of ``robot`` (its robot.yaml feet, left then right, and its root link
     as the waist): feet (20/s) and CoM (5/s) from the controller's pattern generator and the
     waist kept upright (roll, pitch; 20/s) at level 0, posture (2/s) at level 1. A CoM gain above
-    ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py)."""
+    ~5/s under-damps the sway in MuJoCo (tests/python/walk/test_controller_walk.py).
+
+    ``head_pitch`` [rad]: the head looks down at the floor ahead while walking (its camera
+    measures what lies on the path): the head joints robot.yaml's calibration names (pitch,
+    yaw) are held at (``head_pitch``, 0) at level 1, the posture moves to level 2."""
     from marionette import robots
 
     desc = robots.robot(robot)
     feet = {f.name: f.frame for f in desc.feet}
     if set(feet) != set(FEET):
         raise ValueError(f"{desc.semantics}: walking needs two feet named left and right")
+    head: list[TaskSpec] = []
+    if head_pitch is not None:
+        if len(desc.calibration_head_joints) != 2:
+            raise ValueError(
+                f"{desc.semantics}: looking down while walking needs the head's pitch and yaw "
+                "joints (calibration: head_joints)"
+            )
+        model, _ = robots.load_pinocchio(robot, with_collision=False)
+        q = robots.reference_configuration(robot, model)
+        pitch, yaw = (model.joints[model.getJointId(j)].idx_q for j in desc.calibration_head_joints)
+        q[pitch], q[yaw] = float(head_pitch), 0.0
+        head = [
+            TaskSpec(
+                "head",
+                "posture",
+                1,
+                gain=2.0,
+                joints=desc.calibration_head_joints,
+                reference=tuple(float(v) for v in q),
+            )
+        ]
     return ControllerSpec(
         controller_id,
         name,
@@ -54,7 +81,8 @@ def walking_spec(robot: str, controller_id: int = 1, name: str = "walk") -> Cont
                 mask=(False, False, False, True, True, False),
                 gain=20.0,
             ),
-            TaskSpec("posture", "posture", 1, gain=2.0),
+            *head,
+            TaskSpec("posture", "posture", 1 + len(head), gain=2.0),
         ],
     )
 

@@ -7,8 +7,8 @@ them; the ball is moved sideways during the walk, the footstep process replans a
 controller's footstep manager applies the new steps to the steps not yet started.
 
 Scene: TALOS alone on the floor (``models/talos/talos.xml``). In ``talos_walk`` the bar (1 m
-ahead) lies across the path and the ball sits on a pedestal 2.2 m ahead behind it; both the bar
-and the pedestal are fixtures SIM_COMMAND cannot move, and a ball moved off its pedestal falls.
+ahead) lies across the path and the ball sits on a pedestal 2.2 m ahead behind it; the pedestal
+is a fixture (SIM_COMMAND ``slide`` could carry it) and a ball moved off its pedestal falls.
 The ball here is the target the demo publishes on OBJECT_POSES (the perception output the
 footstep process listens to; Dang's ball was tracked by motion capture) and moves during the
 walk. Success (``docs/scenarios.md``, without the final grasp): the robot stops on the final

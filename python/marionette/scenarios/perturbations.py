@@ -356,6 +356,49 @@ def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
     return re.sub(r"<key [^>]*/>", key, mjcf)
 
 
+def set_keyframe_joints(mjcf: str, positions: dict[str, float]) -> str:
+    """MJCF text whose keyframes start the 1-dof joints named in ``positions`` there: their
+    ``qpos`` entries and their position servos' ``ctrl`` targets (a robot that starts the trial
+    in that posture, e.g. its head looking down). ValueError naming a joint the scene has not
+    as a hinge or slide joint."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(mjcf)
+    world = root.find("worldbody")
+    if world is None:
+        raise ValueError("the scene has no worldbody")
+    sizes = {"free": 7, "ball": 4, "hinge": 1, "slide": 1}
+    address, qpos = {}, 0
+    for element in world.iter():
+        if element.tag == "freejoint":
+            qpos += 7
+        elif element.tag == "joint":
+            kind = element.get("type", "hinge")
+            if kind in ("hinge", "slide"):
+                address[element.get("name")] = qpos
+            qpos += sizes[kind]
+    actuators = root.find("actuator")
+    servo = {a.get("joint"): i for i, a in enumerate(actuators if actuators is not None else [])}
+    unknown = sorted(set(positions) - set(address))
+    if unknown:
+        raise ValueError(f"the scene has no hinge or slide joint {', '.join(unknown)}")
+
+    def key(m: re.Match) -> str:
+        text = m.group(0)
+        for attr, index in (("qpos", address), ("ctrl", servo)):
+            a = re.search(rf' {attr}="([^"]+)"', text)
+            if a is None:
+                continue
+            v = a.group(1).split()
+            for joint, value in positions.items():
+                if joint in index:
+                    v[index[joint]] = f"{float(value):.12g}"
+            text = text.replace(a.group(0), f' {attr}="{" ".join(v)}"')
+        return text
+
+    return re.sub(r"<key [^>]*/>", key, mjcf)
+
+
 def write_scene(text: str, source: Path, out: Path) -> Path:
     """Writes the MJCF ``text`` of scene ``source`` to ``out``, its asset folders (``meshdir``,
     ``texturedir``, relative to ``source``) made absolute so that it loads from anywhere."""

@@ -1,23 +1,22 @@
-"""``step-over`` (Dang 2012 ch. 5): TALOS walks in MuJoCo to a goal zone
-beyond a bar lying across its path while the bar's perceived pose changes during the walk.
+"""``step-over`` (Dang 2012 ch. 5): TALOS walks in MuJoCo to a goal zone beyond a bar lying
+across its path while the bar is moved.
 
-Flow: marionette-controller runs the walking stack (:func:`walking.walking_spec`) in the
-``talos_walk`` scene (a 5 cm bar 1 m ahead); the demo publishes the bar's pose on OBJECT_POSES
-(the perception output); the footstep process (``marionette footsteps run --mode step-over``)
-plans the initial sequence over the bar (§5.2.1) and, at every step and every bar motion,
-re-optimises with the two crossing footprints fixed relative to the bar (Algorithm 3); the
-controller's footstep manager walks the new steps, swinging the crossing feet through the
-plan's passage points over the bar (eq. 5.1).
+Flow: marionette-controller runs the walking stack (:func:`walking.walking_spec`, the head
+looking down at the floor ahead) in the ``talos_bar`` scene, the bar (``models/objects`` Bar,
+a mocap body) 1.3 m ahead, and renders the head camera; ``marionette perceive`` measures the
+bar from the AprilTags on its end blocks and publishes its pose on OBJECT_POSES; the footstep
+process (``marionette footsteps run --mode step-over``) plans the initial sequence over the
+bar as perceived (§5.2.1) and, at every step and every new estimate, re-optimises with the two
+crossing footprints fixed relative to the bar (Algorithm 3); the controller's footstep manager
+walks the new steps, swinging the crossing feet through the plan's passage points over the bar
+(eq. 5.1).
 
-The bar in ``talos_walk`` is a mocap fixture: SIM_COMMAND moves free bodies only, so the
-physical bar cannot be moved. What moves is the bar *as perceived*: the first estimate is off
-by ``perceived_offset`` (drawn from the trial's seed: 0.1-0.3 m in any direction on the floor,
-turned by up to 10°, :meth:`StepOverSettings.drawn`) and, once the walk has started, slides to
-the bar's real pose over ``correction_s`` seconds — to the planner exactly a bar moved during the
-walk (Dang's bar was pushed by hand), while the feet physically straddle the real bar in the
-end, so the crossing is tested against MuJoCo's contacts. Success (``docs/scenarios.md``): no
-sole ever loaded over the real bar's floor region, no sole inside the bar's volume, the final
-stance in the goal zone beyond the bar, no fall, and replans after the bar moved.
+During the first step the simulator carries the bar (SIM_COMMAND ``slide``, constant speed over
+``move_s``) by a move drawn from the trial's seed: 0.1-0.3 m in any direction on the floor,
+turned by up to 10° (:meth:`StepOverSettings.drawn`); Dang's bar was pushed by hand. Nothing
+tells the robot where the bar went but its camera. Success (``docs/scenarios.md``): no sole
+ever loaded over the real bar's floor region, no sole inside the bar's volume, the final stance
+in the goal zone beyond the bar, no fall, and replans after the bar moved.
 """
 
 from __future__ import annotations
@@ -31,9 +30,16 @@ import numpy as np
 import pinocchio as pin
 
 import marionette
-from marionette import lcmt_object_poses, robots
-from marionette.execution.walking import FEET, sole_corners, sole_half_size
+from marionette import robots
+from marionette.execution.walking import FEET, sole_corners, sole_half_size, walking_spec
+from marionette.models import objects
 from marionette.scenarios.base import Criterion, RunOptions, Scenario
+from marionette.scenarios.harness import Processes
+from marionette.scenarios.perturbations import (
+    place_mocap_body,
+    set_keyframe_joints,
+    write_scene,
+)
 from marionette.scenarios.report import (
     controller_and_plots_lines,
     save_figure,
@@ -44,11 +50,10 @@ from marionette.scenarios.report import (
 )
 from marionette.scenarios.walking_scenario import (
     MIN_REPLAN_HZ,
-    MovingObjectPublisher,
+    SlidingFixture,
     WalkRecorder,
     draw_floor_move,
     finish_footsteps_axes,
-    object_poses_message,
     plot_footsteps,
     replan_criteria,
     replan_rate_row,
@@ -59,27 +64,33 @@ from marionette.scenarios.walking_scenario import (
 )
 
 ROBOT = "talos"
-SCENE = marionette.MODELS_DIR / "scenes" / "talos_walk.xml"
+SCENE = marionette.MODELS_DIR / "scenes" / "talos_bar.xml"
+
+
+BAR = objects.Bar()
+BAR_AXIS_YAW = np.pi / 2  # the bar's axis in its frame: along y (models/objects Bar)
 
 
 @dataclass(frozen=True)
 class StepOverSettings:
-    """The bar (as in ``talos_walk``), its perception error, the goal zone and the limits."""
+    """The bar (``models/objects`` Bar), its move, the goal zone and the limits."""
 
-    bar: tuple[float, float, float] = (1.0, 0.0, np.pi / 2)  # real pose: x, y [m], axis yaw [rad]
-    bar_radius: float = 0.025  # [m] (5 cm high)
-    bar_length: float = 1.34  # [m] cylinder + end blocks
-    bar_block: float = 0.07  # [m] the end blocks' edge (models/objects Bar)
-    perceived_offset: tuple[float, float, float] = (0.08, 0.0, 0.08)  # first estimate − real
-    correct_at_step: int = 0  # the estimate starts sliding when this step starts
-    correction_s: float = 1.0  # [s] of controller time (over before the steps
-    #                                           next to the bar start: a started step is kept)
-    goal: tuple[float, float, float] = (1.8, 0.0, 0.0)  # final stance (x, y, yaw) from the start
+    bar: tuple[float, float, float] = (1.3, 0.0, np.pi / 2)  # start: x, y [m], axis yaw [rad]
+    bar_radius: float = BAR.diameter / 2  # [m] (5 cm high)
+    bar_length: float = BAR.length + 2 * BAR.block  # [m] cylinder + end blocks
+    bar_block: float = BAR.block  # [m] the end blocks' edge
+    move: tuple[float, float, float] = (0.08, 0.0, 0.08)  # the bar's move: dx, dy [m], dyaw [rad]
+    move_at_step: int = 0  # the bar starts moving when this step starts
+    move_s: float = 1.0  # [s] of controller time (over while the camera still sees the bar)
+    goal: tuple[float, float, float] = (2.3, 0.0, 0.0)  # final stance (x, y, yaw) from the start
     goal_tolerance: float = 0.10  # [m] radius of the goal zone (stance centre)
     swing_margin: float = 0.10  # [m] crossing swings' clearance above the bar
     #                                           (3 cm: the sole's tracking lag caught the bar;
     #                                           8 cm: its heel grazed the top while landing,
     #                                           1 run in 3; 12 cm: the robot fell, 3 in 3)
+    head_pitch: float = 0.75  # [rad] the head looks down (TALOS' limit 0.785): the bar stays
+    #                           in view from 2 m to 0.8 m ahead
+    camera_rate: float = 5.0  # [Hz of controller time] head camera frames
     max_base_drop: float = 0.05  # [m] fall criterion (base height)
     walk_timeout_s: float = 60.0  # controller time for the walk
 
@@ -87,20 +98,30 @@ class StepOverSettings:
     def drawn(
         cls, seed: int, max_distance: float = 0.3, max_yaw_deg: float = 10.0
     ) -> StepOverSettings:
-        """A trial's settings (``--seed``): the bar first perceived off its real pose by a seeded
+        """A trial's settings (``--seed``): the bar moved during the first step by a seeded
         floor move of 0.1-0.3 m in any direction (:func:`draw_floor_move`) and turned by up to
-        ``max_yaw_deg``; it slides onto the real bar during the first step."""
+        ``max_yaw_deg``."""
         dx, dy = draw_floor_move(seed, max_distance)
         yaw = np.radians(max_yaw_deg) * np.random.default_rng([seed, 1]).uniform(-1.0, 1.0)
-        return cls(perceived_offset=(float(dx), float(dy), float(yaw)))
+        return cls(move=(float(dx), float(dy), float(yaw)))
+
+    def bar_end(self) -> np.ndarray:
+        """Where the bar is after its move (x, y, axis yaw)."""
+        return np.array(self.bar, dtype=float) + np.array(self.move, dtype=float)
 
 
-def bar_pose_message(utime: int, pose: np.ndarray, radius: float) -> lcmt_object_poses:
-    """OBJECT_POSES with the bar (name "bar") at ``pose`` = (x, y, axis yaw) on the floor."""
+def bar_body_pose(pose) -> pin.SE3:
+    """The bar body's world pose (its frame on the floor, its axis along its y) of a floor pose
+    (x, y, axis yaw)."""
     x, y, yaw = (float(v) for v in pose)
-    return object_poses_message(
-        utime, "bar", (x, y, radius), (np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)), "perception"
-    )
+    return pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, yaw - BAR_AXIS_YAW), np.array([x, y, 0.0]))
+
+
+def bar_floor_pose(X: pin.SE3) -> np.ndarray:
+    """(x, y, axis yaw) of a bar body pose (the inverse of :func:`bar_body_pose`; the axis yaw
+    in [0, pi): an axis has no sign)."""
+    yaw = np.arctan2(X.rotation[1, 0], X.rotation[0, 0]) + BAR_AXIS_YAW
+    return np.array([X.translation[0], X.translation[1], yaw % np.pi])
 
 
 def rectangles_overlap(a: np.ndarray, b: np.ndarray) -> bool:
@@ -156,7 +177,7 @@ class StepOver(Scenario):
     (:meth:`StepOverSettings.drawn`)."""
 
     KIND: ClassVar[str] = "step-over"
-    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("settings.perceived_offset",)
+    DRAW_KEYS: ClassVar[tuple[str, ...]] = ("settings.move",)
 
     settings: StepOverSettings | None = None
 
@@ -186,7 +207,7 @@ class StepOver(Scenario):
             return dataclasses.asdict(self.settings)
         return {
             **dataclasses.asdict(StepOverSettings()),
-            "perceived_offset": "drawn from the seed",
+            "move": "drawn from the seed",
         }
 
     def trial(
@@ -209,22 +230,38 @@ def run_step_over(
     settings = scenario.settings or StepOverSettings.drawn(seed)
     model = walking_robot(scenario.robot).model
     report["settings"] = settings.__dict__
-    bar_real = np.array(settings.bar, dtype=float)
-    with walking_run(scenario.robot, model, scenario.scene, out_dir, options, report) as run:
+    bar_start, bar_end = np.array(settings.bar, dtype=float), settings.bar_end()
+    # The robot starts looking down at the floor ahead, as its walking stack holds the head.
+    head = dict(zip(robots.robot(scenario.robot).calibration_head_joints, (settings.head_pitch, 0)))
+    text = place_mocap_body(scenario.scene.read_text(), "bar", bar_body_pose(bar_start))
+    scene = write_scene(set_keyframe_joints(text, head), scenario.scene, out_dir / "scene.xml")
+    processes = Processes(
+        scenario.robot,
+        scene,
+        camera_rate=settings.camera_rate,
+        perceive=(
+            "--robot",
+            scenario.robot,
+            "--objects",
+            str(marionette.MODELS_DIR / "objects" / "bar.yaml"),
+            "--up-axis",
+            "bar:0,0,1",
+        ),
+    )
+    spec = walking_spec(scenario.robot, 1, head_pitch=settings.head_pitch)
+    with walking_run(
+        scenario.robot, model, scene, out_dir, options, report, processes, spec
+    ) as run:
         mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])
-        bar_seen = bar_real + np.array(settings.perceived_offset)
-        publisher = MovingObjectPublisher(
-            run.client,
-            "bar",
-            bar_seen,
-            lambda utime, pose: bar_pose_message(utime, pose, settings.bar_radius),
-        )
+        bar = SlidingFixture(run.client, "bar", bar_start, bar_body_pose, bar_floor_pose)
         footsteps_args = [
             "--mode",
             "step-over",
             "--bar",
             "bar",
+            "--bar-axis-yaw",
+            str(BAR_AXIS_YAW),
             "--bar-radius",
             str(settings.bar_radius),
             "--bar-length",
@@ -236,17 +273,18 @@ def run_step_over(
         ]
         utime_move = walk_while_object_moves(
             run,
-            publisher,
+            bar,
             footsteps_args,
-            bar_real,
-            settings.correct_at_step,
-            settings.correction_s,
+            bar_end,
+            settings.move_at_step,
+            settings.move_s,
             settings.walk_timeout_s,
-            f"step-over: bar seen at {np.round(bar_seen, 3).tolist()} (real "
-            f"{np.round(bar_real, 3).tolist()}), goal {np.round(goal, 3).tolist()}",
+            f"step-over: bar at {np.round(bar_start, 3).tolist()}, moved to "
+            f"{np.round(bar_end, 3).tolist()} during the walk, goal {np.round(goal, 3).tolist()}",
             "step-over",
             log,
         )
+    perceived = bar.perceived()
     report.update(
         step_over_criteria(
             settings,
@@ -256,14 +294,14 @@ def run_step_over(
             run.q_start,
             run.q_final,
             goal,
-            bar_real,
-            bar_seen,
+            bar_end,
+            perceived,
             utime_move,
             run.footsteps_log,
         )
     )
     report["summary"] = summary(report)
-    _write(out_dir, report, run.rec, publisher.history, bar_real, bar_seen, goal, model, settings)
+    _write(out_dir, report, run.rec, perceived, bar_end, bar_start, goal, model, settings)
     return report
 
 
@@ -276,11 +314,12 @@ def step_over_criteria(
     q_final,
     goal,
     bar_real,
-    bar_seen,
+    perceived,
     utime_move,
     footsteps_log,
 ) -> dict[str, Any]:
-    """The success criteria, measured on the robot states (module docstring)."""
+    """The success criteria, measured on the robot states (module docstring), and how well the
+    camera followed the bar: ``perceived`` holds its estimates (controller utime, floor pose)."""
     half = sole_half_size(robots.robot(ROBOT).mjcf)
     bar = bar_corners(bar_real, settings.bar_radius, settings.bar_length)
     data = model.createData()
@@ -315,7 +354,8 @@ def step_over_criteria(
     c: dict[str, Any] = {
         **step_counts(rec, rec.statuses),
         "recomputations_after_move": len(after_move),
-        **replan_criteria(rec, footsteps_log, utime_move, settings.correction_s),
+        **replan_criteria(rec, footsteps_log, utime_move, settings.move_s),
+        **perception_measures(perceived, bar_real, utime_move, settings.move_s),
         "samples": len(rec.q),
         "loaded_sole_samples_over_bar": loaded_over,
         "sole_samples_inside_bar": inside,
@@ -329,7 +369,7 @@ def step_over_criteria(
         "executed_final_soles": {s: executed[s].tolist() for s in FEET},
         "base_max_drop_m": base_drop,
         "no_fall": bool(base_drop < settings.max_base_drop),
-        "bar_correction_m_rad": (np.asarray(bar_real) - np.asarray(bar_seen)).tolist(),
+        "bar_move_m_rad": list(settings.move),
     }
     ok = (
         c["no_foot_on_bar"]
@@ -340,6 +380,28 @@ def step_over_criteria(
         and c["replan_fast_enough"]
     )
     return {"success": bool(ok), "criteria": c}
+
+
+def perception_measures(
+    perceived: list[tuple[int, np.ndarray]], bar_real, utime_move: int | None, move_s: float
+) -> dict[str, Any]:
+    """How the head camera followed the bar: its estimates before the move, after it (once the
+    bar stood still), and the last one's error from the real bar (position [m], axis [rad])."""
+    end = None if utime_move is None else utime_move + move_s * 1e6
+    after = [p for u, p in perceived if end is not None and u >= end]
+    last = perceived[-1][1] if perceived else None
+    error = None
+    if last is not None:
+        axis = float(abs((last[2] - bar_real[2] + np.pi / 2) % np.pi - np.pi / 2))
+        error = [float(np.linalg.norm(last[:2] - np.asarray(bar_real[:2]))), axis]
+    return {
+        "bar_estimates": len(perceived),
+        "bar_estimates_before_move": sum(
+            utime_move is None or u < utime_move for u, _ in perceived
+        ),
+        "bar_estimates_after_move": len(after),
+        "last_estimate_error_m_rad": error,
+    }
 
 
 def summary(report: dict[str, Any]) -> str:
@@ -354,17 +416,23 @@ def summary(report: dict[str, Any]) -> str:
         f"{'-' if clearance is None else f'{clearance * 1e3:.0f} mm'}, final stance "
         f"{c['goal_error_m'] * 1e3:.0f} mm from the goal "
         f"({'beyond' if c['beyond_bar'] else 'NOT beyond'} "
-        f"the bar), base drop {c['base_max_drop_m'] * 1e3:.0f} mm"
+        f"the bar), base drop {c['base_max_drop_m'] * 1e3:.0f} mm; the camera's last estimate of "
+        f"the bar {_estimate_error_text(c['last_estimate_error_m_rad'])} from it "
+        f"({c['bar_estimates']} estimates, {c['bar_estimates_after_move']} after the move)"
     )
+
+
+def _estimate_error_text(error) -> str:
+    return "-" if error is None else f"{error[0] * 1e3:.0f} mm / {np.degrees(error[1]):.1f}°"
 
 
 def _write(
     out_dir: Path,
     report: dict[str, Any],
     rec: WalkRecorder,
-    history,
+    perceived,
     bar_real,
-    bar_seen,
+    bar_start,
     goal,
     model: pin.Model,
     settings: StepOverSettings,
@@ -373,7 +441,7 @@ def _write(
     write_report_files(
         out_dir,
         report,
-        lambda: _plots(out_dir, rec, history, bar_real, bar_seen, goal, model, settings),
+        lambda: _plots(out_dir, rec, perceived, bar_real, bar_start, goal, model, settings),
         _markdown,
     )
 
@@ -390,10 +458,11 @@ def _markdown(report: dict[str, Any]) -> str:
         "",
         report["summary"],
         "",
-        "The bar is a mocap fixture of the scene (SIM_COMMAND cannot move it): its *perceived* "
-        f"pose is corrected by {np.round(c['bar_correction_m_rad'], 3).tolist()} (x, y [m], yaw "
-        "[rad]) from the real one and slides to it during the walk; the footstep process "
-        "replans on every update (Algorithm 3), the feet physically cross the real bar.",
+        "The simulator carries the bar (a mocap body) by "
+        f"{np.round(c['bar_move_m_rad'], 3).tolist()} (x, y [m], yaw [rad]) in {s['move_s']} s "
+        "from the first step on; the head camera's AprilTags measure it (`marionette "
+        "perceive`), the footstep process replans on every new estimate (Algorithm 3) and the "
+        "feet cross the bar where it is.",
         "",
         "| criterion | measured | ok |",
         "|---|---|---|",
@@ -408,6 +477,10 @@ def _markdown(report: dict[str, Any]) -> str:
         f"| replans after the bar moved | {c['recomputations_after_move']} | "
         f"{c['recomputations_after_move'] > 0} |",
         replan_rate_row(c, "bar"),
+        f"| the head camera's last estimate of the bar (position, axis) | "
+        f"{_estimate_error_text(c['last_estimate_error_m_rad'])} ({c['bar_estimates']} "
+        f"estimates, {c['bar_estimates_before_move']} before the move, "
+        f"{c['bar_estimates_after_move']} after it) | - |",
         "",
         f"Footstep plans: {c['footstep_plans']} (first {ms['first_plan']} ms; replans median "
         f"{ms['median']} ms, max {ms['max']} ms).",
@@ -421,9 +494,9 @@ def _markdown(report: dict[str, Any]) -> str:
 def _plots(
     out_dir: Path,
     rec: WalkRecorder,
-    history,
+    perceived,
     bar_real,
-    bar_seen,
+    bar_start,
     goal,
     model: pin.Model,
     settings: StepOverSettings,
@@ -443,20 +516,25 @@ def _plots(
     fig, ax = plt.subplots(figsize=(9, 5))
     plot_footsteps(ax, rec, model, foot)
     for pose, color, alpha, label in (
-        (bar_seen, "0.6", 0.5, "bar as first perceived"),
-        (bar_real, "tab:brown", 0.8, "bar (real, last perceived)"),
+        (bar_start, "0.6", 0.5, "bar before its move"),
+        (bar_real, "tab:brown", 0.8, "bar after its move"),
     ):
         b = bar_corners(pose, settings.bar_radius, settings.bar_length)
         ax.fill(b[:, 0], b[:, 1], label=label, color=color, alpha=alpha)
+    if perceived:
+        seen = np.array([p for _, p in perceived])
+        ax.plot(seen[:, 0], seen[:, 1], ".", ms=3, color="k", label="bar centre as perceived")
     ax.plot(com[:, 0], com[:, 1], color="tab:green", lw=1, label="CoM (measured)")
     circle = plt.Circle(
         goal[:2], settings.goal_tolerance, fill=False, color="tab:purple", label="goal zone"
     )
     ax.add_patch(circle)
-    ax.set_xlim(min(-0.3, bar_seen[0] - 0.5), goal[0] + 0.4)
+    ax.set_xlim(min(-0.3, bar_start[0] - 0.5), goal[0] + 0.4)
     ax.set_ylim(-0.7, 0.7)
     finish_footsteps_axes(ax)
-    ax.set_title(f"step-over: footsteps and bar ({len(rec.plans)} plans, {len(history)} bar poses)")
+    ax.set_title(
+        f"step-over: footsteps and bar ({len(rec.plans)} plans, {len(perceived)} bar estimates)"
+    )
     paths = [save_figure(fig, out_dir / "footsteps.png")]
     # Sole heights along x: the crossing swings over the bar.
     fig, ax = plt.subplots(figsize=(9, 3))
@@ -485,6 +563,20 @@ def _plots(
     ax.set_ylabel("sole height [mm]")
     ax.legend(fontsize=7)
     paths.append(save_figure(fig, out_dir / "sole_heights.png"))
+    # The bar as the head camera measured it, against where it stood before and after its move.
+    fig, axes = plt.subplots(3, 1, figsize=(9, 5), sharex=True)
+    t = np.array([u for u, _ in perceived]) * 1e-6
+    seen = np.array([p for _, p in perceived]).reshape(-1, 3)
+    for k, (ax, name, scale, unit) in enumerate(
+        zip(axes, ("x", "y", "axis yaw"), (1.0, 1.0, np.degrees(1.0)), ("m", "m", "deg"))
+    ):
+        ax.plot(t, scale * seen[:, k], ".", ms=3, color="k", label="perceived")
+        ax.axhline(scale * bar_start[k], color="0.6", ls="--", lw=0.8, label="before the move")
+        ax.axhline(scale * bar_real[k], color="tab:brown", lw=0.8, label="after the move")
+        ax.set_ylabel(f"{name} [{unit}]")
+    axes[0].legend(fontsize=7)
+    axes[-1].set_xlabel("controller time [s]")
+    paths.append(save_figure(fig, out_dir / "bar_estimates.png"))
     return paths
 
 

@@ -4,7 +4,9 @@ object published on OBJECT_POSES, and that object moved during the walk so that 
 process replans (the ball carried by hand, the bar pushed).
 
 * :class:`MovingObjectPublisher` — the object's pose at 20 Hz, sliding to a new pose at constant
-  speed over a duration of controller time;
+  speed over a duration of controller time (an object the robot is told about);
+* :class:`SlidingFixture` — a fixture of the scene the simulator carries to a new pose at
+  constant speed (an object the robot has to see: its camera and perception measure it);
 * :class:`WalkRecorder` — WALK_STATUS, ROBOT_STATE and FOOTSTEP_PLAN as the verdicts and plots
   need them (plans merged as the footstep manager applies them);
 * :func:`walking_run` — the trial's processes (:mod:`.harness`), the walking stack, the standing
@@ -40,6 +42,7 @@ from marionette import (
     lcmt_walk_status,
 )
 from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.control.spec import ControllerSpec
 from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking_spec
 from marionette.scenarios.base import RunOptions
 from marionette.scenarios.harness import Processes, Run, harness
@@ -109,6 +112,55 @@ class MovingObjectPublisher(threading.Thread):
             pose = self.pose(utime)
             self.history.append((utime, pose))
             self.client.bus.publish(channels.OBJECT_POSES, self.message(utime, pose))
+
+
+class SlidingFixture:
+    """A fixture of the scene (a MuJoCo mocap body: the step-over's bar) that the simulator
+    carries while the robot walks (SIM_COMMAND ``slide``, constant speed): the robot's camera sees
+    it move and its feet meet it where it is. The interface of :class:`MovingObjectPublisher`
+    for :func:`walk_while_object_moves`; ``pose`` is the floor pose (x, y, yaw) the scenario
+    speaks in, ``body_pose(pose)`` the body's world pose for the simulator and
+    ``floor_pose(X)`` the way back; ``history`` keeps (controller utime, floor pose) of every
+    OBJECT_POSES estimate of the body (what the robot perceived), for the verdict and the plots."""
+
+    def __init__(
+        self,
+        client: ControllerClient,
+        name: str,
+        pose: np.ndarray,
+        body_pose: Callable[[np.ndarray], pin.SE3],
+        floor_pose: Callable[[pin.SE3], np.ndarray],
+    ) -> None:
+        self.client, self.name, self.stop = client, name, threading.Event()
+        self.body_pose, self.floor_pose = body_pose, floor_pose
+        self.p0 = self.p1 = np.array(pose, dtype=float)
+        self.history: list[tuple[int, np.ndarray]] = []
+        self._lock = threading.Lock()
+
+    def start(self) -> None:
+        self.client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._on_poses)
+
+    def _on_poses(self, msg) -> None:
+        if self.stop.is_set():
+            return
+        for o in msg.objects:
+            if o.object_name == self.name:
+                X = pin.XYZQUATToSE3(
+                    [*o.position_world, *o.quaternion_world[1:], o.quaternion_world[0]]
+                )
+                with self._lock:
+                    self.history.append((int(msg.utime), self.floor_pose(X)))
+
+    def move(self, pose: np.ndarray, duration_s: float) -> int:
+        """Starts the slide to ``pose`` now; returns its controller utime."""
+        self.p1 = np.array(pose, dtype=float)
+        utime = self.client.utime()
+        self.client.slide_object(self.name, self.body_pose(self.p1), duration_s)
+        return utime
+
+    def perceived(self) -> list[tuple[int, np.ndarray]]:
+        with self._lock:
+            return list(self.history)
 
 
 class WalkRecorder:
@@ -320,18 +372,21 @@ def walking_run(
     out_dir: Path,
     options: RunOptions,
     report: dict[str, Any],
+    processes: Processes | None = None,
+    spec: ControllerSpec | None = None,
 ) -> Iterator[WalkingRun]:
-    """Starts the trial's processes on ``scene`` (:func:`.harness.harness`), sends the walking
-    stack (:func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says
+    """Starts the trial's processes on ``scene`` (:func:`.harness.harness`; ``processes`` when
+    the trial needs more: a camera, perception), sends the walking stack (``spec``, default
+    :func:`walking.walking_spec`, id 1) and yields once it runs and WALK_STATUS says
     standing. Afterwards ``report["timings"]`` has ``total_wall_s`` and
     :attr:`WalkingRun.footsteps_log` is read from ``logs/footsteps.log``."""
     timings: dict[str, float] = {}
     report["timings"] = timings
     t0 = time.perf_counter()
-    with harness(out_dir, Processes(robot, scene), options, report) as run:
+    with harness(out_dir, processes or Processes(robot, scene), options, report) as run:
         client = run.client
         rec = WalkRecorder(client, model)
-        client.send_spec(walking_spec(robot, 1))
+        client.send_spec(spec or walking_spec(robot, 1))
         run.wait(
             lambda c: c.status.mode == "running" and c.status.active_controller_id == 1,
             30.0,
@@ -350,7 +405,7 @@ def walking_run(
 
 def walk_while_object_moves(
     run: WalkingRun,
-    publisher: MovingObjectPublisher,
+    publisher: MovingObjectPublisher | SlidingFixture,
     footsteps_args: list[str],
     move_to: np.ndarray,
     move_at_step: int,

@@ -413,12 +413,12 @@ def test_every_axis_of_the_walking_plots_has_its_unit(tmp_path, figures):
     step_over._plots(
         tmp_path,
         rec,
-        [bar],
+        [(1_000_000, bar + 0.1), (1_500_000, bar)],
         bar,
-        bar,
+        bar + 0.1,
         np.array([0.8, 0.0, 0.0]),
         model,
         step_over.StepOverSettings(),
     )
-    assert len(figures) == 5
+    assert len(figures) == 6
     assert_every_axis_has_units(figures)
