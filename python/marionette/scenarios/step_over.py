@@ -82,7 +82,8 @@ class StepOverSettings:
     move: tuple[float, float, float] = (0.08, 0.0, 0.08)  # the bar's move: dx, dy [m], dyaw [rad]
     move_at_step: int = 0  # the bar starts moving when this step starts
     move_s: float = 1.0  # [s] of controller time (over while the camera still sees the bar)
-    goal: tuple[float, float, float] = (2.3, 0.0, 0.0)  # final stance (x, y, yaw) from the start
+    goal: tuple[float, float, float] = (2.1, 0.0, 0.0)  # final stance (x, y, yaw) from the start:
+    #                                           0.8 m beyond the bar before its move
     goal_tolerance: float = 0.10  # [m] radius of the goal zone (stance centre)
     swing_margin: float = 0.10  # [m] crossing swings' clearance above the bar
     #                                           (3 cm: the sole's tracking lag caught the bar;

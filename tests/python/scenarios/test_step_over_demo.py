@@ -161,7 +161,7 @@ def test_step_over_demo_crosses_the_bar_to_the_goal_without_falling(tmp_path, lc
     feet = [data.oMf[model.getFrameId(f"{s}_sole_link")].translation for s in ("left", "right")]
     assert all(in_bar_frame(f[None, :2], bar)[0, 0] > BAR_RADIUS + HALF[0] for f in feet), feet
     centre = np.mean(feet, 0)
-    assert np.linalg.norm(centre[:2] - (start[:2] + [2.3, 0.0])) < 0.10
+    assert np.linalg.norm(centre[:2] - (start[:2] + [2.1, 0.0])) < 0.10
     z = np.array([s.base_position[2] for s in states])
     assert z.min() > z[0] - 0.05
     print(
