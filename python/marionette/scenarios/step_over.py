@@ -575,8 +575,9 @@ def _plots(
         ax.axhline(scale * bar_start[k], color="0.6", ls="--", lw=0.8, label="before the move")
         ax.axhline(scale * bar_real[k], color="tab:brown", lw=0.8, label="after the move")
         ax.set_ylabel(f"{name} [{unit}]")
+        ax.set_xlabel("controller time [s]")
     axes[0].legend(fontsize=7)
-    axes[-1].set_xlabel("controller time [s]")
+    fig.tight_layout()
     paths.append(save_figure(fig, out_dir / "bar_estimates.png"))
     return paths
 
