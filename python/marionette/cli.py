@@ -189,11 +189,13 @@ def describe_error(e: BaseException) -> str:
 def _expected_errors() -> tuple[type[BaseException], ...]:
     """Errors that report a user's input, environment or outcome (their message says what to
     do): a file, a name, a URL, a process that cannot start."""
+    from marionette.footsteps.errors import FootstepError
     from marionette.robots import UnknownModel
     from marionette.schemas import DataFileError
 
     return (
         DataFileError,
+        FootstepError,  # an impossible footstep problem, an unreachable goal
         UnknownModel,
         FileNotFoundError,
         PermissionError,

@@ -83,6 +83,8 @@ class FootstepNode:
     ) -> None:
         if options.mode not in ("grasp", "step-over"):
             raise FootstepError(f"mode must be 'grasp' or 'step-over', got {options.mode!r}")
+        if not np.isfinite(options.bar_axis_yaw):
+            raise FootstepError(f"the bar's axis yaw must be finite, got {options.bar_axis_yaw}")
         self.options = options
         self.stance = stance
         self._robot = robot

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -341,16 +342,29 @@ def place_mocap_body(mjcf: str, name: str, X: pin.SE3) -> str:
         mjcf,
     )
 
+    def put(values: list[float]) -> Callable[[list[str]], None]:
+        def edit(v: list[str]) -> None:
+            n = len(values)
+            v[n * i : n * (i + 1)] = [f"{x:.12g}" for x in values]
+
+        return edit
+
+    return _edit_keyframes(mjcf, {"mpos": put(pos), "mquat": put(quat)})
+
+
+def _edit_keyframes(mjcf: str, edits: dict[str, Callable[[list[str]], None]]) -> str:
+    """MJCF text whose keyframes' vector attributes named in ``edits`` (``qpos``, ``ctrl``,
+    ``mpos``...) are changed in place by their edit, which gets the values as strings."""
+
     def key(m: re.Match) -> str:
         text = m.group(0)
-        for attr, values in (("mpos", pos), ("mquat", quat)):
-            a = re.search(rf'{attr}="([^"]+)"', text)
+        for attr, edit in edits.items():
+            a = re.search(rf' {attr}="([^"]+)"', text)
             if a is None:
                 continue
             v = a.group(1).split()
-            n = len(values)
-            v[n * i : n * (i + 1)] = [f"{x:.12g}" for x in values]
-            text = text.replace(a.group(0), f'{attr}="{" ".join(v)}"')
+            edit(v)
+            text = text.replace(a.group(0), f' {attr}="{" ".join(v)}"')
         return text
 
     return re.sub(r"<key [^>]*/>", key, mjcf)
@@ -368,35 +382,33 @@ def set_keyframe_joints(mjcf: str, positions: dict[str, float]) -> str:
     if world is None:
         raise ValueError("the scene has no worldbody")
     sizes = {"free": 7, "ball": 4, "hinge": 1, "slide": 1}
-    address, qpos = {}, 0
+    address: dict[str, int] = {}
+    qpos = 0
     for element in world.iter():
         if element.tag == "freejoint":
             qpos += 7
         elif element.tag == "joint":
             kind = element.get("type", "hinge")
             if kind in ("hinge", "slide"):
-                address[element.get("name")] = qpos
+                address[str(element.get("name"))] = qpos
             qpos += sizes[kind]
     actuators = root.find("actuator")
-    servo = {a.get("joint"): i for i, a in enumerate(actuators if actuators is not None else [])}
+    servo = {
+        str(a.get("joint")): i for i, a in enumerate(actuators if actuators is not None else [])
+    }
     unknown = sorted(set(positions) - set(address))
     if unknown:
         raise ValueError(f"the scene has no hinge or slide joint {', '.join(unknown)}")
 
-    def key(m: re.Match) -> str:
-        text = m.group(0)
-        for attr, index in (("qpos", address), ("ctrl", servo)):
-            a = re.search(rf' {attr}="([^"]+)"', text)
-            if a is None:
-                continue
-            v = a.group(1).split()
+    def put(index: dict[str, int]) -> Callable[[list[str]], None]:
+        def edit(v: list[str]) -> None:
             for joint, value in positions.items():
                 if joint in index:
                     v[index[joint]] = f"{float(value):.12g}"
-            text = text.replace(a.group(0), f' {attr}="{" ".join(v)}"')
-        return text
 
-    return re.sub(r"<key [^>]*/>", key, mjcf)
+        return edit
+
+    return _edit_keyframes(mjcf, {"qpos": put(address), "ctrl": put(servo)})
 
 
 def write_scene(text: str, source: Path, out: Path) -> Path:

@@ -121,6 +121,8 @@ def test_unknown_mode_is_rejected():
 
     with pytest.raises(FootstepError, match="mode must be"):
         FootstepNode(NodeOptions(mode="dance"))
+    with pytest.raises(FootstepError, match="axis yaw must be finite"):
+        FootstepNode(NodeOptions(mode="step-over", bar_axis_yaw=float("nan")))
 
 
 def test_footsteps_process_publishes_plans_over_lcm(build_dir, lcm_url, lcm_env):
