@@ -56,14 +56,14 @@ constexpr char kWalkPrefix[] = "walk:";
 void AddWalking(const lcmt_controller_spec& spec, const std::string& where,
                 const std::string& prefix, const sot::Kinematics& now, graph::GraphEdit& edit,
                 const BuiltController* continue_walk, BuiltController* built) {
-  std::map<std::string, const lcmt_task_spec*> roles;  // left_foot, right_foot, com
+  std::map<std::string, const lcmt_task_spec*> roles;  // left_foot, right_foot, com, waist
   for (const lcmt_task_spec& t : spec.tasks) {
     if (t.reference_channel.rfind(kWalkPrefix, 0) != 0) continue;
     const std::string who = where + ", task '" + t.name + "'";
     const std::string role = t.reference_channel.substr(std::strlen(kWalkPrefix));
-    if (role != "left_foot" && role != "right_foot" && role != "com") {
+    if (role != "left_foot" && role != "right_foot" && role != "com" && role != "waist") {
       Fail(who, "unknown walk reference '" + t.reference_channel +
-                    "' (walk:left_foot, walk:right_foot, walk:com)");
+                    "' (walk:left_foot, walk:right_foot, walk:com, walk:waist)");
     }
     const std::string kind = role == "com" ? "com" : "se3";
     if (t.kind != kind)
@@ -128,6 +128,9 @@ void ConnectWalkReference(const std::string& channel, const BuiltController& bui
   if (role == "com") {
     edit.Connect(built.walk_pattern->com_output(), reference);
     edit.Connect(built.walk_pattern->com_velocity_output(), reference_velocity);
+  } else if (role == "waist") {
+    edit.Connect(built.walk_steps->waist_output(), reference);
+    edit.Connect(built.walk_steps->waist_velocity_output(), reference_velocity);
   } else if (role == "left_foot") {
     edit.Connect(built.walk_steps->left_foot_output(), reference);
     edit.Connect(built.walk_steps->left_foot_velocity_output(), reference_velocity);
@@ -216,7 +219,7 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
         t.reference_channel.rfind(kWalkPrefix, 0) != 0) {
       Fail(who, "unknown reference_channel '" + t.reference_channel + "' (\"\" fixed, " +
                     channels::kTaskReference +
-                    " streamed, walk:left_foot, walk:right_foot, walk:com)");
+                    " streamed, walk:left_foot, walk:right_foot, walk:com, walk:waist)");
     }
     if (!(t.gain > 0.0) && t.gain != 0.0) Fail(who, "gain must be >= 0");
     for (double x : {t.gain, t.gain_max, t.gain_slope}) {

@@ -22,7 +22,7 @@ void Controller::Impl::ReceiveFootstepPlan(const lcm::ReceiveBuffer* rbuf) {
     Reject(channels::kFootstepPlan, "no walking controller",
            which +
                ": the active controller has no walk: tasks (walk:left_foot, walk:right_foot, "
-               "walk:com)");
+               "walk:com, walk:waist)");
     return;
   }
   if (msg.num_steps != static_cast<int>(msg.steps.size()) ||

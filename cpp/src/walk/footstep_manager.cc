@@ -68,6 +68,11 @@ FootstepManager::FootstepManager(std::string name, const FootPlacement& left,
                                                    &FootstepManager::CalcLeftVelocity, {});
   right_velocity_ = &DeclareOutput<Eigen::VectorXd>("right_foot_velocity", zero6,
                                                     &FootstepManager::CalcRightVelocity, {});
+  waist_ = &DeclareOutput<pinocchio::SE3>("waist", pinocchio::SE3::Identity(),
+                                          &FootstepManager::CalcWaist, {left_foot_, right_foot_});
+  waist_velocity_ =
+      &DeclareOutput<Eigen::VectorXd>("waist_velocity", zero6, &FootstepManager::CalcWaistVelocity,
+                                      {left_velocity_, right_velocity_});
   zmp_window_ = &DeclareOutput<Eigen::MatrixXd>(
       "zmp_window", Eigen::MatrixXd::Zero(2, options_.preview_samples + 1),
       &FootstepManager::CalcZmpWindow, {});
@@ -279,6 +284,21 @@ void FootstepManager::CalcFootVelocity(const graph::Tick& t, int side, Eigen::Ve
   } else {
     out->setZero();
   }
+}
+
+void FootstepManager::CalcWaist(const graph::Tick& t, pinocchio::SE3* out) const {
+  const FootPlacement l = PoseToPlacement(left_foot_->Eval(t));
+  const FootPlacement r = PoseToPlacement(right_foot_->Eval(t));
+  // Halfway between the yaws the short way round (the feet never differ by half a turn).
+  const double d = std::remainder(r[3] - l[3], 2.0 * M_PI);
+  const double yaw = l[3] + 0.5 * d;
+  out->rotation(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix());
+  out->translation(0.5 * (l.head<3>() + r.head<3>()));
+}
+
+void FootstepManager::CalcWaistVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
+  *out = 0.5 * (left_velocity_->Eval(t) + right_velocity_->Eval(t));
+  out->segment<2>(3).setZero();  // upright: only the yaw rate
 }
 
 void FootstepManager::CalcZmpWindow(const graph::Tick& t, Eigen::MatrixXd* out) const {

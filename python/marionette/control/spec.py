@@ -38,8 +38,13 @@ from marionette.models.semantics import GRIPPER_ADMITTANCE_PARAMETERS
 KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze", "gripper_admittance")
 # Walking references produced inside the controller (controller_factory.cc, ConnectWalkReference):
 # reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
-# starts from); the CoM is optional.
-WALK_REFERENCES = {"walk:left_foot": "se3", "walk:right_foot": "se3", "walk:com": "com"}
+# starts from); the CoM and the waist (upright, facing halfway between the feet) are optional.
+WALK_REFERENCES = {
+    "walk:left_foot": "se3",
+    "walk:right_foot": "se3",
+    "walk:com": "com",
+    "walk:waist": "se3",
+}
 # The id the controller's own hold controller reports as active once repeated time-budget
 # overruns engaged it (cpp/include/marionette/controller/hold_controller.h).
 HOLD_CONTROLLER_ID = -2
@@ -63,7 +68,7 @@ class TaskSpec:
     streamed: bool = False  # follow TASK_REFERENCE chunks named after the task
     reference: Sequence[float] = ()  # fixed reference (empty = hold the current value)
     joints: Sequence[str] = ()  # posture joints (empty = all)
-    reference_channel: str = ""  # "walk:left_foot|right_foot|com": from the walk (see module)
+    reference_channel: str = ""  # "walk:left_foot|right_foot|com|waist": from the walk (module)
     parameters: dict[str, float] = field(default_factory=dict)  # kind-specific (gripper_admittance)
 
     def check(self) -> None:

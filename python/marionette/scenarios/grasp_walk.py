@@ -215,7 +215,7 @@ def run_grasp_walk(
 
 
 def reach_spec(controller_id: int, robot: str, hand: str) -> ControllerSpec:
-    """Standing reach of ``robot``: feet, CoM and the waist upright (roll, pitch) held where they
+    """Standing reach of ``robot``: feet, CoM and the waist (roll, pitch, yaw) held where they
     are at level 0, the gripper following a streamed position at level 1, posture at level 2.
 
     Every reference holds the value of the swap's tick, so the stack's first command is ~0 and
@@ -227,14 +227,13 @@ def reach_spec(controller_id: int, robot: str, hand: str) -> ControllerSpec:
     walk = {t.name: t for t in walking_spec(robot, controller_id).tasks}
     held = [
         dataclasses.replace(walk[name], reference_channel="", reference=())
-        for name in ("left_foot", "right_foot", "com")
+        for name in ("left_foot", "right_foot", "com", "waist")
     ]
     return ControllerSpec(
         controller_id,
         "reach",
         tasks=[
             *held,
-            walk["waist"],
             TaskSpec(
                 "hand", "position", 1, frame=f"gripper_{hand}_base_link", gain=5.0, streamed=True
             ),

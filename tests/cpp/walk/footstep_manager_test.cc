@@ -117,6 +117,42 @@ TEST(FootstepManagerTest, ZmpReferenceSitsOnTheSupportFootAndTheWindowIsTheFutur
   }
 }
 
+// The waist faces halfway between the feet through a turning walk (each foot turns by 0.3 rad
+// per step, alternately): its yaw is the mean of the feet's yaws at every tick, it stays upright,
+// and its yaw rate is the central difference of its yaw (1e-4 rad/s), as a reference and its
+// feed-forward must be.
+TEST(FootstepManagerTest, TheWaistFacesHalfwayBetweenTheFeetAndItsRateIsItsDerivative) {
+  FootstepManagerOptions options;
+  options.start_delay = 0.0;
+  Rig rig(options);
+  FootstepPlan plan = Forward(4, 0.15);
+  for (int k = 0; k < plan.num_steps; ++k) plan.steps[k].placement[3] = 0.3 * ((k + 1) / 2 + 1);
+  rig.manager->Post(plan);
+  auto yaw = [](const pinocchio::SE3& X) {
+    return std::atan2(X.rotation()(1, 0), X.rotation()(0, 0));
+  };
+  double before = 0.0, previous = 0.0, previous_rate = 0.0, max_rate_error = 0.0, turned = 0.0;
+  for (int j = 0; j < 6000; ++j) {
+    rig.Eval();
+    const double waist = yaw(rig.manager->waist_output().value());
+    const double mean = 0.5 * (yaw(rig.manager->left_foot_output().value()) +
+                               yaw(rig.manager->right_foot_output().value()));
+    ASSERT_NEAR(waist, mean, 1e-12) << j;
+    ASSERT_NEAR(rig.manager->waist_output().value().rotation()(2, 2), 1.0, 1e-12) << j;
+    const Eigen::VectorXd& v = rig.manager->waist_velocity_output().value();
+    ASSERT_NEAR(v[3], 0.0, 1e-12);
+    ASSERT_NEAR(v[4], 0.0, 1e-12);
+    if (j > 1) {
+      const double central = (waist - before) / 2e-3;  // the rate at the previous tick
+      max_rate_error = std::max(max_rate_error, std::abs(central - previous_rate));
+    }
+    before = previous, previous = waist, previous_rate = v[5];
+    turned = std::max(turned, waist);
+  }
+  EXPECT_LT(max_rate_error, 1e-4);
+  EXPECT_GT(turned, 0.5);  // the walk did turn
+}
+
 TEST(FootstepManagerTest, ReplanningNeverChangesTheStepInProgress) {
   Rig rig;
   rig.manager->Post(Forward(4, 0.15));

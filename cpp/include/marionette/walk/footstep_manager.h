@@ -20,6 +20,8 @@
 ///          outputs: left_foot, right_foot (SE3 sole references X_WF),
 ///                   left_foot_velocity, right_foot_velocity (6: linear of the sole origin,
 ///                   angular; world axes — FeatureSE3's reference_velocity),
+///                   waist (SE3: upright, its yaw halfway between the feet's, at the feet's
+///                   midpoint), waist_velocity (6: the yaw rate, half the swinging foot's),
 ///                   zmp_window (2 x (N+1): ZMP reference at t, t+dt, ..., t+N dt, world [m]),
 ///                   zmp_reference (2, at t), phase (int, WalkPhase), phase_progress (0..1),
 ///                   step_index (int, step in progress, -1 when none), support (int: 1 left,
@@ -100,6 +102,10 @@ class FootstepManager final : public graph::Entity {
   graph::OutputSignal<pinocchio::SE3>& right_foot_output() { return *right_foot_; }
   graph::OutputSignal<Eigen::VectorXd>& left_foot_velocity_output() { return *left_velocity_; }
   graph::OutputSignal<Eigen::VectorXd>& right_foot_velocity_output() { return *right_velocity_; }
+  /// The waist's orientation reference: the trunk faces where the feet do. Left free, its yaw
+  /// swung 10° with a long stride and the walk diverged laterally two steps later (step-over).
+  graph::OutputSignal<pinocchio::SE3>& waist_output() { return *waist_; }
+  graph::OutputSignal<Eigen::VectorXd>& waist_velocity_output() { return *waist_velocity_; }
   graph::OutputSignal<Eigen::MatrixXd>& zmp_window_output() { return *zmp_window_; }
   graph::OutputSignal<Eigen::VectorXd>& zmp_reference_output() { return *zmp_reference_; }
   graph::OutputSignal<int>& phase_output() { return *phase_; }
@@ -137,6 +143,8 @@ class FootstepManager final : public graph::Entity {
   void CalcRightVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
     CalcFootVelocity(t, kRight, out);
   }
+  void CalcWaist(const graph::Tick& t, pinocchio::SE3* out) const;
+  void CalcWaistVelocity(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcZmpWindow(const graph::Tick& t, Eigen::MatrixXd* out) const;
   void CalcZmpReference(const graph::Tick& t, Eigen::VectorXd* out) const;
   void CalcPhase(const graph::Tick& t, int* out) const;
@@ -171,6 +179,8 @@ class FootstepManager final : public graph::Entity {
   graph::OutputSignal<pinocchio::SE3>* right_foot_{};
   graph::OutputSignal<Eigen::VectorXd>* left_velocity_{};
   graph::OutputSignal<Eigen::VectorXd>* right_velocity_{};
+  graph::OutputSignal<pinocchio::SE3>* waist_{};
+  graph::OutputSignal<Eigen::VectorXd>* waist_velocity_{};
   graph::OutputSignal<Eigen::MatrixXd>* zmp_window_{};
   graph::OutputSignal<Eigen::VectorXd>* zmp_reference_{};
   graph::OutputSignal<int>* phase_{};
