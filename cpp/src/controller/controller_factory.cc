@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <optional>
 #include <set>
 #include <stdexcept>
 
@@ -107,13 +108,19 @@ void AddWalking(const lcmt_controller_spec& spec, const std::string& where,
     edit.Connect(steps.zmp_window_output(), pattern.zmp_window_input());
     built->walk_steps = &steps;
     built->walk_pattern = &pattern;
-    // At the swap: standing where the robot is, the CoM at rest where it is.
-    built->holds.push_back([left, right, s = &steps, p = &pattern](const sot::Kinematics& k) {
-      const Eigen::Vector3d c = k.com();
-      s->Reset(walk::PoseToPlacement(k.placement(left)), walk::PoseToPlacement(k.placement(right)),
-               c.head<2>());
-      p->Reset(c);
-    });
+    // At the swap: standing where the robot is, the CoM at rest where it is, the waist facing
+    // where it does.
+    const std::optional<sot::FrameRef> waist =
+        roles.count("waist") ? std::optional(sot::MakeFrameRef(model, roles["waist"]->frame, where))
+                             : std::nullopt;
+    built->holds.push_back(
+        [left, right, waist, s = &steps, p = &pattern](const sot::Kinematics& k) {
+          const Eigen::Vector3d c = k.com();
+          s->Reset(walk::PoseToPlacement(k.placement(left)),
+                   walk::PoseToPlacement(k.placement(right)), c.head<2>());
+          if (waist) s->HoldWaist(k.placement(*waist).rotation());
+          p->Reset(c);
+        });
   } catch (const std::invalid_argument& e) {  // sot::SotError, bad preview parameters
     Fail(where, std::string("walking: ") + e.what());
   } catch (const std::runtime_error& e) {

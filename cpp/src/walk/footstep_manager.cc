@@ -9,6 +9,11 @@ namespace {
 
 constexpr double kTimeEpsilon = 1e-9;  // [s] ticks land on phase boundaries up to rounding
 
+// Halfway between two feet's yaws the short way round (feet never differ by half a turn).
+double MeanYaw(const FootPlacement& a, const FootPlacement& b) {
+  return a[3] + 0.5 * std::remainder(b[3] - a[3], 2.0 * M_PI);
+}
+
 Eigen::Vector2d Middle(const FootPlacement& a, const FootPlacement& b) {
   return 0.5 * (a.head<2>() + b.head<2>());
 }
@@ -105,6 +110,11 @@ void FootstepManager::Reset(const FootPlacement& left, const FootPlacement& righ
   phase_start_ = 0.0;
   stopped_ = false;
   RebuildSegments();
+}
+
+void FootstepManager::HoldWaist(const Eigen::Matrix3d& R_waist) {
+  const double mean = MeanYaw(feet_[kLeft], feet_[kRight]);
+  waist_offset_ = Eigen::AngleAxisd(-mean, Eigen::Vector3d::UnitZ()).toRotationMatrix() * R_waist;
 }
 
 void FootstepManager::StopAfterCurrentStep() {
@@ -289,16 +299,14 @@ void FootstepManager::CalcFootVelocity(const graph::Tick& t, int side, Eigen::Ve
 void FootstepManager::CalcWaist(const graph::Tick& t, pinocchio::SE3* out) const {
   const FootPlacement l = PoseToPlacement(left_foot_->Eval(t));
   const FootPlacement r = PoseToPlacement(right_foot_->Eval(t));
-  // Halfway between the yaws the short way round (the feet never differ by half a turn).
-  const double d = std::remainder(r[3] - l[3], 2.0 * M_PI);
-  const double yaw = l[3] + 0.5 * d;
-  out->rotation(Eigen::AngleAxisd(yaw, Eigen::Vector3d::UnitZ()).toRotationMatrix());
+  out->rotation(Eigen::AngleAxisd(MeanYaw(l, r), Eigen::Vector3d::UnitZ()).toRotationMatrix() *
+                waist_offset_);
   out->translation(0.5 * (l.head<3>() + r.head<3>()));
 }
 
 void FootstepManager::CalcWaistVelocity(const graph::Tick& t, Eigen::VectorXd* out) const {
   *out = 0.5 * (left_velocity_->Eval(t) + right_velocity_->Eval(t));
-  out->segment<2>(3).setZero();  // upright: only the yaw rate
+  out->segment<2>(3).setZero();  // it turns about the vertical only
 }
 
 void FootstepManager::CalcZmpWindow(const graph::Tick& t, Eigen::MatrixXd* out) const {

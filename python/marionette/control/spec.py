@@ -38,7 +38,7 @@ from marionette.models.semantics import GRIPPER_ADMITTANCE_PARAMETERS
 KINDS = ("se3", "pbvs", "relative_se3", "position", "com", "posture", "gaze", "gripper_admittance")
 # Walking references produced inside the controller (controller_factory.cc, ConnectWalkReference):
 # reference_channel -> the task kind it feeds. Both feet are needed for a walk (the soles it
-# starts from); the CoM and the waist (upright, facing halfway between the feet) are optional.
+# starts from); the CoM and the waist (turning with the feet's mean yaw) are optional.
 WALK_REFERENCES = {
     "walk:left_foot": "se3",
     "walk:right_foot": "se3",

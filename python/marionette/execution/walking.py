@@ -24,8 +24,8 @@ def walking_spec(
 ) -> ControllerSpec:
     """The walking stack of ``robot`` (its robot.yaml feet, left then right, and its root link
     as the waist): feet (20/s) and CoM (5/s) from the controller's pattern generator and the
-    waist upright and facing halfway between the feet (walk:waist; 20/s) at level 0, posture
-    (2/s) at level 1. A CoM gain above ~5/s under-damps the sway in MuJoCo
+    waist turning with the feet's mean yaw, as it stood at the start (walk:waist; 20/s) at
+    level 0, posture (2/s) at level 1. A CoM gain above ~5/s under-damps the sway in MuJoCo
     (tests/python/walk/test_controller_walk.py). With the waist's yaw left free (to the posture
     task), a long stride swung it 10° and the walk diverged laterally two steps later: 6 of 12
     step-over trials fell after the crossing, 2 of 12 with the waist's yaw held.

@@ -118,7 +118,9 @@ TEST(FootstepManagerTest, ZmpReferenceSitsOnTheSupportFootAndTheWindowIsTheFutur
 }
 
 // The waist faces halfway between the feet through a turning walk (each foot turns by 0.3 rad
-// per step, alternately): its yaw is the mean of the feet's yaws at every tick, it stays upright,
+// per step, alternately), as it stood at the start (HoldWaist: 0.02 rad of yaw off the feet's
+// mean, pitched 0.01 rad): its yaw is the mean of the feet's yaws + 0.02 at every tick, its pitch
+// stays 0.01,
 // and its yaw rate is the central difference of its yaw (1e-4 rad/s), as a reference and its
 // feed-forward must be.
 TEST(FootstepManagerTest, TheWaistFacesHalfwayBetweenTheFeetAndItsRateIsItsDerivative) {
@@ -127,6 +129,10 @@ TEST(FootstepManagerTest, TheWaistFacesHalfwayBetweenTheFeetAndItsRateIsItsDeriv
   Rig rig(options);
   FootstepPlan plan = Forward(4, 0.15);
   for (int k = 0; k < plan.num_steps; ++k) plan.steps[k].placement[3] = 0.3 * ((k + 1) / 2 + 1);
+  rig.manager->HoldWaist(  // the standing feet face 0
+      (Eigen::AngleAxisd(0.02, Eigen::Vector3d::UnitZ()) *
+       Eigen::AngleAxisd(0.01, Eigen::Vector3d::UnitY()))
+          .toRotationMatrix());
   rig.manager->Post(plan);
   auto yaw = [](const pinocchio::SE3& X) {
     return std::atan2(X.rotation()(1, 0), X.rotation()(0, 0));
@@ -137,8 +143,8 @@ TEST(FootstepManagerTest, TheWaistFacesHalfwayBetweenTheFeetAndItsRateIsItsDeriv
     const double waist = yaw(rig.manager->waist_output().value());
     const double mean = 0.5 * (yaw(rig.manager->left_foot_output().value()) +
                                yaw(rig.manager->right_foot_output().value()));
-    ASSERT_NEAR(waist, mean, 1e-12) << j;
-    ASSERT_NEAR(rig.manager->waist_output().value().rotation()(2, 2), 1.0, 1e-12) << j;
+    ASSERT_NEAR(waist, mean + 0.02, 1e-12) << j;
+    ASSERT_NEAR(rig.manager->waist_output().value().rotation()(2, 2), std::cos(0.01), 1e-12) << j;
     const Eigen::VectorXd& v = rig.manager->waist_velocity_output().value();
     ASSERT_NEAR(v[3], 0.0, 1e-12);
     ASSERT_NEAR(v[4], 0.0, 1e-12);

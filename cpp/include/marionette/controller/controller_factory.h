@@ -18,14 +18,14 @@
 ///                 position target [rad]   1 value, fixed only
 /// Walking (Dang 2012 §2.6.2–2.6.3): a task whose reference_channel is "walk:left_foot" or
 /// "walk:right_foot" (kind se3, its frame a sole), "walk:com" (kind com) or "walk:waist" (kind
-/// se3: upright, facing halfway between the feet) takes its reference and feed-forward from a
-/// FootstepManager + PatternGenerator pair added to the controller; the two feet tasks are then
-/// required (their frames are the soles the manager starts from). At the
-/// swap both start standing where the robot is; footstep plans (FOOTSTEP_PLAN) are posted to the
-/// active controller's manager (BuiltController::walk_steps).
-/// An unset fixed reference means "hold where it is now": the reference (and a stream's initial
-/// value) is the feature's value at the tick the controller is swapped in (BuiltController::
-/// HoldCurrent, run by the loop: no allocation), so a hold never pulls towards a stale pose.
+/// se3: turning with the feet's mean yaw, as it stood at the swap) takes its reference and
+/// feed-forward from a FootstepManager + PatternGenerator pair added to the controller; the two
+/// feet tasks are then required (their frames are the soles the manager starts from). At the swap
+/// both start standing where the robot is; footstep plans (FOOTSTEP_PLAN) are posted to the active
+/// controller's manager (BuiltController::walk_steps). An unset fixed reference means "hold where
+/// it is now": the reference (and a stream's initial value) is the feature's value at the tick the
+/// controller is swapped in (BuiltController:: HoldCurrent, run by the loop: no allocation), so a
+/// hold never pulls towards a stale pose.
 
 #include <functional>
 #include <map>

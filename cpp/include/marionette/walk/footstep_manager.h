@@ -20,8 +20,9 @@
 ///          outputs: left_foot, right_foot (SE3 sole references X_WF),
 ///                   left_foot_velocity, right_foot_velocity (6: linear of the sole origin,
 ///                   angular; world axes — FeatureSE3's reference_velocity),
-///                   waist (SE3: upright, its yaw halfway between the feet's, at the feet's
-///                   midpoint), waist_velocity (6: the yaw rate, half the swinging foot's),
+///                   waist (SE3: turning with the feet's mean yaw, as it stood at the start —
+///                   HoldWaist —, at the feet's midpoint), waist_velocity (6: the yaw rate,
+///                   half the swinging foot's),
 ///                   zmp_window (2 x (N+1): ZMP reference at t, t+dt, ..., t+N dt, world [m]),
 ///                   zmp_reference (2, at t), phase (int, WalkPhase), phase_progress (0..1),
 ///                   step_index (int, step in progress, -1 when none), support (int: 1 left,
@@ -75,6 +76,11 @@ class FootstepManager final : public graph::Entity {
   /// emptied (plans in the mailbox stay). No allocation.
   void Reset(const FootPlacement& left, const FootPlacement& right,
              const Eigen::Vector2d& rest_zmp);
+  /// Loop thread, between ticks, after Reset: the waist's orientation now (world). The waist
+  /// reference keeps it relative to the feet's mean yaw for the whole walk: the walk starts
+  /// where the robot stands (a standing pelvis pitched a third of a degree from upright, at
+  /// 20/s, was a refused 0.12 rad/s start) and still turns with the feet.
+  void HoldWaist(const Eigen::Matrix3d& R_waist);
   /// Loop thread, between ticks: the walk ends with the step in progress (it is never changed)
   /// — queued steps after it are dropped, the final double support then brings the ZMP to the
   /// middle of the feet — and every later plan is refused (counted) until Reset. No allocation.
@@ -102,7 +108,7 @@ class FootstepManager final : public graph::Entity {
   graph::OutputSignal<pinocchio::SE3>& right_foot_output() { return *right_foot_; }
   graph::OutputSignal<Eigen::VectorXd>& left_foot_velocity_output() { return *left_velocity_; }
   graph::OutputSignal<Eigen::VectorXd>& right_foot_velocity_output() { return *right_velocity_; }
-  /// The waist's orientation reference: the trunk faces where the feet do. Left free, its yaw
+  /// The waist's orientation reference: the trunk turns with the feet. Left free, its yaw
   /// swung 10° with a long stride and the walk diverged laterally two steps later (step-over).
   graph::OutputSignal<pinocchio::SE3>& waist_output() { return *waist_; }
   graph::OutputSignal<Eigen::VectorXd>& waist_velocity_output() { return *waist_velocity_; }
@@ -174,6 +180,8 @@ class FootstepManager final : public graph::Entity {
   std::array<ZmpSegment, kMaxSegments> segments_{};
   int num_segments_ = 0;
   Eigen::Vector2d final_zmp_ = Eigen::Vector2d::Zero();  // after the last segment
+  // The waist's orientation in the frame of the feet's mean yaw (HoldWaist).
+  Eigen::Matrix3d waist_offset_ = Eigen::Matrix3d::Identity();
 
   graph::OutputSignal<pinocchio::SE3>* left_foot_{};
   graph::OutputSignal<pinocchio::SE3>* right_foot_{};
