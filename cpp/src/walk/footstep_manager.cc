@@ -4,6 +4,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include "marionette/walk/swing_foot.h"
+
 namespace marionette::walk {
 namespace {
 
@@ -11,7 +13,7 @@ constexpr double kTimeEpsilon = 1e-9;  // [s] ticks land on phase boundaries up 
 
 // Halfway between two feet's yaws the short way round (feet never differ by half a turn).
 double MeanYaw(const FootPlacement& a, const FootPlacement& b) {
-  return a[3] + 0.5 * std::remainder(b[3] - a[3], 2.0 * M_PI);
+  return a[3] + 0.5 * WrapAngle(b[3] - a[3]);
 }
 
 Eigen::Vector2d Middle(const FootPlacement& a, const FootPlacement& b) {

@@ -161,26 +161,13 @@ class ControllerClient:
 
     def move_object(self, name: str, X) -> None:
         """Teleports a free object of the MuJoCo scene (a perturbation)."""
-        msg = lcmt_sim_command()
-        msg.utime = self.utime()
-        msg.command = "set_object_pose"
-        msg.object_name = name
-        v = pose_to_vector(X)
-        msg.position, msg.quaternion = list(v[:3]), list(v[3:])
-        self.bus.publish(channels.SIM_COMMAND, msg)
+        self._pose_command("set_object_pose", name, X)
 
     def slide_object(self, name: str, X, duration_s: float) -> None:
         """Carries a mocap body of the MuJoCo scene (a fixture: a bar, a cart) to the pose ``X``
         at constant speed over ``duration_s`` of simulated time (a physical move: the cameras
         see it move and the robot's contacts meet it where it is)."""
-        msg = lcmt_sim_command()
-        msg.utime = self.utime()
-        msg.command = "slide"
-        msg.object_name = name
-        v = pose_to_vector(X)
-        msg.position, msg.quaternion = list(v[:3]), list(v[3:])
-        msg.duration = float(duration_s)
-        self.bus.publish(channels.SIM_COMMAND, msg)
+        self._pose_command("slide", name, X, duration_s)
 
     def push_object(self, name: str, force_W, duration_s: float) -> None:
         """Pushes a free object of the MuJoCo scene with ``force_W`` [N] (world axes, at its
@@ -212,6 +199,16 @@ class ControllerClient:
 
     def detach(self, weld: str) -> None:
         self._sim_command("detach", weld)
+
+    def _pose_command(self, command: str, name: str, X, duration_s: float = 0.0) -> None:
+        """SIM_COMMAND ``command`` moving ``name`` to the pose ``X`` (over ``duration_s``)."""
+        msg = lcmt_sim_command()
+        msg.utime = self.utime()
+        msg.command, msg.object_name = command, name
+        v = pose_to_vector(X)
+        msg.position, msg.quaternion = list(v[:3]), list(v[3:])
+        msg.duration = float(duration_s)
+        self.bus.publish(channels.SIM_COMMAND, msg)
 
     def _sim_command(self, command: str, name: str) -> None:
         msg = lcmt_sim_command()

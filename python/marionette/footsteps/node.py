@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from marionette.footsteps.augmented_robot import Stance
+from marionette.footsteps.augmented_robot import Stance, wrap_angle
 from marionette.footsteps.errors import FootstepError
 from marionette.footsteps.obstacles import Bar
 from marionette.footsteps.plan import FootstepPlan
@@ -34,11 +34,6 @@ def yaw_from_quaternion(wxyz) -> float:
     """Yaw of the x axis of a rotation given as a (w, x, y, z) quaternion [rad]."""
     w, x, y, z = (float(v) for v in wxyz)
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
-
-
-def _wrap(angle: float) -> float:
-    """``angle`` in [-pi, pi)."""
-    return float((angle + np.pi) % (2.0 * np.pi) - np.pi)
 
 
 @dataclass
@@ -114,11 +109,11 @@ class FootstepNode:
     def _bar_axis_yaw(self, frame_yaw: float) -> float:
         """The bar's axis yaw from its frame's: an axis has no sign, so of the two directions
         the one nearest the last estimate (the planner's frame of the bar stays the same)."""
-        yaw = _wrap(frame_yaw + self.options.bar_axis_yaw)
+        yaw = float(wrap_angle(frame_yaw + self.options.bar_axis_yaw))
         if self.object_pose is None:
             return yaw
         last = float(self.object_pose[3])
-        return last + _wrap(2.0 * (yaw - last)) / 2.0
+        return last + float(wrap_angle(2.0 * (yaw - last))) / 2.0
 
     def on_walk_status(self, msg) -> None:
         with self._lock:

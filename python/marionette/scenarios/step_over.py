@@ -255,7 +255,7 @@ def run_step_over(
     ) as run:
         mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])
-        bar = SlidingFixture(run.client, "bar", bar_start, bar_body_pose, bar_floor_pose)
+        bar = SlidingFixture(run.client, "bar", bar_body_pose, bar_floor_pose)
         footsteps_args = [
             "--mode",
             "step-over",

@@ -118,22 +118,20 @@ class SlidingFixture:
     """A fixture of the scene (a MuJoCo mocap body: the step-over's bar) that the simulator
     carries while the robot walks (SIM_COMMAND ``slide``, constant speed): the robot's camera sees
     it move and its feet meet it where it is. The interface of :class:`MovingObjectPublisher`
-    for :func:`walk_while_object_moves`; ``pose`` is the floor pose (x, y, yaw) the scenario
-    speaks in, ``body_pose(pose)`` the body's world pose for the simulator and
-    ``floor_pose(X)`` the way back; ``history`` keeps (controller utime, floor pose) of every
-    OBJECT_POSES estimate of the body (what the robot perceived), for the verdict and the plots."""
+    for :func:`walk_while_object_moves`. The scenario speaks in floor poses (x, y, yaw):
+    ``body_pose(pose)`` is the body's world pose for the simulator and ``floor_pose(X)`` the way
+    back; ``history`` keeps (controller utime, floor pose) of every OBJECT_POSES estimate of the
+    body (what the robot perceived), for the verdict and the plots."""
 
     def __init__(
         self,
         client: ControllerClient,
         name: str,
-        pose: np.ndarray,
         body_pose: Callable[[np.ndarray], pin.SE3],
         floor_pose: Callable[[pin.SE3], np.ndarray],
     ) -> None:
         self.client, self.name, self.stop = client, name, threading.Event()
         self.body_pose, self.floor_pose = body_pose, floor_pose
-        self.p0 = self.p1 = np.array(pose, dtype=float)
         self.history: list[tuple[int, np.ndarray]] = []
         self._lock = threading.Lock()
 
@@ -153,9 +151,8 @@ class SlidingFixture:
 
     def move(self, pose: np.ndarray, duration_s: float) -> int:
         """Starts the slide to ``pose`` now; returns its controller utime."""
-        self.p1 = np.array(pose, dtype=float)
         utime = self.client.utime()
-        self.client.slide_object(self.name, self.body_pose(self.p1), duration_s)
+        self.client.slide_object(self.name, self.body_pose(pose), duration_s)
         return utime
 
     def perceived(self) -> list[tuple[int, np.ndarray]]:
