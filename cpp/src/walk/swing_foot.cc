@@ -38,20 +38,6 @@ Blend LiftProfile(double s) {
   return {64.0 * w * w * w, 192.0 * w * w * dw, 192.0 * (2.0 * w * dw * dw - 2.0 * w * w)};
 }
 
-namespace {
-
-// s with σ(s) = sigma (σ is increasing on [0, 1]): bisection, 50 halvings = machine precision.
-double InverseBlend(double sigma) {
-  double lo = 0.0, hi = 1.0;
-  for (int i = 0; i < 50; ++i) {
-    const double mid = 0.5 * (lo + hi);
-    (QuinticBlend(mid).value < sigma ? lo : hi) = mid;
-  }
-  return 0.5 * (lo + hi);
-}
-
-}  // namespace
-
 SwingFoot::SwingFoot(const FootPlacement& from, const FootPlacement& to, double duration,
                      double height, const Eigen::Vector3d* via, int num_via)
     : from_(from), duration_(duration), height_(height) {
@@ -69,26 +55,46 @@ SwingFoot::SwingFoot(const FootPlacement& from, const FootPlacement& to, double 
   }
   delta_ = to - from;
   delta_[3] = WrapAngle(to[3] - from[3]);
-  const Eigen::Vector2d d = delta_.head<2>();
   for (int i = 0; i < num_via; ++i) {
     if (!via[i].allFinite()) throw std::invalid_argument("SwingFoot: non-finite via point");
-    // Where the sole origin crosses the via point horizontally: fraction σ_v of the straight
-    // xy path, reached at s_v = σ⁻¹(σ_v); the height there is z_line(σ_v) + h b(s_v) ≥ z_via.
-    const double length2 = d.squaredNorm();
-    const double sigma =
+  }
+  rise_cross_land_ = num_via > 0;
+  const Eigen::Vector2d d = delta_.head<2>();
+  const double length2 = d.squaredNorm();
+  for (int i = 0; i < num_via; ++i) {
+    // The crossing is level at h above the line: h clears the point where the sole passes its
+    // horizontal position (a fraction of the line, clamped to the line's ends).
+    const double fraction =
         length2 > 1e-12 ? std::clamp((via[i].head<2>() - from.head<2>()).dot(d) / length2, 0.0, 1.0)
                         : 0.5;
-    const double s = InverseBlend(sigma);
-    const double lift = LiftProfile(s).value;
-    const double line = from[2] + delta_[2] * sigma;
-    // Near lift-off or landing no height can clear a point above the line: leave it to the planner.
-    if (lift > 1e-3) height_ = std::max(height_, (via[i][2] - line) / lift);
+    height_ = std::max(height_, via[i][2] - (from[2] + delta_[2] * fraction));
+  }
+}
+
+void SwingFoot::Profiles(double s, Blend* along, Blend* up) const {
+  if (!rise_cross_land_) {
+    *along = QuinticBlend(s);
+    *up = LiftProfile(s);
+    return;
+  }
+  constexpr double r = kRiseFraction, middle = 1.0 - 2.0 * r;
+  const Blend h = QuinticBlend((s - r) / middle);
+  *along = {h.value, h.rate / middle, h.acceleration / (middle * middle)};
+  if (s < r) {
+    const Blend v = QuinticBlend(s / r);
+    *up = {v.value, v.rate / r, v.acceleration / (r * r)};
+  } else if (s > 1.0 - r) {
+    const Blend v = QuinticBlend((1.0 - s) / r);
+    *up = {v.value, -v.rate / r, v.acceleration / (r * r)};
+  } else {
+    *up = {1.0, 0.0, 0.0};
   }
 }
 
 FootSample SwingFoot::Sample(double t) const {
   const double s = std::clamp(t / duration_, 0.0, 1.0);
-  const Blend q = QuinticBlend(s), b = LiftProfile(s);
+  Blend q, b;
+  Profiles(s, &q, &b);
   const double k1 = 1.0 / duration_, k2 = k1 * k1;  // d/dt = (1/D) d/ds
   FootSample out;
   FootPlacement p = from_ + delta_ * q.value;
