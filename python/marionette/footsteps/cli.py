@@ -35,6 +35,7 @@ def _options(args):
         bar_length=args.bar_length,
         goal=tuple(args.goal),
         swing_margin=args.swing_margin,
+        crossing_duration=args.crossing_duration,
     )
 
 
@@ -72,7 +73,13 @@ def _plan(args: argparse.Namespace) -> int:
         bar = Bar(np.array(args.bar_pose[:2]), args.bar_pose[2], args.bar_radius, args.bar_length)
         goal = np.array(args.goal)
         step_over = StepOverPlanner(
-            stance, goal, bar, robot.foot, options=StepOverOptions(swing_margin=args.swing_margin)
+            stance,
+            goal,
+            bar,
+            robot.foot,
+            options=StepOverOptions(swing_margin=args.swing_margin).with_crossing_duration(
+                args.crossing_duration
+            ),
         )
         report = step_over.plan()
         plan, foot = step_over.result(), step_over.foot
@@ -131,6 +138,13 @@ def _common(p: argparse.ArgumentParser) -> None:
         type=float,
         default=0.03,
         help="clearance [m] of the crossing swings above the bar (step-over, eq. 5.1)",
+    )
+    p.add_argument(
+        "--crossing-duration",
+        type=float,
+        default=None,
+        help="single support [s] of the two swings over the bar (step-over; they rise, cross "
+        "level and land; default: the planner's, 1.2 s)",
     )
 
 

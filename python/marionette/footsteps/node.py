@@ -50,6 +50,7 @@ class NodeOptions:
     goal: tuple[float, float, float] = (2.0, 0.0, 0.0)  # final stance (step-over)
     move_threshold: float = 0.002  # [m] object displacement that triggers a replan
     swing_margin: float = 0.03  # [m] eq. 5.1 clearance of the crossing swings (step-over)
+    crossing_duration: float | None = None  # [s] of the crossing swings (None: the planner's)
 
 
 def resolve_walking_robot(name: str) -> str:
@@ -190,7 +191,9 @@ class FootstepNode:
             np.array(self.options.goal),
             bar,
             robot.foot,
-            options=StepOverOptions(swing_margin=self.options.swing_margin),
+            options=StepOverOptions(swing_margin=self.options.swing_margin).with_crossing_duration(
+                self.options.crossing_duration
+            ),
         )
         step_over.plan()
         return step_over

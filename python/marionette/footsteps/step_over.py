@@ -83,6 +83,14 @@ class StepOverOptions:
     fresh_after_move: float = 0.05  # [m]
     fresh_max_iterations: int = 15  # per solve with the bar
 
+    def with_crossing_duration(self, seconds: float | None) -> StepOverOptions:
+        """These options with the crossing swings' single support ``seconds`` (None: kept)."""
+        if seconds is None:
+            return self
+        if not (np.isfinite(seconds) and seconds > 0.0):
+            raise InvalidProblem(f"crossing duration must be > 0 s, got {seconds}")
+        return dataclasses.replace(self, crossing_duration=float(seconds))
+
 
 class StepOverPlanner:
     """Footsteps from ``stance`` to the ``goal`` stance (x, y, yaw) over ``bar`` (see module)."""
@@ -277,6 +285,10 @@ class StepOverPlanner:
                 report = fresh._deform()
                 if not report.converged or fresh._crossing_short():
                     continue
+                # The crossing now stands on this bar (shifted across it, not along): the next
+                # estimate of the same bar is a deformation, not another fresh sequence (it was:
+                # every later estimate planned afresh, ~200 ms each).
+                fresh._crossing_bar_center = self.bar.center.copy()
             self.config = AugmentedConfiguration(
                 np.vstack([self.config.steps[:f], fresh.config.steps]), None
             )
