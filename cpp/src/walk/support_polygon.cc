@@ -13,8 +13,8 @@ bool MeasuredZmp(const SoleWrench* w, int count, double ground_z, Eigen::Vector2
     if (w[i].force[2] < min_force) continue;
     const double h = w[i].origin[2] - ground_z;
     fz += w[i].force[2];
-    mx += w[i].origin[0] * w[i].force[2] - w[i].torque[1] + h * w[i].force[0];
-    my += w[i].origin[1] * w[i].force[2] + w[i].torque[0] + h * w[i].force[1];
+    mx += w[i].origin[0] * w[i].force[2] - w[i].torque[1] - h * w[i].force[0];
+    my += w[i].origin[1] * w[i].force[2] + w[i].torque[0] - h * w[i].force[1];
   }
   if (fz <= 0.0) return false;
   *zmp << mx / fz, my / fz;

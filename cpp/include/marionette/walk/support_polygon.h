@@ -18,9 +18,9 @@ struct SoleWrench {
 };
 
 /// ZMP on the ground plane z = ground_z of the wrenches whose normal force exceeds `min_force`
-/// [N]: with o_i the sole origins, p_x = Σ(o_ix f_iz − τ_iy + (o_iz − z) f_ix) / Σ f_iz,
-/// p_y = Σ(o_iy f_iz + τ_ix + (o_iz − z) f_iy) / Σ f_iz (the moment about p has no horizontal
-/// part). Returns false (zmp untouched) when no sole carries load.
+/// [N]: with o_i the sole origins, p_x = Σ(o_ix f_iz − τ_iy − (o_iz − z) f_ix) / Σ f_iz,
+/// p_y = Σ(o_iy f_iz + τ_ix − (o_iz − z) f_iy) / Σ f_iz (the moment about p, τ_i + (o_i − p) × f_i
+/// summed, has no horizontal part). Returns false (zmp untouched) when no sole carries load.
 bool MeasuredZmp(const SoleWrench* wrenches, int count, double ground_z, Eigen::Vector2d* zmp,
                  double min_force = 10.0);
 
