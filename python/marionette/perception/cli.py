@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
 from pathlib import Path
@@ -87,6 +88,14 @@ def register(subparsers) -> None:
         default=[],
         metavar="NAME:X,Y,Z",
         help="prior: body NAME rests with this axis up (resolves ambiguous tags)",
+    )
+    p.add_argument(
+        "--max-position-sigma",
+        type=float,
+        default=None,
+        metavar="METRES",
+        help="publish a body's pose only when its origin is known to within this (1 sigma from "
+        "the tag corners; e.g. 0.005: a long bar seen by one end tag is not published)",
     )
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
@@ -193,6 +202,15 @@ def _perceive(args: argparse.Namespace) -> int:
             )
             return 2
         config.detector.quad_decimate = args.quad_decimate
+    if args.max_position_sigma is not None:
+        if not (math.isfinite(args.max_position_sigma) and args.max_position_sigma > 0.0):
+            print(
+                "marionette perceive: --max-position-sigma must be a positive number of metres, "
+                f"got {args.max_position_sigma}",
+                file=sys.stderr,
+            )
+            return 2
+        config.max_position_sigma = args.max_position_sigma
     if args.full_search_every is not None:
         if args.full_search_every < 1:
             print(

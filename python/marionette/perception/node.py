@@ -186,6 +186,10 @@ class PerceptionConfig:
     up_axes: dict[str, np.ndarray] = field(default_factory=dict)
     # Search each frame around the tags of the previous one (whole image now and then).
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    # [m] publish a body's pose only when its origin is known to within this (1 σ from the tag
+    # corners, objects.position_sigma): one tag at the end of a long bar, seen close and
+    # oblique, placed the bar's centre 24 mm off; inf = every pose.
+    max_position_sigma: float = math.inf
 
 
 class LatencyWindow:
@@ -277,6 +281,12 @@ class PerceptionNode:
         )
         if X_WC is None:
             self.counters["no_camera_pose"] += 1
+        imprecise = [
+            n for n, p in poses.items() if p.position_sigma > self.config.max_position_sigma
+        ]
+        for name in imprecise:
+            del poses[name]
+        self.counters["imprecise_poses"] += len(imprecise)
         latency_us = (time.monotonic() - received) * 1e6
         return (
             detections_message(frame, detections, latency_us),

@@ -94,6 +94,10 @@ class StepOverSettings:
     head_pitch: float = 0.75  # [rad] the head looks down (TALOS' limit 0.785): the bar stays
     #                           in view from 2 m to 0.8 m ahead
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames
+    # [m] the bar is published when its centre is known to within this (1 σ from the tag
+    # corners): both end blocks' tags give 1.5-2.4 mm, one end's alone ~25 mm (1 m of lever arm),
+    # and one such late, close view put the crossing 24 mm into the bar.
+    bar_position_sigma: float = 0.005
     max_base_drop: float = 0.05  # [m] fall criterion (base height)
     walk_timeout_s: float = 60.0  # controller time for the walk
 
@@ -249,6 +253,8 @@ def run_step_over(
             str(marionette.MODELS_DIR / "objects" / "bar.yaml"),
             "--up-axis",
             "bar:0,0,1",
+            "--max-position-sigma",
+            str(settings.bar_position_sigma),
         ),
     )
     spec = walking_spec(scenario.robot, 1, head_pitch=settings.head_pitch)

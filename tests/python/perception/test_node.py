@@ -206,3 +206,38 @@ def test_perceive_publishes_detections_and_world_poses_over_lcm(lcm_url, lcm_env
     (det,) = [d for d in tags.messages[-1].detections if d.id == 10]
     assert det.resolved_by in ("image", "depth") and det.tag_size == pytest.approx(0.06)
     assert '"bad_intrinsics": 1' in out  # the malformed frame was counted, not fatal
+
+
+@pytest.mark.parametrize("bound, published", [(math.inf, True), (0.01, True), (1e-5, False)])
+def test_a_pose_less_precise_than_the_bound_is_not_published_and_is_counted(bound, published):
+    """``max_position_sigma``: the plank seen 1 m away by its two top tags is known to ~1 mm;
+    under a 10 µm bound its pose is left out of OBJECT_POSES (the detections still go out) and
+    counted as imprecise."""
+    from marionette.perception.node import PerceptionConfig, PerceptionNode
+
+    (plank,) = load_tagged_bodies([PLANK_YAML])
+    X_CB = pin.SE3(pin.rpy.rpyToMatrix(np.radians(140), 0.0, np.radians(20)), np.array([0, 0, 1.0]))
+    quads = [syn.tag_quad(t.tag_id, t.size, X_CB * t.X_BT) for t in plank.tags]
+    frame = syn.render(K, quads, background_depth=2.0)
+    node = PerceptionNode(
+        PerceptionConfig([plank], camera_pose_source="message", max_position_sigma=bound)
+    )
+    detections, poses = node.process(camera_message(frame, 1000), 0.0)
+    assert detections.num_detections == 2
+    assert poses.num_objects == (1 if published else 0)
+    assert node.counters["imprecise_poses"] == (0 if published else 1)
+
+
+@pytest.mark.parametrize("value", ["-1", "0", "nan", "inf"])
+def test_perceive_refuses_a_position_bound_that_is_not_a_positive_number(lcm_env, value):
+    out = subprocess.run(
+        [sys.executable, "-m", "marionette.cli", "perceive", "--robot", "none"]
+        + ["--max-position-sigma", value],
+        env=lcm_env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 2
+    assert out.stderr.strip().count("\n") == 0, out.stderr
+    assert "--max-position-sigma must be a positive number of metres" in out.stderr
