@@ -95,8 +95,8 @@ class StepOverSettings:
     #                           in view from 2 m to 0.8 m ahead
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames
     # [m] the bar is published when its centre is known to within this (1 σ from the tag
-    # corners): both end blocks' tags give 1.5-2.4 mm, one end's alone ~25 mm (1 m of lever arm),
-    # and one such late, close view put the crossing 24 mm into the bar.
+    # corners): both end blocks' tags give 0.9-3.1 mm, one end's alone 11-25 mm (0.65 m of lever
+    # arm), and one such late, close view put the crossing 24 mm into the bar.
     bar_position_sigma: float = 0.005
     max_base_drop: float = 0.05  # [m] fall criterion (base height)
     walk_timeout_s: float = 60.0  # controller time for the walk
