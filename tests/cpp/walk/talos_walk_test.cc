@@ -18,13 +18,19 @@ namespace {
 
 const std::string kModels = MARIONETTE_MODELS_DIR;
 
+// [m] How far outside its sole's edge the measured ZMP of a sole rolling on that edge may read:
+// MuJoCo puts contact points mid-penetration, below the plane the ZMP is taken on, and the shear
+// forces' moment over that sub-millimetre height moves it by micrometres (seen in the 90° turn
+// once that moment had the right sign: 14 of 14002 samples outside, the farthest by 6 µm).
+constexpr double kContactFuzz = 1e-4;
+
 struct WalkRecord {
   double min_base_height = 1e9, max_base_height = -1e9;
   double min_zmp_margin = 1e9;     // signed distance of the measured ZMP to the support polygon [m]
   double worst_landing = 0.0;      // [m] planned vs landed sole position
   double worst_landing_yaw = 0.0;  // [rad]
   int zmp_samples = 0;
-  int outside_samples = 0;
+  int outside_samples = 0;      // margin < -kContactFuzz: the ZMP left the soles
   int edge_samples = 0;         // margin < 2 mm: the sole is rolling on an edge
   std::vector<double> margins;  // every sample's margin [m]
   double MarginQuantile(double q) const {
@@ -107,7 +113,7 @@ WalkRecord Walk(testing::WalkRig& rig, const FootstepPlan& plan, double settle =
       rec.min_zmp_margin = std::min(rec.min_zmp_margin, margin);
       ++rec.zmp_samples;
       rec.margins.push_back(margin);
-      if (margin < 0.0) ++rec.outside_samples;
+      if (margin < -kContactFuzz) ++rec.outside_samples;
       if (margin < 0.002) ++rec.edge_samples;
     }
     if (rig.steps->phase_output().value() == static_cast<int>(WalkPhase::kStanding) &&
@@ -169,7 +175,7 @@ FootstepPlan TurnPlan(const FootPlacement& left, const FootPlacement& right, int
 void Report(const char* name, const WalkRecord& r) {
   std::printf(
       "%s: base height %.3f..%.3f m, worst landing %.1f mm / %.2f deg, measured ZMP margin "
-      "min %.1f mm, 1%% quantile %.1f mm, median %.1f mm (%d of %d samples within 2 mm of an edge, "
+      "min %.3f mm, 1%% quantile %.1f mm, median %.1f mm (%d of %d samples within 2 mm of an edge, "
       "%d outside)\n",
       name, r.min_base_height, r.max_base_height, 1e3 * r.worst_landing,
       r.worst_landing_yaw * 180.0 / M_PI, 1e3 * r.min_zmp_margin, 1e3 * r.MarginQuantile(0.01),

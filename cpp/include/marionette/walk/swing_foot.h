@@ -15,8 +15,8 @@
 ///   first fraction r of the swing, 1 in the middle, σ((1 − s) / r) over the last r; H moves
 ///   only in the middle, H = σ((s − r) / (1 − 2r)). Every point of the crossing is then h above
 ///   the line, so h is the highest via point above it and no higher. (A bump with h raised until
-///   it clears a via point near an end of the step went 2.5 times higher: TALOS' trailing leg,
-///   landing 3 cm past a bar, was sent 0.55 m up and saturated the stance leg's torques.)
+///   it clears a via point near an end of the step went 2.5 times higher: a humanoid's trailing
+///   leg, landing 3 cm past a bar, was sent 0.55 m up and saturated the stance leg's torques.)
 /// Both are C² and start and end at rest.
 
 #include <Eigen/Core>
@@ -55,7 +55,7 @@ class SwingFoot {
  public:
   static constexpr int kMaxVia = 4;
   /// Fraction r of a swing with via points spent rising (and as much landing): a quarter each,
-  /// the traverse the middle half (TALOS' crossings: 0.15 m up in 0.3 s, 0.5 m across in 0.6 s).
+  /// the traverse the middle half (a 1.2 s crossing: 0.15 m up in 0.3 s, 0.5 m across in 0.6 s).
   static constexpr double kRiseFraction = 0.25;
   /// `duration` > 0 [s], `height` >= 0 [m]; `via` (num_via <= kMaxVia points, world [m]) raise
   /// the height so the sole origin passes at or above each point's height wherever it is along
