@@ -77,6 +77,14 @@ MISTAKES = [
     (["demo", "ur10-box", "--perturb", "nope.yaml"], 1, "nope.yaml"),
     (["robot", "import", "nope.urdf", "--name", "x"], 1, "nope.urdf"),
     (["footsteps", "run", "--lcm-url", "garbage"], 2, "is not an LCM URL"),
+    *(
+        (["footsteps", "plan", "--mode", "step-over", "--crossing-duration", v], 1, "> 0 s")
+        for v in ("-1", "0", "nan", "inf")
+    ),
+    *(
+        (["perceive", "--robot", "none", "--max-position-sigma", v], 2, "positive number")
+        for v in ("-1", "0", "nan", "inf")
+    ),
 ]
 
 
