@@ -55,13 +55,11 @@ SwingFoot::SwingFoot(const FootPlacement& from, const FootPlacement& to, double 
   }
   delta_ = to - from;
   delta_[3] = WrapAngle(to[3] - from[3]);
-  for (int i = 0; i < num_via; ++i) {
-    if (!via[i].allFinite()) throw std::invalid_argument("SwingFoot: non-finite via point");
-  }
   rise_cross_land_ = num_via > 0;
   const Eigen::Vector2d d = delta_.head<2>();
   const double length2 = d.squaredNorm();
   for (int i = 0; i < num_via; ++i) {
+    if (!via[i].allFinite()) throw std::invalid_argument("SwingFoot: non-finite via point");
     // The crossing is level at h above the line: h clears the point where the sole passes its
     // horizontal position (a fraction of the line, clamped to the line's ends).
     const double fraction =
@@ -78,8 +76,8 @@ void SwingFoot::Profiles(double s, Blend* along, Blend* up) const {
     return;
   }
   constexpr double r = kRiseFraction, middle = 1.0 - 2.0 * r;
-  const Blend h = QuinticBlend((s - r) / middle);
-  *along = {h.value, h.rate / middle, h.acceleration / (middle * middle)};
+  const Blend across = QuinticBlend((s - r) / middle);
+  *along = {across.value, across.rate / middle, across.acceleration / (middle * middle)};
   if (s < r) {
     const Blend v = QuinticBlend(s / r);
     *up = {v.value, v.rate / r, v.acceleration / (r * r)};

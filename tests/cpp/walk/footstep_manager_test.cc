@@ -120,9 +120,8 @@ TEST(FootstepManagerTest, ZmpReferenceSitsOnTheSupportFootAndTheWindowIsTheFutur
 // The waist faces halfway between the feet through a turning walk (each foot turns by 0.3 rad
 // per step, alternately), as it stood at the start (HoldWaist: 0.02 rad of yaw off the feet's
 // mean, pitched 0.01 rad): its yaw is the mean of the feet's yaws + 0.02 at every tick, its pitch
-// stays 0.01,
-// and its yaw rate is the central difference of its yaw (1e-4 rad/s), as a reference and its
-// feed-forward must be.
+// stays 0.01, and its yaw rate is the central difference of its yaw (1e-4 rad/s), as a reference
+// and its feed-forward must be.
 TEST(FootstepManagerTest, TheWaistFacesHalfwayBetweenTheFeetAndItsRateIsItsDerivative) {
   FootstepManagerOptions options;
   options.start_delay = 0.0;

@@ -24,7 +24,7 @@
 /// both start standing where the robot is; footstep plans (FOOTSTEP_PLAN) are posted to the active
 /// controller's manager (BuiltController::walk_steps). An unset fixed reference means "hold where
 /// it is now": the reference (and a stream's initial value) is the feature's value at the tick the
-/// controller is swapped in (BuiltController:: HoldCurrent, run by the loop: no allocation), so a
+/// controller is swapped in (BuiltController::HoldCurrent, run by the loop: no allocation), so a
 /// hold never pulls towards a stale pose.
 
 #include <functional>
