@@ -238,22 +238,17 @@ def position_sigma(
     from either end's 8 cm tags, within 11-25 mm from one end and 0.9-3.1 mm from both. Depth
     is left out (it only sharpens the estimate). inf when the corners do not fix the pose."""
     p_B = np.asarray(p_B, dtype=float)
-
-    def project(X: pin.SE3) -> np.ndarray:
-        p_C = p_B @ X.rotation.T + X.translation
-        return np.column_stack(
-            [
-                intrinsics.fx * p_C[:, 0] / p_C[:, 2] + intrinsics.cx,
-                intrinsics.fy * p_C[:, 1] / p_C[:, 2] + intrinsics.cy,
-            ]
-        ).ravel()
-
-    h = 1e-6
-    J = np.empty((2 * len(p_B), 6))
-    for k in range(6):
-        step = np.zeros(6)
-        step[k] = h
-        J[:, k] = (project(X_CB * pin.exp6(step)) - project(X_CB * pin.exp6(-step))) / (2 * h)
+    R = X_CB.rotation
+    p_C = p_B @ R.T + X_CB.translation
+    x, y, z = p_C[:, 0], p_C[:, 1], p_C[:, 2]
+    # d(u, v)/dp_C per corner, and dp_C = R (dt + dθ × p_B) for a motion (dt, dθ) of the body frame
+    du = np.stack([intrinsics.fx / z, np.zeros_like(z), -intrinsics.fx * x / z**2], axis=1)
+    dv = np.stack([np.zeros_like(z), intrinsics.fy / z, -intrinsics.fy * y / z**2], axis=1)
+    d_uv = np.stack([du, dv], axis=1) @ R  # (n, 2, 3): with respect to dt in the body frame
+    skew = np.zeros((len(p_B), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -p_B[:, 2], p_B[:, 1], -p_B[:, 0]
+    skew -= skew.transpose(0, 2, 1)  # [p_B]×
+    J = np.concatenate([d_uv, -d_uv @ skew], axis=2).reshape(-1, 6)
     JtJ = J.T @ J
     if np.linalg.cond(JtJ) > 1e12:
         return math.inf
