@@ -144,7 +144,7 @@ def _common(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         help="single support [s] of the two swings over the bar (step-over; they rise, cross "
-        "level and land; default: the planner's, 1.2 s)",
+        "level and land; default: the planner's)",
     )
 
 
