@@ -415,7 +415,8 @@ struct Controller::Impl {
   void Guarded(const char* channel, Handle&& handle);
   void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
   void WatchSupervisor(bool idle);  // after each wait: raises silence_request
-  /// Waits up to WaitMs() for a message (handled) or the watched supervisor's exit; false: none.
+  /// Waits up to WaitMs() for a message or the watched supervisor's exit; true: a message waits
+  /// (the caller handles it, after collecting what the loop decided meanwhile).
   bool WaitForMessage();
   /// From a heartbeat that names its process: watch that process's exit.
   void WatchSupervisorProcess(const lcmt_command& heartbeat);

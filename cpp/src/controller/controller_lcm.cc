@@ -36,13 +36,21 @@ void Controller::Impl::LcmThread() {
                      runtime::RequestThreadPriority(kIoPriority).message);
   }
   while (!stop) {
-    const bool idle = !WaitForMessage();
-    WatchSupervisor(idle);
-    CountDriverRefusals();
-    GraphReadLease lease(graph_lease);
     try {
-      CollectSwitchDecision();
-      CollectHoldController();
+      const bool waiting = WaitForMessage();
+      {
+        // What the loop decided while this thread waited (or was kept off the CPU) is taken in
+        // before the message that came after it: a footstep plan sent on seeing the hold
+        // controller engaged goes to the hold controller, which refuses it, not to the
+        // controller it replaced. A replay collects at the end of each tick, in the same order.
+        GraphReadLease lease(graph_lease);
+        CollectSwitchDecision();
+        CollectHoldController();
+      }
+      const bool idle = !(waiting && lcm.handle() == 0);
+      WatchSupervisor(idle);
+      CountDriverRefusals();
+      GraphReadLease lease(graph_lease);
       service.CollectGarbage();
       ServeSamples();
       ServeDg();
@@ -86,16 +94,15 @@ int Controller::Impl::WaitMs() {
 }
 
 bool Controller::Impl::WaitForMessage() {
-  const int wait_ms = WaitMs();
-  if (supervisor_process.fd() < 0) return lcm.handleTimeout(wait_ms) != 0;
   pollfd ready[2] = {{lcm.getFileno(), POLLIN, 0}, {supervisor_process.fd(), POLLIN, 0}};
-  if (poll(ready, 2, wait_ms) <= 0) return false;
-  if ((ready[1].revents & (POLLIN | POLLHUP | POLLERR)) != 0) {
+  const nfds_t watched = supervisor_process.fd() < 0 ? 1 : 2;
+  if (poll(ready, watched, WaitMs()) <= 0) return false;
+  if (watched == 2 && (ready[1].revents & (POLLIN | POLLHUP | POLLERR)) != 0) {
     const int pid = supervisor_process.pid();
     supervisor_process.Stop();  // its pidfd stays readable: watched once
     SupervisorExited(pid);
   }
-  return (ready[0].revents & POLLIN) != 0 && lcm.handle() != 0;
+  return (ready[0].revents & POLLIN) != 0;
 }
 
 void Controller::Impl::WatchSupervisor(bool idle) {
