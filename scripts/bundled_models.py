@@ -10,7 +10,8 @@ scripts/generate_models.py; everything else about a robot is in its models/<robo
   drilling spindle on ``tool0`` (tip gripper ``ur10/drill``) and a two-finger parallel gripper
   on its side (gripper ``ur10/gripper``, for the box scene): one prismatic joint
   ``finger_joint`` drives the left finger; the right finger's ``finger_mimic_joint`` is fixed
-  for Pinocchio and follows it in MuJoCo (robot.yaml ``simulation.moving_mimics``).
+  for Pinocchio and follows it in MuJoCo (robot.yaml ``simulation.moving_mimics``). The
+  spindle carries a camera and three laser range-finders (:class:`SpindleSensors`).
 """
 
 from __future__ import annotations
@@ -55,6 +56,51 @@ class ParallelGripper:
 
     def grasp_z(self) -> float:
         return self.palm[2] + self.finger[2] - self.grasp_depth
+
+
+@dataclass(frozen=True)
+class SpindleSensors:
+    """The UR10 spindle's alignment sensors, frames fixed on ``drill_link`` (bit along +z, tip at
+    ``Drill().tip_z()``): as on the thesis' drilling robot, a camera on the end effector finds the
+    reference holes and laser range-finders align the tool orthogonally to the skin.
+
+    * The camera (optical frame: x right, y down, z along the view) sits beside the chuck at
+      ``camera_position`` and looks obliquely at the point of the tool axis ``standoff`` beyond
+      the bit tip, where the hole is when the tool is in place: the bit tip would hide the hole
+      from a camera nearer the axis. Its x is drill_link's x, so the image's vertical is the
+      plane holding the camera and the axis.
+    * Three beams along +z (parallel to the bit) start from a circle of ``beam_radius`` around
+      the axis (just outside the housing) at the housing's front, ``beam_z``, at azimuths
+      ``beam_azimuths_deg`` about z from x, 120 degrees apart. Equal readings mean the bit is
+      orthogonal to the skin; with the tip ``standoff`` from it they read
+      ``Drill().tip_z() + standoff - beam_z`` (0.10 m).
+    """
+
+    camera_position: tuple[float, float, float] = (0.0, 0.08, 0.18)
+    standoff: float = 0.01  # [m] bit tip to skin, the tool in place before drilling
+    beam_radius: float = 0.04
+    beam_z: float = 0.16
+    beam_azimuths_deg: tuple[float, ...] = (90.0, 210.0, 330.0)
+    camera_housing: tuple[float, float, float] = (0.03, 0.025, 0.03)  # visual box behind the lens
+
+    def target(self, drill: Drill) -> np.ndarray:
+        """The point the camera looks at, on the tool axis, in drill_link."""
+        return np.array([0.0, 0.0, drill.tip_z() + self.standoff])
+
+    def X_camera(self, drill: Drill) -> np.ndarray:
+        """X_DC: the camera's optical frame in drill_link."""
+        p = np.array(self.camera_position)
+        z = self.target(drill) - p
+        z /= np.linalg.norm(z)
+        x = np.array([1.0, 0.0, 0.0])
+        return homogeneous(np.column_stack([x, np.cross(z, x), z]), p)
+
+    def X_beams(self) -> list[np.ndarray]:
+        """X_DR per beam: the range finder's frame in drill_link, the beam along its +z."""
+        a = np.radians(self.beam_azimuths_deg)
+        r = self.beam_radius
+        # Rounded to 1e-12 m: cos(90 deg) is 6e-17, not 0.
+        return [homogeneous(p=np.round([r * np.cos(t), r * np.sin(t), self.beam_z], 12)) for t in a]
 
 
 # The example-robot-data file each bundled robot derives from (relative to its robots/ folder).
@@ -167,10 +213,31 @@ def _ur10_edits(root: ET.Element) -> None:
     _add_parallel_gripper(
         b, "drill_link", homogeneous(rot_y(-np.pi / 2), [-Drill().housing_radius, 0, 0.05])
     )
+    _add_spindle_sensors(b, SpindleSensors(), Drill())
     # Move the new root (stand_link) first so that Pinocchio and readers see it first.
     stand = next(e for e in root if e.tag == "link" and e.get("name") == "stand_link")
     root.remove(stand)
     root.insert(0, stand)
+
+
+def _add_spindle_sensors(b: UrdfBuilder, s: SpindleSensors, drill: Drill) -> None:
+    """The camera's optical frame ``spindle_camera_optical_frame`` (a visual box behind it, no
+    collision: the lens faces away from it) and the range finders' ``spindle_range_<i>_link``,
+    fixed on ``drill_link``."""
+    housing = Shape(
+        "box",
+        s.camera_housing,
+        homogeneous(p=[0, 0, -s.camera_housing[2] / 2]),
+        rgba=(0.15, 0.15, 0.17, 1),
+        collision=False,
+    )
+    b.link("spindle_camera_optical_frame", [housing])
+    b.fixed_joint(
+        "spindle_camera_joint", "drill_link", "spindle_camera_optical_frame", s.X_camera(drill)
+    )
+    for i, X in enumerate(s.X_beams()):
+        b.link(f"spindle_range_{i}_link", [])
+        b.fixed_joint(f"spindle_range_{i}_joint", "drill_link", f"spindle_range_{i}_link", X)
 
 
 def _add_parallel_gripper(b: UrdfBuilder, parent: str, X_PG: np.ndarray) -> None:

@@ -6,7 +6,7 @@ docs/robots.md) beside its URDF, SRDF and the MJCF generated from them:
 * ``<robot>.urdf`` and ``<robot>.srdf`` — what Pinocchio loads (planning, control);
 * ``<robot>.xml`` — the MJCF that MuJoCo loads, with the same joints in the same order;
 * ``robot.yaml`` — base kind, reference posture, grippers, contact surfaces, tags, feet,
-  cameras, sensors, simulation servos, calibration and walking parameters.
+  cameras, range finders, sensors, simulation servos, calibration and walking parameters.
 
 Robots are found by name in the folders of :func:`robot_search_path` (``models/`` and the
 folders of ``MARIONETTE_ROBOT_PATH``), or given as a folder path wherever a name is taken.
@@ -79,6 +79,15 @@ class Camera:
 
 
 @dataclass(frozen=True)
+class RangeFinder:
+    """A laser range finder: MuJoCo ``rangefinder`` sensor ``name``, its beam along the +z axis
+    of frame ``frame`` from its origin."""
+
+    name: str
+    frame: str
+
+
+@dataclass(frozen=True)
 class Actuator:
     """Position servo of the joints whose name starts with ``joints``:
     tau = kp (ctrl - q) - kv dq."""
@@ -122,6 +131,7 @@ class RobotDescription:
     meshes: str | None = None  # package:// URI or path of the folder <robot>/meshes links to
     feet: tuple[Foot, ...] = ()
     cameras: tuple[Camera, ...] = ()
+    range_finders: tuple[RangeFinder, ...] = ()
     force_torque_sensors: tuple[tuple[str, str], ...] = ()  # (name, link)
     imu_link: str | None = None
     actuators: tuple[Actuator, ...] = ()
@@ -272,6 +282,7 @@ def _load_robot(folder: Path) -> RobotDescription:
             for f in d.get("feet") or []
         ),
         cameras=tuple(Camera(**c) for c in d.get("cameras") or []),
+        range_finders=tuple(RangeFinder(**r) for r in d.get("range_finders") or []),
         force_torque_sensors=tuple(
             (s["name"], s["link"]) for s in d.get("force_torque_sensors") or []
         ),

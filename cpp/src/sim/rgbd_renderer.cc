@@ -150,6 +150,9 @@ RgbdRenderer::RgbdRenderer(const mjModel* model, const std::string& camera_name,
   mjv_defaultScene(&scene_);
   mjv_defaultCamera(&camera_);
   mjv_defaultOption(&option_);
+  // A camera sees no laser beam in the air: MuJoCo would draw each rangefinder's ray (colour and
+  // depth).
+  option_.flags[mjVIS_RANGEFINDER] = 0;
   mjr_defaultContext(&context_);
   camera_.type = mjCAMERA_FIXED;
   camera_.fixedcamid = camera_id_;

@@ -195,6 +195,8 @@ def robot_part(
     _add_feet(desc, tree.bodies, part)
     for sensor, link in desc.force_torque_sensors:
         _add_force_torque_sensor(tree.bodies[link], sensor, part)
+    for r in desc.range_finders:
+        _add_range_finder(tree.bodies[r.frame], r.name, part)
     if desc.imu_link is not None:
         _add_imu(tree.bodies[desc.imu_link], part)
     for tag in sem.tags:
@@ -305,6 +307,7 @@ def _check_links(desc: RobotDescription, bodies: dict[str, ET.Element], sem: Sem
         *(("contacts", c.link) for c in sem.contacts),
         *(("feet", f.frame) for f in desc.feet),
         *(("cameras", c.frame) for c in desc.cameras),
+        *(("range_finders", r.frame) for r in desc.range_finders),
         *(("force_torque_sensors", link) for _, link in desc.force_torque_sensors),
         *((("imu", desc.imu_link),) if desc.imu_link else ()),
         *(("grippers/jaws", b) for bs in desc.grip_bodies.values() for b in bs),
@@ -354,6 +357,13 @@ def _add_force_torque_sensor(body: ET.Element, name: str, part: Part) -> None:
     sub(body, "site", name=f"{name}_ft", size="0.01", group=SITE_GROUP)
     part.sensors.append(ET.Element("force", name=f"{name}_force", site=f"{name}_ft"))
     part.sensors.append(ET.Element("torque", name=f"{name}_torque", site=f"{name}_ft"))
+
+
+def _add_range_finder(body: ET.Element, name: str, part: Part) -> None:
+    """A site on the frame's origin and the rangefinder that casts its ray along the site's +z
+    (it ignores the site's own body, which is the frame's)."""
+    sub(body, "site", name=name, size="0.004", group=SITE_GROUP, rgba="0.8 0 0 1")
+    part.sensors.append(ET.Element("rangefinder", name=name, site=name))
 
 
 def _add_imu(body: ET.Element, part: Part) -> None:

@@ -198,6 +198,7 @@ def _name_findings(desc: robots.RobotDescription, model) -> list[Finding]:
         *((f"contacts/{c.name}/link", c.link) for c in sem.contacts),
         *((f"feet/{f.name}/frame", f.frame) for f in desc.feet),
         *((f"cameras/{c.name}/frame", c.frame) for c in desc.cameras),
+        *((f"range_finders/{r.name}/frame", r.frame) for r in desc.range_finders),
         *((f"force_torque_sensors/{n}/link", link) for n, link in desc.force_torque_sensors),
         *((("imu/link", desc.imu_link),) if desc.imu_link else ()),
         *((f"grippers/{g}/jaws", b) for g, bodies in desc.grip_bodies.items() for b in bodies),
