@@ -238,6 +238,10 @@ class Table(ObjectSpec):
         return Semantics("table", tags=tags, contacts=[top])
 
 
+MARKING_TOP = 3e-5  # [m] a hole's marking disc above the part's face
+MARKING_THICKNESS = 4e-5  # [m] (its bottom inside the face)
+
+
 @dataclass
 class AircraftPart(ObjectSpec):
     """A flat mock-up of an airframe panel on a stand (Nicolin 2022, §5.3.3 and ch. 6).
@@ -294,13 +298,16 @@ class AircraftPart(ObjectSpec):
         ]
         for name, p in self.hole_centres().items():
             # The hole: a dark disc flush with the face (visual only: the panel stays a box
-            # for collisions, a tool tip never has to enter it).
+            # for collisions, a tool tip never has to enter it). Its top is 30 um above the face
+            # (the ring's 15 um), enough for the depth buffer at a tool camera's 0.1 m: a disc
+            # standing h above the skin would shift the hole a camera at 45 deg finds on the
+            # skin's plane by h.
             rgba = (0.8, 0.1, 0.1, 1) if name.startswith("R") else DARK
-            X = homogeneous(rot_y(np.pi / 2), p + [0.0004, 0, 0])
+            X = homogeneous(rot_y(np.pi / 2), p + [MARKING_TOP - MARKING_THICKNESS / 2, 0, 0])
             shapes.append(
                 Shape(
                     "cylinder",
-                    (self.hole_diameter / 2, 0.001),
+                    (self.hole_diameter / 2, MARKING_THICKNESS),
                     X,
                     rgba=rgba,
                     collision=False,
@@ -308,11 +315,13 @@ class AircraftPart(ObjectSpec):
                 )
             )
             if name.startswith("R"):
-                ring = homogeneous(rot_y(np.pi / 2), p + [0.0002, 0, 0])
+                ring = homogeneous(
+                    rot_y(np.pi / 2), p + [MARKING_TOP / 2 - MARKING_THICKNESS / 2, 0, 0]
+                )
                 shapes.append(
                     Shape(
                         "cylinder",
-                        (self.hole_diameter * 1.5, 0.001),
+                        (self.hole_diameter * 1.5, MARKING_THICKNESS),
                         ring,
                         rgba=(0.95, 0.95, 0.95, 1),
                         collision=False,
