@@ -36,7 +36,8 @@ constexpr const char* kUsage = R"(usage: marionette-controller [options]
   --realtime            ask for SCHED_FIFO and mlockall (says in the log what was refused)
   --duration S          stop after S seconds of controller time (default: until SIGINT)
   --speed X             wall-clock pacing: 1 real time, 2 twice as fast, 0 unpaced (default 1)
-  --state-rate HZ       ROBOT_STATE / ROBOT_COMMAND / SIM_OBJECT_POSES rate (default 100)
+  --state-rate HZ       ROBOT_STATE / ROBOT_COMMAND / SIM_OBJECT_POSES / RANGE_FINDERS rate
+                        (default 100)
   --status-rate HZ      CONTROLLER_STATUS rate (default 10)
   --camera-rate HZ      CAMERA_HEAD rate, 0 = off (default 30)
   --camera-size WxH     camera image size (default 640x480)

@@ -43,6 +43,8 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
     q0 = started.q0;
     free_objects = std::move(started.free_objects);
     free_object_ids = std::move(started.free_object_ids);
+    range_finders = std::move(started.range_finders);
+    range_finder_adr = std::move(started.range_finder_adr);
   } else if (options.backend == "driver") {
     driver_layout = std::make_unique<DriverLayout>(MakeDriverLayout(*model, robot));
     std::string first;
@@ -137,6 +139,7 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
   model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (device ? 1 : 0), 0.0);
   model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
+  model_snapshot.range_distances.assign(range_finders.size(), -1.0);
   loop_state = model_snapshot;
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
   active_streams.reserve(kMaxTasks);
@@ -187,6 +190,11 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
     Journal(t.index, kDriverStateChannel, driver_state_hash);
   }
   if (device) device->Read(t);
+  // The range finders of the state just measured: mj_step1 (in Read) computed them with the
+  // positions q was read from; Write's extra physics steps, when the MuJoCo timestep is shorter
+  // than the tick, would leave those of an intermediate state.
+  for (size_t i = 0; i < range_finder_adr.size(); ++i)
+    loop_state.range_distances[i] = scene->data().sensordata[range_finder_adr[i]];
   graph->Evaluate(t);
   for (ReferenceStream* stream : active_streams) {
     for (int i = 0; i < stream->drained_count(); ++i) Journal(t.index, 1, stream->drained_hash(i));

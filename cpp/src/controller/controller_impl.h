@@ -47,6 +47,7 @@
 #include "marionette/lcmt_dg_request.hpp"
 #include "marionette/lcmt_entity_timings.hpp"
 #include "marionette/lcmt_object_poses.hpp"
+#include "marionette/lcmt_range_finders.hpp"
 #include "marionette/lcmt_robot_command.hpp"
 #include "marionette/lcmt_robot_state.hpp"
 #include "marionette/lcmt_sim_command.hpp"
@@ -106,9 +107,10 @@ struct Snapshot {
   int num_tasks = 0;
   std::array<double, kMaxTasks> task_error{};
   Eigen::VectorXd q, v, q_command, v_command, effort;  // sized at start-up
-  Eigen::VectorXd q_kinematics;      // what the features see: measured base, commanded joints
-  std::vector<double> wrenches;      // 6 per contact body
-  std::vector<double> object_poses;  // 7 per free object (x y z qw qx qy qz)
+  Eigen::VectorXd q_kinematics;         // what the features see: measured base, commanded joints
+  std::vector<double> wrenches;         // 6 per contact body
+  std::vector<double> object_poses;     // 7 per free object (x y z qw qx qy qz)
+  std::vector<double> range_distances;  // one per range finder [m] (-1: nothing hit)
   int64_t switches = 0, refused_switches = 0, non_finite_ticks = 0, clamped_ticks = 0;
   int64_t deadline_misses = 0;
   double realtime_factor = 0.0;
@@ -224,6 +226,8 @@ struct Controller::Impl {
       contact_frames;                     // robot.contact_bodies as Pinocchio frames (walking ZMP)
   std::vector<std::string> free_objects;  // scene bodies with a free joint (not the robot)
   std::vector<int> free_object_ids;
+  std::vector<std::string> range_finders;  // the scene's rangefinder sensors (sim_start.h)
+  std::vector<int> range_finder_adr;       // their addresses in sensordata
 
   // Loop-owned.
   std::atomic<bool> stop{false};

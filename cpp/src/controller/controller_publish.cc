@@ -1,5 +1,5 @@
-// marionette-controller's publisher thread: state, command, status and ground truth, from
-// lock-free snapshots of the loop.
+// marionette-controller's publisher thread: state, command, status, range finders and ground
+// truth, from lock-free snapshots of the loop.
 #include "controller_impl.h"
 
 namespace marionette::controller {
@@ -157,6 +157,11 @@ void Controller::Impl::PublishState(const Snapshot& s) {
   if (!free_objects.empty()) {
     const lcmt_object_poses poses = SimulatorObjectPoses(free_objects, s.object_poses, s.utime);
     lcm.publish(channels::kSimObjectPoses, &poses);
+  }
+  if (!range_finders.empty()) {
+    const lcmt_range_finders ranges =
+        RangeFinderReadings(robot.name, range_finders, s.range_distances, s.utime);
+    lcm.publish(channels::kRangeFinders, &ranges);
   }
 }
 

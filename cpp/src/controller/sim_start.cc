@@ -59,6 +59,32 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
       out.free_object_ids.push_back(b);
     }
   }
+  for (int s = 0; s < m.nsensor; ++s) {
+    if (m.sensor_type[s] != mjSENS_RANGEFINDER) continue;
+    const char* name = mj_id2name(&m, mjOBJ_SENSOR, s);
+    out.range_finders.push_back(name ? name : "rangefinder_" + std::to_string(s));
+    out.range_finder_adr.push_back(m.sensor_adr[s]);
+  }
+  if (!out.range_finders.empty() && (m.opt.disableflags & mjDSBL_SENSOR)) {
+    throw std::runtime_error(mjcf_path + " has rangefinder sensors but disables sensors");
+  }
+  if (out.range_finders.size() > static_cast<size_t>(kMaxRangeFinders)) {
+    throw std::runtime_error(mjcf_path + " has " + std::to_string(out.range_finders.size()) +
+                             " rangefinder sensors; RANGE_FINDERS carries at most " +
+                             std::to_string(kMaxRangeFinders));
+  }
+  return out;
+}
+
+lcmt_range_finders RangeFinderReadings(const std::string& robot_name,
+                                       const std::vector<std::string>& names,
+                                       const std::vector<double>& distances, int64_t utime) {
+  lcmt_range_finders out{};
+  out.utime = utime;
+  out.robot_name = robot_name;
+  out.num_sensors = static_cast<int32_t>(names.size());
+  out.name = names;
+  out.distance = distances;
   return out;
 }
 

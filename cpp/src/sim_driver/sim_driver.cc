@@ -71,7 +71,8 @@ struct Snapshot {
   int64_t taken = 0, late = 0, refused = 0, holds = 0;
   double last_hold_reaction_ms = 0.0;
   double realtime_factor = 0.0;
-  std::vector<double> object_poses;  // 7 per free object (x y z qw qx qy qz)
+  std::vector<double> object_poses;     // 7 per free object (x y z qw qx qy qz)
+  std::vector<double> range_distances;  // one per range finder [m] (-1: nothing hit)
 };
 
 // One cycle (or one late answer) for the timing log and the round-trip statistics.
@@ -98,7 +99,8 @@ struct SimDriver::Impl {
 
   // The loop's LCM: DRIVER_STATE out, DRIVER_COMMAND in (handled by the loop thread itself).
   lcm::LCM loop_lcm;
-  // SIM_COMMAND in (its own thread); DRIVER_STATUS, SIM_OBJECT_POSES, CAMERA_HEAD out.
+  // SIM_COMMAND in (its own thread); DRIVER_STATUS, SIM_OBJECT_POSES, RANGE_FINDERS, CAMERA_HEAD
+  // out.
   lcm::LCM side_lcm;
   const std::string state_channel = channels::kDriverState;
 
@@ -152,6 +154,7 @@ struct SimDriver::Impl {
   void PublisherThread();
   void PublishStatus(const Snapshot& s);
   void PublishObjectPoses(const Snapshot& s);
+  void PublishRangeFinders(const Snapshot& s);
   std::string Summary(double wall_s) const;
 };
 
@@ -209,6 +212,7 @@ SimDriver::Impl::Impl(const SimOptions& o)
   command.v = Eigen::VectorXd::Zero(model->nv);
   published_sequence.fill(-1);
   loop_state.object_poses.assign(7 * started.free_objects.size(), 0.0);
+  loop_state.range_distances.assign(started.range_finders.size(), -1.0);
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(loop_state);
   histogram.assign(kMaxRoundTripUs + 1, 0);
   last_refusal.reserve(1024);
@@ -329,6 +333,10 @@ void SimDriver::Impl::Loop() {
     // 2. The state now; efforts and wrenches of the last completed physics step.
     scene.Step1();
     scene.ReadRobotState(state.q, state.v);
+    // The range finders of this state: mj_step1 computed them (Step2's extra physics steps would
+    // leave those of an intermediate one).
+    for (size_t i = 0; i < started.range_finder_adr.size(); ++i)
+      loop_state.range_distances[i] = scene.data().sensordata[started.range_finder_adr[i]];
     state.effort = measurement->effort();
     for (int i = 0; i < measurement->num_bodies(); ++i)
       for (int k = 0; k < 6; ++k) state.wrenches[6 * i + k] = measurement->wrench(i)[k];
@@ -493,6 +501,13 @@ void SimDriver::Impl::PublishObjectPoses(const Snapshot& s) {
   side_lcm.publish(channels::kSimObjectPoses, &poses);
 }
 
+void SimDriver::Impl::PublishRangeFinders(const Snapshot& s) {
+  if (started.range_finders.empty()) return;
+  const lcmt_range_finders ranges = controller::RangeFinderReadings(
+      robot.name, started.range_finders, s.range_distances, s.utime);
+  side_lcm.publish(channels::kRangeFinders, &ranges);
+}
+
 void SimDriver::Impl::PublisherThread() {
   if (options.realtime) {
     runtime::LogLine("[sim] publisher thread ",
@@ -527,6 +542,7 @@ void SimDriver::Impl::PublisherThread() {
     const auto now = Clock::now();
     if (now >= next_state || !running) {
       if (s.cycle != last_cycle && s.cycle >= 0) PublishObjectPoses(s);
+      if (s.cycle != last_cycle && s.cycle >= 0) PublishRangeFinders(s);
       last_cycle = s.cycle;
       next_state = std::max(now, next_state + state_period);
     }

@@ -31,7 +31,7 @@ driver), holds when commands stop, and reports on DRIVER_STATUS.
                         true position
   --command-timeout S   the watchdog: run on the newest command while it is younger than S, then
                         hold where the robot is (default 0.01)
-  --state-rate HZ       SIM_OBJECT_POSES rate (default 100)
+  --state-rate HZ       SIM_OBJECT_POSES / RANGE_FINDERS rate (default 100)
   --camera-rate HZ      CAMERA_HEAD rate, 0 = off (default 30)
   --camera-size WxH     camera image size (default 640x480)
   --camera-noise GREY   Gaussian sensor noise on the images [grey levels, 1 sigma] (default 0)

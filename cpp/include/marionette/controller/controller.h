@@ -7,7 +7,8 @@
 ///   LCM thread       decodes and validates every input message, builds new controllers
 ///                    (ControllerFactory) and pushes streamed references into their streams
 ///   publisher thread ROBOT_STATE, ROBOT_COMMAND (configurable rate), CONTROLLER_STATUS (10 Hz),
-///                    SIM_OBJECT_POSES (simulator ground truth), from lock-free snapshots
+///                    SIM_OBJECT_POSES (simulator ground truth), RANGE_FINDERS (the MuJoCo
+///                    scene's rangefinder sensors, when it has some), from lock-free snapshots
 ///   camera thread    renders the head RGB-D camera from a state snapshot (CAMERA_HEAD)
 ///
 /// Persistent graph: device (MuJoCo, or a robot's driver) → measured_base → robot (RobotModel) →

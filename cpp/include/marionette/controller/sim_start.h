@@ -14,6 +14,7 @@
 
 #include "marionette/controller/robots.h"
 #include "marionette/lcmt_object_poses.hpp"
+#include "marionette/lcmt_range_finders.hpp"
 #include "marionette/lcmt_sim_command.hpp"
 #include "marionette/sim/mujoco_scene.h"
 
@@ -29,12 +30,21 @@ struct StartedScene {
   Eigen::VectorXd q0;                     ///< the robot's start configuration (Pinocchio, nq)
   std::vector<std::string> free_objects;  ///< bodies with a free joint, not the robot's base
   std::vector<int> free_object_ids;       ///< their MuJoCo body ids
+  /// The scene's rangefinder sensors (each the distance along its site's +z to the first geom,
+  /// -1 when none), in the model's order, and their addresses in mjData::sensordata.
+  std::vector<std::string> range_finders;
+  std::vector<int> range_finder_adr;
 };
+
+/// Range finders one lcmt_range_finders carries (its `num_sensors`' @max).
+inline constexpr int kMaxRangeFinders = 64;
 
 /// Loads `mjcf_path` for `model` (mapped by joint names), applies the encoder offsets, and puts
 /// it in its first state: the scene's first keyframe if it has one (scenes put the robot and the
 /// objects in place), else `reference` (ReferencePosture) with the floating base where the model
-/// file puts it, at rest. Throws std::runtime_error with MuJoCo's or the mapping's reason.
+/// file puts it, at rest. Throws std::runtime_error with MuJoCo's or the mapping's reason, or
+/// when the scene has range finders that MuJoCo would not compute (sensors disabled) or more
+/// than kMaxRangeFinders.
 StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& model,
                         const RobotInfo& robot, const Eigen::VectorXd& reference,
                         const std::vector<std::pair<std::string, double>>& encoder_offsets);
@@ -43,6 +53,12 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
 /// [us]: `names` with their poses, 7 per object in `poses` (x y z qw qx qy qz, world).
 lcmt_object_poses SimulatorObjectPoses(const std::vector<std::string>& names,
                                        const std::vector<double>& poses, int64_t utime);
+
+/// RANGE_FINDERS of robot `robot_name` at robot time `utime` [us]: `names` with their
+/// `distances` [m] (one each; -1: nothing hit).
+lcmt_range_finders RangeFinderReadings(const std::string& robot_name,
+                                       const std::vector<std::string>& names,
+                                       const std::vector<double>& distances, int64_t utime);
 
 /// What a SIM_COMMAND asks of the simulator, checked against the scene by the thread that
 /// received it, applied by the loop between two steps (ApplySimRequest).

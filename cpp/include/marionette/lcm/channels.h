@@ -22,6 +22,7 @@ inline constexpr char kSupervisorDecision[] = "SUPERVISOR_DECISION";
 inline constexpr char kPlannedPath[] = "PLANNED_PATH";
 inline constexpr char kSimCommand[] = "SIM_COMMAND";
 inline constexpr char kSimObjectPoses[] = "SIM_OBJECT_POSES";
+inline constexpr char kRangeFinders[] = "RANGE_FINDERS";
 inline constexpr char kDgRequest[] = "DG_REQUEST";
 inline constexpr char kDgReply[] = "DG_REPLY";
 inline constexpr char kDgTrace[] = "DG_TRACE";

@@ -8,14 +8,15 @@
 ///   1. the SIM_COMMAND requests received since the last cycle (move a free body, attach or
 ///      detach a weld), as the controller's mujoco backend applies them;
 ///   2. mj_step1; DRIVER_STATE k: q and v now, efforts and contact wrenches of the last completed
-///      physics step (sim::SceneMeasurement);
+///      physics step (sim::SceneMeasurement); the scene's range finders now;
 ///   3. waits for the DRIVER_COMMAND answering k: unpaced (--speed 0) until it comes (lockstep: a
 ///      split run reproduces the in-process one); paced, until 90 % of the cycle's wall period;
 ///   4. servo targets from CommandGate (command_gate.h): the answer, else the newest command
 ///      younger than --command-timeout (a late cycle), else hold where the robot was when the
 ///      hold began; mj_step2;
-///   5. SIM_OBJECT_POSES (--state-rate) and DRIVER_STATUS (10 Hz) from a publisher thread, frames
-///      for the camera thread (CAMERA_HEAD, controller::CameraStream).
+///   5. SIM_OBJECT_POSES, RANGE_FINDERS (--state-rate; with utime k's: the readings of state k)
+///      and DRIVER_STATUS (10 Hz) from a publisher thread, frames for the camera thread
+///      (CAMERA_HEAD, controller::CameraStream).
 ///
 /// Threads: the loop (physics, DRIVER_STATE out and DRIVER_COMMAND in on an LCM instance of its
 /// own: no hand-off between receipt and use), the SIM_COMMAND thread (checks signatures with a
