@@ -9,25 +9,29 @@ The procedure of §6.3 (steps 1-6), on the ``ur10_drill`` scene:
    nominal (offline) model of the part is wrong.
 2. The fixed scene camera ``scene_rgbd`` measures the part from its four AprilTags (ids 20-23):
    the frames are rendered by exact ray casting at the true part pose
-   (:mod:`marionette.perception.synthetic`; marionette-controller renders only a robot's head
-   camera and the UR10 has none) and published on ``CAMERA_SCENE_RGBD``;
+   (:mod:`marionette.perception.synthetic`; marionette-controller renders only the robot's own
+   camera, here the spindle's) and published on ``CAMERA_SCENE_RGBD``;
    ``marionette perceive`` (a separate process, camera pose from the message) publishes the
    part's pose on OBJECT_POSES. This is the thesis's "detection of the reference holes with the
    cameras" - mm-level, not 0.2 mm.
-3. Move to R1 (camera estimate), then *alignment* (step 2 of §6.3): a tool-mounted sensor (the
-   MSDR's cameras + laser range-finders, "a matter of trigonometry") measures the hole's pose in
-   the tool frame; it is modelled from the simulator's ground truth with Gaussian noise
-   (:class:`DrillSettings` ``sensor_noise_*``) and a field of view (``sensor_range_m``): a hole
-   outside it is not seen and the demo fails, as the thesis asks ("impossibility to detect the
-   reference holes"). The tool is servoed on the measurement until the sensor says aligned; the
-   aligned tool pose becomes the new reference for R1. Same for R2.
+3. Move to R1 (camera estimate), then *alignment* (step 2 of §6.3) on the tool's own sensors
+   (:class:`marionette.execution.tool_sensors.ToolSensors`, robot data of the UR10): three laser
+   range-finders parallel to the spindle (MuJoCo ``rangefinder`` sensors, published by the
+   controller on RANGE_FINDERS) give the skin's plane, the spindle camera (rendered by the
+   controller, CAMERA_HEAD, with image noise) finds the hole on it
+   (:mod:`marionette.perception.hole_sensor`): "a matter of trigonometry". No pose of the part or
+   of the hole from the simulator enters. A hole the sensors cannot measure (outside the camera's
+   view, not where expected, a laser off the skin) stops the demo with the reason, asking for an
+   operator, as the thesis asks ("impossibility to detect the reference holes"). The tool is
+   servoed on the measurement until it is aligned; the aligned tool pose becomes the new
+   reference for R1. Same for R2.
 4. Interpolation (§6.3 step 5): the part pose follows from R1, R2 and the measured hole axis
    (:func:`part_pose_from_references`), every other hole from it.
 5. Each hole is visited with the controller's tool SE3 task, rotation about the tool axis masked
    like the handles' masks (``mask: [1, 1, 1, 0, 1, 1]`` of models/objects/part.yaml); the tool
    stops ``standoff_m`` before the hole along its axis (the drill is not fed). Its position comes
-   from the interpolation, its orientation is adjusted on the surface normal the tool sensor
-   measures (§6.3 step 6, :meth:`HoleSensor.normal`).
+   from the interpolation, its orientation is adjusted on the skin's normal the range-finders
+   measure (§6.3 step 6).
 
 Every move ends with corrections on the measured tool pose (:meth:`tool_task.ToolTask.servo`): the
 joint servos of the MuJoCo arm sag under gravity by a few mm, which the controller's task does
@@ -56,7 +60,10 @@ import marionette
 from marionette import channels, lcmt_camera_image, lcmt_object_poses
 from marionette.control.client import ControllerClient, pose_to_vector
 from marionette.execution.monitor import pose_from_message
+from marionette.execution.tool_sensors import ToolSensors
 from marionette.execution.tool_task import ToolTask, tool_error, tool_target
+from marionette.models.objects import AircraftPart
+from marionette.perception.hole_sensor import HoleNotSeen, axis_rotation
 from marionette.scenarios import perturbations
 from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
 from marionette.scenarios.harness import Processes, harness
@@ -84,10 +91,9 @@ class DrillSettings:
     settle_s: float = 0.3  # controller time before a measurement ...
     still_velocity: float = 5e-4  # ... then until every joint is below this [rad/s]
     settle_timeout_s: float = 3.0  # ... or this much more time has passed
-    sensor_noise_m: float = 2e-5  # tool sensor: 0.02 mm (1 sigma per axis)
-    sensor_noise_deg: float = 0.03  # 0.03 deg (1 sigma per axis)
-    sensor_range_m: float = 0.01  # hole seen only within 1 cm of the tool axis
-    sensor_samples: int = 4  # readings averaged per measurement
+    tool_camera_rate: float = 10.0  # [Hz of controller time] spindle camera frames
+    search_radius_m: float = 0.010  # the hole is looked for this far around where expected
+    sensor_samples: int = 4  # range readings averaged per measurement
     aligned_m: float = 5e-5  # alignment stops below 0.05 mm ...
     aligned_deg: float = 0.05  # ... and 0.05 deg (sensor or kinematics)
     max_corrections: int = 10
@@ -96,9 +102,9 @@ class DrillSettings:
     angle_tolerance_deg: float = 0.5  # ... and 0.5 deg
     camera_size: tuple[int, int] = (640, 480)
     camera_frames: int = 3  # scene camera frames to measure the part on
-    camera_noise_grey: float = 2.0  # image noise [grey levels]
+    camera_noise_grey: float = 2.0  # image noise of both cameras [grey levels]
     camera: bool = True  # False: go to R1/R2 on the nominal model (offline
-    #                                        program only): the tool sensor must then fail
+    #                                        program only): the tool's sensors must then fail
 
 
 # ---- geometry --------------------------------------------------------------------------------
@@ -221,44 +227,6 @@ def _tool(client: ControllerClient, settings: DrillSettings) -> ToolTask:
     )
 
 
-class HoleSensor:
-    """The tool-mounted hole sensor of the MSDR (§6.2-6.3: cameras + laser range-finders).
-
-    :meth:`hole` gives a drilled hole's pose in the tool frame (X_tool_hole), :meth:`normal` the
-    surface's orientation at the tool (an undrilled hole: the range-finders see the surface, the
-    position comes from the interpolation). Each call averages ``sensor_samples`` readings, each
-    with Gaussian noise (``sensor_noise_m`` per axis, ``sensor_noise_deg`` per rotation axis),
-    around the simulator's ground truth; a hole farther than ``sensor_range_m`` from the tool
-    axis is not in view (None)."""
-
-    def __init__(self, settings: DrillSettings, rng: np.random.Generator) -> None:
-        self.settings, self.rng = settings, rng
-        self.readings = 0
-
-    def _read(self, X_tool_hole: pin.SE3) -> pin.SE3:
-        st = self.settings
-        n = max(1, st.sensor_samples)
-        noise = np.c_[
-            self.rng.normal(0.0, st.sensor_noise_m, (n, 3)),
-            self.rng.normal(0.0, np.radians(st.sensor_noise_deg), (n, 3)),
-        ]
-        self.readings += n
-        readings = [X_tool_hole * pin.exp6(v) for v in noise]
-        # mean on SE(3) about the first reading (the spread is tiny: one step is exact enough)
-        mean = np.mean([pin.log6(readings[0].actInv(X)).vector for X in readings], axis=0)
-        return readings[0] * pin.exp6(mean)
-
-    def hole(self, X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> pin.SE3 | None:
-        X = X_W_tool.actInv(X_W_hole)
-        if np.linalg.norm(X.translation[1:]) > self.settings.sensor_range_m:
-            return None
-        return self._read(X)
-
-    def normal(self, X_W_tool: pin.SE3, X_W_hole: pin.SE3) -> np.ndarray:
-        """Rotation R_tool_hole of the surface at the hole (its position is not measured)."""
-        return self._read(X_W_tool.actInv(X_W_hole)).rotation
-
-
 @dataclass(frozen=True, kw_only=True)
 class Drill(Scenario):
     """The drill kind: the part, the tool sensor and the tolerances in ``settings``."""
@@ -339,7 +307,9 @@ def run_drill(
     processes = Processes(
         scenario.robot,
         scene,
+        camera_rate=st.tool_camera_rate,  # the spindle camera
         status_rate=50,
+        sim_args=("--camera-noise", str(st.camera_noise_grey)),
         perceive=(
             "--robot",
             "none",
@@ -412,57 +382,54 @@ def run_drill(
             "the drill controller",
         )
 
-        # §6.3 steps 1-4: move to R1 / R2 (camera estimate), align on the tool sensor.
+        # §6.3 steps 1-4: move to R1 / R2 (camera estimate), align on the tool's sensors.
         t = time.perf_counter()
         corrected: dict[str, pin.SE3] = {}
         alignment = {}
-        sensor = HoleSensor(st, rng)
+        sensors = ToolSensors(client, tool, st.sensor_samples)
+        hole_radius = AircraftPart().hole_diameter / 2.0
         converged: dict[str, bool] = {}
+        measured: dict[str, list[dict[str, float]]] = {}
         for name in REFERENCES:
-            X_hole_true = X_WP_true * holes[name]
             X_cam_target = tool_target(X_WP_cam * holes[name], tool.pose().rotation, st.standoff_m)
             tool.move(X_cam_target, st.move_duration_s)
 
-            # the arm's sag out first (encoders): the sensor needs the hole in its view only
+            # the arm's sag out first (encoders), then the hole measured from where it stands
             def camera_target(X: pin.SE3, target: pin.SE3 = X_cam_target) -> pin.SE3:
                 return target
 
-            X, _, _ = tool.servo(camera_target)
-            if tool_error(X, X_cam_target)[0] > 0.5 * st.sensor_range_m:
-                raise ScenarioError(
-                    f"{name}: the arm does not hold the pose before the hole: tool "
-                    f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
-                    f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}"
-                )
-            lost: list[str] = []
+            tool.servo(camera_target)
+            # the hole is looked for around its last measurement (first: the camera estimate)
+            expected = [(X_WP_cam * holes[name]).translation]
+            rows: list[dict[str, float]] = []
 
-            def sensed(
-                X: pin.SE3, X_hole_true=X_hole_true, lost=lost, X_cam_target=X_cam_target
-            ) -> pin.SE3:
-                m = sensor.hole(X, X_hole_true)
-                if m is None:
-                    off = X.actInv(X_hole_true).translation
-                    lost.append(
-                        f"hole at {off[1] * 1e3:.1f}, {off[2] * 1e3:.1f} mm across the tool axis, "
-                        f"tool {tool_error(X, X_cam_target)[0] * 1e3:.2f} mm from its target"
+            def sensed(X: pin.SE3, name=name, expected=expected, rows=rows) -> pin.SE3:
+                try:
+                    m = sensors.hole(
+                        X, expected[-1], hole_radius, st.search_radius_m, client.state.utime
                     )
-                    return X  # nothing measured: stop (judged below)
-                return tool_target(X * m, X.rotation, st.standoff_m)
+                except HoleNotSeen as e:
+                    raise ScenarioError(
+                        f"{name}: the tool's sensors cannot measure the hole ({e}): alignment "
+                        "failed, an operator must locate it"
+                    ) from None
+                X_W_hole = X * m.pose()
+                expected.append(X_W_hole.translation)
+                rows.append(
+                    {"offset_mm": m.offset_m * 1e3, "area_mm2": m.area_m2 * 1e6, "pixels": m.pixels}
+                )
+                return tool_target(X_W_hole, X.rotation, st.standoff_m)
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
-            if lost:
-                raise ScenarioError(
-                    f"{name}: the tool sensor does not see the hole (more than "
-                    f"{st.sensor_range_m * 1e3:.0f} mm off the tool axis: {lost[0]}): "
-                    "alignment failed"
-                )
+            measured[name] = rows
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
             corrected[name] = pin.SE3(
                 X_aligned.rotation, X_aligned.translation + st.standoff_m * X_aligned.rotation[:, 0]
             )
             alignment[name] = k
             log(
-                f"drill: aligned on {name} after {k} corrections"
+                f"drill: aligned on {name} after {k} corrections (hole first found "
+                f"{rows[0]['offset_mm']:.2f} mm from the camera's estimate)"
                 + (
                     ""
                     if converged[f"align {name}"]
@@ -499,13 +466,19 @@ def run_drill(
         for name in order:
             X_target = tool_target(X_WP_est * holes[name], tool.pose().rotation, st.standoff_m)
             tool.move(X_target, st.move_duration_s)
-            # §6.3 step 6: position from the interpolation, orientation adjusted on the surface
-            # normal the tool sensor measures (reference holes: re-aligned on the hole itself).
+            # §6.3 step 6: position from the interpolation, orientation adjusted on the skin's
+            # normal the range-finders measure.
             X_hole_true = X_WP_true * holes[name]
             p_hole = (X_WP_est * holes[name]).translation
 
-            def adjusted(X: pin.SE3, X_hole_true=X_hole_true, p_hole=p_hole) -> pin.SE3:
-                R = X.rotation @ sensor.normal(X, X_hole_true)
+            def adjusted(X: pin.SE3, p_hole=p_hole, name=name) -> pin.SE3:
+                try:
+                    plane = sensors.plane(client.state.utime)
+                except HoleNotSeen as e:
+                    raise ScenarioError(
+                        f"{name}: the range-finders cannot see the skin ({e})"
+                    ) from None
+                R = X.rotation @ axis_rotation(-plane.normal)
                 return tool_target(pin.SE3(R, p_hole), X.rotation, st.standoff_m)
 
             _, k, converged[name] = tool.servo(adjusted)
@@ -550,7 +523,12 @@ def run_drill(
         holes=rows,
         alignment_corrections=alignment,
         timings=timings,
-        sensor_readings=sensor.readings,
+        sensor_readings={
+            "camera_frames": sensors.frames_used,
+            "range_readings": sensors.range_readings,
+            "refused_frames": len(sensors.refused_frames),
+        },
+        reference_measurements=measured,
         not_converged=not_converged,
         criteria={
             "all_holes_within_tolerance": all(r["within_tolerance"] for r in rows),

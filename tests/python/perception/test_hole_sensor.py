@@ -152,10 +152,10 @@ def test_what_the_sensor_cannot_measure_is_said():
     img = render_disc(X_FC, expected, n, expected, 2.0 * HOLE_RADIUS, rng)  # too big
     with pytest.raises(HoleNotSeen, match="not a hole"):
         find_hole(img, K, X_FC, plane, expected, HOLE_RADIUS, 0.012)
-    with pytest.raises(HoleNotSeen, match="nothing dark|not a hole"):
+    with pytest.raises(HoleNotSeen, match=r"nothing dark|not a hole"):
         find_hole(np.full((480, 640), SKIN), K, X_FC, plane, expected, HOLE_RADIUS, 0.010)
     aside = expected + np.array([0.0, 0.2, 0.0])
-    with pytest.raises(HoleNotSeen, match="view|behind"):
+    with pytest.raises(HoleNotSeen, match=r"view|behind"):
         find_hole(np.full((480, 640), SKIN), K, X_FC, plane, aside, HOLE_RADIUS, 0.010)
 
 

@@ -1,6 +1,6 @@
 """The drill demo's geometry (thesis 000 §6.3) against closed forms and brute force, without
 processes: part pose from two reference holes, the seeded displacement's bounds, the tool target,
-the scene camera, the displaced scene file and the tool sensor model."""
+the scene camera and the displaced scene file."""
 
 from __future__ import annotations
 
@@ -18,7 +18,6 @@ from marionette.scenarios.drill import (
     PART_YAML,
     SCENE,
     DrillSettings,
-    HoleSensor,
     displaced_scene,
     draw_displacement,
     part_pose_from_references,
@@ -103,24 +102,6 @@ def test_displaced_scene_carries_the_pose(tmp_path: Path):
     assert np.allclose(pin.Quaternion(w, x, y, z).matrix(), X.rotation, atol=1e-10)
     assert 'meshdir=".."' not in text and text.count('<body name="part"') == 1
     assert len(text.splitlines()) == len(SCENE.read_text().splitlines())
-
-
-def test_hole_sensor_range_and_noise():
-    st = DrillSettings()
-    sensor = HoleSensor(st, np.random.default_rng(2))
-    tool = pin.SE3.Random()
-    off_axis = tool * pin.SE3(np.eye(3), np.array([0.0, st.sensor_range_m * 1.01, 0.0]))
-    assert sensor.hole(tool, off_axis) is None
-    hole = tool * pin.SE3(pin.exp3(np.array([0.0, 0.002, 0.0])), np.array([0.01, 0.003, -0.002]))
-    truth = tool.actInv(hole)
-    errs = np.array([pin.log6(truth.actInv(sensor.hole(tool, hole))).vector for _ in range(400)])
-    # averaged readings: std sigma / sqrt(samples) per axis, unbiased
-    n = st.sensor_samples
-    assert np.allclose(errs[:, :3].std(axis=0), st.sensor_noise_m / np.sqrt(n), rtol=0.2)
-    assert np.allclose(
-        errs[:, 3:].std(axis=0), np.radians(st.sensor_noise_deg) / np.sqrt(n), rtol=0.2
-    )
-    assert np.all(np.abs(errs.mean(axis=0)) < 4 * errs.std(axis=0) / np.sqrt(400))
 
 
 def test_run_drill_refuses_a_running_controller(tmp_path: Path):
