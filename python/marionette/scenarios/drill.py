@@ -401,9 +401,9 @@ def run_drill(
             tool.servo(camera_target)
             # the hole is looked for around its last measurement (first: the camera estimate)
             expected = [(X_WP_cam * holes[name]).translation]
-            rows: list[dict[str, float]] = []
+            found: list[dict[str, float]] = []
 
-            def sensed(X: pin.SE3, name=name, expected=expected, rows=rows) -> pin.SE3:
+            def sensed(X: pin.SE3, name=name, expected=expected, found=found) -> pin.SE3:
                 try:
                     m = sensors.hole(
                         X, expected[-1], hole_radius, st.search_radius_m, client.state.utime
@@ -415,13 +415,13 @@ def run_drill(
                     ) from None
                 X_W_hole = X * m.pose()
                 expected.append(X_W_hole.translation)
-                rows.append(
+                found.append(
                     {"offset_mm": m.offset_m * 1e3, "area_mm2": m.area_m2 * 1e6, "pixels": m.pixels}
                 )
                 return tool_target(X_W_hole, X.rotation, st.standoff_m)
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
-            measured[name] = rows
+            measured[name] = found
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
             corrected[name] = pin.SE3(
                 X_aligned.rotation, X_aligned.translation + st.standoff_m * X_aligned.rotation[:, 0]
@@ -429,7 +429,7 @@ def run_drill(
             alignment[name] = k
             log(
                 f"drill: aligned on {name} after {k} corrections (hole first found "
-                f"{rows[0]['offset_mm']:.2f} mm from the camera's estimate)"
+                f"{found[0]['offset_mm']:.2f} mm from the camera's estimate)"
                 + (
                     ""
                     if converged[f"align {name}"]
