@@ -81,10 +81,12 @@ class Camera:
 @dataclass(frozen=True)
 class RangeFinder:
     """A laser range finder: MuJoCo ``rangefinder`` sensor ``name``, its beam along the +z axis
-    of frame ``frame`` from its origin."""
+    of frame ``frame`` from its origin; ``noise``: the standard deviation of its readings [m]
+    (the simulator adds it)."""
 
     name: str
     frame: str
+    noise: float = 0.0
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,6 @@ Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driv
     free_objects = std::move(started.free_objects);
     free_object_ids = std::move(started.free_object_ids);
     range_finders = std::move(started.range_finders);
-    range_finder_adr = std::move(started.range_finder_adr);
   } else if (options.backend == "driver") {
     driver_layout = std::make_unique<DriverLayout>(MakeDriverLayout(*model, robot));
     std::string first;
@@ -193,8 +192,8 @@ void Controller::Impl::LoopTick(const graph::Tick& t, runtime::LoopClock& clock)
   // The range finders of the state just measured: mj_step1 (in Read) computed them with the
   // positions q was read from; Write's extra physics steps, when the MuJoCo timestep is shorter
   // than the tick, would leave those of an intermediate state.
-  for (size_t i = 0; i < range_finder_adr.size(); ++i)
-    loop_state.range_distances[i] = scene->data().sensordata[range_finder_adr[i]];
+  if (!range_finders.empty())
+    ReadRangeFinders(range_finders, scene->data(), &range_noise, &loop_state.range_distances);
   graph->Evaluate(t);
   for (ReferenceStream* stream : active_streams) {
     for (int i = 0; i < stream->drained_count(); ++i) Journal(t.index, 1, stream->drained_hash(i));

@@ -226,11 +226,11 @@ struct Controller::Impl {
       contact_frames;                     // robot.contact_bodies as Pinocchio frames (walking ZMP)
   std::vector<std::string> free_objects;  // scene bodies with a free joint (not the robot)
   std::vector<int> free_object_ids;
-  std::vector<std::string> range_finders;  // the scene's rangefinder sensors (sim_start.h)
-  std::vector<int> range_finder_adr;       // their addresses in sensordata
+  RangeFinderSet range_finders;  // the scene's rangefinder sensors (sim_start.h)
 
   // Loop-owned.
   std::atomic<bool> stop{false};
+  std::mt19937_64 range_noise{0};  // the range finders' noise (seeded: a run reads it again)
   BuiltController* active = nullptr;
   std::vector<ReferenceStream*> active_streams;  // reserved: no allocation when swapping
   ControlMode mode = ControlMode::kHold;

@@ -160,7 +160,7 @@ void Controller::Impl::PublishState(const Snapshot& s) {
   }
   if (!range_finders.empty()) {
     const lcmt_range_finders ranges =
-        RangeFinderReadings(robot.name, range_finders, s.range_distances, s.utime);
+        RangeFinderReadings(robot.name, range_finders.names, s.range_distances, s.utime);
     lcm.publish(channels::kRangeFinders, &ranges);
   }
 }

@@ -62,8 +62,9 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
   for (int s = 0; s < m.nsensor; ++s) {
     if (m.sensor_type[s] != mjSENS_RANGEFINDER) continue;
     const char* name = mj_id2name(&m, mjOBJ_SENSOR, s);
-    out.range_finders.push_back(name ? name : "rangefinder_" + std::to_string(s));
-    out.range_finder_adr.push_back(m.sensor_adr[s]);
+    out.range_finders.names.push_back(name ? name : "rangefinder_" + std::to_string(s));
+    out.range_finders.adr.push_back(m.sensor_adr[s]);
+    out.range_finders.noise.push_back(m.sensor_noise[s]);
   }
   if (!out.range_finders.empty() && (m.opt.disableflags & mjDSBL_SENSOR)) {
     throw std::runtime_error(mjcf_path + " has rangefinder sensors but disables sensors");
@@ -74,6 +75,17 @@ StartedScene StartScene(const std::string& mjcf_path, const pinocchio::Model& mo
                              std::to_string(kMaxRangeFinders));
   }
   return out;
+}
+
+void ReadRangeFinders(const RangeFinderSet& range_finders, const mjData& d, std::mt19937_64* rng,
+                      std::vector<double>* distances) {
+  for (size_t i = 0; i < range_finders.size(); ++i) {
+    const double r = d.sensordata[range_finders.adr[i]];
+    const double sigma = range_finders.noise[i];
+    (*distances)[i] = r >= 0.0 && sigma > 0.0
+                          ? std::max(0.0, r + std::normal_distribution<double>(0.0, sigma)(*rng))
+                          : r;
+  }
 }
 
 lcmt_range_finders RangeFinderReadings(const std::string& robot_name,

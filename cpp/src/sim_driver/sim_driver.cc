@@ -91,6 +91,7 @@ struct SimDriver::Impl {
   controller::RobotInfo robot;
   sot::ModelPtr model;
   controller::StartedScene started;
+  std::mt19937_64 range_noise{0};  // the range finders' noise (loop-owned; seeded)
   controller::DriverLayout layout;
   int substeps = 1;
   std::unique_ptr<sim::SceneMeasurement> measurement;
@@ -335,8 +336,9 @@ void SimDriver::Impl::Loop() {
     scene.ReadRobotState(state.q, state.v);
     // The range finders of this state: mj_step1 computed them (Step2's extra physics steps would
     // leave those of an intermediate one).
-    for (size_t i = 0; i < started.range_finder_adr.size(); ++i)
-      loop_state.range_distances[i] = scene.data().sensordata[started.range_finder_adr[i]];
+    if (!started.range_finders.empty())
+      controller::ReadRangeFinders(started.range_finders, scene.data(), &range_noise,
+                                   &loop_state.range_distances);
     state.effort = measurement->effort();
     for (int i = 0; i < measurement->num_bodies(); ++i)
       for (int k = 0; k < 6; ++k) state.wrenches[6 * i + k] = measurement->wrench(i)[k];
@@ -504,7 +506,7 @@ void SimDriver::Impl::PublishObjectPoses(const Snapshot& s) {
 void SimDriver::Impl::PublishRangeFinders(const Snapshot& s) {
   if (started.range_finders.empty()) return;
   const lcmt_range_finders ranges = controller::RangeFinderReadings(
-      robot.name, started.range_finders, s.range_distances, s.utime);
+      robot.name, started.range_finders.names, s.range_distances, s.utime);
   side_lcm.publish(channels::kRangeFinders, &ranges);
 }
 

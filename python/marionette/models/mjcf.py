@@ -196,7 +196,7 @@ def robot_part(
     for sensor, link in desc.force_torque_sensors:
         _add_force_torque_sensor(tree.bodies[link], sensor, part)
     for r in desc.range_finders:
-        _add_range_finder(tree.bodies[r.frame], r.name, part)
+        _add_range_finder(tree.bodies[r.frame], r.name, r.noise, part)
     if desc.imu_link is not None:
         _add_imu(tree.bodies[desc.imu_link], part)
     for tag in sem.tags:
@@ -359,11 +359,15 @@ def _add_force_torque_sensor(body: ET.Element, name: str, part: Part) -> None:
     part.sensors.append(ET.Element("torque", name=f"{name}_torque", site=f"{name}_ft"))
 
 
-def _add_range_finder(body: ET.Element, name: str, part: Part) -> None:
+def _add_range_finder(body: ET.Element, name: str, noise: float, part: Part) -> None:
     """A site on the frame's origin and the rangefinder that casts its ray along the site's +z
-    (it ignores the site's own body, which is the frame's)."""
+    (it ignores the site's own body, which is the frame's); ``noise`` [m, 1 sigma] is MuJoCo's
+    declaration, which the simulator (marionette-controller, marionette-sim) adds."""
     sub(body, "site", name=name, size="0.004", group=SITE_GROUP, rgba="0.8 0 0 1")
-    part.sensors.append(ET.Element("rangefinder", name=name, site=name))
+    sensor = ET.Element("rangefinder", name=name, site=name)
+    if noise > 0.0:
+        sensor.set("noise", fmt(noise))
+    part.sensors.append(sensor)
 
 
 def _add_imu(body: ET.Element, part: Part) -> None:

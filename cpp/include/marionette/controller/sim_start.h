@@ -12,8 +12,10 @@
 #include <variant>
 #include <vector>
 
+#include <random>
 #include "marionette/controller/robots.h"
 #include "marionette/lcmt_object_poses.hpp"
+
 #include "marionette/lcmt_range_finders.hpp"
 #include "marionette/lcmt_sim_command.hpp"
 #include "marionette/sim/mujoco_scene.h"
@@ -24,17 +26,31 @@ namespace marionette::controller {
 /// marionette.robots does). Throws std::runtime_error when the SRDF has no such group_state.
 Eigen::VectorXd ReferencePosture(const pinocchio::Model& model, const RobotInfo& robot);
 
+/// A scene's rangefinder sensors (each the distance along its site's +z to the first geom, -1
+/// when none), in the model's order.
+struct RangeFinderSet {
+  std::vector<std::string> names;
+  std::vector<int> adr;       ///< their addresses in mjData::sensordata
+  std::vector<double> noise;  ///< their MJCF `noise`: 1 sigma [m]
+  bool empty() const { return names.empty(); }
+  size_t size() const { return names.size(); }
+};
+
 /// A MuJoCo scene in its first state and what the simulator knows of its objects.
 struct StartedScene {
   std::unique_ptr<sim::MujocoScene> scene;
   Eigen::VectorXd q0;                     ///< the robot's start configuration (Pinocchio, nq)
   std::vector<std::string> free_objects;  ///< bodies with a free joint, not the robot's base
   std::vector<int> free_object_ids;       ///< their MuJoCo body ids
-  /// The scene's rangefinder sensors (each the distance along its site's +z to the first geom,
-  /// -1 when none), in the model's order, and their addresses in mjData::sensordata.
-  std::vector<std::string> range_finders;
-  std::vector<int> range_finder_adr;
+  RangeFinderSet range_finders;           ///< the scene's rangefinder sensors
 };
+
+/// Reads `range_finders` from `d` into `distances` (sized to them), each with the Gaussian noise of
+/// its sensor's MJCF `noise` attribute (the standard deviation MuJoCo declares and leaves to its
+/// user: a simulated sensor adds it here) drawn from `rng`; a beam that hit nothing stays -1. No
+/// allocation.
+void ReadRangeFinders(const RangeFinderSet& range_finders, const mjData& d, std::mt19937_64* rng,
+                      std::vector<double>* distances);
 
 /// Range finders one lcmt_range_finders carries (its `num_sensors`' @max).
 inline constexpr int kMaxRangeFinders = 64;
