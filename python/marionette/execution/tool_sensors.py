@@ -62,6 +62,8 @@ class ToolSensors:
         self.frames_used = 0
         self.range_readings = 0
         self.refused_frames: list[str] = []
+        # the last hole measured: (grey image, intrinsics, X_FC, measurement), for reports
+        self.last_view: tuple[np.ndarray, object, pin.SE3, HoleMeasurement] | None = None
         client.bus.subscribe(channels.CAMERA_HEAD, lcmt_camera_image, self._on_frame)
         client.bus.subscribe(channels.RANGE_FINDERS, lcmt_range_finders, self._on_ranges)
 
@@ -154,7 +156,7 @@ class ToolSensors:
         )
         self.frames_used += 1
         X_FC, _, _ = self._in_tool(self.tool.configuration())
-        return find_hole(
+        m = find_hole(
             frame.gray,
             frame.intrinsics,
             X_FC,
@@ -163,3 +165,5 @@ class ToolSensors:
             hole_radius,
             search_radius,
         )
+        self.last_view = (frame.gray, frame.intrinsics, X_FC, m)
+        return m

@@ -68,7 +68,7 @@ from marionette.scenarios import perturbations
 from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
 from marionette.scenarios.harness import Processes, harness
 from marionette.scenarios.perturbations import place_mocap_body, write_scene
-from marionette.scenarios.report import speed_text, write_report_files
+from marionette.scenarios.report import save_figure, speed_text, write_report_files
 
 SCENE = marionette.MODELS_DIR / "scenes" / "ur10_drill.xml"
 PART_YAML = marionette.MODELS_DIR / "objects" / "part.yaml"
@@ -422,6 +422,8 @@ def run_drill(
 
             X_aligned, k, converged[f"align {name}"] = tool.servo(sensed)
             measured[name] = found
+            if sensors.last_view is not None:
+                _plot_spindle_view(out_dir, name, hole_radius, *sensors.last_view)
             # "This corrected pose of the tool becomes the new reference" (§6.3 step 2).
             corrected[name] = pin.SE3(
                 X_aligned.rotation, X_aligned.translation + st.standoff_m * X_aligned.rotation[:, 0]
@@ -581,6 +583,41 @@ def _plot(out_dir: Path, r: dict[str, Any]) -> Path:
     return out_dir / "hole_errors.png"
 
 
+def spindle_view_file(hole: str) -> str:
+    """The report's image of the spindle camera's last view of reference hole ``hole``."""
+    return f"spindle_{hole.split('/')[-1]}.png"
+
+
+def _plot_spindle_view(out_dir: Path, hole: str, radius: float, gray, K, X_FC, m) -> Path:
+    """The spindle camera's last frame around the hole it measured: the centre found (+) and the
+    rim of a hole of ``radius`` there on the measured skin (circle), both projected."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    e1 = np.cross(m.normal, [0.0, 0.0, 1.0] if abs(m.normal[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(m.normal, e1)
+    phi = np.linspace(0.0, 2.0 * np.pi, 97)
+    rim = m.centre + radius * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
+    inv = X_FC.inverse()
+    uv_rim = K.project((inv.rotation @ rim.T).T + inv.translation)
+    u, v = K.project(inv * m.centre)[0]
+    half = 80
+    fig, ax = plt.subplots(figsize=(5.2, 4.6))
+    ax.imshow(gray, cmap="gray", vmin=0, vmax=255)
+    ax.plot(uv_rim[:, 0], uv_rim[:, 1], color="tab:orange", lw=1.0, label="hole rim (measured)")
+    ax.plot([u], [v], "+", color="tab:orange", ms=14, label="centre found")
+    ax.set_xlim(u - half, u + half)
+    ax.set_ylim(v + half, v - half)
+    ax.set_xlabel("u [px]")
+    ax.set_ylabel("v [px]")
+    ax.set_title(f"spindle camera, {hole} aligned")
+    ax.legend(loc="lower right", fontsize=8)
+    return save_figure(fig, out_dir / spindle_view_file(hole))
+
+
 def _markdown(r: dict[str, Any]) -> str:
     lines = [
         f"# demo drill, seed {r['seed']}",
@@ -615,6 +652,24 @@ def _markdown(r: dict[str, Any]) -> str:
         for h in r["holes"]
     ]
     lines += ["", "![per-hole errors](hole_errors.png)", ""]
+    sensed = r.get("reference_measurements", {})
+    if sensed:
+        lines += [
+            "Spindle sensors (camera + three lasers, "
+            f"{r['sensor_readings']['camera_frames']} frames, "
+            f"{r['sensor_readings']['range_readings']} range readings): each reference hole's "
+            "measurements during its alignment, how far from where it was expected (first: the "
+            "scene camera's estimate) and the hole's area found (a hole: "
+            f"{np.pi * (1e3 * AircraftPart().hole_diameter / 2) ** 2:.1f} mm^2):",
+            "",
+            "| hole | offsets mm | areas mm^2 |",
+            "|---|---|---|",
+        ]
+        for h, rows in sensed.items():
+            offsets = ", ".join(f"{x['offset_mm']:.3f}" for x in rows)
+            areas = ", ".join(f"{x['area_mm2']:.1f}" for x in rows)
+            lines.append(f"| {h} | {offsets} | {areas} |")
+        lines += [""] + [f"![{h}]({spindle_view_file(h)})" for h in sensed] + [""]
     return "\n".join(lines)
 
 

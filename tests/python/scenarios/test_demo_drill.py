@@ -35,7 +35,14 @@ def test_demo_drill_every_hole_within_0_2_mm_0_5_deg(tmp_path, build_dir, lcm_en
         speed=2,
         timeout_s=240,
         args=("--seed", "3", "--view"),
-        files=("report.md", "hole_errors.png", "run.lcmlog", "logs/viewer.log"),
+        files=(
+            "report.md",
+            "hole_errors.png",
+            "spindle_R1.png",
+            "spindle_R2.png",
+            "run.lcmlog",
+            "logs/viewer.log",
+        ),
     )
     assert report["viewer_url"].startswith("http://")  # --view: the browser view was served
 

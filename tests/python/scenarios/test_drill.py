@@ -111,3 +111,22 @@ def test_run_drill_refuses_a_running_controller(tmp_path: Path):
         SCENARIOS["drill"].run(
             0, tmp_path, RunOptions(controller_url="udpm://239.255.76.67:7667?ttl=0")
         )
+
+
+def test_the_spindle_view_marks_the_hole_where_the_camera_sees_it(tmp_path: Path):
+    """The report's spindle image: the centre found, projected with the camera's frame, is where
+    the dark disc is in the image (its darkest pixels' centroid within 1 px)."""
+    from marionette.perception.hole_sensor import HoleMeasurement
+    from marionette.scenarios.drill import _plot_spindle_view, spindle_view_file
+
+    K = CameraIntrinsics.from_fovy(640, 480, 45.0)
+    X_FC = pin.SE3(pin.rpy.rpyToMatrix(0.3, -0.2, 0.1), np.array([-0.1, 0.02, -0.01]))
+    centre = X_FC * np.array([0.004, -0.003, 0.11])
+    u, v = K.project(X_FC.actInv(centre))[0]
+    vv, uu = np.indices((480, 640))
+    gray = np.where(np.hypot(uu - u, vv - v) < 12, 30, 160).astype(np.uint8)
+    m = HoleMeasurement(centre, X_FC.rotation @ [0, 0, -1.0], 5e-5, 450, 1e-4)
+    path = _plot_spindle_view(tmp_path, "part/R1", 0.004, gray, K, X_FC, m)
+    assert path.name == spindle_view_file("part/R1") == "spindle_R1.png" and path.stat().st_size
+    dark = gray < 100
+    assert np.hypot(uu[dark].mean() - u, vv[dark].mean() - v) < 1.0
