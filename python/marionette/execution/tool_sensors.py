@@ -47,21 +47,26 @@ class ToolSensors:
                 f"{tool.robot} has {len(desc.range_finders)} range finders (range_finders: in its "
                 "robot.yaml); a plane needs three"
             )
-        self.client, self.tool, self.samples = client, tool, max(1, samples)
-        model = tool.model
-        self._camera_frame = model.getFrameId(desc.cameras[0].frame)
-        self._beams = {r.name: model.getFrameId(r.frame) for r in desc.range_finders}
-        for name, fid in [(desc.cameras[0].frame, self._camera_frame)] + [
-            (r.frame, self._beams[r.name]) for r in desc.range_finders
-        ]:
-            if fid >= model.nframes:
-                raise ValueError(f"{tool.robot}: no frame {name} in its model")
+        self.samples = max(1, samples)
+        for frame in [desc.cameras[0].frame] + [r.frame for r in desc.range_finders]:
+            if not tool.model.existFrame(frame):
+                raise ValueError(f"{tool.robot}: no frame {frame} in its model")
+        self._beam_names = [r.name for r in desc.range_finders]
+        # Where the camera and the beams sit in the tool frame F: rigid on the tool, so the
+        # kinematics at any configuration give them.
+        X_WF = tool.tool_of(pin.neutral(tool.model))  # runs the frames' forward kinematics
+        oMf = tool.data.oMf
+        self.X_FC = X_WF.actInv(oMf[tool.model.getFrameId(desc.cameras[0].frame)])
+        beams = [X_WF.actInv(oMf[tool.model.getFrameId(r.frame)]) for r in desc.range_finders]
+        self._beam_origins = np.array([b.translation for b in beams])
+        self._beam_directions = np.array([b.rotation[:, 2] for b in beams])
         self._lock = threading.Condition()
         self._frame: Frame | None = None
         self._ranges: list[tuple[int, dict[str, float]]] = []
         self.frames_used = 0
         self.range_readings = 0
-        self.refused_frames: list[str] = []
+        self.refused_frames = 0
+        self.last_refusal = ""
         # the last hole measured: (grey image, intrinsics, X_FC, measurement), for reports
         self.last_view: tuple[np.ndarray, object, pin.SE3, HoleMeasurement] | None = None
         client.bus.subscribe(channels.CAMERA_HEAD, lcmt_camera_image, self._on_frame)
@@ -74,15 +79,14 @@ class ToolSensors:
             frame = decode_frame(msg)
         except FrameError as e:
             with self._lock:
-                self.refused_frames.append(str(e))
+                self.refused_frames += 1
+                self.last_refusal = str(e)
             return
         with self._lock:
             self._frame = frame
             self._lock.notify_all()
 
     def _on_ranges(self, msg) -> None:
-        if msg.num_sensors != len(msg.name) or msg.num_sensors != len(msg.distance):
-            return  # the bus's validation refuses lying sizes before this
         reading = dict(zip(msg.name, (float(d) for d in msg.distance)))
         with self._lock:
             self._ranges.append((int(msg.utime), reading))
@@ -99,25 +103,12 @@ class ToolSensors:
                 self._lock.wait(left)
             return value
 
-    # ---- geometry -----------------------------------------------------------------------------
-
-    def _in_tool(self, q: np.ndarray) -> tuple[pin.SE3, np.ndarray, np.ndarray]:
-        """X_FC (camera optical frame) and the beams' origins and directions (their +z) in the
-        tool frame F, from the kinematics at ``q`` (rigid: any q gives the same)."""
-        X_WF = self.tool.tool_of(q)  # runs the frames' forward kinematics
-        data = self.tool.data
-        X_FC = X_WF.actInv(data.oMf[self._camera_frame])
-        beams = [X_WF.actInv(data.oMf[f]) for f in self._beams.values()]
-        return (
-            X_FC,
-            np.array([b.translation for b in beams]),
-            np.array([b.rotation[:, 2] for b in beams]),
-        )
+    # ---- measurements -------------------------------------------------------------------------
 
     def plane(self, since_utime: int) -> Plane:
         """The skin's plane in the tool frame, from ``samples`` range readings taken at or after
         controller time ``since_utime`` (each beam's distances averaged)."""
-        names = list(self._beams)
+        names = self._beam_names
 
         def ready():
             fresh = [r for t, r in self._ranges if t >= since_utime]
@@ -131,8 +122,7 @@ class ToolSensors:
         self.range_readings += len(readings)
         # a beam that missed once missed: keep its negative reading rather than average it away
         d = np.where((distances < 0).any(axis=0), -1.0, distances.mean(axis=0))
-        _, origins, directions = self._in_tool(self.tool.configuration())
-        return skin_plane(origins, directions, d)
+        return skin_plane(self._beam_origins, self._beam_directions, d)
 
     def hole(
         self,
@@ -155,15 +145,14 @@ class ToolSensors:
             "tool camera frame (CAMERA_HEAD)",
         )
         self.frames_used += 1
-        X_FC, _, _ = self._in_tool(self.tool.configuration())
         m = find_hole(
             frame.gray,
             frame.intrinsics,
-            X_FC,
+            self.X_FC,
             plane,
             X_W_tool.actInv(np.asarray(expected_W, dtype=float)),
             hole_radius,
             search_radius,
         )
-        self.last_view = (frame.gray, frame.intrinsics, X_FC, m)
+        self.last_view = (frame.gray, frame.intrinsics, self.X_FC, m)
         return m

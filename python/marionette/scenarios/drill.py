@@ -63,7 +63,7 @@ from marionette.execution.monitor import pose_from_message
 from marionette.execution.tool_sensors import ToolSensors
 from marionette.execution.tool_task import ToolTask, tool_error, tool_target
 from marionette.models.objects import AircraftPart
-from marionette.perception.hole_sensor import HoleNotSeen, axis_rotation
+from marionette.perception.hole_sensor import HoleNotSeen, Plane, axis_rotation
 from marionette.scenarios import perturbations
 from marionette.scenarios.base import Criterion, RunOptions, Scenario, ScenarioError
 from marionette.scenarios.harness import Processes, harness
@@ -398,7 +398,13 @@ def run_drill(
             def camera_target(X: pin.SE3, target: pin.SE3 = X_cam_target) -> pin.SE3:
                 return target
 
-            tool.servo(camera_target)
+            X, _, _ = tool.servo(camera_target)
+            if tool_error(X, X_cam_target)[0] > 0.5 * st.search_radius_m:
+                raise ScenarioError(
+                    f"{name}: the arm does not hold the pose before the hole: tool "
+                    f"{tool_error(X, X_cam_target)[0] * 1e3:.1f} mm from it; actuators at "
+                    f"their torque limit: {', '.join(tool.saturated_joints()) or 'none'}"
+                )
             # the hole is looked for around its last measurement (first: the camera estimate)
             expected = [(X_WP_cam * holes[name]).translation]
             found: list[dict[str, float]] = []
@@ -528,7 +534,7 @@ def run_drill(
         sensor_readings={
             "camera_frames": sensors.frames_used,
             "range_readings": sensors.range_readings,
-            "refused_frames": len(sensors.refused_frames),
+            "refused_frames": sensors.refused_frames,
         },
         reference_measurements=measured,
         not_converged=not_converged,
@@ -596,9 +602,7 @@ def _plot_spindle_view(out_dir: Path, hole: str, radius: float, gray, K, X_FC, m
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    e1 = np.cross(m.normal, [0.0, 0.0, 1.0] if abs(m.normal[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(m.normal, e1)
+    e1, e2 = Plane(m.normal, m.centre, 0.0).basis()
     phi = np.linspace(0.0, 2.0 * np.pi, 97)
     rim = m.centre + radius * (np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2))
     inv = X_FC.inverse()

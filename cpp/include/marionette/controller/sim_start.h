@@ -7,15 +7,14 @@
 #include <Eigen/Core>
 #include <memory>
 #include <pinocchio/multibody/model.hpp>
+#include <random>
 #include <string>
 #include <utility>
 #include <variant>
 #include <vector>
 
-#include <random>
 #include "marionette/controller/robots.h"
 #include "marionette/lcmt_object_poses.hpp"
-
 #include "marionette/lcmt_range_finders.hpp"
 #include "marionette/lcmt_sim_command.hpp"
 #include "marionette/sim/mujoco_scene.h"
