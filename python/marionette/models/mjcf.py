@@ -40,6 +40,7 @@ from marionette.robots import (
 )
 
 from . import apriltag
+from .convex_parts import convex_parts
 from .semantics import Semantics
 from .urdf import Urdf, mimic_equality, parse_urdf, urdf_to_mjcf
 from .xml_util import fmt, fmt_vec, homogeneous, matrix_to_quat_wxyz, sub
@@ -162,7 +163,13 @@ def robot_part(
     # them fixed. A robot whose moving fingers would wedge its objects keeps them fixed
     # (simulation/moving_mimics: false).
     tree = urdf_to_mjcf(
-        urdf, mesh_file, f"{desc.name}/", geom_class, armature, mimics=desc.moving_mimics
+        urdf,
+        mesh_file,
+        f"{desc.name}/",
+        geom_class,
+        armature,
+        mimics=desc.moving_mimics,
+        collision_meshes=_convex_namer(desc, models_dir, hands | pads, mesh_file),
     )
     part = Part(meshes=dict(tree.meshes), equalities=[mimic_equality(j) for j in tree.mimics])
     root = tree.root
@@ -251,6 +258,30 @@ def robot_part(
     n_base = {"free_flyer": 7, "planar": 0, "fixed": 0}[desc.base]
     part.ctrl = [float(a) for a, j in zip(qpos[n_base:], layout) if j.mimic is None]
     return part
+
+
+def _convex_namer(
+    desc: RobotDescription, models_dir, hand: set[str], mesh_file: Callable[[str], str]
+) -> Callable[[str, str], list[str]]:
+    """(link, URDF mesh URI) -> the MJCF mesh files of a collision mesh: a concave mesh of a
+    ``hand`` link is given as its convex pieces (:mod:`.convex_parts`, kept in ``<robot
+    folder>/convex_meshes``); any other mesh as itself."""
+    import os
+
+    base = Path(models_dir) if models_dir is not None else desc.directory.parent
+
+    def files(link: str, uri: str) -> list[str]:
+        file = mesh_file(uri)
+        if link not in hand:
+            return [file]
+        relative = Path(os.path.relpath(base / file, desc.directory))
+        if relative.parts[0] in ("meshes", "converted_meshes"):
+            relative = Path(*relative.parts[1:])
+        stem = desc.directory / "convex_meshes" / relative.with_suffix("")
+        parts = convex_parts(base / file, stem)
+        return [Path(os.path.relpath(p, base)).as_posix() for p in parts]
+
+    return files
 
 
 def _mesh_namer(desc: RobotDescription, models_dir) -> Callable[[str], str]:

@@ -16,7 +16,8 @@ that a user bringing a robot (docs/robots.md) fixes them in one pass. The checks
    moved by its own finger joint, the links it moves with collision geometry;
 6. the reference posture exists in the SRDF, lies within the joint limits and is free of
    self-collision (the SRDF's disabled pairs apart);
-7. collision meshes of hand links far from convex are noted (MuJoCo collides their convex hull);
+7. collision meshes of hand links far from convex are noted (MuJoCo would collide their convex
+   hull; the MJCF gives them as convex pieces);
 8. the MJCF is generated (``<robot>.xml``, meshes linked or converted) and MuJoCo compiles it.
 
 A URDF whose root link is ``world`` is accepted (its MuJoCo body is renamed; a note says so).
@@ -338,11 +339,12 @@ def _reference_findings(desc: robots.RobotDescription, model, geom) -> list[Find
 
 def _hand_mesh_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
     """A note per collision mesh of a hand link (the links that touch objects in MuJoCo) that
-    fills less than HAND_MESH_MIN_FILL of its convex hull: MuJoCo collides a mesh as its convex
-    hull, which fills the gap between jaws or the inside of a hook, so objects are pushed away
-    from where the planner (exact meshes) put them."""
+    fills less than MIN_FILL of its convex hull: MuJoCo collides a mesh as its convex hull,
+    which fills the gap between jaws or the inside of a hook, so the MJCF generator gives such a
+    mesh as its convex pieces (:mod:`.convex_parts`)."""
     import trimesh
 
+    from .convex_parts import MIN_FILL, hull_fill
     from .mjcf import hand_links
 
     hands = hand_links(desc, urdf)
@@ -356,34 +358,19 @@ def _hand_mesh_findings(desc: robots.RobotDescription, urdf) -> list[Finding]:
                 mesh = trimesh.load(robots.resolve_package_uri(geometry.filename), force="mesh")
             except (FileNotFoundError, ValueError):
                 continue  # a missing mesh is the URDF check's finding
-            fill = _hull_fill(mesh)
-            if fill < HAND_MESH_MIN_FILL:
+            fill = hull_fill(mesh)
+            if fill < MIN_FILL:
                 out.append(
                     Finding(
                         "note",
                         f"{desc.urdf}: link {link}",
                         f"collision mesh {Path(geometry.filename).name} fills {fill:.0%} of its "
-                        "convex hull, which is what MuJoCo collides with objects (closing the "
-                        "gap between jaws): give the link convex pieces instead (boxes, "
-                        "cylinders, or convex meshes)",
+                        "convex hull, which is what MuJoCo would collide with objects (closing "
+                        "the gap between jaws): the MJCF gives it as convex pieces (CoACD, in "
+                        "the robot folder's convex_meshes)",
                     )
                 )
     return out
-
-
-HAND_MESH_MIN_FILL = 0.8  # a CAD mesh of a convex part fills ~95 % of its hull
-
-
-def _hull_fill(mesh) -> float:
-    """The fraction of its convex hull's volume a mesh fills: exact when it is closed, from
-    40-voxel-wide fillings otherwise."""
-    hull = mesh.convex_hull
-    if hull.volume <= 0:
-        return 1.0
-    if mesh.is_watertight:
-        return float(abs(mesh.volume) / hull.volume)
-    pitch = max(mesh.extents) / 40
-    return float(mesh.voxelized(pitch).fill().volume / hull.voxelized(pitch).fill().volume)
 
 
 def _suggest(name: str, candidates: list[str]) -> str:

@@ -233,6 +233,7 @@ def urdf_to_mjcf(
     armature: Callable[[Joint], float] = lambda j: 0.0,
     visuals: bool = False,
     mimics: bool = False,
+    collision_meshes: Callable[[str, str], list[str]] | None = None,
 ) -> MjcfTree:
     """Translate ``urdf`` into a body tree rooted at its root link (placed at the origin).
 
@@ -247,6 +248,8 @@ def urdf_to_mjcf(
     carries a
     ``<mimic>`` of a movable joint becomes an unactuated MJCF joint (listed in ``tree.mimics``)
     even when the URDF fixes it (a reduced humanoid URDF may fix its grippers' fingers).
+    ``collision_meshes(link, uri)``, when given, names the MJCF mesh files that stand for a
+    collision mesh (one geom each: a concave mesh's convex pieces); default ``[mesh_file(uri)]``.
     """
     order = {name: i for i, name in enumerate(pinocchio_link_order(urdf))}
     tree = MjcfTree(root=ET.Element("body"), meshes={}, joints=[], bodies={})
@@ -269,7 +272,10 @@ def urdf_to_mjcf(
         elif joint is not None and joint.type != "fixed":
             raise UrdfError(f"{urdf.name}: joint {joint.name} of type {joint.type} not supported")
         for g in _collision_geometries(link):
-            _add_geom(body, g, geom_class(link_name), mesh_file, mesh_prefix, tree.meshes)
+            files = None
+            if g.kind == "mesh" and collision_meshes is not None:
+                files = collision_meshes(link_name, g.filename)
+            _add_geom(body, g, geom_class(link_name), mesh_file, mesh_prefix, tree.meshes, files)
         if visuals:
             for g in link.visuals:
                 if not any(_same_geometry(g, c) for c in link.collisions):
@@ -416,19 +422,28 @@ def _add_geom(
     mesh_file: Callable[[str], str],
     mesh_prefix: str,
     meshes: dict[str, tuple[str, tuple[float, float, float]]],
+    files: list[str] | None = None,
 ) -> None:
+    """A geom for ``g`` in ``body``; a mesh given as several ``files`` gets one geom each."""
     attrs: dict[str, str | None] = {"class": cls}
     if g.name:
         attrs["name"] = g.name
     if g.kind == "mesh":
-        file = mesh_file(g.filename)
-        stem = file.rsplit(".", 1)[0]
-        name = f"{mesh_prefix}{stem}"
-        if g.scale != (1.0, 1.0, 1.0):
-            name += "_s" + "_".join(fmt(s).replace("-", "m") for s in g.scale)
-        meshes[name] = (file, g.scale)
-        attrs.update(type="mesh", mesh=name)
-    elif g.kind == "box":
+        files = files or [mesh_file(g.filename)]
+        for k, file in enumerate(files):
+            stem = file.rsplit(".", 1)[0]
+            name = f"{mesh_prefix}{stem}"
+            if g.scale != (1.0, 1.0, 1.0):
+                name += "_s" + "_".join(fmt(s).replace("-", "m") for s in g.scale)
+            meshes[name] = (file, g.scale)
+            piece = dict(attrs, type="mesh", mesh=name)
+            if g.name and len(files) > 1:
+                piece["name"] = f"{g.name}_{k}"
+            if g.rgba is not None:
+                piece["rgba"] = fmt_vec(g.rgba)
+            _set_pose(sub(body, "geom", piece), g.X_LG)
+        return
+    if g.kind == "box":
         attrs.update(type="box", size=fmt_vec(np.array(g.size) / 2))
     elif g.kind == "cylinder":
         attrs.update(type="cylinder", size=fmt_vec([g.size[0], g.size[1] / 2]))

@@ -58,8 +58,9 @@ RobotCase Robot(const std::string& name) {
   const bool moving = !(sim && sim["moving_mimics"]) || sim["moving_mimics"].as<bool>();
   std::ifstream urdf(r.urdf);
   const std::string text((std::istreambuf_iterator<char>(urdf)), std::istreambuf_iterator<char>());
-  int mimics = 0;
-  for (size_t at = text.find("<mimic"); at != std::string::npos; at = text.find("<mimic", at + 1)) {
+  int mimics = 0;  // <mimic joint=...> elements, not <transmission>'s <mimicJoint> (TALOS')
+  for (size_t at = text.find("<mimic "); at != std::string::npos;
+       at = text.find("<mimic ", at + 1)) {
     ++mimics;
   }
   return {r.name, base, r.camera, r.camera_frame, moving, mimics};

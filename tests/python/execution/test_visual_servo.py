@@ -399,9 +399,10 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
         q = traj.references["posture"][0][n]
         X_WO = p.robot_map.object_pose(traj.q_plan[n], "plank")
         qpos = scene.qpos.copy()
-        qpos[: p.model.nq] = robots.pinocchio_to_mujoco("talos", q)
+        n = robots.mujoco_nq("talos")  # the robot's block of qpos (its moving fingers included)
+        qpos[:n] = robots.pinocchio_to_mujoco("talos", q)
         quat = pin.Quaternion(X_WO.rotation)
-        qpos[p.model.nq : p.model.nq + 7] = [*X_WO.translation, quat.w, quat.x, quat.y, quat.z]
+        qpos[n : n + 7] = [*X_WO.translation, quat.w, quat.x, quat.y, quat.z]
         scene.qpos = qpos
         scene.forward()
         rgb, depth = renderer.render(scene)

@@ -35,10 +35,13 @@ def fresh(tmp_path_factory):
 
 
 def _files(root):
+    """Generated files under ``root``; meshes apart (linked, converted, or the convex pieces
+    kept beside a robot, checked against their sources in test_convex_parts.py)."""
+    skip = {"meshes", "converted_meshes", "convex_meshes"}
     return {
         p.relative_to(root).as_posix()
         for p in root.rglob("*")
-        if p.is_file() and not p.is_symlink() and "meshes" not in p.relative_to(root).parts
+        if p.is_file() and not p.is_symlink() and not skip & set(p.relative_to(root).parts)
     }
 
 

@@ -147,10 +147,11 @@ def test_talos_head_camera_in_the_plank_scene(rig):
     scene.reset_keyframe("reference")
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     qpos = scene.qpos.copy()
-    q = robots.mujoco_to_pinocchio("talos", qpos[: model.nq])
+    n = robots.mujoco_nq("talos")  # the robot's block of qpos (its moving fingers included)
+    q = robots.mujoco_to_pinocchio("talos", qpos[:n])
     for joint, value in (("torso_2_joint", 0.2), ("head_1_joint", 0.78)):
         q[model.joints[model.getJointId(joint)].idx_q] = value
-    qpos[: model.nq] = robots.pinocchio_to_mujoco("talos", q)
+    qpos[:n] = robots.pinocchio_to_mujoco("talos", q)
     scene.qpos = qpos
     scene.forward()
     renderer = sim.RgbdRenderer(scene, "head_rgbd", 640, 480)
