@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -145,10 +146,11 @@ def hinge_lever_arm(model: pin.Model, g: Gripper) -> float | None:
     return float(np.linalg.norm(p - axis * float(axis @ p)))
 
 
-def _gripper_joint(g: Gripper, model: pin.Model) -> GripperJoint:
+def _gripper_joint(g: Gripper, model: pin.Model, robot: str) -> GripperJoint:
     """The actuated joint of ``g``, which must have one with its open and closed positions; its
-    admittance parameters are robot.yaml's, and for a hinge jaw the lever arm of eq. 3.13 from
-    the kinematics (:func:`hinge_lever_arm`) unless robot.yaml gives it."""
+    admittance parameters are robot.yaml's, and unless robot.yaml gives it the lever arm of
+    eq. 3.13: by virtual work over the jaws' linkage when robot.yaml declares the jaws
+    (:func:`squeeze_lever_arm`), else the hinge's radius (:func:`hinge_lever_arm`)."""
     if g.joint is None or g.open_position is None or g.closed_position is None:
         raise SemanticsError(
             f"gripper {g.name}: joint {g.joint} needs open_position and closed_position"
@@ -160,10 +162,31 @@ def _gripper_joint(g: Gripper, model: pin.Model) -> GripperJoint:
         )
     parameters = dict(g.admittance)
     if "lever_arm" not in parameters:
-        lever_arm = hinge_lever_arm(model, g)
+        lever_arm = squeeze_lever_arm(robot, g.name)
+        if lever_arm is None:
+            lever_arm = hinge_lever_arm(model, g)
         if lever_arm is not None and lever_arm > 1e-3:
             parameters["lever_arm"] = lever_arm
     return GripperJoint(g.joint, g.open_position, g.closed_position, parameters)
+
+
+@cache
+def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
+    """The motor torque per newton of squeeze of ``gripper`` (eq. 3.13 by virtual work over its
+    jaws' linkage, mimic joints included: :func:`marionette.models.jaw.squeeze_lever_arm`) at
+    mid-stroke; None when robot.yaml declares no jaws for it."""
+    from marionette.models import jaw
+    from marionette.models.urdf import read_urdf
+
+    g = robots.semantics(robot).gripper(gripper)
+    jaws = robots.robot(robot).jaws.get(g.name)
+    if jaws is None or g.joint is None or g.open_position is None or g.closed_position is None:
+        return None
+    urdf = read_urdf(robots.robot(robot).urdf)
+    if g.joint not in urdf.joints:
+        return None
+    middle = (g.open_position + g.closed_position) / 2
+    return jaw.squeeze_lever_arm(urdf, urdf.joints[g.joint], jaws, g.pose.matrix(), g.link, middle)
 
 
 def context_from_plan(
@@ -175,7 +198,7 @@ def context_from_plan(
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
     joints = {
-        g.name: _gripper_joint(g, model)
+        g.name: _gripper_joint(g, model, robot)
         for g in semantics
         if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]
     }

@@ -1,5 +1,6 @@
 """Which limit of a finger joint closes the gripper, from the hand's geometry
-(``marionette robot import``).
+(``marionette robot import``), and the lever arm through which its motor squeezes
+(:func:`squeeze_lever_arm`, for the gripper admittance's force estimate).
 
 A jaw closes onto the rest of the hand (the fixed jaw, the other finger, the palm between them)
 and opens away from it, whatever its axis's sign: at its closed limit its surface lies nearer the
@@ -8,7 +9,8 @@ uniformly over the jaw's collision surfaces (its visual ones when it has none) t
 of the surfaces rigidly attached to the link it is mounted on, at each limit (a margin inside);
 the closed limit is the nearer one when the two means differ by more than ``DECISIVE_RATIO``.
 Joints mimicking the finger follow it (a parallel gripper's second finger, a linkage), also
-when a URDF made them fixed (then about their axis, as hinges).
+when a URDF made them fixed (then as their driver moves: about their axis for a hinge, along
+it for a slide).
 """
 
 from __future__ import annotations
@@ -73,6 +75,66 @@ def closing_limit(urdf: Urdf, finger: Joint, margin: float) -> Closing:
     return Closing(near if decisive else None, distance)
 
 
+def squeeze_lever_arm(
+    urdf: Urdf,
+    finger: Joint,
+    jaws: tuple[tuple[str, ...], tuple[str, ...]],
+    X_link_gripper: np.ndarray,
+    gripper_link: str,
+    q: float,
+) -> float | None:
+    """The motor torque per newton of squeeze [m] at ``q``: eq. 3.13's d_axis-gripper for any
+    linkage, by virtual work. The finger joint moves every jaw link through its mimics; each jaw
+    presses the object at its point :func:`pressing_points` finds, which closes at the speed
+    v_j along the gripper's y axis per unit of finger motion, so tau dq = F (|v_+| + |v_-|) dq
+    for a squeeze F on each side: the lever arm is |v_+| + |v_-| (a fixed jaw adds 0; two
+    fingers on one slide give 2, i.e. half the motor force per finger). None when the gripper's
+    link is not carried by the finger's parent or a jaw has no surface."""
+    points = pressing_points(urdf, finger, jaws, X_link_gripper, gripper_link, q)
+    if points is None:
+        return None
+    step = 1e-6  # [rad] or [m]
+    poses, moved = _poses(urdf, finger, q), _poses(urdf, finger, q + step)
+    X_GP = np.linalg.inv(poses[gripper_link] @ X_link_gripper)
+    lever = 0.0
+    for link, p in points:
+        before = _transform(X_GP @ poses[link], p[None])[0]
+        after = _transform(X_GP @ moved[link], p[None])[0]
+        lever += abs(after[1] - before[1]) / step
+    return lever
+
+
+def pressing_points(
+    urdf: Urdf,
+    finger: Joint,
+    jaws: tuple[tuple[str, ...], tuple[str, ...]],
+    X_link_gripper: np.ndarray,
+    gripper_link: str,
+    q: float,
+) -> list[tuple[str, np.ndarray]] | None:
+    """Where each jaw presses a handle held at the gripper frame, ``finger`` at ``q``: (link,
+    point in that link's frame) of the jaw's collision surface point nearest the gripper frame's
+    origin. None when the gripper's link is not carried by the finger's parent or a jaw has no
+    surface."""
+    poses = _poses(urdf, finger, q)
+    if gripper_link not in poses:
+        return None
+    X_GP = np.linalg.inv(poses[gripper_link] @ X_link_gripper)
+    out = []
+    for jaw in jaws:
+        surfaces = {link: _surface(urdf, link) for link in jaw if link in poses}
+        surfaces = {link: p for link, p in surfaces.items() if len(p)}
+        if not surfaces:
+            return None
+        distance = {
+            link: np.linalg.norm(_transform(X_GP @ poses[link], p), axis=1)
+            for link, p in surfaces.items()
+        }
+        link = min(distance, key=lambda k: distance[k].min())
+        out.append((link, surfaces[link][int(np.argmin(distance[link]))]))
+    return out
+
+
 def _poses(urdf: Urdf, finger: Joint, q: float) -> dict[str, np.ndarray]:
     """The pose of each link below ``finger``'s parent in the parent's frame, ``finger`` at
     ``q``, the joints mimicking it following it, every other joint at 0."""
@@ -87,7 +149,10 @@ def _poses(urdf: Urdf, finger: Joint, q: float) -> dict[str, np.ndarray]:
             elif j.mimic is not None and j.mimic.joint == finger.name:
                 value = j.mimic.multiplier * q + j.mimic.offset
             moves = j.type in ("revolute", "continuous", "prismatic") or j.mimic is not None
-            out[j.child] = out[parent] @ j.X_PJ @ (_motion(j, value) if moves else np.eye(4))
+            # A mimic moves as its driver does (it slides with a slide), whatever type a URDF
+            # gives it (fixed, for the controller's model).
+            kind = finger.type if j.mimic is not None and j.mimic.joint == finger.name else j.type
+            out[j.child] = out[parent] @ j.X_PJ @ (_motion(j, value, kind) if moves else np.eye(4))
             stack.append(j.child)
     return out
 
@@ -130,10 +195,11 @@ def _mesh(g: Geometry):
     return mesh
 
 
-def _motion(joint: Joint, q: float) -> np.ndarray:
-    """The child frame in the joint frame at position ``q``."""
+def _motion(joint: Joint, q: float, kind: str) -> np.ndarray:
+    """The child frame in the joint frame at position ``q``: along the axis when ``kind`` is
+    prismatic, about it otherwise."""
     X = np.eye(4)
-    if joint.type == "prismatic":
+    if kind == "prismatic":
         X[:3, 3] = joint.axis * q
         return X
     axis = joint.axis / np.linalg.norm(joint.axis)

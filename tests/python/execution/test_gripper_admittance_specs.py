@@ -125,3 +125,79 @@ def test_a_hinge_jaws_lever_arm_is_the_radius_its_handle_point_turns_on(robot, g
     pin.forwardKinematics(model, data, q)
     chord = np.linalg.norm(data.oMi[jid].act(p_jaw) - p_W)
     assert d == pytest.approx(chord / (2 * np.sin(delta / 2)), rel=1e-9)
+
+
+def _jawed_grippers():
+    return [
+        (name, g.name)
+        for name in robots.robot_names()
+        for g in robots.semantics(name).grippers
+        if g.joint is not None and g.name in robots.robot(name).jaws
+    ]
+
+
+@pytest.mark.parametrize("robot,gripper", _jawed_grippers())
+def test_the_squeeze_lever_arm_is_the_jaws_closing_speed_by_pinocchio(robot, gripper):
+    """Eq. 3.13 by virtual work over the jaws' linkage (factory.squeeze_lever_arm), against
+    Pinocchio's Jacobians on the robot's URDF with its mimic joints made movable: each jaw's
+    pressing point closes along the gripper's y at J (dq/ds), the mimics moving at their
+    multiplier; the speeds' magnitudes summed. Two fingers on one slide give exactly 2."""
+    import xml.etree.ElementTree as ET
+
+    import pinocchio as pin
+
+    from marionette.execution.factory import squeeze_lever_arm
+    from marionette.models.jaw import pressing_points
+    from marionette.models.urdf import read_urdf
+
+    desc = robots.robot(robot)
+    g = robots.semantics(robot).gripper(gripper)
+    root = ET.parse(desc.urdf).getroot()
+    driver = next(j for j in root.iter("joint") if j.get("name") == g.joint)
+    followers = {}
+    for j in root.iter("joint"):
+        m = j.find("mimic")
+        if m is not None and m.get("joint") == g.joint:
+            j.set("type", driver.get("type"))
+            if j.find("axis") is None:
+                ET.SubElement(j, "axis", xyz="1 0 0")
+            if j.find("limit") is None:
+                ET.SubElement(j, "limit", lower="-10", upper="10", effort="1", velocity="1")
+            followers[j.get("name")] = (float(m.get("multiplier", 1)), float(m.get("offset", 0)))
+    model = pin.buildModelFromXML(ET.tostring(root, encoding="unicode"))
+    middle = (g.open_position + g.closed_position) / 2
+    q = pin.neutral(model)
+    ds = np.zeros(model.nv)  # joint velocities per unit of finger motion
+    for name, (a, b) in {g.joint: (1.0, 0.0), **followers}.items():
+        joint = model.joints[model.getJointId(name)]
+        q[joint.idx_q] = a * middle + (0.0 if name == g.joint else b)
+        ds[joint.idx_v] = a
+    urdf = read_urdf(desc.urdf)
+    points = pressing_points(
+        urdf, urdf.joints[g.joint], desc.jaws[gripper], g.pose.matrix(), g.link, middle
+    )
+    assert points is not None and len(points) == 2
+    for link, p in points:
+        body = model.frames[model.getFrameId(link)]
+        model.addFrame(
+            pin.Frame(
+                f"press_{link}",
+                body.parentJoint,
+                body.placement * pin.SE3(np.eye(3), p),
+                pin.FrameType.OP_FRAME,
+            )
+        )
+    data = model.createData()
+    pin.computeJointJacobians(model, data, q)
+    pin.framesForwardKinematics(model, data, q)
+    y = data.oMf[model.getFrameId(g.link)].rotation @ g.pose.matrix()[:3, 1]
+    expected = 0.0
+    for link, _ in points:
+        J = pin.getFrameJacobian(
+            model, data, model.getFrameId(f"press_{link}"), pin.LOCAL_WORLD_ALIGNED
+        )
+        expected += abs(y @ (J[:3] @ ds))
+    lever = squeeze_lever_arm(robot, gripper)
+    assert lever == pytest.approx(expected, rel=1e-4)
+    if driver.get("type") == "prismatic" and followers:
+        assert lever == pytest.approx(2.0, rel=1e-6)
