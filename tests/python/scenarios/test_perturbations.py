@@ -66,10 +66,11 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
     from marionette import robots
 
     model, _ = robots.load_pinocchio("talos", with_collision=False)
-    q = robots.mujoco_to_pinocchio("talos", qa[: model.nq])
+    n = robots.mujoco_nq("talos")  # the robot's block of qpos (its moving fingers included)
+    q = robots.mujoco_to_pinocchio("talos", qa[:n])
     i = model.joints[model.getJointId("arm_left_1_joint")].idx_q
     q[i] += offset
-    qb[: model.nq] = robots.pinocchio_to_mujoco("talos", q)
+    qb[:n] = robots.pinocchio_to_mujoco("talos", q)
     b.qpos = qb
     b.forward()
     a.forward()
