@@ -172,9 +172,9 @@ def _gripper_joint(g: Gripper, model: pin.Model, robot: str) -> GripperJoint:
 
 @cache
 def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
-    """The motor torque per newton of squeeze of ``gripper`` (eq. 3.13 by virtual work over its
-    jaws' linkage, mimic joints included: :func:`marionette.models.jaw.squeeze_lever_arm`) at
-    mid-stroke; None when robot.yaml declares no jaws for it."""
+    """The motor torque per newton of squeeze of ``gripper`` at mid-stroke: eq. 3.13 by virtual
+    work over its jaws' linkage, mimic joints included (:class:`marionette.models.jaw.Linkage`);
+    None when robot.yaml declares no jaws for it."""
     from marionette.models import jaw
     from marionette.models.urdf import read_urdf
 
@@ -185,8 +185,8 @@ def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
     urdf = read_urdf(robots.robot(robot).urdf)
     if g.joint not in urdf.joints:
         return None
-    middle = (g.open_position + g.closed_position) / 2
-    return jaw.squeeze_lever_arm(urdf, urdf.joints[g.joint], jaws, g.pose.matrix(), g.link, middle)
+    linkage = jaw.Linkage(urdf, urdf.joints[g.joint], jaws, g.link, g.pose.matrix())
+    return linkage.squeeze_lever_arm((g.open_position + g.closed_position) / 2)
 
 
 def context_from_plan(

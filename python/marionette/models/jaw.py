@@ -1,6 +1,6 @@
 """Which limit of a finger joint closes the gripper, from the hand's geometry
 (``marionette robot import``), and the lever arm through which its motor squeezes
-(:func:`squeeze_lever_arm`, for the gripper admittance's force estimate).
+(:meth:`Linkage.squeeze_lever_arm`, for the gripper admittance's force estimate).
 
 A jaw closes onto the rest of the hand (the fixed jaw, the other finger, the palm between them)
 and opens away from it, whatever its axis's sign: at its closed limit its surface lies nearer the
@@ -75,64 +75,60 @@ def closing_limit(urdf: Urdf, finger: Joint, margin: float) -> Closing:
     return Closing(near if decisive else None, distance)
 
 
-def squeeze_lever_arm(
-    urdf: Urdf,
-    finger: Joint,
-    jaws: tuple[tuple[str, ...], tuple[str, ...]],
-    X_link_gripper: np.ndarray,
-    gripper_link: str,
-    q: float,
-) -> float | None:
-    """The motor torque per newton of squeeze [m] at ``q``: eq. 3.13's d_axis-gripper for any
-    linkage, by virtual work. The finger joint moves every jaw link through its mimics; each jaw
-    presses the object at its point :func:`pressing_points` finds, which closes at the speed
-    v_j along the gripper's y axis per unit of finger motion, so tau dq = F (|v_+| + |v_-|) dq
-    for a squeeze F on each side: the lever arm is |v_+| + |v_-| (a fixed jaw adds 0; two
-    fingers on one slide give 2, i.e. half the motor force per finger). None when the gripper's
-    link is not carried by the finger's parent or a jaw has no surface."""
-    points = pressing_points(urdf, finger, jaws, X_link_gripper, gripper_link, q)
-    if points is None:
-        return None
-    step = 1e-6  # [rad] or [m]
-    poses, moved = _poses(urdf, finger, q), _poses(urdf, finger, q + step)
-    X_GP = np.linalg.inv(poses[gripper_link] @ X_link_gripper)
-    lever = 0.0
-    for link, p in points:
-        before = _transform(X_GP @ poses[link], p[None])[0]
-        after = _transform(X_GP @ moved[link], p[None])[0]
-        lever += abs(after[1] - before[1]) / step
-    return lever
+@dataclass(frozen=True)
+class Linkage:
+    """A gripper's jaws as its finger joint moves them: ``jaws`` (the +y jaw's links, then the
+    -y jaw's), moved by ``finger`` and the joints mimicking it, and the gripper frame
+    ``X_link_gripper`` in ``gripper_link``."""
 
+    urdf: Urdf
+    finger: Joint
+    jaws: tuple[tuple[str, ...], tuple[str, ...]]
+    gripper_link: str
+    X_link_gripper: np.ndarray
 
-def pressing_points(
-    urdf: Urdf,
-    finger: Joint,
-    jaws: tuple[tuple[str, ...], tuple[str, ...]],
-    X_link_gripper: np.ndarray,
-    gripper_link: str,
-    q: float,
-) -> list[tuple[str, np.ndarray]] | None:
-    """Where each jaw presses a handle held at the gripper frame, ``finger`` at ``q``: (link,
-    point in that link's frame) of the jaw's collision surface point nearest the gripper frame's
-    origin. None when the gripper's link is not carried by the finger's parent or a jaw has no
-    surface."""
-    poses = _poses(urdf, finger, q)
-    if gripper_link not in poses:
-        return None
-    X_GP = np.linalg.inv(poses[gripper_link] @ X_link_gripper)
-    out = []
-    for jaw in jaws:
-        surfaces = {link: _surface(urdf, link) for link in jaw if link in poses}
-        surfaces = {link: p for link, p in surfaces.items() if len(p)}
-        if not surfaces:
+    def squeeze_lever_arm(self, q: float) -> float | None:
+        """The motor torque per newton of squeeze [m] at ``q``: eq. 3.13's d_axis-gripper for
+        any linkage, by virtual work. Each jaw presses the object at its point
+        :meth:`pressing_points` finds, which closes at the speed v_j along the gripper's y axis
+        per unit of finger motion, so tau dq = F (|v_+| + |v_-|) dq for a squeeze F on each
+        side: the lever arm is |v_+| + |v_-| (a fixed jaw adds 0; two fingers on one slide give
+        2, i.e. half the motor force per finger). None when :meth:`pressing_points` is."""
+        points = self.pressing_points(q)
+        if points is None:
             return None
-        distance = {
-            link: np.linalg.norm(_transform(X_GP @ poses[link], p), axis=1)
-            for link, p in surfaces.items()
-        }
-        link = min(distance, key=lambda k: distance[k].min())
-        out.append((link, surfaces[link][int(np.argmin(distance[link]))]))
-    return out
+        step = 1e-6  # [rad] or [m]
+        poses, moved = _poses(self.urdf, self.finger, q), _poses(self.urdf, self.finger, q + step)
+        X_GP = np.linalg.inv(poses[self.gripper_link] @ self.X_link_gripper)
+        lever = 0.0
+        for link, p in points:
+            before = _transform(X_GP @ poses[link], p[None])[0]
+            after = _transform(X_GP @ moved[link], p[None])[0]
+            lever += abs(after[1] - before[1]) / step
+        return lever
+
+    def pressing_points(self, q: float) -> list[tuple[str, np.ndarray]] | None:
+        """Where each jaw presses a handle held at the gripper frame, the finger at ``q``:
+        (link, point in that link's frame) of the jaw's collision surface point nearest the
+        gripper frame's origin. None when the gripper's link is not carried by the finger's
+        parent or a jaw has no surface."""
+        poses = _poses(self.urdf, self.finger, q)
+        if self.gripper_link not in poses:
+            return None
+        X_GP = np.linalg.inv(poses[self.gripper_link] @ self.X_link_gripper)
+        out = []
+        for jaw in self.jaws:
+            surfaces = {link: _surface(self.urdf, link) for link in jaw if link in poses}
+            surfaces = {link: p for link, p in surfaces.items() if len(p)}
+            if not surfaces:
+                return None
+            distance = {
+                link: np.linalg.norm(_transform(X_GP @ poses[link], p), axis=1)
+                for link, p in surfaces.items()
+            }
+            link = min(distance, key=lambda k: distance[k].min())
+            out.append((link, surfaces[link][int(np.argmin(distance[link]))]))
+        return out
 
 
 def _poses(urdf: Urdf, finger: Joint, q: float) -> dict[str, np.ndarray]:

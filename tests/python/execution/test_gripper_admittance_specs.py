@@ -147,7 +147,7 @@ def test_the_squeeze_lever_arm_is_the_jaws_closing_speed_by_pinocchio(robot, gri
     import pinocchio as pin
 
     from marionette.execution.factory import squeeze_lever_arm
-    from marionette.models.jaw import pressing_points
+    from marionette.models.jaw import Linkage
     from marionette.models.urdf import read_urdf
 
     desc = robots.robot(robot)
@@ -173,9 +173,8 @@ def test_the_squeeze_lever_arm_is_the_jaws_closing_speed_by_pinocchio(robot, gri
         q[joint.idx_q] = a * middle + (0.0 if name == g.joint else b)
         ds[joint.idx_v] = a
     urdf = read_urdf(desc.urdf)
-    points = pressing_points(
-        urdf, urdf.joints[g.joint], desc.jaws[gripper], g.pose.matrix(), g.link, middle
-    )
+    linkage = Linkage(urdf, urdf.joints[g.joint], desc.jaws[gripper], g.link, g.pose.matrix())
+    points = linkage.pressing_points(middle)
     assert points is not None and len(points) == 2
     for link, p in points:
         body = model.frames[model.getFrameId(link)]
