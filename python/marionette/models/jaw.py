@@ -87,6 +87,13 @@ class Linkage:
     gripper_link: str
     X_link_gripper: np.ndarray
 
+    def link_poses(self, q: float) -> dict[str, np.ndarray]:
+        """The pose of each link the finger's parent carries, in the gripper frame, the finger
+        at ``q`` and its mimics following it."""
+        poses = _poses(self.urdf, self.finger, q)
+        X_GP = np.linalg.inv(poses[self.gripper_link] @ self.X_link_gripper)
+        return {link: X_GP @ X for link, X in poses.items()}
+
     def squeeze_lever_arm(self, q: float) -> float | None:
         """The motor torque per newton of squeeze [m] at ``q``: eq. 3.13's d_axis-gripper for
         any linkage, by virtual work. Each jaw presses the object at its point

@@ -4,6 +4,7 @@ volume instead of its hull's."""
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import xml.etree.ElementTree as ET
@@ -118,3 +119,67 @@ def test_a_convex_mesh_stays_whole_and_a_changed_source_is_redone(tmp_path):
     record = json.loads((tmp_path / "convex" / "jaws.json").read_text())
     assert record["source_sha256"] == hashlib.sha256(jaws.read_bytes()).hexdigest()
     assert len(again) == record["parts"]
+
+
+def test_talos_fingertips_alone_close_on_the_plank_at_its_handle():
+    """The geometry the pieces fix: TALOS' left gripper at the plank's handle H1 (5.8 cm deep in
+    the 43 mm board). Closing, its fingertips reach the board's faces first and, a little past
+    that, nothing else of the hand is in the board; with each link collided as its mesh's convex
+    hull (MuJoCo's default), the inner links are in the board with the gripper still open."""
+    from marionette.models.jaw import Linkage
+    from marionette.models.objects import Plank
+    from marionette.models.urdf import read_urdf
+
+    desc = robots.robot("talos")
+    g = robots.semantics("talos").gripper("talos/left_gripper")
+    urdf = read_urdf(desc.urdf)
+    linkage = Linkage(urdf, urdf.joints[g.joint], desc.jaws[g.name], g.link, g.pose.matrix())
+    plank = Plank()
+    X_PH = next(h for h in plank.semantics().handles if h.name == "plank/H1").pose.matrix()
+    # Grasped at H1, the gripper frame is the handle's: a point p in it is X_PH p in the board.
+    half = np.array(plank.size) / 2
+
+    # Each hand link's collision pieces as the MJCF names them, and its meshes' hulls.
+    mjcf = ET.parse(desc.mjcf).getroot()
+    files = {m.get("name"): MODELS_DIR / m.get("file") for m in mjcf.iter("mesh") if m.get("file")}
+    hand = {b.get("name"): b for b in mjcf.iter("body") if b.get("name") in linkage.link_poses(0)}
+
+    @functools.cache
+    def points(link: str, hulls: bool) -> np.ndarray:
+        out = []
+        for geom in hand[link].findall("geom"):
+            mesh = trimesh.load(files[geom.get("mesh")], force="mesh")
+            if hulls:
+                manifest = files[geom.get("mesh")].with_suffix("")
+                stem = manifest.with_name(manifest.name.rsplit("_", 1)[0] + ".json")
+                if stem.is_file():  # a piece: collide the whole source mesh's hull instead
+                    record = json.loads(stem.read_text())
+                    mesh = trimesh.load(stem.parent / record["source"], force="mesh")
+                mesh = mesh.convex_hull
+            assert "pos" not in geom.attrib and "quat" not in geom.attrib
+            out.append(trimesh.sample.sample_surface_even(mesh, 4000, seed=0)[0])
+        return np.unique(np.vstack(out), axis=0)
+
+    def inside(link: str, q: float, hulls: bool, depth: float) -> bool:
+        X = X_PH @ linkage.link_poses(q)[link]
+        p = points(link, hulls) @ X[:3, :3].T + X[:3, 3]
+        return bool(np.any(np.all(np.abs(p) < half - depth, axis=1)))
+
+    fingertips = {link for jaw in desc.jaws[g.name] for link in jaw if "fingertip" in link}
+    others = set(hand) - fingertips
+
+    def first_touch(links: set[str], hulls: bool) -> float:
+        lo, hi = g.open_position, g.closed_position  # open: no contact, closed: in the board
+        for _ in range(30):
+            mid = (lo + hi) / 2
+            lo, hi = (lo, mid) if any(inside(k, mid, hulls, 0.0) for k in links) else (mid, hi)
+        return hi
+
+    q_tips = first_touch(fingertips, hulls=False)
+    assert g.closed_position < q_tips < g.open_position
+    # 0.004 rad further (each jaw ~0.3 mm deeper: 0.08 m/rad), only the fingertips are in it.
+    q_past = q_tips + 0.004 * np.sign(g.closed_position - g.open_position)
+    assert all(inside(k, q_past, False, 0.0) for k in fingertips)
+    assert not [k for k in others if inside(k, q_past, False, 0.0)]
+    # With the hulls, the inner links are in the board with the gripper still open.
+    assert [k for k in others if inside(k, g.open_position, True, 0.0)]
