@@ -246,10 +246,14 @@ def recorder_for(ctx: Any, model: pin.Model) -> GripForceRecorder | None:
     return GripForceRecorder(model, grippers) if grippers else None
 
 
-def holding_windows(steps: list, records: list, gripper: str) -> list[tuple[float, float]]:
+def holding_windows(
+    steps: list, records: list, gripper: str, t_stop: float | None = None
+) -> list[tuple[float, float]]:
     """[start, end] [s controller time] of each run of consecutive executed steps in which
     ``gripper`` holds a handle all along (its admittance closes, then holds): from the first such
-    step's start to the start of the step after the run (the release) or the last one's end."""
+    step's start to the start of the step after the run (the release) or the last one's end. A
+    run the trial stopped in (its last step started and never ended: a failed check, a lost
+    grasp) ends at ``t_stop``, when recording stopped, so that the hold that failed is judged."""
     by_index = {r.index: r for r in records if r.utime_start}
     out: list[tuple[float, float]] = []
     start = None
@@ -266,7 +270,11 @@ def holding_windows(steps: list, records: list, gripper: str) -> list[tuple[floa
             start = None
         last = r
     if start is not None and last is not None:
-        out.append((start, (last.utime_end or last.utime_start) * 1e-6))
+        if last.utime_end:
+            end = last.utime_end * 1e-6
+        else:
+            end = t_stop if t_stop is not None else last.utime_start * 1e-6
+        out.append((start, max(end, start)))
     return out
 
 

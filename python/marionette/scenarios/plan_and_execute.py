@@ -748,7 +748,7 @@ def _grip_report(
     out: dict[str, Any] = {"target_n": target, "plot": "grip_force.png", "grippers": {}}
     spans = {}
     for name in grip.grippers:
-        windows = holding_windows(steps, result.records, name)
+        windows = holding_windows(steps, result.records, name, grip.t[-1] if grip.t else None)
         spans[name] = windows
         held = []
         for (

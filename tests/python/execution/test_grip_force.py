@@ -127,6 +127,10 @@ def test_holding_windows_run_from_the_first_holding_step_to_the_release():
     ]
     assert np.allclose(holding_windows(steps, records, "g"), [(2.0, 4.0), (5.0, 5.9)])
     assert holding_windows(steps, records, "other") == []
+    # The trial stopped in step 2 (started, never ended): the hold is judged up to the stop.
+    stopped = [*records[:2], SimpleNamespace(index=2, utime_start=3_000_000, utime_end=None)]
+    assert np.allclose(holding_windows(steps, stopped, "g", t_stop=7.5), [(2.0, 7.5)])
+    assert np.allclose(holding_windows(steps, stopped, "g"), [(2.0, 3.0)])
 
 
 def test_settled_windows_start_a_second_after_the_estimate_reaches_the_threshold(ur10):
