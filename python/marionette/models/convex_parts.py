@@ -66,7 +66,8 @@ def convex_parts(source: Path, target_stem: Path) -> list[Path]:
     pieces = [] if fill >= MIN_FILL else _decompose(mesh, source)
     target_stem.parent.mkdir(parents=True, exist_ok=True)
     for old in target_stem.parent.glob(f"{target_stem.name}_*.stl"):
-        old.unlink()
+        if old.stem.removeprefix(f"{target_stem.name}_").isdigit():  # not another mesh's
+            old.unlink()
     parts = []
     for k, piece in enumerate(pieces):
         parts.append(_part(target_stem, k))

@@ -115,7 +115,10 @@ def test_a_convex_mesh_stays_whole_and_a_changed_source_is_redone(tmp_path):
     assert convex_parts(jaws, tmp_path / "convex" / "jaws") == first  # reused
     assert [p.read_bytes() for p in first] == before
     make(0.01)
+    sibling = tmp_path / "convex" / "jaws_tip_0.stl"  # another mesh's piece, kept
+    sibling.write_bytes(before[0])
     again = convex_parts(jaws, tmp_path / "convex" / "jaws")
+    assert sibling.read_bytes() == before[0]
     record = json.loads((tmp_path / "convex" / "jaws.json").read_text())
     assert record["source_sha256"] == hashlib.sha256(jaws.read_bytes()).hexdigest()
     assert len(again) == record["parts"]
