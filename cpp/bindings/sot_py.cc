@@ -122,7 +122,8 @@ void RegisterSot(py::module_& m) {
             py::arg("torque_per_effort") = o.torque_per_effort,
             py::arg("cutoff_frequency") = o.cutoff_frequency, py::arg("speed") = o.speed,
             py::arg("acceleration") = o.acceleration,
-            py::arg("closing_direction") = o.closing_direction, py::arg("task_gain") = o.task_gain);
+            py::arg("closing_direction") = o.closing_direction, py::arg("task_gain") = o.task_gain,
+            py::arg("release_after") = o.release_after, py::arg("release_rate") = o.release_rate);
       },
       "The gripper_admittance task's parameters when a spec does not give them (the "
       "controller's GripperAdmittanceOptions).");

@@ -38,7 +38,9 @@ GripperAdmittanceSpec ParseGripperAdmittance(const lcmt_task_spec& t, double gai
                                                  {"cutoff_frequency", &o.cutoff_frequency},
                                                  {"speed", &o.speed},
                                                  {"acceleration", &o.acceleration},
-                                                 {"closing_direction", &o.closing_direction}};
+                                                 {"closing_direction", &o.closing_direction},
+                                                 {"release_after", &o.release_after},
+                                                 {"release_rate", &o.release_rate}};
   for (int i = 0; i < t.num_parameters; ++i) {
     const std::string& name = t.parameter_name[i];
     const double value = t.parameter_value[i];

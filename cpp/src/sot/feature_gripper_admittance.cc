@@ -8,8 +8,10 @@
 namespace marionette::sot {
 namespace {
 
-// Indices of the machine state (phase, y, r, primed, ṙ).
-constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3, kRampRate = 4;
+// Indices of the machine state (phase, y, r, primed, ṙ, elapsed [s] since the first tick, the
+// releasing phase's force target [N]).
+constexpr int kPhase = 0, kFiltered = 1, kRamp = 2, kPrimed = 3, kRampRate = 4, kElapsed = 5,
+              kReleaseTarget = 6;
 
 bool IsAdmittance(double phase) {
   const int p = static_cast<int>(phase);
@@ -31,11 +33,15 @@ void GripperAdmittanceOptions::Check(const std::string& who) const {
   positive(lever_arm, "lever_arm");
   positive(cutoff_frequency, "cutoff_frequency");
   positive(speed, "speed");
+  positive(release_rate, "release_rate");
   positive(acceleration, "acceleration");
   positive(task_gain, "task_gain");
   positive(dt, "dt");
   if (!std::isfinite(torque_per_effort) || torque_per_effort == 0.0) {
     throw SotError(who + ": torque_per_effort must be finite and non-zero");
+  }
+  if (!(release_after >= 0.0) || !std::isfinite(release_after)) {
+    throw SotError(who + ": release_after must be >= 0 s, got " + std::to_string(release_after));
   }
   if (closing_direction != 1.0 && closing_direction != -1.0) {
     throw SotError(who + ": closing_direction must be +1 or -1, got " +
@@ -77,9 +83,12 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
       &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
-  Eigen::VectorXd initial(5);
-  initial << static_cast<double>(release ? GripperPhase::kReleasing : GripperPhase::kClosing), 0.0,
-      0.0, 0.0, 0.0;
+  // A releasing task that waits first starts by holding what the previous controller held.
+  const GripperPhase first = !release                         ? GripperPhase::kClosing
+                             : options_.release_after > 0.0 ? GripperPhase::kHolding
+                                                            : GripperPhase::kReleasing;
+  Eigen::VectorXd initial(7);
+  initial << static_cast<double>(first), 0.0, 0.0, 0.0, 0.0, 0.0, options_.force_target;
   force_ = &DeclareOutput<double>("force", 0.0, &FeatureGripperAdmittance::CalcForce, {effort_});
   machine_ =
       &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
@@ -111,6 +120,15 @@ void FeatureGripperAdmittance::CalcForce(const graph::Tick& t, double* out) cons
          options_.lever_arm;
 }
 
+double FeatureGripperAdmittance::AdmittanceTarget(const Eigen::VectorXd& x, double y) const {
+  if (static_cast<int>(x[kPhase]) == static_cast<int>(GripperPhase::kHolding)) {
+    return options_.force_target;
+  }
+  // Releasing: from the force held (the first tick of a releasing controller: y itself, so the
+  // command does not step), down at release_rate.
+  return x[kPrimed] != 0.0 ? x[kReleaseTarget] : std::clamp(y, 0.0, options_.force_target);
+}
+
 double FeatureGripperAdmittance::FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const {
   return x[kPrimed] != 0.0 ? x[kFiltered] : force_->Eval(t);
 }
@@ -137,11 +155,9 @@ void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematic
   phase_->Eval(t);
   measured_position_->Eval(t);
   if (IsAdmittance(x[kPhase])) {
-    const double f_target = static_cast<int>(x[kPhase]) == static_cast<int>(GripperPhase::kHolding)
-                                ? options_.force_target
-                                : 0.0;
     // λ e = s K_a (y − f*)  →  the task's v = −λ e = s K_a (f* − y).
     const double y = force_filtered_->Eval(t);
+    const double f_target = AdmittanceTarget(x, y);
     full->error[0] =
         options_.closing_direction * options_.admittance_gain * (y - f_target) / options_.task_gain;
     full->drift[0] = 0.0;
@@ -159,7 +175,8 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   const double f = force_->Eval(t);
   const double y = FilteredNow(t, x);
   const double y_next = y + alpha_ * (f - y);
-  const bool release = release_->Eval(t);
+  const double elapsed = x[kElapsed] + options_.dt;
+  const bool release = release_->Eval(t) && elapsed > options_.release_after;
   const double target = position_target_->Eval(t);
   int phase = static_cast<int>(x[kPhase]);
   double r = x[kPrimed] != 0.0 ? x[kRamp] : q;
@@ -167,9 +184,7 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   if (IsAdmittance(phase)) {
     // Where the command goes this tick (v = −λ e of ComputeFull), so a switch back to position
     // control starts its ramp on the joint and at its speed: no jump in the error or the command.
-    const double f_target =
-        phase == static_cast<int>(GripperPhase::kHolding) ? options_.force_target : 0.0;
-    rate = options_.closing_direction * options_.admittance_gain * (f_target - y);
+    rate = options_.closing_direction * options_.admittance_gain * (AdmittanceTarget(x, y) - y);
     r = q + options_.dt * rate;
   } else {
     rate = RampRate(r, rate, target);
@@ -199,6 +214,16 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   (*next)[kRamp] = r;
   (*next)[kPrimed] = 1.0;
   (*next)[kRampRate] = rate;
+  (*next)[kElapsed] = elapsed;
+  // The releasing target starts at the force held when the phase begins and ramps to 0 N: a step
+  // to 0 N would step the command by K_a f* (0.1 rad/s), what a controller switch refuses.
+  double release_target = options_.force_target;
+  if (phase == static_cast<int>(GripperPhase::kReleasing)) {
+    release_target = x[kPhase] == static_cast<double>(GripperPhase::kReleasing)
+                         ? std::max(0.0, AdmittanceTarget(x, y) - options_.release_rate * options_.dt)
+                         : std::clamp(y, 0.0, options_.force_target);
+  }
+  (*next)[kReleaseTarget] = release_target;
 }
 
 }  // namespace marionette::sot

@@ -61,6 +61,7 @@ struct Bench {
   graph::OutputSignal<Eigen::VectorXd>* velocity = nullptr;  // the solver's command (nv = 1)
   graph::Tick tick;
   int fingertip = -1;
+  double command = 0.0;  // the gripper velocity the last tick commanded [rad/s]
 
   explicit Bench(bool with_block, GripperAdmittanceOptions options = {}) {
     const mjModel& m = scene->model();
@@ -95,6 +96,7 @@ struct Bench {
     device->Read(tick);
     graph->Evaluate(tick);
     device->Write(tick);
+    command = velocity->Eval(tick)[0];
     ++tick;
   }
   // The state machine after the last tick (committed): phase and filtered force y.
@@ -236,6 +238,63 @@ TEST(GripperAdmittanceTest, ReleaseGoesThroughAdmittanceThenOpens) {
   EXPECT_EQ(bench.ContactForce(), 0.0);
 }
 
+TEST(GripperAdmittanceTest, ReleasingControllerStartsWithoutACommandStep) {
+  // A controller switch refuses a command that jumps by more than 0.1 rad/s: a releasing task
+  // that stepped its force target from 5 N to 0 N stepped the command by K_a f* = 0.1 rad/s.
+  // The target ramps from the force held instead, so the command moves by little per tick.
+  Bench bench(/*with_block=*/true);
+  while (bench.tick.index < 10000) bench.Step();
+  ASSERT_EQ(bench.Phase(), 1.0);
+  double before = bench.command;
+  bench.feature->release_input().SetValue(true);
+  bench.feature->position_target_input().SetValue(kOpen);
+  double largest_step = 0.0;
+  while (bench.tick.index < 11000) {
+    bench.Step();
+    const double v = bench.command;
+    largest_step = std::max(largest_step, std::abs(v - before));
+    before = v;
+  }
+  EXPECT_LT(largest_step, 0.01) << "rad/s between two ticks";
+  EXPECT_NE(bench.Phase(), 1.0);
+}
+
+TEST(GripperAdmittanceTest, ReleaseAfterHoldsTheGripThatLongFirst) {
+  // A hand-over: the releasing gripper keeps squeezing until `release_after` seconds of its task
+  // have passed (the other gripper closes meanwhile), then releases as above.
+  GripperAdmittanceOptions options;
+  options.release_after = 12.0;
+  Bench bench(/*with_block=*/true, options);
+  while (bench.tick.index < 10000) bench.Step();
+  ASSERT_EQ(bench.Phase(), 1.0);
+  bench.feature->release_input().SetValue(true);
+  bench.feature->position_target_input().SetValue(kOpen);
+  while (bench.tick.index < 11990) {
+    bench.Step();
+    ASSERT_EQ(bench.Phase(), 1.0) << "released at tick " << bench.tick.index << " before 12 s";
+  }
+  EXPECT_NEAR(bench.ContactForce(), options.force_target, 1.0) << "still squeezing at 12 s";
+  bool saw_releasing = false;
+  while (bench.tick.index < 24000) {
+    bench.Step();
+    if (bench.Phase() == 2.0) saw_releasing = true;
+  }
+  EXPECT_TRUE(saw_releasing);
+  EXPECT_EQ(bench.Phase(), 3.0);
+  EXPECT_NEAR(bench.JointPosition(), kOpen, 2e-3);
+}
+
+TEST(GripperAdmittanceTest, AReleasingTaskThatWaitsStartsByHolding) {
+  // Its first phase is holding (what the previous controller held), not releasing.
+  const ModelPtr model = BenchModel();
+  GripperAdmittanceOptions o;
+  o.release_after = 1.0;
+  FeatureGripperAdmittance waits("g", model, "gripper_right_joint", kOpen, true, o);
+  EXPECT_EQ(waits.phase_output().Eval(graph::Tick{}), 1.0);
+  FeatureGripperAdmittance now("g", model, "gripper_right_joint", kOpen, true, {});
+  EXPECT_EQ(now.phase_output().Eval(graph::Tick{}), 2.0);
+}
+
 TEST(GripperAdmittanceTest, RejectsBadOptionsWithTheirNames) {
   const ModelPtr model = BenchModel();
   GripperAdmittanceOptions o;
@@ -253,6 +312,10 @@ TEST(GripperAdmittanceTest, RejectsBadOptionsWithTheirNames) {
   EXPECT_THROW(FeatureGripperAdmittance("g", model, "gripper_right_joint", kClosed, false, o),
                SotError);
   EXPECT_THROW(FeatureGripperAdmittance("g", model, "no_such_joint", kClosed, false, {}), SotError);
+  o = {};
+  o.release_after = -1.0;
+  EXPECT_THROW(FeatureGripperAdmittance("g", model, "gripper_right_joint", kOpen, true, o),
+               SotError);
 }
 
 }  // namespace

@@ -10,7 +10,9 @@
 ///   parameters   (all optional; GripperAdmittanceOptions' defaults)
 ///     force_target [N], force_threshold [N], release_force [N], admittance_gain [rad/(s N)],
 ///     lever_arm [m], torque_per_effort [N m per effort unit], cutoff_frequency [Hz],
-///     speed [rad/s], acceleration [rad/s²], closing_direction (+1 | -1), release (0 | 1)
+///     speed [rad/s], acceleration [rad/s²], closing_direction (+1 | -1), release (0 | 1),
+///     release_after [s] (a releasing task holds the grip that long first: a hand-over),
+///     release_rate [N/s] (the releasing force target's ramp to 0 N)
 
 #include <string>
 

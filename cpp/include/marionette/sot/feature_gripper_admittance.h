@@ -13,9 +13,12 @@
 ///   0 closing    position control towards `position_target` along a ramp (speed, acceleration);
 ///                y > force_threshold → 1
 ///   1 holding    admittance   q̇ = s K_a (f* − y)
-///   2 releasing  admittance   q̇ = s K_a (0 − y);  y < release_force → 3
+///   2 releasing  admittance   q̇ = s K_a (f_r − y), f_r ramped from the force held to 0 N at
+///                release_rate;  y < release_force → 3
 ///   3 opening    position control towards `position_target` (the open position)
 ///   `release` true moves 0/1 to 2 (or straight to 3 when y < release_force); false moves 3 to 0.
+///   With `release_after` > 0 a releasing task starts in 1 and holds f* for that long first (a
+///   hand-over: the other gripper closes on the object meanwhile), counted from its first tick.
 /// As a feature (1 row, J = unit row of the joint, ė = J v + ∂e/∂t):
 ///   position phases   e = q − r (r the ramp),       ∂e/∂t = −ṙ      (the task gives v = ṙ − λe)
 ///   admittance phases e = s K_a (y − f*) / λ,       ∂e/∂t = 0       (the task gives v = s K_a (f*
@@ -25,7 +28,7 @@
 /// @entity  inputs: kinematics (q: the commanded joint), effort (nv, actuator force/torque per
 ///          dof, MujocoDevice.effort), q_measured (nq, for reporting; default: unplugged = none),
 ///          position_target (settable), release (bool, settable)
-///          states: machine (phase, y, r, primed, ṙ)
+///          states: machine (phase, y, r, primed, ṙ, elapsed, f_r)
 ///          outputs: terms, error, jacobian, force (f̂ [N] unfiltered), force_filtered (y [N]),
 ///          phase, measured_position (the joint in q_measured [rad])
 
@@ -49,6 +52,8 @@ struct GripperAdmittanceOptions {
                        ///< damping it costs read as force)
   double acceleration = 1.0;  ///< [rad/s²] of the ramp (starts and stops without a velocity step)
   double closing_direction = -1.0;  ///< s: sign of q̇ when closing (−1 when closed < open)
+  double release_after = 0.0;  ///< [s] a releasing task holds the grip this long before releasing
+  double release_rate = 10.0;  ///< [N/s] the releasing force target's ramp to 0 N
   double task_gain = 2.0;           ///< λ [1/s] of the Task that reads this feature
   double dt = 1e-3;                 ///< control period [s]
   /// Throws SotError naming `who` when a value is out of range.
@@ -95,6 +100,8 @@ class FeatureGripperAdmittance final : public Feature {
   // Filtered force y this tick: the state, or f̂ itself on the first tick (the filter starts at
   // the current force, so a releasing controller starts from the force being held).
   double FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const;
+  // The force target [N] of an admittance phase in state x, y the filtered force this tick.
+  double AdmittanceTarget(const Eigen::VectorXd& x, double y) const;
 
   GripperAdmittanceOptions options_;
   double alpha_;
@@ -103,7 +110,7 @@ class FeatureGripperAdmittance final : public Feature {
   graph::InputSignal<Eigen::VectorXd>* q_measured_{};
   graph::InputSignal<double>* position_target_{};
   graph::InputSignal<bool>* release_{};
-  graph::OutputSignal<Eigen::VectorXd>* machine_{};  // (phase, y, r, primed, ṙ)
+  graph::OutputSignal<Eigen::VectorXd>* machine_{};  // (phase, y, r, primed, ṙ, elapsed, f_r)
   graph::OutputSignal<double>* force_{};
   graph::OutputSignal<double>* force_filtered_{};
   graph::OutputSignal<double>* phase_{};
