@@ -375,11 +375,16 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
     return tasks
 
 
-def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec]:
+def gripper_admittance_tasks(
+    step: Step, ctx: FactoryContext, priority: int, previous: Step | None = None
+) -> list[TaskSpec]:
     """A ``gripper_admittance`` task per gripper of ``ctx.gripper_joints`` that holds a handle all
     along the step (close on it, then hold 5 N) or releases one at the step's start (admittance to
     0 N, then open). The grasp's own step (``created`` at its end) has none: the gripper closes
-    once the hand is on the handle, in the next step (§3.2.5.1)."""
+    once the hand is on the handle, in the next step (§3.2.5.1). A hand-over — this step
+    releases an object whose grasp by another gripper ``previous`` created, so that gripper
+    closes in this step — keeps the releasing grip for the receiving gripper's whole closing
+    ramp first (``release_after``): both ramps at once dropped the plank between the hands."""
     tasks: list[TaskSpec] = []
     for gripper, g in sorted(ctx.gripper_joints.items()):
         release = gripper in step.released
@@ -392,6 +397,8 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
             closing_direction=g.closing_direction,
             release=float(release),
         )
+        if release and (wait := handover_wait_s(step, gripper, ctx, previous)) > 0:
+            parameters["release_after"] = wait
         tasks.append(
             TaskSpec(
                 f"{_task_name(gripper)}_admittance",
@@ -404,6 +411,27 @@ def gripper_admittance_tasks(step: Step, ctx: FactoryContext, priority: int) -> 
             )
         )
     return tasks
+
+
+def handover_wait_s(
+    step: Step, releasing: str, ctx: FactoryContext, previous: Step | None
+) -> float:
+    """How long [s] gripper ``releasing`` keeps its grip at ``step``'s start: the closing ramp
+    (:func:`references.grip_ramp_s`, whole stroke) of each gripper that ``previous`` made grasp
+    the object it releases; 0 when none did (not a hand-over, or no admittance drives them)."""
+    from marionette.execution.references import grip_ramp_s
+
+    if previous is None:
+        return 0.0
+    obj = ctx.handle_objects.get(step.released[releasing], step.released[releasing])
+    wait = 0.0
+    for receiver, handle in previous.created.items():
+        g = ctx.gripper_joints.get(receiver)
+        if receiver == releasing or g is None or ctx.handle_objects.get(handle, handle) != obj:
+            continue
+        stroke = abs(g.closed_position - g.open_position)
+        wait = max(wait, grip_ramp_s(stroke, {**ADMITTANCE, **g.parameters}))
+    return wait
 
 
 def _posture_task(ctx: FactoryContext, admittance: list[TaskSpec]) -> TaskSpec:
@@ -440,9 +468,15 @@ def posture_joins_grippers(grasps: list[TaskSpec], ctx: FactoryContext) -> bool:
     return any(t.kind == "se3" and chain_dof(ctx.model, t.frame) <= task_rows(t) for t in grasps)
 
 
-def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None) -> ControllerSpec:
-    """The controller of one step (levels numbered from 0 without gaps)."""
-    admittance = gripper_admittance_tasks(step, ctx, 0)
+def build_spec(
+    step: Step,
+    ctx: FactoryContext,
+    controller_id: int | None = None,
+    previous: Step | None = None,
+) -> ControllerSpec:
+    """The controller of one step (levels numbered from 0 without gaps); ``previous``, the step
+    executed before it, tells a hand-over (:func:`gripper_admittance_tasks`)."""
+    admittance = gripper_admittance_tasks(step, ctx, 0, previous)
     grasps = grasp_tasks(step, ctx, 0)
     posture = _posture_task(ctx, admittance)
     if posture_joins_grippers(grasps, ctx):
@@ -466,7 +500,7 @@ def build_spec(step: Step, ctx: FactoryContext, controller_id: int | None = None
 
 
 def build_specs(steps: list[Step], ctx: FactoryContext) -> list[ControllerSpec]:
-    return [build_spec(s, ctx) for s in steps]
+    return [build_spec(s, ctx, previous=p) for s, p in zip(steps, [None, *steps[:-1]])]
 
 
 # ---- spec file ------------------------------------------------------------------------------

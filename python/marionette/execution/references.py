@@ -203,8 +203,9 @@ def grip_change_s(step: Step, previous: Step | None, spec: ControllerSpec, robot
     the object, and opens before the robot recedes from one it releases. The time of the
     ``gripper_admittance`` task's ramp over the gripper's whole stroke (its speed and
     acceleration), then :data:`GRIP_SETTLE_S`; 0 when no grip changes or no admittance task
-    drives the gripper (a welded grasp holds at once)."""
-    from marionette import _core, robots
+    drives the gripper (a welded grasp holds at once). A gripper handing its object over waits
+    its task's ``release_after`` first (:func:`factory.gripper_admittance_tasks`)."""
+    from marionette import robots
 
     changing = set(step.released) | set(previous.created if previous is not None else {})
     seconds = 0.0
@@ -220,11 +221,21 @@ def grip_change_s(step: Step, previous: Step | None, spec: ControllerSpec, robot
         )
         if task is None or gripper.open_position is None or gripper.closed_position is None:
             continue
-        parameters = {**_core.gripper_admittance_defaults(), **task.parameters}
-        speed, acceleration = parameters["speed"], parameters["acceleration"]
         stroke = abs(gripper.closed_position - gripper.open_position)
-        seconds = max(seconds, stroke / speed + speed / acceleration + GRIP_SETTLE_S)
+        # A releasing gripper of a hand-over keeps its grip release_after s before its ramp.
+        wait = float(task.parameters.get("release_after", 0.0))
+        seconds = max(seconds, wait + grip_ramp_s(stroke, task.parameters))
     return seconds
+
+
+def grip_ramp_s(stroke: float, parameters: dict[str, float]) -> float:
+    """How long [s] a ``gripper_admittance`` task with ``parameters`` (over the controller's
+    defaults) takes to ramp over ``stroke`` [rad or m] — its speed, its acceleration at both
+    ends — and for the grip force to settle after it (:data:`GRIP_SETTLE_S`)."""
+    from marionette import _core
+
+    p = {**_core.gripper_admittance_defaults(), **parameters}
+    return stroke / p["speed"] + p["speed"] / p["acceleration"] + GRIP_SETTLE_S
 
 
 def _central(values: np.ndarray, dt: float) -> np.ndarray:

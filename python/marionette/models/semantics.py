@@ -49,12 +49,18 @@ GRIPPER_ADMITTANCE_PARAMETERS = (
     "cutoff_frequency",
     "speed",
     "acceleration",
+    "release_rate",
     "closing_direction",
     "release",
+    "release_after",
 )
 # Those a gripper may set in its semantics (the factory derives the others from the step and the
 # gripper's open / closed positions).
-ADMITTANCE_PARAMETERS = frozenset(GRIPPER_ADMITTANCE_PARAMETERS) - {"closing_direction", "release"}
+ADMITTANCE_PARAMETERS = frozenset(GRIPPER_ADMITTANCE_PARAMETERS) - {
+    "closing_direction",
+    "release",
+    "release_after",
+}
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,51 @@ def test_admittance_tasks_follow_the_grasps(talos_plank, talos_admittance):
     assert seen_hold > 0 and seen_release > 0
 
 
+def test_a_hand_over_keeps_the_releasing_grip_until_the_receiving_one_has_closed(
+    talos_plank, talos_admittance
+):
+    """The plank flip's hand-over: the step that opens the first hand is the one whose lead-in
+    closes the second (its grasp created by the step before). The releasing task holds its grip
+    for the receiving gripper's whole closing ramp (``release_after``) and the arm waits for both
+    ramps one after the other; a release with no gripper closing on the object waits nothing."""
+    from marionette.execution.references import grip_change_s, grip_ramp_s
+
+    ctx, specs = talos_admittance
+    steps = talos_plank.steps
+    by_joint = {g.joint: name for name, g in ctx.gripper_joints.items()}
+    handovers = 0
+    for k, (step, spec) in enumerate(zip(steps, specs)):
+        previous = steps[k - 1] if k else None
+        for t in spec.tasks:
+            if t.kind != "gripper_admittance" or not t.parameters["release"]:
+                continue
+            gripper = by_joint[t.joints[0]]
+            obj = ctx.handle_objects[step.released[gripper]]
+            receivers = [
+                g
+                for g, h in (previous.created if previous else {}).items()
+                if ctx.handle_objects[h] == obj and g != gripper
+            ]
+            if not receivers:
+                assert "release_after" not in t.parameters, step.transition
+                continue
+            handovers += 1
+            closing = max(
+                grip_ramp_s(
+                    abs(ctx.gripper_joints[g].closed_position - ctx.gripper_joints[g].open_position),
+                    {**ADMITTANCE, **ctx.gripper_joints[g].parameters},
+                )
+                for g in receivers
+            )
+            assert t.parameters["release_after"] == pytest.approx(closing)
+            own = ctx.gripper_joints[gripper]
+            opening = grip_ramp_s(abs(own.closed_position - own.open_position), t.parameters)
+            assert grip_change_s(step, previous, spec, ctx.robot) == pytest.approx(
+                closing + opening
+            )
+    assert handovers >= 1
+
+
 def test_default_factory_has_no_admittance(talos_plank):
     assert not any(t.kind == "gripper_admittance" for s in talos_plank.specs for t in s.tasks)
 
