@@ -61,8 +61,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="PRESET|KEY=VALUE,...|FILE.yaml",
         help=f"seeded perturbations per trial (scenarios/perturbations.py; presets: none, "
         f"{', '.join(PRESETS)}): displacement = object displaced <= 5 cm / 10 deg before "
-        "execution; in-hand = slipping in the hand during it (<= 1 cm / 5 deg) and 2 mm / 0.5 "
-        "deg camera noise; joint-offsets = 7 deg shoulder / 4 deg wrist encoder offsets on both "
+        "execution; in-hand = disturbed in the hand during it (welded grasps: slipping <= 1 "
+        "cm / 5 deg; friction grasps: a 2.5-5 N push) and 2 mm / 0.5 deg camera noise; "
+        "joint-offsets = 7 deg shoulder / 4 deg wrist encoder offsets on both "
         f"arms; all = {', '.join(PARTS)} at once; with friction grasps, push = a 2.5-5 N bump "
         "on the held object during its first carry, slippery = its friction down to 0.25 "
         "then. Magnitudes replace or add to presets as key=value items "

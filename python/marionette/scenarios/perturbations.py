@@ -29,6 +29,7 @@ instead of presets (``--perturb all,displacement_m=0.08,joint_offsets_deg.arm_ri
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from collections.abc import Callable
@@ -78,9 +79,16 @@ class PerturbationSettings:
 PARTS: dict[str, PerturbationSettings] = {
     # The object moved on the table between planning and execution.
     "displacement": PerturbationSettings(displacement_m=0.05, displacement_deg=10.0),
-    # What the placement servo alone is built to close: the object slipping in the hand, noise.
+    # What the placement servo alone is built to close: the object disturbed in the hand — a
+    # welded grasp slips (the weld moved), a friction grasp is pushed (the physics decides) —
+    # and camera noise. Each trial takes the one its grasps can feel (:func:`acting_on`).
     "in-hand": PerturbationSettings(
-        slip_m=0.01, slip_deg=5.0, camera_noise_m=0.002, camera_noise_deg=0.5
+        slip_m=0.01,
+        slip_deg=5.0,
+        push_n=5.0,
+        push_s=0.1,
+        camera_noise_m=0.002,
+        camera_noise_deg=0.5,
     ),
     # Encoder offsets of both TALOS arms (ch. 4: 7° at the shoulder, 4° at the wrist).
     "joint-offsets": PerturbationSettings(
@@ -260,6 +268,24 @@ def draw(settings: PerturbationSettings, seed: int) -> Perturbation:
         float(push_delay) if settings.push_n else 0.0,
         settings.carry_friction,
     )
+
+
+def acting_on(p: Perturbation, friction_grasps: bool) -> tuple[Perturbation, str | None]:
+    """``p`` with only the in-hand perturbations grasps of that kind feel: a slip moves a weld
+    (welded grasps); a push and a friction change act through the contacts (friction grasps).
+    Also a one-line note naming what was left out (None when nothing was)."""
+    if friction_grasps and any(p.slip):
+        kept = dataclasses.replace(p, slip=(0.0,) * 6)
+        return kept, "the slip moves welds; this trial's grasps hold by friction: not applied"
+    if not friction_grasps and (any(p.push) or p.carry_friction):
+        kept = dataclasses.replace(
+            p, push=(0.0, 0.0, 0.0), push_s=0.0, push_delay_s=0.0, carry_friction=0.0
+        )
+        return (
+            kept,
+            "a push or a friction change acts on friction grasps; this trial welds: not applied",
+        )
+    return p, None
 
 
 def draw_joint_offsets(rng: np.random.Generator, offsets_deg: dict[str, float]) -> dict[str, float]:

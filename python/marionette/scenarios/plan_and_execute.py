@@ -74,6 +74,7 @@ from marionette.scenarios.base import (
 from marionette.scenarios.harness import Processes, harness
 from marionette.scenarios.perturbations import (
     Perturbation,
+    acting_on,
     displaced,
     missing_joints,
     scene_with_joint_offsets,
@@ -264,19 +265,23 @@ class PlanAndExecute(Scenario):
     def check_options(self, options: RunOptions) -> None:
         super().check_options(options)
         p = options.perturbation
-        for what, asked in (
-            ("a push", p is not None and any(p.push)),
-            ("a friction change", p is not None and bool(p.carry_friction)),
-        ):
-            if asked and not self.friction_grasps_in(options):
-                raise ScenarioError(
-                    f"{self.name} welds its grasps: {what} on the held object tests a friction "
-                    "grasp (a weld would not feel it)"
-                )
-        if p is not None and any(p.slip) and self.friction_grasps_in(options):
+        # In-hand perturbations act on the grasps that feel them (perturbations.acting_on): the
+        # slip on welds, a push or a friction change on friction grasps. Refused when those
+        # asked include none this trial's grasps feel.
+        friction = self.friction_grasps_in(options)
+        on_friction = p is not None and (any(p.push) or bool(p.carry_friction))
+        on_welds = p is not None and any(p.slip)
+        if on_friction and not on_welds and not friction:
+            what = "a push" if any(p.push) else "a friction change"
+            raise ScenarioError(
+                f"{self.name} welds its grasps: {what} on the held object tests a friction "
+                "grasp (a weld would not feel it; add --gripper-admittance)"
+            )
+        if on_welds and not on_friction and friction:
             raise ScenarioError(
                 f"{self.name} holds its objects by friction: the in-hand slip moves welded "
-                "grasps only (add --no-gripper-admittance for welded grasps)"
+                "grasps only (push the object instead, push_n=N, or add "
+                "--no-gripper-admittance for welded grasps)"
             )
         if p is not None and p.joint_offsets:
             if options.controller_url is not None:
@@ -426,6 +431,10 @@ def run_plan_and_execute(
     from marionette.scenarios.plan_and_execute_report import write_report
 
     log, perturbation, controller_url = options.log, options.perturbation, options.controller_url
+    if perturbation is not None:
+        perturbation, left_out = acting_on(perturbation, scenario.friction_grasps_in(options))
+        if left_out is not None:
+            log(f"perturbation: {left_out}")
     timings: dict[str, float] = {}
     report["timings"] = timings  # filled as the trial goes (a partial report has them too)
     t0 = time.perf_counter()

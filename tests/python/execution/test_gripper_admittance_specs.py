@@ -85,7 +85,9 @@ def test_a_hand_over_keeps_the_releasing_grip_until_the_receiving_one_has_closed
             handovers += 1
             closing = max(
                 grip_ramp_s(
-                    abs(ctx.gripper_joints[g].closed_position - ctx.gripper_joints[g].open_position),
+                    abs(
+                        ctx.gripper_joints[g].closed_position - ctx.gripper_joints[g].open_position
+                    ),
                     {**ADMITTANCE, **ctx.gripper_joints[g].parameters},
                 )
                 for g in receivers

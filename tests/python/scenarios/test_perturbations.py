@@ -98,9 +98,9 @@ def test_joint_offset_scene_reports_the_angle_plus_the_offset(tmp_path):
 
 
 def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_under():
-    """``--perturb all`` (plank-flip's trial set): 5 cm / 10° displacement, 1 cm / 5° slip, 7° / 4°
-    on both of TALOS' shoulders and wrists, 2 mm / 0.5° camera noise; each part sets a subset of
-    it."""
+    """``--perturb all`` (plank-flip's trial set): 5 cm / 10° displacement, in the hand a 1 cm /
+    5° slip (welded grasps) or a 2.5-5 N push (friction grasps), 7° / 4° on both of TALOS'
+    shoulders and wrists, 2 mm / 0.5° camera noise; each part sets a subset of it."""
     from marionette.scenarios.perturbations import PARTS, PRESETS, PerturbationSettings
 
     assert PRESETS["all"] == PerturbationSettings(
@@ -108,11 +108,13 @@ def test_all_is_every_part_at_once_with_the_magnitudes_plank_flip_is_judged_unde
         displacement_deg=10.0,
         slip_m=0.01,
         slip_deg=5.0,
+        push_n=5.0,
+        push_s=0.1,
         joint_offsets_deg=BOTH_ARMS,
         camera_noise_m=0.002,
         camera_noise_deg=0.5,
     )
-    # push, slippery: for friction grasps only (plank-flip welds), so not parts of "all"
+    # push alone, slippery: for friction grasps only, named on their own
     assert set(PRESETS) == {"all", "push", "slippery", *PARTS}
     full = PRESETS["all"]
     for name, settings in PRESETS.items():
@@ -136,9 +138,10 @@ def test_a_push_is_drawn_after_the_other_draws_within_its_bounds():
     [0, 1] s; drawn after the others, so that a seed's displacement, slip and offsets are those
     it drew before pushes existed."""
     with_push = PerturbationSettings(**{**PRESETS["all"].__dict__, "push_n": 6.0, "push_s": 0.2})
+    without = PerturbationSettings(**{**PRESETS["all"].__dict__, "push_n": 0.0})
     directions = []
     for seed in range(300):
-        p, q = draw(with_push, seed), draw(PRESETS["all"], seed)
+        p, q = draw(with_push, seed), draw(without, seed)
         assert (p.displacement, p.slip, p.joint_offsets) == (
             q.displacement,
             q.slip,
@@ -151,8 +154,7 @@ def test_a_push_is_drawn_after_the_other_draws_within_its_bounds():
         assert q.push == (0.0, 0.0, 0.0) and q.push_s == 0.0
     # Directions spread over the sphere: their mean is near 0 (1/sqrt(300) per axis).
     assert np.linalg.norm(np.mean(directions, axis=0)) < 0.15
-    # "all" stays plank-flip's set (welded grasps): no push in it.
-    assert PRESETS["push"].push_n == 5.0 and PRESETS["all"].push_n == 0.0
+    assert PRESETS["push"].push_n == 5.0 == PRESETS["all"].push_n
 
 
 def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_friction():
@@ -163,7 +165,7 @@ def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_
     with pytest.raises(ScenarioError, match="push on the held object"):
         SCENARIOS["plank-flip"].check_options(RunOptions(perturbation=push))
     SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=push))
-    slip = draw(PRESETS["in-hand"], 1)
+    slip = draw(PerturbationSettings(slip_m=0.01, slip_deg=5.0), 1)
     with pytest.raises(ScenarioError, match="holds its objects by friction"):
         SCENARIOS["ur10-box"].check_options(RunOptions(perturbation=slip))
     # Without the admittance ur10-box welds: the slip applies, the push is refused.
@@ -181,6 +183,33 @@ def test_a_push_is_refused_where_grasps_are_welds_and_a_slip_where_they_hold_by_
     ):
         with pytest.raises(ScenarioError, match="friction change on the held object"):
             SCENARIOS[scenario].check_options(options)
+
+
+def test_the_in_hand_part_acts_on_either_kind_of_grasp_through_what_it_can_feel():
+    """``in-hand`` (and so ``all``) holds a slip and a push: a welded grasp takes the slip (the
+    weld is moved), a friction grasp the push (a weld would not feel it, a slip would move a
+    weld it does not have); the other is dropped with a note, and check_options accepts both."""
+    from marionette.scenarios import SCENARIOS
+    from marionette.scenarios.base import RunOptions
+    from marionette.scenarios.perturbations import acting_on
+
+    p = draw(PRESETS["all"], 3)
+    assert any(p.slip) and any(p.push)
+    by_friction, note = acting_on(p, friction_grasps=True)
+    assert not any(by_friction.slip) and by_friction.push == p.push and "slip" in note
+    assert by_friction.displacement == p.displacement
+    assert by_friction.joint_offsets == p.joint_offsets
+    welded, note = acting_on(p, friction_grasps=False)
+    assert welded.slip == p.slip and not any(welded.push) and "push" in note
+    assert acting_on(draw(PRESETS["displacement"], 3), True)[1] is None
+    in_hand = draw(PRESETS["in-hand"], 3)  # the UR10 has no TALOS joints to offset
+    for scenario, options in (
+        ("plank-flip", RunOptions(perturbation=p)),
+        ("plank-flip", RunOptions(perturbation=p, gripper_admittance=True)),
+        ("ur10-box", RunOptions(perturbation=in_hand)),
+        ("ur10-box", RunOptions(perturbation=in_hand, gripper_admittance=False)),
+    ):
+        SCENARIOS[scenario].check_options(options)
 
 
 def test_the_slip_comes_at_the_last_carry_whatever_the_plans_steps():
