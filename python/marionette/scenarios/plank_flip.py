@@ -24,7 +24,8 @@ SCENARIO = PlanAndExecute(
     vision=True,
     quad_decimate=1.0,
     calibrate_arms=("left", "right"),
-    # The fingers can hold the plank by friction (--gripper-admittance), but 5 N does not hold it
-    # level in one hand (its centre of mass 6 cm from the handle): welded grasps by default.
+    # The fingers can hold the plank by friction (--gripper-admittance), 2/6: level in the left
+    # hand the weight pries its jaws open, and the hand-over closes up to 5 cm off the handle
+    # while the right wrist sags under the plank (scenarios/README.md). Welds by default.
     friction_grasps=True,
 )
