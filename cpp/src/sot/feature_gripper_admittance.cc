@@ -84,7 +84,7 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
   // A releasing task that waits first starts by holding what the previous controller held.
-  const GripperPhase first = !release                         ? GripperPhase::kClosing
+  const GripperPhase first = !release                       ? GripperPhase::kClosing
                              : options_.release_after > 0.0 ? GripperPhase::kHolding
                                                             : GripperPhase::kReleasing;
   Eigen::VectorXd initial(7);
@@ -219,9 +219,10 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   // to 0 N would step the command by K_a f* (0.1 rad/s), what a controller switch refuses.
   double release_target = options_.force_target;
   if (phase == static_cast<int>(GripperPhase::kReleasing)) {
-    release_target = x[kPhase] == static_cast<double>(GripperPhase::kReleasing)
-                         ? std::max(0.0, AdmittanceTarget(x, y) - options_.release_rate * options_.dt)
-                         : std::clamp(y, 0.0, options_.force_target);
+    release_target =
+        x[kPhase] == static_cast<double>(GripperPhase::kReleasing)
+            ? std::max(0.0, AdmittanceTarget(x, y) - options_.release_rate * options_.dt)
+            : std::clamp(y, 0.0, options_.force_target);
   }
   (*next)[kReleaseTarget] = release_target;
 }

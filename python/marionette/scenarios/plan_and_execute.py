@@ -269,10 +269,11 @@ class PlanAndExecute(Scenario):
         # slip on welds, a push or a friction change on friction grasps. Refused when those
         # asked include none this trial's grasps feel.
         friction = self.friction_grasps_in(options)
-        on_friction = p is not None and (any(p.push) or bool(p.carry_friction))
+        pushed = p is not None and any(p.push)
+        on_friction = pushed or (p is not None and bool(p.carry_friction))
         on_welds = p is not None and any(p.slip)
         if on_friction and not on_welds and not friction:
-            what = "a push" if any(p.push) else "a friction change"
+            what = "a push" if pushed else "a friction change"
             raise ScenarioError(
                 f"{self.name} welds its grasps: {what} on the held object tests a friction "
                 "grasp (a weld would not feel it; add --gripper-admittance)"

@@ -54,8 +54,8 @@ struct GripperAdmittanceOptions {
   double closing_direction = -1.0;  ///< s: sign of q̇ when closing (−1 when closed < open)
   double release_after = 0.0;  ///< [s] a releasing task holds the grip this long before releasing
   double release_rate = 10.0;  ///< [N/s] the releasing force target's ramp to 0 N
-  double task_gain = 2.0;           ///< λ [1/s] of the Task that reads this feature
-  double dt = 1e-3;                 ///< control period [s]
+  double task_gain = 2.0;      ///< λ [1/s] of the Task that reads this feature
+  double dt = 1e-3;            ///< control period [s]
   /// Throws SotError naming `who` when a value is out of range.
   void Check(const std::string& who) const;
 };
