@@ -48,6 +48,7 @@ import yaml
 from marionette import robots
 from marionette.control.spec import ControllerSpec, SpecError, TaskSpec
 from marionette.execution.plan_steps import PlanRobotMap, Step
+from marionette.execution.references import grip_ramp_s
 from marionette.models.semantics import Gripper, SemanticsError
 
 SPECS_FORMAT = "marionette-controllers/1"
@@ -419,8 +420,6 @@ def handover_wait_s(
     """How long [s] gripper ``releasing`` keeps its grip at ``step``'s start: the closing ramp
     (:func:`references.grip_ramp_s`, whole stroke) of each gripper that ``previous`` made grasp
     the object it releases; 0 when none did (not a hand-over, or no admittance drives them)."""
-    from marionette.execution.references import grip_ramp_s
-
     if previous is None:
         return 0.0
     obj = ctx.handle_objects.get(step.released[releasing], step.released[releasing])
