@@ -147,7 +147,7 @@ def hinge_lever_arm(model: pin.Model, g: Gripper) -> float | None:
     return float(np.linalg.norm(p - axis * float(axis @ p)))
 
 
-def _gripper_joint(g: Gripper, model: pin.Model, robot: str) -> GripperJoint:
+def gripper_joint(g: Gripper, model: pin.Model, robot: str) -> GripperJoint:
     """The actuated joint of ``g``, which must have one with its open and closed positions; its
     admittance parameters are robot.yaml's, and unless robot.yaml gives it the lever arm of
     eq. 3.13: by virtual work over the jaws' linkage when robot.yaml declares the jaws
@@ -199,7 +199,7 @@ def context_from_plan(
     links = {g.name: g.link for g in semantics}
     graph = doc["graph"]
     joints = {
-        g.name: _gripper_joint(g, model, robot)
+        g.name: gripper_joint(g, model, robot)
         for g in semantics
         if gripper_admittance and g.joint is not None and g.name in doc["problem"]["grippers"]
     }

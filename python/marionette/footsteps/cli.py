@@ -27,6 +27,7 @@ def _options(args):
         robot=args.robot,
         mode=args.mode,
         target=args.target,
+        target_point=tuple(args.target_point),
         hand=args.hand,
         posture_frozen=not args.full_replan,
         bar=args.bar,
@@ -165,6 +166,15 @@ def register(subparsers) -> None:
     _common(run)
     run.add_argument("--lcm-url", default=None)
     run.add_argument("--target", default="ball", help="object to grasp (grasp mode)")
+    run.add_argument(
+        "--target-point",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="the point the hand reaches, in the target object's frame [m] (default its origin; "
+        "e.g. a ball resting on the tracked pedestal: 0 0 <height>)",
+    )
     run.add_argument("--bar", default="bar", help="object name of the bar (step-over mode)")
     run.add_argument(
         "--bar-axis-yaw",

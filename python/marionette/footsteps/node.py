@@ -36,11 +36,22 @@ def yaw_from_quaternion(wxyz) -> float:
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def rotate(wxyz, v) -> np.ndarray:
+    """``v`` rotated by the (w, x, y, z) quaternion (normalised here)."""
+    q = np.asarray(wxyz, dtype=float)
+    w, u = q[0], q[1:]
+    n = float(np.dot(q, q))
+    v = np.asarray(v, dtype=float)
+    return ((w * w - u @ u) * v + 2.0 * (u @ v) * u + 2.0 * w * np.cross(u, v)) / n
+
+
 @dataclass
 class NodeOptions:
     robot: str = ""  # a robot with two feet (robot.yaml); "" = the only such robot found
     mode: str = "grasp"  # "grasp" | "step-over"
     target: str = "ball"  # object whose pose is the hand/gaze target (grasp)
+    # [m] the point the hand reaches, in the target's frame (a ball resting on a tracked support)
+    target_point: tuple[float, float, float] = (0.0, 0.0, 0.0)
     hand: str = "right"
     posture_frozen: bool = True  # replanning mode (Dang §6.2.2)
     bar: str = "bar"  # object name of the bar (step-over)
@@ -100,6 +111,8 @@ class FootstepNode:
         for obj in msg.objects:
             if obj.object_name == name:
                 p = np.array(obj.position_world, dtype=float)
+                if self.options.mode == "grasp" and any(self.options.target_point):
+                    p = p + rotate(obj.quaternion_world, self.options.target_point)
                 if np.all(np.isfinite(p)):
                     yaw = yaw_from_quaternion(obj.quaternion_world)
                     with self._lock:

@@ -366,14 +366,16 @@ class AircraftPart(ObjectSpec):
 
 @dataclass
 class Ball(ObjectSpec):
-    """The 8 cm ball of the walk-and-grasp experiment (Dang 2012, ch. 6). Its handle is its
-    centre, any orientation (mask 1 1 1 0 0 0)."""
+    """The ball of the walk-and-grasp experiment (Dang 2012, ch. 6), sized for the hand that
+    grasps it: TALOS' gripper opens 66 mm between its fingertips (MuJoCo geometry, fully open),
+    so a 50 mm ball leaves 8 mm on each side for the approach. Its handle is its centre, any
+    orientation (mask 1 1 1 0 0 0)."""
 
     name: str = "ball"
     sim: SimKind = "free"
     description: str = "ball, Dang 2012 ch. 6"
-    radius: float = 0.04
-    mass_kg: float = 0.1
+    radius: float = 0.025
+    mass_kg: float = 0.05
 
     def shapes(self) -> list[Shape]:
         return [Shape("sphere", (self.radius,), rgba=(0.95, 0.45, 0.05, 1))]
@@ -390,40 +392,66 @@ class Ball(ObjectSpec):
 
 @dataclass
 class Pedestal(ObjectSpec):
-    """A square column the ball rests on (top at ``height``, a six-block ring holds the
-    ball), tags 60-63 on its sides just below the top. Frame: on the floor, z up."""
+    """A square column (top at ``height``) with a tee on it that holds the ball: a post
+    (``post_height``) carrying a plate and a cup of six blocks the ball rests in. The tee lifts
+    the ball clear of the column so that fingers closing from above meet only the ball: the cup
+    lies inside the ball's equator, and the column's top is ``post_height`` below it. Tags 60-63
+    on the column's sides just below its top, for a head camera. Frame: on the floor, z up."""
 
     name: str = "pedestal"
     sim: SimKind = "mocap"
     description: str = "pedestal for the ball"
     side: float = 0.12
     height: float = 0.80
+    post_radius: float = 0.008
+    post_height: float = 0.05
+    plate: tuple[float, float] = (0.02, 0.004)  # [m] radius, thickness (on the post)
+    cup_radius: float = 0.020  # [m] the cup blocks' centres from the axis
+    cup_block: tuple[float, float, float] = (0.006, 0.012, 0.008)  # [m] radial, tangential, height
     mass_kg: float = 8.0
     tag_size: float = 0.08
 
     def shapes(self) -> list[Shape]:
+        plate_r, plate_t = self.plate
+        top = self.height + self.post_height
         shapes = [
             Shape(
                 "box",
                 (self.side, self.side, self.height),
                 homogeneous(p=[0, 0, self.height / 2]),
                 rgba=GREY,
-            )
+            ),
+            Shape(
+                "cylinder",
+                (self.post_radius, self.post_height),
+                homogeneous(p=[0, 0, self.height + self.post_height / 2]),
+                rgba=DARK,
+            ),
+            Shape(
+                "cylinder", (plate_r, plate_t), homogeneous(p=[0, 0, top + plate_t / 2]), rgba=DARK
+            ),
         ]
         for k in range(6):
             a = k * np.pi / 3
-            p = [0.03 * np.cos(a), 0.03 * np.sin(a), self.height + 0.005]
-            shapes.append(Shape("box", (0.012, 0.03, 0.01), homogeneous(rot_z(a), p), rgba=DARK))
+            p = [
+                self.cup_radius * np.cos(a),
+                self.cup_radius * np.sin(a),
+                top + plate_t + self.cup_block[2] / 2,
+            ]
+            shapes.append(Shape("box", self.cup_block, homogeneous(rot_z(a), p), rgba=DARK))
         return shapes
 
     def mass(self) -> float:
         return self.mass_kg
 
     def ball_rest_z(self, ball_radius: float) -> float:
-        """Height of the centre of a ball of ``ball_radius`` resting on the ring (r = 3 cm
-        from the axis, top 1 cm above the column): sqrt(R^2 - (r - e)^2) above the ring edge."""
-        r_edge = 0.03 - 0.006  # inner edge of the ring blocks
-        return self.height + 0.01 + float(np.sqrt(ball_radius**2 - r_edge**2))
+        """Height of the centre of a ball of ``ball_radius`` resting in the cup: on the blocks'
+        inner top edges (r_e from the axis), sqrt(R^2 - r_e^2) above them."""
+        r_edge = self.cup_radius - self.cup_block[0] / 2
+        if ball_radius <= r_edge:
+            raise ValueError(f"a ball of radius {ball_radius} m falls through the cup ({r_edge} m)")
+        edge_z = self.height + self.post_height + self.plate[1] + self.cup_block[2]
+        return edge_z + float(np.sqrt(ball_radius**2 - r_edge**2))
 
     def semantics(self) -> Semantics:
         ex, ey, ez = np.eye(3)

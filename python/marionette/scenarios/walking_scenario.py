@@ -1,10 +1,8 @@
 """What the walking scenarios (``grasp-walk``, Dang 2012 ch. 6; ``step-over``, ch. 5) share: a
 humanoid on marionette-controller's walking stack, the footstep process planning towards an
-object published on OBJECT_POSES, and that object moved during the walk so that the footstep
-process replans (the ball carried by hand, the bar pushed).
+object its head camera measures (OBJECT_POSES), and that object slid by the simulator during the
+walk so that the footstep process replans (the ball's pedestal, the bar).
 
-* :class:`MovingObjectPublisher` — the object's pose at 20 Hz, sliding to a new pose at constant
-  speed over a duration of controller time (an object the robot is told about);
 * :class:`SlidingFixture` — a fixture of the scene the simulator carries to a new pose at
   constant speed (an object the robot has to see: its camera and perception measure it);
 * :class:`WalkRecorder` — WALK_STATUS, ROBOT_STATE and FOOTSTEP_PLAN as the verdicts and plots
@@ -26,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -36,7 +34,6 @@ import pinocchio as pin
 from marionette import (
     channels,
     lcmt_footstep_plan,
-    lcmt_object_pose,
     lcmt_object_poses,
     lcmt_robot_state,
     lcmt_walk_status,
@@ -47,78 +44,15 @@ from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking
 from marionette.scenarios.base import RunOptions
 from marionette.scenarios.harness import Processes, Run, harness
 
-PUBLISH_PERIOD_S = 0.05  # OBJECT_POSES at 20 Hz, the footstep process's input
 MIN_REPLAN_HZ = 20.0  # footstep replanning at 20 Hz or more (median replan < 50 ms)
 SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
 
 
-def object_poses_message(
-    utime: int,
-    name: str,
-    position_W: Iterable[float],
-    quaternion_W: Iterable[float],
-    camera_name: str,
-) -> lcmt_object_poses:
-    """OBJECT_POSES with one object ``name`` at a world pose (quaternion w, x, y, z) and no
-    camera-frame measure (no tags: the pose is given, not detected)."""
-    o = lcmt_object_pose()
-    o.utime = int(utime)
-    o.object_name = name
-    o.position_camera, o.quaternion_camera = [0.0] * 3, [1.0, 0.0, 0.0, 0.0]
-    o.position_world = [float(v) for v in position_W]
-    o.quaternion_world = [float(v) for v in quaternion_W]
-    o.num_tags, o.tag_id, o.reprojection_error, o.ambiguous = 0, [], 0.0, False
-    msg = lcmt_object_poses()
-    msg.utime, msg.camera_name, msg.latency_us = int(utime), camera_name, 0.0
-    msg.objects, msg.num_objects = [o], 1
-    return msg
-
-
-class MovingObjectPublisher(threading.Thread):
-    """Publishes an object's pose on OBJECT_POSES at 20 Hz (the footstep process's input). After
-    :meth:`move` the pose slides to its new value at constant speed over ``duration_s`` of
-    controller time (Dang ch. 5 and 6: the bar is pushed, the ball carried, while the robot
-    walks). ``message(utime, pose)`` builds the message of a pose vector (any parametrisation
-    that interpolates linearly: a position, or x, y, yaw). Keeps the history (controller utime,
-    pose) for the verdict and the plots."""
-
-    def __init__(
-        self,
-        client: ControllerClient,
-        name: str,
-        pose: np.ndarray,
-        message: Callable[[int, np.ndarray], lcmt_object_poses],
-    ) -> None:
-        super().__init__(daemon=True)
-        self.client, self.name, self.message, self.stop = client, name, message, threading.Event()
-        self.p0 = self.p1 = np.array(pose, dtype=float)
-        self.utime_move, self.duration_us = 0, 1
-        self.history: list[tuple[int, np.ndarray]] = []
-
-    def move(self, pose: np.ndarray, duration_s: float) -> int:
-        """Starts the move now; returns its controller utime."""
-        self.utime_move, self.duration_us = self.client.utime(), max(1, int(duration_s * 1e6))
-        self.p1 = np.array(pose, dtype=float)
-        return self.utime_move
-
-    def pose(self, utime: int) -> np.ndarray:
-        """The published pose at controller time ``utime``: p0 + s (p1 − p0), s in [0, 1]."""
-        s = float(np.clip((utime - self.utime_move) / self.duration_us, 0.0, 1.0))
-        return self.p0 + s * (self.p1 - self.p0)
-
-    def run(self) -> None:
-        while not self.stop.wait(PUBLISH_PERIOD_S):
-            utime = self.client.utime()
-            pose = self.pose(utime)
-            self.history.append((utime, pose))
-            self.client.bus.publish(channels.OBJECT_POSES, self.message(utime, pose))
-
-
 class SlidingFixture:
-    """A fixture of the scene (a MuJoCo mocap body: the step-over's bar) that the simulator
-    carries while the robot walks (SIM_COMMAND ``slide``, constant speed): the robot's camera sees
-    it move and its feet meet it where it is. The interface of :class:`MovingObjectPublisher`
-    for :func:`walk_while_object_moves`. The scenario speaks in floor poses (x, y, yaw):
+    """A fixture of the scene (a MuJoCo mocap body: the step-over's bar, the ball's pedestal) that
+    the simulator carries while the robot walks (SIM_COMMAND ``slide``, constant speed): the
+    robot's camera sees it move and its feet meet it where it is (the moved object of
+    :func:`walk_while_object_moves`). The scenario speaks in floor poses (x, y, yaw):
     ``body_pose(pose)`` is the body's world pose for the simulator and ``floor_pose(X)`` the way
     back; ``history`` keeps (controller utime, floor pose) of every OBJECT_POSES estimate of the
     body (what the robot perceived), for the verdict and the plots."""
@@ -402,7 +336,7 @@ def walking_run(
 
 def walk_while_object_moves(
     run: WalkingRun,
-    publisher: MovingObjectPublisher | SlidingFixture,
+    moved: SlidingFixture,
     footsteps_args: list[str],
     move_to: np.ndarray,
     move_at_step: int,
@@ -412,14 +346,15 @@ def walk_while_object_moves(
     tag: str,
     log: Callable[[str], None] = print,
 ) -> int:
-    """The walk: starts ``publisher`` and the footstep process (``marionette footsteps run
-    --lcm-url <url> <footsteps_args>``), logs ``started``, waits for the first plan, moves the
-    object to ``move_to`` in ``move_duration_s`` when step ``move_at_step`` starts, and waits for
-    the robot standing at the end of the last plan (:func:`walk_done`); the publisher stops in
-    any case. Fills ``first_plan_wall_s``, ``walk_controller_s`` and :attr:`WalkingRun.q_final`;
-    returns the controller utime of the move. Log lines start with ``tag``."""
+    """The walk: starts keeping ``moved``'s estimates and the footstep process (``marionette
+    footsteps run --lcm-url <url> <footsteps_args>``), logs ``started``, waits for the first
+    plan, slides the object to ``move_to`` in ``move_duration_s`` when step ``move_at_step``
+    starts, and waits for the robot standing at the end of the last plan (:func:`walk_done`);
+    the estimates stop being kept in any case. Fills ``first_plan_wall_s``,
+    ``walk_controller_s`` and :attr:`WalkingRun.q_final`; returns the controller utime of the
+    move. Log lines start with ``tag``."""
     client, rec = run.client, run.rec
-    publisher.start()
+    moved.start()
     run.run.start_cli("footsteps", ["footsteps", "run", "--lcm-url", run.url, *footsteps_args])
     log(started)
     t1 = time.perf_counter()
@@ -432,9 +367,9 @@ def walk_while_object_moves(
             walk_timeout_s * 2,
             f"step {move_at_step}",
         )
-        utime_move = publisher.move(move_to, move_duration_s)
+        utime_move = moved.move(move_to, move_duration_s)
         log(
-            f"{tag}: {publisher.name} moving to {np.round(move_to, 3).tolist()} from step "
+            f"{tag}: {moved.name} moving to {np.round(move_to, 3).tolist()} from step "
             f"{rec.last_status().current_step_index} on, in {move_duration_s} s"
         )
         run.run.wait(
@@ -443,7 +378,7 @@ def walk_while_object_moves(
             "the robot standing at the end of the last plan",
         )
     finally:
-        publisher.stop.set()
+        moved.stop.set()
     run.timings["walk_controller_s"] = (client.utime() - run.utime_start) * 1e-6
     run.q_final = configuration_from_state(run.model, client.state)
     return utime_move
