@@ -105,17 +105,19 @@ class ControllerClient:
                     pass  # nothing received yet
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
-                    status = self.status
-                    detail = (
-                        f" (mode {status.mode!r}: {status.mode_reason}; last rejection: "
-                        f"{status.last_rejection!r}; last switch: {status.last_switch_result!r})"
-                        if status is not None
-                        else " (no CONTROLLER_STATUS received)"
-                    )
-                    raise TimeoutError(
-                        f"timed out after {timeout_s} s waiting for {what or condition}{detail}"
-                    )
+                    raise TimeoutError(self.timeout_message(timeout_s, what or str(condition)))
                 self._lock.wait(min(remaining, 0.05))
+
+    def timeout_message(self, timeout_s: float, what: str) -> str:
+        """"timed out after <timeout_s> s waiting for <what>" and what the controller last said."""
+        status = self.status
+        detail = (
+            f" (mode {status.mode!r}: {status.mode_reason}; last rejection: "
+            f"{status.last_rejection!r}; last switch: {status.last_switch_result!r})"
+            if status is not None
+            else " (no CONTROLLER_STATUS received)"
+        )
+        return f"timed out after {timeout_s:g} s waiting for {what}{detail}"
 
     def wait_ready(self, timeout_s: float = 30.0, processes: Any = None) -> None:
         """Waits for the controller's first state and status. ``processes`` (a

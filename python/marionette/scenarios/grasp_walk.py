@@ -83,9 +83,10 @@ class GraspWalkSettings:
     shift_at_step: int = 1  # the move starts when this step starts
     shift_duration_s: float = 1.5  # [s] of controller time: slid, not teleported
     hand: str = "right"
-    head_pitch: float = 0.75  # [rad] the head looks down (TALOS' limit 0.785): the pedestal's
-    #                           tags (0.73 m high) stay in view from 1.6 m to 0.45 m ahead; at 0.6
-    #                           they left the image 0.8 m ahead, before the pedestal stopped
+    head_pitch: float = 0.75  # [rad] the head looks down (TALOS' limit 0.785): a tag of the
+    #                           pedestal (0.73 m high) stays in the image from 2 m to 0.65 m ahead
+    #                           of the feet (tests/python/models/test_model_scenes.py); at 0.6 it
+    #                           left the image 0.8 m ahead, before the pedestal stopped
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames
     pedestal_position_sigma: float = 0.03  # [m] published when its position is known this well
     stance_tolerance: float = 0.02  # [m] executed final soles vs the last plan's

@@ -145,8 +145,8 @@ class Run:
                     self.group.check_alive()
                 except ProcessError as dead:
                     raise ScenarioError(f"waiting for {what}: {dead}") from dead
-                if time.monotonic() >= deadline:
-                    raise ScenarioError(str(e)) from e
+                if time.monotonic() >= deadline:  # the message names the whole wait, not a slice
+                    raise ScenarioError(self.client.timeout_message(timeout_s, what)) from e
 
 
 @contextlib.contextmanager

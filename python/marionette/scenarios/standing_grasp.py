@@ -141,8 +141,8 @@ def grip_spec(
         "gripper_admittance",
         1,
         gain=GAINS["gripper"],
-        reference=[joint.closed_position],
-        joints=[joint.joint],
+        reference=(joint.closed_position,),
+        joints=(joint.joint,),
         parameters=dict(ADMITTANCE, **joint.parameters, closing_direction=joint.closing_direction),
     )
     return ControllerSpec(

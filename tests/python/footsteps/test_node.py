@@ -106,6 +106,33 @@ def test_a_bar_along_its_frame_y_is_read_with_its_axis_and_an_axis_has_no_sign(t
         assert node.object_pose[3] == pytest.approx(expected, abs=1e-9), frame_yaw
 
 
+@pytest.mark.parametrize("seed", range(5))
+def test_the_target_point_is_carried_by_the_tracked_object(seed):
+    """``--target-point``: the hand's target is a point fixed in the tracked object's frame (the
+    ball resting on its tagged pedestal), p + R p_O whatever the object's rotation (Pinocchio's
+    quaternion as the reference)."""
+    import pinocchio as pin
+
+    from marionette import lcmt_object_pose, lcmt_object_poses
+    from marionette.footsteps.node import FootstepNode, NodeOptions
+
+    rng = np.random.default_rng(seed)
+    point = rng.uniform(-0.5, 1.0, 3)
+    p = rng.uniform(-2.0, 2.0, 3)
+    q = pin.Quaternion(pin.exp3(rng.uniform(-2.0, 2.0, 3)))
+    o = lcmt_object_pose()
+    o.object_name = "pedestal"
+    o.position_world = p.tolist()
+    # A quaternion need not arrive normalised: the node normalises it.
+    o.quaternion_world = [2.0 * v for v in (q.w, q.x, q.y, q.z)]
+    o.tag_id = []
+    msg = lcmt_object_poses()
+    msg.objects, msg.num_objects = [o], 1
+    node = FootstepNode(NodeOptions(mode="grasp", target="pedestal", target_point=tuple(point)))
+    node.on_object_poses(msg)
+    assert node.object_pose[:3] == pytest.approx(p + q.matrix() @ point, abs=1e-12)
+
+
 def test_malformed_object_poses_are_ignored(build_dir, robot):
     from marionette.footsteps.node import FootstepNode, NodeOptions
 

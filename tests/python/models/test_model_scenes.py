@@ -156,6 +156,37 @@ def test_talos_head_camera_sees_the_plank_and_table_tags_when_looking_down():
     assert sorted(seen) == [4, 5, 10, 11, 14, 15]  # 14, 15 on the end face on top
 
 
+def test_talos_head_camera_keeps_the_pedestal_in_view_as_it_walks_up_to_it():
+    """The grasp-walk's head pitch (0.75 rad, half-sitting): the pedestal's tag facing the robot
+    projects whole inside the 640 x 480 image with the pedestal anywhere from 2 m down to 0.65 m
+    ahead of the feet, and leaves it nearer (the last estimates come from before the stop)."""
+    from marionette.scenarios.grasp_walk import GraspWalkSettings
+
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    q = robots.reference_configuration("talos", model)
+    q[model.joints[model.getJointId("head_1_joint")].idx_q] = GraspWalkSettings().head_pitch
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    X_WC = data.oMf[model.getFrameId(robots.robot("talos").camera_frame)]
+    mid = sum(data.oMf[model.getFrameId(f"{s}_sole_link")].translation for s in ("left", "right"))
+    f = (CAMERA_HEIGHT / 2) / np.tan(np.radians(CAMERA_FOVY_DEG) / 2)
+    (tag,) = [t for t in robots.load_object("pedestal").semantics.tags if t.id == 60]  # faces -x
+
+    def in_view(ahead: float) -> bool:
+        X_WO = pin.SE3(np.eye(3), np.array([mid[0] / 2 + ahead, mid[1] / 2, 0.0]))
+        X_CT = X_WC.inverse() * X_WO * tag.pose.se3()
+        s = tag.size / 2
+        for corner in ([-s, -s, 0], [s, -s, 0], [s, s, 0], [-s, s, 0]):
+            p = X_CT.act(np.array(corner, dtype=float))
+            u, v = f * p[0] / p[2] + CAMERA_WIDTH / 2, f * p[1] / p[2] + CAMERA_HEIGHT / 2
+            if not (p[2] > 0 and 0 < u < CAMERA_WIDTH and 0 < v < CAMERA_HEIGHT):
+                return False
+        return True
+
+    assert all(in_view(d) for d in np.linspace(0.65, 2.0, 28))
+    assert not in_view(0.55)
+
+
 @pytest.mark.parametrize(
     "robot, scene, gripper",
     [("tiago", "tiago_deburr", "tiago/deburring_tool"), ("ur10", "ur10_drill", "ur10/drill")],
