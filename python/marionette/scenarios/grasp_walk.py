@@ -37,13 +37,10 @@ from marionette.execution.walking import (
     FEET,
     MergedPlan,
     sole_half_size,
-    walking_spec,
     zmp_margins,
 )
 from marionette.models import objects
 from marionette.scenarios.base import Criterion, RunOptions, Scenario
-from marionette.scenarios.harness import Processes
-from marionette.scenarios.perturbations import set_keyframe_joints, write_scene
 from marionette.scenarios.report import (
     controller_and_plots_lines,
     save_figure,
@@ -66,6 +63,7 @@ from marionette.scenarios.walking_scenario import (
     step_counts,
     walk_while_object_moves,
     walking_run,
+    watching_walk,
 )
 
 ROBOT = "talos"
@@ -203,28 +201,18 @@ def run_grasp_walk(
     pedestal0 = pedestal_floor_pose(scene_object_pose(scenario.scene, "pedestal"))
     pedestal1 = pedestal0 + np.array([*settings.shift, 0.0])
     ball0, ball1 = ball_on(pedestal0), ball_on(pedestal1)
-    # The robot starts looking down ahead, as its walking stack holds the head.
-    head = dict(zip(robots.robot(scenario.robot).calibration_head_joints, (settings.head_pitch, 0)))
-    text = set_keyframe_joints(scenario.scene.read_text(), head)
-    scene = write_scene(text, scenario.scene, out_dir / "scene.xml")
-    processes = Processes(
+    processes, spec = watching_walk(
         scenario.robot,
-        scene,
-        camera_rate=settings.camera_rate,
-        perceive=(
-            "--robot",
-            scenario.robot,
-            "--objects",
-            str(marionette.MODELS_DIR / "objects" / "pedestal.yaml"),
-            "--up-axis",
-            "pedestal:0,0,1",
-            "--max-position-sigma",
-            str(settings.pedestal_position_sigma),
-        ),
+        scenario.scene.read_text(),
+        scenario.scene,
+        out_dir,
+        "pedestal",
+        settings.head_pitch,
+        settings.camera_rate,
+        settings.pedestal_position_sigma,
     )
-    spec = walking_spec(scenario.robot, 1, head_pitch=settings.head_pitch)
     with walking_run(
-        scenario.robot, model, scene, out_dir, options, report, processes, spec
+        scenario.robot, model, processes.scene, out_dir, options, report, processes, spec
     ) as run:
         client, rec = run.client, run.rec
         pedestal = SlidingFixture(client, "pedestal", pedestal_body_pose, pedestal_floor_pose)

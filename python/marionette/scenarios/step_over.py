@@ -31,14 +31,11 @@ import pinocchio as pin
 
 import marionette
 from marionette import robots
-from marionette.execution.walking import FEET, sole_corners, sole_half_size, walking_spec
+from marionette.execution.walking import FEET, sole_corners, sole_half_size
 from marionette.models import objects
 from marionette.scenarios.base import Criterion, RunOptions, Scenario
-from marionette.scenarios.harness import Processes
 from marionette.scenarios.perturbations import (
     place_mocap_body,
-    set_keyframe_joints,
-    write_scene,
 )
 from marionette.scenarios.report import (
     controller_and_plots_lines,
@@ -61,6 +58,7 @@ from marionette.scenarios.walking_scenario import (
     step_counts,
     walk_while_object_moves,
     walking_run,
+    watching_walk,
 )
 
 ROBOT = "talos"
@@ -238,28 +236,18 @@ def run_step_over(
     model = walking_robot(scenario.robot).model
     report["settings"] = settings.__dict__
     bar_start, bar_end = np.array(settings.bar, dtype=float), settings.bar_end()
-    # The robot starts looking down at the floor ahead, as its walking stack holds the head.
-    head = dict(zip(robots.robot(scenario.robot).calibration_head_joints, (settings.head_pitch, 0)))
-    text = place_mocap_body(scenario.scene.read_text(), "bar", bar_body_pose(bar_start))
-    scene = write_scene(set_keyframe_joints(text, head), scenario.scene, out_dir / "scene.xml")
-    processes = Processes(
+    processes, spec = watching_walk(
         scenario.robot,
-        scene,
-        camera_rate=settings.camera_rate,
-        perceive=(
-            "--robot",
-            scenario.robot,
-            "--objects",
-            str(marionette.MODELS_DIR / "objects" / "bar.yaml"),
-            "--up-axis",
-            "bar:0,0,1",
-            "--max-position-sigma",
-            str(settings.bar_position_sigma),
-        ),
+        place_mocap_body(scenario.scene.read_text(), "bar", bar_body_pose(bar_start)),
+        scenario.scene,
+        out_dir,
+        "bar",
+        settings.head_pitch,
+        settings.camera_rate,
+        settings.bar_position_sigma,
     )
-    spec = walking_spec(scenario.robot, 1, head_pitch=settings.head_pitch)
     with walking_run(
-        scenario.robot, model, scene, out_dir, options, report, processes, spec
+        scenario.robot, model, processes.scene, out_dir, options, report, processes, spec
     ) as run:
         mid = run.mid
         goal = np.array([mid[0] + settings.goal[0], mid[1] + settings.goal[1], settings.goal[2]])

@@ -7,6 +7,8 @@ walk so that the footstep process replans (the ball's pedestal, the bar).
   constant speed (an object the robot has to see: its camera and perception measure it);
 * :class:`WalkRecorder` — WALK_STATUS, ROBOT_STATE and FOOTSTEP_PLAN as the verdicts and plots
   need them (plans merged as the footstep manager applies them);
+* :func:`watching_walk` — the processes and walking stack of a walk whose head camera watches the
+  moved object;
 * :func:`walking_run` — the trial's processes (:mod:`.harness`), the walking stack, the standing
   stance and the timings;
 * :func:`walk_while_object_moves` — footstep process start, first plan, the move at a given step,
@@ -293,6 +295,46 @@ class WalkingRun:
         self.utime_start = self.client.utime()
         self.q_final: np.ndarray | None = None  # set by walk_while_object_moves
         self.footsteps_log: list[str] = []  # the footstep process's log, at the end
+
+
+def watching_walk(
+    robot: str,
+    scene_text: str,
+    source: Path,
+    out_dir: Path,
+    tracked: str,
+    head_pitch: float,
+    camera_rate: float,
+    position_sigma: float,
+) -> tuple[Processes, ControllerSpec]:
+    """A walk that watches ``tracked`` (an object of ``models/objects``, resting z up) with the
+    head camera: the processes — the trial's scene (MJCF ``scene_text`` of ``source`` with the
+    head's pitch and yaw starting at (``head_pitch``, 0), written to ``out_dir/scene.xml``), the
+    head camera rendered at ``camera_rate`` [Hz of controller time], ``marionette perceive``
+    publishing ``tracked`` when its position is known to ``position_sigma`` [m] — and the walking
+    stack holding the head there (for :func:`walking_run`)."""
+    import marionette
+    from marionette import robots
+    from marionette.scenarios.perturbations import set_keyframe_joints, write_scene
+
+    head = dict(zip(robots.robot(robot).calibration_head_joints, (head_pitch, 0.0)))
+    scene = write_scene(set_keyframe_joints(scene_text, head), source, out_dir / "scene.xml")
+    processes = Processes(
+        robot,
+        scene,
+        camera_rate=camera_rate,
+        perceive=(
+            "--robot",
+            robot,
+            "--objects",
+            str(marionette.MODELS_DIR / "objects" / f"{tracked}.yaml"),
+            "--up-axis",
+            f"{tracked}:0,0,1",
+            "--max-position-sigma",
+            str(position_sigma),
+        ),
+    )
+    return processes, walking_spec(robot, 1, head_pitch=head_pitch)
 
 
 @contextlib.contextmanager
