@@ -109,7 +109,7 @@ class ControllerClient:
                 self._lock.wait(min(remaining, 0.05))
 
     def timeout_message(self, timeout_s: float, what: str) -> str:
-        """"timed out after <timeout_s> s waiting for <what>" and what the controller last said."""
+        """ "timed out after <timeout_s> s waiting for <what>" and what the controller last said."""
         status = self.status
         detail = (
             f" (mode {status.mode!r}: {status.mode_reason}; last rejection: "

@@ -20,7 +20,11 @@ LOADED_FORCE_N = 10.0  # a sole carries load above this normal force [N]
 
 
 def walking_spec(
-    robot: str, controller_id: int = 1, name: str = "walk", head_pitch: float | None = None
+    robot: str,
+    controller_id: int = 1,
+    name: str = "walk",
+    head_pitch: float | None = None,
+    gaze: tuple[float, float, float] | None = None,
 ) -> ControllerSpec:
     """The walking stack of ``robot`` (its robot.yaml feet, left then right, and its root link
     as the waist): feet (20/s) and CoM (5/s) from the controller's pattern generator and the
@@ -32,7 +36,13 @@ def walking_spec(
 
     ``head_pitch`` [rad]: the head looks down at the floor ahead while walking (its camera
     measures what lies on the path): the head joints robot.yaml's calibration names (pitch,
-    yaw) are held at (``head_pitch``, 0) at level 1, the posture moves to level 2."""
+    yaw) are held at (``head_pitch``, 0) at level 1, the posture moves to level 2.
+
+    ``gaze`` (a world point): the head camera keeps that point at the image centre instead — a
+    ``gaze`` task named "gaze", streamed (:class:`~marionette.scenarios.walking_scenario.
+    GazeFollower` moves the point as the camera sees the object move), at level 2, below the
+    posture of every other joint at level 1: only the head turns to look (:func:`_gaze_tasks`).
+    The posture of all joints stays, at level 3."""
     from marionette import robots
 
     desc = robots.robot(robot)
@@ -60,6 +70,10 @@ def walking_spec(
                 reference=tuple(float(v) for v in q),
             )
         ]
+    if gaze is not None:
+        if head_pitch is not None:
+            raise ValueError("walking_spec: give head_pitch or gaze, not both")
+        head = _gaze_tasks(robot, gaze)
     return ControllerSpec(
         controller_id,
         name,
@@ -89,6 +103,51 @@ def walking_spec(
             TaskSpec("posture", "posture", 1 + len(head), gain=2.0),
         ],
     )
+
+
+def _gaze_tasks(robot: str, point: tuple[float, float, float]) -> list[TaskSpec]:
+    """:func:`walking_spec`'s gaze: the posture of every 1-DoF joint but the head's and the legs'
+    (those the feet hang from) held at level 1, the camera on ``point`` at level 2: the legs walk
+    (level 0 decides them), the head looks, nothing else moves for it.
+
+    Measured: with only the torso held, a gaze whose head joint had reached its limit lowered the
+    camera by bending the legs, the arms swinging to keep the CoM: the base sank 12 cm and the
+    robot fell. With the legs held too, level 0 could only correct the CoM through the head (its
+    mass moves the CoM a little): the walking stack's first command jumped 0.5 rad/s and was
+    refused."""
+    from marionette import robots
+
+    desc = robots.robot(robot)
+    if desc.camera_frame is None or len(desc.calibration_head_joints) != 2:
+        raise ValueError(
+            f"{desc.semantics}: looking at a point while walking needs a camera frame and the "
+            "head's pitch and yaw joints (calibration: head_joints)"
+        )
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
+    legs = {
+        j
+        for f in desc.feet
+        for j in model.supports[model.frames[model.getFrameId(f.frame)].parentJoint]
+    }
+    body = [
+        model.names[j]
+        for j in range(1, model.njoints)
+        if model.joints[j].nv == 1
+        and j not in legs
+        and model.names[j] not in desc.calibration_head_joints
+    ]
+    return [
+        TaskSpec("upper_body", "posture", 1, gain=2.0, joints=tuple(body)),
+        TaskSpec(
+            "gaze",
+            "gaze",
+            2,
+            frame=desc.camera_frame,
+            gain=2.0,
+            reference=tuple(float(v) for v in point),
+            streamed=True,
+        ),
+    ]
 
 
 @lru_cache(maxsize=4)

@@ -3,13 +3,13 @@ grasps it by friction and lifts it.
 
 Scene ``talos_ball``: the ball (``models/objects`` Ball, 50 mm: TALOS' gripper opens 66 mm)
 rests free in the cup of a pedestal (a mocap body, tagged 60-63 on its sides) 1.3 m ahead.
-marionette-controller runs the walking stack (:func:`walking.walking_spec`, the head looking
-down ahead) and renders the head camera; ``marionette perceive`` measures the pedestal from its
-tags and publishes it on OBJECT_POSES; the footstep process (``marionette footsteps run``,
-posture frozen when replanning) plans the steps to a stance from which the right hand reaches the
-ball — the point resting in the cup, ``--target-point`` in the pedestal's frame — and replans at
-every new estimate and every step; the controller's footstep manager applies the new steps to the
-steps not yet started.
+marionette-controller runs the walking stack (:func:`walking.walking_spec`, the head camera
+kept on the pedestal: :class:`.walking_scenario.GazeFollower`) and renders the head camera;
+``marionette perceive`` measures the pedestal from its tags and publishes it on OBJECT_POSES;
+the footstep process (``marionette footsteps run``, posture frozen when replanning) plans the
+steps to a stance from which the right hand reaches the ball — the point resting in the cup,
+``--target-point`` in the pedestal's frame — and replans at every new estimate and every step;
+the controller's footstep manager applies the new steps to the steps not yet started.
 
 When a step starts (``shift_at_step``) the simulator slides the pedestal, the ball riding in its
 cup, by a move drawn from the trial's seed: 0.1-0.3 m in any direction on the floor (Dang's ball
@@ -52,6 +52,7 @@ from marionette.scenarios.report import (
 from marionette.scenarios.standing_grasp import GraspSettings, StandingGrasp
 from marionette.scenarios.walking_scenario import (
     MIN_REPLAN_HZ,
+    GazeFollower,
     SlidingFixture,
     WalkRecorder,
     draw_floor_move,
@@ -81,10 +82,11 @@ class GraspWalkSettings:
     shift_at_step: int = 1  # the move starts when this step starts
     shift_duration_s: float = 1.5  # [s] of controller time: slid, not teleported
     hand: str = "right"
-    head_pitch: float = 0.75  # [rad] the head looks down (TALOS' limit 0.785): a tag of the
-    #                           pedestal (0.73 m high) stays in the image from 2 m to 0.65 m ahead
-    #                           of the feet (tests/python/models/test_model_scenes.py); at 0.6 it
-    #                           left the image 0.8 m ahead, before the pedestal stopped
+    # [m] the point of the pedestal the head camera keeps at the image centre (its column's top:
+    # the tags just below, the ball above). With the head held looking down ahead instead
+    # (pitch 0.75), a pedestal moved toward the robot's right left the image before it stopped
+    # and the robot grasped 8 cm beside the ball (1 trial in 10).
+    gaze_point: tuple[float, float, float] = (0.0, 0.0, PEDESTAL.height)
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames
     pedestal_position_sigma: float = 0.03  # [m] published when its position is known this well
     stance_tolerance: float = 0.02  # [m] executed final soles vs the last plan's
@@ -201,21 +203,31 @@ def run_grasp_walk(
     pedestal0 = pedestal_floor_pose(scene_object_pose(scenario.scene, "pedestal"))
     pedestal1 = pedestal0 + np.array([*settings.shift, 0.0])
     ball0, ball1 = ball_on(pedestal0), ball_on(pedestal1)
+    X_pedestal0 = pedestal_body_pose(pedestal0)
     processes, spec = watching_walk(
         scenario.robot,
         scenario.scene.read_text(),
         scenario.scene,
         out_dir,
         "pedestal",
-        settings.head_pitch,
         settings.camera_rate,
         settings.pedestal_position_sigma,
+        gaze=X_pedestal0.act(np.array(settings.gaze_point)),
     )
     with walking_run(
         scenario.robot, model, processes.scene, out_dir, options, report, processes, spec
     ) as run:
         client, rec = run.client, run.rec
-        pedestal = SlidingFixture(client, "pedestal", pedestal_body_pose, pedestal_floor_pose)
+        gaze = GazeFollower(
+            client,
+            spec.controller_id,
+            np.array(settings.gaze_point),
+            X_pedestal0.act(np.array(settings.gaze_point)),
+        )
+        gaze.follow(X_pedestal0)  # the first chunk: the stream holds its target from now on
+        pedestal = SlidingFixture(
+            client, "pedestal", pedestal_body_pose, pedestal_floor_pose, on_estimate=gaze.follow
+        )
         utime_move = walk_while_object_moves(
             run,
             pedestal,
@@ -243,7 +255,7 @@ def run_grasp_walk(
         if perceived:
             believed = ball_on(perceived[-1][1])
             grasp = StandingGrasp(client, model, scenario.robot, settings.hand, settings.grasp, log)
-            report["grasp"] = grasp.run(believed, "ball")
+            report["grasp"] = grasp.run(believed, "ball", out_dir)
         else:
             report["grasp"] = {
                 "done": False,
@@ -553,6 +565,8 @@ def _plots(
     ax.set_ylabel("ZMP margin [mm]")
     ax.set_title("measured ZMP: distance inside the support polygon of the loaded soles")
     paths.append(save_figure(fig, out_dir / "zmp_margin.png"))
+    if (out_dir / "grip_force.png").exists():  # drawn by the grasp (standing_grasp)
+        paths.append(out_dir / "grip_force.png")
     return paths
 
 

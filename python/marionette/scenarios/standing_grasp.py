@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -247,10 +248,10 @@ class StandingGrasp:
         if streamer.min_margin_us is not None:
             self.lookahead_ms.append(streamer.min_margin_us / 1e3)
 
-    def run(self, p_object: np.ndarray, object_name: str) -> dict[str, Any]:
+    def run(self, p_object: np.ndarray, object_name: str, plot_dir: Path) -> dict[str, Any]:
         """Grasps the object whose centre the robot believes at ``p_object`` (world) and lifts
         it; ``object_name`` names it in SIM_OBJECT_POSES for the verdict. Returns the measures
-        (``lifted`` the verdict)."""
+        (``lifted`` the verdict); the grip force's plot goes to ``plot_dir``."""
         s, client = self.settings, self.client
         out: dict[str, Any] = {"object_believed_at": [float(v) for v in p_object]}
         X_link = self._frame(self.frame)
@@ -324,6 +325,12 @@ class StandingGrasp:
             )
             motion = self.recorder.hold_motion(self.gripper.name, object_name, t_lift, t_end)
             out["motion_in_hand_m_rad"] = None if motion is None else list(motion)
+            if self.recorder.t:
+                self.recorder.plot(
+                    plot_dir / "grip_force.png",
+                    ADMITTANCE["force_target"],
+                    {self.gripper.name: [(t_close, t_end)]},
+                )
         self.log(
             f"grasp: object {'lifted' if out['lifted'] else 'NOT lifted'} by "
             f"{rise * 1e3:.0f} mm (hand {s.lift * 1e3:.0f} mm)"

@@ -242,9 +242,9 @@ def run_step_over(
         scenario.scene,
         out_dir,
         "bar",
-        settings.head_pitch,
         settings.camera_rate,
         settings.bar_position_sigma,
+        head_pitch=settings.head_pitch,
     )
     with walking_run(
         scenario.robot, model, processes.scene, out_dir, options, report, processes, spec

@@ -41,7 +41,7 @@ from marionette import (
     lcmt_walk_status,
 )
 from marionette.control.client import ControllerClient, configuration_from_state
-from marionette.control.spec import ControllerSpec
+from marionette.control.spec import ControllerSpec, reference_chunk
 from marionette.execution.walking import FEET, MergedPlan, loaded_soles, walking_spec
 from marionette.scenarios.base import RunOptions
 from marionette.scenarios.harness import Processes, Run, harness
@@ -57,7 +57,8 @@ class SlidingFixture:
     :func:`walk_while_object_moves`). The scenario speaks in floor poses (x, y, yaw):
     ``body_pose(pose)`` is the body's world pose for the simulator and ``floor_pose(X)`` the way
     back; ``history`` keeps (controller utime, floor pose) of every OBJECT_POSES estimate of the
-    body (what the robot perceived), for the verdict and the plots."""
+    body (what the robot perceived), for the verdict and the plots; ``on_estimate(X)`` is called
+    with each (a :class:`GazeFollower` turning the head to it)."""
 
     def __init__(
         self,
@@ -65,9 +66,10 @@ class SlidingFixture:
         name: str,
         body_pose: Callable[[np.ndarray], pin.SE3],
         floor_pose: Callable[[pin.SE3], np.ndarray],
+        on_estimate: Callable[[pin.SE3], None] | None = None,
     ) -> None:
         self.client, self.name, self.stop = client, name, threading.Event()
-        self.body_pose, self.floor_pose = body_pose, floor_pose
+        self.body_pose, self.floor_pose, self.on_estimate = body_pose, floor_pose, on_estimate
         self.history: list[tuple[int, np.ndarray]] = []
         self._lock = threading.Lock()
 
@@ -84,6 +86,8 @@ class SlidingFixture:
                 )
                 with self._lock:
                     self.history.append((int(msg.utime), self.floor_pose(X)))
+                if self.on_estimate is not None:
+                    self.on_estimate(X)
 
     def move(self, pose: np.ndarray, duration_s: float) -> int:
         """Starts the slide to ``pose`` now; returns its controller utime."""
@@ -94,6 +98,52 @@ class SlidingFixture:
     def perceived(self) -> list[tuple[int, np.ndarray]]:
         with self._lock:
             return list(self.history)
+
+
+class GazeFollower:
+    """Keeps the head camera on a tracked object while the robot walks (Dang 2012 ch. 6: the
+    ball followed by the robot's cameras): streams the target of the walking stack's ``gaze`` task
+    (:func:`walking.walking_spec` with ``gaze``), the point ``point_O`` of the object at each new
+    estimate of its pose, over a ``ramp_s`` linear ramp from the last target (the head turns
+    smoothly, not by steps), each chunk the stream's last (it holds its end)."""
+
+    def __init__(
+        self,
+        client: ControllerClient,
+        controller_id: int,
+        point_O: np.ndarray,
+        target_W: np.ndarray,
+        ramp_s: float = 0.2,
+    ) -> None:
+        self.client, self.controller_id = client, controller_id
+        self.point_O, self.target = np.asarray(point_O, dtype=float), np.asarray(target_W, float)
+        self.ramp_samples = max(1, round(ramp_s * 1e3))
+        self.sequence = 0
+        self._lock = threading.Lock()
+
+    def follow(self, X_WO: pin.SE3) -> None:
+        """A new estimate of the object's pose: the gaze moves to its point."""
+        target = X_WO.act(self.point_O)
+        with self._lock:
+            s = np.linspace(0.0, 1.0, self.ramp_samples)[:, None]
+            values = self.target + s * (target - self.target)
+            rate = (target - self.target) / (self.ramp_samples * 1e-3)
+            derivatives = np.repeat(rate[None, :], self.ramp_samples, axis=0)
+            derivatives[-1] = 0.0
+            start = (self.client.utime() // 1000 + 1) * 1000  # on the stream's 1 ms grid
+            self.client.send_reference(
+                reference_chunk(
+                    self.controller_id,
+                    "gaze",
+                    start,
+                    values,
+                    derivatives,
+                    last=True,
+                    sequence=self.sequence,
+                )
+            )
+            self.sequence += 1
+            self.target = target
 
 
 class WalkRecorder:
@@ -303,21 +353,31 @@ def watching_walk(
     source: Path,
     out_dir: Path,
     tracked: str,
-    head_pitch: float,
     camera_rate: float,
     position_sigma: float,
+    head_pitch: float | None = None,
+    gaze: np.ndarray | None = None,
 ) -> tuple[Processes, ControllerSpec]:
     """A walk that watches ``tracked`` (an object of ``models/objects``, resting z up) with the
-    head camera: the processes — the trial's scene (MJCF ``scene_text`` of ``source`` with the
-    head's pitch and yaw starting at (``head_pitch``, 0), written to ``out_dir/scene.xml``), the
-    head camera rendered at ``camera_rate`` [Hz of controller time], ``marionette perceive``
-    publishing ``tracked`` when its position is known to ``position_sigma`` [m] — and the walking
-    stack holding the head there (for :func:`walking_run`)."""
+    head camera: the processes — the trial's scene (MJCF ``scene_text`` of ``source`` written to
+    ``out_dir/scene.xml``), the head camera rendered at ``camera_rate`` [Hz of controller time],
+    ``marionette perceive`` publishing ``tracked`` when its position is known to
+    ``position_sigma`` [m] — and the walking stack (for :func:`walking_run`). The head either
+    holds ``head_pitch`` (and yaw 0) or keeps the world point ``gaze`` at the image centre
+    (moved by a :class:`GazeFollower`); the scene starts it there (:func:`aim_head`)."""
     import marionette
     from marionette import robots
     from marionette.scenarios.perturbations import set_keyframe_joints, write_scene
 
-    head = dict(zip(robots.robot(robot).calibration_head_joints, (head_pitch, 0.0)))
+    if gaze is not None:
+        head = aim_head(robot, np.asarray(gaze, dtype=float))
+        x, y, z = (float(v) for v in gaze)
+        spec = walking_spec(robot, 1, gaze=(x, y, z))
+    elif head_pitch is not None:
+        head = dict(zip(robots.robot(robot).calibration_head_joints, (head_pitch, 0.0)))
+        spec = walking_spec(robot, 1, head_pitch=head_pitch)
+    else:
+        raise ValueError("watching_walk: give head_pitch or gaze")
     scene = write_scene(set_keyframe_joints(scene_text, head), source, out_dir / "scene.xml")
     processes = Processes(
         robot,
@@ -334,7 +394,33 @@ def watching_walk(
             str(position_sigma),
         ),
     )
-    return processes, walking_spec(robot, 1, head_pitch=head_pitch)
+    return processes, spec
+
+
+def aim_head(robot: str, target_W: np.ndarray) -> dict[str, float]:
+    """The head's (pitch, yaw) joints (robot.yaml calibration ``head_joints``) that bring the
+    world point ``target_W`` to the centre of the head camera's image, the robot in its reference
+    configuration; within the joints' limits (the nearest reachable when it is not)."""
+    from scipy.optimize import least_squares
+
+    from marionette import robots
+
+    desc = robots.robot(robot)
+    model, _ = robots.load_pinocchio(robot, with_collision=False)
+    data = model.createData()
+    q = robots.reference_configuration(robot, model)
+    idx = [model.joints[model.getJointId(j)].idx_q for j in desc.calibration_head_joints]
+    camera = model.getFrameId(desc.camera_frame)
+
+    def image(x: np.ndarray) -> np.ndarray:
+        q[idx] = x
+        pin.framesForwardKinematics(model, data, q)
+        p = data.oMf[camera].actInv(target_W)
+        return p[:2] / max(p[2], 1e-3)  # normalised image coordinates, (0, 0) at the centre
+
+    lower, upper = model.lowerPositionLimit[idx], model.upperPositionLimit[idx]
+    x = least_squares(image, np.clip(q[idx], lower, upper), bounds=(lower, upper)).x
+    return {j: float(v) for j, v in zip(desc.calibration_head_joints, x)}
 
 
 @contextlib.contextmanager

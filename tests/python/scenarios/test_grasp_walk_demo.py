@@ -94,7 +94,14 @@ def test_grasp_walk_demo_walks_to_the_moved_ball_and_lifts_it(tmp_path, lcm_env)
         speed=1,
         timeout_s=180,
         args=("--seed", "1"),
-        files=("report.md", "run.lcmlog", "footsteps.png", "com_zmp.png", "zmp_margin.png"),
+        files=(
+            "report.md",
+            "run.lcmlog",
+            "footsteps.png",
+            "com_zmp.png",
+            "zmp_margin.png",
+            "grip_force.png",
+        ),
     )
     c = report["criteria"]
     assert report["controller"]["num_rejected"] == 0, report["controller"]["last_rejection"]

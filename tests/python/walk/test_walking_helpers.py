@@ -129,3 +129,118 @@ def test_bar_height_under_a_sole_is_the_cylinder_or_an_end_block():
     assert cylinder_height_under(
         sole(0.9, 1.1, 0.62, 0.66), bar, R, length, block
     ) == pytest.approx(block)
+
+
+def test_a_walk_that_looks_at_a_point_moves_only_the_head_for_it():
+    """``walking_spec(gaze=...)``: every 1-DoF joint but the head's and the legs' held at level 1
+    (the legs are the joints the feet hang from, by Pinocchio's supports), the streamed gaze on
+    the camera frame at level 2, the whole posture below; a pitch and a gaze at once refused."""
+    import pinocchio as pin
+
+    from marionette import robots
+    from marionette.execution.walking import walking_spec
+
+    desc = robots.robot("talos")
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    spec = walking_spec("talos", 1, gaze=(1.3, -0.1, 0.8))
+    tasks = {t.name: t for t in spec.tasks}
+    legs = set()
+    for foot in desc.feet:
+        data = model.createData()
+        q = pin.neutral(model)
+        pin.framesForwardKinematics(model, data, q)
+        for j in range(1, model.njoints):  # a joint is a leg's when moving it moves the sole
+            dq = np.zeros(model.nv)
+            if model.joints[j].nv != 1:
+                continue
+            dq[model.joints[j].idx_v] = 0.1
+            moved = model.createData()
+            pin.framesForwardKinematics(model, moved, pin.integrate(model, q, dq))
+            frame = model.getFrameId(foot.frame)
+            if not moved.oMf[frame].isApprox(data.oMf[frame], 1e-9):
+                legs.add(model.names[j])
+    one_dof = {model.names[j] for j in range(1, model.njoints) if model.joints[j].nv == 1}
+    upper = tasks["upper_body"]
+    assert upper.priority == 1 and upper.kind == "posture"
+    assert set(upper.joints) == one_dof - legs - set(desc.calibration_head_joints)
+    assert len(legs) == 12
+    gaze = tasks["gaze"]
+    assert (gaze.kind, gaze.priority, gaze.frame, gaze.streamed) == (
+        "gaze",
+        2,
+        desc.camera_frame,
+        True,
+    )
+    assert gaze.reference == (1.3, -0.1, 0.8)
+    assert tasks["posture"].priority == 3 and not tasks["posture"].joints
+    spec.to_lcm(0)
+    with pytest.raises(ValueError, match="not both"):
+        walking_spec("talos", 1, head_pitch=0.5, gaze=(1.0, 0.0, 0.8))
+
+
+@pytest.mark.parametrize("target", [(1.3, -0.1, 0.8), (0.9, 0.3, 1.0), (2.0, -0.4, 1.0)])
+def test_the_head_is_aimed_so_the_point_is_at_the_image_centre(target):
+    """``aim_head``: with the head joints it returns, the point projects on the optical axis (a
+    separate forward kinematics in the test); a point no head posture centres (straight below the
+    feet) leaves a joint on its limit."""
+    import pinocchio as pin
+
+    from marionette import robots
+    from marionette.scenarios.walking_scenario import aim_head
+
+    desc = robots.robot("talos")
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+
+    def camera_point(head: dict[str, float], p) -> np.ndarray:
+        q = robots.reference_configuration("talos", model)
+        for name, value in head.items():
+            q[model.joints[model.getJointId(name)].idx_q] = value
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q)
+        return data.oMf[model.getFrameId(desc.camera_frame)].actInv(np.asarray(p, dtype=float))
+
+    head = aim_head("talos", np.array(target))
+    p = camera_point(head, target)
+    assert p[2] > 0 and np.hypot(p[0], p[1]) / p[2] < 1e-6
+    below = aim_head("talos", np.array([0.0, 0.0, 0.0]))
+    limits = [
+        (model.lowerPositionLimit[i], model.upperPositionLimit[i])
+        for i in (model.joints[model.getJointId(j)].idx_q for j in desc.calibration_head_joints)
+    ]
+    assert any(min(abs(v - lo), abs(v - hi)) < 1e-6 for v, (lo, hi) in zip(below.values(), limits))
+
+
+def test_the_gaze_follows_each_estimate_by_a_ramp_the_stream_then_holds():
+    """``GazeFollower``: each estimate sends one chunk for the walking controller's gaze task:
+    from the last target to the object's point, linear over the ramp, on the 1 ms grid after the
+    controller's time, the stream's last (it holds its end), numbered in order."""
+    import pinocchio as pin
+
+    from marionette.scenarios.walking_scenario import GazeFollower
+
+    class Client:
+        def __init__(self):
+            self.sent, self.now = [], 1_234_567
+
+        def utime(self):
+            return self.now
+
+        def send_reference(self, chunk):
+            self.sent.append(chunk)
+
+    client = Client()
+    point = np.array([0.0, 0.0, 0.8])
+    follower = GazeFollower(client, 1, point, np.array([1.3, -0.1, 0.8]), ramp_s=0.2)
+    X = pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, 0.4), np.array([1.1, -0.3, 0.0]))
+    follower.follow(X)
+    client.now += 200_000
+    follower.follow(X)
+    first, second = client.sent
+    for k, c in enumerate(client.sent):
+        assert (c.controller_id, c.task_name, c.last_chunk, c.sequence) == (1, "gaze", True, k)
+        assert c.utime % 1000 == 0 and c.dt_us == 1000
+    assert first.utime == 1_235_000 and first.num_samples == 200
+    values = np.array(first.value)
+    assert np.allclose(values[0], [1.3, -0.1, 0.8]) and np.allclose(values[-1], X.act(point))
+    assert np.allclose(np.diff(values, axis=0), (values[-1] - values[0]) / 199)
+    assert np.allclose(np.array(second.value), X.act(point)), "the same estimate: it stays"
