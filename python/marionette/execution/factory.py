@@ -49,6 +49,7 @@ from marionette import robots
 from marionette.control.spec import ControllerSpec, SpecError, TaskSpec
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import grip_ramp_s
+from marionette.models import jaw
 from marionette.models.semantics import Gripper, SemanticsError
 
 SPECS_FORMAT = "marionette-controllers/1"
@@ -67,6 +68,7 @@ END_THRESHOLDS: dict[str, float] = {
     # lambda; in position control it is the lag behind the closing ramp [rad].
     "gripper_admittance": 0.01,
 }
+
 GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0, "gripper": 2.0}
 # Gripper admittance parameters (thesis 000 §3.2.4.3: ~5 N, switch slightly below it); the others
 # (gain K_a, lever arm, 5 Hz filter, ramp speed) are the controller's defaults
@@ -172,10 +174,10 @@ def gripper_joint(g: Gripper, model: pin.Model, robot: str) -> GripperJoint:
 
 
 @cache
-def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
-    """The motor torque per newton of squeeze of ``gripper`` at mid-stroke: eq. 3.13 by virtual
-    work over its jaws' linkage, mimic joints included (:class:`marionette.models.jaw.Linkage`);
-    None when robot.yaml declares no jaws for it."""
+def gripper_linkage(robot: str, gripper: str) -> jaw.Linkage | None:
+    """The jaws of ``robot``'s ``gripper`` as its finger joint moves them
+    (:class:`marionette.models.jaw.Linkage`, mimic joints included); None when robot.yaml
+    declares no jaws for it or no joint with both positions."""
     from marionette.models import jaw
     from marionette.models.urdf import read_urdf
 
@@ -186,7 +188,18 @@ def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
     urdf = read_urdf(robots.robot(robot).urdf)
     if g.joint not in urdf.joints:
         return None
-    linkage = jaw.Linkage(urdf, urdf.joints[g.joint], jaws, g.link, g.pose.matrix())
+    return jaw.Linkage(urdf, urdf.joints[g.joint], jaws, g.link, g.pose.matrix())
+
+
+@cache
+def squeeze_lever_arm(robot: str, gripper: str) -> float | None:
+    """The motor torque per newton of squeeze of ``gripper`` at mid-stroke: eq. 3.13 by virtual
+    work over its jaws' linkage (:func:`gripper_linkage`); None when it has none."""
+    linkage = gripper_linkage(robot, gripper)
+    if linkage is None:
+        return None
+    g = robots.semantics(robot).gripper(gripper)
+    assert g.open_position is not None and g.closed_position is not None
     return linkage.squeeze_lever_arm((g.open_position + g.closed_position) / 2)
 
 

@@ -16,6 +16,7 @@ it for a slide).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -114,6 +115,41 @@ class Linkage:
             lever += abs(after[1] - before[1]) / step
         return lever
 
+    @cached_property
+    def _surfaces(self) -> dict[str, np.ndarray]:
+        """Each jaw link's surface points (:func:`_surface`), drawn once."""
+        return {link: _surface(self.urdf, link) for jaw in self.jaws for link in jaw}
+
+    def opening(self, q: float) -> float | None:
+        """The width [m] of an object centred on the gripper frame that the jaws touch with the
+        finger at ``q``: the sum of each jaw's distance from the frame's origin to its
+        :meth:`pressing_points` (a ball of that diameter, held where the grasp puts it). None
+        when :meth:`pressing_points` is."""
+        points = self.pressing_points(q)
+        if points is None:
+            return None
+        poses = self.link_poses(q)
+        return float(sum(np.linalg.norm(_transform(poses[link], p[None])[0]) for link, p in points))
+
+    def position_for_width(self, width: float, lower: float, upper: float) -> float | None:
+        """The finger position in [``lower``, ``upper``] (the stroke) at which the jaws close on
+        an object ``width`` wide (:meth:`opening`), by bisection; None when the jaws cannot close
+        on it (wider than the open jaws, narrower than the closed ones) or have no surfaces."""
+        a, b = self.opening(lower), self.opening(upper)
+        if a is None or b is None or not min(a, b) <= width <= max(a, b):
+            return None
+        lo, hi = (lower, upper) if a > b else (upper, lower)  # opening(lo) >= width >= opening(hi)
+        for _ in range(30):  # a stroke of 1 rad to 1e-9
+            mid = 0.5 * (lo + hi)
+            value = self.opening(mid)
+            if value is None:
+                return None
+            if value >= width:
+                lo = mid
+            else:
+                hi = mid
+        return 0.5 * (lo + hi)
+
     def pressing_points(self, q: float) -> list[tuple[str, np.ndarray]] | None:
         """Where each jaw presses a handle held at the gripper frame, the finger at ``q``:
         (link, point in that link's frame) of the jaw's collision surface point nearest the
@@ -125,7 +161,7 @@ class Linkage:
         X_GP = np.linalg.inv(poses[self.gripper_link] @ self.X_link_gripper)
         out = []
         for jaw in self.jaws:
-            surfaces = {link: _surface(self.urdf, link) for link in jaw if link in poses}
+            surfaces = {link: self._surfaces[link] for link in jaw if link in poses}
             surfaces = {link: p for link, p in surfaces.items() if len(p)}
             if not surfaces:
                 return None

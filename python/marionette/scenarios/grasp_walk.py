@@ -255,7 +255,7 @@ def run_grasp_walk(
         if perceived:
             believed = ball_on(perceived[-1][1])
             grasp = StandingGrasp(client, model, scenario.robot, settings.hand, settings.grasp, log)
-            report["grasp"] = grasp.run(believed, "ball", out_dir)
+            report["grasp"] = grasp.run(believed, 2 * BALL.radius, "ball", out_dir)
         else:
             report["grasp"] = {
                 "done": False,

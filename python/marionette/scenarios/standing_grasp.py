@@ -18,10 +18,13 @@ convention) points down, tilted by ``approach_tilt_deg`` away from the shoulder;
 closing axis, robot.yaml ``jaws``) is horizontal. A ball has no preferred orientation: the sign
 of y is the one nearer the hand's current orientation.
 
-What the robot senses decides whether it holds something (:func:`grasp_check`): fingers that
-closed to within ``empty_margin`` of the stroke from the closed position met nothing, and the
-robot does not lift an empty hand. The simulator's truth (SIM_OBJECT_POSES) only judges
-afterwards: how high the object rose, how it moved in the hand (:class:`GripForceRecorder`).
+What the robot senses decides whether it holds the object (:func:`grasp_check`, the gripper's
+encoder): fingers that closed to within ``empty_margin`` of the stroke from the closed position
+met nothing; fingers that stopped more than ``width_margin`` of the stroke from where the
+object's width stops them (the jaws' geometry, :meth:`marionette.models.jaw.Linkage.
+position_for_width`) hold something else. Either way the robot does not lift. The simulator's
+truth (SIM_OBJECT_POSES) only judges afterwards: how high the object rose, how it moved in the
+hand (:class:`GripForceRecorder`).
 """
 
 from __future__ import annotations
@@ -38,7 +41,13 @@ import pinocchio as pin
 from marionette import robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.execution.factory import ADMITTANCE, GAINS, GripperJoint, gripper_joint
+from marionette.execution.factory import (
+    ADMITTANCE,
+    GAINS,
+    GripperJoint,
+    gripper_joint,
+    gripper_linkage,
+)
 from marionette.execution.grip_force import GripForceRecorder, GripperGeometry
 from marionette.execution.references import grip_ramp_s, minimum_jerk
 from marionette.execution.walking import walking_spec
@@ -64,6 +73,10 @@ class GraspSettings:
     hold_s: float = 1.0  # [s] held up before the verdict
     min_lift: float = 0.05  # [m] the object's rise that counts as lifted
     empty_margin: float = 0.1  # fraction of the stroke from closed: the fingers met nothing
+    # fraction of the stroke between where the fingers stop and where the object's width stops
+    # them (jaw geometry) beyond which they hold something else: the 50 mm ball stops TALOS'
+    # fingers at -0.336 to -0.354 rad for -0.345 predicted; closing on the tee, at -0.62
+    width_margin: float = 0.1
 
 
 def grasp_pose(
@@ -151,13 +164,28 @@ def grip_spec(
     )
 
 
-def grasp_check(joint: GripperJoint, position: float, empty_margin: float) -> str | None:
-    """None when the fingers stopped on something; else why the hand is empty."""
+def grasp_check(
+    joint: GripperJoint,
+    position: float,
+    empty_margin: float,
+    expected: float | None = None,
+    width_margin: float = 0.1,
+) -> str | None:
+    """None when the fingers stopped on the object; else why the hand does not hold it: the
+    fingers reached their closed stop (within ``empty_margin`` of the stroke: nothing between
+    them), or they stopped more than ``width_margin`` of the stroke away from ``expected``, where
+    an object of the grasped one's width stops them (something else between them)."""
     closure = joint.closure(position)
     if closure >= 1.0 - empty_margin:
         return (
-            f"grasp missed: the fingers closed to {position:.3f} rad ({closure:.0%} of their "
+            f"grasp missed: the fingers closed to {position:.3f} ({closure:.0%} of their "
             f"stroke, closed at {joint.closed_position:g}): nothing between them"
+        )
+    if expected is not None and abs(closure - joint.closure(expected)) > width_margin:
+        return (
+            f"grasp missed: the fingers stopped at {position:.3f} where the object stops them at "
+            f"{expected:.3f} ({abs(closure - joint.closure(expected)):.0%} of their stroke "
+            f"apart): what they hold is not the object"
         )
     return None
 
@@ -248,12 +276,24 @@ class StandingGrasp:
         if streamer.min_margin_us is not None:
             self.lookahead_ms.append(streamer.min_margin_us / 1e3)
 
-    def run(self, p_object: np.ndarray, object_name: str, plot_dir: Path) -> dict[str, Any]:
-        """Grasps the object whose centre the robot believes at ``p_object`` (world) and lifts
-        it; ``object_name`` names it in SIM_OBJECT_POSES for the verdict. Returns the measures
-        (``lifted`` the verdict); the grip force's plot goes to ``plot_dir``."""
+    def run(
+        self, p_object: np.ndarray, width: float, object_name: str, plot_dir: Path
+    ) -> dict[str, Any]:
+        """Grasps the object ``width`` wide [m] whose centre the robot believes at ``p_object``
+        (world) and lifts it; ``object_name`` names it in SIM_OBJECT_POSES for the verdict.
+        Returns the measures (``lifted`` the verdict); the grip force's plot goes to
+        ``plot_dir``."""
         s, client = self.settings, self.client
         out: dict[str, Any] = {"object_believed_at": [float(v) for v in p_object]}
+        linkage = gripper_linkage(self.robot, self.gripper.name)
+        expected = (
+            None
+            if linkage is None
+            else linkage.position_for_width(
+                width, self.joint.closed_position, self.joint.open_position
+            )
+        )
+        out["finger_expected"] = expected
         X_link = self._frame(self.frame)
         shoulder = self._frame(f"arm_{self.hand}_1_link").translation
         X_grasp = grasp_pose(
@@ -290,7 +330,7 @@ class StandingGrasp:
         client.wait_time(grip_ramp_s(stroke, {**ADMITTANCE, **self.joint.parameters}) + 1.0)
         finger = self._finger()
         out["finger_after_closing"] = finger
-        missed = grasp_check(self.joint, finger, s.empty_margin)
+        missed = grasp_check(self.joint, finger, s.empty_margin, expected, s.width_margin)
         if missed is not None:
             self.log(f"grasp: {missed}; the robot holds where it is")
             return {**out, "done": False, "lifted": False, "reason": missed}
@@ -304,7 +344,7 @@ class StandingGrasp:
         p_end = client.object_pose(object_name).translation
         rise = float(p_end[2] - p_rest[2])
         finger = self._finger()
-        missed = grasp_check(self.joint, finger, s.empty_margin)
+        missed = grasp_check(self.joint, finger, s.empty_margin, expected, s.width_margin)
         out.update(
             done=True,
             object_rise_m=rise,

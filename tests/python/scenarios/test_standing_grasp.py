@@ -155,3 +155,39 @@ def test_the_ball_rests_in_the_cup_where_a_lowered_sphere_first_touches_it():
     assert outer < ball.radius
     with pytest.raises(ValueError, match="falls through"):
         pedestal.ball_rest_z(pedestal.cup_radius - pedestal.cup_block[0])
+
+
+def test_where_a_ball_stops_the_fingers_is_predicted_by_the_jaw_geometry():
+    """``Linkage.opening`` narrows monotonically over TALOS' stroke and ``position_for_width``
+    inverts it; the 50 mm ball stops the simulated fingers (MuJoCo, 20 grasp-walk trials) at
+    -0.336 to -0.354 rad, where the geometry predicts it; too wide or too narrow an object has no
+    such position."""
+    from marionette import robots
+    from marionette.execution.factory import gripper_linkage
+    from marionette.models.objects import Ball
+
+    for side in ("left", "right"):
+        g = robots.semantics("talos").gripper(f"talos/{side}_gripper")
+        linkage = gripper_linkage("talos", g.name)
+        lo, hi = g.closed_position, g.open_position
+        widths = [linkage.opening(q) for q in np.linspace(hi, -0.55, 12)]
+        assert all(a > b for a, b in zip(widths, widths[1:])), widths
+        for w in (0.02, 0.043, 0.05, 0.08):
+            q = linkage.position_for_width(w, lo, hi)
+            assert lo <= q <= hi and linkage.opening(q) == pytest.approx(w, abs=1e-6)
+        assert linkage.position_for_width(0.2, lo, hi) is None
+        q_ball = linkage.position_for_width(2 * Ball().radius, lo, hi)
+        assert -0.365 < q_ball < -0.325, (side, q_ball)
+
+
+def test_fingers_stopped_away_from_where_the_object_stops_them_hold_something_else():
+    from marionette.scenarios.standing_grasp import grasp_check
+
+    for name, j in _bundled_gripper_joints():
+        stroke = j.closed_position - j.open_position
+        expected = j.open_position + 0.4 * stroke
+        for off in (-0.05, 0.0, 0.05):
+            assert grasp_check(j, expected + off * stroke, 0.1, expected, 0.1) is None, name
+        for off in (-0.2, 0.2, 0.3):
+            message = grasp_check(j, expected + off * stroke, 0.1, expected, 0.1)
+            assert message is not None and "not the object" in message, name
