@@ -85,6 +85,15 @@ MISTAKES = [
         (["perceive", "--robot", "none", "--max-position-sigma", v], 2, "positive number")
         for v in ("-1", "0", "nan", "inf")
     ),
+    *(
+        (
+            ["perceive", "--robot", "none", "--up-axis", "bar:0,0,1", "--max-tilt-deg", v],
+            2,
+            "(0, 180)",
+        )
+        for v in ("-1", "0", "nan", "180")
+    ),
+    (["perceive", "--robot", "none", "--max-tilt-deg", "5"], 2, "needs --up-axis"),
 ]
 
 

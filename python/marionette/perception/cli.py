@@ -97,6 +97,14 @@ def register(subparsers) -> None:
         help="publish a body's pose only when its origin is known to within this (1 sigma from "
         "the tag corners; e.g. 0.005: a long bar seen by one end tag is not published)",
     )
+    p.add_argument(
+        "--max-tilt-deg",
+        type=float,
+        default=None,
+        metavar="DEG",
+        help="publish a body given --up-axis only when its estimate tilts that axis by at most "
+        "this from the vertical (a resting body does not tilt; a wrong single-tag estimate does)",
+    )
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--stats-period", type=float, default=5.0, help="print statistics every s")
@@ -211,6 +219,22 @@ def _perceive(args: argparse.Namespace) -> int:
             )
             return 2
         config.max_position_sigma = args.max_position_sigma
+    if args.max_tilt_deg is not None:
+        if not (math.isfinite(args.max_tilt_deg) and 0.0 < args.max_tilt_deg < 180.0):
+            print(
+                "marionette perceive: --max-tilt-deg must be a number of degrees in (0, 180), "
+                f"got {args.max_tilt_deg}",
+                file=sys.stderr,
+            )
+            return 2
+        if not args.up_axis:
+            print(
+                "marionette perceive: --max-tilt-deg needs --up-axis (which axis of which body "
+                "should point up)",
+                file=sys.stderr,
+            )
+            return 2
+        config.max_tilt_deg = args.max_tilt_deg
     if args.full_search_every is not None:
         if args.full_search_every < 1:
             print(

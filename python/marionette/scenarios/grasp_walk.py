@@ -252,8 +252,10 @@ def run_grasp_walk(
         )
         perceived = pedestal.perceived()
         report["reach_start_utime"] = client.utime()
-        if perceived:
-            believed = ball_on(perceived[-1][1])
+        if pedestal.last is not None:
+            # The ball's resting point in the last estimate's frame (not on its floor pose: a
+            # tilt of the estimate moves the origin 0.88 m below the ball more than the ball).
+            believed = pedestal.last.act(np.array([0.0, 0.0, BALL_REST_Z]))
             grasp = StandingGrasp(client, model, scenario.robot, settings.hand, settings.grasp, log)
             report["grasp"] = grasp.run(believed, 2 * BALL.radius, "ball", out_dir)
         else:

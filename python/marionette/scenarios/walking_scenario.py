@@ -48,6 +48,9 @@ from marionette.scenarios.harness import Processes, Run, harness
 
 MIN_REPLAN_HZ = 20.0  # footstep replanning at 20 Hz or more (median replan < 50 ms)
 SETTLE_S = 1.5  # [s] of controller time standing before a walk counts as done
+# [deg] a watched object rests upright: an estimate tilting it more is wrong (perceive
+# --max-tilt-deg; correct estimates of the pedestal and the bar tilt less than 1 deg)
+MAX_TILT_DEG = 5.0
 
 
 class SlidingFixture:
@@ -71,6 +74,7 @@ class SlidingFixture:
         self.client, self.name, self.stop = client, name, threading.Event()
         self.body_pose, self.floor_pose, self.on_estimate = body_pose, floor_pose, on_estimate
         self.history: list[tuple[int, np.ndarray]] = []
+        self.last: pin.SE3 | None = None  # the latest estimate's pose
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -86,6 +90,7 @@ class SlidingFixture:
                 )
                 with self._lock:
                     self.history.append((int(msg.utime), self.floor_pose(X)))
+                    self.last = X
                 if self.on_estimate is not None:
                     self.on_estimate(X)
 
@@ -392,6 +397,8 @@ def watching_walk(
             f"{tracked}:0,0,1",
             "--max-position-sigma",
             str(position_sigma),
+            "--max-tilt-deg",
+            str(MAX_TILT_DEG),
         ),
     )
     return processes, spec

@@ -226,3 +226,32 @@ def test_a_pose_less_precise_than_the_bound_is_not_published_and_is_counted(boun
     assert detections.num_detections == 2
     assert poses.num_objects == (1 if published else 0)
     assert node.counters["imprecise_poses"] == (0 if published else 1)
+
+
+@pytest.mark.parametrize("margin_deg, published", [(2.0, True), (-2.0, False)])
+def test_a_resting_body_estimated_tilted_beyond_the_bound_is_not_published(margin_deg, published):
+    """``max_tilt_deg``: a body declared resting with an axis up (``up_axes``) whose estimate
+    tilts that axis from the world's z by more than the bound is left out of OBJECT_POSES and
+    counted; the tilt is that of the rendered pose (computed here), the bound 2 degrees either
+    side of it."""
+    from marionette.perception.node import PerceptionConfig, PerceptionNode
+
+    (plank,) = load_tagged_bodies([PLANK_YAML])
+    X_CB = pin.SE3(pin.rpy.rpyToMatrix(np.radians(140), 0.0, np.radians(20)), np.array([0, 0, 1.0]))
+    up_B = np.array([0.0, 0.0, 1.0])
+    X_WC = pin.SE3(pin.rpy.rpyToMatrix(np.radians(-130), 0.0, 0.0), np.zeros(3))
+    tilt = np.degrees(np.arccos((X_WC.rotation @ X_CB.rotation @ up_B)[2]))
+    assert 5.0 < tilt < 60.0
+    quads = [syn.tag_quad(t.tag_id, t.size, X_CB * t.X_BT) for t in plank.tags]
+    frame = syn.render(K, quads, background_depth=2.0)
+    node = PerceptionNode(
+        PerceptionConfig(
+            [plank],
+            camera_pose_source="message",
+            up_axes={"plank": up_B},
+            max_tilt_deg=tilt + margin_deg,
+        )
+    )
+    _, poses = node.process(camera_message(frame, 1000, X_WC=X_WC), 0.0)
+    assert poses.num_objects == (1 if published else 0)
+    assert node.counters["tilted_poses"] == (0 if published else 1)
