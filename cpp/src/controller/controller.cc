@@ -138,6 +138,14 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
   model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (device ? 1 : 0), 0.0);
   model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
+  if (scene) {  // where the scene starts them: published before the first tick, never zeros
+    const mjData& d = scene->data();
+    for (size_t i = 0; i < free_object_ids.size(); ++i) {
+      const int b = free_object_ids[i];
+      for (int k = 0; k < 3; ++k) model_snapshot.object_poses[7 * i + k] = d.xpos[3 * b + k];
+      for (int k = 0; k < 4; ++k) model_snapshot.object_poses[7 * i + 3 + k] = d.xquat[4 * b + k];
+    }
+  }
   model_snapshot.range_distances.assign(range_finders.size(), -1.0);
   loop_state = model_snapshot;
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);

@@ -22,6 +22,8 @@ from marionette import (
     robots,
 )
 from marionette.control.client import configuration_from_state
+from marionette.models.scenes import scene_object_pose
+from marionette.scenarios.grasp_walk import SCENE
 from tests_support import lcm_log_messages, run_demo
 
 TYPES = {
@@ -138,6 +140,9 @@ def test_grasp_walk_demo_walks_to_the_moved_ball_and_lifts_it(tmp_path, lcm_env)
         (m.utime, np.array(next(o for o in m.objects if o.object_name == "ball").position_world))
         for m in log[channels.SIM_OBJECT_POSES]
     ]
+    # From the first message on (also the one sent before the first tick): where the scene
+    # starts the ball, on its pedestal.
+    assert np.allclose(sim[0][1], scene_object_pose(SCENE, "ball").translation, atol=1e-3)
     ball_start = sim[0][1]
     ball_stop = [p for u, p in sim if u < report["reach_start_utime"]][-1]
     move = ball_stop[:2] - ball_start[:2]
@@ -186,23 +191,29 @@ def test_grasp_walk_demo_walks_to_the_moved_ball_and_lifts_it(tmp_path, lcm_env)
     assert np.linalg.norm(ball_stop - shoulder) < reach
 
     # Grasped and lifted: at the end the ball is 5 cm or more above where it rested, within 2 cm
-    # of the grasp point, and the right fingertips press on it (contact forces, ROBOT_STATE).
+    # of the grasp point, and both jaws of the right gripper press on it (contact forces,
+    # ROBOT_STATE).
     ball_end = sim[-1][1]
     assert ball_end[2] - ball_stop[2] >= 0.05, ball_end
+    # The demo's measure is taken at the end of its hold (the hand still settles after it).
+    t_end = report["grasp"]["t_end_s"] * 1e6
+    at_end = min(sim, key=lambda s: abs(s[0] - t_end))[1]
     assert c["ball_lifted"] and c["ball_rise_m"] == pytest.approx(
-        ball_end[2] - ball_stop[2], abs=0.005
+        at_end[2] - ball_stop[2], abs=0.002
     )
     pin.framesForwardKinematics(model, data, q_last)
     grasp = data.oMf[model.getFrameId("gripper_right_base_link")].act(TALOS_GRASP_POINT)
     assert np.linalg.norm(grasp - ball_end) < 0.02
     wrench = dict(zip(states[-1].contact_frame, states[-1].contact_wrench))
-    tips = [n for n in wrench if n.startswith("gripper_right_fingertip")]
-    pressing = [n for n in tips if np.linalg.norm(wrench[n][:3]) > 1.0]
-    assert len(pressing) >= 2, {n: np.round(wrench[n][:3], 2) for n in tips}
+    jaws = robots.robot("talos").jaws["talos/right_gripper"]  # the links of each jaw
+    pushes = [
+        sum(np.linalg.norm(wrench.get(link, np.zeros(6))[:3]) for link in jaw) for jaw in jaws
+    ]
+    assert min(pushes) > 1.0, f"each jaw presses the ball: {pushes} N"
     print(
         f"ball lifted {1e3 * (ball_end[2] - ball_stop[2]):.0f} mm, "
-        f"{1e3 * np.linalg.norm(grasp - ball_end):.1f} mm from the grasp point, fingertips "
-        f"{[round(float(np.linalg.norm(wrench[n][:3])), 2) for n in tips]} N"
+        f"{1e3 * np.linalg.norm(grasp - ball_end):.1f} mm from the grasp point, the jaws "
+        f"pressing {np.round(pushes, 2).tolist()} N"
     )
 
     # No fall: the base never dropped 5 cm.
