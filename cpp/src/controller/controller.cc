@@ -9,6 +9,19 @@
 
 namespace marionette::controller {
 
+namespace {
+
+// The world poses (x y z, qw qx qy qz) of the scene's free bodies ``ids`` into ``poses`` (7 each).
+void ReadObjectPoses(const mjData& d, const std::vector<int>& ids, std::vector<double>* poses) {
+  for (size_t i = 0; i < ids.size(); ++i) {
+    const int b = ids[i];
+    for (int k = 0; k < 3; ++k) (*poses)[7 * i + k] = d.xpos[3 * b + k];
+    for (int k = 0; k < 4; ++k) (*poses)[7 * i + 3 + k] = d.xquat[4 * b + k];
+  }
+}
+
+}  // namespace
+
 Controller::Impl::Impl(const ControllerOptions& o, const std::string* first_driver_state)
     : options(o), lcm(o.lcm_url) {
   if (!lcm.good()) throw std::runtime_error("cannot open LCM at '" + o.lcm_url + "'");
@@ -138,14 +151,8 @@ void Controller::Impl::BuildPersistentGraph(const Eigen::VectorXd& q0) {
   model_snapshot.effort = Eigen::VectorXd::Zero(model->nv);
   model_snapshot.wrenches.assign(6 * robot.measured_bodies().size() * (device ? 1 : 0), 0.0);
   model_snapshot.object_poses.assign(7 * free_objects.size(), 0.0);
-  if (scene) {  // where the scene starts them: published before the first tick, never zeros
-    const mjData& d = scene->data();
-    for (size_t i = 0; i < free_object_ids.size(); ++i) {
-      const int b = free_object_ids[i];
-      for (int k = 0; k < 3; ++k) model_snapshot.object_poses[7 * i + k] = d.xpos[3 * b + k];
-      for (int k = 0; k < 4; ++k) model_snapshot.object_poses[7 * i + 3 + k] = d.xquat[4 * b + k];
-    }
-  }
+  if (scene)  // where the scene starts them: published before the first tick, never zeros
+    ReadObjectPoses(scene->data(), free_object_ids, &model_snapshot.object_poses);
   model_snapshot.range_distances.assign(range_finders.size(), -1.0);
   loop_state = model_snapshot;
   snapshots = std::make_unique<runtime::TripleBuffer<Snapshot>>(model_snapshot);
@@ -549,12 +556,7 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
       for (int k = 0; k < 6; ++k)
         s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
     }
-    for (size_t i = 0; i < free_object_ids.size(); ++i) {
-      const int b = free_object_ids[i];
-      const mjData& d = scene->data();
-      for (int k = 0; k < 3; ++k) s.object_poses[7 * i + k] = d.xpos[3 * b + k];
-      for (int k = 0; k < 4; ++k) s.object_poses[7 * i + 3 + k] = d.xquat[4 * b + k];
-    }
+    ReadObjectPoses(scene->data(), free_object_ids, &s.object_poses);
   }
   s.num_tasks = 0;
   if (active != nullptr) {
