@@ -139,6 +139,10 @@ class ControllerClient:
                 processes.check_alive()
             raise
 
+    def wait_past(self, utime: int, timeout_s: float, what: str) -> None:
+        """Waits until the controller's clock is past ``utime`` [us]."""
+        self.wait(lambda c: c.utime() > utime, timeout_s, what)
+
     def wait_time(self, seconds: float, timeout_s: float | None = None) -> None:
         """Waits until the controller's clock has advanced by ``seconds``."""
         start = self.state.utime

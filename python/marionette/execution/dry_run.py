@@ -33,7 +33,6 @@ import dataclasses
 import tempfile
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -243,11 +242,6 @@ def joint_deviation(
     return worst, where
 
 
-def _later_than(utime: int) -> Callable[[ControllerClient], bool]:
-    """A wait condition: the controller's clock past ``utime``."""
-    return lambda c: c.utime() > utime
-
-
 def _go_to(client: ControllerClient, model: pin.Model, q_goal: np.ndarray, limits: np.ndarray):
     """Brings the kinematic robot to ``q_goal`` (a posture move at rest at both ends, within
     ``limits``): the plan may start elsewhere than the controller's reference posture."""
@@ -269,15 +263,10 @@ def _go_to(client: ControllerClient, model: pin.Model, q_goal: np.ndarray, limit
     )
     client.send_spec(spec)
     client.wait(lambda c: c.status.active_controller_id == cid, 20.0, "the start move's controller")
-    from marionette.execution.streamer import ReferenceStreamer
+    from marionette.execution.streamer import stream_to_end
 
-    streamer = ReferenceStreamer(
-        client.send_reference, cid, {"posture": (values, derivatives)}, client.utime() + 100_000
-    )
-    while not streamer.done:
-        streamer.pump(client.utime())
-        client.wait(_later_than(client.utime()), 5.0, "controller time")
-    client.wait(_later_than(streamer.end_utime + 1_000_000), 60.0, "the start move to end")
+    streamer = stream_to_end(client, cid, {"posture": (values, derivatives)})
+    client.wait_past(streamer.end_utime + 1_000_000, 60.0, "the start move to end")
 
 
 def play(

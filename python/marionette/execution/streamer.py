@@ -19,10 +19,14 @@ future from its start, ReferenceStream), so a new measurement acts within ``lead
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from marionette.control.spec import reference_chunk
+
+if TYPE_CHECKING:
+    from marionette.control.client import ControllerClient
 
 MAX_LOOKAHEAD_S = 4.0  # ReferenceStream keeps 5 s of samples
 
@@ -184,3 +188,23 @@ class ReferenceStreamer:
             self._send(task, k, values[k : k + 1], np.zeros_like(derivatives[k : k + 1]), True)
         self.next_sample = self.num_samples
         self.stopped_at = k
+
+
+def stream_to_end(
+    client: ControllerClient,
+    controller_id: int,
+    references: dict[str, tuple[np.ndarray, np.ndarray]],
+    lead_us: int = 100_000,
+) -> ReferenceStreamer:
+    """Streams ``references`` to controller ``controller_id`` from ``lead_us`` after the
+    controller's time (defaults of :class:`ReferenceStreamer` otherwise), pumping as the clock
+    advances, and returns once the clock has passed their last sample: a motion played to its
+    end. The streamer tells what was sent (``chunks_sent``, ``min_margin_us``)."""
+    streamer = ReferenceStreamer(
+        client.send_reference, controller_id, references, client.utime() + lead_us
+    )
+    while not (streamer.done and client.utime() >= streamer.end_utime):
+        now = client.utime()
+        streamer.pump(now)
+        client.wait_past(now, 5.0, "controller time to advance")
+    return streamer

@@ -34,7 +34,13 @@ from marionette import channels
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.detector import AprilTagDetector, DetectorConfig, TagDetection
 from marionette.perception.kinematics import CameraKinematics, StateError
-from marionette.perception.objects import BodyPose, TaggedBody, estimate_body_poses, up_axis_prior
+from marionette.perception.objects import (
+    BodyPose,
+    TaggedBody,
+    estimate_body_poses,
+    tilt,
+    up_axis_prior,
+)
 from marionette.perception.tracking import TagRegionTracker, TrackingConfig
 
 if TYPE_CHECKING:
@@ -197,13 +203,6 @@ class PerceptionConfig:
     max_tilt_deg: float = math.inf
 
 
-def tilt_deg(R_WB: np.ndarray, up_B: np.ndarray) -> float:
-    """The angle [deg] between a body's axis ``up_B`` (its frame) turned by ``R_WB`` and the
-    world's z."""
-    u = R_WB @ (np.asarray(up_B, dtype=float) / np.linalg.norm(up_B))
-    return float(np.degrees(np.arccos(np.clip(u[2], -1.0, 1.0))))
-
-
 class LatencyWindow:
     """Percentiles of the last ``size`` latencies [us] (thread-safe)."""
 
@@ -304,7 +303,7 @@ class PerceptionNode:
                 n
                 for n, p in poses.items()
                 if n in self.config.up_axes
-                and tilt_deg(X_WC.rotation @ p.X_CB.rotation, self.config.up_axes[n])
+                and math.degrees(tilt(X_WC.rotation @ p.X_CB.rotation, self.config.up_axes[n]))
                 > self.config.max_tilt_deg
             ]
             for name in tilted:

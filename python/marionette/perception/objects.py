@@ -271,6 +271,15 @@ def estimate_body_poses(
     return out
 
 
+def tilt(R_WB: np.ndarray, up_B: np.ndarray, up_W: np.ndarray = _UP_W) -> float:
+    """The angle [rad] between a body's axis ``up_B`` (its frame), turned by ``R_WB``, and
+    ``up_W`` (default the world's z)."""
+    u = R_WB @ (np.asarray(up_B, dtype=float) / np.linalg.norm(up_B))
+    return float(
+        math.acos(np.clip(u @ (np.asarray(up_W, dtype=float) / np.linalg.norm(up_W)), -1.0, 1.0))
+    )
+
+
 def up_axis_prior(
     bodies: Sequence[TaggedBody],
     up_B: Mapping[str, np.ndarray],
@@ -297,7 +306,6 @@ def up_axis_prior(
         if entry is None:
             return None
         R_TB, u = entry
-        implied = R_WC @ X_CT.rotation @ R_TB @ u
-        return float(math.acos(np.clip(implied @ up_W, -1.0, 1.0)))
+        return tilt(R_WC @ X_CT.rotation @ R_TB, u, up_W)
 
     return prior

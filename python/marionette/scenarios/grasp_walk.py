@@ -204,6 +204,7 @@ def run_grasp_walk(
     pedestal1 = pedestal0 + np.array([*settings.shift, 0.0])
     ball0, ball1 = ball_on(pedestal0), ball_on(pedestal1)
     X_pedestal0 = pedestal_body_pose(pedestal0)
+    gaze_point = np.array(settings.gaze_point)
     processes, spec = watching_walk(
         scenario.robot,
         scenario.scene.read_text(),
@@ -212,18 +213,13 @@ def run_grasp_walk(
         "pedestal",
         settings.camera_rate,
         settings.pedestal_position_sigma,
-        gaze=X_pedestal0.act(np.array(settings.gaze_point)),
+        gaze=X_pedestal0.act(gaze_point),
     )
     with walking_run(
         scenario.robot, model, processes.scene, out_dir, options, report, processes, spec
     ) as run:
         client, rec = run.client, run.rec
-        gaze = GazeFollower(
-            client,
-            spec.controller_id,
-            np.array(settings.gaze_point),
-            X_pedestal0.act(np.array(settings.gaze_point)),
-        )
+        gaze = GazeFollower(client, spec.controller_id, gaze_point, X_pedestal0)
         gaze.follow(X_pedestal0)  # the first chunk: the stream holds its target from now on
         pedestal = SlidingFixture(
             client, "pedestal", pedestal_body_pose, pedestal_floor_pose, on_estimate=gaze.follow
@@ -357,8 +353,11 @@ def _criteria(
         "pedestal_estimates_after_move": sum(
             u >= utime_move + settings.shift_duration_s * 1e6 for u, _ in perceived
         ),
+        # Where the grasp believed the ball (the last estimate's full pose), horizontally.
         "ball_estimate_error_m": (
-            float(np.linalg.norm(ball_on(perceived[-1][1])[:2] - ball1[:2])) if perceived else None
+            float(np.linalg.norm(np.array(grasp["object_believed_at"])[:2] - ball1[:2]))
+            if "object_believed_at" in grasp
+            else None
         ),
         "ball_rise_m": grasp.get("object_rise_m"),
         "ball_lifted": bool(grasp.get("lifted", False)),

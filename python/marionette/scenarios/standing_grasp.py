@@ -50,6 +50,7 @@ from marionette.execution.factory import (
 )
 from marionette.execution.grip_force import GripForceRecorder, GripperGeometry
 from marionette.execution.references import grip_ramp_s, minimum_jerk
+from marionette.execution.streamer import stream_to_end
 from marionette.execution.walking import walking_spec
 
 HELD = ("left_foot", "right_foot", "com", "waist")  # the walking stack's balance tasks
@@ -190,11 +191,6 @@ def grasp_check(
     return None
 
 
-def _later_than(utime: int) -> Callable[[ControllerClient], bool]:
-    """A wait condition: the controller's clock past ``utime``."""
-    return lambda c: c.utime() > utime
-
-
 class StandingGrasp:
     """One grasp and lift by ``robot``'s ``hand`` (the module's sequence). ``client``: the
     controller, standing; ``model``: its Pinocchio model (frames of robot.yaml's links)."""
@@ -260,18 +256,7 @@ class StandingGrasp:
 
     def _move(self, cid: int, X0: pin.SE3, X1: pin.SE3, duration_s: float) -> None:
         """Streams the gripper link from ``X0`` to ``X1`` and waits until the motion ended."""
-        from marionette.execution.streamer import ReferenceStreamer
-
-        streamer = ReferenceStreamer(
-            self.client.send_reference,
-            cid,
-            {"hand": pose_minimum_jerk(X0, X1, duration_s)},
-            self.client.utime() + 100_000,
-        )
-        while not (streamer.done and self.client.utime() >= streamer.end_utime):
-            now = self.client.utime()
-            streamer.pump(now)
-            self.client.wait(_later_than(now), 5.0, "controller time to advance")
+        streamer = stream_to_end(self.client, cid, {"hand": pose_minimum_jerk(X0, X1, duration_s)})
         self.chunks += streamer.chunks_sent
         if streamer.min_margin_us is not None:
             self.lookahead_ms.append(streamer.min_margin_us / 1e3)

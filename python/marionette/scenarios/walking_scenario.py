@@ -110,18 +110,20 @@ class GazeFollower:
     ball followed by the robot's cameras): streams the target of the walking stack's ``gaze`` task
     (:func:`walking.walking_spec` with ``gaze``), the point ``point_O`` of the object at each new
     estimate of its pose, over a ``ramp_s`` linear ramp from the last target (the head turns
-    smoothly, not by steps), each chunk the stream's last (it holds its end)."""
+    smoothly, not by steps), each chunk the stream's last (it holds its end). The first target is
+    the point with the object at ``X_WO``, where the walking stack's gaze starts."""
 
     def __init__(
         self,
         client: ControllerClient,
         controller_id: int,
         point_O: np.ndarray,
-        target_W: np.ndarray,
+        X_WO: pin.SE3,
         ramp_s: float = 0.2,
     ) -> None:
         self.client, self.controller_id = client, controller_id
-        self.point_O, self.target = np.asarray(point_O, dtype=float), np.asarray(target_W, float)
+        self.point_O = np.asarray(point_O, dtype=float)
+        self.target = X_WO.act(self.point_O)
         self.ramp_samples = max(1, round(ramp_s * 1e3))
         self.sequence = 0
         self._lock = threading.Lock()

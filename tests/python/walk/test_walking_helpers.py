@@ -230,7 +230,8 @@ def test_the_gaze_follows_each_estimate_by_a_ramp_the_stream_then_holds():
 
     client = Client()
     point = np.array([0.0, 0.0, 0.8])
-    follower = GazeFollower(client, 1, point, np.array([1.3, -0.1, 0.8]), ramp_s=0.2)
+    start = pin.SE3(np.eye(3), np.array([1.3, -0.1, 0.0]))  # the gaze starts at [1.3, -0.1, 0.8]
+    follower = GazeFollower(client, 1, point, start, ramp_s=0.2)
     X = pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, 0.4), np.array([1.1, -0.3, 0.0]))
     follower.follow(X)
     client.now += 200_000
