@@ -68,7 +68,6 @@ END_THRESHOLDS: dict[str, float] = {
     # lambda; in position control it is the lag behind the closing ramp [rad].
     "gripper_admittance": 0.01,
 }
-
 GAINS: dict[str, float] = {"balance": 10.0, "grasp": 5.0, "posture": 2.0, "gripper": 2.0}
 # Gripper admittance parameters (thesis 000 §3.2.4.3: ~5 N, switch slightly below it); the others
 # (gain K_a, lever arm, 5 Hz filter, ramp speed) are the controller's defaults
@@ -178,7 +177,6 @@ def gripper_linkage(robot: str, gripper: str) -> jaw.Linkage | None:
     """The jaws of ``robot``'s ``gripper`` as its finger joint moves them
     (:class:`marionette.models.jaw.Linkage`, mimic joints included); None when robot.yaml
     declares no jaws for it or no joint with both positions."""
-    from marionette.models import jaw
     from marionette.models.urdf import read_urdf
 
     g = robots.semantics(robot).gripper(gripper)
