@@ -244,4 +244,6 @@ def test_the_gaze_follows_each_estimate_by_a_ramp_the_stream_then_holds():
     values = np.array(first.value)
     assert np.allclose(values[0], [1.3, -0.1, 0.8]) and np.allclose(values[-1], X.act(point))
     assert np.allclose(np.diff(values, axis=0), (values[-1] - values[0]) / 199)
+    derivatives = np.array(first.derivative)
+    assert np.allclose(derivatives[:-1], np.diff(values, axis=0) / 1e-3), "feed-forward = slope"
     assert np.allclose(np.array(second.value), X.act(point)), "the same estimate: it stays"
