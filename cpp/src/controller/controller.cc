@@ -556,7 +556,7 @@ void Controller::Impl::FillSnapshot(const graph::Tick& t, const runtime::LoopClo
       for (int k = 0; k < 6; ++k)
         s.wrenches[6 * i + k] = device->wrench_output(static_cast<int>(i)).value()[k];
     }
-    ReadObjectPoses(scene->data(), free_object_ids, &s.object_poses);
+    if (scene) ReadObjectPoses(scene->data(), free_object_ids, &s.object_poses);  // driver: none
   }
   s.num_tasks = 0;
   if (active != nullptr) {
