@@ -14,8 +14,10 @@ the controller's footstep manager applies the new steps to the steps not yet sta
 When a step starts (``shift_at_step``) the simulator slides the pedestal, the ball riding in its
 cup, by a move drawn from the trial's seed: 0.1-0.3 m in any direction on the floor (Dang's ball
 was carried by hand). Nothing tells the robot where it went but its camera. Standing at the end,
-the robot grasps the ball where its last estimate puts it (:mod:`.standing_grasp`: hand over it,
-down onto it, the gripper admittance squeezing 5 N, then a 10 cm lift). Success
+the robot grasps the ball where its last estimates put it once they show the pedestal at rest
+(:func:`.walking_scenario.look_for`: last seen moving, the head looks for it) —
+:mod:`.standing_grasp`: hand over it, down onto it, the gripper admittance squeezing 5 N, then a
+10 cm lift. Success
 (``docs/scenarios.md``): the robot stops on the final stance of the last plan, never falls, its
 measured ZMP stays inside the support polygon of its loaded soles, and the ball — by the
 simulator's truth, which only judges — rises at least 5 cm in the closed hand.
@@ -49,7 +51,7 @@ from marionette.scenarios.report import (
     title,
     write_report_files,
 )
-from marionette.scenarios.standing_grasp import GraspSettings, StandingGrasp
+from marionette.scenarios.standing_grasp import GraspSettings, StandingGrasp, arm_reach
 from marionette.scenarios.walking_scenario import (
     MIN_REPLAN_HZ,
     GazeFollower,
@@ -57,9 +59,11 @@ from marionette.scenarios.walking_scenario import (
     WalkRecorder,
     draw_floor_move,
     finish_footsteps_axes,
+    look_for,
     plot_footsteps,
     replan_criteria,
     replan_rate_row,
+    search_points,
     sole_poses,
     step_counts,
     walk_while_object_moves,
@@ -89,6 +93,9 @@ class GraspWalkSettings:
     gaze_point: tuple[float, float, float] = (0.0, 0.0, PEDESTAL.height)
     camera_rate: float = 5.0  # [Hz of controller time] head camera frames
     pedestal_position_sigma: float = 0.03  # [m] published when its position is known this well
+    # [s of controller time] the head looks this long in each direction for a pedestal not seen
+    # at rest (7 frames at camera_rate; 2 consecutive estimates are needed)
+    search_dwell_s: float = 1.5
     stance_tolerance: float = 0.02  # [m] executed final soles vs the last plan's
     stance_yaw_tolerance_deg: float = 3.0
     max_base_drop: float = 0.05  # [m] fall criterion (base height)
@@ -121,21 +128,6 @@ def pedestal_floor_pose(X: pin.SE3) -> np.ndarray:
 def ball_on(pedestal_floor: np.ndarray) -> np.ndarray:
     """Where a ball resting in the cup of a pedestal at floor pose (x, y, yaw) has its centre."""
     return np.array([pedestal_floor[0], pedestal_floor[1], BALL_REST_Z])
-
-
-def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
-    """Reach [m] of the ``hand`` arm: shoulder (``arm_<hand>_1`` joint) to grasp point with the
-    arm stretched (arm joints at zero: TALOS' arm hangs straight), and the shoulder frame."""
-    q = pin.neutral(model)
-    data = model.createData()
-    pin.framesForwardKinematics(model, data, q)
-    shoulder = f"arm_{hand}_1_link"
-    grasp = f"{hand}_grasp_point"
-    d = np.linalg.norm(
-        data.oMf[model.getFrameId(grasp)].translation
-        - data.oMf[model.getFrameId(shoulder)].translation
-    )
-    return float(d), shoulder
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -246,20 +238,45 @@ def run_grasp_walk(
             "grasp-walk",
             log,
         )
-        perceived = pedestal.perceived()
+        # The grasp acts only on the pedestal seen at rest: an estimate taken while it moved
+        # shows it where it no longer is (a camera falling behind lost it mid-move: the hand
+        # went 20 cm beside the ball). Not seen at rest: the head looks for it around where it
+        # was last seen.
         report["reach_start_utime"] = client.utime()
-        if pedestal.last is not None:
-            # The ball's resting point in the last estimate's frame (not on its floor pose: a
-            # tilt of the estimate moves the origin 0.88 m below the ball more than the ball).
-            believed = pedestal.last.act(np.array([0.0, 0.0, BALL_REST_Z]))
+        pedestal.stop.clear()
+        last_seen = pedestal.last
+        X_now, looked = (
+            look_for(
+                client,
+                pedestal,
+                gaze,
+                search_points(last_seen.act(gaze_point)),
+                settings.search_dwell_s,
+            )
+            if last_seen is not None
+            else (None, 0)
+        )
+        pedestal.stop.set()
+        perceived = pedestal.perceived()
+        report["pedestal_search"] = {"head_directions": looked, "found": X_now is not None}
+        if X_now is not None and looked > 0:
+            log(f"grasp-walk: pedestal found at rest, looking in {looked} head direction(s)")
+        if X_now is not None:
+            # The ball's resting point in the estimate's frame (not on its floor pose: a tilt of
+            # the estimate moves the origin 0.88 m below the ball more than the ball).
+            believed = X_now.act(np.array([0.0, 0.0, BALL_REST_Z]))
             grasp = StandingGrasp(client, model, scenario.robot, settings.hand, settings.grasp, log)
             report["grasp"] = grasp.run(believed, 2 * BALL.radius, "ball", out_dir)
         else:
-            report["grasp"] = {
-                "done": False,
-                "lifted": False,
-                "reason": "the camera never saw the pedestal",
-            }
+            reason = (
+                "the camera never saw the pedestal"
+                if last_seen is None
+                else "the camera did not see the pedestal at rest (last seen moving), nor after "
+                f"looking in {looked} directions around where it was last seen; the robot does "
+                "not reach for a ball it cannot locate"
+            )
+            log(f"grasp-walk: {reason}")
+            report["grasp"] = {"done": False, "lifted": False, "reason": reason}
     report.update(
         _criteria(
             settings,
@@ -451,7 +468,7 @@ def _markdown(r: dict[str, Any]) -> str:
         "",
         "## The grasp",
         "",
-        *_grasp_lines(r["grasp"], c),
+        *_grasp_lines(r["grasp"], c, r.get("pedestal_search")),
         "",
         "## Footstep recomputations (Dang 2012 §6.3: 97 in 14 s)",
         "",
@@ -471,13 +488,24 @@ def _markdown(r: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _grasp_lines(g: dict[str, Any], c: dict[str, Any]) -> list[str]:
+def _grasp_lines(g: dict[str, Any], c: dict[str, Any], search: dict[str, Any] | None) -> list[str]:
     """What the camera told the robot, how the hand took the ball, what the grip held."""
     err = c["ball_estimate_error_m"]
+    found = (
+        ""
+        if search is None
+        else (
+            " The grasp used the pedestal seen at rest by the last estimates."
+            if search["found"] and search["head_directions"] == 0
+            else " It was last seen moving; the head "
+            + ("found it at rest" if search["found"] else "did not find it at rest")
+            + f" looking in {search['head_directions']} direction(s)."
+        )
+    )
     lines = [
         f"The head camera measured the pedestal {c['pedestal_estimates']} times "
         f"({c['pedestal_estimates_after_move']} after its move); the last estimate put the ball "
-        f"{_mm(err)} (horizontally) from where it was.",
+        f"{_mm(err)} (horizontally) from where it was.{found}",
         "",
     ]
     if not g.get("done"):

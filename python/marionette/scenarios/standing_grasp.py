@@ -78,6 +78,25 @@ class GraspSettings:
     # them (jaw geometry) beyond which they hold something else: the 50 mm ball stops TALOS'
     # fingers at -0.336 to -0.354 rad for -0.345 predicted; closing on the tee, at -0.62
     width_margin: float = 0.1
+    # [m] the fingers close only with the grasp point (from the encoders) this near its target:
+    # 4.6-5.9 mm over 20 trials; a hand stopped short (an object beyond reach) closes on nothing
+    reach_tolerance: float = 0.015
+
+
+def arm_reach(model: pin.Model, hand: str) -> tuple[float, str]:
+    """Reach [m] of the ``hand`` arm: shoulder (``arm_<hand>_1`` joint) to grasp point with the
+    arm stretched (arm joints at zero: TALOS' arm hangs straight), and the shoulder frame. (The
+    grasp point's frame is the walking model's, :func:`footsteps.robot_model.walking_robot`.)"""
+    q = pin.neutral(model)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    shoulder = f"arm_{hand}_1_link"
+    grasp = f"{hand}_grasp_point"
+    d = np.linalg.norm(
+        data.oMf[model.getFrameId(grasp)].translation
+        - data.oMf[model.getFrameId(shoulder)].translation
+    )
+    return float(d), shoulder
 
 
 def grasp_pose(
@@ -280,7 +299,18 @@ class StandingGrasp:
         )
         out["finger_expected"] = expected
         X_link = self._frame(self.frame)
-        shoulder = self._frame(f"arm_{self.hand}_1_link").translation
+        reach, shoulder_frame = arm_reach(self.model, self.hand)
+        shoulder = self._frame(shoulder_frame).translation
+        distance = float(np.linalg.norm(np.asarray(p_object) - shoulder))
+        out["object_to_shoulder_m"], out["arm_reach_m"] = distance, reach
+        if distance > reach:
+            out["reason"] = (
+                f"the {object_name} is {distance:.2f} m from the {self.hand} shoulder, beyond the "
+                f"arm's reach ({reach:.2f} m): the robot does not reach for it (it needs another "
+                "stance)"
+            )
+            self.log(f"grasp: {out['reason']}")
+            return {**out, "done": False, "lifted": False}
         X_grasp = grasp_pose(
             p_object, shoulder, s.approach_tilt_deg, (X_link * self.X_link_gripper).rotation
         )
@@ -302,6 +332,14 @@ class StandingGrasp:
         out["grasp_point_to_object_m"] = float(
             np.linalg.norm(X_at.translation - client.object_pose(object_name).translation)
         )
+        if out["grasp_point_error_m"] > s.reach_tolerance:
+            out["reason"] = (
+                f"the hand stopped {out['grasp_point_error_m'] * 1e3:.1f} mm from the grasp (more "
+                f"than {s.reach_tolerance * 1e3:.0f} mm): the fingers do not close on what the "
+                "hand did not reach; the robot holds where it is"
+            )
+            self.log(f"grasp: {out['reason']}")
+            return {**out, "done": False, "lifted": False}
         self.log(
             f"grasp: hand on the object, grasp point {out['grasp_point_error_m'] * 1e3:.1f} mm "
             f"from its target; closing"

@@ -76,6 +76,7 @@ class SlidingFixture:
         self.body_pose, self.floor_pose, self.on_estimate = body_pose, floor_pose, on_estimate
         self.history: list[tuple[int, np.ndarray]] = []
         self.last: pin.SE3 | None = None  # the latest estimate's pose
+        self.last_utime = -1  # its message's controller utime
         self._lock = threading.Lock()
 
     def start(self) -> None:
@@ -91,7 +92,7 @@ class SlidingFixture:
                 )
                 with self._lock:
                     self.history.append((int(msg.utime), self.floor_pose(X)))
-                    self.last = X
+                    self.last, self.last_utime = X, int(msg.utime)
                 if self.on_estimate is not None:
                     self.on_estimate(X)
 
@@ -104,6 +105,21 @@ class SlidingFixture:
     def perceived(self) -> list[tuple[int, np.ndarray]]:
         with self._lock:
             return list(self.history)
+
+    def at_rest(
+        self, count: int = 2, tolerance: float = 0.01, since_utime: int = -1
+    ) -> pin.SE3 | None:
+        """The latest estimate if the object was seen at rest: the last ``count`` estimates, all
+        at or after controller ``since_utime``, within ``tolerance`` [m] of it on the floor; else
+        None (too few, or the object was still moving when last seen)."""
+        with self._lock:
+            recent = self.history[-count:]
+            if len(recent) < count or recent[0][0] < since_utime:
+                return None
+            last = recent[-1][1][:2]
+            if any(np.linalg.norm(pose[:2] - last) > tolerance for _, pose in recent):
+                return None
+            return self.last
 
 
 class GazeFollower:
@@ -131,7 +147,11 @@ class GazeFollower:
 
     def follow(self, X_WO: pin.SE3) -> None:
         """A new estimate of the object's pose: the gaze moves to its point."""
-        target = X_WO.act(self.point_O)
+        self.look_at(X_WO.act(self.point_O))
+
+    def look_at(self, target: np.ndarray) -> None:
+        """The gaze moves to the world point ``target``."""
+        target = np.asarray(target, dtype=float)
         with self._lock:
             s = np.linspace(0.0, 1.0, self.ramp_samples)[:, None]
             values = self.target + s * (target - self.target)
@@ -152,6 +172,45 @@ class GazeFollower:
             )
             self.sequence += 1
             self.target = target
+
+
+def search_points(
+    around_W: np.ndarray, radii: tuple[float, ...] = (0.15, 0.3), directions: int = 8
+) -> list[np.ndarray]:
+    """Where the head looks for an object lost from view: ``around_W`` (its last known point),
+    then rings of ``radii`` [m] around it in the horizontal plane, ``directions`` points each."""
+    points = [np.asarray(around_W, dtype=float)]
+    for radius in radii:
+        for k in range(directions):
+            a = 2.0 * np.pi * k / directions
+            points.append(points[0] + radius * np.array([np.cos(a), np.sin(a), 0.0]))
+    return points
+
+
+def look_for(
+    client: ControllerClient,
+    fixture: SlidingFixture,
+    gaze: GazeFollower,
+    points_W: list[np.ndarray],
+    dwell_s: float = 1.5,
+) -> tuple[pin.SE3 | None, int]:
+    """``fixture`` seen at rest (:meth:`SlidingFixture.at_rest`), the estimate a robot can act on:
+    one taken while the object moved shows it where it no longer is. If the last estimates do not
+    show it at rest, the head looks at each of ``points_W`` in turn (the first: where it was last
+    seen) for ``dwell_s`` of controller time until estimates made from then on do; an estimate
+    turns the gaze to the object itself (``fixture.on_estimate``). Returns (the estimate or None,
+    the head directions looked in: 0 if the last estimates sufficed). The fixture must be
+    receiving (``fixture.stop`` clear)."""
+    if (X := fixture.at_rest()) is not None:
+        return X, 0
+    for i, point in enumerate(points_W):
+        gaze.look_at(point)
+        start = client.utime()
+        while client.utime() < start + round(dwell_s * 1e6):
+            client.wait_time(0.05)
+            if (X := fixture.at_rest(since_utime=start)) is not None:
+                return X, i + 1
+    return None, len(points_W)
 
 
 class WalkRecorder:

@@ -247,3 +247,83 @@ def test_the_gaze_follows_each_estimate_by_a_ramp_the_stream_then_holds():
     derivatives = np.array(first.derivative)
     assert np.allclose(derivatives[:-1], np.diff(values, axis=0) / 1e-3), "feed-forward = slope"
     assert np.allclose(np.array(second.value), X.act(point)), "the same estimate: it stays"
+
+
+def test_the_grasp_acts_on_an_object_seen_at_rest_and_the_head_looks_for_one_last_seen_moving():
+    """``look_for``: two consecutive estimates within 1 cm are the object at rest (no search);
+    an object last seen moving (4 cm between frames: 0.2 m/s at 5 Hz) sends the head to each
+    search point in turn until estimates made from then on show it at rest; never seen at rest,
+    it returns None after every point. ``search_points``: the point, then rings around it."""
+    from types import SimpleNamespace
+
+    import pinocchio as pin
+
+    from marionette.scenarios.walking_scenario import (
+        GazeFollower,
+        SlidingFixture,
+        look_for,
+        search_points,
+    )
+
+    class Client:
+        def __init__(self):
+            self.sent, self.now, self.on_tick = [], 1_000_000, None
+
+        def utime(self):
+            return self.now
+
+        def send_reference(self, chunk):
+            self.sent.append(chunk)
+
+        def wait_time(self, seconds):
+            self.now += round(seconds * 1e6)
+            if self.on_tick is not None:
+                self.on_tick(self)
+
+    def estimate(fixture, client, x):
+        obj = SimpleNamespace(
+            object_name="pedestal", position_world=[x, -0.1, 0.0], quaternion_world=[1, 0, 0, 0]
+        )
+        fixture._on_poses(SimpleNamespace(utime=client.now, objects=[obj]))
+
+    def setup(positions):
+        client = Client()
+        fixture = SlidingFixture(
+            client, "pedestal", lambda p: pin.SE3.Identity(), lambda X: X.translation.copy()
+        )
+        gaze = GazeFollower(client, 1, np.zeros(3), pin.SE3.Identity())
+        for x in positions:
+            estimate(fixture, client, x)
+            client.now += 200_000
+        return client, fixture, gaze
+
+    points = search_points(np.array([1.0, -0.1, 0.8]), radii=(0.15, 0.3), directions=8)
+    assert len(points) == 17 and np.allclose(points[0], [1.0, -0.1, 0.8])
+    rings = np.linalg.norm(np.array(points[1:]) - points[0], axis=1)
+    assert np.allclose(rings, [0.15] * 8 + [0.3] * 8)
+    assert np.allclose(np.array(points)[:, 2], 0.8), "searched at the object's height"
+
+    client, fixture, gaze = setup([1.10, 1.06, 1.02, 1.017])
+    X, looked = look_for(client, fixture, gaze, points, dwell_s=1.0)
+    assert looked == 0 and X is not None and np.isclose(X.translation[0], 1.017)
+    assert client.sent == [], "seen at rest: the head is not moved"
+
+    client, fixture, gaze = setup([1.10, 1.06, 1.02])  # last seen moving
+    start = client.now
+
+    def found_at_third_point(c):
+        if c.now - start > 2_300_000 and len(fixture.history) < 5:
+            estimate(fixture, c, 1.0)
+            c.now += 200_000
+            estimate(fixture, c, 1.003)
+
+    client.on_tick = found_at_third_point
+    X, looked = look_for(client, fixture, gaze, points, dwell_s=1.0)
+    assert looked == 3 and X is not None and np.isclose(X.translation[0], 1.003)
+    # the head went to points 0, 1, 2, then followed the two estimates
+    targets = [np.array(c.value)[-1] for c in client.sent]
+    assert all(np.allclose(t, p) for t, p in zip(targets[:3], points[:3]))
+
+    client, fixture, gaze = setup([1.10, 1.06])
+    X, looked = look_for(client, fixture, gaze, points[:4], dwell_s=0.5)
+    assert X is None and looked == 4 and len(client.sent) == 4
