@@ -218,7 +218,7 @@ using Impl = HierarchyWorkspace::Impl;
 // Householder reflections H = I - tau [1; v] [1; v]^T on column-major blocks, as column dot and
 // axpy operations. Eigen's applyHouseholderOnTheLeft/Right compute the same through its gemv
 // and rank-1 kernels, whose per-call dispatch outweighs the flops on blocks of tens of rows: on
-// the TALOS reference stack those calls were ~40 % of a solve.
+// a 38-DoF humanoid's reference stack (bench/sot) those calls were ~40 % of a solve.
 // block <- H block (block has 1 + v.size() rows).
 template <typename Block, typename Essential>
 void ReflectLeft(Block&& block, const Essential& v, double tau) {
