@@ -239,6 +239,7 @@ class StandingGrasp:
             if geometry is not None
             else None
         )
+        self.reach, self.shoulder_frame = arm_reach(model, hand)
         self.chunks = 0
         self.lookahead_ms: list[float] = []
 
@@ -250,6 +251,12 @@ class StandingGrasp:
 
     def _finger(self) -> float:
         return float(self.client.joint_positions()[self.joint.joint])
+
+    def _refuse(self, out: dict[str, Any], reason: str, then: str = "") -> dict[str, Any]:
+        """The grasp stops for ``reason``: logged (with ``then``, what the robot does) and
+        returned with the measures so far."""
+        self.log(f"grasp: {reason}{then}")
+        return {**out, "done": False, "lifted": False, "reason": reason}
 
     # -- motions ---------------------------------------------------------------------------
     def _swap(self, spec: ControllerSpec) -> str | None:
@@ -299,18 +306,16 @@ class StandingGrasp:
         )
         out["finger_expected"] = expected
         X_link = self._frame(self.frame)
-        reach, shoulder_frame = arm_reach(self.model, self.hand)
-        shoulder = self._frame(shoulder_frame).translation
+        shoulder = self._frame(self.shoulder_frame).translation
         distance = float(np.linalg.norm(np.asarray(p_object) - shoulder))
-        out["object_to_shoulder_m"], out["arm_reach_m"] = distance, reach
-        if distance > reach:
-            out["reason"] = (
+        out["object_to_shoulder_m"], out["arm_reach_m"] = distance, self.reach
+        if distance > self.reach:
+            return self._refuse(
+                out,
                 f"the {object_name} is {distance:.2f} m from the {self.hand} shoulder, beyond the "
-                f"arm's reach ({reach:.2f} m): the robot does not reach for it (it needs another "
-                "stance)"
+                f"arm's reach ({self.reach:.2f} m): the robot does not reach for it (it needs "
+                "another stance)",
             )
-            self.log(f"grasp: {out['reason']}")
-            return {**out, "done": False, "lifted": False}
         X_grasp = grasp_pose(
             p_object, shoulder, s.approach_tilt_deg, (X_link * self.X_link_gripper).rotation
         )
@@ -333,13 +338,12 @@ class StandingGrasp:
             np.linalg.norm(X_at.translation - client.object_pose(object_name).translation)
         )
         if out["grasp_point_error_m"] > s.reach_tolerance:
-            out["reason"] = (
+            return self._refuse(
+                out,
                 f"the hand stopped {out['grasp_point_error_m'] * 1e3:.1f} mm from the grasp (more "
                 f"than {s.reach_tolerance * 1e3:.0f} mm): the fingers do not close on what the "
-                "hand did not reach; the robot holds where it is"
+                "hand did not reach; the robot holds where it is",
             )
-            self.log(f"grasp: {out['reason']}")
-            return {**out, "done": False, "lifted": False}
         self.log(
             f"grasp: hand on the object, grasp point {out['grasp_point_error_m'] * 1e3:.1f} mm "
             f"from its target; closing"
@@ -355,8 +359,7 @@ class StandingGrasp:
         out["finger_after_closing"] = finger
         missed = grasp_check(self.joint, finger, s.empty_margin, expected, s.width_margin)
         if missed is not None:
-            self.log(f"grasp: {missed}; the robot holds where it is")
-            return {**out, "done": False, "lifted": False, "reason": missed}
+            return self._refuse(out, missed, "; the robot holds where it is")
         X_link = self._frame(self.frame)
         t_lift = client.utime() * 1e-6
         self._move(
