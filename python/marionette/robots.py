@@ -69,13 +69,22 @@ class Foot:
 
 @dataclass(frozen=True)
 class Camera:
-    """An RGB-D camera: MuJoCo camera ``name`` on optical frame ``frame`` (z along the view)."""
+    """An RGB-D camera: MuJoCo camera ``name`` on optical frame ``frame`` (z along the view);
+    ``lean_joints``: what the visual servo's gaze may add to the head's joints when the head
+    alone cannot bring a servoed object's tags into view (a torso pitch; the first is used)."""
 
     name: str
     frame: str
     fovy_deg: float = 45.0
     width: int = 640
     height: int = 480
+    lean_joints: tuple[str, ...] = ()
+
+    def intrinsics(self):
+        """Its :class:`~marionette.perception.camera.CameraIntrinsics` (square pixels)."""
+        from marionette.perception.camera import CameraIntrinsics
+
+        return CameraIntrinsics.from_fovy(self.width, self.height, self.fovy_deg)
 
 
 @dataclass(frozen=True)
@@ -283,7 +292,10 @@ def _load_robot(folder: Path) -> RobotDescription:
             Foot(f["name"], f["frame"], tuple(f["size"]), f.get("thickness", 0.02))
             for f in d.get("feet") or []
         ),
-        cameras=tuple(Camera(**c) for c in d.get("cameras") or []),
+        cameras=tuple(
+            Camera(**{**c, "lean_joints": tuple(c.get("lean_joints", ()))})
+            for c in d.get("cameras") or []
+        ),
         range_finders=tuple(RangeFinder(**r) for r in d.get("range_finders") or []),
         force_torque_sensors=tuple(
             (s["name"], s["link"]) for s in d.get("force_torque_sensors") or []

@@ -597,6 +597,32 @@ def task_jacobian(
     return J
 
 
+def task_error(
+    model: pin.Model, data: pin.Data, task: TaskSpec, q: np.ndarray, data_ref: pin.Data
+) -> np.ndarray | None:
+    """The task's error at q (frames and centre of mass already computed in ``data``) against the
+    same task at the configuration whose kinematics ``data_ref`` holds, in the coordinates of
+    :func:`task_jacobian` (to first order e(q + dq) = e(q) + J dq); None where it has none."""
+    if task.kind in ("se3", "pbvs"):
+        f = model.getFrameId(task.frame)
+        e = pin.log6(data_ref.oMf[f].actInv(data.oMf[f])).vector
+    elif task.kind == "position":
+        f = model.getFrameId(task.frame)
+        e = data.oMf[f].translation - data_ref.oMf[f].translation
+    elif task.kind == "relative_se3":
+        fa, fb = model.getFrameId(task.frame), model.getFrameId(task.frame_b)
+        # J is the velocity of A relative to B, in A: the derivative of X_BA = X_B^-1 X_A
+        X_BA, X_BA_ref = (d.oMf[fb].actInv(d.oMf[fa]) for d in (data, data_ref))
+        e = pin.log6(X_BA_ref.actInv(X_BA)).vector
+    elif task.kind == "com":  # both centres of mass computed (pin.centerOfMass)
+        e = data.com[0] - data_ref.com[0]
+    else:
+        return None
+    if len(task.mask):
+        e = e[[i for i, m in enumerate(task.mask) if m]]
+    return e
+
+
 @dataclass(frozen=True)
 class LevelConditioning:
     """One priority level of a controller at a configuration, the levels above projected out:

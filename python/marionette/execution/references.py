@@ -47,6 +47,8 @@ class StepTrajectory:
     # asked for it ("" when none).
     retimed: float = 1.0
     retimed_for: str = ""
+    # [rad] how far a gaze rewrite leaned the torso for the camera to see the servoed object
+    lean: float = 0.0
 
     @property
     def num_samples(self) -> int:

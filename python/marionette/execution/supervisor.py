@@ -122,6 +122,7 @@ class StepRecord:
     switch_retries: int = 0  # refused switches sent again
     retimed: float = 1.0  # the step slowed down for its references to respect the joints' bounds
     retimed_for: str = ""
+    lean: float = 0.0  # [rad] the torso lean the gaze added to see the servoed object
     min_lookahead_ms: float | None = None
     final_errors: dict[str, float] = field(default_factory=dict)
     max_errors: dict[str, float] = field(default_factory=dict)
@@ -346,6 +347,7 @@ class Supervisor:
             thresholds = self.servo.end_thresholds(spec, thresholds)
         traj = self.trajectories[step.index]
         record.retimed, record.retimed_for = traj.retimed, traj.retimed_for
+        record.lean = traj.lean
         self._decided(
             self.machine.begin_step(
                 step.index,

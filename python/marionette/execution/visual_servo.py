@@ -46,6 +46,14 @@ that the camera's optical axis points at the planned position of the object, ram
 first step — the camera then keeps the object in view throughout (the head is free in the plan).
 It is a step rewrite (:func:`gaze_rewrite`): the supervisor re-times a step whose head would turn
 faster than the joint's bound (a short first step asked TALOS's head for 1.8 rad/s).
+
+Where the head alone cannot see the object — at its pitch limit with a plank standing 0.4 m
+before the feet, the tags lie below the image — a servoed step leans the torso
+(:func:`lean_for_view`, the camera's ``lean_joints`` in robot.yaml): the smallest lean that the
+kinematics predict brings a tag into view, unhidden by the robot's links
+(:mod:`marionette.perception.visibility`), ramped in and out within the step, and the rest of the
+posture moved so that the tasks above it (feet, centre of mass, grippers) stay on their plan
+(:func:`hold_tasks`): the lowest-priority posture can then follow the lean.
 """
 
 from __future__ import annotations
@@ -59,8 +67,8 @@ import numpy as np
 import pinocchio as pin
 
 from marionette import channels, lcmt_object_poses
-from marionette.control.spec import ControllerSpec
-from marionette.execution.factory import approached_handle
+from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.execution.factory import approached_handle, task_error, task_jacobian
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import Rewrite, StepTrajectory
 from marionette.perception.pbvs import activation, interpolate
@@ -434,6 +442,52 @@ class VisualServo:
 # ---- gaze through the posture references ---------------------------------------------------
 
 
+def _image_point(model: pin.Model, data: pin.Data, fid: int, q: np.ndarray, p_W: np.ndarray):
+    pin.framesForwardKinematics(model, data, q)
+    p_C = data.oMf[fid].actInv(p_W)
+    return p_C[:2] / max(p_C[2], 1e-3)
+
+
+def aim_camera(
+    model: pin.Model,
+    data: pin.Data,
+    fid: int,
+    q: np.ndarray,
+    idx: list[int],
+    bounds: tuple[np.ndarray, np.ndarray],
+    active: list[int],
+    target: np.ndarray,
+    radius: float = 0.0,
+) -> np.ndarray:
+    """The joints ``idx`` of ``q`` (those listed in ``active`` free, within ``bounds``) that
+    bring ``target``'s image point (normalised, camera frame ``fid``) within ``radius`` of the
+    centre (0: onto it): Gauss-Newton with a finite-difference Jacobian. ``q`` is updated."""
+    lo, hi = bounds
+    x = np.clip(q[idx], lo, hi)
+    for _ in range(5):
+        q[idx] = x
+        p = _image_point(model, data, fid, q, target)
+        e = p * max(0.0, 1.0 - radius / max(float(np.linalg.norm(p)), 1e-12)) if radius else p
+        J = np.empty((2, len(active)))
+        for c, j in enumerate(active):
+            qd = q.copy()
+            qd[idx[j]] += 1e-6
+            J[:, c] = (_image_point(model, data, fid, qd, target) - p) / 1e-6
+        step = np.linalg.lstsq(J, e, rcond=None)[0]
+        for c, j in enumerate(active):
+            x[j] = np.clip(x[j] - step[c], lo[j], hi[j])
+    q[idx] = x
+    return x
+
+
+def _joint_bounds(model: pin.Model, names: tuple[str, ...]) -> tuple[list[int], list[int], tuple]:
+    idx = [model.joints[model.getJointId(j)].idx_q for j in names]
+    vdx = [model.joints[model.getJointId(j)].idx_v for j in names]
+    margin = 0.03  # [rad] inside the limits: the controller's joint-limit task keeps off them
+    lo, hi = model.lowerPositionLimit[idx] + margin, model.upperPositionLimit[idx] - margin
+    return idx, vdx, (lo, hi)
+
+
 def head_gaze_posture(
     model: pin.Model,
     traj: StepTrajectory,
@@ -447,63 +501,40 @@ def head_gaze_posture(
 ) -> None:
     """Rewrites the gaze joints of ``traj.references['posture']`` so that the optical axis (z)
     of ``camera_frame`` points at ``targets_W`` (N x 3, one per sample): the two head joints for
-    the two image coordinates (x/z, y/z), Gauss-Newton with a finite-difference Jacobian, every
-    ``every`` samples and linear in between; when the head reaches its limits and the target
-    stays more than ``tolerance`` (normalised image coordinate) off the centre,
-    ``extra_joints`` (e.g. the torso pitch) join in, only as far as bringing it ``tolerance`` from
-    the centre (0.2 ≈ 11°). Not used by the plank demo: pitching the torso to centre the plank
-    views its tagged face edge-on and behind the hand (rendered check), the head alone sees it
-    in the second half of the carry to the pre-placement and during the placement. ``ramp_in``
-    blends from the planned posture over
-    the step with a C2 ramp. Velocities: central differences."""
+    the two image coordinates (x/z, y/z), Gauss-Newton (:func:`aim_camera`) every ``every``
+    samples and linear in between; when the head reaches its limits and the target stays more
+    than ``tolerance`` (normalised image coordinate) off the centre, ``extra_joints`` join in,
+    only as far as bringing it ``tolerance`` from the centre (0.2 ≈ 11°). The plank demo does
+    not centre its object so (the torso pitch needed views its tagged face edge-on and behind
+    the hand): :func:`lean_for_view` leans only as far as tags come into view. ``ramp_in``
+    blends from the planned posture over the step with a C2 ramp. Velocities: central
+    differences."""
     values, derivs = traj.references["posture"]
     names = tuple(joints) + tuple(extra_joints)
-    idx = [model.joints[model.getJointId(j)].idx_q for j in names]
-    vdx = [model.joints[model.getJointId(j)].idx_v for j in names]
-    margin = 0.03  # [rad] inside the limits: the controller's joint-limit task keeps off them
-    lo, hi = model.lowerPositionLimit[idx] + margin, model.upperPositionLimit[idx] - margin
+    idx, vdx, (lo, hi) = _joint_bounds(model, names)
     fid = model.getFrameId(camera_frame)
     data = model.createData()
     n = len(values)
     ks = list(range(0, n, every)) + ([n - 1] if (n - 1) % every else [])
 
-    def image_point(q: np.ndarray, p_W: np.ndarray) -> np.ndarray:
-        pin.framesForwardKinematics(model, data, q)
-        p_C = data.oMf[fid].actInv(p_W)
-        return p_C[:2] / max(p_C[2], 1e-3)
-
-    def solve(
-        q: np.ndarray, x: np.ndarray, active: list[int], target: np.ndarray, radius: float = 0.0
-    ) -> np.ndarray:
-        # Brings the target's image point within ``radius`` of the centre (0: onto it).
-        for _ in range(5):
-            q[idx] = x
-            p = image_point(q, target)
-            e = (
-                p * max(0.0, 1.0 - radius / max(float(np.linalg.norm(p)), 1e-12))
-                if radius > 0.0
-                else p
-            )
-            J = np.empty((2, len(active)))
-            for c, j in enumerate(active):
-                qd = q.copy()
-                qd[idx[j]] += 1e-6
-                J[:, c] = (image_point(qd, target) - p) / 1e-6
-            step = np.linalg.lstsq(J, e, rcond=None)[0]
-            for c, j in enumerate(active):
-                x[j] = np.clip(x[j] - step[c], lo[j], hi[j])
-        q[idx] = x
-        return x
-
     out = np.empty((len(ks), len(names)))
     for i, k in enumerate(ks):
         q = values[k].copy()
-        x = np.clip(q[idx], lo, hi)
-        x = solve(q, x, list(range(len(joints))), targets_W[k])
-        if np.linalg.norm(image_point(q, targets_W[k])) > tolerance and extra_joints:
+        x = aim_camera(model, data, fid, q, idx, (lo, hi), list(range(len(joints))), targets_W[k])
+        if np.linalg.norm(_image_point(model, data, fid, q, targets_W[k])) > tolerance and (
+            extra_joints
+        ):
             free = [j for j in range(len(joints)) if lo[j] + 1e-6 < x[j] < hi[j] - 1e-6]
-            x = solve(
-                q, x, free + list(range(len(joints), len(names))), targets_W[k], radius=tolerance
+            x = aim_camera(
+                model,
+                data,
+                fid,
+                q,
+                idx,
+                (lo, hi),
+                free + list(range(len(joints), len(names))),
+                targets_W[k],
+                radius=tolerance,
             )
         out[i] = x
     full = np.column_stack([np.interp(np.arange(n), ks, out[:, j]) for j in range(len(names))])
@@ -516,25 +547,186 @@ def head_gaze_posture(
     derivs[:, vdx] = d
 
 
+@dataclass
+class ObjectView:
+    """Whether the camera would detect ``body``'s tags (:func:`.visibility.tags_in_view`, the
+    robot's links hiding them) with the robot at ``q`` and the object at ``X_WO``."""
+
+    model: pin.Model
+    camera_frame: str
+    body: Any  # perception.objects.TaggedBody
+    intrinsics: Any  # perception.camera.CameraIntrinsics
+    sight: Any  # perception.visibility.LineOfSight
+    limits: Any  # perception.visibility.ViewLimits
+
+    def __post_init__(self) -> None:
+        self.data = self.model.createData()
+        self.fid = self.model.getFrameId(self.camera_frame)
+
+    def seen(self, q: np.ndarray, X_WO: pin.SE3) -> int:
+        from marionette.perception.visibility import tags_in_view
+
+        pin.framesForwardKinematics(self.model, self.data, q)
+        self.sight.update(self.data)
+        return tags_in_view(
+            self.data.oMf[self.fid], X_WO, self.body, self.intrinsics, self.limits, self.sight
+        )
+
+
+def hold_tasks(
+    model: pin.Model,
+    data: pin.Data,
+    data_ref: pin.Data,
+    q: np.ndarray,
+    tasks: list[TaskSpec],
+    fixed_v: list[int],
+    iterations: int = 6,
+) -> np.ndarray:
+    """``q`` moved (Gauss-Newton, least norm, the velocity components ``fixed_v`` kept) until
+    ``tasks`` are where they are at the configuration whose kinematics ``data_ref`` holds
+    (frames and centre of mass): the rest of the body making room for a joint that was moved —
+    the legs shift the pelvis back under a torso leaning forward, the arm keeps its gripper."""
+    free = np.setdiff1d(np.arange(model.nv), fixed_v)
+    q = q.copy()
+    for _ in range(iterations):
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        pin.centerOfMass(model, data, q, False)
+        rows = [
+            (e, J)
+            for t in tasks
+            if (e := task_error(model, data, t, q, data_ref)) is not None
+            and (J := task_jacobian(model, data, t, q)) is not None
+        ]
+        if not rows:
+            break
+        e = np.concatenate([r[0] for r in rows])
+        if float(np.linalg.norm(e)) < 1e-7:
+            break
+        J = np.vstack([r[1] for r in rows])
+        dq = np.zeros(model.nv)
+        dq[free] = -np.linalg.lstsq(J[:, free], e, rcond=1e-8)[0]
+        q = pin.integrate(model, q, dq)
+    return q
+
+
+def lean_for_view(
+    traj: StepTrajectory,
+    targets_W: np.ndarray,
+    object_poses: list[pin.SE3],
+    view: ObjectView,
+    head_joints: tuple[str, ...],
+    lean_joint: str,
+    held: list[TaskSpec] = (),  # type: ignore[assignment]
+    samples: int = 13,
+    increment: float = 0.05,
+    ramp: float = 0.25,
+) -> float:
+    """Leans the step's posture reference on ``lean_joint`` (a torso pitch) so that the head,
+    aimed at ``targets_W`` (:func:`aim_camera`, its joints ``head_joints``), sees the object's
+    tags where it would not with the planned posture: at ``samples`` points evenly spread over
+    the step (the same path points whatever its pace, so that re-timing it scales the lean's
+    velocity and converges) the smallest lean (in
+    ``increment`` steps, either sign, within the joint's limits) that shows a tag (``view``);
+    the step takes the largest of them, ramped in over its first ``ramp`` and out over its last
+    ``ramp`` (C2), so that it starts and ends on the plan and no controller switch sees a jump.
+    Samples no lean makes see (the object hidden by the hand that reaches it) do not count.
+    The rest of the posture makes room for the lean (:func:`hold_tasks`): the ``held`` tasks —
+    those above the posture, the feet, the centre of mass, the grippers — stay where the plan
+    has them, so that the posture, the lowest priority, can follow the lean instead of sharing
+    it with the legs it would pull off balance (a lean-only reference was followed by less than
+    half). Returns the lean applied [rad] (0: the head alone sees it, or nothing helps)."""
+    model = view.model
+    values, derivs = traj.references["posture"]
+    idx, hdx, bounds = _joint_bounds(model, tuple(head_joints))
+    (li,), (lv,), (llo_, lhi_) = _joint_bounds(model, (lean_joint,))
+    llo, lhi = float(llo_[0]), float(lhi_[0])
+    fixed_v = [*hdx, lv]
+    n = len(values)
+    ks = sorted({round(x) for x in np.linspace(0, n - 1, max(samples, 2))})
+    data, data_ref = model.createData(), model.createData()
+
+    def leaned(k: int, delta: float) -> np.ndarray:
+        q = values[k].copy()
+        q[li] = float(np.clip(q[li] + delta, llo, lhi))
+        if delta == 0.0 or not held:
+            return q
+        pin.framesForwardKinematics(model, data_ref, values[k])
+        pin.centerOfMass(model, data_ref, values[k], False)
+        return hold_tasks(model, data, data_ref, q, list(held), fixed_v)
+
+    needed: list[float] = []
+    for k in ks:
+        for m in range(int((lhi - llo) / increment) + 1):
+            delta = increment * ((m + 1) // 2) * (1 if m % 2 else -1) if m else 0.0
+            if not llo <= values[k, li] + delta <= lhi:
+                continue
+            q = leaned(k, delta)
+            aim_camera(model, data, view.fid, q, idx, bounds, list(range(len(idx))), targets_W[k])
+            if view.seen(q, object_poses[k]):
+                needed.append(delta)
+                break
+    lean = max(needed, key=abs, default=0.0)
+    if lean == 0.0:
+        return 0.0
+    r = max(ramp * (n - 1), 1.0)
+    rows = np.array([leaned(k, lean * activation(k / r) * activation((n - 1 - k) / r)) for k in ks])
+    full = np.column_stack([np.interp(np.arange(n), ks, rows[:, j]) for j in range(model.nq)])
+    for j in range(1, model.njoints):
+        joint = model.joints[j]
+        if joint.nq == 7:  # a free flyer: where the body went (the posture does not follow it)
+            block = full[:, joint.idx_q : joint.idx_q + 7]
+            block[:, 3:] /= np.linalg.norm(block[:, 3:], axis=1, keepdims=True)
+            values[:, joint.idx_q : joint.idx_q + 7] = block
+        elif joint.nq == 1 and joint.idx_q not in idx:
+            values[:, joint.idx_q] = full[:, joint.idx_q]
+            derivs[1:-1, joint.idx_v] = (full[2:, joint.idx_q] - full[:-2, joint.idx_q]) / (
+                2 * traj.dt
+            )
+    return float(lean)
+
+
 def planned_object_positions(traj: StepTrajectory, robot_map: PlanRobotMap, obj: str) -> np.ndarray:
     """(N, 3) planned world position of ``obj`` at every sample of the step."""
     return np.array([robot_map.object_pose(q, obj).translation for q in traj.q_plan])
 
 
-def gaze_rewrite(robot_map: PlanRobotMap, obj: str, camera_frame: str) -> Rewrite:
+@dataclass(frozen=True)
+class Lean:
+    """What the gaze needs to lean the torso on the servoed steps (:func:`lean_for_view`): the
+    camera's ``view`` of the object, the head's joints, the lean joint, and per servoed step the
+    tasks above its posture that the lean keeps where the plan has them."""
+
+    view: ObjectView
+    head_joints: tuple[str, ...]
+    joint: str
+    held: dict[int, list[TaskSpec]]
+
+
+def gaze_rewrite(
+    robot_map: PlanRobotMap, obj: str, camera_frame: str, lean: Lean | None = None
+) -> Rewrite:
     """A step rewrite (:func:`references.shaped_trajectory`): the head of the step's posture
     reference looks at the planned ``obj``, ramped in over the first step run (so that its
-    controller starts where the robot is). The supervisor re-times a step whose head would then
-    turn faster than its bound."""
+    controller starts where the robot is). With ``lean``, the servoed steps first lean the
+    torso where the head alone would not see the object (:func:`lean_for_view`). The supervisor
+    re-times a step whose head would then turn faster than its bound."""
 
     def rewrite(step: Step, traj: StepTrajectory, first: bool) -> None:
-        head_gaze_posture(
-            robot_map.model,
-            traj,
-            planned_object_positions(traj, robot_map, obj),
-            camera_frame,
-            ramp_in=first,
-        )
+        targets = planned_object_positions(traj, robot_map, obj)
+        if lean is not None and step.index in lean.held:
+            poses = [robot_map.object_pose(q, obj) for q in traj.q_plan]
+            poses += [poses[-1]] * (len(traj.references["posture"][0]) - len(poses))
+            traj.lean = lean_for_view(
+                traj,
+                targets,
+                poses,
+                lean.view,
+                lean.head_joints,
+                lean.joint,
+                lean.held[step.index],
+            )
+        head_gaze_posture(robot_map.model, traj, targets, camera_frame, ramp_in=first)
 
     return rewrite
 

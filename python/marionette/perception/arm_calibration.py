@@ -52,6 +52,7 @@ from marionette.perception.calibration import (
 )
 from marionette.perception.camera import CameraIntrinsics
 from marionette.perception.objects import TaggedBody, tagged_bodies_from_semantics
+from marionette.perception.visibility import LineOfSight, ViewLimits, tags_in_view
 
 ROTATION_WEIGHT = 0.1  # [m/rad]: 1° of tag orientation counts as 1.7 mm
 # A view is planned with two tags within this of the line of sight: at 55° one of them was missed
@@ -97,58 +98,6 @@ def wrist_ring(robot: str, side: str) -> TaggedBody:
     raise CalibrationError(f"{robot} declares no tags on {link}")
 
 
-@dataclass
-class LineOfSight:
-    """Self-occlusion of the wrist tags by the robot's own collision model: a segment from the
-    camera to a tag (a 3 mm capsule stopping 1 cm short of it) hitting a link other than the
-    tagged one (whose hull holds the ring) and those that carry the camera (whose hull holds
-    the lens) hides the tag — the forearm, seen from the head, covers the ring in a third of
-    the views the tags face."""
-
-    model: pin.Model
-    geom: pin.GeometryModel
-    tagged_link: str
-    camera_frame: str
-    radius: float = 0.003
-
-    def __post_init__(self) -> None:
-        import hppfcl
-
-        self._fcl = hppfcl
-        self.gdata = pin.GeometryData(self.geom)
-        camera_joint = self.model.frames[self.model.getFrameId(self.camera_frame)].parentJoint
-        self.others = [
-            i
-            for i, o in enumerate(self.geom.geometryObjects)
-            if not o.name.startswith(self.tagged_link) and o.parentJoint != camera_joint
-        ]
-        self.request = hppfcl.CollisionRequest()
-
-    def update(self, data: pin.Data) -> None:
-        """The geometries placed at the kinematics already computed in ``data``."""
-        pin.updateGeometryPlacements(self.model, data, self.geom, self.gdata)
-
-    def clear(self, p_W_camera: np.ndarray, p_W_target: np.ndarray) -> bool:
-        """True when nothing of the robot but the tagged link and the camera's lies between the
-        two points (placements from the last :meth:`update`)."""
-        fcl = self._fcl
-        d = p_W_target - p_W_camera
-        length = float(np.linalg.norm(d)) - 0.01
-        if length <= 0.0:
-            return True
-        z = d / np.linalg.norm(d)
-        R = pin.Quaternion.FromTwoVectors(np.array([0.0, 0.0, 1.0]), z).matrix()
-        capsule = fcl.Capsule(self.radius, length)
-        X = fcl.Transform3s(R, p_W_camera + z * length / 2)
-        for i in self.others:
-            placement = self.gdata.oMg[i]
-            X_o = fcl.Transform3s(placement.rotation, placement.translation)
-            geometry = self.geom.geometryObjects[i].geometry
-            if fcl.collide(capsule, X, geometry, X_o, self.request, fcl.CollisionResult()):
-                return False
-        return True
-
-
 def ring_visibility(
     model: pin.Model,
     data: pin.Data,
@@ -162,35 +111,18 @@ def ring_visibility(
 ) -> int:
     """How many of the ring's tags face the camera (within ``max_angle_deg`` of its line of
     sight) with their centre inside the image by ``margin_px``, 0.3–0.75 m away (nominal
-    kinematics at ``q``), and, with ``sight``, not hidden (centre and corners) by the robot's
-    other links."""
+    kinematics at ``q``), and, with ``sight``, not hidden by the robot's other links."""
     pin.framesForwardKinematics(model, data, q)
-    X_WC = data.oMf[model.getFrameId(camera_frame)]
-    X_CE = X_WC.actInv(data.oMf[model.getFrameId(ring.link)])
     if sight is not None:
         sight.update(data)
-    facing = 0
-    for tag in ring.tags:
-        X_CT = X_CE * tag.X_BT
-        p = X_CT.translation
-        if not 0.3 < p[2] < 0.75:
-            continue
-        u, v = intrinsics.project(p)[0]
-        if not (
-            margin_px < u < intrinsics.width - margin_px
-            and margin_px < v < intrinsics.height - margin_px
-        ):
-            continue
-        if -X_CT.rotation[:, 2] @ (p / np.linalg.norm(p)) <= np.cos(np.radians(max_angle_deg)):
-            continue
-        # the centre and the four corners in sight (a tag half hidden is not detected)
-        h = tag.size / 2
-        points = [np.zeros(3), *(np.array([a * h, b * h, 0.0]) for a in (-1, 1) for b in (-1, 1))]
-        if sight is None or all(
-            sight.clear(X_WC.translation, X_WC.act(X_CT.act(c))) for c in points
-        ):
-            facing += 1
-    return facing
+    return tags_in_view(
+        data.oMf[model.getFrameId(camera_frame)],
+        data.oMf[model.getFrameId(ring.link)],
+        ring,
+        intrinsics,
+        ViewLimits(margin_px=margin_px, max_angle_deg=max_angle_deg),
+        sight,
+    )
 
 
 def offset_hypotheses(

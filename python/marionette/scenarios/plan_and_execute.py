@@ -61,7 +61,7 @@ from marionette.execution.supervisor import (
     SupervisorResult,
     prepare_trajectories,
 )
-from marionette.execution.visual_servo import gaze_rewrite
+from marionette.execution.visual_servo import Lean, ObjectView, gaze_rewrite
 from marionette.perception.arm_calibration import calibrate_arm, encoder_offsets_argument
 from marionette.perception.calibration import CalibrationError
 from marionette.planning.path import Plan
@@ -490,7 +490,14 @@ def run_plan_and_execute(
         camera = robots.robot(robot).camera_frame
         if camera is None:
             raise ScenarioError(f"{scenario.name}: vision needs a camera; robot {robot} has none")
-        rewrites.append(gaze_rewrite(robot_map, scenario.object_name, camera))
+        rewrites.append(
+            gaze_rewrite(
+                robot_map,
+                scenario.object_name,
+                camera,
+                _lean_for_view(robot, scenario.object_name, steps, specs),
+            )
+        )
     try:
         trajectories = prepare_trajectories(
             steps, specs, robot_map, supervisor_options, 0, timing, rewrites
@@ -713,6 +720,39 @@ def run_plan_and_execute(
         report["vision"] = servo.summary()
     write_report(out_dir, report, scenario, supervisor, result, recorder, model)
     return report
+
+
+def _lean_for_view(robot: str, obj: str, steps: list, specs: list) -> Lean | None:
+    """What the gaze needs to lean the torso on the servoed steps (:func:`gaze_rewrite`); None
+    for a robot whose camera declares no lean joints."""
+    from marionette.perception.objects import tagged_bodies_from_semantics
+    from marionette.perception.visibility import LineOfSight, ViewLimits
+
+    desc = robots.robot(robot)
+    camera = desc.cameras[0] if desc.cameras else None
+    if camera is None or not camera.lean_joints or not desc.calibration_head_joints:
+        return None
+    model, geom = robots.load_pinocchio(robot, with_collision=True)
+    (body,) = tagged_bodies_from_semantics(robots.load_object(obj).semantics)
+    view = ObjectView(
+        model,
+        camera.frame,
+        body,
+        camera.intrinsics(),
+        LineOfSight(model, geom, None, camera.frame),
+        # 32 mm tags are found up to ~1.2 m and 60° off the axis on 640 x 480 frames
+        ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0),
+    )
+    held = {}
+    for step, spec in zip(steps, specs):
+        if any(t.kind == "pbvs" for t in spec.tasks):
+            posture = min((t.priority for t in spec.tasks if t.kind == "posture"), default=None)
+            held[step.index] = [
+                t
+                for t in spec.tasks
+                if t.kind != "posture" and (posture is None or t.priority < posture)
+            ]
+    return Lean(view, desc.calibration_head_joints, camera.lean_joints[0], held)
 
 
 def _refused(report: dict[str, Any], out_dir: Path, reason: str) -> dict[str, Any]:

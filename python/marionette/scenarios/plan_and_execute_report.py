@@ -45,6 +45,7 @@ def _records(result) -> list[dict[str, Any]]:
                 "chunks": r.chunks,
                 "retimed": r.retimed,
                 "retimed_for": r.retimed_for,
+                "lean_rad": r.lean,
                 "switch_retries": r.switch_retries,
                 "min_lookahead_ms": r.min_lookahead_ms,
                 "max_task_errors": r.max_errors,
@@ -278,11 +279,12 @@ def _markdown(r: dict[str, Any]) -> str:
         "## Steps (one controller each)",
         "",
         "Re-timed: how much slower than its time law a step was played for its rewritten "
-        "references (the gaze) to respect the joints' velocity bounds, and the joint that asked.",
+        "references (the gaze) to respect the joints' velocity bounds, and the joint that asked. "
+        "Lean: how far a servoed step leaned the torso for the head camera to see the object.",
         "",
-        "| # | transition | kind | planned s | re-timed | controller s | wall s | switch retries "
-        "| min look-ahead ms | result |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| # | transition | kind | planned s | re-timed | lean rad | controller s | wall s "
+        "| switch retries | min look-ahead ms | result |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in r["steps"]:
         ct = f"{s['controller_time_s']:.2f}" if s["controller_time_s"] is not None else "-"
@@ -290,7 +292,8 @@ def _markdown(r: dict[str, Any]) -> str:
         rt = f"x{s['retimed']:.2f} ({s['retimed_for']})" if s.get("retimed", 1.0) > 1.0 else "-"
         lines.append(
             f"| {s['index']} | `{s['transition']}` | {s['kind']} | {s['planned_duration_s']:.2f} | "
-            f"{rt} | {ct} | {s['wall_s']:.2f} | {s.get('switch_retries', 0)} | {la} | "
+            f"{rt} | {s.get('lean_rad', 0.0):.2f} | {ct} | {s['wall_s']:.2f} | "
+            f"{s.get('switch_retries', 0)} | {la} | "
             f"{s['result']} |"
         )
     lines += controller_and_plots_lines(r)

@@ -417,3 +417,174 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
         assert np.linalg.norm(X_CB.translation - X_true.translation) < 5e-3
         assert math.degrees(np.linalg.norm(pin.log3(X_true.rotation.T @ X_CB.rotation))) < 1.0
     assert seen == len(views)
+
+
+def _standing_step(model, q: np.ndarray, n: int) -> StepTrajectory:
+    values = np.tile(q, (n, 1))
+    return StepTrajectory(
+        1e-3,
+        (n - 1) * 1e-3,
+        np.arange(n) * 1e-3,
+        values.copy(),
+        values.copy(),
+        {"posture": (values, np.zeros((n, model.nv)))},
+    )
+
+
+def _plank_view(model, geom):
+    from marionette.execution.visual_servo import ObjectView
+    from marionette.perception.objects import tagged_bodies_from_semantics
+    from marionette.perception.visibility import LineOfSight, ViewLimits
+
+    camera = robots.robot("talos").cameras[0]
+    (body,) = tagged_bodies_from_semantics(robots.load_object("plank").semantics)
+    return ObjectView(
+        model,
+        camera.frame,
+        body,
+        camera.intrinsics(),
+        LineOfSight(model, geom, None, camera.frame),
+        ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0),
+    )
+
+
+@pytest.mark.parametrize("ahead_m", [0.38, 0.4, 0.43])
+def test_the_gaze_leans_the_torso_only_as_far_as_the_tags_come_into_view(ahead_m):
+    """The plank standing on the table 0.38-0.43 m before half-sitting TALOS is below the image
+    at the head's pitch limit; the lean makes a tag visible (the kinematic prediction), starts and
+    ends on the plan, moves nothing but the lean joint, and is the smallest that does (one
+    increment less does not show it)."""
+    from marionette.execution.visual_servo import aim_camera, lean_for_view
+
+    model, geom = robots.load_pinocchio("talos", with_collision=True)
+    q = robots.reference_configuration("talos", model)
+    view = _plank_view(model, geom)
+    X_WO = pin.XYZQUATToSE3(np.array([ahead_m, -0.02, 0.8316, 0.0, -0.7071068, 0.0, 0.7071068]))
+    n = 401
+    head = ("head_1_joint", "head_2_joint")
+    hidx = [model.joints[model.getJointId(j)].idx_q for j in head]
+    lean_q = model.joints[model.getJointId("torso_2_joint")].idx_q
+    bounds = (model.lowerPositionLimit[hidx] + 0.03, model.upperPositionLimit[hidx] - 0.03)
+    data = model.createData()
+
+    def seen_with(lean: float) -> int:
+        qk = q.copy()
+        qk[lean_q] += lean
+        aim_camera(model, data, view.fid, qk, hidx, bounds, [0, 1], X_WO.translation)
+        return view.seen(qk, X_WO)
+
+    assert seen_with(0.0) == 0  # the case: the head alone does not see it
+    traj = _standing_step(model, q, n)
+    targets = np.tile(X_WO.translation, (n, 1))
+    lean = lean_for_view(traj, targets, [X_WO] * n, view, head, "torso_2_joint", samples=41)
+    assert lean != 0.0
+    assert seen_with(lean) >= 1 and seen_with(lean - 0.05 * np.sign(lean)) == 0
+    values, derivs = traj.references["posture"]
+    assert np.allclose(values[0], q) and np.allclose(values[-1], q)
+    assert values[n // 2, lean_q] == pytest.approx(q[lean_q] + lean)
+    changed = {i for i in range(model.nq) if np.any(np.abs(values[:, i] - q[i]) > 1e-12)}
+    assert changed == {lean_q}
+    v = model.joints[model.getJointId("torso_2_joint")].idx_v
+    k = n // 5
+    assert derivs[k, v] == pytest.approx((values[k + 1, lean_q] - values[k - 1, lean_q]) / 2e-3)
+
+
+def test_the_gaze_does_not_lean_when_the_head_sees_the_object():
+    from marionette.execution.visual_servo import lean_for_view
+
+    model, geom = robots.load_pinocchio("talos", with_collision=True)
+    q = robots.reference_configuration("talos", model)
+    X_WO = pin.XYZQUATToSE3(np.array([0.6, -0.02, 0.8316, 0.0, -0.7071068, 0.0, 0.7071068]))
+    traj = _standing_step(model, q, 201)
+    before = traj.references["posture"][0].copy()
+    lean = lean_for_view(
+        traj,
+        np.tile(X_WO.translation, (201, 1)),
+        [X_WO] * 201,
+        _plank_view(model, geom),
+        ("head_1_joint", "head_2_joint"),
+        "torso_2_joint",
+    )
+    assert lean == 0.0 and np.array_equal(traj.references["posture"][0], before)
+
+
+def test_tags_in_view_against_a_pinhole_projection():
+    """A tag straight ahead is seen; turned beyond the angle limit, pushed out of the image, or
+    behind the camera it is not (projection written here: u = f x / z + c)."""
+    from marionette.perception.camera import CameraIntrinsics
+    from marionette.perception.objects import TaggedBody, TagOnBody
+    from marionette.perception.visibility import ViewLimits, tags_in_view
+
+    K = CameraIntrinsics.from_fovy(640, 480, 45.0)
+    body = TaggedBody("b", "base_link", (TagOnBody(1, 0.05, pin.SE3.Identity()),))
+    limits = ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0)
+    facing = pin.SE3(pin.utils.rotate("y", math.pi), np.zeros(3))  # tag z towards the lens
+    f = 0.5 * 480 / math.tan(math.radians(22.5))
+    for x, z, turn_deg, expected in [
+        (0.0, 0.5, 0.0, 1),
+        (0.0, 0.5, 55.0, 1),
+        (0.0, 0.5, 65.0, 0),
+        (0.0, 1.5, 0.0, 0),  # beyond max_depth
+        (-0.5, -0.5, 0.0, 0),  # behind the camera
+    ]:
+        X_CB = pin.SE3(pin.utils.rotate("x", math.radians(turn_deg)), np.array([x, 0.0, z]))
+        assert tags_in_view(pin.SE3.Identity(), X_CB * facing, body, K, limits) == expected
+    # The image edge: the centre's column u = f x / z + cx against the margin.
+    for u_target, expected in [(640 - 21.0, 1), (640 - 19.0, 0), (21.0, 1), (19.0, 0)]:
+        x = (u_target - K.cx) * 0.5 / f
+        X_CB = pin.SE3(np.eye(3), np.array([x, 0.0, 0.5]))
+        assert tags_in_view(pin.SE3.Identity(), X_CB * facing, body, K, limits) == expected
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_holding_the_tasks_above_the_posture_while_the_torso_leans(seed):
+    """hold_tasks against forward kinematics: after a random torso lean from a random posture
+    near half-sitting, the soles, the centre of mass (x, y), one gripper and the two grippers'
+    relative pose are where they were (Pinocchio FK), and the leaned joint kept its value."""
+    from marionette.control.spec import TaskSpec
+    from marionette.execution.visual_servo import hold_tasks
+
+    rng = np.random.default_rng(seed)
+    model, _ = robots.load_pinocchio("talos", with_collision=False)
+    q_ref = robots.reference_configuration("talos", model)
+    arms = [
+        model.joints[model.getJointId(f"arm_{s}_{i}_joint")].idx_q
+        for s in ("left", "right")
+        for i in range(1, 8)
+    ]
+    q_ref[arms] += rng.uniform(-0.3, 0.3, len(arms))
+    tasks = [
+        TaskSpec("left_sole_link", "se3", 0, frame="left_sole_link"),
+        TaskSpec("right_sole_link", "se3", 0, frame="right_sole_link"),
+        TaskSpec("com", "com", 0, mask=(True, True, False)),
+        TaskSpec("right_gripper", "se3", 1, frame="gripper_right_base_link"),
+        TaskSpec(
+            "hands",
+            "relative_se3",
+            1,
+            frame="gripper_left_base_link",
+            frame_b="gripper_right_base_link",
+        ),
+    ]
+    data_ref = model.createData()
+    pin.framesForwardKinematics(model, data_ref, q_ref)
+    pin.centerOfMass(model, data_ref, q_ref, False)
+    lean = model.joints[model.getJointId("torso_2_joint")]
+    q = q_ref.copy()
+    q[lean.idx_q] += rng.uniform(0.1, 0.3)
+    head = [model.joints[model.getJointId(j)].idx_v for j in ("head_1_joint", "head_2_joint")]
+    held = hold_tasks(model, model.createData(), data_ref, q, tasks, [*head, lean.idx_v], 12)
+    assert held[lean.idx_q] == q[lean.idx_q]
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, held)
+    for frame in ("left_sole_link", "right_sole_link", "gripper_right_base_link"):
+        f = model.getFrameId(frame)
+        err = pin.log6(data_ref.oMf[f].actInv(data.oMf[f])).vector
+        assert np.linalg.norm(err) < 1e-5, frame
+    fl, fr = model.getFrameId("gripper_left_base_link"), model.getFrameId("gripper_right_base_link")
+    rel = pin.log6(
+        data_ref.oMf[fl].actInv(data_ref.oMf[fr]).actInv(data.oMf[fl].actInv(data.oMf[fr]))
+    ).vector
+    assert np.linalg.norm(rel) < 1e-5
+    com = pin.centerOfMass(model, data, held)
+    assert np.allclose(com[:2], data_ref.com[0][:2], atol=1e-6)
