@@ -550,26 +550,34 @@ def head_gaze_posture(
 @dataclass
 class ObjectView:
     """Whether the camera would detect ``body``'s tags (:func:`.visibility.tags_in_view`, the
-    robot's links hiding them) with the robot at ``q`` and the object at ``X_WO``."""
+    robot's links hiding them) with the robot at ``q`` and the object at ``X_WO``: ``limits``
+    from the most demanding (margins that keep a tag in view when the object is centimetres off
+    its plan) to the least."""
 
     model: pin.Model
     camera_frame: str
     body: Any  # perception.objects.TaggedBody
     intrinsics: Any  # perception.camera.CameraIntrinsics
     sight: Any  # perception.visibility.LineOfSight
-    limits: Any  # perception.visibility.ViewLimits
+    limits: tuple[Any, ...]  # perception.visibility.ViewLimits, most demanding first
 
     def __post_init__(self) -> None:
         self.data = self.model.createData()
         self.fid = self.model.getFrameId(self.camera_frame)
 
-    def seen(self, q: np.ndarray, X_WO: pin.SE3) -> int:
+    def seen(self, q: np.ndarray, X_WO: pin.SE3, level: int = 0) -> int:
+        """Tags detected under ``limits[level]``."""
         from marionette.perception.visibility import tags_in_view
 
         pin.framesForwardKinematics(self.model, self.data, q)
         self.sight.update(self.data)
         return tags_in_view(
-            self.data.oMf[self.fid], X_WO, self.body, self.intrinsics, self.limits, self.sight
+            self.data.oMf[self.fid],
+            X_WO,
+            self.body,
+            self.intrinsics,
+            self.limits[level],
+            self.sight,
         )
 
 
@@ -630,7 +638,8 @@ def lean_for_view(
     ``increment`` steps, either sign, within the joint's limits) that shows a tag (``view``);
     the step takes the largest of them, ramped in over its first ``ramp`` and out over its last
     ``ramp`` (C2), so that it starts and ends on the plan and no controller switch sees a jump.
-    Samples no lean makes see (the object hidden by the hand that reaches it) do not count.
+    Samples no lean makes see (the object hidden by the hand that reaches it) do not count; the
+    view's limits are tried from the most demanding, the first any sample meets is used.
     The rest of the posture makes room for the lean (:func:`hold_tasks`): the ``held`` tasks —
     those above the posture, the feet, the centre of mass, the grippers — stay where the plan
     has them, so that the posture, the lowest priority, can follow the lean instead of sharing
@@ -655,17 +664,27 @@ def lean_for_view(
         pin.centerOfMass(model, data_ref, values[k], False)
         return hold_tasks(model, data, data_ref, q, list(held), fixed_v)
 
-    needed: list[float] = []
-    for k in ks:
-        for m in range(int((lhi - llo) / increment) + 1):
-            delta = increment * ((m + 1) // 2) * (1 if m % 2 else -1) if m else 0.0
-            if not llo <= values[k, li] + delta <= lhi:
-                continue
+    aimed: dict[tuple[int, float], np.ndarray] = {}
+
+    def aimed_at(k: int, delta: float) -> np.ndarray:
+        if (k, delta) not in aimed:
             q = leaned(k, delta)
             aim_camera(model, data, view.fid, q, idx, bounds, list(range(len(idx))), targets_W[k])
-            if view.seen(q, object_poses[k]):
-                needed.append(delta)
-                break
+            aimed[k, delta] = q
+        return aimed[k, delta]
+
+    needed: list[float] = []
+    for level in range(len(view.limits)):  # the most demanding view any lean gives
+        for k in ks:
+            for m in range(int((lhi - llo) / increment) + 1):
+                delta = increment * ((m + 1) // 2) * (1 if m % 2 else -1) if m else 0.0
+                if not llo <= values[k, li] + delta <= lhi:
+                    continue
+                if view.seen(aimed_at(k, delta), object_poses[k], level):
+                    needed.append(delta)
+                    break
+        if needed:
+            break
     lean = max(needed, key=abs, default=0.0)
     if lean == 0.0:
         return 0.0

@@ -72,10 +72,13 @@ class LineOfSight:
 
 @dataclass(frozen=True)
 class ViewLimits:
-    """What a detectable tag needs: its centre ``margin_px`` inside the image, ``min_depth`` to
-    ``max_depth`` in front of the lens, its normal within ``max_angle_deg`` of the line of sight."""
+    """What a detectable tag needs: its centre ``margin_px`` inside the image (and, with
+    ``corner_margin_px``, its four corners that far inside: a tag cut by the image's edge is not
+    detected), ``min_depth`` to ``max_depth`` in front of the lens, its normal within
+    ``max_angle_deg`` of the line of sight."""
 
     margin_px: float = 60.0
+    corner_margin_px: float | None = None
     min_depth: float = 0.3  # [m]
     max_depth: float = 0.75  # [m]
     max_angle_deg: float = 55.0
@@ -109,6 +112,14 @@ def tags_in_view(
         # the centre and the four corners in sight (a tag half hidden is not detected)
         h = tag.size / 2
         points = [np.zeros(3), *(np.array([a * h, b * h, 0.0]) for a in (-1, 1) for b in (-1, 1))]
+        if limits.corner_margin_px is not None:
+            c = limits.corner_margin_px
+            uv = intrinsics.project(np.array([X_CT.act(x) for x in points[1:]]))
+            if not (
+                np.all((c < uv[:, 0]) & (uv[:, 0] < intrinsics.width - c))
+                and np.all((c < uv[:, 1]) & (uv[:, 1] < intrinsics.height - c))
+            ):
+                continue
         if sight is None or all(
             sight.clear(X_WC.translation, X_WC.act(X_CT.act(c))) for c in points
         ):

@@ -740,8 +740,19 @@ def _lean_for_view(robot: str, obj: str, steps: list, specs: list) -> Lean | Non
         body,
         camera.intrinsics(),
         LineOfSight(model, geom, None, camera.frame),
-        # 32 mm tags are found up to ~1.2 m and 60° off the axis on 640 x 480 frames
-        ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0),
+        # 32 mm tags are found up to ~1.2 m and 60° off the axis on 640 x 480 frames. A tag
+        # predicted 15 px inside the image's edge was not seen in a placement where the plank
+        # sat centimetres off its plan (the grasp and the slip): 40 px (3.5 cm at 0.55 m) first.
+        tuple(
+            ViewLimits(
+                margin_px=20.0,
+                corner_margin_px=margin,
+                min_depth=0.2,
+                max_depth=1.2,
+                max_angle_deg=60.0,
+            )
+            for margin in (40.0, 15.0)
+        ),
     )
     held = {}
     for step, spec in zip(steps, specs):

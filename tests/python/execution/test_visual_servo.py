@@ -444,7 +444,7 @@ def _plank_view(model, geom):
         body,
         camera.intrinsics(),
         LineOfSight(model, geom, None, camera.frame),
-        ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0),
+        (ViewLimits(margin_px=20.0, min_depth=0.2, max_depth=1.2, max_angle_deg=60.0),),
     )
 
 
