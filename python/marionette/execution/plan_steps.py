@@ -6,6 +6,7 @@ the configuration of the robot model the controller runs.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -137,13 +138,17 @@ def plan_robot(plan: Plan) -> str:
 
 def steps_from_plan(plan: Plan) -> list[Step]:
     """Merge consecutive paths of the same transition into steps; paths without motion that do
-    not change the grasps are dropped first (they carry no motion and no event)."""
+    not change the grasps are dropped first (they carry no motion and no event). A grasp whose
+    approach the planner folded into the transit before it (no path, or a path without motion,
+    of the waypoint transition that reaches the pre-grasp) gets it back: the transit's last path
+    becomes the approach step (:func:`_restore_approach`)."""
     doc = plan.doc
     if not doc["paths"]:
         raise PlanError("the plan has no path")
     states = {s["name"]: dict(s["grasps"]) for s in doc["graph"]["states"]}
     transitions = {t["name"]: t for t in doc["graph"]["transitions"]}
     steps: list[Step] = []
+    pieces: list[list[tuple[dict, np.ndarray]]] = []  # per step, its paths (entry, samples)
     for entry, (_, qs) in zip(doc["paths"], plan.paths):
         if entry["length"] < 1e-4 and states[entry["from_state"]] == states[entry["to_state"]]:
             continue  # no motion and no grasp change: nothing to execute
@@ -153,28 +158,99 @@ def steps_from_plan(plan: Plan) -> list[Step]:
             prev.q = np.vstack([prev.q, qs[1:]])
             prev.path_indices.append(entry["index"])
             prev.end_state = entry["end_state"]
+            pieces[-1].append((entry, np.asarray(qs, dtype=float)))
             continue
-        parent = transitions.get(entry["parent_transition"])
-        if parent is None:
-            raise PlanError(
-                f"path {entry['index']}: unknown transition {entry['parent_transition']!r}"
-            )
-        step = Step(
-            index=len(steps),
-            transition=entry["transition"],
-            parent_transition=entry["parent_transition"],
-            from_state=entry["from_state"],
-            to_state=entry["to_state"],
-            containing_state=entry["containing_state"],
-            grasps=dict(entry["grasps"]),
-            grasps_from=states[entry["from_state"]],
-            grasps_to=states[entry["to_state"]],
-            parent_grasps_from=states[parent["from"]],
-            parent_grasps_to=states[parent["to"]],
-            path_indices=[entry["index"]],
-            q=np.array(qs, dtype=float),
-            start_state=entry["start_state"],
-            end_state=entry["end_state"],
-        )
-        steps.append(step)
+        steps.append(_step(len(steps), entry, transitions, states, np.array(qs, dtype=float)))
+        pieces.append([(entry, np.asarray(qs, dtype=float))])
+    k = 1
+    while k < len(steps):
+        if _restore_approach(steps, pieces, k, transitions, states):
+            k += 1  # the step that came after the transit is now at k + 1
+        k += 1
+    for i, step in enumerate(steps):
+        step.index = i
     return steps
+
+
+def _step(
+    index: int, entry: dict, transitions: dict[str, dict], states: dict[str, dict], q: np.ndarray
+) -> Step:
+    parent = transitions.get(entry["parent_transition"])
+    if parent is None:
+        raise PlanError(f"path {entry['index']}: unknown transition {entry['parent_transition']!r}")
+    return Step(
+        index=index,
+        transition=entry["transition"],
+        parent_transition=entry["parent_transition"],
+        from_state=entry["from_state"],
+        to_state=entry["to_state"],
+        containing_state=entry["containing_state"],
+        grasps=dict(entry["grasps"]),
+        grasps_from=states[entry["from_state"]],
+        grasps_to=states[entry["to_state"]],
+        parent_grasps_from=states[parent["from"]],
+        parent_grasps_to=states[parent["to"]],
+        path_indices=[entry["index"]],
+        q=q,
+        start_state=entry["start_state"],
+        end_state=entry["end_state"],
+    )
+
+
+def _restore_approach(
+    steps: list[Step],
+    pieces: list[list[tuple[dict, np.ndarray]]],
+    k: int,
+    transitions: dict[str, dict],
+    states: dict[str, dict],
+) -> bool:
+    """When ``steps[k]`` leaves a pre-grasp that no step reached (the transit ``steps[k - 1]``
+    ended there: the planner's path to the pre-grasp was part of the transit), the transit's
+    last path becomes the approach, labelled with the waypoint transition that reaches the
+    pre-grasp, so that a gripper task — servoed on the object with vision — drives the hand to
+    it as in the plans that have the approach. True when a step was inserted at ``k``."""
+    step, transit = steps[k], steps[k - 1]
+    if step.from_state.rsplit("_", 1)[-1] != "pregrasp" or transit.to_state == step.from_state:
+        return False
+    if transit.created or transit.released or transit.grasps != step.grasps:
+        return False
+    parent = transitions.get(step.parent_transition, {})
+    waypoint = next(
+        (
+            transitions[name]
+            for name in parent.get("waypoint_edges", ())
+            if name in transitions and transitions[name]["to"] == step.from_state
+        ),
+        None,
+    )
+    if waypoint is None or waypoint["from"] != transit.to_state:
+        return False
+    approached = set(states[parent["to"]]) - set(states[parent["from"]])
+    if not approached:  # a release's retreat leaves its pre-grasp: nothing is approached
+        return False
+    entry, qs = pieces[k - 1][-1]
+    approach = _step(
+        k,
+        {
+            **entry,
+            "transition": waypoint["name"],
+            "parent_transition": step.parent_transition,
+            "from_state": waypoint["from"],
+            "to_state": waypoint["to"],
+            "containing_state": waypoint["containing_state"],
+            "grasps": states[waypoint["containing_state"]],
+        },
+        transitions,
+        states,
+        qs,
+    )
+    if len(pieces[k - 1]) > 1:  # the transit keeps its other paths
+        pieces[k - 1].pop()
+        transit.q = transit.q[: len(transit.q) - (len(qs) - 1)]
+        transit.path_indices.pop()
+        transit.end_state = pieces[k - 1][-1][0]["end_state"]
+        steps.insert(k, approach)
+        pieces.insert(k, [(entry, qs)])
+        return True
+    steps[k - 1] = dataclasses.replace(approach, index=k - 1)  # the whole transit approaches
+    return False

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -71,7 +72,10 @@ from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.factory import approached_handle, task_error, task_jacobian
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import Rewrite, StepTrajectory
+from marionette.perception.camera import CameraIntrinsics
+from marionette.perception.objects import TaggedBody
 from marionette.perception.pbvs import activation, interpolate
+from marionette.perception.visibility import LineOfSight, ViewLimits, tags_in_view
 
 
 @dataclass(frozen=True)
@@ -556,10 +560,10 @@ class ObjectView:
 
     model: pin.Model
     camera_frame: str
-    body: Any  # perception.objects.TaggedBody
-    intrinsics: Any  # perception.camera.CameraIntrinsics
-    sight: Any  # perception.visibility.LineOfSight
-    limits: tuple[Any, ...]  # perception.visibility.ViewLimits, most demanding first
+    body: TaggedBody
+    intrinsics: CameraIntrinsics
+    sight: LineOfSight
+    limits: tuple[ViewLimits, ...]  # most demanding first
 
     def __post_init__(self) -> None:
         self.data = self.model.createData()
@@ -567,8 +571,6 @@ class ObjectView:
 
     def seen(self, q: np.ndarray, X_WO: pin.SE3, level: int = 0) -> int:
         """Tags detected under ``limits[level]``."""
-        from marionette.perception.visibility import tags_in_view
-
         pin.framesForwardKinematics(self.model, self.data, q)
         self.sight.update(self.data)
         return tags_in_view(
@@ -625,7 +627,8 @@ def lean_for_view(
     view: ObjectView,
     head_joints: tuple[str, ...],
     lean_joint: str,
-    held: list[TaskSpec] = (),  # type: ignore[assignment]
+    held: Sequence[TaskSpec] = (),
+    allowed: Callable[[int, np.ndarray], bool] | None = None,
     samples: int = 13,
     increment: float = 0.05,
     ramp: float = 0.25,
@@ -644,12 +647,15 @@ def lean_for_view(
     those above the posture, the feet, the centre of mass, the grippers — stay where the plan
     has them, so that the posture, the lowest priority, can follow the lean instead of sharing
     it with the legs it would pull off balance (a lean-only reference was followed by less than
-    half). Returns the lean applied [rad] (0: the head alone sees it, or nothing helps)."""
+    half). ``allowed(k, q)`` (sample, leaned robot configuration) refuses a lean the robot may
+    not take there (a free hand brought into the table): a lean is kept only if every sample of
+    the ramped profile is allowed, else the next smaller one. Returns the lean applied [rad] (0:
+    the head alone sees it, or nothing helps, or nothing is allowed)."""
     model = view.model
     values, derivs = traj.references["posture"]
     idx, hdx, bounds = _joint_bounds(model, tuple(head_joints))
-    (li,), (lv,), (llo_, lhi_) = _joint_bounds(model, (lean_joint,))
-    llo, lhi = float(llo_[0]), float(lhi_[0])
+    (li,), (lv,), (lean_lo, lean_hi) = _joint_bounds(model, (lean_joint,))
+    llo, lhi = float(lean_lo[0]), float(lean_hi[0])
     fixed_v = [*hdx, lv]
     n = len(values)
     ks = sorted({round(x) for x in np.linspace(0, n - 1, max(samples, 2))})
@@ -680,16 +686,25 @@ def lean_for_view(
                 delta = increment * ((m + 1) // 2) * (1 if m % 2 else -1) if m else 0.0
                 if not llo <= values[k, li] + delta <= lhi:
                     continue
-                if view.seen(aimed_at(k, delta), object_poses[k], level):
+                q = aimed_at(k, delta)
+                if view.seen(q, object_poses[k], level) and (
+                    allowed is None or delta == 0.0 or allowed(k, q)
+                ):
                     needed.append(delta)
                     break
         if needed:
             break
     lean = max(needed, key=abs, default=0.0)
+    r = max(ramp * (n - 1), 1.0)
+    rows = np.empty((0, model.nq))
+    while lean != 0.0:
+        weights = [activation(k / r) * activation((n - 1 - k) / r) for k in ks]
+        rows = np.array([leaned(k, lean * w) for k, w in zip(ks, weights)])
+        if allowed is None or all(allowed(k, q) for k, q in zip(ks, rows)):
+            break
+        lean = round(lean - increment * np.sign(lean), 9)
     if lean == 0.0:
         return 0.0
-    r = max(ramp * (n - 1), 1.0)
-    rows = np.array([leaned(k, lean * activation(k / r) * activation((n - 1 - k) / r)) for k in ks])
     full = np.column_stack([np.interp(np.arange(n), ks, rows[:, j]) for j in range(model.nq)])
     for j in range(1, model.njoints):
         joint = model.joints[j]
@@ -714,12 +729,15 @@ def planned_object_positions(traj: StepTrajectory, robot_map: PlanRobotMap, obj:
 class Lean:
     """What the gaze needs to lean the torso on the servoed steps (:func:`lean_for_view`): the
     camera's ``view`` of the object, the head's joints, the lean joint, and per servoed step the
-    tasks above its posture that the lean keeps where the plan has them."""
+    tasks above its posture that the lean keeps where the plan has them; ``allowed`` refuses
+    leaned configurations (collisions the plan did not have)."""
 
     view: ObjectView
     head_joints: tuple[str, ...]
     joint: str
     held: dict[int, list[TaskSpec]]
+    # (full plan configuration, leaned robot configuration) -> may the robot take it there
+    allowed: Callable[[np.ndarray, np.ndarray], bool] | None = None
 
 
 def gaze_rewrite(
@@ -736,6 +754,11 @@ def gaze_rewrite(
         if lean is not None and step.index in lean.held:
             poses = [robot_map.object_pose(q, obj) for q in traj.q_plan]
             poses += [poses[-1]] * (len(traj.references["posture"][0]) - len(poses))
+            allowed = lean.allowed
+
+            def allowed_at(k: int, q: np.ndarray) -> bool:
+                return allowed is None or allowed(traj.q_plan[min(k, len(traj.q_plan) - 1)], q)
+
             traj.lean = lean_for_view(
                 traj,
                 targets,
@@ -744,6 +767,7 @@ def gaze_rewrite(
                 lean.head_joints,
                 lean.joint,
                 lean.held[step.index],
+                allowed_at,
             )
         head_gaze_posture(robot_map.model, traj, targets, camera_frame, ramp_in=first)
 

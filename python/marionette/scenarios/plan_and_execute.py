@@ -33,6 +33,7 @@ import yaml
 import marionette
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
+from marionette.control.spec import TaskSpec
 from marionette.execution.dry_run import dry_run
 from marionette.execution.estimation import (
     estimate_state,
@@ -495,7 +496,7 @@ def run_plan_and_execute(
                 robot_map,
                 scenario.object_name,
                 camera,
-                _lean_for_view(robot, scenario.object_name, steps, specs),
+                _lean_for_view(robot, scenario.object_name, steps, specs, plan, robot_map, ctx),
             )
         )
     try:
@@ -722,11 +723,17 @@ def run_plan_and_execute(
     return report
 
 
-def _lean_for_view(robot: str, obj: str, steps: list, specs: list) -> Lean | None:
+def _lean_for_view(
+    robot: str, obj: str, steps: list, specs: list, plan: Any, robot_map: PlanRobotMap, ctx: Any
+) -> Lean | None:
     """What the gaze needs to lean the torso on the servoed steps (:func:`gaze_rewrite`); None
-    for a robot whose camera declares no lean joints."""
+    for a robot whose camera declares no lean joints. The lean keeps every hand where the plan
+    has it (a free arm would otherwise swing with the torso: a left hand went into the table)
+    and adds no collision the plan's configuration did not have (the planner's checker)."""
     from marionette.perception.objects import tagged_bodies_from_semantics
     from marionette.perception.visibility import LineOfSight, ViewLimits
+    from marionette.planning.collision import CollisionChecker
+    from marionette.planning.problem import load_problem
 
     desc = robots.robot(robot)
     camera = desc.cameras[0] if desc.cameras else None
@@ -758,12 +765,25 @@ def _lean_for_view(robot: str, obj: str, steps: list, specs: list) -> Lean | Non
     for step, spec in zip(steps, specs):
         if any(t.kind == "pbvs" for t in spec.tasks):
             posture = min((t.priority for t in spec.tasks if t.kind == "posture"), default=None)
-            held[step.index] = [
+            tasks = [
                 t
                 for t in spec.tasks
                 if t.kind != "posture" and (posture is None or t.priority < posture)
             ]
-    return Lean(view, desc.calibration_head_joints, camera.lean_joints[0], held)
+            framed = {t.frame for t in tasks}
+            tasks += [
+                TaskSpec(f"{frame}_kept", "se3", 0, frame=frame)
+                for frame in sorted(set(ctx.gripper_frames.values()) - framed)
+            ]
+            held[step.index] = tasks
+    checker = CollisionChecker(load_problem(plan.doc["problem"]["source"]), backend="python")
+
+    def allowed(q_plan: np.ndarray, q_robot: np.ndarray) -> bool:
+        q = np.array(q_plan, dtype=float)
+        q[robot_map.idx] = q_robot
+        return set(checker.colliding_pairs(q)) <= set(checker.colliding_pairs(q_plan))
+
+    return Lean(view, desc.calibration_head_joints, camera.lean_joints[0], held, allowed)
 
 
 def _refused(report: dict[str, Any], out_dir: Path, reason: str) -> dict[str, Any]:
