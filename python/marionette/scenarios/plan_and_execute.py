@@ -33,7 +33,7 @@ import yaml
 import marionette
 from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
-from marionette.control.spec import TaskSpec
+from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.dry_run import dry_run
 from marionette.execution.estimation import (
     estimate_state,
@@ -42,6 +42,7 @@ from marionette.execution.estimation import (
 )
 from marionette.execution.factory import (
     ADMITTANCE,
+    FactoryContext,
     build_specs,
     check_specs,
     context_from_plan,
@@ -54,7 +55,7 @@ from marionette.execution.grip_force import (
     settled_windows,
 )
 from marionette.execution.grip_monitor import GripMonitor, GripMonitorNode
-from marionette.execution.plan_steps import PlanRobotMap, plan_robot, steps_from_plan
+from marionette.execution.plan_steps import PlanRobotMap, Step, plan_robot, steps_from_plan
 from marionette.execution.references import StepTiming, grip_change_s
 from marionette.execution.supervisor import (
     Supervisor,
@@ -724,7 +725,13 @@ def run_plan_and_execute(
 
 
 def _lean_for_view(
-    robot: str, obj: str, steps: list, specs: list, plan: Any, robot_map: PlanRobotMap, ctx: Any
+    robot: str,
+    obj: str,
+    steps: list[Step],
+    specs: list[ControllerSpec],
+    plan: Plan,
+    robot_map: PlanRobotMap,
+    ctx: FactoryContext,
 ) -> Lean | None:
     """What the gaze needs to lean the torso on the servoed steps (:func:`gaze_rewrite`); None
     for a robot whose camera declares no lean joints. The lean keeps every hand where the plan
