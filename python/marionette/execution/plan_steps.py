@@ -149,19 +149,20 @@ def steps_from_plan(plan: Plan) -> list[Step]:
     transitions = {t["name"]: t for t in doc["graph"]["transitions"]}
     steps: list[Step] = []
     pieces: list[list[tuple[dict, np.ndarray]]] = []  # per step, its paths (entry, samples)
-    for entry, (_, qs) in zip(doc["paths"], plan.paths):
+    for entry, (_, path_q) in zip(doc["paths"], plan.paths):
         if entry["length"] < 1e-4 and states[entry["from_state"]] == states[entry["to_state"]]:
             continue  # no motion and no grasp change: nothing to execute
+        qs = np.array(path_q, dtype=float)
         same = steps and steps[-1].transition == entry["transition"]
         if same:
             prev = steps[-1]
             prev.q = np.vstack([prev.q, qs[1:]])
             prev.path_indices.append(entry["index"])
             prev.end_state = entry["end_state"]
-            pieces[-1].append((entry, np.asarray(qs, dtype=float)))
+            pieces[-1].append((entry, qs))
             continue
-        steps.append(_step(len(steps), entry, transitions, states, np.array(qs, dtype=float)))
-        pieces.append([(entry, np.asarray(qs, dtype=float))])
+        steps.append(_step(len(steps), entry, transitions, states, qs))
+        pieces.append([(entry, qs)])
     k = 1
     while k < len(steps):
         if _restore_approach(steps, pieces, k, transitions, states):

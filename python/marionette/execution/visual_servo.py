@@ -753,11 +753,10 @@ def gaze_rewrite(
         targets = planned_object_positions(traj, robot_map, obj)
         if lean is not None and step.index in lean.held:
             poses = [robot_map.object_pose(q, obj) for q in traj.q_plan]
-            poses += [poses[-1]] * (len(traj.references["posture"][0]) - len(poses))
             allowed = lean.allowed
 
             def allowed_at(k: int, q: np.ndarray) -> bool:
-                return allowed is None or allowed(traj.q_plan[min(k, len(traj.q_plan) - 1)], q)
+                return allowed is None or allowed(traj.q_plan[k], q)
 
             traj.lean = lean_for_view(
                 traj,

@@ -24,7 +24,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import pinocchio as pin
@@ -83,6 +83,9 @@ from marionette.scenarios.perturbations import (
     slipped,
 )
 from marionette.scenarios.plan_cache import PlanningFailed, cached_plan, default_cache_dir
+
+if TYPE_CHECKING:
+    from marionette.planning.problem import ManipulationProblem
 
 PROBLEMS_DIR = Path(marionette.__file__).resolve().parent / "planning" / "problems"
 SCENES_DIR = marionette.MODELS_DIR / "scenes"
@@ -487,6 +490,9 @@ def run_plan_and_execute(
         simulated_grasps=not scenario.friction_grasps_in(options),
     )
     timing = _servo_timing(scenario) if scenario.vision else None
+    from marionette.planning.problem import load_problem
+
+    problem = load_problem(plan.doc["problem"]["source"])  # the lean's checker and the graph
     rewrites = []
     if scenario.vision:
         camera = robots.robot(robot).camera_frame
@@ -497,7 +503,7 @@ def run_plan_and_execute(
                 robot_map,
                 scenario.object_name,
                 camera,
-                _lean_for_view(robot, scenario.object_name, steps, specs, plan, robot_map, ctx),
+                _lean_for_view(robot, scenario.object_name, steps, specs, problem, robot_map, ctx),
             )
         )
     try:
@@ -537,9 +543,8 @@ def run_plan_and_execute(
             return _refused(report, out_dir, f"the dry run refused the plan: {verdict.reason}")
 
     from marionette.planning.graph_factory import graph_from_settings
-    from marionette.planning.problem import load_problem
 
-    graph = graph_from_settings(load_problem(plan.doc["problem"]["source"]))
+    graph = graph_from_settings(problem)
     scene = scenario.scene
     if perturbation is not None and perturbation.joint_offsets:  # checked by check_options
         scene = scene_with_joint_offsets(scene, perturbation.joint_offsets, out_dir / "scene.xml")
@@ -729,7 +734,7 @@ def _lean_for_view(
     obj: str,
     steps: list[Step],
     specs: list[ControllerSpec],
-    plan: Plan,
+    problem: ManipulationProblem,
     robot_map: PlanRobotMap,
     ctx: FactoryContext,
 ) -> Lean | None:
@@ -740,7 +745,6 @@ def _lean_for_view(
     from marionette.perception.objects import tagged_bodies_from_semantics
     from marionette.perception.visibility import LineOfSight, ViewLimits
     from marionette.planning.collision import CollisionChecker
-    from marionette.planning.problem import load_problem
 
     desc = robots.robot(robot)
     camera = desc.cameras[0] if desc.cameras else None
@@ -783,7 +787,7 @@ def _lean_for_view(
                 for frame in sorted(set(ctx.gripper_frames.values()) - framed)
             ]
             held[step.index] = tasks
-    checker = CollisionChecker(load_problem(plan.doc["problem"]["source"]), backend="python")
+    checker = CollisionChecker(problem, backend="python")
 
     def allowed(q_plan: np.ndarray, q_robot: np.ndarray) -> bool:
         q = np.array(q_plan, dtype=float)
