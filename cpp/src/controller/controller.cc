@@ -645,12 +645,15 @@ int Controller::Run() {
   // 4 s look-ahead of 20 chunks per task overflowed it when the LCM thread was starved of CPU.
   c.lcm.subscribe(channels::kTaskReference, &Impl::OnReference, &c)
       ->setQueueCapacity(kReferenceQueueMessages);
-  c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c);
+  c.lcm.subscribe(channels::kCommand, &Impl::OnCommand, &c)
+      ->setQueueCapacity(kCommandQueueMessages);
   // SIM_COMMAND is the simulator's: with a driver, marionette-sim's (or nobody's, on a robot); the
   // kinematic backend refuses it, counted ("no simulator").
   if (!c.driver_device) c.lcm.subscribe(channels::kSimCommand, &Impl::OnSimCommand, &c);
   c.lcm.subscribe(channels::kDgRequest, &Impl::OnDgRequest, &c);
   c.lcm.subscribe(channels::kFootstepPlan, &Impl::OnFootstepPlan, &c);
+  // Its own state, heard back: how far the receive path has got (SupervisorSilence).
+  c.lcm.subscribe(channels::kRobotState, &Impl::OnOwnState, &c);
   std::thread lcm_thread(&Impl::LcmThread, &c);
   std::thread publisher(&Impl::PublisherThread, &c);
   if (c.camera) c.camera->Start();

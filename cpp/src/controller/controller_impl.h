@@ -71,6 +71,11 @@ inline constexpr int kMaxTasks = 64;  // task error norms reported per controlle
 inline constexpr int kReferenceQueueMessages =
     512;  // TASK_REFERENCE messages LCM may queue
           // (LCM's default, 30, drops a 4 s look-ahead burst)
+// COMMAND messages LCM may queue: 10 s of heartbeats. With LCM's default (30: 600 ms of beats),
+// an LCM thread kept off the CPU that long lost the beats that came next while the controller's
+// own state, queued on its own, went on: it handed over a state newer than the deadline with no
+// beat before it, and held a supervisor that had beaten every 20 ms (SupervisorSilence).
+inline constexpr int kCommandQueueMessages = 512;
 // --realtime: SCHED_FIFO priorities of the loop and of the threads serving it (inputs,
 // introspection samples, state): above any normal process, below the loop.
 inline constexpr int kLoopPriority = 80;
@@ -260,12 +265,13 @@ struct Controller::Impl {
   // of --supervisor-timeout raises silence_request; the loop then holds (HoldOnSilence). Times are
   // when the kernel received the messages (LCM's recv_utime, wall clock [us]): LCM's reader thread
   // queues what arrives while this thread builds a controller, and hands it over in arrival order,
-  // so the silence is measured up to the arrival of the message being handled (or now, when none
-  // is waiting) — neither a long build nor a flood of other messages changes it.
+  // so the silence is measured up to the arrival of the newest message handed over, the
+  // controller's own ROBOT_STATE heard back among them (SupervisorSilence) — neither a long build,
+  // nor a flood of other messages, nor a reader thread kept off the CPU changes it.
   int64_t last_heartbeat_us = 0;
-  int64_t handled_us = 0;       // arrival of the message being handled
-  std::string driver;           // the source of the last COMMAND heard
-  bool silence_raised = false;  // once per silence: the next heartbeat clears it
+  int64_t newest_arrival_us = 0;  // of the newest message handed over, any channel
+  std::string driver;             // the source of the last COMMAND heard
+  bool silence_raised = false;    // once per silence: the next heartbeat clears it
   // The process of the last heartbeat that named itself (same machine): its exit raises the
   // silence at once instead of after the timeout. The LCM thread's wait polls its pidfd.
   runtime::ProcessWatch supervisor_process;
@@ -418,6 +424,8 @@ struct Controller::Impl {
   template <typename Handle>
   void Guarded(const char* channel, Handle&& handle);
   void Heard(const std::string& source, int64_t arrival_us);  // a heartbeat
+  /// The controller's own ROBOT_STATE, heard back: the receive path flows up to its arrival.
+  void OnOwnState(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void WatchSupervisor(bool idle);  // after each wait: raises silence_request
   /// Waits up to WaitMs() for a message or the watched supervisor's exit; true: a message waits
   /// (the caller handles it, after collecting what the loop decided meanwhile).
@@ -478,7 +486,7 @@ inline int64_t WallUs() {
 
 template <typename Msg>
 bool Controller::Impl::Admit(const char* channel, const lcm::ReceiveBuffer* rbuf, Msg* msg) {
-  handled_us = rbuf->recv_utime;
+  newest_arrival_us = std::max(newest_arrival_us, rbuf->recv_utime);
   const void* data = rbuf->data;
   size_t size = rbuf->data_size;
   // A replay takes the messages the live run took: their signatures were checked then.

@@ -3,6 +3,7 @@
 #include <poll.h>
 
 #include "controller_impl.h"
+#include "marionette/controller/supervisor_silence.h"
 
 namespace marionette::controller {
 
@@ -82,15 +83,22 @@ void Controller::Impl::CountDriverRefusals() {
 
 void Controller::Impl::Heard(const std::string& source, int64_t arrival_us) {
   last_heartbeat_us = std::max(last_heartbeat_us, arrival_us);
+  newest_arrival_us = std::max(newest_arrival_us, arrival_us);
   if (!source.empty()) driver = source;
   silence_raised = false;
 }
 
+void Controller::Impl::OnOwnState(const lcm::ReceiveBuffer* rbuf, const std::string&) {
+  newest_arrival_us = std::max(newest_arrival_us, rbuf->recv_utime);
+}
+
 int Controller::Impl::WaitMs() {
+  // Past the deadline, the wait is for the message that proves the silence (SupervisorSilence):
+  // 1 ms, not a spin.
   if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return 2;
   const double left_ms =
       1e3 * options.supervisor_timeout - 1e-3 * static_cast<double>(WallUs() - last_heartbeat_us);
-  return left_ms <= 0.0 ? 0 : std::clamp(static_cast<int>(std::ceil(left_ms)), 1, 2);
+  return std::clamp(static_cast<int>(std::ceil(left_ms)), 1, 2);
 }
 
 bool Controller::Impl::WaitForMessage() {
@@ -108,11 +116,9 @@ bool Controller::Impl::WaitForMessage() {
 void Controller::Impl::WatchSupervisor(bool idle) {
   // Only a supervisor's controller is watched (not the hold controller, nor before the first).
   if (options.supervisor_timeout <= 0.0 || active_owned_id < 0 || silence_raised) return;
-  // Up to now when nothing waits; else up to the arrival of the message just handled: what
-  // arrived before it, heartbeats included, has been handled (LCM hands messages over in order).
-  const int64_t until_us = idle ? WallUs() : handled_us;
-  const double silent = 1e-6 * static_cast<double>(until_us - last_heartbeat_us);
-  if (silent >= options.supervisor_timeout) RaiseSilence(silent, 0);
+  const double silent = SupervisorSilence(last_heartbeat_us, newest_arrival_us, WallUs(), idle,
+                                          options.supervisor_timeout);
+  if (silent > 0.0) RaiseSilence(silent, 0);
 }
 
 void Controller::Impl::WatchSupervisorProcess(const lcmt_command& heartbeat) {
