@@ -1,7 +1,8 @@
 """``marionette replay LOG --controller|--supervisor|--view``: re-run a recorded run offline.
 
-``--supervisor`` re-takes the supervisor FSM's decisions from the recorded inputs
-(:mod:`marionette.execution.decision_replay`); ``--view`` plays the log in the browser viewer and
+``--supervisor`` re-takes the supervisor FSM's decisions from the recorded inputs (the
+supervisor's journal beside the log when there is one:
+:mod:`marionette.execution.decision_replay`); ``--view`` plays the log in the browser viewer and
 re-plots the report (:mod:`marionette.viewer.replay`). ``--controller``:
 
 The controller journals which input messages its loop consumed at which tick; with the LCM log
@@ -136,16 +137,18 @@ def _run(args: argparse.Namespace) -> int:
 def _run_supervisor(args: argparse.Namespace) -> int:
     from marionette.execution.decision_replay import (
         DecisionLogError,
+        decision_record,
         format_verdict,
         replay_supervisor,
     )
 
+    record = decision_record(args.log)
     try:
-        result = replay_supervisor(args.log)
+        result = replay_supervisor(record)
     except (FileNotFoundError, DecisionLogError) as e:
         print(f"marionette replay: {e}", file=sys.stderr)
         return 1
-    sys.stdout.write(format_verdict(args.log, result))
+    sys.stdout.write(format_verdict(record, result))
     return 0 if result.ok else 1
 
 

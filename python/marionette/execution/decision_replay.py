@@ -1,8 +1,9 @@
 """``marionette replay LOG --supervisor``: re-take the supervisor's decisions from a recorded run.
 
-Reads the LCM log of a run (lcm-logger, e.g. a demo's ``run.lcmlog``): the decisions published on
-SUPERVISOR_DECISION, and the inputs the supervisor received, CONTROLLER_STATUS, ROBOT_COMMAND and
-the SUPERVISOR_EVENT of other sources, in log order. A fresh :class:`decisions.DecisionMachine` is
+Reads the record of a run (:func:`decision_record`: the supervisor's own journal, else the LCM
+log of the run, e.g. a demo's ``run.lcmlog``): the decisions published on SUPERVISOR_DECISION,
+and the inputs the supervisor received, CONTROLLER_STATUS, ROBOT_COMMAND and the SUPERVISOR_EVENT
+of other sources, in log order. A fresh :class:`decisions.DecisionMachine` is
 fed those inputs (the recorded STEP/TIMER inputs re-fed at their ticks) and must take the same
 decisions at the same ticks, having read the same values.
 """
@@ -28,7 +29,7 @@ from marionette.execution.decisions import (
     DecisionReplay,
     replay_decisions,
 )
-from marionette.execution.supervisor import SOURCE
+from marionette.execution.supervisor import JOURNAL_NAME, SOURCE
 
 
 class DecisionLogError(ValueError):
@@ -78,8 +79,17 @@ def read_decision_log(log: Path) -> tuple[list[Decision], list[tuple[str, Any]]]
     return [Decision.from_lcm(m) for m in recorded], inputs
 
 
+def decision_record(log: Path) -> Path:
+    """What to replay for the run recorded in ``log``: the supervisor's journal beside it when
+    there is one (every input it fed its machine, in that order, and every decision: a network
+    logger may drop a message, and then the run cannot be replayed from its log), else ``log``."""
+    journal = Path(log).parent / JOURNAL_NAME
+    return journal if journal.is_file() else Path(log)
+
+
 def replay_supervisor(log: Path) -> DecisionReplay:
-    """Replays the decisions of the supervisor run recorded in ``log``."""
+    """Replays the decisions of the supervisor run recorded in ``log`` (a run's LCM log or the
+    supervisor's journal: replay what :func:`decision_record` says)."""
     recorded, inputs = read_decision_log(log)
     return replay_decisions(recorded, inputs)
 

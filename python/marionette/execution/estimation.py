@@ -1,5 +1,5 @@
 """Estimation of the initial state (thesis 000 §3.2.2, fig. 3.5): the configuration measured by
-the robot's encoders and the object poses (perception, or the simulator's ground truth) never
+the robot's encoders and the object poses (:func:`sensed_object_poses`: perception) never
 satisfies the constraints of any graph state exactly; project it onto every main state of the
 constraint graph (Newton-Raphson, Algorithm 1) and keep the state with the smallest projection
 distance |q_projected ⊖ q_measured|. Then find where the plan stands: the step whose start (its
@@ -10,14 +10,68 @@ already in a later step of the process").
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
+from marionette import channels, lcmt_object_poses
+from marionette.execution.monitor import pose_from_message
 from marionette.execution.plan_steps import PlanRobotMap, Step
 
 OBJECT_TOLERANCE = 0.01  # [m + rad] object poses this close are "the same situation"
+
+
+def sensed_object_poses(
+    client: Any,
+    objects: Iterable[str],
+    look_s: float,
+    log: Callable[[str], None],
+) -> dict[str, pin.SE3]:
+    """The poses of ``objects`` as the robot senses them before it moves: the camera's latest
+    estimate of each (OBJECT_POSES, ``marionette perceive``) seen within ``look_s`` of the
+    controller's time from now; ``look_s`` 0: the robot has no object sensor. An object not
+    sensed is left out, with one line saying so: :func:`measured_configuration` then keeps it
+    where the plan starts it, which is what the robot believes. ``client``: a
+    :class:`~marionette.control.client.ControllerClient`."""
+    wanted = sorted(objects)
+    if look_s <= 0:
+        if wanted:
+            log(f"estimation: no object sensor: {', '.join(wanted)} at the plan's initial pose")
+        return {}
+    seen: dict[str, pin.SE3] = {}  # written by the bus thread, read under the client's wait
+    lock = threading.Lock()
+
+    def on_poses(msg: Any) -> None:
+        with lock:
+            seen.update(
+                (o.object_name, pose_from_message(o))
+                for o in msg.objects
+                if o.object_name in wanted
+            )
+
+    subscription = client.bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, on_poses)
+    end = client.utime() + int(look_s * 1e6)
+    try:
+        client.wait(
+            lambda c: c.utime() >= end or len(seen) == len(wanted),
+            10.0 + 5.0 * look_s,
+            f"{look_s} s of controller time for the camera's first estimates",
+        )
+    finally:
+        client.bus.lcm.unsubscribe(subscription)
+    with lock:
+        found = dict(seen)
+    unseen = [n for n in wanted if n not in found]
+    if unseen:
+        log(
+            f"estimation: {', '.join(unseen)} not seen by the camera within {look_s:g} s: at the "
+            "plan's initial pose"
+        )
+    return found
 
 
 @dataclass

@@ -231,7 +231,7 @@ def _fixed_frame_task(name: str, definition: dict[str, Any], ctx: FactoryContext
     if definition.get("joint1") != "universe":
         return []  # a robot-robot relative constraint: none in the bundled problems
     frame = ctx.local(name.removesuffix(" fixed"))
-    return [TaskSpec(_task_name(frame), "se3", 0, frame=frame, gain=GAINS["balance"])]
+    return [TaskSpec(task_name(frame), "se3", 0, frame=frame, gain=GAINS["balance"])]
 
 
 def _com_task(name: str, definition: dict[str, Any], ctx: FactoryContext) -> list[TaskSpec]:
@@ -252,7 +252,8 @@ CONSTRAINT_TASKS: dict[str, Callable[[str, dict[str, Any], FactoryContext], list
 }
 
 
-def _task_name(frame_or_gripper: str) -> str:
+def task_name(frame_or_gripper: str) -> str:
+    """The name of the task that controls a frame or a gripper (``robot/gripper``)."""
     return frame_or_gripper.split("/")[-1].replace(".", "_").replace(" ", "_")
 
 
@@ -333,7 +334,7 @@ def grasp_tasks(step: Step, ctx: FactoryContext, priority: int) -> list[TaskSpec
         assert handle is not None  # an active gripper is a key of one of these grasp maps
         obj = ctx.handle_objects.get(handle, handle)
         frame = ctx.gripper_frames[gripper]
-        name = _task_name(gripper)
+        name = task_name(gripper)
         if (
             ctx.visual_servoing
             and gripper in step.grasps
@@ -413,7 +414,7 @@ def gripper_admittance_tasks(
             parameters["release_after"] = wait
         tasks.append(
             TaskSpec(
-                f"{_task_name(gripper)}_admittance",
+                f"{task_name(gripper)}_admittance",
                 "gripper_admittance",
                 priority,
                 gain=GAINS["gripper"],

@@ -36,18 +36,24 @@ Every decision above is taken by :class:`decisions.DecisionMachine` from the rec
 CONTROLLER_STATUS / ROBOT_COMMAND / SUPERVISOR_EVENT messages, fed one at a time in arrival
 order, at the tick of the last status (never the wall clock), and published on
 SUPERVISOR_DECISION with its inputs:
-``marionette replay LOG --supervisor`` re-takes them offline.
+``marionette replay LOG --supervisor`` re-takes them offline. With :attr:`Supervisor.journal`
+set, the supervisor also writes every input it feeds its machine, in that order, and every
+decision to that file (an LCM log, :data:`JOURNAL_NAME` in a demo's report folder): the record
+to replay, complete whatever a network logger drops.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import gc
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
+import lcm
 from marionette import (
     channels,
     lcmt_controller_status,
@@ -72,6 +78,8 @@ from marionette.execution.references import (
 from marionette.execution.streamer import ReferenceStreamer
 
 SOURCE = "supervisor"
+# The supervisor's own record of a run beside the run's LCM log (:attr:`Supervisor.journal`).
+JOURNAL_NAME = "supervisor-journal.lcmlog"
 INJECTABLE = ("abort", "force_threshold", "approve", "left_manifold", "grasp_lost")
 
 
@@ -209,6 +217,8 @@ class Supervisor:
         self.timing: Callable[[Step, ControllerSpec], StepTiming] = lambda step, spec: StepTiming()
         self.rewrites: list[Rewrite] = []
         self.servo: Any = None  # a visual_servo.VisualServo: corrects the pbvs tasks' references
+        self.journal: Path | None = None  # where :meth:`run` records inputs and decisions
+        self._journal: Any = None  # the open lcm.EventLog while it runs
         self.state = "idle"
         self.status = ""
         self.detail = ""
@@ -268,12 +278,18 @@ class Supervisor:
             return self._inputs.pop(0) if self._inputs else None
 
     def _decided(self, d: Decision) -> Decision:
-        """Publishes a decision of the machine on SUPERVISOR_DECISION and keeps it."""
-        self.client.bus.publish(
-            channels.SUPERVISOR_DECISION, d.to_lcm(len(self.decisions), self.plan_name)
-        )
+        """Publishes a decision of the machine on SUPERVISOR_DECISION, journals and keeps it."""
+        msg = d.to_lcm(len(self.decisions), self.plan_name)
+        self.client.bus.publish(channels.SUPERVISOR_DECISION, msg)
+        self._record(channels.SUPERVISOR_DECISION, msg)
         self.decisions.append(d)
         return d
+
+    def _record(self, channel: str, msg: Any) -> None:
+        """Writes ``msg`` to the journal (when there is one), stamped with the controller's
+        time."""
+        if self._journal is not None:
+            self._journal.write_event(self.client.utime(), channel, msg.encode())
 
     def emit(self, name: str, detail: str = "", value: float = 0.0) -> None:
         msg = event_message(self.client.utime(), name, SOURCE, detail, value)
@@ -312,8 +328,14 @@ class Supervisor:
         result says why), holds the robot when it fails."""
         self.prepare(first)
         records: list[StepRecord] = []
+        if self.journal is not None:
+            self._journal = lcm.EventLog(str(self.journal), "w", overwrite=True)
         publisher = threading.Thread(target=self._publisher, name="supervisor-state", daemon=True)
         publisher.start()
+        # What is alive now (models, plan, references) lives until the end: the collector never
+        # walks it again. Its full passes over that heap held the interpreter's lock for 60-320 ms
+        # (more on a loaded machine) while the references had to be streamed and the heartbeat fed.
+        gc.freeze()
         try:
             for step, spec in zip(self.steps[first:], self.specs[first:]):
                 record = StepRecord(step.index, step.transition, step.kind)
@@ -331,9 +353,13 @@ class Supervisor:
             self._set("failed", "holding", str(failure))
             return SupervisorResult(False, "failed", str(failure), records, self.events)
         finally:
+            gc.unfreeze()  # a process that goes on (a campaign's) collects them again
             self._publish_stop.set()
             publisher.join(timeout=1.0)
             self.publish_state()
+            if self._journal is not None:
+                self._journal.close()
+                self._journal = None
 
     def _run_step(self, step: Step, spec: ControllerSpec, record: StepRecord) -> None:
         o = self.options
@@ -344,7 +370,7 @@ class Supervisor:
         record.controller_id = cid
         thresholds = {t.name: END_THRESHOLDS.get(t.kind, 0.01) for t in spec.tasks}
         if self.servo is not None:
-            thresholds = self.servo.end_thresholds(spec, thresholds)
+            thresholds = self.servo.end_thresholds(step, spec, thresholds)
         traj = self.trajectories[step.index]
         record.retimed, record.retimed_for = traj.retimed, traj.retimed_for
         record.lean = traj.lean
@@ -498,6 +524,7 @@ class Supervisor:
                     self._fold_status(record, msg)
                 elif channel == decisions.EVENT:
                     record.events.append(msg.name)
+                self._record(channel, msg)  # decisions.STATUS etc. are the channels' names
                 for d in self.machine.feed(channel, msg):
                     self._taken.append(d)
                     self._act(self._decided(d), record, streamer, msg)

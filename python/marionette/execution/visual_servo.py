@@ -21,6 +21,15 @@ most ``max_speed`` / ``max_angular_speed`` (the reference never jumps). Only mea
 the controller's own reference enter C*: the camera's pose error through the head cancels to
 first order the way eq. 5.3 cancels it (both O_m and, through the camera, the hand).
 
+The hand in that fixed point is the one the controller commands at the image time (forward
+kinematics of its commanded joints), not the reference R(t_i): a hand held back by a joint limit
+or a task above it does not follow the correction, and read against the reference the unfollowed
+part would be taken for the object off in the hand, again at every measurement (the correction
+wound up to 10 cm in a carry). The commanded hand does not move with what it does not follow.
+A measurement is used only while the encoders put the hand within ``max_tracking_*`` of the
+commanded one: a hand lagging a fast carry by centimetres would be read as the object off in
+it. The steady error of the joints under the load (millimetres) stays in B and is corrected.
+
 PBVS on the approach to a grasp (§5.3.1, "the grabbing of the plank"): a gripper moving to the
 pre-grasp of a handle of an object nobody holds; from there to the grasp the plan is resumed,
 shifted by the correction reached (servoed, the last centimetres chased the plank the fingers
@@ -41,6 +50,17 @@ with a C2 ramp over the next step of that gripper, so no controller switch sees 
 servoed grasp the correction is kept likewise through the step that lifts the object off its
 placement (the gripper still holds it there) and blended out in the next.
 
+What the camera sees is used beyond the steps the thesis servoes (:func:`servoed_tasks`,
+:func:`looks_before_approach`). The object's error in the hand belongs to the grasp, not to a
+step: the whole carry that ends in a servoed placement is servoed under the same grasp, so that
+what the camera saw during the carry still holds when the holding hand hides the object in the
+placement (it starts from the plan, blending out what the grasp's left correction had; the first
+measurement takes over). An object no gripper touches lies where it was last seen: the servo
+keeps those poses, and the approach to it starts from them (the reaching hand often hides the
+object in a short approach), going as fast as it must to arrive by ``approach_settle`` of the
+step. Each correction moves towards its filtered target within its speed limits for the time
+elapsed, whatever the number of measurements that arrive at once.
+
 Gaze: the posture references of every step turn the head (its two joints, nothing else) so
 that the camera's optical axis points at the planned position of the object, ramped in over the
 first step — the camera then keeps the object in view throughout (the head is free in the plan).
@@ -48,8 +68,9 @@ It is a step rewrite (:func:`gaze_rewrite`): the supervisor re-times a step whos
 faster than the joint's bound (a short first step asked TALOS's head for 1.8 rad/s).
 
 Where the head alone cannot see the object — at its pitch limit with a plank standing 0.4 m
-before the feet, the tags lie below the image — a servoed step leans the torso
-(:func:`lean_for_view`, the camera's ``lean_joints`` in robot.yaml): the smallest lean that the
+before the feet, the tags lie below the image — a step where the servo looks (a servoed step, or
+the one before an approach) leans the torso (:func:`lean_for_view`, the camera's
+``lean_joints`` in robot.yaml): the smallest lean that the
 kinematics predict brings a tag into view, unhidden by the robot's links
 (:mod:`marionette.perception.visibility`), ramped in and out within the step, and the rest of the
 posture moved so that the tasks above it (feet, centre of mass, grippers) stay on their plan
@@ -60,6 +81,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -67,12 +89,19 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from marionette import channels, lcmt_object_poses
+from marionette import channels, lcmt_object_poses, lcmt_robot_command, lcmt_robot_state
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.execution.factory import approached_handle, task_error, task_jacobian
+from marionette.execution.factory import (
+    approached_handle,
+    task_error,
+    task_jacobian,
+    task_name,
+)
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import Rewrite, StepTrajectory
+from marionette.models.xml_util import matrix_to_quat_wxyz
 from marionette.perception.camera import CameraIntrinsics
+from marionette.perception.kinematics import StateError, StateHistory
 from marionette.perception.objects import TaggedBody
 from marionette.perception.pbvs import activation, interpolate
 from marionette.perception.visibility import LineOfSight, ViewLimits, tags_in_view
@@ -90,7 +119,22 @@ class ServoOptions:
     # the fixed point by its lever: the plank held 36° off (7°/4° encoder offsets, a slip) gave
     # fixed points over 8 cm: the 12 good measurements (0.1 px) of the carry were all rejected.
     max_correction: float = 0.15
+    # An approach to an object at rest may go faster, so as to reach the object's measured pose
+    # by ``approach_settle`` of the step: what the camera saw before a short approach (0.5 s)
+    # whose reaching hand hides the object is all it gets (the free hand carries nothing).
+    max_approach_speed: float = 0.15  # [m/s]
+    max_approach_angular_speed: float = 1.0  # [rad/s]
+    approach_settle: float = 0.8
     max_reprojection_px: float = 3.0  # measurements with a larger RMS are ignored
+    # A held object's measurement is read against the hand the controller commands at the image
+    # time (the forward kinematics of its commanded joints: what the task level achieved, not
+    # the reference it was asked, which a hand held back by a joint limit does not follow: read
+    # against the reference, the correction wound up to 10 cm) and is used only while the
+    # encoders put the hand within this of that commanded hand: a hand lagging a fast carry by
+    # 2-6 cm, or an actuator at its torque, would be read as the object off in the hand. The
+    # steady error of the joints under the plank's weight, 5-10 mm / 1-2°, stays in (corrected).
+    max_tracking_m: float = 0.02
+    max_tracking_rad: float = 0.09
     noise_position_m: float = 0.0  # [m] sigma per axis
     noise_angle_rad: float = 0.0  # [rad] sigma per axis
     seed: int = 0
@@ -100,8 +144,14 @@ class ServoOptions:
     def __post_init__(self) -> None:
         if not 0.0 < self.alpha <= 1.0:
             raise ValueError(f"alpha must be in (0, 1], got {self.alpha}")
-        if self.max_speed <= 0 or self.max_angular_speed <= 0 or self.max_correction <= 0:
+        if min(self.max_speed, self.max_angular_speed, self.max_correction) <= 0:
             raise ValueError("max_speed, max_angular_speed and max_correction must be > 0")
+        if self.max_approach_speed < self.max_speed:
+            raise ValueError("max_approach_speed must be >= max_speed")
+        if self.max_approach_angular_speed < self.max_angular_speed:
+            raise ValueError("max_approach_angular_speed must be >= max_angular_speed")
+        if not 0.0 < self.approach_settle <= 1.0:
+            raise ValueError(f"approach_settle must be in (0, 1], got {self.approach_settle}")
         if self.noise_position_m < 0 or self.noise_angle_rad < 0:
             raise ValueError("camera noise sigmas must be >= 0")
 
@@ -116,6 +166,59 @@ def approach_fixed_point(X_WE_plan: pin.SE3, X_WO_measured: pin.SE3, X_WO_plan: 
     """C* = P_e^-1 O_m O_p^-1 P_e: the correction, in the planned end frame P_e of an approach,
     that moves its goal with the object from where the plan put it (O_p) to where it is seen."""
     return X_WE_plan.inverse() * X_WO_measured * X_WO_plan.inverse() * X_WE_plan
+
+
+def _objects_touched(step: Step) -> set[str]:
+    """The objects a gripper holds at some point of ``step`` (handles are ``object/handle``)."""
+    return {
+        h.split("/")[0]
+        for grasps in (step.grasps, step.grasps_from, step.grasps_to)
+        for h in grasps.values()
+    }
+
+
+def servoed_tasks(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> dict[int, set[str]]:
+    """Step index -> the gripper tasks whose reference vision corrects in that step: the
+    factory's ``pbvs`` tasks (a servoed approach, a servoed placement) and, before a servoed
+    placement, the task of the gripper that carries the object to it under the same grasp. The
+    object's error in the hand is one of the grasp (a slip, the arm sagging, an encoder
+    offset), not of a step: it is measured whenever the camera sees the object during the
+    carry and kept until the placement, where the holding hand may hide the object at every
+    lean (a transit that splits the placement blended out what the first half had reached)."""
+    out: dict[int, set[str]] = {}
+    for i, (step, spec) in enumerate(zip(steps, specs)):
+        names = {t.name for t in spec.tasks if t.kind == "pbvs"}
+        for gripper, handle in step.grasps.items():
+            name = task_name(gripper)
+            if name in names:
+                continue
+            for later, later_spec in zip(steps[i + 1 :], specs[i + 1 :]):
+                if later.grasps.get(gripper) != handle:
+                    break
+                if any(t.kind == "pbvs" and t.name == name for t in later_spec.tasks):
+                    names.add(name)
+                    break
+        if names:
+            out[step.index] = names
+    return out
+
+
+def looks_before_approach(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> set[int]:
+    """Steps whose next step is a servoed approach to an object that lies at rest in both: what
+    the camera sees of it there is still true when the approach starts (:class:`VisualServo`
+    keeps it), which helps an approach whose reaching hand hides the object."""
+    out: set[int] = set()
+    for step, nxt, nxt_spec in zip(steps, steps[1:], specs[1:]):
+        for gripper in nxt.active_grippers:
+            handle = approached_handle(nxt, gripper)
+            if handle is None or not any(
+                t.kind == "pbvs" and t.name == task_name(gripper) for t in nxt_spec.tasks
+            ):
+                continue
+            obj = handle.split("/")[0]
+            if obj not in _objects_touched(step) | _objects_touched(nxt):
+                out.add(step.index)
+    return out
 
 
 def step_toward(
@@ -137,16 +240,17 @@ def right_multiply(
     values: np.ndarray, derivatives: np.ndarray, C: pin.SE3
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pose rows (x y z qw qx qy qz) X -> X C and their world twists (v, ω): the point
-    p + R t_C moves at v + ω × (R t_C), the rotation at the same ω."""
+    p + R t_C moves at v + ω × (R t_C), the rotation at the same ω. Vectorised over the rows:
+    a re-sent second of a servoed task is 1000 of them (pose by pose, 20-30 ms of the
+    interpreter's lock, and seconds on a loaded machine while the stream ran dry)."""
+    q = _unit_rows(values)
+    Rt = _rotated(q, C.translation)
     out_v = values.copy()
+    out_v[:, :3] = values[:, :3] + Rt
+    out_v[:, 3:7] = _quaternion_products(q, matrix_to_quat_wxyz(C.rotation))
     out_d = derivatives.copy()
-    for k, row in enumerate(values):
-        R = pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix()
-        X = pin.SE3(R, row[:3]) * C
-        q = pin.Quaternion(X.rotation)
-        out_v[k] = [*X.translation, q.w, q.x, q.y, q.z]
-        if derivatives.shape[1] == 6:
-            out_d[k, :3] = derivatives[k, :3] + np.cross(derivatives[k, 3:], R @ C.translation)
+    if derivatives.shape[1] == 6:
+        out_d[:, :3] = derivatives[:, :3] + np.cross(derivatives[:, 3:], Rt)
     return out_v, out_d
 
 
@@ -154,20 +258,44 @@ def left_multiply(
     values: np.ndarray, derivatives: np.ndarray, L: pin.SE3
 ) -> tuple[np.ndarray, np.ndarray]:
     """Pose rows X -> L X (L in the world frame) and their world twists: the origin moves at
-    R_L v, the rotation at R_L ω."""
-    out_v = values.copy()
-    out_d = derivatives.copy()
+    R_L v, the rotation at R_L ω (vectorised over the rows, as :func:`right_multiply`)."""
     R_L = L.rotation
-    for k, row in enumerate(values):
-        X = L * pin.SE3(
-            pin.Quaternion(row[3], row[4], row[5], row[6]).normalized().matrix(), row[:3]
-        )
-        q = pin.Quaternion(X.rotation)
-        out_v[k] = [*X.translation, q.w, q.x, q.y, q.z]
-        if derivatives.shape[1] == 6:
-            out_d[k, :3] = R_L @ derivatives[k, :3]
-            out_d[k, 3:] = R_L @ derivatives[k, 3:]
+    out_v = values.copy()
+    out_v[:, :3] = values[:, :3] @ R_L.T + L.translation
+    out_v[:, 3:7] = _quaternion_products(matrix_to_quat_wxyz(R_L), _unit_rows(values))
+    out_d = derivatives.copy()
+    if derivatives.shape[1] == 6:
+        out_d[:, :3] = derivatives[:, :3] @ R_L.T
+        out_d[:, 3:] = derivatives[:, 3:] @ R_L.T
     return out_v, out_d
+
+
+def _unit_rows(values: np.ndarray) -> np.ndarray:
+    """The rows' quaternions (w x y z), normalised."""
+    q = values[:, 3:7]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _quaternion_products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton products a ⊗ b of quaternions (w x y z): rows, or one quaternion and rows."""
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def _rotated(q: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The vector ``t`` rotated by each unit quaternion row of ``q`` (w x y z)."""
+    w, u = q[:, :1], q[:, 1:]
+    c = np.cross(u, t)
+    return t + 2.0 * w * c + 2.0 * np.cross(u, c)
 
 
 @dataclass
@@ -175,9 +303,11 @@ class TaskCorrection:
     """The correction of one streamed gripper task during one step (used by the streamer)."""
 
     task: str
-    servoed: bool  # updated from measurements (pbvs task)
+    servoed: bool  # updated from measurements (:func:`servoed_tasks`)
     C_start: pin.SE3
-    blend_out: bool  # ramp C_start -> identity over the step
+    # ramp C_start -> identity over the step; a servoed correction leaves the ramp where it is
+    # at its first measurement
+    blend_out: bool
     duration_us: int = 1
     start_utime: int = 0
     C: pin.SE3 = field(default_factory=pin.SE3.Identity)
@@ -185,6 +315,10 @@ class TaskCorrection:
     version: int = 0
     frame: str = ""
     anchor: pin.SE3 | None = None  # set: applied as L = anchor C anchor^-1 on the left
+    target: pin.SE3 | None = None  # the filtered fixed point C follows (None: nothing measured)
+    moved_utime: int = 0  # controller time C last moved towards the target
+    folded: int = 0  # measurements folded into the target
+    C_start_measured: bool = False  # C_start carries earlier measurements' average
 
     def at_sample(self, k: int, dt_us: int) -> pin.SE3:
         if not self.blend_out:
@@ -216,6 +350,8 @@ class VisualServo:
     hand the result to the streamer; the streamer calls :meth:`update` as controller time
     advances (measurements are folded in there, never in the LCM thread)."""
 
+    AT_REST_KEPT = 30  # measurements of an object at rest kept for the approach to it
+
     def __init__(
         self,
         bus: Any,
@@ -232,13 +368,29 @@ class VisualServo:
         self.options = options or ServoOptions()
         self._rng = np.random.default_rng(self.options.seed)
         self._lock = threading.Lock()
-        self._pending: list[tuple[int, str, pin.SE3, float]] = []
+        # (image utime, object, pose in world, reprojection error [px], from the at-rest store)
+        self._pending: list[tuple[int, str, pin.SE3, float, bool]] = []
+        self._servoed = servoed_tasks(steps, specs)
+        # object nobody has touched since -> its latest measurements (utime, pose, reprojection)
+        self._at_rest: dict[str, list[tuple[int, pin.SE3, float]]] = {}
+        self._touched: set[str] = set()  # objects a gripper holds in the current step
+        self._step_start = 0
         # gripper frame -> (last correction, its anchor: None for a held object's right correction)
         self._carried: dict[str, tuple[pin.SE3, pin.SE3 | None]] = {}
         # (correction, step, object, planned gripper -> object at the step's end, approach)
         self._current: list[tuple[TaskCorrection, Step, str, pin.SE3, bool]] = []
         self.measurements_used = 0
         self.measurements_rejected = 0
+        self.measurements_hand_off_command = 0  # held object, the hand away from the commanded one
+        self.states_rejected = 0  # ROBOT_STATE messages that do not fit the model
+        self._states: StateHistory | None = None
+        # (utime, joint names, commanded positions): the controller's ROBOT_COMMAND
+        self._commands: deque[tuple[int, tuple[str, ...], np.ndarray]] = deque(maxlen=200)
+        self._command_index: dict[tuple[str, ...], np.ndarray] = {}
+        if robot_map is not None:  # the hand measured and commanded at an image's time
+            self._states = StateHistory(robot_map.model)
+            bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
+            bus.subscribe(channels.ROBOT_COMMAND, lcmt_robot_command, self._on_command)
         self.trace: list[dict[str, Any]] = []  # per used measurement, for the report
         bus.subscribe(channels.OBJECT_POSES, lcmt_object_poses, self._on_objects)
 
@@ -249,16 +401,55 @@ class VisualServo:
                     pin.Quaternion(*o.quaternion_world).normalized().matrix(),
                     np.array(o.position_world),
                 )
-                self._pending.append((int(o.utime), o.object_name, X, float(o.reprojection_error)))
+                self._pending.append(
+                    (int(o.utime), o.object_name, X, float(o.reprojection_error), False)
+                )
+
+    def _on_state(self, msg: Any) -> None:
+        assert self._states is not None
+        try:
+            self._states.add_state(msg)
+        except StateError:
+            self.states_rejected += 1  # reported: the controller's state should fit its model
+
+    def _on_command(self, msg: Any) -> None:
+        with self._lock:
+            self._commands.append(
+                (int(msg.utime), tuple(msg.joint_name), np.asarray(msg.joint_position, float))
+            )
+
+    def _hand_poses(self, frame: str, utime: int) -> tuple[pin.SE3, pin.SE3] | None:
+        """(measured, commanded) pose of the gripper frame at the robot state and command
+        nearest ``utime`` (each within 20 ms; the commanded one on the state's base), or None."""
+        if self._states is None:
+            return None
+        found = self._states.nearest(utime)
+        with self._lock:
+            command = min(self._commands, key=lambda c: abs(c[0] - utime), default=None)
+        if found is None or command is None:
+            return None
+        (q, t), (tc, names, positions) = found, command
+        if abs(t - utime) > 20_000 or abs(tc - utime) > 20_000:
+            return None
+        model = self.robot_map.model
+        idx = self._command_index.get(names)
+        if idx is None:
+            idx = np.array([model.joints[model.getJointId(n)].idx_q for n in names])
+            self._command_index[names] = idx
+        q_cmd = q.copy()
+        q_cmd[idx] = positions
+        fid = model.getFrameId(frame)
+        return self._states.frame_pose_at(fid, q), self._states.frame_pose_at(fid, q_cmd)
 
     def end_thresholds(
-        self, spec: ControllerSpec, thresholds: dict[str, float]
+        self, step: Step, spec: ControllerSpec, thresholds: dict[str, float]
     ) -> dict[str, float]:
         """The end check of a step whose gripper reference is corrected by vision leaves out the
         posture: the planned configuration no longer agrees with the corrected gripper pose, and
         the posture (the lowest level, a regularisation) cannot converge onto it."""
+        servoed = self._servoed.get(step.index, set())
         corrected = any(
-            t.kind == "pbvs"
+            t.name in servoed
             or (t.frame in self._carried and not self._carried[t.frame][0].isIdentity())
             for t in spec.tasks
         )
@@ -272,13 +463,20 @@ class VisualServo:
 
     def summary(self) -> dict[str, Any]:
         """Measurements used / rejected and the servo trace (report.json ``vision``)."""
-        last = {}
+        last: dict[int, dict[str, Any]] = {}
+        used: dict[int, list[int]] = {}  # step -> [used, of which seen at rest before it]
         for row in self.trace:
             last[row["step"]] = row
+            counts = used.setdefault(row["step"], [0, 0])
+            counts[0] += 1
+            counts[1] += int(row["at_rest"])
         return {
             "measurements_used": self.measurements_used,
             "measurements_rejected": self.measurements_rejected,
+            "measurements_hand_off_command": self.measurements_hand_off_command,
+            "states_rejected": self.states_rejected,
             "last_per_step": {str(k): v for k, v in sorted(last.items())},
+            "used_per_step": {str(k): v for k, v in sorted(used.items())},
             "trace": self.trace,
         }
 
@@ -290,8 +488,13 @@ class VisualServo:
         traj = self.trajectories[step.index]
         corrections: list[TaskCorrection] = []
         self._current = []
+        servoed_here = self._servoed.get(step.index, set())
+        touched = _objects_touched(step)
+        self._take_pending()  # the previous step's images: only what they saw at rest is kept
         with self._lock:
-            self._pending.clear()  # measurements of the previous step's images
+            for obj in touched:  # a gripper holds it: where it lay is history
+                self._at_rest.pop(obj, None)
+            self._touched, self._step_start = touched, start_utime
         for task in spec.tasks:
             if (
                 task.kind not in ("se3", "pbvs")
@@ -299,16 +502,17 @@ class VisualServo:
                 or task.frame in ("left_sole_link", "right_sole_link")
             ):
                 continue
+            servoed = task.name in servoed_here
             carried = self._carried.get(task.frame)
-            if task.kind != "pbvs" and carried is None:
+            if not servoed and carried is None:
                 continue
-            holds = {g.split("/")[-1]: h for g, h in step.grasps.items()}
-            gripper = next((g for g in step.active_grippers if task.name == g.split("/")[-1]), None)
+            holds = {task_name(g): h for g, h in step.grasps.items()}
+            gripper = next((g for g in step.active_grippers if task.name == task_name(g)), None)
             approach = (
                 None if gripper is None or task.name in holds else approached_handle(step, gripper)
             )
             C0, carried_anchor = carried if carried is not None else (pin.SE3.Identity(), None)
-            if task.kind != "pbvs":
+            if not servoed:
                 anchor = carried_anchor  # kept or blended out as it was
             elif approach is not None:
                 anchor = self._planned_end(traj, task.frame)  # L = P_e C P_e^-1 (module doc)
@@ -322,38 +526,55 @@ class VisualServo:
                     # L P0
                     P0 = self._planned_pose(traj, task.frame, 0)
                     C0 = P0.inverse() * carried_anchor * C0 * carried_anchor.inverse() * P0
-            releasing = any(g.split("/")[-1] == task.name for g in step.released)
+            releasing = any(task_name(g) == task.name for g in step.released)
             at_contact = step.from_state.endswith(
                 "_intersec"
             )  # releasing, or lifting what it just took
             # kept: releasing, lifting what it just took, or going on to the grasp from a servoed
             # pre-grasp (the plan resumed, shifted, §5.3.1)
-            blend = task.kind != "pbvs" and not releasing and not at_contact and approach is None
+            blend = not servoed and not releasing and not at_contact and approach is None
+            # A carry before a servoed placement that starts from a grasp's correction: that
+            # correction moved the hand with the object where it lay, not the object in the hand
+            # (after the grasp the object goes where the hand goes), so it blends out as after any
+            # grasp, until the camera measures the object in the hand.
+            blend_until_measured = (
+                servoed and task.kind != "pbvs" and carried_anchor is not None and not at_contact
+            )
             c = TaskCorrection(
                 task.name,
-                task.kind == "pbvs",
+                servoed,
                 C0,
-                blend,
+                blend or blend_until_measured,
                 int(traj.duration * 1e6),
                 start_utime,
                 C0,
                 [(start_utime, C0)],
                 frame=task.frame,
                 anchor=anchor,
+                moved_utime=start_utime,
+                C_start_measured=not C0.isIdentity() and not blend_until_measured,
             )
             corrections.append(c)
             handle = holds[task.name] if task.name in holds else approach
-            if task.kind == "pbvs" and gripper is not None and handle is not None:
+            if servoed and gripper is not None and handle is not None:
                 obj = handle.split("/")[0]
                 X_GO = self._planned_grasp(traj, task.frame, obj)
                 self._current.append((c, step, obj, X_GO, approach is not None))
+                if approach is not None:
+                    with self._lock:  # what the camera saw of it at rest comes first
+                        self._pending.extend(
+                            (u, obj, X, r, True) for u, X, r in self._at_rest.get(obj, [])
+                        )
             self._carried[task.frame] = (pin.SE3.Identity(), None) if blend else (C0, anchor)
         return corrections
 
     def end_step(self, corrections: list[TaskCorrection]) -> None:
         for c in corrections:
             if c.servoed:
-                self._carried[c.frame] = (c.C, c.anchor)
+                # a ramp no measurement interrupted ended on the plan
+                self._carried[c.frame] = (
+                    (pin.SE3.Identity(), None) if c.blend_out else (c.C, c.anchor)
+                )
 
     def _planned_end(self, traj: StepTrajectory, frame: str) -> pin.SE3:
         """P_e: the planned pose of ``frame`` at the step's end (world)."""
@@ -373,19 +594,23 @@ class VisualServo:
     def update(
         self, planned: dict[str, tuple[np.ndarray, np.ndarray]], dt_us: int, now_utime: int
     ) -> bool:
-        """Folds the measurements received since the last call into the servoed corrections;
-        True when a correction changed."""
-        with self._lock:
-            pending, self._pending = self._pending, []
-        changed = False
+        """Folds the measurements received since the last call into the servoed corrections'
+        targets (each moves ``alpha`` of the way to a measurement's fixed point: the average
+        that filters the camera noise) and moves each correction towards its target within its
+        speed limits for the time elapsed; True when a correction changed. An object no
+        gripper touches in this step is at rest: its measurements are kept for the servoed
+        approach to it (:meth:`begin_step` hands them over first)."""
+        pending = self._take_pending()
         o = self.options
+        changed = False
         for c, step, obj, X_GO, approach in self._current:
             values = planned[c.task][0]
             traj = self.trajectories[step.index] if approach else None
-            for utime, name, X_WO, reproj in pending:
+            for utime, name, X_WO, reproj, replayed in pending:
                 if name != obj:
                     continue
-                if reproj > o.max_reprojection_px or utime < c.start_utime:
+                stale = utime < c.start_utime and not (approach and replayed)
+                if reproj > o.max_reprojection_px or stale:
                     self.measurements_rejected += 1
                     continue
                 if o.noise_position_m > 0 or o.noise_angle_rad > 0:
@@ -408,16 +633,28 @@ class VisualServo:
                     )
                     C_star = approach_fixed_point(c.anchor, X_WO, X_WO_plan)
                 else:
-                    C_star = correction_fixed_point(X_GO, X_WO, P * c.active_at(utime))
+                    X_WH = self._commanded_hand(c, P, k, utime, dt_us)
+                    if X_WH is None:
+                        self.measurements_hand_off_command += 1
+                        continue
+                    C_star = correction_fixed_point(X_GO, X_WO, X_WH)
                 if np.linalg.norm(C_star.translation) > o.max_correction:
                     self.measurements_rejected += 1
                     continue
-                dt = max(now_utime - (c.history[-1][0] if c.history else now_utime), 0) * 1e-6
-                dt = min(max(dt, 0.01), 0.2)
-                c.C = step_toward(c.C, C_star, o.alpha, o.max_speed * dt, o.max_angular_speed * dt)
-                c.history.append((now_utime, c.C))
-                c.version += 1
-                changed = True
+                if c.blend_out:  # a ramp interrupted: the correction stays where it was streamed
+                    k_now = (now_utime + o.lead_us - c.start_utime) // dt_us
+                    c.C = c.at_sample(int(np.clip(k_now, 0, len(values) - 1)), dt_us)
+                    c.blend_out, c.moved_utime = False, now_utime
+                    c.history.append((now_utime, c.C))
+                    c.version += 1
+                # A correction that starts from nothing takes the running mean of its first
+                # measurements (the first one's weight 1: not pulled towards the identity it knew
+                # nothing about), then their exponential average (``alpha``); one carried from
+                # the step before has the average of earlier measurements in it already.
+                c.folded += 1
+                weight = o.alpha if c.C_start_measured else max(o.alpha, 1.0 / c.folded)
+                start = c.C if c.target is None else c.target
+                c.target = step_toward(start, C_star, weight, math.inf, math.inf)
                 self.measurements_used += 1
                 # measured object vs its plan: where the planned gripper would hold it, or where
                 # the plan put it (an approach)
@@ -428,6 +665,7 @@ class VisualServo:
                         "utime": utime,
                         "step": step.index,
                         "approach": approach,
+                        "at_rest": bool(replayed),
                         "object_error_m": float(
                             np.linalg.norm(X_WO.translation - X_plan.translation)
                         ),
@@ -440,7 +678,71 @@ class VisualServo:
                         ),
                     }
                 )
+            changed |= self._move_towards_target(c, now_utime, approach)
         return changed
+
+    def _commanded_hand(
+        self, c: TaskCorrection, P: pin.SE3, k: int, utime: int, dt_us: int
+    ) -> pin.SE3 | None:
+        """The hand the controller commanded at ``utime`` (module doc), None when the encoders
+        put the hand more than ``max_tracking_*`` from it or no state and command came then;
+        without robot states at all (no robot map), the reference tracked then, P C(t_i)."""
+        if self._states is None or not self._states.has_state():
+            return P * (c.at_sample(k, dt_us) if c.blend_out else c.active_at(utime))
+        poses = self._hand_poses(c.frame, utime)
+        if poses is None:
+            return None
+        measured, commanded = poses
+        err = commanded.actInv(measured)
+        o = self.options
+        if (
+            float(np.linalg.norm(err.translation)) > o.max_tracking_m
+            or float(np.linalg.norm(pin.log3(err.rotation))) > o.max_tracking_rad
+        ):
+            return None
+        return commanded
+
+    def _take_pending(self) -> list[tuple[int, str, pin.SE3, float, bool]]:
+        """The measurements received since the last call; those of an object no gripper
+        touches in this step are kept for an approach to it."""
+        with self._lock:
+            pending, self._pending = self._pending, []
+            for utime, name, X_WO, reproj, replayed in pending:
+                if (
+                    not replayed
+                    and name not in self._touched
+                    and utime >= self._step_start
+                    and reproj <= self.options.max_reprojection_px
+                ):
+                    kept = self._at_rest.setdefault(name, [])
+                    kept.append((utime, X_WO, reproj))
+                    del kept[: -self.AT_REST_KEPT]
+        return pending
+
+    def _move_towards_target(self, c: TaskCorrection, now_utime: int, approach: bool) -> bool:
+        """C moved towards its target within the speed limits for the time since it last
+        moved: the reference never jumps, however many measurements arrived at once. An
+        approach's correction goes as fast as it must to arrive by ``approach_settle`` of the
+        step, within ``max_approach_speed``."""
+        if c.target is None or c.blend_out:
+            return False
+        dt = min(max(now_utime - c.moved_utime, 0), 200_000) * 1e-6
+        o = self.options
+        v, w = o.max_speed, o.max_angular_speed
+        if approach:
+            left = (c.start_utime + o.approach_settle * c.duration_us - now_utime) * 1e-6
+            xi = pin.log6(c.C.actInv(c.target)).vector
+            if left > 0:  # after that, what a late measurement asks for goes at the usual pace
+                v = min(max(v, float(np.linalg.norm(xi[:3])) / left), o.max_approach_speed)
+                w = min(max(w, float(np.linalg.norm(xi[3:])) / left), o.max_approach_angular_speed)
+        C = step_toward(c.C, c.target, 1.0, v * dt, w * dt)
+        c.moved_utime = now_utime
+        if np.allclose(C.homogeneous, c.C.homogeneous, rtol=0.0, atol=1e-9):
+            return False
+        c.C = C
+        c.history.append((now_utime, c.C))
+        c.version += 1
+        return True
 
 
 # ---- gaze through the posture references ---------------------------------------------------
@@ -497,7 +799,7 @@ def head_gaze_posture(
     traj: StepTrajectory,
     targets_W: np.ndarray,
     camera_frame: str,
-    joints: tuple[str, ...] = ("head_1_joint", "head_2_joint"),
+    joints: tuple[str, ...],
     extra_joints: tuple[str, ...] = (),
     ramp_in: bool = False,
     every: int = 20,
@@ -741,7 +1043,11 @@ class Lean:
 
 
 def gaze_rewrite(
-    robot_map: PlanRobotMap, obj: str, camera_frame: str, lean: Lean | None = None
+    robot_map: PlanRobotMap,
+    obj: str,
+    camera_frame: str,
+    head_joints: tuple[str, ...],
+    lean: Lean | None = None,
 ) -> Rewrite:
     """A step rewrite (:func:`references.shaped_trajectory`): the head of the step's posture
     reference looks at the planned ``obj``, ramped in over the first step run (so that its
@@ -768,7 +1074,7 @@ def gaze_rewrite(
                 lean.held[step.index],
                 allowed_at,
             )
-        head_gaze_posture(robot_map.model, traj, targets, camera_frame, ramp_in=first)
+        head_gaze_posture(robot_map.model, traj, targets, camera_frame, head_joints, ramp_in=first)
 
     return rewrite
 
@@ -779,9 +1085,10 @@ def add_gaze(
     robot_map: PlanRobotMap,
     obj: str,
     camera_frame: str,
+    head_joints: tuple[str, ...],
 ) -> None:
     """:func:`gaze_rewrite` applied to already sampled ``trajectories`` of ``steps`` (the first
     of them ramps the gaze in), without re-timing."""
-    rewrite = gaze_rewrite(robot_map, obj, camera_frame)
+    rewrite = gaze_rewrite(robot_map, obj, camera_frame, head_joints)
     for i, step in enumerate(steps):
         rewrite(step, trajectories[step.index], i == 0)

@@ -29,6 +29,7 @@ from marionette.control.client import ControllerClient
 from marionette.control.replay_cli import JOURNAL_NAME, replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.processes import ProcessGroup
+from marionette.scenarios.harness import lcm_logger
 
 ROBOT = "ur10"
 
@@ -308,7 +309,7 @@ def test_a_silent_driver_holds_the_robot(build_dir, lcm_url, tmp_path):
 def test_a_driven_run_replays_exactly(build_dir, lcm_url, tmp_path):
     log = tmp_path / "run.lcmlog"
     logger = subprocess.Popen(
-        ["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
+        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )

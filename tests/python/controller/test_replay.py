@@ -20,6 +20,7 @@ from marionette.control.client import configuration_from_state, pose_to_vector
 from marionette.control.introspection import GraphClient
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec, reference_chunk
+from marionette.scenarios.harness import lcm_logger
 from tests_support import controller_running
 
 SCENE = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
@@ -29,7 +30,7 @@ def _record(build_dir: Path, lcm_url: str, log: Path) -> None:
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     data = model.createData()
     logger = subprocess.Popen(
-        ["lcm-logger", f"--lcm-url={lcm_url}", "-f", str(log)],
+        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )

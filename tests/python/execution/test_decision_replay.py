@@ -1,6 +1,8 @@
 """`marionette replay LOG --supervisor` on a recorded ur10-box run: the decisions
 re-taken offline from the recorded statuses are the recorded ones, tick for tick; a log whose
-inputs were altered diverges at the first tick the alteration changes."""
+inputs were altered diverges at the first tick the alteration changes. The record replayed is the
+supervisor's own journal beside the run's LCM log, and the decisions the network logger caught
+are the journal's."""
 
 from __future__ import annotations
 
@@ -11,8 +13,13 @@ import sys
 import pytest
 
 import lcm
-from marionette import channels, lcmt_controller_status
-from marionette.execution.decision_replay import read_decision_log, replay_supervisor
+from marionette import channels, lcmt_controller_status, lcmt_supervisor_decision
+from marionette.execution.decision_replay import (
+    decision_record,
+    read_decision_log,
+    replay_supervisor,
+)
+from marionette.execution.supervisor import JOURNAL_NAME
 
 
 @pytest.mark.slow
@@ -26,7 +33,25 @@ def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "IDENTICAL" in proc.stdout
-    recorded, _ = read_decision_log(log)
+    journal = decision_record(log)
+    assert journal == ur10_box_run / JOURNAL_NAME and str(journal) in proc.stdout
+    recorded, _ = read_decision_log(journal)
+    # What lcm-logger caught of them over UDP is the journal's, message for message.
+    caught = [
+        lcmt_supervisor_decision.decode(ev.data)
+        for ev in lcm.EventLog(str(log), "r")
+        if ev.channel == channels.SUPERVISOR_DECISION
+    ]
+    in_journal = {
+        m.seq: m.encode()
+        for m in (
+            lcmt_supervisor_decision.decode(ev.data)
+            for ev in lcm.EventLog(str(journal), "r")
+            if ev.channel == channels.SUPERVISOR_DECISION
+        )
+    }
+    assert sorted(in_journal) == list(range(len(recorded)))
+    assert caught and all(in_journal[m.seq] == m.encode() for m in caught)
     report = json.loads((ur10_box_run / "report.json").read_text())
     steps = len(report["steps"])
     # Independent reference: the report's per-step records, written by the live supervisor.
@@ -44,7 +69,7 @@ def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
 
 
 def test_altered_inputs_diverge_at_the_first_changed_decision(ur10_box_run, tmp_path):
-    src = ur10_box_run / "run.lcmlog"
+    src = decision_record(ur10_box_run / "run.lcmlog")
     recorded, _ = read_decision_log(src)
     target = next(d for d in recorded if d.event == "end_check_passed")
     # Rewrite the status that passed the first end check with a task error above every threshold.

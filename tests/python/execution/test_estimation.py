@@ -7,11 +7,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from marionette import channels, lcmt_object_pose, lcmt_object_poses
 from marionette.execution.estimation import (
     estimate_state,
     first_step_to_run,
     measured_configuration,
+    sensed_object_poses,
 )
+from marionette.lcm_bus import LcmBus
 from marionette.planning.graph_factory import graph_from_settings
 from marionette.planning.problem import load_problem
 
@@ -59,3 +62,60 @@ def test_box_in_the_gripper_is_the_grasp_state(ur10_box, ur10_graph):
     assert estimate.state == "ur10/gripper grasps box/top"
     ranking = dict(estimate.ranking)
     assert ranking["free"] is None or ranking["free"] > 2 * estimate.residual  # box 5 cm up
+
+
+class _Controller:
+    """What sensed_object_poses needs of a controller client, on a real LCM bus: a clock that
+    advances 0.1 s per wait round, each round handling what arrived. ``on_round`` runs first."""
+
+    def __init__(self, bus: LcmBus, on_round) -> None:
+        self.bus, self.t, self.on_round = bus, 0, on_round
+
+    def utime(self) -> int:
+        return self.t
+
+    def wait(self, condition, timeout_s: float, what: str = "") -> None:
+        while not condition(self):
+            self.on_round(self.t)
+            self.bus.handle(0.05)
+            self.t += 100_000
+            assert self.t < 60_000_000, f"never: {what}"
+
+
+def _object_poses(obj: str, X: pin.SE3):
+    msg, pose = lcmt_object_poses(), lcmt_object_pose()
+    pose.object_name = obj
+    q = pin.Quaternion(X.rotation)
+    pose.position_world, pose.quaternion_world = list(X.translation), [q.w, q.x, q.y, q.z]
+    msg.objects, msg.num_objects = [pose], 1
+    return msg
+
+
+def test_the_objects_at_start_are_what_the_camera_saw_and_the_others_are_said(lcm_url):
+    X_box = pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, 0.3), np.array([0.6, -0.1, 0.8]))
+    lines: list[str] = []
+    with LcmBus(lcm_url) as bus:
+
+        def sent(
+            t: int,
+        ) -> None:  # the camera sees the box from the third round on, never the plank
+            if t >= 200_000:
+                bus.publish(channels.OBJECT_POSES, _object_poses("box", X_box))
+
+        client = _Controller(bus, sent)
+        seen = sensed_object_poses(client, ["plank", "box"], 1.0, lines.append)
+    assert set(seen) == {"box"}
+    assert seen["box"].isApprox(X_box, 1e-9)
+    assert client.t >= 1_000_000, "it looked for the whole second for the plank"
+    assert lines == [
+        "estimation: plank not seen by the camera within 1 s: at the plan's initial pose"
+    ]
+
+
+def test_without_an_object_sensor_the_objects_are_where_the_plan_starts_them(lcm_url):
+    lines: list[str] = []
+    with LcmBus(lcm_url) as bus:
+        client = _Controller(bus, lambda t: None)
+        assert sensed_object_poses(client, ["box"], 0.0, lines.append) == {}
+    assert client.t == 0, "nothing waited for"
+    assert lines == ["estimation: no object sensor: box at the plan's initial pose"]

@@ -137,10 +137,11 @@ def test_a_gaze_ramped_in_over_a_short_first_step_is_re_timed():
     q1[model.joints[model.getJointId("arm_right_4_joint")].idx_q] -= 0.05
     spec = ControllerSpec(1, "s", [TaskSpec("posture", "posture", 0, streamed=True)])
     camera = robots.robot("talos").camera_frame
+    head = robots.robot("talos").calibration_head_joints
 
     def gaze(step, traj, first):  # look down-left at a point on the table
         targets = np.tile([0.5, 0.4, 0.7], (traj.num_samples, 1))
-        head_gaze_posture(model, traj, targets, camera, ramp_in=first)
+        head_gaze_posture(model, traj, targets, camera, head, ramp_in=first)
 
     limits = velocity_limits(model, 0.5)
     traj = shaped_trajectory(

@@ -111,6 +111,31 @@ def test_corrected_twists_match_finite_differences(multiply):
     assert np.allclose(derivs[0, 3:], fd_w, atol=1e-4)
 
 
+def _pose_message(utime: int, obj: str, X: pin.SE3, reprojection_px: float = 0.5):
+    """An OBJECT_POSES message with ``obj`` seen at ``X`` at image time ``utime``."""
+    msg = lcmt_object_poses()
+    pose = lcmt_object_pose()
+    pose.utime, pose.object_name = utime, obj
+    q = pin.Quaternion(X.rotation)
+    pose.position_world, pose.quaternion_world = list(X.translation), [q.w, q.x, q.y, q.z]
+    pose.reprojection_error = reprojection_px
+    msg.objects, msg.num_objects = [pose], 1
+    return msg
+
+
+class _Bus:
+    """The servo's LCM subscriptions, by channel; ``send`` delivers an object pose."""
+
+    def __init__(self) -> None:
+        self.handlers = {}
+
+    def subscribe(self, channel, type_, handler):
+        self.handlers[channel] = handler
+
+    def send(self, utime: int, obj: str, X: pin.SE3, reprojection_px: float = 0.5) -> None:
+        self.handlers["OBJECT_POSES"](_pose_message(utime, obj, X, reprojection_px))
+
+
 class _Plant:
     """The object held by a hand that tracks the reference exactly, with a rigid bias B."""
 
@@ -141,11 +166,7 @@ def test_integrator_converges_through_camera_noise_within_its_speed_limit():
         seed=3,
     )
 
-    class Bus:
-        def subscribe(self, channel, type_, handler):
-            self.handler = handler
-
-    bus = Bus()
+    bus = _Bus()
     servo = VisualServo(bus, [], [], None, {}, options)
     c = TaskCorrection(
         "left_gripper",
@@ -163,15 +184,7 @@ def test_integrator_converges_through_camera_noise_within_its_speed_limit():
     previous = c.C
     for k in range(1, 31):
         now = k * 100_000
-        O = plant.P * c.active_at(now) * plant.B_true
-        msg = lcmt_object_poses()
-        pose = lcmt_object_pose()
-        pose.utime, pose.object_name = now, "plank"
-        q = pin.Quaternion(O.rotation)
-        pose.position_world, pose.quaternion_world = list(O.translation), [q.w, q.x, q.y, q.z]
-        pose.reprojection_error = 0.5
-        msg.objects, msg.num_objects = [pose], 1
-        bus.handler(msg)
+        bus.send(now, "plank", plant.P * c.active_at(now) * plant.B_true)
         assert servo.update(planned, 1000, now)
         moved = pin.log6(previous.actInv(c.C)).vector
         assert np.linalg.norm(moved[:3]) <= options.max_speed * 0.1 + 1e-9
@@ -206,13 +219,10 @@ def test_a_grasp_correction_is_streamed_on_the_left_and_blends_out_to_the_plan()
     assert np.allclose(_pose(rows[-1]).homogeneous, P[-1].homogeneous, atol=1e-9)
 
 
-def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
-    n = 1500
+def _servoed_line(n: int, measured_at_us: int):
+    """A left-gripper reference along x (n samples), its servoed correction (identity) and a servo
+    whose one measurement, at ``measured_at_us``, moves the correction 1 cm up."""
     P = [pin.SE3(np.eye(3), np.array([0.001 * k, 0.0, 1.0])) for k in range(n)]
-    refs = {
-        "left_gripper": (_rows(P), np.zeros((n, 6))),
-        "com": (np.zeros((n, 3)), np.zeros((n, 3))),
-    }
     c = TaskCorrection(
         "left_gripper",
         True,
@@ -229,10 +239,17 @@ def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
         options = ServoOptions(lead_us=20_000, refresh_us=50_000)
 
         def update(self, planned, dt_us, now):
-            if now == 300_000:  # a measurement: the correction moves 1 cm up
+            if now == measured_at_us:
                 c.C = pin.SE3(np.eye(3), np.array([0.0, 0.0, 0.01]))
                 c.version += 1
 
+    return (_rows(P), np.zeros((n, 6))), c, Servo()
+
+
+def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
+    n = 1500
+    grip, c, servo = _servoed_line(n, 300_000)
+    refs = {"left_gripper": grip, "com": (np.zeros((n, 3)), np.zeros((n, 3)))}
     sent = []
     s = ReferenceStreamer(
         sent.append,
@@ -242,7 +259,7 @@ def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
         chunk_samples=200,
         lookahead_s=1.0,
         corrections=[c],
-        servo=Servo(),
+        servo=servo,
     )
     for now in range(0, 2_000_000, 10_000):
         s.pump(now)
@@ -264,6 +281,37 @@ def test_corrected_samples_are_re_sent_from_now_when_a_measurement_arrives():
     assert sum(m.num_samples for m in sent if m.task_name == "com") == n
 
 
+def test_a_re_sent_stretch_is_made_whole_before_its_first_piece_is_sent():
+    """A chunk replaces its stream's future from its start, so the first piece of a re-sent
+    stretch cuts the controller's stream at its own end until the next piece comes: every piece
+    is made before any is sent, and nothing slow (the corrected samples) comes between two."""
+    grip, c, servo = _servoed_line(6000, 1_000_000)
+    events: list[tuple[str, int]] = []
+    s = ReferenceStreamer(
+        lambda m: events.append(("sent", m.utime)),
+        3,
+        {"left_gripper": grip},
+        start_utime=0,
+        chunk_samples=200,
+        lookahead_s=4.0,
+        corrections=[c],
+        servo=servo,
+    )
+    corrected = s._corrected
+
+    def recorded(task, k0, k1):
+        events.append(("made", k0))
+        return corrected(task, k0, k1)
+
+    s._corrected = recorded
+    for now in range(0, 1_000_001, 10_000):
+        s.pump(now)
+    refresh = events[next(i for i, e in enumerate(events) if e == ("made", 1020)) :]
+    pieces = [k for what, k in refresh if what == "sent"]
+    assert pieces[0] == 1_020_000 and len(pieces) >= 3  # 1.02 s to the 4 s look-ahead
+    assert [what for what, _ in refresh] == ["made"] * len(pieces) + ["sent"] * len(pieces)
+
+
 def test_gaze_posture_points_the_camera_at_the_target_with_the_head_only():
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     frame = robots.robot("talos").camera_frame
@@ -281,9 +329,10 @@ def test_gaze_posture_points_the_camera_at_the_target_with_the_head_only():
     )
     # A point moving sideways 0.7 m ahead, 0.4 m below the camera: within the head's reach.
     targets = np.array([[0.7, -0.2 + 0.004 * k, 1.25] for k in range(n)])
-    head_gaze_posture(model, traj, targets, frame, every=10)
+    joints = robots.robot("talos").calibration_head_joints
+    head_gaze_posture(model, traj, targets, frame, joints, every=10)
     data = model.createData()
-    head = {model.joints[model.getJointId(j)].idx_q for j in ("head_1_joint", "head_2_joint")}
+    head = {model.joints[model.getJointId(j)].idx_q for j in joints}
     for k in (0, 37, 100):
         qk = traj.references["posture"][0][k]
         pin.framesForwardKinematics(model, data, qk)
@@ -367,8 +416,14 @@ def test_the_gaze_keeps_the_plank_in_the_field_of_view_where_it_is_servoed(talos
     for s in p.steps[: servoed[-1] + 1]:
         trajs[s.index] = sample_step(s, p.robot_map, 1e-3, 0.5, 0.5)
         compute_references(trajs[s.index], specs[s.index], p.model)
+    talos = robots.robot("talos")
     add_gaze(
-        trajs, p.steps[: servoed[-1] + 1], p.robot_map, "plank", robots.robot("talos").camera_frame
+        trajs,
+        p.steps[: servoed[-1] + 1],
+        p.robot_map,
+        "plank",
+        talos.camera_frame,
+        talos.calibration_head_joints,
     )
     scene = sim.MjScene(str(marionette.MODELS_DIR / "scenes" / "talos_plank.xml"))
     scene.reset_keyframe("reference")
@@ -588,3 +643,244 @@ def test_holding_the_tasks_above_the_posture_while_the_torso_leans(seed):
     assert np.linalg.norm(rel) < 1e-5
     com = pin.centerOfMass(model, data, held)
     assert np.allclose(com[:2], data_ref.com[0][:2], atol=1e-6)
+
+
+def _visual(planned):
+    import dataclasses
+
+    from marionette.execution.factory import build_specs
+
+    return build_specs(planned.steps, dataclasses.replace(planned.ctx, visual_servoing=True))
+
+
+def test_the_carry_to_a_servoed_placement_is_servoed_under_the_same_grasp(talos_plank):
+    """The object's error in the hand is one of the grasp: every pbvs task is servoed, and so is
+    a gripper task in every step of the grasp that carries the object to a servoed placement —
+    the whole last carry of the plank, its first step included (where the slip happens) — and
+    nothing else: the right gripper's carry to the hand-over leads to no servoed placement."""
+    from marionette.execution.visual_servo import servoed_tasks
+    from marionette.scenarios.plan_and_execute import last_carry_step
+
+    steps, specs = talos_plank.steps, _visual(talos_plank)
+    servoed = servoed_tasks(steps, specs)
+    for step, spec in zip(steps, specs):
+        names = servoed.get(step.index, set())
+        assert {t.name for t in spec.tasks if t.kind == "pbvs"} <= names
+        for name in names - {t.name for t in spec.tasks if t.kind == "pbvs"}:
+            gripper = f"talos/{name}"
+            handle = step.grasps[gripper]  # it holds the object all along the step
+            later = [(s, sp) for s, sp in zip(steps[step.index + 1 :], specs[step.index + 1 :])]
+            run = []
+            for s, sp in later:
+                if s.grasps.get(gripper) != handle:
+                    break
+                run.append(sp)
+            assert any(t.kind == "pbvs" and t.name == name for sp in run for t in sp.tasks)
+    carry = last_carry_step(steps, "plank")
+    assert "left_gripper" in servoed[carry]
+    first_pbvs_of_left = min(
+        i for i, names in servoed.items() if "left_gripper" in names and i > carry
+    )
+    assert all("left_gripper" in servoed[i] for i in range(carry, first_pbvs_of_left))
+    right_carry = [s.index for s in steps if "talos/right_gripper" in s.grasps]
+    assert right_carry and not any("right_gripper" in servoed.get(i, ()) for i in right_carry)
+
+
+def _servo_on(planned, indices):
+    from marionette.execution.references import compute_references, sample_step
+    from marionette.execution.visual_servo import VisualServo
+
+    specs = _visual(planned)
+    trajs = {}
+    for i in indices:
+        trajs[i] = sample_step(planned.steps[i], planned.robot_map, 1e-3, 0.5, 0.5)
+        compute_references(trajs[i], specs[i], planned.model)
+    bus = _Bus()
+    servo = VisualServo(bus, planned.steps, specs, planned.robot_map, trajs, ServoOptions())
+    return servo, bus, specs, trajs
+
+
+def test_an_approach_starts_from_what_the_camera_saw_of_the_object_at_rest(talos_plank):
+    """The step before the servoed approach to the plank on the table sees the plank displaced
+    (4 cm, 8 deg) and the approach sees nothing (the reaching hand hides it): the approach's
+    correction still reaches the fixed point of what was seen at rest by ``approach_settle`` of
+    the step, never faster than ``max_approach_speed``. What was seen while a gripper touched the
+    object is history: after such a step nothing is kept."""
+    from marionette.execution.visual_servo import looks_before_approach
+
+    p = talos_plank
+    approach = next(
+        s.index
+        for s, spec in zip(p.steps, _visual(p))
+        if any(t.kind == "pbvs" for t in spec.tasks) and not s.grasps
+    )
+    look = approach - 1
+    touching = next(s.index for s in p.steps if s.grasps)
+    servo, bus, specs, trajs = _servo_on(p, [look, approach, touching])
+    assert look in looks_before_approach(p.steps, specs)
+    o = servo.options
+    D = pin.SE3(pin.exp3(np.radians(8.0) * np.array([0.0, 0.0, 1.0])), np.array([0.03, -0.02, 0.0]))
+    X_plan = p.robot_map.object_pose(trajs[approach].q_plan[0], "plank")
+    seen = D * X_plan
+    servo.begin_step(p.steps[look], specs[look], 0, 1000)
+    for k in range(10):  # no update in between: the look step has nothing to correct
+        bus.send(100_000 * (k + 1), "plank", seen)
+    start = 2_000_000
+    (c,) = servo.begin_step(p.steps[approach], specs[approach], start, 1000)
+    assert c.servoed and c.anchor is not None
+    expected = approach_fixed_point(c.anchor, seen, X_plan)
+    settle = start + int(o.approach_settle * c.duration_us)
+    previous, now = c.C, start
+    while now <= settle:
+        servo.update(trajs[approach].references, 1000, now)
+        moved = pin.log6(previous.actInv(c.C)).vector
+        assert np.linalg.norm(moved[:3]) <= o.max_approach_speed * 1e-3 + 1e-9
+        assert np.linalg.norm(moved[3:]) <= o.max_approach_angular_speed * 1e-3 + 1e-9
+        previous, now = c.C, now + 1000
+    assert np.allclose(c.C.homogeneous, expected.homogeneous, atol=1e-6)
+    assert np.linalg.norm(expected.translation) > 0.03  # a correction the usual pace would miss
+    assert all(row["at_rest"] for row in servo.trace)
+
+    # A step where a gripper holds the plank drops what was seen at rest.
+    servo.begin_step(p.steps[touching], specs[touching], 3 * start, 1000)
+    bus.send(3 * start + 10_000, "plank", seen)
+    servo.update(trajs[touching].references, 1000, 3 * start + 20_000)
+    (c,) = servo.begin_step(p.steps[approach], specs[approach], 4 * start, 1000)
+    servo.update(trajs[approach].references, 1000, 4 * start + 500_000)
+    assert c.C.isIdentity() and c.target is None
+
+
+def test_a_carry_blends_a_grasps_correction_out_until_the_camera_measures_the_object(talos_plank):
+    """After the hand-over, the left hand's carry starts from the correction its grasp left on
+    (a left correction, which moved the hand with the object where it lay): without a
+    measurement it blends out to the plan as after any grasp; at the first measurement it stays
+    where the ramp had streamed it and then goes to the fixed point of that measurement."""
+    from marionette.scenarios.plan_and_execute import last_carry_step
+
+    p = talos_plank
+    carry = last_carry_step(p.steps, "plank")
+    servo, bus, specs, trajs = _servo_on(p, [carry])
+    frame = p.ctx.gripper_frames["talos/left_gripper"]
+    anchor = pin.SE3(np.eye(3), np.array([0.4, 0.3, 0.9]))
+    C_grasp = pin.SE3(pin.exp3(np.array([0.0, 0.05, 0.0])), np.array([0.01, 0.0, -0.01]))
+    for measured in (False, True):
+        servo._carried[frame] = (C_grasp, anchor)
+        corrections = servo.begin_step(p.steps[carry], specs[carry], 0, 1000)
+        (c,) = [c for c in corrections if c.frame == frame]
+        assert c.servoed and c.blend_out and c.anchor is None
+        n = trajs[carry].num_samples
+        P0 = _pose(trajs[carry].references[c.task][0][0])
+        # no jump at the start: P0 C0 = L P0
+        L = anchor * C_grasp * anchor.inverse()
+        assert np.allclose((P0 * c.at_sample(0, 1000)).homogeneous, (L * P0).homogeneous)
+        assert c.at_sample(n - 1, 1000).isIdentity(1e-9)
+        if not measured:
+            servo.end_step(corrections)
+            assert servo._carried[frame][0].isIdentity()
+            continue
+        half = (n // 2) * 1000
+        k = half // 1000
+        P = _pose(trajs[carry].references[c.task][0][k])
+        X_GO = servo._planned_grasp(trajs[carry], frame, "plank")
+        slipped = P * c.at_sample(k, 1000) * X_GO * pin.SE3(np.eye(3), np.array([0.0, 0.008, 0.0]))
+        ramp_there = c.at_sample((half + servo.options.lead_us) // 1000, 1000)
+        expected = correction_fixed_point(X_GO, slipped, P * c.at_sample(k, 1000))
+        bus.send(half, "plank", slipped)
+        servo.update(trajs[carry].references, 1000, half)
+        assert not c.blend_out
+        assert np.allclose(c.C.homogeneous, ramp_there.homogeneous, atol=1e-6)
+        for now in range(half, half + 3_000_000, 10_000):
+            servo.update(trajs[carry].references, 1000, now)
+        # the grasp's correction was no measurement of the object in the hand: the first one
+        # is taken whole
+        assert np.allclose(c.C.homogeneous, expected.homogeneous, atol=1e-9)
+
+
+def _stuck_hand_servo(encoders: bool, lag_m: float = 0.0):
+    """The integrator test's plant with a hand that stays on the plan P whatever the
+    correction asks (a joint at its limit: the controller commands P), 30 s of measurements at
+    10 Hz; ``encoders``: the servo has the robot's state and command (the hand measured
+    ``lag_m`` from the commanded one), else it reads the reference. Returns (C at the end, the
+    first measurement's fixed point, measurements not used)."""
+    from marionette.execution.visual_servo import VisualServo
+
+    plant = _Plant()
+
+    bus = _Bus()
+    servo = VisualServo(bus, [], [], None, {}, ServoOptions(max_tracking_m=0.02))
+    if encoders:
+
+        class States:
+            def has_state(self):
+                return True
+
+        servo._states = States()
+        lag = pin.SE3(np.eye(3), np.array([lag_m, 0.0, 0.0]))
+        servo._hand_poses = lambda frame, utime: (plant.P * lag, plant.P)
+    c = TaskCorrection("left_gripper", True, pin.SE3.Identity(), False, 60_000_000, 0, frame="f")
+    c.history = [(0, pin.SE3.Identity())]
+    servo._current = [(c, type("S", (), {"index": 0})(), "plank", plant.X_GO, False)]
+    planned = {"left_gripper": (_rows([plant.P] * 60_000), np.zeros((60_000, 6)))}
+    # the object off in the hand by a translation, where it goes with the (stuck) hand
+    O = plant.P * plant.X_GO * pin.SE3(np.eye(3), np.array([0.01, -0.008, 0.006]))
+    for k in range(1, 301):
+        now = k * 100_000
+        bus.send(now, "plank", O)
+        servo.update(planned, 1000, now)
+    first = correction_fixed_point(plant.X_GO, O, plant.P)
+    return c.C, first, servo.measurements_hand_off_command
+
+
+def test_a_hand_that_does_not_follow_its_correction_does_not_wind_it_up():
+    """Read against the reference, the fixed point C* = X_GO O^-1 P C of a hand that does not
+    move grows with C at every measurement: the correction winds up far past the first fixed
+    point. Read against the hand the controller commands (which stays at P), it stays at that
+    fixed point. A hand the encoders put 3 cm from the commanded one (lagging a fast carry)
+    tells nothing: those measurements are not used."""
+    C, first, _ = _stuck_hand_servo(encoders=False)
+    assert np.linalg.norm(C.translation) > 3 * np.linalg.norm(first.translation)
+    C, first, skipped = _stuck_hand_servo(encoders=True)
+    assert skipped == 0
+    assert np.allclose(C.homogeneous, first.homogeneous, atol=1e-9)
+    C, first, skipped = _stuck_hand_servo(encoders=True, lag_m=0.03)
+    assert skipped == 300 and C.isIdentity()
+
+
+def test_the_hand_measured_and_commanded_at_an_image_time_against_forward_kinematics(talos_plank):
+    """The servo's hand poses from the controller's ROBOT_STATE (measured joints, the base) and
+    ROBOT_COMMAND (commanded joints) nearest an image's time: Pinocchio's forward kinematics of
+    the gripper frame at those configurations, the commanded one on the measured base; none when
+    the nearest message is more than 20 ms away."""
+    from marionette import lcmt_robot_command, lcmt_robot_state
+
+    p = talos_plank
+    servo, bus, _, _ = _servo_on(p, [])
+    model = p.model
+    rng = np.random.default_rng(2)
+    names = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq == 1]
+    idx = [model.joints[model.getJointId(n)].idx_q for n in names]
+    frame = p.ctx.gripper_frames["talos/left_gripper"]
+    fid = model.getFrameId(frame)
+    data = model.createData()
+    for utime in (1_000_000, 1_010_000, 1_020_000):
+        q = pin.randomConfiguration(model, -np.ones(model.nq), np.ones(model.nq))
+        q_cmd = q.copy()
+        q_cmd[idx] += rng.normal(0, 0.05, len(idx))
+        state, command = lcmt_robot_state(), lcmt_robot_command()
+        state.utime = command.utime = utime
+        state.num_joints = command.num_joints = len(names)
+        state.joint_name = command.joint_name = names
+        state.joint_position = [float(q[i]) for i in idx]
+        state.joint_velocity = state.joint_effort = [0.0] * len(names)
+        command.joint_position = [float(q_cmd[i]) for i in idx]
+        command.joint_velocity = [0.0] * len(names)
+        state.base_position = list(q[:3])
+        state.base_quaternion = [q[6], q[3], q[4], q[5]]
+        bus.handlers["ROBOT_STATE"](state)
+        bus.handlers["ROBOT_COMMAND"](command)
+    measured, commanded = servo._hand_poses(frame, 1_021_000)
+    pin.framesForwardKinematics(model, data, q)
+    assert np.allclose(measured.homogeneous, data.oMf[fid].homogeneous, atol=1e-12)
+    pin.framesForwardKinematics(model, data, q_cmd)
+    assert np.allclose(commanded.homogeneous, data.oMf[fid].homogeneous, atol=1e-12)
+    assert servo._hand_poses(frame, 1_050_000) is None
