@@ -85,6 +85,19 @@ def private_lcm_url(rng: random.Random | None = None) -> str:
     return f"udpm://239.255.76.67:{port}?ttl=0"
 
 
+def udp_receive_buffer_drops() -> int | None:
+    """The datagrams the kernel has dropped so far, machine-wide, because a socket's receive
+    buffer was full (``RcvbufErrors`` of /proc/net/snmp); None where it cannot be read. LCM
+    loses the messages they carried: the difference over a run says whether its processes and
+    its log missed any (``scripts/setup`` sizes the buffers)."""
+    try:
+        with open("/proc/net/snmp") as f:
+            rows = [line.split() for line in f if line.startswith("Udp:")]
+        return int(rows[1][rows[0].index("RcvbufErrors")])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 class LcmBus:
     """An LCM instance with typed subscriptions and an optional background handling thread.
 
@@ -121,8 +134,18 @@ class LcmBus:
         if channel == channels.CONTROLLER_SPEC:
             self._start_heartbeat()
 
-    def subscribe(self, channel: str, lcm_type: LcmType, handler: Callable[[Any], None]):
+    def subscribe(
+        self,
+        channel: str,
+        lcm_type: LcmType,
+        handler: Callable[[Any], None],
+        decode: Callable[[bytes], Any] | None = None,
+    ):
+        """Hands ``handler`` each ``lcm_type`` message of ``channel`` that passes the checks
+        (signature, declared bounds), decoded by lcm-gen's Python decoder or by ``decode``
+        (one with the same fields, e.g. arrays as numpy arrays)."""
         verifier = self._verifier if channel in signing.SIGNED_CHANNELS else None
+        decoder = decode or lcm_type.decode
 
         def _on_message(_channel: str, data: bytes) -> None:
             if verifier is not None:
@@ -144,7 +167,7 @@ class LcmBus:
                 self._refuse(channel, refusal.reason, refusal.detail)
                 return
             try:
-                msg = lcm_type.decode(data)
+                msg = decoder(data)
             except Exception as exc:  # bounds passed: lcm-gen's decoder should not fail
                 self._refuse(channel, "undecodable", repr(exc))
                 return

@@ -62,19 +62,14 @@ def configuration_from_state(model: pin.Model, msg) -> np.ndarray:
     return q
 
 
-class CameraKinematics:
-    """X_WC of the robot's camera frame from the latest robot states (thread-safe).
+class StateHistory:
+    """The latest measured robot configurations (thread-safe): the last ``history`` states,
+    answered for the one whose ``utime`` is closest to a given instant, so that a 30 Hz camera
+    meets the 100 Hz state stream at the right instant; with the pose of any frame there."""
 
-    Keeps the last ``history`` states and answers for the one whose ``utime`` is closest to
-    the image's, so a 30 Hz camera meets the 100 Hz state stream at the right instant.
-    """
-
-    def __init__(self, model: pin.Model, camera_frame: str, history: int = 200) -> None:
-        if not model.existFrame(camera_frame):
-            raise ValueError(f"model {model.name} has no frame {camera_frame!r}")
+    def __init__(self, model: pin.Model, history: int = 200) -> None:
         self.model = model
         self.data = model.createData()
-        self.frame_id = model.getFrameId(camera_frame)
         self._states: deque = deque(maxlen=history)
         self._lock = threading.Lock()
 
@@ -88,14 +83,39 @@ class CameraKinematics:
         with self._lock:
             return bool(self._states)
 
-    def camera_pose(self, utime: int) -> tuple[pin.SE3, int] | None:
-        """(X_WC, state utime) for the state nearest ``utime``, or None before any state."""
+    def nearest(self, utime: int) -> tuple[np.ndarray, int] | None:
+        """(q, its utime) for the state nearest ``utime``, or None before any state."""
         with self._lock:
             if not self._states:
                 return None
             t, q = min(self._states, key=lambda s: abs(s[0] - utime))
-        return self.camera_pose_at(q), t
+        return q, t
+
+    def frame_pose_at(self, frame_id: int, q: np.ndarray) -> pin.SE3:
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return pin.SE3(self.data.oMf[frame_id])
+
+    def frame_pose(self, frame_id: int, utime: int) -> tuple[pin.SE3, int] | None:
+        """(X_WF, state utime) for the state nearest ``utime``, or None before any state."""
+        found = self.nearest(utime)
+        if found is None:
+            return None
+        q, t = found
+        return self.frame_pose_at(frame_id, q), t
+
+
+class CameraKinematics(StateHistory):
+    """X_WC of the robot's camera frame from the latest robot states (:class:`StateHistory`)."""
+
+    def __init__(self, model: pin.Model, camera_frame: str, history: int = 200) -> None:
+        if not model.existFrame(camera_frame):
+            raise ValueError(f"model {model.name} has no frame {camera_frame!r}")
+        super().__init__(model, history)
+        self.frame_id = model.getFrameId(camera_frame)
+
+    def camera_pose(self, utime: int) -> tuple[pin.SE3, int] | None:
+        """(X_WC, state utime) for the state nearest ``utime``, or None before any state."""
+        return self.frame_pose(self.frame_id, utime)
 
     def camera_pose_at(self, q: np.ndarray) -> pin.SE3:
-        pin.framesForwardKinematics(self.model, self.data, q)
-        return pin.SE3(self.data.oMf[self.frame_id])
+        return self.frame_pose_at(self.frame_id, q)

@@ -25,6 +25,7 @@ import time
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -69,6 +70,15 @@ class Frame:
     gray: np.ndarray  # (h, w) uint8
     depth: np.ndarray | None  # (h, w) float32 [m], 0 = no return
     X_WC_message: pin.SE3 | None  # simulator's camera pose, if finite
+
+
+def camera_image_arrays(data: bytes) -> SimpleNamespace:
+    """An ``lcmt_camera_image`` decoded by lcm-gen's C++ decoder, its rgb and depth as numpy
+    arrays (lcm-gen's Python decoder makes the depth a tuple of Python ints, then numpy an array
+    of them: a quarter of this process's time in a deburr trial); the same fields otherwise."""
+    from marionette._wire import decode_camera_image
+
+    return SimpleNamespace(**decode_camera_image(data))
 
 
 def decode_frame(msg) -> Frame:
@@ -321,7 +331,9 @@ class PerceptionNode:
         from marionette import lcmt_camera_image, lcmt_robot_state
 
         self._bus = bus
-        bus.subscribe(self.config.camera_channel, lcmt_camera_image, self._on_image)
+        bus.subscribe(
+            self.config.camera_channel, lcmt_camera_image, self._on_image, camera_image_arrays
+        )
         if self.kinematics is not None:
             bus.subscribe(channels.ROBOT_STATE, lcmt_robot_state, self._on_state)
 

@@ -20,6 +20,8 @@ report is then written by :meth:`.base.Scenario.run`).
 from __future__ import annotations
 
 import contextlib
+import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -30,7 +32,7 @@ from typing import Any
 import marionette
 from marionette.control.client import ControllerClient
 from marionette.control.replay_cli import JOURNAL_NAME
-from marionette.lcm_bus import private_lcm_url
+from marionette.lcm_bus import private_lcm_url, udp_receive_buffer_drops
 from marionette.processes import (
     SHARED_MACHINE_SUPERVISOR_TIMEOUT_S,
     ManagedProcess,
@@ -42,6 +44,11 @@ from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
 from marionette.scenarios.report import controller_summary, heartbeat_summary
 
 READY_TIMEOUT_S = 60.0  # the controller's first state (MuJoCo scene load, camera set-up)
+# The run's logger is the Debian package's (liblcm-bin, LCM 1.3.1, scripts/debian-packages.txt),
+# never whichever `lcm-logger` comes first on PATH: the PyPI lcm 1.5.3 wheel's, first in a shell
+# with the venv activated, lost 6-25 of 3000 small messages sent among bursts of 21 KB ones, with
+# the kernel dropping none, where the Debian one lost none (3 runs each).
+LCM_LOGGER_DIRS = ("/usr/bin", "/usr/local/bin")
 
 
 @dataclass(frozen=True)
@@ -168,10 +175,11 @@ def harness(
             else ("in the controller's process")
         )
     cameras = processes.camera_rate > 0
+    drops_before = udp_receive_buffer_drops()
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
         group.start(
             "lcm-logger",
-            ["lcm-logger", f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
+            [lcm_logger(), f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
             + (["--channel=^CAMERA_.*", "--invert-channels"] if cameras else []),
         )
         if options.controller_url is None:
@@ -202,3 +210,35 @@ def harness(
         if client.bus.heartbeat is not None:
             report["heartbeat"] = heartbeat_summary(client.bus.heartbeat)
         group.check_alive()
+    _report_udp_drops(drops_before, report, options.log)
+
+
+def lcm_logger() -> str:
+    """The system's lcm-logger (:data:`LCM_LOGGER_DIRS`); ScenarioError when it is missing."""
+    found = shutil.which("lcm-logger", path=os.pathsep.join(LCM_LOGGER_DIRS))
+    if found is None:
+        raise ScenarioError(
+            f"no lcm-logger in {', '.join(LCM_LOGGER_DIRS)}: install Debian's liblcm-bin "
+            "(scripts/setup does)"
+        )
+    return found
+
+
+def _report_udp_drops(
+    before: int | None, report: dict[str, Any], log: Callable[[str], None]
+) -> None:
+    """Records in ``report`` the datagrams the kernel dropped for lack of receive buffer while
+    the trial ran (machine-wide: another program's count in too), and says so when any were:
+    the processes, and the LCM log, may have missed messages."""
+    after = udp_receive_buffer_drops()
+    if before is None or after is None:
+        return
+    report["udp_receive_buffer_drops"] = after - before
+    if after > before:
+        with open("/proc/sys/net/core/rmem_max") as f:
+            rmem_max = f.read().strip()
+        log(
+            f"LCM: the kernel dropped {after - before} UDP datagrams for lack of receive buffer "
+            f"during the run (net.core.rmem_max = {rmem_max} bytes): processes and run.lcmlog "
+            "may miss messages; scripts/setup raises the buffers to 16 MiB (as root)"
+        )

@@ -220,13 +220,21 @@ def _markdown(r: dict[str, Any]) -> str:
         lines += [
             "## Vision in the loop (thesis 000 §5.3.1)",
             "",
-            f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected.",
+            f"{v['measurements_used']} object poses used, {v['measurements_rejected']} rejected, "
+            f"{v.get('measurements_hand_off_command', 0)} of a held object not used: the hand the "
+            "encoders measured was then off the hand the controller commanded (lagging a fast "
+            "motion), or no robot state came within 20 ms of the image.",
             "",
-            "| step | last measured object error | correction |",
-            "|---|---|---|",
+            "Poses used: those measured during the step, and those of the object at rest "
+            "measured before an approach to it (the reaching hand may hide it).",
+            "",
+            "| step | poses used | last measured object error | correction |",
+            "|---|---|---|---|",
         ]
+        used = v.get("used_per_step", {})
         lines += [
-            f"| {k} | {t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
+            f"| {k} | {_poses_used(used.get(k))} | "
+            f"{t['object_error_m'] * 1e3:.1f} mm / {t['object_error_deg']:.2f}° | "
             f"{t['correction_m'] * 1e3:.1f} mm / {t['correction_deg']:.2f}° |"
             for k, t in v["last_per_step"].items()
         ]
@@ -443,3 +451,11 @@ def _plots(
         ax.set_title(f"{scenario.name}: CoM over the support polygon")
         paths.append(save_figure(fig, out_dir / "com_support.png"))
     return paths
+
+
+def _poses_used(counts: list[int] | None) -> str:
+    """ "12", or "12 (3 at rest before)" when some were seen before the step."""
+    if not counts:
+        return "-"
+    n, at_rest = counts
+    return f"{n} ({at_rest} at rest before)" if at_rest else str(n)

@@ -114,11 +114,11 @@ def cached_plan(problem: Path, seed: int, cache_dir: Path, log: Callable[[str], 
     folder = plan_folder(problem, seed, cache_dir)
     if (folder / "plan.json").exists():
         log(f"plan: cached {folder / 'plan.json'}")
-        return load_plan(folder / "plan.json")
+        return _load(folder, problem)
     with _locked(folder.with_name(folder.name + ".lock")) as waited_s:
         if (folder / "plan.json").exists():  # planned by another trial while we waited
             log(f"plan: cached {folder / 'plan.json'} (planned beside, waited {waited_s:.1f} s)")
-            return load_plan(folder / "plan.json")
+            return _load(folder, problem)
         log(f"plan: planning {problem.stem} with seed {seed} ...")
         t0 = time.perf_counter()
         scratch = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=cache_dir))
@@ -128,7 +128,17 @@ def cached_plan(problem: Path, seed: int, cache_dir: Path, log: Callable[[str], 
         finally:
             shutil.rmtree(scratch, ignore_errors=True)
     log(f"plan: planned in {time.perf_counter() - t0:.1f} s -> {folder / 'plan.json'}")
-    return load_plan(folder / "plan.json")
+    return _load(folder, problem)
+
+
+def _load(folder: Path, problem: Path) -> Plan:
+    """The plan in ``folder``, read as planned from ``problem``: a cached plan names the problem
+    file of the checkout that planned it (the cache is keyed by contents, and may be shared
+    between checkouts, or outlive the one that planned), and the trial reads the problem again
+    (its graph, its checks) from its own, whose inputs are the same."""
+    plan = load_plan(folder / "plan.json")
+    plan.doc["problem"]["source"] = str(problem.resolve())
+    return plan
 
 
 def _plan(problem: Path, seed: int, out: Path) -> None:

@@ -1,6 +1,7 @@
 """``plank-flip``: TALOS turns the plank upside down on the table with both grippers, the first
-grasp and the placement servoed on the plank's pose seen by the head camera, both arms'
-encoder offsets calibrated by the head camera before execution (``docs/scenarios.md``)."""
+grasp, the last carry and the placement servoed on the plank's pose seen by the head camera,
+both arms' encoder offsets calibrated by the head camera before execution
+(``docs/scenarios.md``)."""
 
 from __future__ import annotations
 
@@ -9,8 +10,8 @@ from marionette.scenarios.plan_and_execute import PROBLEMS_DIR, SCENES_DIR, Plan
 SCENARIO = PlanAndExecute(
     name="plank-flip",
     description="TALOS turns the plank upside down with both grippers (thesis 000 §3.4), "
-    "the first grasp and the placement servoed on the plank pose seen by the head "
-    "camera (§5.3.1)",
+    "the first grasp, the last carry and the placement servoed on the plank pose seen by the "
+    "head camera (§5.3.1)",
     seed_experiment="thesis 000 §3.4 (the plank run, fig. 3.13), §5.3.1 (vision in the loop), "
     "ch. 4.2 (encoder calibration)",
     problem=PROBLEMS_DIR / "talos_plank.yaml",

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import socket
 import subprocess
 
 import numpy as np
 
 from marionette import channels, lcmt_controller_spec, lcmt_robot_state, lcmt_task_spec
-from marionette.lcm_bus import LcmBus, MessageLog
+from marionette.lcm_bus import LcmBus, MessageLog, udp_receive_buffer_drops
 
 
 def test_python_round_trip_keeps_every_field():
@@ -89,3 +90,19 @@ def test_private_urls_avoid_ports_held_elsewhere_and_the_ephemeral_range():
     for _ in range(200):
         port = int(private_lcm_url().split(":")[-1].split("?")[0])
         assert 20000 <= port < max(floor, 21000)
+
+
+def test_udp_receive_buffer_drops_counts_datagrams_a_full_socket_lost():
+    # A socket with the smallest receive buffer, never read, overflows: the kernel counts each
+    # datagram it dropped, and the count is what a demo reports as lost by its LCM processes.
+    before = udp_receive_buffer_drops()
+    assert before is not None and before >= 0
+    with (
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as rx,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx,
+    ):
+        rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1)
+        rx.bind(("127.0.0.1", 0))
+        for _ in range(200):
+            tx.sendto(b"x" * 8000, rx.getsockname())
+    assert udp_receive_buffer_drops() - before >= 150

@@ -115,7 +115,10 @@ def test_grasp_walk_demo_walks_to_the_moved_ball_and_lifts_it(tmp_path, lcm_env)
         log[channels.ROBOT_STATE],
         log[channels.WALK_STATUS],
     )
-    assert len(plans) == c["footstep_plans"] >= 3, "a first plan and replans"
+    assert len(plans) == c["footstep_plans"] >= 3, (
+        "a first plan and replans, each in the log (kernel UDP drops during the run: "
+        f"{report.get('udp_receive_buffer_drops')})"
+    )
     assert plans[0].first_step_index == 0
     assert all(p.first_step_index >= 1 for p in plans[1:]), (
         "a replan never touches step 0 (started)"

@@ -68,6 +68,14 @@ def test_a_cached_plan_is_reused_only_from_the_same_inputs(tmp_path, monkeypatch
     again = cached_plan(UR10_BOX, 0, tmp_path, messages.append)
     assert messages[-1].startswith("plan: cached") and len(again.paths) == len(plan.paths)
     assert plan_folder(UR10_BOX, 0, tmp_path).name.endswith(plan_inputs_digest(UR10_BOX)[:16])
+    # Planned by a checkout since removed (the cache is keyed by contents, not by paths): the
+    # plan is read as planned from this checkout's problem file, which the trial reads again.
+    saved = plan_folder(UR10_BOX, 0, tmp_path) / "plan.json"
+    doc = json.loads(saved.read_text())
+    doc["problem"]["source"] = str(tmp_path / "removed-checkout" / UR10_BOX.name)
+    saved.write_text(json.dumps(doc))
+    moved = cached_plan(UR10_BOX, 0, tmp_path, messages.append)
+    assert moved.doc["problem"]["source"] == str(UR10_BOX.resolve())
     monkeypatch.setattr(plan_cache, "planner_version", lambda: "another planner")
     cached_plan(UR10_BOX, 0, tmp_path, messages.append)
     assert messages[-2].startswith("plan: planning"), messages

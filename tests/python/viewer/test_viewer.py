@@ -14,7 +14,7 @@ import pytest
 import lcm
 import marionette
 from marionette import channels, lcmt_robot_state, lcmt_supervisor_state, robots
-from marionette.execution.decision_replay import read_decision_log
+from marionette.execution.decision_replay import decision_record, read_decision_log
 from marionette.lcm_bus import LcmBus
 from marionette.processes import ProcessGroup
 from marionette.viewer.node import MeshcatServer, start_viewer
@@ -122,7 +122,7 @@ def test_replay_view_plays_the_recorded_run_and_replots_it(ur10_box_run, tmp_pat
     assert changed(shot_early, shot_end).sum() > 0.002 * h * w  # the arm and the box moved
     plots = replot_report(log, tmp_path / "replot")
     assert [p.name for p in plots] == ["task_errors.png"] and plots[0].stat().st_size > 10_000
-    decisions, _ = read_decision_log(log)
+    decisions, _ = read_decision_log(decision_record(log))
     ids = [int(d.inputs["controller_id"]) for d in decisions if d.event == "step_started"]
     assert ids == [s["controller_id"] for s in report["steps"]]
 
