@@ -30,6 +30,7 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 import lcm
+import marionette
 from marionette import channels
 from marionette import lcm_signing as signing
 from marionette.lcm_validate import LcmType, validate
@@ -96,6 +97,15 @@ def udp_receive_buffer_drops() -> int | None:
         return int(rows[1][rows[0].index("RcvbufErrors")])
     except (OSError, ValueError, IndexError):
         return None
+
+
+def logger_command(url: str, log: str | os.PathLike, exclude: str | None = None) -> list[str]:
+    """The command that writes every message on ``url`` to the LCM log ``log`` until SIGINT or
+    SIGTERM: ``marionette-logger`` (cpp/apps/logger_main.cc; lcm-logger's file format, without
+    the 30-message queue behind which lcm-logger drops messages on a busy machine). ``exclude``:
+    a regex of channels left out (e.g. ``^CAMERA_``)."""
+    command = [str(marionette.BUILD_DIR / "marionette-logger"), f"--lcm-url={url}", "-f", str(log)]
+    return command + ([f"--exclude={exclude}"] if exclude else [])
 
 
 class LcmBus:

@@ -84,7 +84,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "log",
         type=Path,
-        help="LCM log of the run (lcm-logger, or a demo's report folder's run.lcmlog)",
+        help="LCM log of the run (e.g. a demo's report folder's run.lcmlog)",
     )
     mode = p.add_mutually_exclusive_group(required=True)
     mode.add_argument(

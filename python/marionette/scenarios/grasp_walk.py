@@ -483,7 +483,7 @@ def _markdown(r: dict[str, Any]) -> str:
         *controller_and_plots_lines(r),
         "",
         "Files: `run.lcmlog` (every LCM message of the run), `logs/` (process outputs: "
-        "controller, footsteps, lcm-logger).",
+        "controller, footsteps, logger).",
     ]
     return "\n".join(lines) + "\n"
 

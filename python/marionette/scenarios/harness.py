@@ -3,7 +3,7 @@
 :func:`harness` opens a private LCM URL (or the ``--controller-url`` of a running controller)
 and starts, in one process group whose outputs go to ``<report folder>/logs/``:
 
-1. ``lcm-logger`` recording every message to ``run.lcmlog`` (camera frames left out when the
+1. ``marionette-logger`` recording every message to ``run.lcmlog`` (camera frames left out when the
    controller renders cameras: 1.5 MB each, the poses measured in them are logged);
 2. ``marionette-controller`` on the trial's scene (unless a running one is driven) — with
    ``--split-sim``, ``marionette-sim`` on the scene and the controller driving it as it would a
@@ -20,8 +20,6 @@ report is then written by :meth:`.base.Scenario.run`).
 from __future__ import annotations
 
 import contextlib
-import os
-import shutil
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -32,7 +30,7 @@ from typing import Any
 import marionette
 from marionette.control.client import ControllerClient
 from marionette.control.replay_cli import JOURNAL_NAME
-from marionette.lcm_bus import private_lcm_url, udp_receive_buffer_drops
+from marionette.lcm_bus import logger_command, private_lcm_url, udp_receive_buffer_drops
 from marionette.processes import (
     SHARED_MACHINE_SUPERVISOR_TIMEOUT_S,
     ManagedProcess,
@@ -44,11 +42,6 @@ from marionette.scenarios.base import RunOptions, ScenarioError, repo_relative
 from marionette.scenarios.report import controller_summary, heartbeat_summary
 
 READY_TIMEOUT_S = 60.0  # the controller's first state (MuJoCo scene load, camera set-up)
-# The run's logger is the Debian package's (liblcm-bin, LCM 1.3.1, scripts/debian-packages.txt),
-# never whichever `lcm-logger` comes first on PATH: the PyPI lcm 1.5.3 wheel's, first in a shell
-# with the venv activated, lost 6-25 of 3000 small messages sent among bursts of 21 KB ones, with
-# the kernel dropping none, where the Debian one lost none (3 runs each).
-LCM_LOGGER_DIRS = ("/usr/bin", "/usr/local/bin")
 
 
 @dataclass(frozen=True)
@@ -178,15 +171,14 @@ def harness(
     drops_before = udp_receive_buffer_drops()
     with ProcessGroup(url, out_dir / "logs") as group, ControllerClient(url) as client:
         group.start(
-            "lcm-logger",
-            [lcm_logger(), f"--lcm-url={url}", "-f", str(out_dir / "run.lcmlog")]
-            + (["--channel=^CAMERA_.*", "--invert-channels"] if cameras else []),
+            "logger",
+            logger_command(url, out_dir / "run.lcmlog", exclude="^CAMERA_" if cameras else None),
         )
         if options.controller_url is None:
             if options.split_sim:
                 group.start("sim", sim_command(processes, url, options.speed))
             # Its own journal beside run.lcmlog: what `marionette replay --controller` needs,
-            # even when lcm-logger drops a message.
+            # even if the log misses a message.
             journal = ("--journal", str(out_dir / JOURNAL_NAME))
             command = controller_command(processes, url, options.speed, options.split_sim)
             group.start("controller", [*command, *journal])
@@ -211,17 +203,6 @@ def harness(
             report["heartbeat"] = heartbeat_summary(client.bus.heartbeat)
         group.check_alive()
     _report_udp_drops(drops_before, report, options.log)
-
-
-def lcm_logger() -> str:
-    """The system's lcm-logger (:data:`LCM_LOGGER_DIRS`); ScenarioError when it is missing."""
-    found = shutil.which("lcm-logger", path=os.pathsep.join(LCM_LOGGER_DIRS))
-    if found is None:
-        raise ScenarioError(
-            f"no lcm-logger in {', '.join(LCM_LOGGER_DIRS)}: install Debian's liblcm-bin "
-            "(scripts/setup does)"
-        )
-    return found
 
 
 def _report_udp_drops(

@@ -1,7 +1,7 @@
 """``marionette replay LOG --view``: a recorded run played in the browser viewer, its report
 re-plotted from the log.
 
-The LCM log (lcm-logger, e.g. a demo's ``run.lcmlog``) is played in log order at ``speed`` times
+The LCM log (e.g. a demo's ``run.lcmlog``) is played in log order at ``speed`` times
 the recorded pace (0: as fast as possible) into a :class:`.scene.ViewerScene` (its scene: the one
 the ``report.json`` beside the log names); the robot is redrawn at most ``rate_hz`` times per
 second of playback. The report's task-error plot

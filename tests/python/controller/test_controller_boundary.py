@@ -30,9 +30,8 @@ from marionette import (
 from marionette.control.introspection import rejections_by_channel
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
-from marionette.lcm_bus import HEARTBEAT_HANG_S, LcmBus, MessageLog
+from marionette.lcm_bus import HEARTBEAT_HANG_S, LcmBus, MessageLog, logger_command
 from marionette.lcm_signing import Signer, load_key
-from marionette.scenarios.harness import lcm_logger
 from tests_support import controller_running, wait_for_line
 
 UR10 = ["--robot", "ur10", "--backend", "kinematic", "--camera-rate", "0", "--status-rate", "100"]
@@ -382,7 +381,7 @@ def test_a_silence_hold_is_replayed_at_its_tick(build_dir, lcm_url, tmp_path):
     """The hold on a killed supervisor is the loop's decision at a tick that depends on wall-clock
     timing: journaled, a replay takes it at the same tick and reproduces every command."""
     log = tmp_path / "run.lcmlog"
-    logger = subprocess.Popen([lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)])
+    logger = subprocess.Popen(logger_command(lcm_url, log))
     try:
         time.sleep(0.3)
         with controller_running(build_dir, lcm_url, tmp_path / "logs", *UR10) as c:

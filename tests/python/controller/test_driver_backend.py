@@ -7,7 +7,7 @@ each command echoes its state's sequence and time; a spec moves the robot; every
 misordered state (NaN, lying sizes, missing or unknown joints, a duplicate, an older sequence, a
 clock that goes back or jumps) is refused, counted under its reason, never answered, and holds
 the robot with the reason in CONTROLLER_STATUS — and the next good state is answered; a silent
-driver holds the robot ("driver silent"); a driven run recorded with lcm-logger replays exactly."""
+driver holds the robot ("driver silent"); a driven run recorded with marionette-logger replays exactly."""
 
 from __future__ import annotations
 
@@ -28,8 +28,8 @@ from marionette import channels, lcmt_driver_command, lcmt_driver_state, robots
 from marionette.control.client import ControllerClient
 from marionette.control.replay_cli import JOURNAL_NAME, replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec
+from marionette.lcm_bus import logger_command
 from marionette.processes import ProcessGroup
-from marionette.scenarios.harness import lcm_logger
 
 ROBOT = "ur10"
 
@@ -309,7 +309,7 @@ def test_a_silent_driver_holds_the_robot(build_dir, lcm_url, tmp_path):
 def test_a_driven_run_replays_exactly(build_dir, lcm_url, tmp_path):
     log = tmp_path / "run.lcmlog"
     logger = subprocess.Popen(
-        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
+        logger_command(lcm_url, log),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
@@ -320,8 +320,8 @@ def test_a_driven_run_replays_exactly(build_dir, lcm_url, tmp_path):
             ControllerClient(lcm_url) as client,
             LockstepRobot(lcm_url, _q0()) as robot,
         ):
-            # The controller's own journal beside the log, as a demo's: lcm-logger drops
-            # messages at 1 kHz on a loaded machine.
+            # The controller's own journal beside the log, as a demo's: a network logger misses
+            # what the kernel drops on a loaded machine.
             journal = str(tmp_path / JOURNAL_NAME)
             _start(
                 group,

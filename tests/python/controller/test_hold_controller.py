@@ -20,7 +20,7 @@ from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import HOLD_CONTROLLER_ID, ControllerSpec, TaskSpec
 from marionette.execution.walking import polygon_margin, sole_corners, sole_half_size, walking_spec
 from marionette.footsteps.plan import Footstep, FootstepPlan
-from marionette.scenarios.harness import lcm_logger
+from marionette.lcm_bus import logger_command
 from tests_support import controller_running
 
 TALOS = robots.robot("talos")
@@ -98,7 +98,7 @@ def test_talos_stopped_mid_step_by_an_overrun_lands_the_step_and_stands(
     states: list = []
     log = tmp_path / "hold.lcmlog"
     logger = subprocess.Popen(
-        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
+        logger_command(lcm_url, log),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )

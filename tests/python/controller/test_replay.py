@@ -1,6 +1,6 @@
 """Deterministic replay: a 30 s TALOS run in MuJoCo driven over LCM (a controller spec,
 streamed gripper references, hold/resume, a gain set through introspection, an object moved in
-the simulator) is recorded with lcm-logger; `marionette replay LOG --controller` re-runs the
+the simulator) is recorded with marionette-logger; `marionette replay LOG --controller` re-runs the
 graph offline from the journal and must reproduce every recorded command to 1e-9. A log whose
 inputs or commands were tampered with must be caught, with the first diverging tick named."""
 
@@ -20,7 +20,7 @@ from marionette.control.client import configuration_from_state, pose_to_vector
 from marionette.control.introspection import GraphClient
 from marionette.control.replay_cli import replay_controller
 from marionette.control.spec import ControllerSpec, TaskSpec, reference_chunk
-from marionette.scenarios.harness import lcm_logger
+from marionette.lcm_bus import logger_command
 from tests_support import controller_running
 
 SCENE = str(robots.MODELS_DIR / "scenes" / "talos_plank.xml")
@@ -30,7 +30,7 @@ def _record(build_dir: Path, lcm_url: str, log: Path) -> None:
     model, _ = robots.load_pinocchio("talos", with_collision=False)
     data = model.createData()
     logger = subprocess.Popen(
-        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
+        logger_command(lcm_url, log),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )

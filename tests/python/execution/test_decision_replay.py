@@ -36,7 +36,7 @@ def test_recorded_ur10_box_decisions_are_retaken_identically(ur10_box_run):
     journal = decision_record(log)
     assert journal == ur10_box_run / JOURNAL_NAME and str(journal) in proc.stdout
     recorded, _ = read_decision_log(journal)
-    # What lcm-logger caught of them over UDP is the journal's, message for message.
+    # What the run's logger caught of them over UDP is the journal's, message for message.
     caught = [
         lcmt_supervisor_decision.decode(ev.data)
         for ev in lcm.EventLog(str(log), "r")

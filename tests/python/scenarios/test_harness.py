@@ -1,6 +1,6 @@
 """The one run sequence of a trial: a trial that fails or is interrupted leaves a partial report,
 the runtime's failures reach the user as ScenarioError, options a kind does not take are refused;
-with real processes (marionette-controller, lcm-logger), Ctrl-C in the middle of a trial stops
+with real processes (marionette-controller, marionette-logger), Ctrl-C in the middle of a trial stops
 every process of the group and leaves the partial report beside the recorded log."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import pytest
 from marionette.execution.errors import ExecutionError
 from marionette.scenarios import SCENARIOS, RunOptions, ScenarioError
 from marionette.scenarios.base import Criterion, Scenario
-from marionette.scenarios.harness import LCM_LOGGER_DIRS, Processes, harness, lcm_logger
+from marionette.scenarios.harness import Processes, harness
 from marionette.scenarios.perturbations import PRESETS, draw
 
 
@@ -107,25 +107,7 @@ def test_ctrl_c_in_a_running_trial_stops_its_processes_and_keeps_what_was_record
         )
     report = json.loads((run / "report.json").read_text())
     assert report["stopped"] == "interrupted (Ctrl-C)" and len(report["pids"]) == 2
-    assert not [p for p in report["pids"] if _alive(p)]  # lcm-logger and the controller
+    assert not [p for p in report["pids"] if _alive(p)]  # the logger and the controller
     assert report["scene"] == report["controller_scene"] == "models/scenes/ur10_box.xml"
     assert (run / "run.lcmlog").stat().st_size > 0
-    assert {"lcm-logger.log", "controller.log"} <= {p.name for p in (run / "logs").iterdir()}
-
-
-def test_the_run_is_logged_by_the_system_lcm_logger_whatever_comes_first_on_path(
-    tmp_path, monkeypatch
-):
-    # An activated venv puts the lcm wheel's own lcm-logger first on PATH; the run's logger is
-    # still the system one (harness.LCM_LOGGER_DIRS says why).
-    first = tmp_path / "lcm-logger"
-    first.write_text("#!/bin/sh\nexit 0\n")
-    first.chmod(0o755)
-    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
-    logger = Path(lcm_logger())
-    assert str(logger.parent) in LCM_LOGGER_DIRS and os.access(logger, os.X_OK)
-    monkeypatch.setattr("marionette.scenarios.harness.LCM_LOGGER_DIRS", (str(tmp_path / "none"),))
-    with pytest.raises(
-        ScenarioError, match=r"no lcm-logger in .*none: install Debian's liblcm-bin"
-    ):
-        lcm_logger()
+    assert {"logger.log", "controller.log"} <= {p.name for p in (run / "logs").iterdir()}

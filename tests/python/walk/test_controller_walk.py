@@ -23,7 +23,7 @@ from marionette import (
 )
 from marionette.control.replay_cli import replay_controller
 from marionette.execution.walking import walking_spec
-from marionette.scenarios.harness import lcm_logger
+from marionette.lcm_bus import logger_command
 from tests_support import controller_running
 
 TALOS = robots.robot("talos")
@@ -70,7 +70,7 @@ def test_controller_walks_a_plan_and_reports_its_zmp(build_dir, lcm_url, tmp_pat
     states: list = []
     log = tmp_path / "walk.lcmlog"
     logger = subprocess.Popen(
-        [lcm_logger(), f"--lcm-url={lcm_url}", "-f", str(log)],
+        logger_command(lcm_url, log),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.PIPE,
     )
