@@ -287,9 +287,13 @@ VISUAL_APPROACH_WAYPOINTS: dict[str, str] = {"pregrasp": "pbvs"}
 
 def approached_handle(step: Step, gripper: str) -> str | None:
     """The handle ``gripper`` moves to in ``step`` when the step approaches a grasp (leads to its
-    pre-grasp or to the grasp itself, the gripper holding nothing yet), None otherwise."""
+    pre-grasp or to the grasp itself, the gripper holding nothing yet), None otherwise. The
+    grasp itself is the waypoint ``intersec`` when the object also leaves its placement there, or
+    the grasp's own state when it does not (a hand-over: the other gripper holds it)."""
     if gripper in step.grasps or gripper in step.grasps_from:
         return None
+    if gripper in step.created:
+        return step.grasps_to[gripper]
     if step.to_state.rsplit("_", 1)[-1] not in ("pregrasp", "intersec"):
         return None
     return step.grasps_to.get(gripper) or step.parent_grasps_to.get(gripper)

@@ -44,6 +44,21 @@ and the whole approach is streamed as R(t) = L P(t), L = P_e C P_e^-1: moved rig
 object in the world (left), so that the last centimetres still run along the measured handle's
 axis (a right correction would turn them by C's rotation). C integrates as above.
 
+PBVS on a hand-over (§5.3.1: "instead of relying on the perceived position of the first gripper
+to position the second, the controller was directly using the AprilTags on the plank"): a
+gripper approaching the pre-grasp of a handle of an object another gripper holds. Its task is
+relative to the holding gripper H: X_HG(t), and the plank is where the holding hand really has
+it, not where the controller's model of that hand puts it (a wrist at its torque limit sags
+centimetres below its command, while the controller, computing on its commands, reports the
+hand-over converged). A measurement O_m, with the hand H_c(t_i) the controller commanded then,
+says where the object is in the commanded holding hand; the approaching gripper is placed
+relative to the object as planned when the relative reference is streamed as D X_HG(t), with
+
+    D* = H_c(t_i)^-1 O_m X_HO^-1                                             (hand-over)
+
+(X_HO the planned grasp of the holding gripper): a left correction in the holding gripper's
+frame, kept on to the grasp like an approach's, read in the world afterwards.
+
 §5.2.3, after the servoed steps: the last correction is kept ("the planned reference shifted
 using the last information available") while the gripper releases the object, then blended out
 with a C2 ramp over the next step of that gripper, so no controller switch sees a jump. After a
@@ -96,6 +111,7 @@ from marionette.execution.factory import (
     task_error,
     task_jacobian,
     task_name,
+    visual_approach_kind,
 )
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import Rewrite, StepTrajectory
@@ -168,6 +184,13 @@ def approach_fixed_point(X_WE_plan: pin.SE3, X_WO_measured: pin.SE3, X_WO_plan: 
     return X_WE_plan.inverse() * X_WO_measured * X_WO_plan.inverse() * X_WE_plan
 
 
+def handover_fixed_point(X_HO_plan: pin.SE3, X_WO_measured: pin.SE3, X_WH: pin.SE3) -> pin.SE3:
+    """D* = H_c^-1 O_m X_HO^-1: the left correction, in the holding gripper's frame, of a task
+    relative to it that puts the approaching gripper where the plan has it relative to the
+    measured object, given the holding gripper ``X_WH`` commanded at the image time."""
+    return X_WH.inverse() * X_WO_measured * X_HO_plan.inverse()
+
+
 def _objects_touched(step: Step) -> set[str]:
     """The objects a gripper holds at some point of ``step`` (handles are ``object/handle``)."""
     return {
@@ -187,7 +210,9 @@ def servoed_tasks(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> dic
     lean (a transit that splits the placement blended out what the first half had reached)."""
     out: dict[int, set[str]] = {}
     for i, (step, spec) in enumerate(zip(steps, specs)):
-        names = {t.name for t in spec.tasks if t.kind == "pbvs"}
+        names = {t.name for t in spec.tasks if t.kind == "pbvs"} | set(
+            handover_approaches(step, spec)
+        )
         for gripper, handle in step.grasps.items():
             name = task_name(gripper)
             if name in names:
@@ -200,6 +225,26 @@ def servoed_tasks(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> dic
                     break
         if names:
             out[step.index] = names
+    return out
+
+
+def handover_approaches(step: Step, spec: ControllerSpec) -> dict[str, str]:
+    """The relative gripper tasks of ``step`` that approach the pre-grasp of a handle of an object
+    the task's other gripper holds all along the step (a hand-over), servoed like an approach to
+    an object at rest (:data:`factory.VISUAL_APPROACH_WAYPOINTS`): task name -> the holding
+    gripper's frame."""
+    frames = {task_name(g): g for g in step.active_grippers}
+    holders = {h.split("/")[0] for h in step.grasps.values()}
+    out: dict[str, str] = {}
+    for t in spec.tasks:
+        gripper = frames.get(t.name)
+        if t.kind != "relative_se3" or not t.streamed or gripper is None:
+            continue
+        handle = approached_handle(step, gripper)
+        if handle is None or visual_approach_kind(step, gripper) is None:
+            continue
+        if handle.split("/")[0] in holders and t.frame_b:
+            out[t.name] = t.frame_b
     return out
 
 
@@ -315,6 +360,11 @@ class TaskCorrection:
     version: int = 0
     frame: str = ""
     anchor: pin.SE3 | None = None  # set: applied as L = anchor C anchor^-1 on the left
+    # set: the task is relative to this (holding) gripper's frame and C is applied on the left in
+    # it; ``holder_end``: that frame's planned pose at the step's end (where C is read in the
+    # world by the next step: L = holder_end C holder_end^-1)
+    holder: str = ""
+    holder_end: pin.SE3 | None = None
     target: pin.SE3 | None = None  # the filtered fixed point C follows (None: nothing measured)
     moved_utime: int = 0  # controller time C last moved towards the target
     folded: int = 0  # measurements folded into the target
@@ -330,9 +380,16 @@ class TaskCorrection:
         self, values: np.ndarray, derivatives: np.ndarray, C: pin.SE3
     ) -> tuple[np.ndarray, np.ndarray]:
         """Pose rows and twists corrected by ``C`` (a value of this correction)."""
+        if self.holder:
+            return left_multiply(values, derivatives, C)
         if self.anchor is None:
             return right_multiply(values, derivatives, C)
         return left_multiply(values, derivatives, self.anchor * C * self.anchor.inverse())
+
+    def carried(self, C: pin.SE3) -> tuple[pin.SE3, pin.SE3 | None]:
+        """(C, anchor) as the next step of this gripper takes it over: an anchored (world) left
+        correction, or a right one (anchor None)."""
+        return (C, self.holder_end) if self.holder else (C, self.anchor)
 
     def active_at(self, utime: int) -> pin.SE3:
         C = self.C_start
@@ -377,7 +434,8 @@ class VisualServo:
         self._step_start = 0
         # gripper frame -> (last correction, its anchor: None for a held object's right correction)
         self._carried: dict[str, tuple[pin.SE3, pin.SE3 | None]] = {}
-        # (correction, step, object, planned gripper -> object at the step's end, approach)
+        # (correction, step, object, planned gripper -> object at the step's end (a hand-over:
+        # holding gripper -> object), approach)
         self._current: list[tuple[TaskCorrection, Step, str, pin.SE3, bool]] = []
         self.measurements_used = 0
         self.measurements_rejected = 0
@@ -497,7 +555,7 @@ class VisualServo:
             self._touched, self._step_start = touched, start_utime
         for task in spec.tasks:
             if (
-                task.kind not in ("se3", "pbvs")
+                task.kind not in ("se3", "pbvs", "relative_se3")
                 or not task.streamed
                 or task.frame in ("left_sole_link", "right_sole_link")
             ):
@@ -512,7 +570,15 @@ class VisualServo:
                 None if gripper is None or task.name in holds else approached_handle(step, gripper)
             )
             C0, carried_anchor = carried if carried is not None else (pin.SE3.Identity(), None)
-            if not servoed:
+            holder = task.frame_b if task.kind == "relative_se3" else ""
+            if holder:
+                # left in the holding gripper's frame H: what was carried, read in H at the start
+                anchor = None
+                if carried is not None:
+                    H0 = self._planned_pose(traj, holder, 0)
+                    L = self._world_left(C0, carried_anchor, traj, task.frame)
+                    C0 = H0.inverse() * L * H0
+            elif not servoed:
                 anchor = carried_anchor  # kept or blended out as it was
             elif approach is not None:
                 anchor = self._planned_end(traj, task.frame)  # L = P_e C P_e^-1 (module doc)
@@ -538,7 +604,11 @@ class VisualServo:
             # (after the grasp the object goes where the hand goes), so it blends out as after any
             # grasp, until the camera measures the object in the hand.
             blend_until_measured = (
-                servoed and task.kind != "pbvs" and carried_anchor is not None and not at_contact
+                servoed
+                and task.kind != "pbvs"
+                and not holder
+                and carried_anchor is not None
+                and not at_contact
             )
             c = TaskCorrection(
                 task.name,
@@ -551,6 +621,8 @@ class VisualServo:
                 [(start_utime, C0)],
                 frame=task.frame,
                 anchor=anchor,
+                holder=holder,
+                holder_end=self._planned_end(traj, holder) if holder else None,
                 moved_utime=start_utime,
                 C_start_measured=not C0.isIdentity() and not blend_until_measured,
             )
@@ -558,14 +630,14 @@ class VisualServo:
             handle = holds[task.name] if task.name in holds else approach
             if servoed and gripper is not None and handle is not None:
                 obj = handle.split("/")[0]
-                X_GO = self._planned_grasp(traj, task.frame, obj)
+                X_GO = self._planned_grasp(traj, holder or task.frame, obj)
                 self._current.append((c, step, obj, X_GO, approach is not None))
                 if approach is not None:
                     with self._lock:  # what the camera saw of it at rest comes first
                         self._pending.extend(
                             (u, obj, X, r, True) for u, X, r in self._at_rest.get(obj, [])
                         )
-            self._carried[task.frame] = (pin.SE3.Identity(), None) if blend else (C0, anchor)
+            self._carried[task.frame] = (pin.SE3.Identity(), None) if blend else c.carried(C0)
         return corrections
 
     def end_step(self, corrections: list[TaskCorrection]) -> None:
@@ -573,8 +645,17 @@ class VisualServo:
             if c.servoed:
                 # a ramp no measurement interrupted ended on the plan
                 self._carried[c.frame] = (
-                    (pin.SE3.Identity(), None) if c.blend_out else (c.C, c.anchor)
+                    (pin.SE3.Identity(), None) if c.blend_out else c.carried(c.C)
                 )
+
+    def _world_left(
+        self, C: pin.SE3, anchor: pin.SE3 | None, traj: StepTrajectory, frame: str
+    ) -> pin.SE3:
+        """A carried correction as the world-frame left correction L it amounts to at this
+        step's start: A C A^-1 when anchored, else P0 C P0^-1 (a right correction of the planned
+        pose P0 of ``frame``)."""
+        A = anchor if anchor is not None else self._planned_pose(traj, frame, 0)
+        return A * C * A.inverse()
 
     def _planned_end(self, traj: StepTrajectory, frame: str) -> pin.SE3:
         """P_e: the planned pose of ``frame`` at the step's end (world)."""
@@ -631,7 +712,14 @@ class VisualServo:
                     X_WO_plan = self.robot_map.object_pose(
                         traj.q_plan[min(k, len(traj.q_plan) - 1)], obj
                     )
-                    C_star = approach_fixed_point(c.anchor, X_WO, X_WO_plan)
+                    if c.holder:
+                        X_WH = self._commanded_holder(c.holder, traj, k, utime)
+                        if X_WH is None:
+                            self.measurements_hand_off_command += 1
+                            continue
+                        C_star = handover_fixed_point(X_GO, X_WO, X_WH)
+                    else:
+                        C_star = approach_fixed_point(c.anchor, X_WO, X_WO_plan)
                 else:
                     X_WH = self._commanded_hand(c, P, k, utime, dt_us)
                     if X_WH is None:
@@ -701,6 +789,19 @@ class VisualServo:
         ):
             return None
         return commanded
+
+    def _commanded_holder(
+        self, frame: str, traj: StepTrajectory, k: int, utime: int
+    ) -> pin.SE3 | None:
+        """The holding gripper the controller commanded at ``utime``: what its relative tasks
+        are computed on. Unlike a carry's (:meth:`_commanded_hand`) it is used however far the
+        encoders put the hand from it: that distance (a wrist sagging at its torque limit) is what
+        a hand-over must see. None when no state and command came then; without robot states
+        at all (no robot map), the planned pose."""
+        if self._states is None or not self._states.has_state():
+            return self._planned_pose(traj, frame, min(k, len(traj.q) - 1))
+        poses = self._hand_poses(frame, utime)
+        return None if poses is None else poses[1]
 
     def _take_pending(self) -> list[tuple[int, str, pin.SE3, float, bool]]:
         """The measurements received since the last call; those of an object no gripper

@@ -69,6 +69,7 @@ from marionette.execution.visual_servo import (
     Lean,
     ObjectView,
     gaze_rewrite,
+    handover_approaches,
     looks_before_approach,
     servoed_tasks,
 )
@@ -834,14 +835,14 @@ def _refused(report: dict[str, Any], out_dir: Path, reason: str) -> dict[str, An
 
 
 def _servo_timing(scenario: PlanAndExecute) -> Callable[[Any, Any], StepTiming]:
-    """How the servoed steps are played: ``servo_slowdown`` slower than the plan's time law (the
-    camera delivers ~2 frames/s of controller time here, software rendering on shared cores:
-    several measurements must reach each servoed step), then, at a pre-grasp / pre-placement, a
-    ``servo_dwell_s`` wait for the correction (3 cm/s, 0.3 rad/s) to converge before the gripper
-    goes into contact."""
+    """How the servoed steps (a pbvs task, a hand-over's approach) are played: ``servo_slowdown``
+    slower than the plan's time law (the camera delivers ~2 frames/s of controller time here,
+    software rendering on shared cores: several measurements must reach each servoed step), then,
+    at a pre-grasp / pre-placement, a ``servo_dwell_s`` wait for the correction (3 cm/s,
+    0.3 rad/s) to converge before the gripper goes into contact."""
 
     def timing(step: Any, spec: Any) -> StepTiming:
-        if not any(t.kind == "pbvs" for t in spec.tasks):
+        if not any(t.kind == "pbvs" for t in spec.tasks) and not handover_approaches(step, spec):
             return StepTiming()
         waypoint = step.to_state.endswith(("_pregrasp", "_preplace"))
         return StepTiming(scenario.servo_slowdown, scenario.servo_dwell_s if waypoint else 0.0)

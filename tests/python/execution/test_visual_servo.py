@@ -20,6 +20,7 @@ from marionette.execution.visual_servo import (
     TaskCorrection,
     approach_fixed_point,
     correction_fixed_point,
+    handover_fixed_point,
     head_gaze_posture,
     left_multiply,
     right_multiply,
@@ -76,6 +77,22 @@ def test_approach_fixed_point_moves_the_whole_approach_with_the_object():
         assert np.allclose(
             approach_fixed_point(P_e, O_plan, O_plan).homogeneous, np.eye(4), atol=1e-12
         )
+
+
+def test_handover_fixed_point_puts_the_approaching_gripper_where_the_plan_has_it_on_the_object():
+    """§5.3.1, the hand-over: the object is anywhere in the holding hand the controller commands
+    (H_c: the real hand sags below it, the grasp slipped: one unknown map B). Streamed relative
+    to H as D* X_HG(t), every sample of the approach keeps the planned pose relative to the
+    measured object, whatever B, H_c and the planned grasps."""
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        H_c, X_HO, B = _random_pose(rng), _random_pose(rng, 0.1), _random_pose(rng, 0.1, 0.5)
+        O_m = H_c * B
+        D = handover_fixed_point(X_HO, O_m, H_c)
+        for X_HG in (_random_pose(rng, 0.3) for _ in range(3)):
+            G = H_c * D * X_HG  # the approaching gripper once its relative reference is tracked
+            planned = X_HO.inverse() * X_HG  # gripper relative to the object, as planned
+            assert np.allclose((O_m.inverse() * G).homogeneous, planned.homogeneous, atol=1e-9)
 
 
 def test_step_toward_respects_its_limits_and_reaches_the_target():
@@ -658,7 +675,7 @@ def test_the_carry_to_a_servoed_placement_is_servoed_under_the_same_grasp(talos_
     a gripper task in every step of the grasp that carries the object to a servoed placement —
     the whole last carry of the plank, its first step included (where the slip happens) — and
     nothing else: the right gripper's carry to the hand-over leads to no servoed placement."""
-    from marionette.execution.visual_servo import servoed_tasks
+    from marionette.execution.visual_servo import handover_approaches, servoed_tasks
     from marionette.scenarios.plan_and_execute import last_carry_step
 
     steps, specs = talos_plank.steps, _visual(talos_plank)
@@ -666,7 +683,9 @@ def test_the_carry_to_a_servoed_placement_is_servoed_under_the_same_grasp(talos_
     for step, spec in zip(steps, specs):
         names = servoed.get(step.index, set())
         assert {t.name for t in spec.tasks if t.kind == "pbvs"} <= names
-        for name in names - {t.name for t in spec.tasks if t.kind == "pbvs"}:
+        assert set(handover_approaches(step, spec)) <= names
+        pbvs = {t.name for t in spec.tasks if t.kind == "pbvs"}
+        for name in names - pbvs - set(handover_approaches(step, spec)):
             gripper = f"talos/{name}"
             handle = step.grasps[gripper]  # it holds the object all along the step
             later = [(s, sp) for s, sp in zip(steps[step.index + 1 :], specs[step.index + 1 :])]
@@ -884,3 +903,74 @@ def test_the_hand_measured_and_commanded_at_an_image_time_against_forward_kinema
     pin.framesForwardKinematics(model, data, q_cmd)
     assert np.allclose(commanded.homogeneous, data.oMf[fid].homogeneous, atol=1e-12)
     assert servo._hand_poses(frame, 1_050_000) is None
+
+
+def test_the_hand_over_is_servoed_on_the_object_in_the_holding_hand(talos_plank):
+    """The left gripper's approach to the plank the right one holds is servoed (its task is
+    relative to the right gripper): the plank seen off in the right hand (a sagging wrist, a
+    slip) moves the approach with it, D* reached by ``approach_settle`` of the step; the grasp
+    that follows keeps D (the plan resumed, shifted), and once the left hand holds the plank
+    alone its absolute task starts where the relative one ended: no jump."""
+    from marionette.execution.visual_servo import handover_approaches
+
+    p = talos_plank
+    specs = _visual(p)
+    handovers = [(s.index, handover_approaches(s, spec)) for s, spec in zip(p.steps, specs)]
+    handovers = [(i, h) for i, h in handovers if h]
+    assert handovers, "the plank plan hands the plank over"
+    right = p.ctx.gripper_frames["talos/right_gripper"]
+    assert all(h == {"left_gripper": right} for _, h in handovers)
+    approach = handovers[-1][0]
+    grasp = approach + 1
+    alone = next(s.index for s in p.steps[grasp:] if "talos/right_gripper" not in s.grasps)
+    assert p.steps[grasp].grasps_to.get("talos/left_gripper") == "plank/H4"
+    servo, bus, specs, trajs = _servo_on(p, [approach, grasp, alone])
+    o = servo.options
+
+    start = 1_000_000
+    (c,) = [
+        c for c in servo.begin_step(p.steps[approach], specs[approach], start, 1000) if c.holder
+    ]
+    assert c.servoed and c.holder == right and c.anchor is None and c.task == "left_gripper"
+    # without robot states the holding hand is its planned pose at the image time
+    B = pin.SE3(
+        pin.exp3(np.radians(6.0) * np.array([0.2, 1.0, 0.1])), np.array([0.0, -0.04, -0.05])
+    )
+    traj = trajs[approach]
+    X_HO = servo._planned_grasp(traj, right, "plank")
+    expected = None
+    previous = c.C
+    for now in range(start, start + 2_000_000, 1000):
+        if (now - start) % 33_000 == 0:
+            k = min((now - start) // 1000, traj.num_samples - 1)
+            H = servo._planned_pose(traj, right, k)
+            seen = H * X_HO * B  # the plank off by B in the right hand
+            expected = handover_fixed_point(X_HO, seen, H)
+            bus.send(now, "plank", seen)
+        servo.update(traj.references, 1000, now)
+        moved = pin.log6(previous.actInv(c.C)).vector
+        assert np.linalg.norm(moved[:3]) <= o.max_approach_speed * 1e-3 + 1e-9
+        assert np.linalg.norm(moved[3:]) <= o.max_approach_angular_speed * 1e-3 + 1e-9
+        previous = c.C
+    assert np.allclose(expected.homogeneous, (X_HO * B * X_HO.inverse()).homogeneous, atol=1e-9)
+    assert np.allclose(c.C.homogeneous, expected.homogeneous, atol=1e-6)
+    # streamed: the left gripper relative to the right, corrected on the left in its frame
+    values, derivatives = traj.references[c.task]
+    corrected, _ = c.apply(values[-1:], derivatives[-1:], c.C)
+    assert np.allclose(_pose(corrected[0]).homogeneous, (c.C * _pose(values[-1])).homogeneous)
+    servo.end_step([c])
+
+    (g,) = [c for c in servo.begin_step(p.steps[grasp], specs[grasp], 2 * start, 1000) if c.holder]
+    assert not g.servoed and not g.blend_out
+    assert np.allclose(g.C.homogeneous, c.C.homogeneous, atol=1e-9)
+    servo.end_step([g])
+    H_end = servo._planned_end(trajs[grasp], right)
+    X_HG_end = _pose(trajs[grasp].references["left_gripper"][0][-1])
+    world_end = H_end * g.C * X_HG_end
+
+    corrections = servo.begin_step(p.steps[alone], specs[alone], 3 * start, 1000)
+    (a,) = [c for c in corrections if c.task == "left_gripper"]
+    assert not a.holder
+    P0 = _pose(trajs[alone].references["left_gripper"][0][0])
+    world_start, _ = a.apply(_rows([P0]), np.zeros((1, 6)), a.at_sample(0, 1000))
+    assert np.allclose(_pose(world_start[0]).homogeneous, world_end.homogeneous, atol=1e-6)
