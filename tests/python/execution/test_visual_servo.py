@@ -974,3 +974,33 @@ def test_the_hand_over_is_servoed_on_the_object_in_the_holding_hand(talos_plank)
     P0 = _pose(trajs[alone].references["left_gripper"][0][0])
     world_start, _ = a.apply(_rows([P0]), np.zeros((1, 6)), a.at_sample(0, 1000))
     assert np.allclose(_pose(world_start[0]).homogeneous, world_end.homogeneous, atol=1e-6)
+
+
+def test_the_torso_leans_where_the_servo_looks_but_not_for_a_hand_over_alone(talos_plank):
+    """The gaze leans the torso on the servoed steps and before an approach to an object at
+    rest, never on a step whose only servoed task is a hand-over's approach (the holding hand
+    would lean out in front with the object)."""
+    from marionette.execution.visual_servo import (
+        handover_approaches,
+        looks_before_approach,
+        servoed_tasks,
+    )
+    from marionette.planning.problem import load_problem
+    from marionette.scenarios.plan_and_execute import _lean_for_view
+
+    p = talos_plank
+    specs = _visual(p)
+    problem = load_problem(p.plan.doc["problem"]["source"])
+    lean = _lean_for_view("talos", "plank", p.steps, specs, problem, p.robot_map, p.ctx)
+    assert lean is not None
+    handover_only = {
+        s.index
+        for s, spec in zip(p.steps, specs)
+        if handover_approaches(s, spec)
+        and servoed_tasks(p.steps, specs).get(s.index) == set(handover_approaches(s, spec))
+    }
+    assert handover_only, "the plank plan's hand-over approaches are servoed"
+    expected = (set(servoed_tasks(p.steps, specs)) - handover_only) | looks_before_approach(
+        p.steps, specs
+    )
+    assert set(lean.held) == expected and not handover_only & set(lean.held)
