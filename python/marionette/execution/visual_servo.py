@@ -154,6 +154,11 @@ class ServoOptions:
     noise_position_m: float = 0.0  # [m] sigma per axis
     noise_angle_rad: float = 0.0  # [rad] sigma per axis
     seed: int = 0
+    # Servo a hand-over's approach on the object in the holding hand (:func:`handover_approaches`).
+    # Off by default: on welded grasps it followed a holding wrist sagging 8 cm / 21 deg at its
+    # torque limit, and the receiving arm's swing moved the stance (plank plan 116: the feet 29 mm
+    # off their tasks); friction grasps, which miss the handle without it, turn it on.
+    handovers: bool = False
     lead_us: int = 20_000  # corrected samples re-sent from now + lead
     refresh_us: int = 50_000  # at most one re-send per this much controller time
 
@@ -200,7 +205,9 @@ def _objects_touched(step: Step) -> set[str]:
     }
 
 
-def servoed_tasks(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> dict[int, set[str]]:
+def servoed_tasks(
+    steps: Sequence[Step], specs: Sequence[ControllerSpec], handovers: bool = False
+) -> dict[int, set[str]]:
     """Step index -> the gripper tasks whose reference vision corrects in that step: the
     factory's ``pbvs`` tasks (a servoed approach, a servoed placement) and, before a servoed
     placement, the task of the gripper that carries the object to it under the same grasp. The
@@ -210,9 +217,9 @@ def servoed_tasks(steps: Sequence[Step], specs: Sequence[ControllerSpec]) -> dic
     lean (a transit that splits the placement blended out what the first half had reached)."""
     out: dict[int, set[str]] = {}
     for i, (step, spec) in enumerate(zip(steps, specs)):
-        names = {t.name for t in spec.tasks if t.kind == "pbvs"} | set(
-            handover_approaches(step, spec)
-        )
+        names = {t.name for t in spec.tasks if t.kind == "pbvs"}
+        if handovers:
+            names |= set(handover_approaches(step, spec))
         for gripper, handle in step.grasps.items():
             name = task_name(gripper)
             if name in names:
@@ -427,7 +434,7 @@ class VisualServo:
         self._lock = threading.Lock()
         # (image utime, object, pose in world, reprojection error [px], from the at-rest store)
         self._pending: list[tuple[int, str, pin.SE3, float, bool]] = []
-        self._servoed = servoed_tasks(steps, specs)
+        self._servoed = servoed_tasks(steps, specs, self.options.handovers)
         # object nobody has touched since -> its latest measurements (utime, pose, reprojection)
         self._at_rest: dict[str, list[tuple[int, pin.SE3, float]]] = {}
         self._touched: set[str] = set()  # objects a gripper holds in the current step

@@ -503,7 +503,8 @@ def run_plan_and_execute(
         max_joint_velocity=scenario.max_joint_velocity,
         simulated_grasps=not scenario.friction_grasps_in(options),
     )
-    timing = _servo_timing(scenario) if scenario.vision else None
+    handovers = scenario.friction_grasps_in(options)  # servoed (ServoOptions.handovers)
+    timing = _servo_timing(scenario, handovers) if scenario.vision else None
     from marionette.planning.problem import load_problem
 
     problem = load_problem(plan.doc["problem"]["source"])  # the lean's checker and the graph
@@ -661,12 +662,13 @@ def run_plan_and_execute(
             from marionette.execution.visual_servo import ServoOptions, VisualServo
 
             servo_options = (
-                ServoOptions()
+                ServoOptions(handovers=handovers)
                 if perturbation is None
                 else ServoOptions(
                     noise_position_m=perturbation.camera_noise_m,
                     noise_angle_rad=perturbation.camera_noise_rad,
                     seed=perturbation.seed,
+                    handovers=handovers,
                 )
             )
             servo = VisualServo(
@@ -803,7 +805,7 @@ def _lean_for_view(
     by_index = {s.index: (s, spec) for s, spec in zip(steps, specs)}
     looking = {
         i
-        for i, names in servoed_tasks(steps, specs).items()
+        for i, names in servoed_tasks(steps, specs, handovers=True).items()
         if names - set(handover_approaches(*by_index[i]))
     } | looks_before_approach(steps, specs)
     held = {}
@@ -842,7 +844,7 @@ def _refused(report: dict[str, Any], out_dir: Path, reason: str) -> dict[str, An
     return report
 
 
-def _servo_timing(scenario: PlanAndExecute) -> Callable[[Any, Any], StepTiming]:
+def _servo_timing(scenario: PlanAndExecute, handovers: bool) -> Callable[[Any, Any], StepTiming]:
     """How the servoed steps (a pbvs task, a hand-over's approach) are played: ``servo_slowdown``
     slower than the plan's time law (the camera delivers ~2 frames/s of controller time here,
     software rendering on shared cores: several measurements must reach each servoed step), then,
@@ -850,7 +852,8 @@ def _servo_timing(scenario: PlanAndExecute) -> Callable[[Any, Any], StepTiming]:
     0.3 rad/s) to converge before the gripper goes into contact."""
 
     def timing(step: Any, spec: Any) -> StepTiming:
-        if not any(t.kind == "pbvs" for t in spec.tasks) and not handover_approaches(step, spec):
+        servoed_handover = handovers and handover_approaches(step, spec)
+        if not any(t.kind == "pbvs" for t in spec.tasks) and not servoed_handover:
             return StepTiming()
         waypoint = step.to_state.endswith(("_pregrasp", "_preplace"))
         return StepTiming(scenario.servo_slowdown, scenario.servo_dwell_s if waypoint else 0.0)

@@ -679,11 +679,13 @@ def test_the_carry_to_a_servoed_placement_is_servoed_under_the_same_grasp(talos_
     from marionette.scenarios.plan_and_execute import last_carry_step
 
     steps, specs = talos_plank.steps, _visual(talos_plank)
-    servoed = servoed_tasks(steps, specs)
+    servoed = servoed_tasks(steps, specs, handovers=True)
+    welded = servoed_tasks(steps, specs)  # hand-overs servoed with friction grasps only
     for step, spec in zip(steps, specs):
         names = servoed.get(step.index, set())
         assert {t.name for t in spec.tasks if t.kind == "pbvs"} <= names
         assert set(handover_approaches(step, spec)) <= names
+        assert welded.get(step.index, set()) == names - set(handover_approaches(step, spec))
         pbvs = {t.name for t in spec.tasks if t.kind == "pbvs"}
         for name in names - pbvs - set(handover_approaches(step, spec)):
             gripper = f"talos/{name}"
@@ -705,7 +707,7 @@ def test_the_carry_to_a_servoed_placement_is_servoed_under_the_same_grasp(talos_
     assert right_carry and not any("right_gripper" in servoed.get(i, ()) for i in right_carry)
 
 
-def _servo_on(planned, indices):
+def _servo_on(planned, indices, options=None):
     from marionette.execution.references import compute_references, sample_step
     from marionette.execution.visual_servo import VisualServo
 
@@ -715,7 +717,9 @@ def _servo_on(planned, indices):
         trajs[i] = sample_step(planned.steps[i], planned.robot_map, 1e-3, 0.5, 0.5)
         compute_references(trajs[i], specs[i], planned.model)
     bus = _Bus()
-    servo = VisualServo(bus, planned.steps, specs, planned.robot_map, trajs, ServoOptions())
+    servo = VisualServo(
+        bus, planned.steps, specs, planned.robot_map, trajs, options or ServoOptions()
+    )
     return servo, bus, specs, trajs
 
 
@@ -924,7 +928,7 @@ def test_the_hand_over_is_servoed_on_the_object_in_the_holding_hand(talos_plank)
     grasp = approach + 1
     alone = next(s.index for s in p.steps[grasp:] if "talos/right_gripper" not in s.grasps)
     assert p.steps[grasp].grasps_to.get("talos/left_gripper") == "plank/H4"
-    servo, bus, specs, trajs = _servo_on(p, [approach, grasp, alone])
+    servo, bus, specs, trajs = _servo_on(p, [approach, grasp, alone], ServoOptions(handovers=True))
     o = servo.options
 
     start = 1_000_000
@@ -997,10 +1001,10 @@ def test_the_torso_leans_where_the_servo_looks_but_not_for_a_hand_over_alone(tal
         s.index
         for s, spec in zip(p.steps, specs)
         if handover_approaches(s, spec)
-        and servoed_tasks(p.steps, specs).get(s.index) == set(handover_approaches(s, spec))
+        and servoed_tasks(p.steps, specs, True).get(s.index) == set(handover_approaches(s, spec))
     }
     assert handover_only, "the plank plan's hand-over approaches are servoed"
-    expected = (set(servoed_tasks(p.steps, specs)) - handover_only) | looks_before_approach(
+    expected = (set(servoed_tasks(p.steps, specs, True)) - handover_only) | looks_before_approach(
         p.steps, specs
     )
     assert set(lean.held) == expected and not handover_only & set(lean.held)
