@@ -7,7 +7,8 @@ each command echoes its state's sequence and time; a spec moves the robot; every
 misordered state (NaN, lying sizes, missing or unknown joints, a duplicate, an older sequence, a
 clock that goes back or jumps) is refused, counted under its reason, never answered, and holds
 the robot with the reason in CONTROLLER_STATUS — and the next good state is answered; a silent
-driver holds the robot ("driver silent"); a driven run recorded with marionette-logger replays exactly."""
+driver holds the robot ("driver silent"); a driven run recorded with marionette-logger replays
+exactly."""
 
 from __future__ import annotations
 

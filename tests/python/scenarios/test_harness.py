@@ -1,7 +1,7 @@
 """The one run sequence of a trial: a trial that fails or is interrupted leaves a partial report,
 the runtime's failures reach the user as ScenarioError, options a kind does not take are refused;
-with real processes (marionette-controller, marionette-logger), Ctrl-C in the middle of a trial stops
-every process of the group and leaves the partial report beside the recorded log."""
+with real processes (marionette-controller, marionette-logger), Ctrl-C in the middle of a trial
+stops every process of the group and leaves the partial report beside the recorded log."""
 
 from __future__ import annotations
 
