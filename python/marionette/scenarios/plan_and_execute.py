@@ -799,15 +799,11 @@ def _lean_for_view(
     )
     # where the servo uses what the camera sees: the servoed steps, and the step before an
     # approach to an object at rest (the reaching hand may hide it during the approach). Not a
-    # hand-over's approach alone: leaning the torso there moves the hand that holds the object
-    # out in front with it (plan 116: 0.35 rad, the feet 31 mm off their tasks and the holding
-    # hand 70 mm, the step's end check failed); the servo takes what the head sees unleaned.
-    by_index = {s.index: (s, spec) for s, spec in zip(steps, specs)}
-    looking = {
-        i
-        for i, names in servoed_tasks(steps, specs, handovers=True).items()
-        if names - set(handover_approaches(*by_index[i]))
-    } | looks_before_approach(steps, specs)
+    # hand-over's approach (servoed or not: ``servoed_tasks`` leaves them out here): leaning the
+    # torso there moves the hand that holds the object out in front with it (plan 116: 0.35 rad,
+    # the feet 31 mm off their tasks and the holding hand 70 mm, the step's end check failed);
+    # the servo takes what the head sees unleaned.
+    looking = set(servoed_tasks(steps, specs)) | looks_before_approach(steps, specs)
     held = {}
     for step, spec in zip(steps, specs):
         if step.index in looking:
