@@ -158,8 +158,12 @@ int main(int argc, char** argv) {
   std::signal(SIGTERM, OnSignal);
 
   int64_t flushed_us = NowUs();
+  int receive_errno = 0;  // a failed receive's errno (0: none; a stop signal's EINTR is none)
   while (!g_stop) {
-    if (lcm_handle_timeout(lcm, kWaitMs) < 0) break;
+    if (lcm_handle_timeout(lcm, kWaitMs) < 0 && !g_stop && errno != EINTR) {
+      receive_errno = errno != 0 ? errno : EIO;
+      break;
+    }
     if (const int64_t now = NowUs(); now - flushed_us >= kFlushUs) {
       std::fflush(logger.log->f);
       flushed_us = now;
@@ -171,6 +175,11 @@ int main(int argc, char** argv) {
   lcm_unsubscribe(lcm, subscription);
   lcm_eventlog_destroy(logger.log);
   lcm_destroy(lcm);
+  if (receive_errno != 0) {
+    std::fprintf(stderr, "marionette-logger: receiving from LCM failed after %lld messages: %s\n",
+                 static_cast<long long>(logger.written), std::strerror(receive_errno));
+    return 1;
+  }
   if (logger.write_errno != 0) {
     std::fprintf(stderr, "marionette-logger: writing %s failed after %lld messages: %s\n",
                  options.file.c_str(), static_cast<long long>(logger.written),
