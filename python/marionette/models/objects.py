@@ -119,7 +119,8 @@ class Plank(ObjectSpec):
     Handles pinch the 43 mm thickness (fingers on the tag faces),
     approaching across the width (y): H1, H2 on the top half (x > 0), from -y and from +y
     (rotated 180 deg about the plank axis); H3, H4 the same on the bottom half, so a gripper
-    can still take the plank once it stands upside down.
+    can still take the plank once it stands upside down; H5-H8 are H1-H4 turned about their
+    approach (the squeeze towards -z).
     """
 
     name: str = "plank"
@@ -144,9 +145,16 @@ class Plank(ObjectSpec):
         ex, ey, ez = np.eye(3)
         handles = []
         for name, x, approach in (("H1", 1, ey), ("H2", 1, -ey), ("H3", -1, ey), ("H4", -1, -ey)):
-            X = frame(approach, ez, [x * self.handle_offset, 0, 0])  # z = approach x e_z = +/- e_x
-            # Clearance 8 cm (Agimus' plank_of_wood1): the handle sits 5.8 cm deep in the plank.
-            handles.append(Handle(f"plank/{name}", LINK, Placement.from_matrix(X), clearance=0.08))
+            # H5-H8: H1-H4 turned 180 deg about their approach, the jaws' sides swapped. The same
+            # pinch for a gripper with alike jaws; one whose jaws differ (TALOS: two fingertips
+            # against one) bears a level plank's weight on its two fingertips only from below.
+            turned = f"H{int(name[1]) + 4}"
+            for handle, squeeze in ((name, ez), (turned, -ez)):
+                X = frame(approach, squeeze, [x * self.handle_offset, 0, 0])
+                # Clearance 8 cm (Agimus' plank_of_wood1): the handle sits 5.8 cm deep.
+                handles.append(
+                    Handle(f"plank/{handle}", LINK, Placement.from_matrix(X), clearance=0.08)
+                )
         tags = [
             Tag(10, TAG_FAMILY, self.tag_size, LINK, tag_frame([-self.tag_x, 0, c], ez, ex)),
             Tag(11, TAG_FAMILY, self.tag_size, LINK, tag_frame([self.tag_x, 0, c], ez, ex)),
