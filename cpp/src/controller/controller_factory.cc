@@ -280,6 +280,9 @@ std::unique_ptr<BuiltController> ControllerFactory::Build(
           f.effort_input().SetValue(Eigen::VectorXd::Zero(model_->nv));
         }
         if (sockets_.q_measured) edit.Connect(*sockets_.q_measured, f.q_measured_input());
+        if (sockets_.applied_velocity) {
+          edit.Connect(*sockets_.applied_velocity, f.applied_velocity_input());
+        }
         auto& task = add(edit.Add<sot::Task>(prefix + t.name, f, sot::Gain::Constant(gain)));
         by_priority[t.priority].push_back(&task);
         built->task_names.push_back(t.name);

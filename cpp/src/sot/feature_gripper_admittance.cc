@@ -81,6 +81,8 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   effort_ = &DeclareInput<Eigen::VectorXd>("effort", Eigen::VectorXd::Zero(model_->nv));
   q_measured_ =
       &DeclareParameter<Eigen::VectorXd>("q_measured", pinocchio::neutral(*model_), false);
+  applied_velocity_ = &DeclareParameter<Eigen::VectorXd>("applied_velocity",
+                                                         Eigen::VectorXd::Zero(model_->nv), false);
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
   // A releasing task that waits first starts by holding what the previous controller held.
@@ -90,17 +92,22 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   Eigen::VectorXd initial(7);
   initial << static_cast<double>(first), 0.0, 0.0, 0.0, 0.0, 0.0, options_.force_target;
   force_ = &DeclareOutput<double>("force", 0.0, &FeatureGripperAdmittance::CalcForce, {effort_});
-  machine_ =
-      &DeclareState<Eigen::VectorXd>("machine", initial, &FeatureGripperAdmittance::UpdateMachine,
-                                     {kinematics_, force_, position_target_, release_});
+  machine_ = &DeclareState<Eigen::VectorXd>(
+      "machine", initial, &FeatureGripperAdmittance::UpdateMachine,
+      {kinematics_, force_, position_target_, release_, applied_velocity_});
   force_filtered_ = &DeclareOutput<double>(
       "force_filtered", 0.0, &FeatureGripperAdmittance::CalcForceFiltered, {machine_, force_});
   phase_ = &DeclareOutput<double>("phase", initial[kPhase], &FeatureGripperAdmittance::CalcPhase,
                                   {machine_});
   measured_position_ = &DeclareOutput<double>(
       "measured_position", 0.0, &FeatureGripperAdmittance::CalcMeasuredPosition, {q_measured_});
-  DeclareTermsOutput(
-      {effort_, position_target_, machine_, force_, force_filtered_, phase_, measured_position_});
+  DeclareTermsOutput({effort_, position_target_, machine_, force_, force_filtered_, phase_,
+                      measured_position_, applied_velocity_});
+}
+
+double FeatureGripperAdmittance::RampRateNow(const graph::Tick& t, const Eigen::VectorXd& x) const {
+  if (x[kPrimed] != 0.0) return x[kRampRate];
+  return std::clamp(applied_velocity_->Eval(t)[iv_], -options_.speed, options_.speed);
 }
 
 double FeatureGripperAdmittance::RampRate(double r, double rate, double target) const {
@@ -163,9 +170,9 @@ void FeatureGripperAdmittance::ComputeFull(const graph::Tick& t, const Kinematic
     full->drift[0] = 0.0;
   } else {
     const double r =
-        x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is, at rest
+        x[kPrimed] != 0.0 ? x[kRamp] : q;  // the ramp starts where the joint is, as it moves
     full->error[0] = q - r;
-    full->drift[0] = -RampRate(r, x[kRampRate], position_target_->Eval(t));
+    full->drift[0] = -RampRate(r, RampRateNow(t, x), position_target_->Eval(t));
   }
 }
 
@@ -180,7 +187,7 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   const double target = position_target_->Eval(t);
   int phase = static_cast<int>(x[kPhase]);
   double r = x[kPrimed] != 0.0 ? x[kRamp] : q;
-  double rate = x[kRampRate];
+  double rate = RampRateNow(t, x);
   if (IsAdmittance(phase)) {
     // Where the command goes this tick (v = −λ e of ComputeFull), so a switch back to position
     // control starts its ramp on the joint and at its speed: no jump in the error or the command.

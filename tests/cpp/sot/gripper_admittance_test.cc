@@ -259,6 +259,41 @@ TEST(GripperAdmittanceTest, ReleasingControllerStartsWithoutACommandStep) {
   EXPECT_NE(bench.Phase(), 1.0);
 }
 
+TEST(GripperAdmittanceTest, AControllerSwitchedInWhileTheFingersCloseGoesOnClosing) {
+  // Fingers still short of the object (or the kinematic backend, where nothing stops them) when
+  // the next controller is switched in: its closing task's ramp used to start at rest, a command
+  // step of the ramp's speed (0.1 rad/s, exactly the switch's jump bound, which refused it). It
+  // starts at the speed the joint was commanded the tick before instead.
+  Bench bench(/*with_block=*/false);
+  while (bench.tick.index < 3000) bench.Step();
+  const double speed = bench.feature->options().speed;
+  const double closing = bench.command;  // the applied command of the last tick
+  ASSERT_NEAR(closing, -speed, 1e-6) << "the ramp at full speed";
+  const Eigen::VectorXd q = bench.feature->kinematics_input().Eval(bench.tick).q();
+  for (const bool told : {false, true}) {
+    graph::GraphBuilder b;
+    auto& robot = b.Add<RobotModel>("robot", bench.model);
+    auto& next = b.Add<FeatureGripperAdmittance>("next", bench.model, "gripper_right_joint",
+                                                 kClosed, false, GripperAdmittanceOptions{});
+    b.Connect(robot.kinematics_output(), next.kinematics_input());
+    robot.configuration_input().SetValue(q);
+    next.effort_input().SetValue(Eigen::VectorXd::Zero(1));
+    if (told) next.applied_velocity_input().SetValue(Eigen::VectorXd::Constant(1, closing));
+    auto graph = b.Build();
+    const graph::Tick first{0, 0.0, 1e-3};  // pulled, not committed: the state is the initial
+    const FeatureTerms& terms = next.terms_output().Eval(first);
+    const double ramp_rate = -terms.drift[0];  // the task's command v = ṙ − λ e, e = 0 here
+    EXPECT_EQ(terms.error[0], 0.0);
+    const double acceleration_step = next.options().acceleration * 1e-3;
+    if (told) {
+      EXPECT_NEAR(ramp_rate, closing, acceleration_step + 1e-12);
+    } else {  // from rest: the step the switch refused
+      EXPECT_NEAR(ramp_rate, -acceleration_step, 1e-12);
+      EXPECT_GT(std::abs(ramp_rate - closing), 0.99 * speed);
+    }
+  }
+}
+
 TEST(GripperAdmittanceTest, ReleaseAfterHoldsTheGripThatLongFirst) {
   // A hand-over: the releasing gripper keeps squeezing until `release_after` seconds of its task
   // have passed (the other gripper closes meanwhile), then releases as above.

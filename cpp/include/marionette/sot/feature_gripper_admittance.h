@@ -10,8 +10,10 @@
 /// exactly for the period dt:  y_{k+1} = y_k + α (f̂_k − y_k),  α = 1 − exp(−2π f_c dt).
 ///
 /// Phases (the state machine; switch tests on the filtered force y):
-///   0 closing    position control towards `position_target` along a ramp (speed, acceleration);
-///                y > force_threshold → 1
+///   0 closing    position control towards `position_target` along a ramp (speed, acceleration)
+///                that starts where the joint is, at the speed it was commanded the tick before
+///                (applied_velocity: a controller switched in while the fingers still close goes
+///                on closing, with no velocity step); y > force_threshold → 1
 ///   1 holding    admittance   q̇ = s K_a (f* − y)
 ///   2 releasing  admittance   q̇ = s K_a (f_r − y), f_r ramped from the force held to 0 N at
 ///                release_rate;  y < release_force → 3
@@ -27,6 +29,7 @@
 /// reaches the target or the force reaches its target.
 /// @entity  inputs: kinematics (q: the commanded joint), effort (nv, actuator force/torque per
 ///          dof, MujocoDevice.effort), q_measured (nq, for reporting; default: unplugged = none),
+///          applied_velocity (nv, the command applied the tick before; default: at rest),
 ///          position_target (settable), release (bool, settable)
 ///          states: machine (phase, y, r, primed, ṙ, elapsed, f_r)
 ///          outputs: terms, error, jacobian, force (f̂ [N] unfiltered), force_filtered (y [N]),
@@ -74,6 +77,7 @@ class FeatureGripperAdmittance final : public Feature {
 
   graph::InputSignal<Eigen::VectorXd>& effort_input() { return *effort_; }
   graph::InputSignal<Eigen::VectorXd>& q_measured_input() { return *q_measured_; }
+  graph::InputSignal<Eigen::VectorXd>& applied_velocity_input() { return *applied_velocity_; }
   graph::InputSignal<double>& position_target_input() { return *position_target_; }
   graph::InputSignal<bool>& release_input() { return *release_; }
   graph::OutputSignal<double>& force_output() { return *force_; }
@@ -97,6 +101,9 @@ class FeatureGripperAdmittance final : public Feature {
   // ṙ of the position ramp at r (moving at `rate`) towards the target: trapezoidal (|ṙ| <= speed,
   // |r̈| <= acceleration), stopping on the target.
   double RampRate(double r, double rate, double target) const;
+  // The ramp's speed in state x: the state's, or on the first tick the joint's applied velocity
+  // (within ±speed).
+  double RampRateNow(const graph::Tick& t, const Eigen::VectorXd& x) const;
   // Filtered force y this tick: the state, or f̂ itself on the first tick (the filter starts at
   // the current force, so a releasing controller starts from the force being held).
   double FilteredNow(const graph::Tick& t, const Eigen::VectorXd& x) const;
@@ -108,6 +115,7 @@ class FeatureGripperAdmittance final : public Feature {
   int iq_, iv_;
   graph::InputSignal<Eigen::VectorXd>* effort_{};
   graph::InputSignal<Eigen::VectorXd>* q_measured_{};
+  graph::InputSignal<Eigen::VectorXd>* applied_velocity_{};
   graph::InputSignal<double>* position_target_{};
   graph::InputSignal<bool>* release_{};
   graph::OutputSignal<Eigen::VectorXd>* machine_{};  // (phase, y, r, primed, ṙ, elapsed, f_r)
