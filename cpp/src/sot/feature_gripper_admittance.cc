@@ -86,6 +86,7 @@ FeatureGripperAdmittance::FeatureGripperAdmittance(std::string name, ModelPtr mo
   position_target_ = &DeclareParameter<double>("position_target", position_target);
   release_ = &DeclareParameter<bool>("release", release);
   // A releasing task that waits first starts by holding what the previous controller held.
+  holds_what_was_held_ = release && options_.release_after > 0.0;
   const GripperPhase first = !release                       ? GripperPhase::kClosing
                              : options_.release_after > 0.0 ? GripperPhase::kHolding
                                                             : GripperPhase::kReleasing;
@@ -129,7 +130,8 @@ void FeatureGripperAdmittance::CalcForce(const graph::Tick& t, double* out) cons
 
 double FeatureGripperAdmittance::AdmittanceTarget(const Eigen::VectorXd& x, double y) const {
   if (static_cast<int>(x[kPhase]) == static_cast<int>(GripperPhase::kHolding)) {
-    return options_.force_target;
+    if (!holds_what_was_held_) return options_.force_target;
+    return x[kPrimed] != 0.0 ? x[kReleaseTarget] : std::clamp(y, 0.0, options_.force_target);
   }
   // Releasing: from the force held (the first tick of a releasing controller: y itself, so the
   // command does not step), down at release_rate.
@@ -225,7 +227,9 @@ void FeatureGripperAdmittance::UpdateMachine(const graph::Tick& t, const Eigen::
   // The releasing target starts at the force held when the phase begins and ramps to 0 N: a step
   // to 0 N would step the command by K_a f* (0.1 rad/s), what a controller switch refuses.
   double release_target = options_.force_target;
-  if (phase == static_cast<int>(GripperPhase::kReleasing)) {
+  if (phase == static_cast<int>(GripperPhase::kHolding) && holds_what_was_held_) {
+    release_target = AdmittanceTarget(x, y);  // the force of the first tick, kept
+  } else if (phase == static_cast<int>(GripperPhase::kReleasing)) {
     release_target =
         x[kPhase] == static_cast<double>(GripperPhase::kReleasing)
             ? std::max(0.0, AdmittanceTarget(x, y) - options_.release_rate * options_.dt)

@@ -330,6 +330,38 @@ TEST(GripperAdmittanceTest, AReleasingTaskThatWaitsStartsByHolding) {
   EXPECT_EQ(now.phase_output().Eval(graph::Tick{}), 2.0);
 }
 
+TEST(GripperAdmittanceTest, AReleasingTaskThatWaitsHoldsTheForceItFinds) {
+  // A hand-over's releasing gripper first holds what the previous controller held. With nothing
+  // squeezed (fingers at their limit, closed on nothing: the dry run's kinematic backend, no
+  // effort) its first command is the previous one, 0; holding f* commanded K_a f* = 0.1 rad/s,
+  // which the switch refused. Squeezing 5 N it holds 5 N, as before.
+  const ModelPtr model = BenchModel();
+  GripperAdmittanceOptions o;
+  o.release_after = 1.0;
+  for (const double effort : {0.0, 5.0}) {  // f̂ = s k_τ effort / d: 0 N, then 50 N clamped to f*
+    graph::GraphBuilder b;
+    auto& robot = b.Add<RobotModel>("robot", model);
+    auto& waits =
+        b.Add<FeatureGripperAdmittance>("waits", model, "gripper_right_joint", kOpen, true, o);
+    b.Connect(robot.kinematics_output(), waits.kinematics_input());
+    robot.configuration_input().SetValue(Eigen::VectorXd::Constant(1, kClosed));
+    waits.effort_input().SetValue(Eigen::VectorXd::Constant(1, -effort));  // s = -1: squeezing
+    auto graph = b.Build();
+    const graph::Tick first{0, 0.0, 1e-3};
+    ASSERT_EQ(waits.phase_output().Eval(first), 1.0);
+    const double y = waits.force_filtered_output().Eval(first);
+    const double command = -o.task_gain * waits.terms_output().Eval(first).error[0];
+    if (effort == 0.0) {
+      EXPECT_EQ(y, 0.0);
+      EXPECT_EQ(command, 0.0) << "nothing held, nothing commanded";
+    } else {
+      EXPECT_GT(y, o.force_target);
+      // Holding f* (clamped): the command closes on by K_a (f* - y), as any holding task.
+      EXPECT_NEAR(command, o.closing_direction * o.admittance_gain * (o.force_target - y), 1e-12);
+    }
+  }
+}
+
 TEST(GripperAdmittanceTest, RejectsBadOptionsWithTheirNames) {
   const ModelPtr model = BenchModel();
   GripperAdmittanceOptions o;

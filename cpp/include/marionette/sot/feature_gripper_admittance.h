@@ -19,8 +19,11 @@
 ///                release_rate;  y < release_force → 3
 ///   3 opening    position control towards `position_target` (the open position)
 ///   `release` true moves 0/1 to 2 (or straight to 3 when y < release_force); false moves 3 to 0.
-///   With `release_after` > 0 a releasing task starts in 1 and holds f* for that long first (a
-///   hand-over: the other gripper closes on the object meanwhile), counted from its first tick.
+///   With `release_after` > 0 a releasing task starts in 1 and holds for that long first (a
+///   hand-over: the other gripper closes on the object meanwhile), counted from its first tick:
+///   the force held on that tick (within [0, f*]; f* while the object is squeezed), so its first
+///   command is the previous controller's (0 N held — fingers at their limit, closed on nothing
+///   as on the dry run's kinematic backend — commands nothing, where f* commanded K_a f*).
 /// As a feature (1 row, J = unit row of the joint, ė = J v + ∂e/∂t):
 ///   position phases   e = q − r (r the ramp),       ∂e/∂t = −ṙ      (the task gives v = ṙ − λe)
 ///   admittance phases e = s K_a (y − f*) / λ,       ∂e/∂t = 0       (the task gives v = s K_a (f*
@@ -112,6 +115,7 @@ class FeatureGripperAdmittance final : public Feature {
 
   GripperAdmittanceOptions options_;
   double alpha_;
+  bool holds_what_was_held_;  // a releasing task that waits: holds the force of its first tick
   int iq_, iv_;
   graph::InputSignal<Eigen::VectorXd>* effort_{};
   graph::InputSignal<Eigen::VectorXd>* q_measured_{};
