@@ -514,11 +514,16 @@ void Controller::Impl::DecideSwitch(const graph::Tick& t) {
   const Eigen::VectorXd& v_next = next->unblended_velocity->Eval(t);
   const Eigen::VectorXd& v_now = safety->velocity_output().Eval(t);
   double jump = 0.0;
-  for (const int i : joint_v) jump = std::max(jump, std::abs(v_next[i] - v_now[i]));
+  int jumped = -1;
+  for (const int i : joint_v) {
+    const double d = std::abs(v_next[i] - v_now[i]);
+    if (jumped < 0 || d > jump || !std::isfinite(d)) jump = d, jumped = i;
+  }
   if (!std::isfinite(jump)) jump = std::numeric_limits<double>::infinity();
   if (mode == ControlMode::kEstop || !(jump <= next->max_switch_velocity_jump) ||
       !graph->Apply(next->edit.get())) {
     refused_jump = mode == ControlMode::kEstop ? -1.0 : jump;
+    refused_jump_v = jumped;
     decided_tick = t.index;
     ++loop_state.refused_switches;
     switch_state.store(static_cast<int>(SwitchState::kRefused), std::memory_order_release);

@@ -245,6 +245,7 @@ struct Controller::Impl {
   std::atomic<int> switch_state{static_cast<int>(SwitchState::kNone)};
   BuiltController* posted = nullptr;  // valid while switch_state == kPosted
   double refused_jump = 0.0;          // written before kRefused
+  int refused_jump_v = -1;            // the velocity index that jumped most (with it)
   int64_t decided_tick = -1;          // written before kApplied / kRefused
   std::atomic<int> command_request{static_cast<int>(Command::kNone)};
   std::atomic<int64_t> command_hash{0};  // of the message behind command_request
@@ -452,6 +453,8 @@ struct Controller::Impl {
   void ArmHoldController();
   void CollectHoldController();
   void CollectSwitchDecision();
+  // " (<joint>)": the joint whose command jumped most at the last refused switch, or "".
+  std::string JumpedJoint() const;
   void OnDgRequest(const lcm::ReceiveBuffer* rbuf, const std::string& channel);
   void ServeDg();
   void ServeDgRequest(const lcmt_dg_request& request);

@@ -297,6 +297,13 @@ void Controller::Impl::CollectHoldController() {
   hold_state.store(kHoldEmpty, std::memory_order_release);
 }
 
+std::string Controller::Impl::JumpedJoint() const {
+  for (size_t k = 0; k < joint_v.size(); ++k) {
+    if (joint_v[k] == refused_jump_v) return " (" + joint_names[k] + ")";
+  }
+  return "";
+}
+
 void Controller::Impl::CollectSwitchDecision() {
   const auto state = static_cast<SwitchState>(switch_state.load(std::memory_order_acquire));
   if (state != SwitchState::kApplied && state != SwitchState::kRefused) return;
@@ -313,11 +320,12 @@ void Controller::Impl::CollectSwitchDecision() {
   } else {
     char jump[64];
     std::snprintf(jump, sizeof(jump), "%.4g", refused_jump);
-    result = refused_jump < 0.0 ? "refused controller '" + posted->name + "' (id " +
-                                      std::to_string(id) + "): estop is latched"
-                                : "refused controller '" + posted->name + "' (id " +
-                                      std::to_string(id) + "): command jump " + jump + " rad/s > " +
-                                      std::to_string(posted->max_switch_velocity_jump);
+    result = refused_jump < 0.0
+                 ? "refused controller '" + posted->name + "' (id " + std::to_string(id) +
+                       "): estop is latched"
+                 : "refused controller '" + posted->name + "' (id " + std::to_string(id) +
+                       "): command jump " + jump + " rad/s" + JumpedJoint() + " > " +
+                       std::to_string(posted->max_switch_velocity_jump);
     Reject(channels::kControllerSpec, "discontinuous switch", result);
     controllers.erase(id);
   }
