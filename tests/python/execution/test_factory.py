@@ -29,11 +29,11 @@ FIG_3_13 = {
     "talos/right_gripper > plank/H1 | f_23": {("right_gripper", "se3", "")},
     "talos/right_gripper > plank/H1 | f_34": {("right_gripper", "se3", "")},
     "Loop | 1-0": {("right_gripper", "se3", "")},
-    "talos/left_gripper > plank/H4 | 1-0_01": {
+    "talos/left_gripper > plank/H8 | 1-0_01": {
         ("right_gripper", "se3", ""),
         ("left_gripper", "relative_se3", RIGHT),
     },
-    "talos/left_gripper > plank/H4 | 1-0_12": {
+    "talos/left_gripper > plank/H8 | 1-0_12": {
         ("right_gripper", "se3", ""),
         ("left_gripper", "relative_se3", RIGHT),
     },
@@ -43,10 +43,10 @@ FIG_3_13 = {
     },
     "talos/right_gripper < plank/H1 | 0-3:1-0_10": {("left_gripper", "se3", "")},
     "Loop | 0-3": {("left_gripper", "se3", "")},  # a transit with the left hand alone holding
-    "talos/left_gripper < plank/H4 | 0-3_43": {("left_gripper", "se3", "")},
-    "talos/left_gripper < plank/H4 | 0-3_32": {("left_gripper", "se3", "")},
-    "talos/left_gripper < plank/H4 | 0-3_21": {("left_gripper", "se3", "")},
-    "talos/left_gripper < plank/H4 | 0-3_10": set(),
+    "talos/left_gripper < plank/H8 | 0-3_43": {("left_gripper", "se3", "")},
+    "talos/left_gripper < plank/H8 | 0-3_32": {("left_gripper", "se3", "")},
+    "talos/left_gripper < plank/H8 | 0-3_21": {("left_gripper", "se3", "")},
+    "talos/left_gripper < plank/H8 | 0-3_10": set(),
 }
 
 
@@ -77,8 +77,8 @@ def test_talos_plank_controllers_are_those_of_fig_3_13(talos_plank):
     assert kinds.count("grasp") == 2 and kinds.count("release") == 2
     created = [s.created for s in talos_plank.steps if s.kind == "grasp"]
     released = [s.released for s in talos_plank.steps if s.kind == "release"]
-    assert created == [{"talos/right_gripper": "plank/H1"}, {"talos/left_gripper": "plank/H4"}]
-    assert released == [{"talos/right_gripper": "plank/H1"}, {"talos/left_gripper": "plank/H4"}]
+    assert created == [{"talos/right_gripper": "plank/H1"}, {"talos/left_gripper": "plank/H8"}]
+    assert released == [{"talos/right_gripper": "plank/H1"}, {"talos/left_gripper": "plank/H8"}]
 
 
 def test_talos_plank_controllers_pass_their_checks(talos_plank):

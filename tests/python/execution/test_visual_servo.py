@@ -927,7 +927,7 @@ def test_the_hand_over_is_servoed_on_the_object_in_the_holding_hand(talos_plank)
     approach = handovers[-1][0]
     grasp = approach + 1
     alone = next(s.index for s in p.steps[grasp:] if "talos/right_gripper" not in s.grasps)
-    assert p.steps[grasp].grasps_to.get("talos/left_gripper") == "plank/H4"
+    assert p.steps[grasp].grasps_to.get("talos/left_gripper") == "plank/H8"
     servo, bus, specs, trajs = _servo_on(p, [approach, grasp, alone], ServoOptions(handovers=True))
     o = servo.options
 

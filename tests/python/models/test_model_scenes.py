@@ -106,13 +106,16 @@ def _reach(model, q0, frame: int, X_target: pin.SE3, iters: int = 1500) -> tuple
         ("talos/left_gripper", "plank/H2"),
         ("talos/right_gripper", "plank/H3"),
         ("talos/left_gripper", "plank/H4"),
+        ("talos/left_gripper", "plank/H6"),
+        ("talos/left_gripper", "plank/H8"),
     ],
 )
 def test_talos_reaches_the_plank_handles_without_moving_its_feet(gripper, handle):
     """The grasps of the thesis' experiment (sec. 3.4.2): from half-sitting, with the feet in
     place and the centre of mass above them, the right gripper reaches the handles approached
-    from its side (H1 top, H3 bottom) and the left gripper the others, pre-grasp and grasp,
-    to 0.1 mm."""
+    from its side (H1 top, H3 bottom) and the left gripper the others (H6, H8: H2, H4 turned
+    about their approach, the left hand's two fingertips on the other face), pre-grasp and
+    grasp, to 0.1 mm."""
     model, frames = _talos_with_gripper_frames()
     q0 = robots.reference_configuration("talos", model)
     g = robots.semantics("talos").gripper(gripper)
