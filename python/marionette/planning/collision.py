@@ -16,7 +16,12 @@ the transition keeps rigid (both bodies attached to the same joint through expli
 
 On a free motion (a transit or a transfer, not an approach), a pair of a moving body and a still
 one (the robot or what it carries against the table, an object put down, the environment) keeps
-a clearance (``CLEARANCE``) instead of contact: the same stepping with d - clearance.  A path is
+a clearance (``CLEARANCE``) instead of contact: the same stepping with d - clearance. So does an
+object the robot carries against the robot's other bodies (the other arm, the torso): a robot
+tracks a plan within millimetres, and a servo moves the hand that holds an object by what the
+camera measures, so a free hand planned to graze the object the other hand carries strikes it
+(a friction plank flip: the right hand, open and leaving, pushed the plank 19 mm / 10 deg in the
+left hand).  A path is
 excused, pair by pair, where one of its ends is already closer (a given start, goal or waypoint
 placed close); every configuration the planners and the optimiser create (an extension's end,
 whether stopped or at its random target, a leaf planner's node, a shortcut's cut) keeps the
@@ -242,15 +247,15 @@ class CollisionChecker:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per pair, how fast it can close its distance, as linear maps of joint speeds.
 
-        Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints), one_still
-        (npairs,) bool) with u_pair = R @ angular_speed + L @ linear_speed; ``one_still``: one
-        body of the pair stays in place in this transition and the other moves (the pairs that
-        keep the clearance on a free motion).  A locked joint is welded to its parent:
-        its geometries move with the nearest joint above it that is not locked (an object
-        locked where it rests: with the universe, still; a locked finger: with the wrist).  A
-        geometry on an object attached by an explicit relative pose moves with the parent
-        joint.  Joints common to both chains move the pair rigidly and are left out (HPP's
-        body-pair bound); pairs attached to one (welded) joint are rigid.
+        Returns (rigid (npairs,) bool, R (npairs x njoints), L (npairs x njoints), keeps
+        (npairs,) bool) with u_pair = R @ angular_speed + L @ linear_speed; ``keeps``: the pairs
+        that keep the clearance on a free motion — one body stays in place in this transition
+        and the other moves, or one is an object (carried: it moves with another body).  A locked
+        joint is welded to its parent: its geometries move with the nearest joint above it that
+        is not locked (an object locked where it rests: with the universe, still; a locked
+        finger: with the wrist).  A geometry on an object attached by an explicit relative pose
+        moves with the parent joint.  Joints common to both chains move the pair rigidly and are
+        left out (HPP's body-pair bound); pairs attached to one (welded) joint are rigid.
         """
         key = id(projector)
         cached = self._motion_cache.get(key)
@@ -280,22 +285,24 @@ class CollisionChecker:
                 eff[g], chains[g] = j, (self._chain(j, r) if j > 0 else [])
         n = len(self.pairs)
         nj = self.model.njoints
+        objects = {o.joint_id for o in self.problem.objects.values()}
+        on_object = [j in objects for j in self.geom_joint]
         rigid = np.zeros(n, dtype=bool)
         R = np.zeros((n, nj))
         L = np.zeros((n, nj))
-        one_still = np.zeros(n, dtype=bool)
+        keeps = np.zeros(n, dtype=bool)
         for k, (a, b) in enumerate(self.pairs):
             ga, gb = rigid_map.get(eff[a], eff[a]), rigid_map.get(eff[b], eff[b])
             if ga == gb:
                 rigid[k] = True
                 continue
-            one_still[k] = (ga == 0) != (gb == 0)
+            keeps[k] = (ga == 0) != (gb == 0) or on_object[a] or on_object[b]
             common = {j for j, _ in chains[a]} & {j for j, _ in chains[b]}
             for j, r in chains[a] + chains[b]:
                 if j not in common:
                     R[k, j] += r
                     L[k, j] += 1.0
-        out = (rigid, R, L, one_still)
+        out = (rigid, R, L, keeps)
         self._motion_cache[key] = (projector, out)
         return out
 
