@@ -23,6 +23,10 @@ Two parts, on the references the supervisor will stream (:meth:`Supervisor.prepa
    IK branch (a 6-DoF arm flipping its elbow through a singularity, its gripper on its pose:
    only the joints show it).
 
+Reported beside them, not a reason to refuse: each step's **static load**
+(:mod:`.static_load`), the largest gravity torque a joint bears along the step — its links and
+what its grippers carry — as a fraction of its effort limit.
+
 The verdict is per step (:class:`StepVerdict`); :func:`dry_run` returns them with the plan's
 (:class:`DryRun`), which a scenario writes to its report and refuses the plan on.
 """
@@ -41,12 +45,13 @@ import numpy as np
 import pinocchio as pin
 
 import marionette
-from marionette import channels, lcmt_robot_state
+from marionette import channels, lcmt_robot_state, robots
 from marionette.control.client import ControllerClient, configuration_from_state
 from marionette.control.spec import ControllerSpec, TaskSpec
 from marionette.execution.factory import level_conditioning
 from marionette.execution.plan_steps import PlanRobotMap, Step
 from marionette.execution.references import StepTrajectory, minimum_jerk, velocity_limits
+from marionette.execution.static_load import step_static_load
 from marionette.robots import controller_robot_argument
 
 # The controller's hierarchy damps a level whose smallest pivot is below this (hierarchy.h).
@@ -82,6 +87,8 @@ class StepVerdict:
     max_joint_deviation: float = 0.0  # [rad] executed vs streamed reference
     deviation_joint: str = ""
     controller_s: float = 0.0
+    static_load: float | None = None  # the largest |gravity torque| / effort limit
+    static_load_joint: str = ""
     reasons: list[str] = field(default_factory=list)
 
     @property
@@ -377,9 +384,11 @@ def dry_run(
     options: DryRunOptions | None = None,
     log_dir: Path | None = None,
     q_start: np.ndarray | None = None,
+    gripper_frames: dict[str, str] | None = None,
 ) -> DryRun:
     """Both parts of the module doc on ``steps`` (their controllers ``specs`` and the
-    ``trajectories`` the supervisor streams): the verdict per step."""
+    ``trajectories`` the supervisor streams): the verdict per step; with ``gripper_frames``
+    (gripper -> its frame in the robot model) each step's static load too."""
     options = options or DryRunOptions()
     t0 = time.perf_counter()
     speeds: list[float] = []
@@ -387,6 +396,13 @@ def dry_run(
         speeds.append(speed)
         verdicts = {s.index: StepVerdict(s.index, s.transition) for s in steps}
         singular_crossings(robot_map.model, steps, specs, trajectories, options, verdicts)
+        if gripper_frames is not None:
+            contacts = [c.link for c in robots.semantics(robot).contacts]
+            for step in steps:
+                load = step_static_load(robot_map.model, robot_map, step, gripper_frames, contacts)
+                if load is not None:
+                    verdicts[step.index].static_load = load.ratio
+                    verdicts[step.index].static_load_joint = load.joint
         completed, supervisor, played_s = play(
             robot,
             steps,

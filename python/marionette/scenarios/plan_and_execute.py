@@ -552,6 +552,7 @@ def run_plan_and_execute(
             trajectories,
             supervisor_options,
             log_dir=out_dir / "logs",
+            gripper_frames=ctx.gripper_frames,
         )
         timings["dry_run_s"] = time.perf_counter() - t_dry
         report["dry_run"] = verdict.to_dict()

@@ -99,21 +99,27 @@ def _dry_run_lines(r: dict[str, Any]) -> list[str]:
         f"{d['controller_s']:.1f} s of controller time; supervisor {d['supervisor']}). "
         "Smallest singular value any level needs along the step (the controller damps below "
         "0.02), the switch, the end check, and the largest distance of a joint from its streamed "
-        "reference (the IK branch).",
+        "reference (the IK branch). Static load: the largest gravity torque a joint bears along "
+        "the step (its links and what a gripper carries alone) over its effort limit; the legs, "
+        "loaded by the ground, are not judged.",
         "",
-        "| # | transition | min singular value | switch | converged | joint deviation | verdict |",
-        "|---|---|---|---|---|---|---|",
+        "| # | transition | min singular value | static load | switch | converged | joint "
+        "deviation | verdict |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for s in d["steps"]:
         sv = s["min_singular_value"]
         sigma = "-" if sv is None else f"{sv:.3f} ({s['singular_level']})"
         conv = {None: "-", True: f"yes, {s['controller_s']:.1f} s", False: "no"}[s["converged"]]
         dev = f"{s['max_joint_deviation']:.3f} rad ({s['deviation_joint']})" if s["played"] else "-"
+        load = s.get("static_load")
+        load_text = "-" if load is None else f"{load:.2f} ({s['static_load_joint']})"
         verdict = "ok" if s["ok"] else "; ".join(s["reasons"])
         if s["ok"] and not s["played"]:
             verdict = "not reached"
         lines.append(
-            f"| {s['index']} | `{s['transition']}` | {sigma} | {s['switch'] or '-'} | {conv} | "
+            f"| {s['index']} | `{s['transition']}` | {sigma} | {load_text} | {s['switch'] or '-'} "
+            f"| {conv} | "
             f"{dev} | {verdict} |"
         )
     return [*lines, ""]
