@@ -21,11 +21,11 @@ object the robot carries against the robot's other bodies (the other arm, the to
 tracks a plan within millimetres, and a servo moves the hand that holds an object by what the
 camera measures, so a free hand planned to graze the object the other hand carries strikes it
 (a friction plank flip: the right hand, open and leaving, pushed the plank 19 mm / 10 deg in the
-left hand).  A path is
-excused, pair by pair, where one of its ends is already closer (a given start, goal or waypoint
-placed close); every configuration the planners and the optimiser create (an extension's end,
-whether stopped or at its random target, a leaf planner's node, a shortcut's cut) keeps the
-clearance (:meth:`CollisionChecker.is_clear`), so the excuse never spreads from the given ones.
+left hand).  A path is excused, pair by pair, where one of its ends is already closer (a given
+start, goal or waypoint placed close); every configuration the planners and the optimiser create
+(an extension's end, whether stopped or at its random target, a leaf planner's node, a
+shortcut's cut) keeps the clearance (:meth:`CollisionChecker.is_clear`), so the excuse never
+spreads from the given ones.
 """
 
 from __future__ import annotations
