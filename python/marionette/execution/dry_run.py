@@ -391,18 +391,21 @@ def dry_run(
     (gripper -> its frame in the robot model) each step's static load too."""
     options = options or DryRunOptions()
     t0 = time.perf_counter()
+    loads = {}  # of the plan, whatever pace it is played at: computed once
+    if gripper_frames is not None:
+        contacts = [c.link for c in robots.semantics(robot).contacts]
+        for step in steps:
+            load = step_static_load(robot_map.model, robot_map, step, gripper_frames, contacts)
+            if load is not None:
+                loads[step.index] = load
     speeds: list[float] = []
     for speed in (options.speed, options.fallback_speed):
         speeds.append(speed)
         verdicts = {s.index: StepVerdict(s.index, s.transition) for s in steps}
         singular_crossings(robot_map.model, steps, specs, trajectories, options, verdicts)
-        if gripper_frames is not None:
-            contacts = [c.link for c in robots.semantics(robot).contacts]
-            for step in steps:
-                load = step_static_load(robot_map.model, robot_map, step, gripper_frames, contacts)
-                if load is not None:
-                    verdicts[step.index].static_load = load.ratio
-                    verdicts[step.index].static_load_joint = load.joint
+        for index, load in loads.items():
+            verdicts[index].static_load = load.ratio
+            verdicts[index].static_load_joint = load.joint
         completed, supervisor, played_s = play(
             robot,
             steps,

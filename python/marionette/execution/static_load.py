@@ -24,8 +24,6 @@ import pinocchio as pin
 from marionette import robots
 from marionette.execution.plan_steps import PlanRobotMap, Step
 
-GRAVITY = 9.81  # [m/s^2]
-
 
 @dataclass(frozen=True)
 class StaticLoad:
@@ -69,13 +67,13 @@ def static_torques(
     carried: list[tuple[Carried, pin.SE3]],
 ) -> np.ndarray:
     """τ (nv) at rest at ``q``: the links' gravity and each (object, its world pose) of
-    ``carried`` hanging on its gripper."""
+    ``carried`` hanging on its gripper, both under the model's gravity."""
     tau = pin.rnea(model, data, q, np.zeros(model.nv), np.zeros(model.nv)).copy()
     if carried:
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
     for c, X_WO in carried:
-        F = np.array([0.0, 0.0, -GRAVITY * c.mass])
+        F = c.mass * np.asarray(model.gravity.linear)
         p = data.oMf[c.frame].translation
         wrench = np.concatenate([F, np.cross(X_WO.act(c.com) - p, F)])
         J = pin.getFrameJacobian(model, data, c.frame, pin.LOCAL_WORLD_ALIGNED)

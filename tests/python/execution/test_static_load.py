@@ -9,12 +9,13 @@ import pinocchio as pin
 
 from marionette import robots
 from marionette.execution.static_load import (
-    GRAVITY,
     Carried,
     judged_joints,
     static_torques,
     step_static_load,
 )
+
+GRAVITY = 9.81  # [m/s^2], Pinocchio's default model.gravity
 
 
 def _one_joint_arm(m: float, L: float) -> tuple[pin.Model, int]:
