@@ -81,6 +81,7 @@ struct HierarchyWorkspace::Impl {
     Z_null.resize(n, n);
     Gram.resize(n, n);
     order.resize(n);
+    structure_perm.resize(me);
     in_group.resize(n);
     row_count.resize(me);
     row_sparse.resize(me);
@@ -154,6 +155,10 @@ struct HierarchyWorkspace::Impl {
   Eigen::MatrixXd Gram;
   bool gram = false;
   std::vector<int> order;
+  // The last structure FirstLevelStructure found (its m, m1, s and initial perm; order is kept in
+  // `order`), reused while it still holds: m1 = 0 when there is none to reuse.
+  int structure_m = 0, structure_m1 = 0, structure_s = 0;
+  std::vector<int> structure_perm;
   std::vector<char> in_group;
   std::vector<std::int64_t> row_count, row_sparse;
   // Second QR for rank-deficient or damped least squares: [R1^T; μ I] ((m + ρ) x ρ).
@@ -424,8 +429,28 @@ void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
 // and S is not nearly everything, Z becomes P (columns e_order[k], S first) and the group's rows
 // are put first in perm; returns the group's size m1 and writes s = |S| (0: no structure, Z and
 // perm untouched). PivotedQr and RotateBasis then work on s coordinates for the group.
+// What makes the grouped factorization exact is only that the group's rows are zero outside S;
+// S being the smallest such set is a matter of speed. So the last tick's structure (a humanoid's
+// feet: the same Jacobian pattern from tick to tick) is reused when the level has as many rows
+// and its group's rows are still zero outside S — m1 (n - s) reads instead of three passes over
+// the level (~1 µs of a 30 µs solve on the humanoid).
 int FirstLevelStructure(Impl& w, int n, int m, int* s) {
   *s = 0;
+  if (w.structure_m1 > 0 && w.structure_m == m) {
+    bool holds = true;
+    for (int k = w.structure_s; k < n && holds; ++k) {
+      const double* a = w.A.data() + w.order[k] * w.A.outerStride();
+      for (int i = 0; i < w.structure_m1; ++i) holds = holds && a[w.structure_perm[i]] == 0.0;
+    }
+    if (holds) {
+      std::copy(w.structure_perm.begin(), w.structure_perm.begin() + m, w.perm.begin());
+      w.Z.setZero();
+      for (int k = 0; k < n; ++k) w.Z(w.order[k], k) = 1.0;
+      *s = w.structure_s;
+      return w.structure_m1;
+    }
+  }
+  w.structure_m1 = 0;
   // Column-wise passes over A (column-major), on raw rows of 64-bit flags so that the compiler
   // vectorizes them: nonzeros per row, then S, then the rows' nonzeros outside S.
   const Eigen::Index lda = w.A.outerStride();
@@ -460,6 +485,10 @@ int FirstLevelStructure(Impl& w, int n, int m, int* s) {
   for (int c = 0, k = 0, k2 = size; c < n; ++c) w.order[w.in_group[c] ? k++ : k2++] = c;
   w.Z.setZero();
   for (int k = 0; k < n; ++k) w.Z(w.order[k], k) = 1.0;
+  std::copy(w.perm.begin(), w.perm.begin() + m, w.structure_perm.begin());
+  w.structure_m = m;
+  w.structure_m1 = m1;
+  w.structure_s = size;
   *s = size;
   return m1;
 }

@@ -111,6 +111,40 @@ TEST(HierarchyTest, EqualityStackMatchesTheProjectorRecursion) {
   }
 }
 
+// A first level whose rows mostly touch few coordinates (a humanoid's feet) is factored on them
+// first, and that grouping is reused from one solve to the next while those rows stay zero
+// outside them. The second solve, by the same workspace, makes a grouped row touch another
+// coordinate: reusing the grouping would then be wrong, the solution must still be the
+// projector recursion's.
+TEST(HierarchyTest, SparseFirstLevelStaysExactWhenItsPatternChanges) {
+  std::srand(4);
+  const int n = 20;
+  Eigen::MatrixXd J1 = Eigen::MatrixXd::Zero(9, n);
+  J1.topLeftCorner(4, 6) = Eigen::MatrixXd::Random(4, 6);  // "left foot": coordinates 0..5
+  J1.block(4, 0, 4, 3) = Eigen::MatrixXd::Random(4, 3);    // "right foot": 0..2 and 6..8
+  J1.block(4, 6, 4, 3) = Eigen::MatrixXd::Random(4, 3);
+  J1.row(8) = Eigen::RowVectorXd::Random(n);  // a dense row ("CoM")
+  std::vector<TaskTerms> levels{
+      Equality(J1, Eigen::VectorXd::Random(9)),
+      Equality(Eigen::MatrixXd::Random(5, n), Eigen::VectorXd::Random(5)),
+      Equality(Eigen::MatrixXd::Random(8, n), Eigen::VectorXd::Random(8))};
+  std::vector<std::vector<TaskShape>> shapes;
+  std::vector<const TaskTerms*> terms;
+  for (const TaskTerms& t : levels) {
+    shapes.push_back({ShapeOf(t)});
+    terms.push_back(&t);
+  }
+  const Hierarchy h(n, shapes, Exact());
+  HierarchyWorkspace w(h);
+  for (int solve = 0; solve < 3; ++solve) {
+    if (solve == 1) levels[0].jacobian(2, 15) = 0.7;  // a grouped row leaves its coordinates
+    if (solve == 2) levels[0].jacobian(2, 15) = 0.0;  // and comes back
+    Eigen::VectorXd v;
+    SolveHierarchy(h, terms, &w, &v);
+    EXPECT_LT((v - ProjectorRecursion(levels)).norm(), 1e-10) << "solve " << solve;
+  }
+}
+
 TEST(HierarchyTest, ConflictingLevelDoesNotDisturbTheLevelAbove) {
   std::srand(3);
   const int n = 8;
