@@ -12,12 +12,13 @@
 /// remaining freedom (n x r, r shrinking level by level) is kept explicitly. At each level,
 /// M = A Z is decomposed by a Householder QR with column pivoting of M^T (rank revealing, much
 /// cheaper than an SVD); the least-squares step (damped near singularities) moves v within
-/// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10). Two
-/// shortcuts keep that exact while cutting its cost: the first level with equality rows factors
-/// its sparse rows first on the few coordinates they touch (a foot: free flyer + one leg), so
-/// their reflectors rotate a small block of Z; a level whose rows outnumber the remaining DoF
-/// and, well conditioned, use them all (a posture under feet and hands) is solved on its Gram
-/// matrix M^T M (Cholesky) with no QR and no rotation, nothing remaining below it. The
+/// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10; when the
+/// levels below read only those columns, only they are formed). Two shortcuts keep that exact
+/// while cutting its cost: the first level with equality rows factors its sparse rows first on
+/// the few coordinates they touch (a foot: free flyer + one leg), so their reflectors rotate a
+/// small block of Z; a level whose rows outnumber the remaining DoF and, well conditioned, use
+/// them all (a posture under feet and hands) is solved on its Gram matrix M^T M (Cholesky) with
+/// no QR and no rotation, nothing remaining below it. The
 /// unconstrained step is exact for the cascade whenever it satisfies every inequality carried
 /// from above and the level's own: that is checked, and only when it fails is the level solved
 /// as a QP. That QP is first tried by an active-set shortcut: the rows active at the last tick
