@@ -145,7 +145,7 @@ struct HierarchyWorkspace::Impl {
   // Sparse first level (FirstLevelStructure): Z = P, the identity with its columns ordered as
   // `order` (the s coordinates the level's sparse rows touch first); the first ρ_1 reflectors
   // then act on those s coordinates only, and B1 (s x s) accumulates them (RotateBasis).
-  // in_group: per coordinate, whether it is in S (then per row of A, scratch).
+  // in_group: per coordinate, whether it is in S.
   Eigen::MatrixXd B1;
   // RotateBasis when only the null space is wanted: the reflectors' product on its trailing
   // columns (Q_null), and Z_blk times it (Z_null), before it is copied back into Z.
@@ -423,33 +423,22 @@ void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
   ReflectSequenceRight(Z_blk, mt, w.hcoeffs, rho1, rho);
 }
 
-// The first level with equality rows (Z = I so far) when some of its rows touch few coordinates
-// (a foot's Jacobian: the free flyer and one leg). S = the coordinates touched by the rows that
-// leave out at least half of them; the group = the rows within S. When the group is not empty
-// and S is not nearly everything, Z becomes P (columns e_order[k], S first) and the group's rows
-// are put first in perm; returns the group's size m1 and writes s = |S| (0: no structure, Z and
-// perm untouched). PivotedQr and RotateBasis then work on s coordinates for the group.
-// What makes the grouped factorization exact is only that the group's rows are zero outside S;
-// S being the smallest such set is a matter of speed. So the last tick's structure (a humanoid's
-// feet: the same Jacobian pattern from tick to tick) is reused when the level has as many rows
-// and its group's rows are still zero outside S — m1 (n - s) reads instead of three passes over
-// the level (~1 µs of a 30 µs solve on the humanoid).
-int FirstLevelStructure(Impl& w, int n, int m, int* s) {
-  *s = 0;
-  if (w.structure_m1 > 0 && w.structure_m == m) {
-    bool holds = true;
-    for (int k = w.structure_s; k < n && holds; ++k) {
-      const double* a = w.A.data() + w.order[k] * w.A.outerStride();
-      for (int i = 0; i < w.structure_m1; ++i) holds = holds && a[w.structure_perm[i]] == 0.0;
-    }
-    if (holds) {
-      std::copy(w.structure_perm.begin(), w.structure_perm.begin() + m, w.perm.begin());
-      w.Z.setZero();
-      for (int k = 0; k < n; ++k) w.Z(w.order[k], k) = 1.0;
-      *s = w.structure_s;
-      return w.structure_m1;
+// Whether the structure kept from the last solve still holds for this level: as many rows, and
+// its group's rows zero outside S.
+bool StructureStillHolds(const Impl& w, int n, int m) {
+  if (w.structure_m1 == 0 || w.structure_m != m) return false;
+  for (int k = w.structure_s; k < n; ++k) {
+    const double* a = w.A.data() + w.order[k] * w.A.outerStride();
+    for (int i = 0; i < w.structure_m1; ++i) {
+      if (a[w.structure_perm[i]] != 0.0) return false;
     }
   }
+  return true;
+}
+
+// Finds the structure of the level's m rows anew (see FirstLevelStructure) into the kept one
+// (structure_*, order); false, and none kept, when the level has none worth using.
+bool FindStructure(Impl& w, int n, int m) {
   w.structure_m1 = 0;
   // Column-wise passes over A (column-major), on raw rows of 64-bit flags so that the compiler
   // vectorizes them: nonzeros per row, then S, then the rows' nonzeros outside S.
@@ -470,27 +459,47 @@ int FirstLevelStructure(Impl& w, int n, int m, int* s) {
     w.in_group[c] = touched != 0;
     size += touched != 0;
   }
-  if (size == 0 || size + 4 > n) return 0;  // no sparse row, or too little to gain
+  if (size == 0 || size + 4 > n) return false;  // no sparse row, or too little to gain
   std::fill(count, count + m, 0);
   for (int c = 0; c < n; ++c) {
     if (w.in_group[c]) continue;
     const double* a = w.A.data() + c * lda;
     for (int i = 0; i < m; ++i) count[i] += a[i] != 0.0;
   }
-  // perm: the group's rows (no nonzero outside S), then the others. order: S, then the rest.
+  // The rows' order: the group's (no nonzero outside S), then the others. order: S, then the
+  // rest.
   int m1 = 0;
   for (int i = 0; i < m; ++i) m1 += count[i] == 0;
-  if (m1 == 0) return 0;
-  for (int i = 0, k1 = 0, k2 = m1; i < m; ++i) (count[i] == 0 ? w.perm[k1++] : w.perm[k2++]) = i;
+  if (m1 == 0) return false;
+  for (int i = 0, k1 = 0, k2 = m1; i < m; ++i) {
+    w.structure_perm[count[i] == 0 ? k1++ : k2++] = i;
+  }
   for (int c = 0, k = 0, k2 = size; c < n; ++c) w.order[w.in_group[c] ? k++ : k2++] = c;
-  w.Z.setZero();
-  for (int k = 0; k < n; ++k) w.Z(w.order[k], k) = 1.0;
-  std::copy(w.perm.begin(), w.perm.begin() + m, w.structure_perm.begin());
   w.structure_m = m;
   w.structure_m1 = m1;
   w.structure_s = size;
-  *s = size;
-  return m1;
+  return true;
+}
+
+// The first level with equality rows (Z = I so far) when some of its rows touch few coordinates
+// (a foot's Jacobian: the free flyer and one leg). S = the coordinates touched by the rows that
+// leave out at least half of them; the group = the rows within S. When the group is not empty
+// and S is not nearly everything, Z becomes P (columns e_order[k], S first) and the group's rows
+// are put first in perm; returns the group's size m1 and writes s = |S| (0: no structure, Z and
+// perm untouched). PivotedQr and RotateBasis then work on s coordinates for the group.
+// What makes the grouped factorization exact is only that the group's rows are zero outside S;
+// S being the smallest such set is a matter of speed. So the last tick's structure (a humanoid's
+// feet: the same Jacobian pattern from tick to tick) is reused when the level has as many rows
+// and its group's rows are still zero outside S — m1 (n - s) reads instead of three passes over
+// the level (~1 µs of a 30 µs solve on the humanoid).
+int FirstLevelStructure(Impl& w, int n, int m, int* s) {
+  *s = 0;
+  if (!StructureStillHolds(w, n, m) && !FindStructure(w, n, m)) return 0;
+  std::copy(w.structure_perm.begin(), w.structure_perm.begin() + m, w.perm.begin());
+  w.Z.setZero();
+  for (int k = 0; k < n; ++k) w.Z(w.order[k], k) = 1.0;
+  *s = w.structure_s;
+  return w.structure_m1;
 }
 
 bool Inside(double value, double lo, double hi, double tol) {
