@@ -10,7 +10,10 @@
 
 namespace marionette::sot {
 
-namespace {}  // namespace
+namespace {
+// row_live of a QP row whose norm in the QP's coordinates is not known yet (see FormQpDirection).
+constexpr char kLiveUnknown = 2;
+}  // namespace
 
 Hierarchy::Hierarchy(int nv, std::vector<std::vector<TaskShape>> levels, HierarchyOptions options)
     : nv_(nv), levels_(std::move(levels)), options_(options) {
@@ -80,6 +83,8 @@ struct HierarchyWorkspace::Impl {
     Q_null.resize(n, n);
     Z_null.resize(n, n);
     Gram.resize(n, n);
+    Ycomp.resize(n, n);
+    covered.resize(n);
     order.resize(n);
     structure_perm.resize(me);
     in_group.resize(n);
@@ -100,7 +105,12 @@ struct HierarchyWorkspace::Impl {
     b22.resize(n);
     M22.resize(n, n);
     D.resize(n, mc);
-    for (Eigen::VectorXd* e : {&row_val, &row_lo, &row_hi}) e->resize(mc);
+    Dq.resize(n, mc);
+    dq_formed.assign(mc, 0);
+    y_point.resize(n);
+    y_step.resize(n);
+    step.resize(n);
+    for (Eigen::VectorXd* e : {&row_val, &row_lo, &row_hi, &live_threshold}) e->resize(mc);
     row_live.resize(mc);
     in_W.assign(mc, 0);
     implied.assign(mc, 0);
@@ -154,6 +164,10 @@ struct HierarchyWorkspace::Impl {
   // factor going to H1 and -M^T c to g1 (the active-set shortcut's H and g for ρ = r).
   Eigen::MatrixXd Gram;
   bool gram = false;
+  // GramFromComplement: Z_blk's rows at the coordinates the level leaves out (Ycomp), and which
+  // coordinates it covers.
+  Eigen::MatrixXd Ycomp;
+  std::vector<char> covered;
   std::vector<int> order;
   // The last structure FirstLevelStructure found (its m, m1, s and initial perm; order is kept in
   // `order`), reused while it still holds: m1 = 0 when there is none to reuse.
@@ -182,15 +196,19 @@ struct HierarchyWorkspace::Impl {
     third_party::eiquadprog::solvers::EiquadprogFast solver;
   };
   std::vector<std::unique_ptr<LevelQp>> qps;
-  // The level QP (see SolveQp), in the r coordinates ũ of Z_blk. Its objective: R1 (ρ x m) the
-  // level's triangular factor, H1 = R1 R1^T + μ² I (ρ x ρ, then its Cholesky factor
+  // The level QP (see SolveQp), in the r coordinates ũ = Q^T u of Z_blk Q. Its objective: R1
+  // (ρ x m) the level's triangular factor, H1 = R1 R1^T + μ² I (ρ x ρ, then its Cholesky factor
   // in place), g1 = -R1 cperm (ρ), Hfull the whole H (r x r, unfactored). Its rows (carried,
-  // then the level's own; t < nc + mi): D.col(t) their directions (r), row_val their values
-  // at x_old, row_lo / row_hi their bounds, row_live whether the levels above left them free.
-  Eigen::MatrixXd R1, H1, Hfull, D;
-  Eigen::VectorXd g1, row_val, row_lo, row_hi;
-  double qp_scale = 0.0;  // the largest curvature or squared row norm of the QP
-  std::vector<char> row_live;
+  // then the level's own; t < nc + mi): D.col(t) their directions in u (r), Dq.col(t) in ũ
+  // (formed when first needed: dq_formed), row_val their values at x_old, row_lo / row_hi
+  // their bounds, row_live whether the levels above left them free; y_point, y_step: points
+  // and steps of ũ taken to u (ToBasis).
+  Eigen::MatrixXd R1, H1, Hfull, D, Dq;
+  Eigen::VectorXd g1, row_val, row_lo, row_hi, y_point, y_step, step;
+  std::vector<char> dq_formed;
+  double qp_scale = 0.0;       // the largest curvature or squared row norm of the QP
+  std::vector<char> row_live;  // 0 dead, 1 live, kLiveUnknown (read as live) until formed
+  Eigen::VectorXd live_threshold;
   // The primal method's rows found dependent on W's when they joined it (see PrimalActiveSet).
   std::vector<char> implied;
   // The working set: rows (t), sides (+1 upper, -1 lower), in_W per row. Its equality QP: K
@@ -227,20 +245,31 @@ namespace {
 
 using Impl = HierarchyWorkspace::Impl;
 
-// Householder reflections H = I - tau [1; v] [1; v]^T on column-major blocks, as column dot and
-// axpy operations. Eigen's applyHouseholderOnTheLeft/Right compute the same through its gemv
-// and rank-1 kernels, whose per-call dispatch outweighs the flops on blocks of tens of rows: on
-// a 38-DoF humanoid's reference stack (bench/sot) those calls were ~40 % of a solve.
-// block <- H block (block has 1 + v.size() rows).
+// x <- H x, H = I - tau [1; v] [1; v]^T, x of 1 + n contiguous entries. (One running sum: four
+// independent ones, tried, changed the rounding enough to leave one QP of the cascade reference
+// test uncertified, TIAGo stack 324: at a degenerate vertex the primal method cycled on a
+// multiplier below 1e-8.)
+inline void Reflect(double* x, const double* v, Eigen::Index n, double tau) {
+  double dot = x[0];
+  for (Eigen::Index i = 0; i < n; ++i) dot += v[i] * x[1 + i];
+  const double s = tau * dot;
+  x[0] -= s;
+  for (Eigen::Index i = 0; i < n; ++i) x[1 + i] -= s * v[i];
+}
+
+// Householder reflections H = I - tau [1; v] [1; v]^T on column-major blocks, column by column
+// as raw dot and axpy loops. Eigen's applyHouseholderOnTheLeft/Right compute the same through
+// its gemv and rank-1 kernels, whose per-call dispatch outweighs the flops on blocks of tens of
+// rows: on a 38-DoF humanoid's reference stack (bench/sot) those calls were ~40 % of a solve
+// (and Eigen's dot and axpy on segments of ~20 entries cost more than their flops too).
+// block <- H block (block has 1 + v.size() rows; both have contiguous columns).
 template <typename Block, typename Essential>
 void ReflectLeft(Block&& block, const Essential& v, double tau) {
   if (tau == 0.0) return;
+  eigen_assert(block.innerStride() == 1 && v.innerStride() == 1);
   const Eigen::Index n = v.size();
   for (Eigen::Index c = 0; c < block.cols(); ++c) {
-    auto x = block.col(c);
-    const double s = tau * (x[0] + v.dot(x.tail(n)));
-    x[0] -= s;
-    x.tail(n) -= s * v;
+    Reflect(&block.coeffRef(0, c), v.data(), n, tau);
   }
 }
 
@@ -255,6 +284,22 @@ void ReflectRight(Block&& block, const Essential& v, double tau, Eigen::VectorXd
   a *= tau;
   block.col(0) -= a;
   for (Eigen::Index k = 0; k < n; ++k) block.col(k + 1) -= v[k] * a;
+}
+
+// y <- Q y, or Q^T y (transpose), for Q = H_0 ... H_{k-1} the first k reflectors of a PivotedQr of
+// the r x m w.Mt (r = y.size()); the first rho1 of them (a group) touch its rows [j, s) only.
+void ApplyReflectors(const Impl& w, int k, int rho1, int s, Eigen::Ref<Eigen::VectorXd> y,
+                     bool transpose) {
+  const int r = static_cast<int>(y.size());
+  const Eigen::Index ld = w.Mt.outerStride();
+  double* x = y.data();
+  for (int i = 0; i < k; ++i) {
+    const int j = transpose ? i : k - 1 - i;
+    const double tau = w.hcoeffs[j];
+    if (tau == 0.0) continue;
+    const int end = j < rho1 ? s : r;  // rows [j, end) the reflector touches
+    Reflect(x + j, w.Mt.data() + j * ld + j + 1, end - j - 1, tau);
+  }
 }
 
 // Householder QR with column pivoting of mt (r x m): mt Π = Q R, Q = H_0 H_1 ... H_{ρ-1}.
@@ -375,24 +420,23 @@ void ReflectSequenceRight(Eigen::Ref<Eigen::MatrixXd> X,
   for (; i < rows; ++i) ReflectStripRight<1>(x + i, ld, cols, mt.data(), ldm, tau.data(), j0, j1);
 }
 
-// Z_blk <- Z_blk H_0 ... H_{ρ-1}: its first ρ columns then span range(M^T), the others null(M).
+// The columns [ρ, r) of Z_blk H_0 ... H_{ρ-1}, i.e. of Z_blk Q, into Z_blk's: they span null(M)
+// within range(Z_blk), the freedom the levels below have (they read nothing else; columns
+// [0, ρ) are left stale). The product of the reflectors is formed on those columns alone, from
+// the last reflector to the first (LAPACK dorg2r's order: H_j acts on rows [j, r) of columns
+// that are still e_k there), i.e. Q [0; I] instead of Q.
 // With a group (rho1 > 0, the first level: Z_blk = P, see FirstLevelStructure), the first ρ_1
 // reflectors touch the s first coordinates only, i.e. columns [0, s) of P = [e_order[0] ...]:
-// they are accumulated on the s x s identity (B1) and scattered into the rows order[0..s) —
-// O(s² ρ_1) instead of O(n r ρ_1) (a 38-DoF humanoid: its feet touch 18 coordinates).
-// null_space_only: only the columns [ρ, r) are wanted (the levels below read nothing else;
-// columns [0, ρ) are left stale). The product of the reflectors is then formed on those
-// columns alone, from the last reflector to the first (LAPACK dorg2r's order: H_j acts on
-// rows [j, r) of columns that are still e_k there), i.e. Q [0; I] instead of Q: for the group,
-// its s - ρ_1 columns of B1 instead of s; for the other reflectors, when they are at least as
-// many as the columns left (ρ - ρ_1 >= r - ρ: a hand level after the feet), Q [0; I] costs
-// ~4 (r-ρ) ρ r flops and Z_blk Q [0; I] one matrix product (2 n r (r-ρ) flops, at the matrix
-// kernel's speed) instead of ~4 n ρ r in reflections.
+// they are accumulated on s - ρ_1 columns of the s x s identity (B1) and scattered into the
+// rows order[0..s) — O(s² ρ_1) instead of O(n r ρ_1) (a 38-DoF humanoid: its feet touch 18
+// coordinates). For the other reflectors, when they are at least as many as the columns left
+// (ρ - ρ_1 >= r - ρ: a hand level after the feet), Q [0; I] costs ~4 (r-ρ) ρ r flops and
+// Z_blk Q [0; I] one matrix product (2 n r (r-ρ) flops, at the matrix kernel's speed) instead
+// of ~4 n ρ r in reflections; otherwise they are applied to Z_blk as reflections.
 void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
-                 const Eigen::Ref<const Eigen::MatrixXd>& mt, int rho, int rho1, int s,
-                 bool null_space_only) {
+                 const Eigen::Ref<const Eigen::MatrixXd>& mt, int rho, int rho1, int s) {
   const int r = static_cast<int>(Z_blk.cols()), n = static_cast<int>(Z_blk.rows());
-  if (rho1 > 0 && null_space_only) {
+  if (rho1 > 0) {
     auto B = w.B1.topLeftCorner(s, s - rho1);  // Q_group [0; I_{s-ρ1}]
     B.setZero();
     B.bottomRows(s - rho1).setIdentity();
@@ -400,14 +444,9 @@ void RotateBasis(Impl& w, Eigen::Ref<Eigen::MatrixXd> Z_blk,
       ReflectLeft(B.bottomRows(s - j), mt.col(j).segment(j + 1, s - j - 1), w.hcoeffs[j]);
     }
     for (int k = 0; k < s; ++k) Z_blk.row(w.order[k]).segment(rho1, s - rho1) = B.row(k);
-  } else if (rho1 > 0) {
-    auto B = w.B1.topLeftCorner(s, s);
-    B.setIdentity();
-    ReflectSequenceRight(B, mt, w.hcoeffs, 0, rho1);
-    for (int k = 0; k < s; ++k) Z_blk.row(w.order[k]).head(s) = B.row(k);
   }
   if (rho1 == rho) return;
-  if (null_space_only && rho - rho1 >= r - rho) {
+  if (rho - rho1 >= r - rho) {
     const int width = r - rho1;  // the reflectors act on Z_blk's columns [ρ1, r)
     auto Q = w.Q_null.topLeftCorner(width, r - rho);
     Q.setZero();
@@ -540,27 +579,87 @@ bool LevelFeasible(const Impl& w, int mi, const Eigen::VectorXd& x, double tol) 
 // normal equations' error ~ε κ² then stays ~1e-12). Otherwise false, and the pivoted QR path
 // (rank, damping) decides as before. Replaces a QR of the r x m mt, a QR of the least squares
 // and, under a QP, the basis rotation by one r x r Gram product and its Cholesky factor.
-bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, double row_scale,
-               const HierarchyOptions& options) {
-  const int r = static_cast<int>(mt.rows());
+// FactorGram: w.Gram (its lower triangle) holds M^T M and w.g1 = -M^T c; on success H1 holds
+// its Cholesky factor, Gram all of it (the QP fallback reads it), u the step in u.
+bool FactorGram(Impl& w, int r, double floor, const HierarchyOptions& options) {
   auto G = w.Gram.topLeftCorner(r, r);
-  G.setZero();
-  G.selfadjointView<Eigen::Lower>().rankUpdate(mt);
   auto H = w.H1.topLeftCorner(r, r);
   H.triangularView<Eigen::Lower>() = G.triangularView<Eigen::Lower>();
   Eigen::LLT<Eigen::Ref<Eigen::MatrixXd>> llt(H);  // in place: no allocation
   if (llt.info() != Eigen::Success) return false;
   const double smallest = H.diagonal().cwiseAbs().minCoeff(),
                largest = H.diagonal().cwiseAbs().maxCoeff();
-  const double floor =
-      options.damping > 0.0 ? options.damping_threshold : 1e-4 * std::sqrt(row_scale);
+  if (options.damping > 0.0) floor = std::max(floor, options.damping_threshold);
   if (!(smallest >= floor && largest <= 100.0 * smallest)) return false;
   for (int i = 0; i < r; ++i) {
-    for (int j = i + 1; j < r; ++j) G(i, j) = G(j, i);  // the QP fallback reads all of it
+    for (int j = i + 1; j < r; ++j) G(i, j) = G(j, i);
   }
-  w.g1.head(r).noalias() = -mt * w.cperm.head(m);  // mt's column i is row perm[i] of A
   w.u.head(r) = -w.g1.head(r);
   llt.solveInPlace(w.u.head(r));
+  return true;
+}
+
+bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, double row_scale,
+               const HierarchyOptions& options) {
+  const int r = static_cast<int>(mt.rows());
+  auto G = w.Gram.topLeftCorner(r, r);
+  G.setZero();
+  G.selfadjointView<Eigen::Lower>().rankUpdate(mt);
+  w.g1.head(r).noalias() = -mt * w.cperm.head(m);  // mt's column i is row perm[i] of A
+  return FactorGram(w, r, options.damping > 0.0 ? 0.0 : 1e-4 * std::sqrt(row_scale), options);
+}
+
+// Where Z_blk is read from: Z_blk = F Q [0_offset; I], F = Z's columns [off, off + rf) and Q =
+// H_0 ... H_{k-1} the reflectors in Mt (the first rho1 a group of s rows): the pending rotation
+// of a level above, not applied (offset = its ρ), or none (k = 0, F = Z_blk).
+struct BasisRead {
+  int off, rf, k, rho1, s, offset;
+};
+
+// A Gram level (see GramLevel) of unit rows on distinct coordinates that leave out fewer than
+// they cover (a posture: all joints but the free flyer's 6), read through the pending rotation
+// (b): Z_blk's columns being orthonormal,
+//   M^T M = Σ_{c covered} z_c z_c^T = I - Y^T Y,  Y = Z_blk's rows at the coordinates left out,
+// and those rows, M^T c and the step Z_blk u go through the reflectors as few rows and vectors.
+// Z_blk is never formed (on the humanoid's reference stack, the hands level's rotation, 38 x 23
+// by 12 reflectors, was the solve's largest cost; nothing below a Gram level reads Z). The
+// factor is accepted only when its diagonal is >= 0.02 (the damping threshold's default): the
+// cancellation in I - Y^T Y (~1e-16) is then below 1e-12 of its smallest curvature.
+bool GramFromComplement(Impl& w, const BasisRead& b, int m, int r,
+                        const HierarchyOptions& options) {
+  const int n = static_cast<int>(w.Z.rows()), left_out = n - m;
+  if (left_out >= m || b.rf - b.offset != r) return false;
+  std::fill(w.covered.begin(), w.covered.end(), 0);
+  for (int i = 0; i < m; ++i) {
+    if (w.covered[w.a_col[i]]) return false;  // a repeated row: not a sum over coordinates
+    w.covered[w.a_col[i]] = 1;
+  }
+  const auto F = w.Z.middleCols(b.off, b.rf);
+  auto X = w.Ycomp.topLeftCorner(left_out, b.rf);
+  for (int c = 0, k = 0; c < n; ++c) {
+    if (!w.covered[c]) X.row(k++) = F.row(c);
+  }
+  if (b.k > 0) ReflectSequenceRight(X, w.Mt, w.hcoeffs, 0, b.k);
+  // G = I - Y^T Y, lower triangle (a loop: Eigen's rank update costs more in dispatch at 11 x 6).
+  const auto Y = X.rightCols(r);
+  auto G = w.Gram.topLeftCorner(r, r);
+  for (int j = 0; j < r; ++j) {
+    for (int i = j; i < r; ++i) G(i, j) = (i == j ? 1.0 : 0.0) - Y.col(i).dot(Y.col(j));
+  }
+  // -M^T c = -[0 I] Q^T F^T e, e = Σ_i c_i e_{col_i} (an n-vector: one product with F^T, whose
+  // columns are contiguous).
+  auto e = w.y_step.head(n);
+  e.setZero();
+  for (int i = 0; i < m; ++i) e[w.a_col[i]] = w.c[i];
+  auto t = w.y_point.head(b.rf);
+  t.noalias() = F.transpose() * e;
+  ApplyReflectors(w, b.k, b.rho1, b.s, t, /*transpose=*/true);
+  w.g1.head(r) = -t.tail(r);
+  if (!FactorGram(w, r, 0.02, options)) return false;
+  t.head(b.offset).setZero();
+  t.tail(r) = w.u.head(r);
+  ApplyReflectors(w, b.k, b.rho1, b.s, t, /*transpose=*/false);
+  w.x.noalias() += F * t;
   return true;
 }
 
@@ -617,12 +716,13 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// The level's QP. Variables: ũ (r), the coordinates of Z_blk (v = x_old + Z_blk ũ), and one
+// The level's QP. Variables: ũ (r), the coordinates of the rotated basis Z_blk Q (v = x_old +
+// Z_blk Q ũ, Q = H_0 ... H_{ρ-1} the level's reflectors; Q = I for a Gram level), and one
 // slack s_j per inequality row of the level's own:
 //   min ½ ũ^T H ũ + g^T ũ + ½ ||s||²
 //   s.t. lo_t <= val_t + d_t^T ũ <= hi_t              (carried rows t)
 //        lo_j <= val_j + d_j^T ũ - s_j <= hi_j        (the level's rows j)
-// with d = Z_blk^T (row)^T, val the row's value at x_old, and
+// with d = Q^T Z_blk^T (row)^T, val the row's value at x_old, and
 //   H = blockdiag(R1 R1^T + μ² I_ρ, ε I_{r-ρ}),  g = [-R1 cperm; 0]
 // (ũ_1: the level's objective directions after the rotation, ũ_2 the ones it does not see; a
 // Gram level: H = M^T M, g = -M^T c, ρ = r, unrotated). ε = qp_regularization (0: exact).
@@ -643,32 +743,77 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
 // every own row of W with a slack of that sign (s >= 0 at an upper bound: the row is violated
 // there, not merely touching it); stationarity holds by construction. Verify() checks exactly
 // that on the point a working set gives; nothing else is accepted.
+//
+// The rotated basis Z_blk Q is never formed (it cost as much as the rest of the QP: 38 x 23 by
+// 12 reflectors on a humanoid's hand level), nor, for a Gram level read through the pending
+// rotation of the level above (GramFromComplement), Z_blk itself: the QP is read through a
+// formed block F of Z and reflectors, y = Q [0; ũ] (QpShape), v = x_old + F y. A row's
+// direction in ũ (d = [0 I] Q^T F^T row^T) is formed only when the row joins W or eiquadprog
+// reads every row; the other rows' values and slopes are read in y (ToBasis).
 
-// The rows of the level's QP (see above) in the ũ coordinates: D.col(t), row_val, row_lo,
-// row_hi, row_live; carried rows first (nc), then the level's own (mi).
-void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, int mi,
+struct QpShape {
+  int r, rho, nc, mi;
+  double eps;
+  // y (rf) = Q [0_offset; ũ], Q = H_0 ... H_{k-1} the reflectors in Mt (ApplyReflectors; the
+  // first rho1 a group of s rows): a QR level's own (offset 0, rf = r), the pending rotation's
+  // for a Gram level read through it (offset its ρ), none (k = 0) for a Gram level on Z_blk.
+  int k, rho1, s, offset, rf;
+};
+
+// y (rf) <- Q [0; ũ]: a point or step of ũ in F's coordinates, where the rows' D reads it.
+void ToBasis(const Impl& w, const QpShape& q, const Eigen::Ref<const Eigen::VectorXd>& ut,
+             Eigen::VectorXd& y) {
+  y.head(q.offset).setZero();
+  y.segment(q.offset, q.r) = ut;
+  ApplyReflectors(w, q.k, q.rho1, q.s, y.head(q.rf), /*transpose=*/false);
+}
+
+// Dq.col(t) = [0 I] Q^T D.col(t), row t's direction in ũ, formed once per level. Where Q is not
+// square (offset > 0) the row's norm in ũ is known only then: so is whether it is live.
+void FormQpDirection(Impl& w, const QpShape& q, int t) {
+  if (w.dq_formed[t]) return;
+  auto y = w.y_step.head(q.rf);
+  y = w.D.col(t).head(q.rf);
+  ApplyReflectors(w, q.k, q.rho1, q.s, y, /*transpose=*/true);
+  w.Dq.col(t).head(q.r) = y.tail(q.r);
+  w.dq_formed[t] = 1;
+  if (w.row_live[t] == kLiveUnknown) {
+    w.row_live[t] = w.Dq.col(t).head(q.r).squaredNorm() > w.live_threshold[t];
+  }
+}
+
+// The rows of the level's QP (see above): D.col(t) (their directions in F's coordinates: F^T
+// row^T), row_val, row_lo, row_hi, row_live, qp_scale; carried rows first (nc), then the
+// level's own (mi).
+void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& F, const QpShape& q,
                  double rank_tolerance) {
-  const int r = static_cast<int>(Z_blk.cols()), nc = w.num_carried;
+  const int nc = w.num_carried;
   w.qp_scale = 0.0;
-  for (int t = 0; t < nc + mi; ++t) {
+  for (int t = 0; t < nc + q.mi; ++t) {
     const bool own = t >= nc;
     const int i = own ? t - nc : t;
     const int col = own ? w.c_col[i] : w.g_col[i];
-    auto d = w.D.col(t).head(r);
+    auto d = w.D.col(t).head(q.rf);
     double value, norm2 = 1.0;
     if (col >= 0) {
-      d = Z_blk.row(col).transpose();
+      d = F.row(col).transpose();
       value = w.x_old[col];
     } else {
       const auto row = own ? w.C.row(i) : w.G.row(i);
-      d.noalias() = Z_blk.transpose() * row.transpose();
+      d.noalias() = F.transpose() * row.transpose();
       value = row.dot(w.x_old);
       norm2 = std::max(1.0, row.squaredNorm());  // the rank threshold's scale, as for A
     }
     w.row_val[t] = value;
+    w.dq_formed[t] = 0;
     // A row the levels above fixed (what is left of it in the remaining freedom is below the
     // rank tolerance) cannot move: left out (an own row keeps its violation as its slack).
-    w.row_live[t] = d.squaredNorm() > rank_tolerance * rank_tolerance * norm2;
+    // Its norm in ũ is its norm in y when Q is square; otherwise it is known when its
+    // direction is formed (at once for own rows). qp_scale: the largest squared norm of a
+    // live row (in y, an upper bound, for rows whose norm in ũ is not known).
+    w.live_threshold[t] = rank_tolerance * rank_tolerance * norm2;
+    w.row_live[t] = q.offset == 0 ? d.squaredNorm() > w.live_threshold[t] : kLiveUnknown;
+    if (own) FormQpDirection(w, q, t);
     if (w.row_live[t]) w.qp_scale = std::max(w.qp_scale, d.squaredNorm());
     if (own) {
       w.row_lo[t] = w.clo[i];
@@ -690,7 +835,10 @@ bool PrepareObjective(Impl& w, int r, int m, int rho, double mu, double eps) {
     w.qp_scale = std::max(w.qp_scale, Hf.diagonal().maxCoeff());
     return true;  // (H1 = its Cholesky factor, g1: GramLevel)
   }
-  Hf.setZero();
+  // (block diagonal: only the blocks are written; the rest is zero)
+  Hf.topRightCorner(rho, r - rho).setZero();
+  Hf.bottomLeftCorner(r - rho, rho).setZero();
+  Hf.bottomRightCorner(r - rho, r - rho).setZero();
   Hf.diagonal().tail(r - rho).setConstant(eps);
   if (rho == 0) return true;
   auto R1 = w.R1.topLeftCorner(rho, m);
@@ -714,11 +862,6 @@ bool PrepareObjective(Impl& w, int r, int m, int rho, double mu, double eps) {
   w.g1.head(rho).noalias() = -R1 * w.cperm.head(m);
   return true;
 }
-
-struct QpShape {
-  int r, rho, nc, mi;
-  double eps;
-};
 
 // u <- H^-1 u (H block diagonal: H1's Cholesky factor, then 1/ε).
 void ApplyKInverse(const Impl& w, const QpShape& q, bool, Eigen::Ref<Eigen::VectorXd> u) {
@@ -875,6 +1018,7 @@ bool SolveWorkingSet(Impl& w, const QpShape& q) {
     kc += w.W_rows[i] < q.nc;
   }
   if (kc > r) return false;  // more fixed rows than DoF: dependent
+  for (int t : w.W_rows) FormQpDirection(w, q, t);
   const bool schur = !own && q.eps >= 1e-6;
   auto g = w.hig.head(r);  // g_W
   g.setZero();
@@ -885,7 +1029,7 @@ bool SolveWorkingSet(Impl& w, const QpShape& q) {
     for (int i = 0; i < k; ++i) {
       const int t = w.W_rows[i];
       if (t < q.nc) continue;
-      const auto d = w.D.col(t).head(r);
+      const auto d = w.Dq.col(t).head(r);
       K.noalias() += d * d.transpose();
       g -= d * (Bound(w, t, w.W_sides[i]) - w.row_val[t]);
     }
@@ -894,7 +1038,7 @@ bool SolveWorkingSet(Impl& w, const QpShape& q) {
   for (int i = 0; i < k; ++i) {
     const int t = w.W_rows[i];
     if (t >= q.nc) continue;
-    w.AW.col(kc).head(r) = w.D.col(t).head(r);
+    w.AW.col(kc).head(r) = w.Dq.col(t).head(r);
     w.beta[kc++] = Bound(w, t, w.W_sides[i]) - w.row_val[t];
   }
   if (!schur) {
@@ -936,7 +1080,7 @@ bool SolveWorkingSet(Impl& w, const QpShape& q) {
     const int t = w.W_rows[i];
     if (t < q.nc) continue;
     w.s_eqp[t - q.nc] =
-        w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r)) - Bound(w, t, w.W_sides[i]);
+        w.row_val[t] + w.Dq.col(t).head(r).dot(w.ut.head(r)) - Bound(w, t, w.W_sides[i]);
   }
   return true;
 }
@@ -955,9 +1099,11 @@ double WrongSign(const Impl& w, const QpShape& q, int i, int carried_index, doub
 // bounds by more than tol, else the index in W of the worst wrong sign (-1: none, optimal).
 int Verify(Impl& w, const QpShape& q, double tol, double dual_tol) {
   const int r = q.r, nt = q.nc + q.mi, k = static_cast<int>(w.W_rows.size());
+  ToBasis(w, q, w.ut.head(r), w.y_point);
+  const auto y = w.y_point.head(q.rf);
   for (int t = 0; t < nt; ++t) {
     if (!w.row_live[t] || w.in_W[t]) continue;
-    const double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
+    const double value = w.row_val[t] + w.D.col(t).head(q.rf).dot(y);
     if (!Inside(value, w.row_lo[t], w.row_hi[t], tol)) {
       return -2;
     }
@@ -971,7 +1117,7 @@ int Verify(Impl& w, const QpShape& q, double tol, double dual_tol) {
   double grad_scale = grad.cwiseAbs().maxCoeff();
   for (int i = 0, c = 0; i < k; ++i) {
     const int t = w.W_rows[i];
-    const auto d = w.D.col(t).head(r);
+    const auto d = w.Dq.col(t).head(r);
     const double f = t < q.nc ? -w.lambda[c++] : w.s_eqp[t - q.nc];
     grad += f * d;
     grad_scale = std::max(grad_scale, std::abs(f) * d.cwiseAbs().maxCoeff());
@@ -984,7 +1130,7 @@ int Verify(Impl& w, const QpShape& q, double tol, double dual_tol) {
   for (int i = 0; i < k; ++i) {
     const int t = w.W_rows[i];
     if (t < q.nc) {
-      const double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
+      const double value = w.row_val[t] + w.D.col(t).head(q.rf).dot(y);
       if (std::abs(value - Bound(w, t, w.W_sides[i])) > tol) {
         return -2;
       }
@@ -1082,11 +1228,16 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
                        (w.s_eqp.head(q.mi) - s).cwiseAbs().maxCoeff() > 1e-13;
     double alpha = 1.0;
     int blocking = -1, blocking_side = 0;
+    // The rows' values at u and slopes along p, read in Z_blk's coordinates.
+    ToBasis(w, q, u, w.y_point);
+    ToBasis(w, q, p, w.step);
+    const auto yu = w.y_point.head(q.rf), yp = w.step.head(q.rf);
+    const double yp_norm = yp.cwiseAbs().maxCoeff();
     for (int t = 0; moves && t < nt; ++t) {
       if (!w.row_live[t] || w.in_W[t] || w.implied[t]) continue;
-      const auto d = w.D.col(t).head(r);
-      double value = w.row_val[t] + d.dot(u), slope = d.dot(p);
-      double scale = d.cwiseAbs().maxCoeff() * p_norm;
+      const auto d = w.D.col(t).head(q.rf);
+      double value = w.row_val[t] + d.dot(yu), slope = d.dot(yp);
+      double scale = d.cwiseAbs().maxCoeff() * yp_norm;
       if (t >= q.nc) {
         const int j = t - q.nc;
         value -= s[j];
@@ -1107,6 +1258,8 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
         side = -1;
       }
       if (side != 0 && step < alpha) {
+        FormQpDirection(w, q, t);  // (whether it is live, if not known yet)
+        if (!w.row_live[t]) continue;
         alpha = std::max(step, 0.0);
         blocking = t;
         blocking_side = side;
@@ -1132,11 +1285,14 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
 
 // One QP for the level by eiquadprog's dual active-set method (Goldfarb–Idnani, TSID's QP),
 // the fallback when the primal method fails (degenerate working sets): variables (ũ (r),
-// s (mi)), the same objective and rows. Returns false on failure; else its point in w.ut /
-// w.s_eqp, and the rows it holds at a bound in W (its working set, to be verified).
+// s (mi)), the same objective and rows. Returns false on failure; else its point in qp.z (and
+// w.ut / w.s_eqp); its working set, to be verified, is then read by WorkingSetAtBounds.
 bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport* report) {
   const int r = q.r, n = static_cast<int>(w.Z.rows()), nt = q.nc + q.mi;
   const int slack0 = n;  // slack variables follow the (padded) ũ
+  for (int t = 0; t < nt; ++t) {
+    if (w.row_live[t]) FormQpDirection(w, q, t);
+  }
   qp.H.setZero();
   qp.g.setZero();
   qp.H.topLeftCorner(r, r) = w.Hfull.topLeftCorner(r, r);
@@ -1153,7 +1309,7 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
     if (!w.row_live[t]) continue;
     Eigen::VectorXd& a = qp.row;
     a.setZero();
-    a.head(r) = w.D.col(t).head(r);
+    a.head(r) = w.Dq.col(t).head(r);
     if (t >= q.nc) a[slack0 + t - q.nc] = -1.0;
     if (!std::isinf(w.row_lo[t])) {
       qp.CI.row(2 * t) = a.transpose();
@@ -1171,11 +1327,17 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
     return false;
   w.ut.head(r) = qp.z.head(r);
   w.s_eqp.head(q.mi) = qp.z.segment(slack0, q.mi);
+  return true;
+}
+
+// W <- the rows within 1e-9 of a bound at eiquadprog's point (qp.z: ũ, then the slacks).
+void WorkingSetAtBounds(Impl& w, const Impl::LevelQp& qp, const QpShape& q) {
+  const int r = q.r, nt = q.nc + q.mi, slack0 = static_cast<int>(w.Z.rows());
   ClearWorkingSet(w);
   for (int t = 0; t < nt; ++t) {
     if (!w.row_live[t]) continue;
-    double value = w.row_val[t] + w.D.col(t).head(r).dot(w.ut.head(r));
-    if (t >= q.nc) value -= w.s_eqp[t - q.nc];
+    double value = w.row_val[t] + w.Dq.col(t).head(r).dot(qp.z.head(r));
+    if (t >= q.nc) value -= qp.z[slack0 + t - q.nc];
     const double scale = 1e-9 * (1.0 + std::abs(value));
     if (std::abs(value - w.row_hi[t]) <= scale) {
       AddToWorkingSet(w, t, 1);
@@ -1183,7 +1345,6 @@ bool SolveLevelQp(Impl& w, Impl::LevelQp& qp, const QpShape& q, HierarchyReport*
       AddToWorkingSet(w, t, -1);
     }
   }
-  return true;
 }
 
 // A row PrepareRows left out as fixed (its direction in the remaining freedom below the rank
@@ -1207,25 +1368,30 @@ bool ReviveMovedRows(Impl& w, int mi, double tol) {
 // iterations), 1 eiquadprog (its working set verified; with the shortcut off, an unverified
 // eiquadprog point is repaired by the primal iterations, still not the shortcut), -1 none
 // verified (w.x = the primal method's last iterate: feasible, not proven optimal).
-int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, const QpShape& q,
+int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& F, const QpShape& q,
             bool shortcut, double tol, HierarchyReport* report) {
   auto accept = [&]() {
+    ToBasis(w, q, w.ut.head(q.r), w.y_point);
     w.x = w.x_old;
-    w.x.noalias() += Z_blk * w.ut.head(q.r);
+    w.x.noalias() += F * w.y_point.head(q.rf);
     w.active[level].clear();
     for (size_t i = 0; i < w.W_rows.size(); ++i)
       w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
     ClearWorkingSet(w);
   };
   auto eiquadprog = [&]() {
-    return SolveLevelQp(w, *w.qps[level], q, report) && TryWorkingSet(w, q, tol);
+    if (!SolveLevelQp(w, *w.qps[level], q, report)) return false;
+    WorkingSetAtBounds(w, *w.qps[level], q);
+    return TryWorkingSet(w, q, tol);
   };
   auto primal = [&]() { return PrimalActiveSet(w, q, tol); };
   if (shortcut) {
     ClearWorkingSet(w);
     const int nt = q.nc + q.mi;
     for (const auto& [t, side] : w.active[level]) {
-      if (t < nt && w.row_live[t] && !w.in_W[t] && !std::isinf(Bound(w, t, side))) {
+      if (t >= nt) continue;
+      FormQpDirection(w, q, t);
+      if (w.row_live[t] && !w.in_W[t] && !std::isinf(Bound(w, t, side))) {
         AddToWorkingSet(w, t, side);
       }
     }
@@ -1254,8 +1420,9 @@ int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& Z_blk, 
   // Nothing verified: the primal method's last iterate, feasible whatever its outcome.
   ClearWorkingSet(w);
   w.active[level].clear();
+  ToBasis(w, q, w.u.head(q.r), w.y_point);
   w.x = w.x_old;
-  w.x.noalias() += Z_blk * w.u.head(q.r);
+  w.x.noalias() += F * w.y_point.head(q.rf);
   return -1;
 }
 
@@ -1312,7 +1479,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
   auto rotate_pending = [&]() {
     if (pending.rho == 0) return;
     RotateBasis(w, w.Z.middleCols(pending.off, pending.r), w.Mt.topLeftCorner(pending.r, pending.m),
-                pending.rho, pending.rho1, pending.s_group, /*null_space_only=*/true);
+                pending.rho, pending.rho1, pending.s_group);
     pending.rho = 0;
   };
   for (int l = 0; l < num_levels; ++l) {
@@ -1327,21 +1494,24 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       const int first_row = row;
       row += shape.rows;
       if (!t.active) continue;
+      // (A task's rows are copied as one block: row by row, both column-major matrices are
+      // read and written with a stride.)
+      const bool unit = !shape.unit_columns.empty();
       if (t.inequality) {
+        if (!unit) w.C.middleRows(mi, shape.rows) = t.jacobian;
         for (int i = 0; i < shape.rows; ++i, ++mi) {
-          w.c_col[mi] = shape.unit_columns.empty() ? -1 : shape.unit_columns[i];
-          if (w.c_col[mi] < 0) w.C.row(mi) = t.jacobian.row(i);
+          w.c_col[mi] = unit ? shape.unit_columns[i] : -1;
           w.clo[mi] = t.lower[i];
           w.chi[mi] = t.upper[i];
         }
       } else {
+        if (!unit) {
+          w.A.middleRows(m, shape.rows) = t.jacobian;
+          row_scale = std::max(row_scale, t.jacobian.rowwise().squaredNorm().maxCoeff());
+          dense = true;
+        }
         for (int i = 0; i < shape.rows; ++i, ++m) {
-          w.a_col[m] = shape.unit_columns.empty() ? -1 : shape.unit_columns[i];
-          if (w.a_col[m] < 0) {
-            w.A.row(m) = t.jacobian.row(i);
-            row_scale = std::max(row_scale, w.A.row(m).squaredNorm());
-            dense = true;
-          }
+          w.a_col[m] = unit ? shape.unit_columns[i] : -1;
           w.b[m] = t.lower[i] + (target_offsets ? (*target_offsets)[first_row + i] : 0.0);
         }
       }
@@ -1355,9 +1525,24 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     w.x_old = w.x;
     int rho = 0, rho1 = 0, m1 = 0, s_group = 0;
     w.gram = false;
-    bool rotated = false;
     auto Z_blk = w.Z.middleCols(off, r);
-    if (m > 0 && r > 0) {
+    // Where this level reads Z_blk from: Z_blk itself, or (a Gram level from its complement)
+    // through the pending rotation, left unapplied.
+    BasisRead basis{off, r, 0, 0, 0, 0};
+    if (m > 0 && r > 0 && !dense && m >= r) {
+      for (int i = 0; i < m; ++i) w.c[i] = w.b[i] - w.x[w.a_col[i]];
+      const BasisRead through = pending.rho > 0
+                                    ? BasisRead{pending.off,  pending.r,       pending.rho,
+                                                pending.rho1, pending.s_group, pending.rho}
+                                    : basis;
+      if (GramFromComplement(w, through, m, r, options)) {
+        w.gram = true;
+        basis = through;
+        rho = r;
+        report.gram_levels[l] = true;
+      }
+    }
+    if (m > 0 && r > 0 && !w.gram) {
       rotate_pending();
       auto mt = w.Mt.topLeftCorner(r, m);
       if (dense) {
@@ -1410,12 +1595,10 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
         }
         report.dampings[l] = mu;
         SolveLeastSquares(w, m, rho, mu);
-        // u = Q [y; 0] (apply H_{ρ-1} first), v += Z u.
+        // u = Q [y; 0], v += Z u.
         w.u.head(r).setZero();
         w.u.head(rho) = w.y.head(rho);
-        for (int j = rho - 1; j >= 0; --j) {
-          ReflectLeft(w.u.segment(j, r - j), w.Mt.col(j).segment(j + 1, r - j - 1), w.hcoeffs[j]);
-        }
+        ApplyReflectors(w, rho, rho1, s_group, w.u.head(r), /*transpose=*/false);
         w.x.noalias() += Z_blk * w.u.head(r);
       }
     }
@@ -1424,21 +1607,25 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
     if (inside) w.active[l].clear();
     if (w.num_carried + mi > 0 && !inside) {
       if (r > 0) {
-        rotate_pending();          // (a level above's; this level's own follows)
-        if (rho > 0 && !w.gram) {  // a Gram level's QP works in the unrotated u
-          RotateBasis(w, Z_blk, w.Mt.topLeftCorner(r, m), rho, rho1, s_group,
-                      /*null_space_only=*/false);
-          rotated = true;
-        }
+        // The QP reads Z_blk: a pending rotation is applied, unless this level reads through it.
+        if (basis.k == 0) rotate_pending();
         report.qp_levels[l] = true;
         ++report.num_qp;
-        const QpShape q{r, rho, w.num_carried, mi, options.qp_regularization};
-        PrepareRows(w, Z_blk, mi, options.rank_tolerance);
+        QpShape q{r, rho, w.num_carried, mi, options.qp_regularization, rho, rho1, s_group, 0, r};
+        if (w.gram) {  // unrotated: through the pending rotation or none
+          q.k = basis.k;
+          q.rho1 = basis.rho1;
+          q.s = basis.s;
+          q.offset = basis.offset;
+          q.rf = basis.rf;
+        }
+        const auto F = w.Z.middleCols(basis.off, basis.rf);
+        PrepareRows(w, F, q, options.rank_tolerance);
         int how = PrepareObjective(w, r, m, rho, report.dampings[l], q.eps)
-                      ? SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report)
+                      ? SolveQp(w, l, F, q, options.active_set_shortcut, tol, &report)
                       : -1;
         if (how >= 0 && ReviveMovedRows(w, mi, tol)) {
-          how = SolveQp(w, l, Z_blk, q, options.active_set_shortcut, tol, &report);
+          how = SolveQp(w, l, F, q, options.active_set_shortcut, tol, &report);
         }
         if (how == 0) {
           report.active_set_levels[l] = true;
@@ -1449,7 +1636,7 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
       }
       // r == 0: v is fixed by the levels above; the slack below records the violation.
     }
-    if (rho > 0 && !rotated && !w.gram) {  // (Gram: ρ = r, no null space)
+    if (rho > 0 && !w.gram) {  // (Gram: ρ = r, no null space)
       pending = {off, r, m, rho, rho1, s_group};
     }
     // Carry the level's inequality rows, shifted by their optimal slack s = Cv - clip(Cv).

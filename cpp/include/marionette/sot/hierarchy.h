@@ -12,17 +12,20 @@
 /// remaining freedom (n x r, r shrinking level by level) is kept explicitly. At each level,
 /// M = A Z is decomposed by a Householder QR with column pivoting of M^T (rank revealing, much
 /// cheaper than an SVD); the least-squares step (damped near singularities) moves v within
-/// range(Z), and Z is rotated so that its trailing columns span null(M) (eq. 3.10; when the
-/// levels below read only those columns, only they are formed). Two shortcuts keep that exact
-/// while cutting its cost: the first level with equality rows factors its sparse rows first on
-/// the few coordinates they touch (a foot: free flyer + one leg), so their reflectors rotate a
-/// small block of Z; a level whose rows outnumber the remaining DoF and, well conditioned, use
-/// them all (a posture under feet and hands) is solved on its Gram matrix M^T M (Cholesky) with
-/// no QR and no rotation, nothing remaining below it. The
-/// unconstrained step is exact for the cascade whenever it satisfies every inequality carried
-/// from above and the level's own: that is checked, and only when it fails is the level solved
-/// as a QP. That QP is first tried by an active-set shortcut: the rows active at the last tick
-/// (carried bounds, and the level's own inequality rows) are fixed and the equality QP solved
+/// range(Z), and Z's trailing columns are rotated onto null(M) (eq. 3.10) when a level below
+/// reads them: only those columns are formed, and a QP on the level works in the rotated
+/// coordinates without forming them (the reflectors are applied to the few vectors it reads).
+/// Shortcuts keep that exact while cutting its cost: the first level with equality rows factors
+/// its sparse rows first on the few coordinates they touch (a foot: free flyer + one leg), so
+/// their reflectors rotate a small block of Z; a level whose rows outnumber the remaining DoF
+/// and, well conditioned, use them all (a posture under feet and hands) is solved on its Gram
+/// matrix M^T M (Cholesky) with no QR and no rotation, nothing remaining below it — and when its
+/// rows are unit rows covering most coordinates (a posture on every joint), M^T M = I - Y^T Y
+/// from the few rows Y of Z it leaves out, read through the rotation above, which is then never
+/// formed. The unconstrained step is exact for the cascade whenever it satisfies every inequality
+/// carried from above and the level's own: that is checked, and only when it fails is the level
+/// solved as a QP. That QP is first tried by an active-set shortcut: the rows active at the last
+/// tick (carried bounds, and the level's own inequality rows) are fixed and the equality QP solved
 /// through its Schur complement; then, if needed, a primal active-set iteration from the current
 /// point (Nocedal & Wright §16.5). A point is accepted only with a KKT certificate: every row
 /// within its bounds, stationarity, every fixed carried row's multiplier and every fixed own
