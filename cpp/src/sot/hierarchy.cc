@@ -248,8 +248,7 @@ using Impl = HierarchyWorkspace::Impl;
 
 // x <- H x, H = I - tau [1; v] [1; v]^T, x of 1 + n contiguous entries. (One running sum: four
 // independent ones, tried, changed the rounding enough to leave one QP of the cascade reference
-// test uncertified, TIAGo stack 324: at a degenerate vertex the primal method cycled on a
-// multiplier below 1e-8.)
+// test uncertified: at a degenerate vertex the primal method cycled on a multiplier below 1e-8.)
 inline void Reflect(double* x, const double* v, Eigen::Index n, double tau) {
   double dot = x[0];
   for (Eigen::Index i = 0; i < n; ++i) dot += v[i] * x[1 + i];
