@@ -1,15 +1,20 @@
 """Runs the sot benchmark and its peers in one run, prints medians / p99 / ratios, writes JSON.
 
-    python compare.py --ours BIN --tsid BIN --pink-python PY [--ticks N] [--out FILE]
+    python compare.py --ours BIN --tsid BIN --pink-python PY [--ticks N] [--rounds R]
+                      [--out FILE]
 
 1. `--ours` (marionette-bench-sot) times the TALOS reference stack and prints, per scenario, the
    model files and the reach it used;
 2. for every scenario with joint limits (nominal, bounds_binding), the same stack is run in
-   TSID (`--tsid`, marionette-bench-sot-tsid, C++) and in pink (pink_bench.py under
-   `--pink-python`), with the same model files, reach, gains and tick count;
-3. prints one table per scenario and the ratios ours / peer of the median and p99 of the
-   per-tick solve path (ours: kinematics + tasks + solve; TSID: bounds + computeProblemData +
-   QP; pink: configuration.update + solve_ik), and writes everything to `--out`.
+   TSID (`--tsid`, marionette-bench-sot-tsid, C++), with the same model files, reach, gains and
+   tick count; 1 and 2 alternate `--rounds` times (a shared machine's speed drifts by tens of
+   % within a minute: the ratio of one round compares two moments), and the ratio to TSID is
+   the median of the rounds' ratios;
+3. pink (pink_bench.py under `--pink-python`) runs once per scenario;
+4. prints one table per scenario (the round whose nominal ratio is the median) and the ratios
+   ours / peer of the median and p99 of the per-tick solve path (ours: kinematics + tasks +
+   solve; TSID: bounds + computeProblemData + QP; pink: configuration.update + solve_ik), and
+   writes everything to `--out`.
 Only the standard library: runs under any Python 3.
 """
 
@@ -50,6 +55,30 @@ def ratio(a: float, b: float) -> float | None:
     return a / b if b > 0 else None
 
 
+def median(values: list[float | None]) -> float | None:
+    known = sorted(v for v in values if v is not None)
+    return known[(len(known) - 1) // 2] if known else None  # (the lower one, if even)
+
+
+def peer_arguments(model: dict, args: argparse.Namespace) -> list[str]:
+    """The model files, tick count and posture weight every peer is given."""
+    return [
+        "--urdf",
+        model["urdf"],
+        "--srdf",
+        model["srdf"],
+        "--ticks",
+        str(args.ticks),
+        "--posture-weight",
+        repr(args.posture_weight),
+    ]
+
+
+def scenario_arguments(ours: dict, scenario: str) -> list[str]:
+    """The scenario and the reach marionette used in it."""
+    return ["--scenario", scenario, "--reach", *[repr(x) for x in ours[scenario]["reach"]]]
+
+
 def fmt_ratio(r: float | None) -> str:
     return "-" if r is None else f"{r:.2f}x"
 
@@ -66,35 +95,49 @@ def main(argv: list[str] | None = None) -> int:
         default=1e-5,
         help="peers' posture weight relative to the grippers (two-level QPs)",
     )
+    p.add_argument(
+        "--rounds",
+        type=int,
+        default=3,
+        help="marionette and TSID alternate this many times; ratio = median of the rounds'",
+    )
     p.add_argument("--out", default="reports/bench/sot.json")
     args = p.parse_args(argv)
     if args.ticks < 10000:
         p.error(f"--ticks must be >= 10000 (got {args.ticks})")
+    if args.rounds < 1:
+        p.error(f"--rounds must be >= 1 (got {args.rounds})")
     for exe in (args.ours, args.tsid, args.pink_python):
         if not pathlib.Path(exe).exists():
             p.error(f"not found: {exe}")
 
-    ours = run_json([args.ours, "--ticks", str(args.ticks)], "marionette (C++)")
-    model = ours.pop("model")
-    common = [
-        "--urdf",
-        model["urdf"],
-        "--srdf",
-        model["srdf"],
-        "--ticks",
-        str(args.ticks),
-        "--posture-weight",
-        repr(args.posture_weight),
+    rounds: list[tuple[dict, dict]] = []  # (ours, TSID per scenario)
+    for k in range(args.rounds):
+        tag = f"round {k + 1}/{args.rounds}"
+        ours = run_json([args.ours, "--ticks", str(args.ticks)], f"marionette (C++) {tag}")
+        model = ours.pop("model")
+        tsid = {}
+        for scenario in PEER_SCENARIOS:
+            tsid[scenario] = run_json(
+                [args.tsid, *peer_arguments(model, args), *scenario_arguments(ours, scenario)],
+                f"TSID (C++) {scenario} {tag}",
+            )[scenario]
+        rounds.append((ours, tsid))
+    round_ratios = [
+        {sc: ratio(o[sc]["solve_path"]["median"], t[sc]["tick"]["median"]) for sc in PEER_SCENARIOS}
+        for o, t in rounds
     ]
-    peers: dict[str, dict] = {"tsid": {}, "pink": {}}
+    by_nominal = sorted(range(len(rounds)), key=lambda k: round_ratios[k]["nominal"] or 1e9)
+    ours, tsid = rounds[by_nominal[(len(rounds) - 1) // 2]]  # the median round (lower, if even)
+    peers: dict[str, dict] = {"tsid": tsid, "pink": {}}
     for scenario in PEER_SCENARIOS:
-        reach = [repr(x) for x in ours[scenario]["reach"]]
-        scen = ["--scenario", scenario, "--reach", *reach]
-        peers["tsid"][scenario] = run_json([args.tsid, *common, *scen], f"TSID (C++) {scenario}")[
-            scenario
-        ]
         peers["pink"][scenario] = run_json(
-            [args.pink_python, str(HERE / "pink_bench.py"), *common, *scen],
+            [
+                args.pink_python,
+                str(HERE / "pink_bench.py"),
+                *peer_arguments(model, args),
+                *scenario_arguments(ours, scenario),
+            ],
             f"pink (Python) {scenario}",
         )[scenario]
 
@@ -139,15 +182,19 @@ def main(argv: list[str] | None = None) -> int:
             for phase in parts:
                 print(f"  {'  ' + phase:34s}{r[phase]['median']:9.1f}{r[phase]['p99']:10.1f}")
             ratios[scenario][name] = {
-                "median": ratio(o["solve_path"]["median"], r["tick"]["median"]),
+                "median": median([rr[scenario] for rr in round_ratios])
+                if name == "tsid"
+                else ratio(o["solve_path"]["median"], r["tick"]["median"]),
                 "p99": ratio(o["solve_path"]["p99"], r["tick"]["p99"]),
                 "solve_only_median": ratio(o["solve"]["median"], r["solve"]["median"]),
             }
             if r.get("qp_failures"):
                 print(f"  !! {name}: {r['qp_failures']} QP failures")
         rt, rp = ratios[scenario]["tsid"], ratios[scenario]["pink"]
+        rt["rounds"] = [rr[scenario] for rr in round_ratios]
         print(
-            f"  ratio marionette / TSID: median {fmt_ratio(rt['median'])}, p99 "
+            f"  ratio marionette / TSID: median {fmt_ratio(rt['median'])} (median of "
+            f"{len(rounds)} rounds: {', '.join(fmt_ratio(x) for x in rt['rounds'])}), p99 "
             f"{fmt_ratio(rt['p99'])}, solver alone {fmt_ratio(rt['solve_only_median'])}; "
             f"/ pink: median {fmt_ratio(rp['median'])}, p99 {fmt_ratio(rp['p99'])}"
         )
@@ -174,6 +221,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "sot",
         "unit": "us",
         "ticks": args.ticks,
+        "rounds": [{"marionette": o, "tsid": t} for o, t in rounds],
         "model": model,
         "peer_posture_weight": args.posture_weight,
         "machine": {
