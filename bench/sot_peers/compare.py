@@ -24,6 +24,7 @@ import argparse
 import json
 import pathlib
 import platform
+import statistics
 import subprocess
 import sys
 import time
@@ -56,8 +57,9 @@ def ratio(a: float, b: float) -> float | None:
 
 
 def median(values: list[float | None]) -> float | None:
-    known = sorted(v for v in values if v is not None)
-    return known[(len(known) - 1) // 2] if known else None  # (the lower one, if even)
+    """The median of the known values (the lower one of the middle two, if even)."""
+    known = [v for v in values if v is not None]
+    return statistics.median_low(known) if known else None
 
 
 def peer_arguments(model: dict, args: argparse.Namespace) -> list[str]:
@@ -165,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         if scenario not in PEER_SCENARIOS:
             continue
         ratios[scenario] = {}
+        tsid_rounds = [rr[scenario] for rr in round_ratios]
         for name, label, parts in (
             ("tsid", "TSID 1.10 C++ (data+QP)", ("kinematics", "problem_data", "solve")),
             ("pink", "pink 4.4 + daqp (Python)", ("kinematics", "solve")),
@@ -182,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             for phase in parts:
                 print(f"  {'  ' + phase:34s}{r[phase]['median']:9.1f}{r[phase]['p99']:10.1f}")
             ratios[scenario][name] = {
-                "median": median([rr[scenario] for rr in round_ratios])
+                "median": median(tsid_rounds)
                 if name == "tsid"
                 else ratio(o["solve_path"]["median"], r["tick"]["median"]),
                 "p99": ratio(o["solve_path"]["p99"], r["tick"]["p99"]),
@@ -191,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
             if r.get("qp_failures"):
                 print(f"  !! {name}: {r['qp_failures']} QP failures")
         rt, rp = ratios[scenario]["tsid"], ratios[scenario]["pink"]
-        rt["rounds"] = [rr[scenario] for rr in round_ratios]
+        rt["rounds"] = tsid_rounds
         print(
             f"  ratio marionette / TSID: median {fmt_ratio(rt['median'])} (median of "
             f"{len(rounds)} rounds: {', '.join(fmt_ratio(x) for x in rt['rounds'])}), p99 "

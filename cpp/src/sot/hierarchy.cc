@@ -197,13 +197,15 @@ struct HierarchyWorkspace::Impl {
     third_party::eiquadprog::solvers::EiquadprogFast solver;
   };
   std::vector<std::unique_ptr<LevelQp>> qps;
-  // The level QP (see SolveQp), in the r coordinates ũ = Q^T u of Z_blk Q. Its objective: R1
-  // (ρ x m) the level's triangular factor, H1 = R1 R1^T + μ² I (ρ x ρ, then its Cholesky factor
-  // in place), g1 = -R1 cperm (ρ), Hfull the whole H (r x r, unfactored). Its rows (carried,
-  // then the level's own; t < nc + mi): D.col(t) their directions in u (r), Dq.col(t) in ũ
-  // (formed when first needed: dq_formed), row_val their values at x_old, row_lo / row_hi
-  // their bounds, row_live whether the levels above left them free; y_point, y_step: points
-  // and steps of ũ taken to u (ToBasis).
+  // The level QP (see SolveQp), in the r coordinates ũ of its basis (QpShape). Its objective:
+  // with R1 (ρ x m) the level's triangular factor (the upper part of Mt's first ρ rows),
+  // H1 = R1 R1^T + μ² I (ρ x ρ, then its Cholesky factor in place), g1 = -R1 cperm (ρ), Hfull
+  // the whole H (r x r, unfactored); R1 itself is SolveLeastSquares' scratch. Its rows (carried,
+  // then the level's own; t < nc + mi): D.col(t) their directions in the formed block F's
+  // coordinates, Dq.col(t) in ũ (formed when first needed: dq_formed), row_val their values at
+  // x_old, row_lo / row_hi their bounds, row_live whether the levels above left them free.
+  // Scratch: y_point (a point of ũ in F's coordinates, ToBasis), y_step (FormQpDirection's and
+  // GramFromComplement's), step (the primal method's step in F's coordinates), dv (Verify's F y).
   Eigen::MatrixXd R1, H1, Hfull, D, Dq;
   Eigen::VectorXd g1, row_val, row_lo, row_hi, y_point, y_step, step, dv;
   std::vector<char> dq_formed;
@@ -617,12 +619,27 @@ bool GramLevel(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& mt, int m, doub
   return FactorGram(w, r, options.damping > 0.0 ? 0.0 : 1e-4 * std::sqrt(row_scale), options);
 }
 
-// Where Z_blk is read from: Z_blk = F Q [0_offset; I], F = Z's columns [off, off + rf) and Q =
-// H_0 ... H_{k-1} the reflectors in Mt (the first rho1 a group of s rows): the pending rotation
-// of a level above, not applied (offset = its ρ), or none (k = 0, F = Z_blk).
+// A basis read without forming it: F Q [0_offset; I], F = Z's columns [off, off + rf) (formed)
+// and Q = H_0 ... H_{k-1} the reflectors in Mt (ApplyReflectors; the first rho1 a group of s
+// rows). Z_blk read through the pending rotation of a level above (offset = its ρ), or Z_blk
+// itself (k = 0); a QR level's QP coordinates: Z_blk and its own reflectors (offset 0).
 struct BasisRead {
   int off, rf, k, rho1, s, offset;
 };
+
+// F, the formed block of a BasisRead.
+Eigen::Block<const Eigen::MatrixXd, Eigen::Dynamic, Eigen::Dynamic, true> Formed(
+    const Impl& w, const BasisRead& b) {
+  return w.Z.middleCols(b.off, b.rf);
+}
+
+// y (rf) <- Q [0; u]: a point or step u of the basis in F's coordinates.
+void ToBasis(const Impl& w, const BasisRead& b, const Eigen::Ref<const Eigen::VectorXd>& u,
+             Eigen::VectorXd& y) {
+  y.head(b.offset).setZero();
+  y.segment(b.offset, b.rf - b.offset) = u;
+  ApplyReflectors(w, b.k, b.rho1, b.s, y.head(b.rf), /*transpose=*/false);
+}
 
 // A Gram level (see GramLevel) of unit rows on distinct coordinates that leave out fewer than
 // they cover (a posture: all joints but the free flyer's 6), read through the pending rotation
@@ -642,7 +659,7 @@ bool GramFromComplement(Impl& w, const BasisRead& b, int m, int r,
     if (w.covered[w.a_col[i]]) return false;  // a repeated row: not a sum over coordinates
     w.covered[w.a_col[i]] = 1;
   }
-  const auto F = w.Z.middleCols(b.off, b.rf);
+  const auto F = Formed(w, b);
   auto X = w.Ycomp.topLeftCorner(left_out, b.rf);
   for (int c = 0, k = 0; c < n; ++c) {
     if (!w.covered[c]) X.row(k++) = F.row(c);
@@ -664,10 +681,8 @@ bool GramFromComplement(Impl& w, const BasisRead& b, int m, int r,
   ApplyReflectors(w, b.k, b.rho1, b.s, t, /*transpose=*/true);
   w.g1.head(r) = -t.tail(r);
   if (!FactorGram(w, r, 0.02, options)) return false;
-  t.head(b.offset).setZero();
-  t.tail(r) = w.u.head(r);
-  ApplyReflectors(w, b.k, b.rho1, b.s, t, /*transpose=*/false);
-  w.x.noalias() += F * t;
+  ToBasis(w, b, w.u.head(r), w.y_point);
+  w.x.noalias() += F * w.y_point.head(b.rf);
   return true;
 }
 
@@ -688,7 +703,7 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
   const double largest = w.Mt(0, 0) * w.Mt(0, 0),
                smallest = w.Mt(rho - 1, rho - 1) * w.Mt(rho - 1, rho - 1);
   if (largest + mu * mu <= 1e4 * (smallest + mu * mu)) {
-    auto U = w.R1.topLeftCorner(rho, m);  // scratch (PrepareObjective rebuilds its own)
+    auto U = w.R1.topLeftCorner(rho, m);  // (scratch)
     U = R1.triangularView<Eigen::Upper>();
     auto H = w.H1.topLeftCorner(rho, rho);
     H.setZero();
@@ -762,28 +777,19 @@ void SolveLeastSquares(Impl& w, int m, int rho, double mu) {
 struct QpShape {
   int r, rho, nc, mi;
   double eps;
-  // y (rf) = Q [0_offset; ũ], Q = H_0 ... H_{k-1} the reflectors in Mt (ApplyReflectors; the
-  // first rho1 a group of s rows): a QR level's own (offset 0, rf = r), the pending rotation's
-  // for a Gram level read through it (offset its ρ), none (k = 0) for a Gram level on Z_blk.
-  int k, rho1, s, offset, rf;
-  int off;  // F = Z's columns [off, off + rf)
+  // ũ's basis: a QR level's Z_blk and its own reflectors, a Gram level's Z_blk as it reads it
+  // (through the pending rotation or not). The rows' D is in its F's coordinates.
+  BasisRead basis;
 };
-
-// y (rf) <- Q [0; ũ]: a point or step of ũ in F's coordinates, where the rows' D reads it.
-void ToBasis(const Impl& w, const QpShape& q, const Eigen::Ref<const Eigen::VectorXd>& ut,
-             Eigen::VectorXd& y) {
-  y.head(q.offset).setZero();
-  y.segment(q.offset, q.r) = ut;
-  ApplyReflectors(w, q.k, q.rho1, q.s, y.head(q.rf), /*transpose=*/false);
-}
 
 // Dq.col(t) = [0 I] Q^T D.col(t), row t's direction in ũ, formed once per level. Where Q is not
 // square (offset > 0) the row's norm in ũ is known only then: so is whether it is live.
 void FormQpDirection(Impl& w, const QpShape& q, int t) {
   if (w.dq_formed[t]) return;
-  auto y = w.y_step.head(q.rf);
-  y = w.D.col(t).head(q.rf);
-  ApplyReflectors(w, q.k, q.rho1, q.s, y, /*transpose=*/true);
+  const BasisRead& b = q.basis;
+  auto y = w.y_step.head(b.rf);
+  y = w.D.col(t).head(b.rf);
+  ApplyReflectors(w, b.k, b.rho1, b.s, y, /*transpose=*/true);
   w.Dq.col(t).head(q.r) = y.tail(q.r);
   w.dq_formed[t] = 1;
   if (w.row_live[t] == kLiveUnknown) {
@@ -794,15 +800,15 @@ void FormQpDirection(Impl& w, const QpShape& q, int t) {
 // The rows of the level's QP (see above): D.col(t) (their directions in F's coordinates: F^T
 // row^T), row_val, row_lo, row_hi, row_live, qp_scale; carried rows first (nc), then the
 // level's own (mi).
-void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& F, const QpShape& q,
-                 double rank_tolerance) {
+void PrepareRows(Impl& w, const QpShape& q, double rank_tolerance) {
   const int nc = w.num_carried;
+  const auto F = Formed(w, q.basis);
   w.qp_scale = 0.0;
   for (int t = 0; t < nc + q.mi; ++t) {
     const bool own = t >= nc;
     const int i = own ? t - nc : t;
     const int col = own ? w.c_col[i] : w.g_col[i];
-    auto d = w.D.col(t).head(q.rf);
+    auto d = w.D.col(t).head(q.basis.rf);
     double value, norm2 = 1.0;
     if (col >= 0) {
       d = F.row(col).transpose();
@@ -821,7 +827,7 @@ void PrepareRows(Impl& w, const Eigen::Ref<const Eigen::MatrixXd>& F, const QpSh
     // direction is formed (at once for own rows). qp_scale: the largest squared norm of a
     // live row (in y, an upper bound, for rows whose norm in ũ is not known).
     w.live_threshold[t] = rank_tolerance * rank_tolerance * norm2;
-    w.row_live[t] = q.offset == 0 ? d.squaredNorm() > w.live_threshold[t] : kLiveUnknown;
+    w.row_live[t] = q.basis.offset == 0 ? d.squaredNorm() > w.live_threshold[t] : kLiveUnknown;
     if (own) FormQpDirection(w, q, t);
     if (w.row_live[t]) w.qp_scale = std::max(w.qp_scale, d.squaredNorm());
     if (own) {
@@ -844,10 +850,7 @@ bool PrepareObjective(Impl& w, int r, int m, int rho, double mu, double eps) {
     w.qp_scale = std::max(w.qp_scale, Hf.diagonal().maxCoeff());
     return true;  // (H1 = its Cholesky factor, g1: GramLevel)
   }
-  // (block diagonal: only the blocks are written; the rest is zero)
-  Hf.topRightCorner(rho, r - rho).setZero();
-  Hf.bottomLeftCorner(r - rho, rho).setZero();
-  Hf.bottomRightCorner(r - rho, r - rho).setZero();
+  Hf.setZero();
   Hf.diagonal().tail(r - rho).setConstant(eps);
   if (rho == 0) return true;
   // R1 = the upper part of Mt's first ρ rows; H1 = R1 R1^T + μ² I and g1 = -R1 cperm as loops on
@@ -1116,16 +1119,16 @@ double WrongSign(const Impl& w, const QpShape& q, int i, int carried_index, doub
 // bounds by more than tol, else the index in W of the worst wrong sign (-1: none, optimal).
 int Verify(Impl& w, const QpShape& q, double tol, double dual_tol) {
   const int r = q.r, nt = q.nc + q.mi, k = static_cast<int>(w.W_rows.size());
-  ToBasis(w, q, w.ut.head(r), w.y_point);
-  const auto y = w.y_point.head(q.rf);
+  ToBasis(w, q.basis, w.ut.head(r), w.y_point);
+  const auto y = w.y_point.head(q.basis.rf);
   // The rows' values: a unit row (joint bounds) reads its coordinate of the step in v, F y (one
   // matrix-vector product, where a dot product per row cost ~1 µs on a humanoid's 32 bounds).
-  const auto F = w.Z.middleCols(q.off, q.rf);
+  const auto F = Formed(w, q.basis);
   auto dv = w.dv.head(F.rows());
   dv.noalias() = F * y;
   auto value_at = [&](int t) {
     const int col = t < q.nc ? w.g_col[t] : w.c_col[t - q.nc];
-    return w.row_val[t] + (col >= 0 ? dv[col] : w.D.col(t).head(q.rf).dot(y));
+    return w.row_val[t] + (col >= 0 ? dv[col] : w.D.col(t).head(q.basis.rf).dot(y));
   };
   for (int t = 0; t < nt; ++t) {
     if (!w.row_live[t] || w.in_W[t]) continue;
@@ -1254,14 +1257,14 @@ bool PrimalActiveSet(Impl& w, const QpShape& q, double tol) {
                        (w.s_eqp.head(q.mi) - s).cwiseAbs().maxCoeff() > 1e-13;
     double alpha = 1.0;
     int blocking = -1, blocking_side = 0;
-    // The rows' values at u and slopes along p, read in Z_blk's coordinates.
-    ToBasis(w, q, u, w.y_point);
-    ToBasis(w, q, p, w.step);
-    const auto yu = w.y_point.head(q.rf), yp = w.step.head(q.rf);
+    // The rows' values at u and slopes along p, read in F's coordinates.
+    ToBasis(w, q.basis, u, w.y_point);
+    ToBasis(w, q.basis, p, w.step);
+    const auto yu = w.y_point.head(q.basis.rf), yp = w.step.head(q.basis.rf);
     const double yp_norm = yp.cwiseAbs().maxCoeff();
     for (int t = 0; moves && t < nt; ++t) {
       if (!w.row_live[t] || w.in_W[t] || w.implied[t]) continue;
-      const auto d = w.D.col(t).head(q.rf);
+      const auto d = w.D.col(t).head(q.basis.rf);
       double value = w.row_val[t] + d.dot(yu), slope = d.dot(yp);
       double scale = d.cwiseAbs().maxCoeff() * yp_norm;
       if (t >= q.nc) {
@@ -1394,12 +1397,13 @@ bool ReviveMovedRows(Impl& w, int mi, double tol) {
 // iterations), 1 eiquadprog (its working set verified; with the shortcut off, an unverified
 // eiquadprog point is repaired by the primal iterations, still not the shortcut), -1 none
 // verified (w.x = the primal method's last iterate: feasible, not proven optimal).
-int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& F, const QpShape& q,
-            bool shortcut, double tol, HierarchyReport* report) {
+int SolveQp(Impl& w, int level, const QpShape& q, bool shortcut, double tol,
+            HierarchyReport* report) {
+  const auto F = Formed(w, q.basis);
   auto accept = [&]() {
-    ToBasis(w, q, w.ut.head(q.r), w.y_point);
+    ToBasis(w, q.basis, w.ut.head(q.r), w.y_point);
     w.x = w.x_old;
-    w.x.noalias() += F * w.y_point.head(q.rf);
+    w.x.noalias() += F * w.y_point.head(q.basis.rf);
     w.active[level].clear();
     for (size_t i = 0; i < w.W_rows.size(); ++i)
       w.active[level].emplace_back(w.W_rows[i], w.W_sides[i]);
@@ -1446,9 +1450,9 @@ int SolveQp(Impl& w, int level, const Eigen::Ref<const Eigen::MatrixXd>& F, cons
   // Nothing verified: the primal method's last iterate, feasible whatever its outcome.
   ClearWorkingSet(w);
   w.active[level].clear();
-  ToBasis(w, q, w.u.head(q.r), w.y_point);
+  ToBasis(w, q.basis, w.u.head(q.r), w.y_point);
   w.x = w.x_old;
-  w.x.noalias() += F * w.y_point.head(q.rf);
+  w.x.noalias() += F * w.y_point.head(q.basis.rf);
   return -1;
 }
 
@@ -1637,23 +1641,19 @@ void SolveHierarchy(const Hierarchy& hierarchy, const std::vector<const TaskTerm
         if (basis.k == 0) rotate_pending();
         report.qp_levels[l] = true;
         ++report.num_qp;
-        QpShape q{r, rho, w.num_carried, mi, options.qp_regularization, rho, rho1, s_group, 0,
-                  r, off};
-        if (w.gram) {  // unrotated: through the pending rotation or none
-          q.k = basis.k;
-          q.rho1 = basis.rho1;
-          q.s = basis.s;
-          q.offset = basis.offset;
-          q.rf = basis.rf;
-          q.off = basis.off;
-        }
-        const auto F = w.Z.middleCols(basis.off, basis.rf);
-        PrepareRows(w, F, q, options.rank_tolerance);
+        // (a Gram level's QP works in u as it reads Z_blk; a QR level's in its rotated ũ)
+        const QpShape q{r,
+                        rho,
+                        w.num_carried,
+                        mi,
+                        options.qp_regularization,
+                        w.gram ? basis : BasisRead{off, r, rho, rho1, s_group, 0}};
+        PrepareRows(w, q, options.rank_tolerance);
         int how = PrepareObjective(w, r, m, rho, report.dampings[l], q.eps)
-                      ? SolveQp(w, l, F, q, options.active_set_shortcut, tol, &report)
+                      ? SolveQp(w, l, q, options.active_set_shortcut, tol, &report)
                       : -1;
         if (how >= 0 && ReviveMovedRows(w, mi, tol)) {
-          how = SolveQp(w, l, F, q, options.active_set_shortcut, tol, &report);
+          how = SolveQp(w, l, q, options.active_set_shortcut, tol, &report);
         }
         if (how == 0) {
           report.active_set_levels[l] = true;
